@@ -1,0 +1,164 @@
+"""What an experiment is: a config, a function of a block of runs, and a summary.
+
+An experiment subclasses :class:`Experiment` and is registered with :func:`register`.
+The runner (:mod:`radioloc.experiments.runner`) calls :meth:`Experiment.run_block` on
+blocks of Monte Carlo run indices, each with its own generator, concatenates the tidy
+frames, and hands them to :meth:`Experiment.summarize`, which writes figures and returns
+the metrics (ours beside the paper's) and the paper's claims checked on our numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import ConfigError, DataUnavailable
+
+
+@dataclass
+class Metric:
+    """One number of the reproduction, beside the paper's where it has one."""
+
+    name: str
+    value: float
+    paper: float | None = None
+    unit: str = ""
+    note: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        v = float(self.value)
+        return {
+            "name": self.name,
+            "value": v if np.isfinite(v) else None,
+            "paper": None if self.paper is None else float(self.paper),
+            "unit": self.unit,
+            "note": self.note,
+        }
+
+
+@dataclass
+class Claim:
+    """A qualitative statement of the paper and whether it holds on our numbers."""
+
+    claim: str
+    holds: bool
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"claim": self.claim, "holds": bool(self.holds)}
+
+
+@dataclass
+class Summary:
+    """What :meth:`Experiment.summarize` returns."""
+
+    metrics: list[Metric] = field(default_factory=list)
+    claims: list[Claim] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+class Experiment:
+    """Base class of every reproduction.
+
+    Subclasses set the class attributes and implement :meth:`config`,
+    :meth:`run_block` and :meth:`summarize`.
+
+    Class attributes
+    ----------------
+    id : str
+        Command-line id, e.g. ``"p000-montecarlo"``.
+    paper : str
+        Which paper it reproduces (``"000"``..``"004"``, or ``"-"`` for none).
+    description : str
+        One line for ``radioloc list``.
+    data_folder : str or None
+        Folder below the data root this experiment reads; ``None`` if it needs no data.
+    """
+
+    id: ClassVar[str] = ""
+    paper: ClassVar[str] = "-"
+    description: ClassVar[str] = ""
+    data_folder: ClassVar[str | None] = None
+
+    # ---- to implement -------------------------------------------------------------
+    def config(self, full: bool) -> Any:
+        """The experiment's configuration (a dataclass) at the quick or full size.
+
+        Must have integer fields ``runs`` (Monte Carlo runs) and ``block_size`` (runs per
+        independently seeded block; fixed, so results do not depend on scheduling).
+        """
+        raise NotImplementedError
+
+    def run_block(self, config: Any, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Run the Monte Carlo runs with indices ``runs`` (one block) as one batch and
+        return a tidy frame with a ``run`` column."""
+        raise NotImplementedError
+
+    def summarize(self, config: Any, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Write the figures into ``out_dir`` and return metrics and claims."""
+        raise NotImplementedError
+
+    # ---- provided -----------------------------------------------------------------
+    def data_path(self) -> Path:
+        """The data set folder; raises :class:`DataUnavailable` if it is absent."""
+        if self.data_folder is None:
+            raise ConfigError(f"{self.id}: this experiment uses no data set")
+        path = data_root() / self.data_folder
+        if not path.is_dir():
+            raise DataUnavailable(
+                f"{self.id}: skipped, data set folder {path} is absent "
+                f"(set RADIOLOC_DATA to the folder that holds '{self.data_folder}')"
+            )
+        return path
+
+    def check_available(self) -> None:
+        """Raise :class:`DataUnavailable` if a needed data set is absent."""
+        if self.data_folder is not None:
+            self.data_path()
+
+    def with_runs(self, config: Any, runs: int | None) -> Any:
+        """A copy of ``config`` with ``runs`` replaced (``--runs``)."""
+        if runs is None:
+            return config
+        if runs < 1:
+            raise ConfigError(f"--runs: must be >= 1, got {runs}")
+        return dataclasses.replace(config, runs=int(runs))
+
+
+def data_root() -> Path:
+    """Root folder of the real data sets: ``$RADIOLOC_DATA`` or ``../shared/data``."""
+    return Path(os.environ.get("RADIOLOC_DATA", "../shared/data")).expanduser()
+
+
+_REGISTRY: dict[str, Experiment] = {}
+
+
+def register(cls: type[Experiment]) -> type[Experiment]:
+    """Class decorator: register an experiment under its ``id``."""
+    if not cls.id:
+        raise ConfigError(f"{cls.__name__}: experiment id is empty")
+    if cls.id in _REGISTRY and type(_REGISTRY[cls.id]) is not cls:
+        raise ConfigError(f"experiment id {cls.id!r} registered twice")
+    _REGISTRY[cls.id] = cls()
+    return cls
+
+
+def registry() -> dict[str, Experiment]:
+    """All registered experiments by id (after importing every experiment module)."""
+    from radioloc.experiments import discover
+
+    discover()
+    return dict(sorted(_REGISTRY.items()))
+
+
+def get_experiment(exp_id: str) -> Experiment:
+    """The registered experiment ``exp_id``; :class:`ConfigError` listing the ids if unknown."""
+    reg = registry()
+    if exp_id not in reg:
+        raise ConfigError(f"unknown experiment {exp_id!r}; known: {', '.join(reg)}")
+    return reg[exp_id]

@@ -1,0 +1,168 @@
+"""Running an experiment: blocks of runs, in-process, in local processes or on Dask.
+
+The runs ``0..N-1`` are cut into blocks of ``config.block_size``; block ``b`` draws from
+:func:`radioloc.core.rng.block_generator` ``(seed, b)``. Blocks run in this process, in a
+pool of local processes (``workers > 1``) or on a Dask cluster (``scheduler``), and their
+frames are concatenated in block order, so ``results.csv`` is the same byte for byte
+whatever the engine and the number of workers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import ConfigError
+from radioloc.core.rng import block_generator
+from radioloc.experiments.base import Experiment, Summary, get_experiment
+
+
+@dataclass
+class RunOutcome:
+    """What :func:`run_experiment` produced."""
+
+    experiment: Experiment
+    config: Any
+    results: pd.DataFrame
+    summary: Summary
+    record: dict[str, Any]
+    out_dir: Path
+
+
+def block_ranges(n_runs: int, block_size: int) -> list[np.ndarray]:
+    """Run indices of each block: ``[0..B-1], [B..2B-1], ...`` (last one shorter)."""
+    if block_size < 1:
+        raise ConfigError(f"block_size: must be >= 1, got {block_size}")
+    n_blocks = math.ceil(n_runs / block_size)
+    return [np.arange(b * block_size, min((b + 1) * block_size, n_runs)) for b in range(n_blocks)]
+
+
+def run_block(exp_id: str, config: Any, seed: int, block: int, runs: np.ndarray) -> pd.DataFrame:
+    """Run one block of one experiment (a top-level function so that it pickles)."""
+    exp = get_experiment(exp_id)
+    frame = exp.run_block(config, runs, block_generator(seed, block))
+    if not isinstance(frame, pd.DataFrame):
+        raise TypeError(f"{exp_id}.run_block must return a DataFrame, got {type(frame).__name__}")
+    return frame
+
+
+def _iter_blocks(exp: Experiment, config: Any, seed: int, blocks: list[np.ndarray],
+                 workers: int, scheduler: str | None) -> Iterator[tuple[int, pd.DataFrame]]:
+    """Yield ``(block index, frame)`` as blocks finish, on the chosen engine."""
+    if scheduler:
+        try:
+            from dask.distributed import Client
+            from dask.distributed import as_completed as dask_as_completed
+        except ImportError as exc:  # pragma: no cover - depends on the install
+            raise ConfigError(
+                "--scheduler needs dask.distributed: pip install 'radioloc[cluster]'"
+            ) from exc
+        with Client(scheduler) as client:
+            futures = {
+                client.submit(run_block, exp.id, config, seed, b, r, pure=False): b
+                for b, r in enumerate(blocks)
+            }
+            for fut in dask_as_completed(futures):
+                yield futures[fut], fut.result()
+    elif workers > 1 and len(blocks) > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(run_block, exp.id, config, seed, b, r): b
+                       for b, r in enumerate(blocks)}
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+    else:
+        for b, r in enumerate(blocks):
+            yield b, exp.run_block(config, r, block_generator(seed, b))
+
+
+def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
+               scheduler: str | None = None, progress: bool = True) -> pd.DataFrame:
+    """Run every block of ``config.runs`` runs and concatenate the frames in block order."""
+    if workers < 1:
+        raise ConfigError(f"--workers: must be >= 1, got {workers}")
+    blocks = block_ranges(int(config.runs), int(config.block_size))
+    frames: dict[int, pd.DataFrame] = {}
+    stream = _iter_blocks(exp, config, seed, blocks, workers, scheduler)
+    if progress:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("blocks"), TimeElapsedColumn(), transient=True) as bar:
+            task = bar.add_task(exp.id, total=len(blocks))
+            for b, frame in stream:
+                frames[b] = frame
+                bar.advance(task)
+    else:
+        frames = dict(stream)
+    return pd.concat([frames[b] for b in range(len(blocks))], ignore_index=True)
+
+
+def _jsonable(value: Any) -> Any:
+    if dataclasses.is_dataclass(value):
+        return {k: _jsonable(v) for k, v in dataclasses.asdict(value).items()}
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, seed: int = 0,
+                   out: Path | str = "out", workers: int = 1, scheduler: str | None = None,
+                   progress: bool = True) -> RunOutcome:
+    """Run an experiment end to end and write ``out/<id>/{results.csv,summary.json,*.png}``.
+
+    Raises :class:`~radioloc.core.errors.DataUnavailable` (before any work) when the
+    experiment needs a data set that is absent.
+    """
+    exp = get_experiment(exp_id)
+    exp.check_available()
+    config = exp.with_runs(exp.config(full), runs)
+    out_dir = Path(out) / exp.id
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    results = run_blocks(exp, config, seed=seed, workers=workers, scheduler=scheduler,
+                         progress=progress)
+    summary = exp.summarize(config, results, out_dir)
+    elapsed = time.perf_counter() - t0
+    results.to_csv(out_dir / "results.csv", index=False)
+    record = {
+        "experiment": exp.id,
+        "paper": exp.paper,
+        "seed": int(seed),
+        "runs": int(config.runs),
+        "full": bool(full),
+        "elapsed_s": round(elapsed, 3),
+        "metrics": [m.as_dict() for m in summary.metrics],
+        "claims": [c.as_dict() for c in summary.claims],
+        "notes": list(summary.notes),
+        "skipped": None,
+        "config": _jsonable(config),
+    }
+    (out_dir / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
+    return RunOutcome(exp, config, results, summary, record, out_dir)
+
+
+def write_skipped(exp: Experiment, reason: str, *, full: bool, seed: int, out: Path | str) -> dict:
+    """Write the ``summary.json`` of an experiment that was skipped (data absent)."""
+    out_dir = Path(out) / exp.id
+    out_dir.mkdir(parents=True, exist_ok=True)
+    record = {"experiment": exp.id, "paper": exp.paper, "seed": int(seed), "runs": 0,
+              "full": bool(full), "elapsed_s": 0.0, "metrics": [], "claims": [], "notes": [],
+              "skipped": reason, "config": None}
+    (out_dir / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
+    return record

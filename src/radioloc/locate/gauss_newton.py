@@ -1,0 +1,58 @@
+"""``radioloc locate --method gn``: per-epoch Gauss-Newton multilateration to anchors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import GeometryError
+from radioloc.estimators.multilateration import gauss_newton
+from radioloc.locate.base import LocateRequest, locate_method
+
+
+@locate_method("gn", "Gauss-Newton multilateration of each node at each time from its ranges "
+                     "to anchors (options: range_std_m)")
+def locate_gn(request: LocateRequest) -> pd.DataFrame:
+    """Each ``(time, node)`` epoch with at least ``d + 1`` anchor ranges is solved
+    independently; all epochs go through one batched Gauss-Newton call. Ranges to other
+    nodes are not used by this method. Option ``range_std_m`` sets the range noise used
+    for the uncertainty (default: estimated from the residuals of each epoch)."""
+    anchors = request.require_anchors("gn")
+    ranges = request.kind("range", "gn")
+    ranges = ranges[ranges["peer"].isin(set(anchors["id"]))]
+    dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
+    if ranges.empty:
+        raise GeometryError("method gn: no range to an anchor in the measurements")
+    # duplicate (time, node, peer) measurements are averaged
+    ranges = ranges.groupby(["time", "node", "peer"], sort=True, as_index=False).agg(
+        value=("value", "mean"), line=("line", "min"))
+    epochs = ranges[["time", "node"]].drop_duplicates().reset_index(drop=True)
+    anchor_index = {a: i for i, a in enumerate(anchors["id"])}
+    e_idx = ranges.merge(epochs.reset_index(), on=["time", "node"])["index"].to_numpy()
+    a_idx = ranges["peer"].map(anchor_index).to_numpy()
+    n_e, n_a = len(epochs), len(anchors)
+    R = np.full((n_e, n_a), np.nan)
+    W = np.zeros((n_e, n_a))
+    R[e_idx, a_idx] = ranges["value"].to_numpy()
+    W[e_idx, a_idx] = 1.0
+    counts = W.sum(axis=1)
+    need = len(dims) + 1
+    if np.any(counts < need):
+        i = int(np.flatnonzero(counts < need)[0])
+        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g} "
+                            f"has ranges to {int(counts[i])} anchor(s); {need} are needed in "
+                            f"{len(dims)}-D")
+    try:
+        res = gauss_newton(R, anchors[dims].to_numpy(), weights=W,
+                           range_std_m=request.option("range_std_m"))
+    except GeometryError as exc:
+        msg = str(exc)
+        if msg.startswith("problem ("):
+            i = int(msg.split("(")[1].split(",")[0].rstrip(")"))
+            msg = f"node {epochs['node'][i]!r} at time {epochs['time'][i]:g}: " + msg.split(": ", 1)[1]
+        raise GeometryError(f"method gn: {msg}") from None
+    out = epochs.copy()
+    for k, c in enumerate(dims):
+        out[c] = res.position[:, k]
+    out["uncertainty_m"] = np.sqrt(np.trace(res.covariance, axis1=-2, axis2=-1))
+    return out

@@ -1,0 +1,5 @@
+"""Measurement and motion models: vectorised ``logpdf`` and ``sample``."""
+
+from radioloc.models.ranging import GaussianRange
+
+__all__ = ["GaussianRange"]
