@@ -92,14 +92,24 @@ class GaussNewtonMultilateration(Experiment):
                         "for range noise <= 1 m", attains),
                   Claim("RMSE grows with the range noise", bool(np.all(np.diff(table["rmse"]) > 0)))]
 
-        fig, ax = figure()
+        fig, (ax, ax2) = figure(1, 2, width=10.0, height=4.0)
         ax.loglog(table.index, table["rmse"], "o-", color=COLORS["ours"], label="Gauss-Newton RMSE")
         ax.loglog(table.index, table["crb"], LINESTYLES["bound"], color=COLORS["bound"],
                   label="CRB (sqrt mean trace)")
         ax.set_xlabel("range noise standard deviation [m]")
         ax.set_ylabel("position RMSE [m]")
-        ax.set_title(f"Multilateration, 4 anchors on a {config.side_m:g} m square, {config.runs} runs")
+        ax.set_title("RMSE and Cramer-Rao bound")
         ax.legend()
+        ax2.semilogx(table.index, table["efficiency"], "o-", color=COLORS["ours"])
+        ax2.axhline(1.0, color=COLORS["bound"], ls=LINESTYLES["bound"], label="bound attained")
+        ax2.axhspan(1.0, 1.0 + config.efficiency_tolerance, color=COLORS["truth"], alpha=0.12,
+                    label=f"within {config.efficiency_tolerance:.0%} of the bound")
+        ax2.set_xlabel("range noise standard deviation [m]")
+        ax2.set_ylabel("RMSE / CRB")
+        ax2.set_title("Efficiency")
+        ax2.legend()
+        fig.suptitle(f"Multilateration, 4 anchors on a {config.side_m:g} m square, "
+                     f"{config.runs} runs")
         save(fig, out_dir / "rmse_vs_noise.png")
         notes = [f"efficiency RMSE/CRB at std {k:g} m: {v:.3f}" for k, v in table["efficiency"].items()]
         return Summary(metrics, claims, notes)
