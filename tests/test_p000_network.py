@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from radioloc.core.alignment import rigid_aligned_error
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
 from radioloc.estimators.ekf import (EKFState, ekf_init, ekf_iteration, ekf_update,
@@ -23,13 +24,8 @@ def _network(R=5, K=6, seed=0, prior_std=(1.0, 30.0)):
 
 
 def _align_error(est, truth):
-    """Mean error after the best rigid motion (Procrustes) per run."""
-    a = est - est.mean(1, keepdims=True)
-    b = truth - truth.mean(1, keepdims=True)
-    U, _, Vt = np.linalg.svd(np.einsum("rki,rkj->rij", a, b))
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, -1] *= d[:, None]
-    return np.linalg.norm(np.einsum("rki,rij->rkj", a, U @ Vt) - b, axis=-1).max()
+    """Largest error after the best rigid motion (Procrustes) per run."""
+    return rigid_aligned_error(est, truth).max()
 
 
 # ---------------------------------------------------------------- RLS
@@ -256,3 +252,30 @@ def test_rls_is_equivariant_to_rigid_motions(seed, shift, angle):
     a = rls_iteration(rls_init(prior, var), rho)
     b = rls_iteration(rls_init(prior @ Q.T + shift, var), rho)
     np.testing.assert_allclose(b.position, a.position @ Q.T + shift, atol=1e-6 * (1 + abs(shift)))
+
+
+# ---------------------------------------------------------------- bound
+
+def test_network_information_matches_jacobian_and_has_the_rigid_null_space():
+    from radioloc.bounds.cooperative import network_crb, network_range_information, node_crb_trace
+    _, truth, _, var = _network(R=2)
+    info = network_range_information(truth, 4.0)
+    # the same information from the EKF Jacobians of the K masters
+    ref = np.zeros_like(info)
+    for k in range(6):
+        _, H = range_jacobian(truth, np.full(2, k))
+        ref += np.einsum("rpi,rpj->rij", H, H) / 4.0
+    np.testing.assert_allclose(info, ref, atol=1e-12)
+    # translations and the rotation are unobservable from ranges: rank 2K - 3
+    assert np.all(np.linalg.matrix_rank(info, tol=1e-9) == 9)
+    crb = network_crb(truth, 4.0, var, counts=10.0)
+    assert np.all(node_crb_trace(crb) > 0)
+    more = network_crb(truth, 4.0, var, counts=20.0)
+    assert np.all(node_crb_trace(more) < node_crb_trace(crb))
+
+
+def test_network_crb_coincident_nodes_raise():
+    from radioloc.bounds.cooperative import network_crb
+    pos = np.zeros((1, 3, 2))
+    with pytest.raises(GeometryError, match="coincide"):
+        network_crb(pos, 1.0, np.ones((1, 3, 2)))
