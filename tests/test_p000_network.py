@@ -279,3 +279,27 @@ def test_network_crb_coincident_nodes_raise():
     pos = np.zeros((1, 3, 2))
     with pytest.raises(GeometryError, match="coincide"):
         network_crb(pos, 1.0, np.ones((1, 3, 2)))
+
+
+# ---------------------------------------------------------------- experiment
+
+def test_p000_experiment_smoke(tmp_path):
+    from dataclasses import replace
+
+    from radioloc.experiments.p000_montecarlo import P000MonteCarlo
+    exp = P000MonteCarlo()
+    cfg = replace(exp.config(False), runs=6, block_size=6, iterations=4)
+    frame = exp.run_block(cfg, np.arange(6), np.random.default_rng(0))
+    assert len(frame) == 6 * 5 * len(cfg.range_var_m2)
+    assert np.all(np.isfinite(frame.to_numpy(dtype=float)))
+    summary = exp.summarize(cfg, frame, tmp_path)
+    names = {m.name for m in summary.metrics}
+    for need in ("rls_final_error_m_var900", "ekf_final_error_m_var900",
+                 "rls_final_error_m_var10000", "ekf_final_error_m_var10000",
+                 "rls_steps_to_converge_var900", "ekf_steps_to_converge_var900",
+                 "crb_rmse_m_var900", "crb_rmse_m_var10000"):
+        assert need in names
+    assert (tmp_path / "fig1_error_vs_iteration_var900.png").is_file()
+    # iteration 0 is the prior: all methods start from the same error
+    first = frame[frame.iteration == 0]
+    np.testing.assert_allclose(first["rls_err_assisted_m"], first["ekf_err_assisted_m"])

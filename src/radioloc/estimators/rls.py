@@ -156,16 +156,20 @@ def rls_update(state: RLSState, master_idx: np.ndarray | int, ranges: np.ndarray
     rr = np.arange(R)
     x = state.position[rr, master]                                  # (R, 2)
     info = lam * state.information[rr, master] + np.einsum("rp,rpa,rpb->rab", w, A, A)  # eq. 10
-    cond = np.linalg.cond(info)
-    bad = ~(np.isfinite(cond) & (cond < _COND_LIMIT))
+    a, b, d = info[:, 0, 0], info[:, 0, 1], info[:, 1, 1]
+    det = a * d - b * b
+    half_tr = 0.5 * (a + d)
+    disc = np.sqrt(np.maximum(half_tr**2 - det, 0.0))
+    bad = ~((half_tr - disc) * _COND_LIMIT > half_tr + disc)        # 2x2 condition number
     if np.any(bad):
         r = int(np.flatnonzero(bad)[0])
         raise GeometryError(f"run {r}, node {int(master[r])}: RLS information matrix is singular "
                             "(the other nodes' estimates are coincident or collinear)")
     innov = w * (z - np.einsum("rpa,ra->rp", A, x))
-    step = np.linalg.solve(info, np.einsum("rpa,rp->ra", A, innov)[..., None])[..., 0]  # eq. 11
+    g = np.einsum("rpa,rp->ra", A, innov)
+    step = np.stack([d * g[:, 0] - b * g[:, 1], a * g[:, 1] - b * g[:, 0]], axis=-1) / det[:, None]
     position = state.position.copy()
-    position[rr, master] = check_finite_output(x + step, "rls position")
+    position[rr, master] = check_finite_output(x + step, "rls position")  # eq. 11
     information = state.information.copy()
     information[rr, master] = info
     return RLSState(position, information)
