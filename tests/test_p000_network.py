@@ -303,3 +303,54 @@ def test_p000_experiment_smoke(tmp_path):
     # iteration 0 is the prior: all methods start from the same error
     first = frame[frame.iteration == 0]
     np.testing.assert_allclose(first["rls_err_assisted_m"], first["ekf_err_assisted_m"])
+
+
+# ---------------------------------------------------------------- locate
+
+def _write_log(tmp_path, missing_prior=False):
+    import pandas as pd
+    rng, truth, prior, var = _network(R=1, prior_std=(10.0, 100.0))
+    ids = list("ABCDEF")
+    pri = pd.DataFrame({"node": ids, "x": prior[0, :, 0], "y": prior[0, :, 1],
+                        "var_x": var[0, :, 0], "var_y": var[0, :, 1]})
+    if missing_prior:
+        pri = pri[pri.node != "F"]
+    pri.to_csv(tmp_path / "priors.csv", index=False)
+    D = pairwise_distances(truth)[0]
+    rows = [(10 * n + k, ids[k], ids[p], "range", abs(D[k, p] + rng.normal()))
+            for n in range(40) for k in range(6) for p in range(6) if p != k and (k, p) != (2, 4)]
+    pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value"]).to_csv(
+        tmp_path / "meas.csv", index=False)
+    return truth[0], ids
+
+
+def test_locate_ekf_and_rls_from_csv(tmp_path):
+    from radioloc.io.logs import read_measurements
+    from radioloc.locate.base import LocateRequest, run_method
+    truth, ids = _write_log(tmp_path)
+    req = LocateRequest(read_measurements(tmp_path / "meas.csv"), priors=tmp_path / "priors.csv",
+                        options={"range_std_m": "1"})
+    ekf = run_method("ekf", req)
+    last = ekf[ekf.time == ekf.time.max()].set_index("node").loc[ids]
+    assert np.all(np.isfinite(last["uncertainty_m"]))
+    err = np.linalg.norm(last[["x", "y"]].to_numpy() - truth, axis=1)
+    assert np.all(err < 4 * last["uncertainty_m"].to_numpy() + 1.0)
+    req.options["forgetting"] = "0.7"     # lambda = 1 keeps the early linearisation errors
+    rls = run_method("rls", req)
+    assert len(rls) == len(ekf) and "uncertainty_m" not in rls.columns
+    final = rls[rls.time == rls.time.max()].set_index("node").loc[ids][["x", "y"]].to_numpy()
+    assert _align_error(final[None], truth[None]) < 20.0     # the shape, up to the frame
+
+
+def test_locate_network_bad_priors(tmp_path):
+    from radioloc.io.logs import read_measurements
+    from radioloc.locate.base import LocateRequest, run_method
+    _write_log(tmp_path, missing_prior=True)
+    meas = read_measurements(tmp_path / "meas.csv")
+    with pytest.raises(InputError, match="'F'"):
+        run_method("ekf", LocateRequest(meas, priors=tmp_path / "priors.csv"))
+    with pytest.raises(InputError, match="priors"):
+        run_method("rls", LocateRequest(meas))
+    (tmp_path / "bad.csv").write_text("node,x,y,var_x,var_y\nA,0,0,0,1\n")
+    with pytest.raises(InputError, match="var_x"):
+        run_method("rls", LocateRequest(meas, priors=tmp_path / "bad.csv"))
