@@ -272,6 +272,11 @@ def test_network_information_matches_jacobian_and_has_the_rigid_null_space():
     assert np.all(node_crb_trace(crb) > 0)
     more = network_crb(truth, 4.0, var, counts=20.0)
     assert np.all(node_crb_trace(more) < node_crb_trace(crb))
+    from radioloc.bounds.cooperative import network_crb_node_traces
+    seq = network_crb_node_traces(truth, 4.0, var, np.array([0.0, 10.0, 20.0]))
+    np.testing.assert_allclose(seq[0], (var[..., 0] + var[..., 1]), rtol=1e-9)
+    np.testing.assert_allclose(seq[1], node_crb_trace(crb), rtol=1e-8)
+    np.testing.assert_allclose(seq[2], node_crb_trace(more), rtol=1e-8)
 
 
 def test_network_crb_coincident_nodes_raise():
