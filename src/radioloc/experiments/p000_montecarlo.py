@@ -54,7 +54,7 @@ class P000Config:
     the figures' axes stop at 20x the prior error, diverged means leave them (noted).
     """
 
-    runs: int = 300
+    runs: int = 200
     block_size: int = 500
     iterations: int = 50
     nodes: int = 6
@@ -89,7 +89,7 @@ class P000MonteCarlo(Experiment):
     description = "Distributed RLS vs sequential EKF network positioning, Figs. 1-2, with the CRB"
 
     def config(self, full: bool) -> P000Config:
-        return P000Config(runs=5000 if full else 300)
+        return P000Config(runs=5000 if full else 200)
 
     def run_block(self, config: P000Config, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
