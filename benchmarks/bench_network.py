@@ -1,0 +1,92 @@
+"""Throughput of the batched network RLS and EKF (paper 000) against FilterPy's EKF.
+
+Run-iterations per second: one run-iteration = every one of the K = 6 nodes updates once
+in one Monte Carlo run. FilterPy's ``ExtendedKalmanFilter`` is driven run by run on the
+same draws (the way one would use it), and its estimates are checked against ours.
+
+    /work/main/.venv/bin/python benchmarks/bench_network.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from radioloc.core.geometry import pairwise_distances
+from radioloc.estimators.ekf import ekf_init, ekf_iteration
+from radioloc.estimators.rls import rls_init, rls_iteration
+
+K, ITER, RANGE_VAR = 6, 20, 900.0
+
+
+def draws(runs: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    truth = rng.uniform(0, 1000, (runs, K, 2))
+    var = np.broadcast_to(np.where(np.arange(K) < 3, 100.0, 1e4)[None, :, None], truth.shape)
+    prior = truth + rng.normal(size=truth.shape) * np.sqrt(var)
+    rho = pairwise_distances(truth)[None] + np.sqrt(RANGE_VAR) * rng.normal(size=(ITER, runs, K, K))
+    return prior, np.array(var), rho
+
+
+def ours(prior, var, rho, method):
+    init, step = (ekf_init, lambda s, r: ekf_iteration(s, r, range_var=RANGE_VAR)) \
+        if method == "ekf" else (rls_init, rls_iteration)
+    s = init(prior, var)
+    t = time.perf_counter()
+    for n in range(ITER):
+        s = step(s, rho[n])
+    return s, time.perf_counter() - t
+
+
+def filterpy_runs(prior, var, rho):
+    runs = prior.shape[0]
+    out = np.empty((runs, 2 * K))
+    t = time.perf_counter()
+    for r in range(runs):                       # FilterPy filters one run at a time
+        f = ExtendedKalmanFilter(dim_x=2 * K, dim_z=K - 1)
+        f.x = prior[r].reshape(-1, 1).copy()
+        f.P = np.diag(var[r].ravel())
+        Rm = np.eye(K - 1) * RANGE_VAR
+        for n in range(ITER):
+            for k in range(K):
+                others = np.arange(K) != k
+
+                def hx(x, k=k, others=others):
+                    p = x.reshape(K, 2)
+                    return np.linalg.norm(p[others] - p[k], axis=1).reshape(-1, 1)
+
+                def jac(x, k=k, others=others):       # plain numpy, as a FilterPy user writes it
+                    p = x.reshape(K, 2)
+                    u = (p[others] - p[k]) / np.linalg.norm(p[others] - p[k], axis=1)[:, None]
+                    H = np.zeros((K - 1, K, 2))
+                    H[np.arange(K - 1), np.flatnonzero(others)] = u
+                    H[:, k] = -u
+                    return H.reshape(K - 1, 2 * K)
+
+                f.update(rho[n, r, k, others].reshape(-1, 1), jac, hx, R=Rm)
+        out[r] = f.x.ravel()
+    return out, time.perf_counter() - t
+
+
+def main() -> None:
+    runs, peer_runs = 2000, 50
+    prior, var, rho = draws(runs)
+    for method in ("rls", "ekf"):
+        _, dt = ours(prior, var, rho, method)
+        print(f"{method.upper()} batched ({runs} runs x {ITER} iterations): "
+              f"{runs * ITER / dt:,.0f} run-iterations/s")
+    s, dt_ours = ours(prior[:peer_runs], var[:peer_runs], rho[:, :peer_runs], "ekf")
+    ref, dt_fp = filterpy_runs(prior[:peer_runs], var[:peer_runs], rho[:, :peer_runs])
+    _, dt_big = ours(prior, var, rho, "ekf")
+    ours_rate = runs * ITER / dt_big
+    fp_rate = peer_runs * ITER / dt_fp
+    print(f"FilterPy ExtendedKalmanFilter run by run ({peer_runs} runs): "
+          f"{fp_rate:,.0f} run-iterations/s")
+    print(f"max |ours - FilterPy| over {peer_runs} runs: {np.abs(s.mean - ref).max():.2e} m")
+    print(f"EKF speed-up vs FilterPy: {ours_rate / fp_rate:.1f}x")
+
+
+if __name__ == "__main__":
+    main()

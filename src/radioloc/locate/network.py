@@ -1,0 +1,119 @@
+"""``radioloc locate --method rls|ekf``: cooperative network positioning from pairwise ranges.
+
+Input: a measurements CSV of ``range`` rows between nodes (and optionally to anchors), a
+priors CSV (``--priors``, format in :mod:`radioloc.io.priors`) with every node's prior mean
+and variance, optionally an anchors CSV (anchors become nodes with prior variance
+``anchor_var_m2``, default 1e-6 m^2, and are not reported).
+
+The rows with the same ``(time, node)`` form one packet: ``node`` is the master and its
+ranges to the peers update the estimates (missing peers are missing links). Packets are
+processed in time order; after each packet every node's estimate is reported at that time.
+
+Options (``-o key=value``): ``range_std_m`` (range noise standard deviation, default 30 m;
+EKF only), ``forgetting`` (RLS lambda, default 1), ``anchor_var_m2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import InputError
+from radioloc.core.validation import check_positive
+from radioloc.estimators.ekf import ekf_init, ekf_update
+from radioloc.estimators.rls import rls_init, rls_update
+from radioloc.io.priors import read_node_priors
+from radioloc.locate.base import LocateRequest, locate_method
+
+
+@dataclass
+class _Network:
+    ids: list[str]
+    reported: np.ndarray          # (K,) bool: not an anchor
+    prior_mean: np.ndarray        # (1, K, 2)
+    prior_var: np.ndarray         # (1, K, 2)
+    times: np.ndarray             # (P,)
+    masters: np.ndarray           # (P,)
+    ranges: np.ndarray            # (P, K), NaN where missing
+    masks: np.ndarray             # (P, K)
+
+
+def _network(request: LocateRequest, method: str) -> _Network:
+    if request.priors is None:
+        raise InputError(f"method {method}: needs a priors file (--priors) with columns "
+                         "node, x, y, var_x, var_y")
+    priors = read_node_priors(request.priors)
+    ids = list(priors["node"])
+    mean = priors[["x", "y"]].to_numpy()
+    var = priors[["var_x", "var_y"]].to_numpy()
+    reported = np.ones(len(ids), bool)
+    if request.anchors is not None:
+        avar = check_positive(request.option("anchor_var_m2", 1e-6), "anchor_var_m2")
+        anchors = request.anchors[~request.anchors["id"].isin(ids)]
+        ids += list(anchors["id"])
+        mean = np.vstack([mean, anchors[["x", "y"]].to_numpy()])
+        var = np.vstack([var, np.full((len(anchors), 2), avar)])
+        reported = np.concatenate([reported, np.zeros(len(anchors), bool)])
+    index = {n: i for i, n in enumerate(ids)}
+    rows = request.kind("range", method)
+    for col in ("node", "peer"):
+        unknown = ~rows[col].isin(index)
+        if unknown.any():
+            r = rows[unknown].iloc[0]
+            raise InputError(f"method {method}: measurements line {int(r['line'])}, column "
+                             f"'{col}': node {r[col]!r} has no row in the priors file")
+    rows = rows.groupby(["time", "node", "peer"], sort=True, as_index=False).agg(
+        value=("value", "mean"), line=("line", "min"))
+    packets = rows[["time", "node"]].drop_duplicates().reset_index(drop=True)
+    p_idx = rows.merge(packets.reset_index(), on=["time", "node"])["index"].to_numpy()
+    K = len(ids)
+    ranges = np.full((len(packets), K), np.nan)
+    ranges[p_idx, rows["peer"].map(index).to_numpy()] = rows["value"].to_numpy()
+    return _Network(ids, reported, mean[None], var[None], packets["time"].to_numpy(),
+                    packets["node"].map(index).to_numpy(), ranges, np.isfinite(ranges))
+
+
+def _report(net: _Network, estimates: list[np.ndarray], sigma: list[np.ndarray] | None
+            ) -> pd.DataFrame:
+    K = len(net.ids)
+    pos = np.stack(estimates)                               # (P, K, 2)
+    keep = np.broadcast_to(net.reported, (len(net.times), K))
+    out = pd.DataFrame({"time": np.repeat(net.times, K)[keep.ravel()],
+                        "node": np.tile(np.array(net.ids, dtype=object), len(net.times))[keep.ravel()],
+                        "x": pos[..., 0][keep], "y": pos[..., 1][keep]})
+    if sigma is not None:
+        out["uncertainty_m"] = np.stack(sigma)[keep]
+    return out
+
+
+@locate_method("rls", "Distributed RLS network positioning from pairwise ranges and node priors "
+                      "(Brown & Iltis eqs. 1-12; --priors; options: forgetting)")
+def locate_rls(request: LocateRequest) -> pd.DataFrame:
+    """Each packet updates only its master's position from differenced squared ranges.
+    No uncertainty is reported: the RLS pseudo-covariance is not a covariance in m^2."""
+    net = _network(request, "rls")
+    lam = request.option("forgetting", 1.0)
+    state = rls_init(net.prior_mean, net.prior_var)
+    estimates = []
+    for m, rho, mask in zip(net.masters, net.ranges, net.masks):
+        state = rls_update(state, np.array([m]), rho[None], mask[None], forgetting=lam)
+        estimates.append(state.position[0])
+    return _report(net, estimates, None)
+
+
+@locate_method("ekf", "Sequential EKF network positioning from pairwise ranges and node priors "
+                      "(Brown & Iltis eqs. 13-25; --priors; options: range_std_m)")
+def locate_ekf(request: LocateRequest) -> pd.DataFrame:
+    """Each packet's ranges update the joint estimate of all nodes; ``uncertainty_m`` is
+    the square root of the trace of each node's 2x2 covariance block."""
+    net = _network(request, "ekf")
+    std = check_positive(request.option("range_std_m", 30.0), "range_std_m")
+    state = ekf_init(net.prior_mean, net.prior_var)
+    estimates, sigma = [], []
+    for m, rho, mask in zip(net.masters, net.ranges, net.masks):
+        state = ekf_update(state, np.array([m]), rho[None], mask[None], std**2)
+        estimates.append(state.position[0])
+        sigma.append(np.sqrt(np.trace(state.position_covariance[0], axis1=-2, axis2=-1)))
+    return _report(net, estimates, sigma)
