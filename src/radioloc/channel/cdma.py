@@ -92,7 +92,7 @@ class CDMAConfig:
     chip_s: float = 100e-9
     samples_per_chip: int = 4
     code_degree: int = 7
-    tx_power_w: float = 0.1
+    tx_power_w: float = 1.0
     noise_figure_db: float = 7.0
     temperature_k: float = 290.0
     turnaround_s: float = 10e-6

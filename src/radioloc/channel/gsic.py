@@ -13,7 +13,8 @@ own multipath sidelobes, so the earliest tap is a path and not a sidelobe.
 
 Detection threshold: the noise floor of the correlator output is estimated as
 ``median_d |z_u[d]|^2 / ln 2`` (the median of an exponential variable; robust to the few
-path cells). For white noise of variance ``sigma^2`` per sample this floor equals
+path cells), re-estimated after each detected tap is removed so that the sidelobes of a
+strong path do not hide a weak earlier one. For white noise of variance ``sigma^2`` per sample this floor equals
 ``sigma^2 / (G Ns)`` with ``G`` the processing gain (chips per code) and ``Ns`` the samples
 per chip. A cell is a path when ``|z|^2 > eta^2 floor`` with ``eta^2 = ln(D / p_fa)``
 (false-alarm probability ``p_fa`` over the ``D`` cells of the window).
@@ -50,11 +51,16 @@ class GSICConfig:
     max_taps: taps detected per user and pass.
     false_alarm: probability of a noise-only cell crossing the threshold anywhere in the
         window (sets eta).
+    early_relative: in every sweep but the last, taps weaker than this fraction of the
+        user's strongest correlator cell (power; 0.05 = -13 dB) are not detected, so that
+        cross-correlation spurs of users not yet cancelled are not reconstructed (and then
+        subtracted from everyone else); the last sweep uses the noise threshold alone.
     """
 
     iterations: int = 3
     max_taps: int = 8
     false_alarm: float = 1e-2
+    early_relative: float = 0.05
 
     def __post_init__(self):
         if self.iterations < 1 or self.max_taps < 1:
@@ -99,7 +105,8 @@ class _Codes:
         return z / self.energy[:, users, None]
 
 
-def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float) -> np.ndarray:
+def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
+                  relative: float = 0.0) -> np.ndarray:
     """Greedy tap detection on correlator outputs (see module docstring).
 
     Parameters
@@ -111,6 +118,8 @@ def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float) -> n
     max_taps : int
     eta2 : float
         Threshold factor on the noise floor.
+    relative : float
+        Taps weaker (in power) than ``relative`` times the strongest cell are not detected.
 
     Returns
     -------
@@ -119,18 +128,17 @@ def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float) -> n
     z0 = z
     z = z.copy()
     D = z.shape[-1]
-    floor = np.median(np.abs(z) ** 2, axis=-1) / np.log(2.0)               # noise floor
-    thr = eta2 * floor
     taps = np.zeros_like(z)
     lead = z.shape[:-1]
     flat_z = z.reshape(-1, D)
     flat_t = taps.reshape(-1, D)
     flat_R = R.reshape(-1, R.shape[-1])
     rows = np.arange(flat_z.shape[0])
-    thr = thr.reshape(-1)
     grid = np.arange(D)
+    strongest = relative * np.max(np.abs(flat_z) ** 2, axis=-1)
     for _ in range(max_taps):                     # greedy iterations, vectorised over users
         p = np.abs(flat_z) ** 2
+        thr = np.maximum(eta2 * np.median(p, axis=-1) / np.log(2.0), strongest)  # floor now
         k = np.argmax(p, axis=-1)
         hit = p[rows, k] > thr
         if not hit.any():
@@ -222,7 +230,8 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
     rows = np.arange(B)
     taps = np.zeros((B, U, C.D), complex)
     total = np.zeros_like(y)                          # sum of every user's reconstruction
-    for _ in range(cfg.iterations):                   # cancellation sweeps
+    for sweep in range(cfg.iterations):               # cancellation sweeps
+        rel = 0.0 if sweep == cfg.iterations - 1 else cfg.early_relative
         done = np.zeros((B, U), bool)
         for _stage in range(U):                       # successive: one user at a time
             # z_u of y minus the *other* users = z_u(y - total) + z_u(own reconstruction)
@@ -232,7 +241,7 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
             peak = np.where(done, -1.0, np.max(np.abs(z_all) ** 2, axis=-1))
             u = np.argmax(peak, axis=-1)                                  # strongest remaining
             done[rows, u] = True
-            t = estimate_taps(z_all[rows, u], C.R[rows, u], cfg.max_taps, eta2)
+            t = estimate_taps(z_all[rows, u], C.R[rows, u], cfg.max_taps, eta2, rel)
             old = np.fft.ifft(np.fft.fft(taps[rows, u], C.nfft, axis=-1) * C.S[rows, u],
                               axis=-1)[:, : y.shape[1]]
             new = np.fft.ifft(np.fft.fft(t, C.nfft, axis=-1) * C.S[rows, u], axis=-1)[:, : y.shape[1]]

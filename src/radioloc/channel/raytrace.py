@@ -64,7 +64,7 @@ class TraceConfig:
 
     max_order: int = 3
     max_excess_m: float = 900.0
-    carrier_hz: float = 2.4e9
+    carrier_hz: float = 900e6
     wall_permittivity: float = 5.0
     diffraction: bool = True
 
@@ -260,8 +260,10 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
         for m in range(k - 1, -1, -1):
             w = seq[:, m]
             u, t = _segment_cross(imgs[:, m], p, A[w], B[w])
-            ok &= (u > 0) & (u < 1) & (t >= 0) & (t <= 1)
-            p = imgs[:, m] + np.nan_to_num(u)[:, None] * (p - imgs[:, m])
+            good = np.isfinite(u) & np.isfinite(t)                 # parallel: no crossing
+            ok &= good & (u > 0) & (u < 1) & (t >= 0) & (t <= 1)
+            u = np.where(ok, u, 0.0)
+            p = imgs[:, m] + u[:, None] * (p - imgs[:, m])
             pts[:, m + 1] = p
         idx = np.flatnonzero(ok)
         if idx.size == 0:
