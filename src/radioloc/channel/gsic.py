@@ -51,16 +51,19 @@ class GSICConfig:
     max_taps: taps detected per user and pass.
     false_alarm: probability of a noise-only cell crossing the threshold anywhere in the
         window (sets eta).
+    first_sweep_taps: taps per user in the first sweep (1: classic SIC of each user's
+        strongest path), so that cross-correlation spurs of users not yet cancelled are not
+        reconstructed and then subtracted from everyone else.
     early_relative: in every sweep but the last, taps weaker than this fraction of the
-        user's strongest correlator cell (power; 0.05 = -13 dB) are not detected, so that
-        cross-correlation spurs of users not yet cancelled are not reconstructed (and then
-        subtracted from everyone else); the last sweep uses the noise threshold alone.
+        user's strongest correlator cell (power) are not detected (0: off); the last sweep
+        uses the noise threshold alone.
     """
 
-    iterations: int = 3
+    iterations: int = 4
     max_taps: int = 8
     false_alarm: float = 1e-2
-    early_relative: float = 0.05
+    early_relative: float = 0.0
+    first_sweep_taps: int = 1
 
     def __post_init__(self):
         if self.iterations < 1 or self.max_taps < 1:
@@ -106,7 +109,7 @@ class _Codes:
 
 
 def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
-                  relative: float = 0.0) -> np.ndarray:
+                  relative: float = 0.0, floor: np.ndarray | None = None) -> np.ndarray:
     """Greedy tap detection on correlator outputs (see module docstring).
 
     Parameters
@@ -120,6 +123,9 @@ def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
         Threshold factor on the noise floor.
     relative : float
         Taps weaker (in power) than ``relative`` times the strongest cell are not detected.
+    floor : ndarray (...), optional
+        Known noise floor of ``z`` (noise variance / code energy); default: estimated as
+        the median of ``|z|^2`` / ln 2 after each detected tap is removed.
 
     Returns
     -------
@@ -138,7 +144,8 @@ def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
     strongest = relative * np.max(np.abs(flat_z) ** 2, axis=-1)
     for _ in range(max_taps):                     # greedy iterations, vectorised over users
         p = np.abs(flat_z) ** 2
-        thr = np.maximum(eta2 * np.median(p, axis=-1) / np.log(2.0), strongest)  # floor now
+        fl = np.median(p, axis=-1) / np.log(2.0) if floor is None else floor   # noise floor
+        thr = np.maximum(eta2 * fl, strongest)
         k = np.argmax(p, axis=-1)
         hit = p[rows, k] > thr
         if not hit.any():
@@ -217,7 +224,7 @@ def matched_filter_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray,
 
 
 def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAConfig,
-             config: GSICConfig | None = None) -> ToAResult:
+             config: GSICConfig | None = None, noise_var: float | None = None) -> ToAResult:
     """GSIC multi-user first-arrival estimation (see module docstring).
 
     Parameters as :func:`matched_filter_toa`.
@@ -232,6 +239,7 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
     total = np.zeros_like(y)                          # sum of every user's reconstruction
     for sweep in range(cfg.iterations):               # cancellation sweeps
         rel = 0.0 if sweep == cfg.iterations - 1 else cfg.early_relative
+        ntaps = cfg.first_sweep_taps if sweep == 0 and cfg.iterations > 1 else cfg.max_taps
         done = np.zeros((B, U), bool)
         for _stage in range(U):                       # successive: one user at a time
             # z_u of y minus the *other* users = z_u(y - total) + z_u(own reconstruction)
@@ -241,7 +249,8 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
             peak = np.where(done, -1.0, np.max(np.abs(z_all) ** 2, axis=-1))
             u = np.argmax(peak, axis=-1)                                  # strongest remaining
             done[rows, u] = True
-            t = estimate_taps(z_all[rows, u], C.R[rows, u], cfg.max_taps, eta2, rel)
+            floor = None if noise_var is None else noise_var / C.energy[rows, u]
+            t = estimate_taps(z_all[rows, u], C.R[rows, u], ntaps, eta2, rel, floor)
             old = np.fft.ifft(np.fft.fft(taps[rows, u], C.nfft, axis=-1) * C.S[rows, u],
                               axis=-1)[:, : y.shape[1]]
             new = np.fft.ifft(np.fft.fft(t, C.nfft, axis=-1) * C.S[rows, u], axis=-1)[:, : y.shape[1]]

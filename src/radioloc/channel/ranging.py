@@ -31,6 +31,8 @@ class NetworkRanges:
     gsic_m, matched_filter_m: (S, K, K) range measured at master ``k`` (axis 1) to node ``i``
         (axis 2) in round ``s``; NaN on the diagonal and where nothing was detected.
     true_m: (K, K) distances. los: (K, K) line of sight. n_paths: (K, K) traced paths.
+    first_path_m: (K, K) length of the earliest traced path (NaN without a path): the range
+        a perfect first-arrival detector would report, NLOS excess included.
     """
 
     gsic_m: np.ndarray
@@ -38,6 +40,7 @@ class NetworkRanges:
     true_m: np.ndarray
     los: np.ndarray
     n_paths: np.ndarray
+    first_path_m: np.ndarray
 
 
 def link_index(K: int) -> np.ndarray:
@@ -124,4 +127,6 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
     i, j = np.triu_indices(K, 1)
     los[i, j] = los[j, i] = ch.los
     npaths[i, j] = npaths[j, i] = ch.n_paths
-    return NetworkRanges(out[0], out[1], true, los, npaths)
+    first_m = np.full((K, K), np.nan)
+    first_m[i, j] = first_m[j, i] = ch.first_delay() * C_LIGHT
+    return NetworkRanges(out[0], out[1], true, los, npaths, first_m)
