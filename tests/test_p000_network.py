@@ -359,3 +359,24 @@ def test_locate_network_bad_priors(tmp_path):
     (tmp_path / "bad.csv").write_text("node,x,y,var_x,var_y\nA,0,0,0,1\n")
     with pytest.raises(InputError, match="var_x"):
         run_method("rls", LocateRequest(meas, priors=tmp_path / "bad.csv"))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), shift=st.floats(-1e4, 1e4), angle=st.floats(0, 6.283))
+def test_rigid_aligned_error_ignores_rigid_motions(seed, shift, angle):
+    _, truth, prior, _ = _network(R=2, seed=seed)
+    c, s_ = np.cos(angle), np.sin(angle)
+    moved = truth @ np.array([[c, -s_], [s_, c]]).T + shift
+    assert rigid_aligned_error(moved, truth).max() < 1e-6 * (1 + abs(shift))
+    assert rigid_aligned_error(prior, truth).max() > 0.1
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), shift=st.floats(-1e4, 1e4))
+def test_ekf_is_equivariant_to_translations(seed, shift):
+    rng, truth, prior, var = _network(R=2, seed=seed)
+    rho = pairwise_distances(truth) + rng.normal(size=(2, 6, 6))
+    a = ekf_iteration(ekf_init(prior, var), rho, range_var=4.0)
+    b = ekf_iteration(ekf_init(prior + shift, var), rho, range_var=4.0)
+    np.testing.assert_allclose(b.position, a.position + shift, atol=1e-6 * (1 + abs(shift)))
+    np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-6, atol=1e-6)

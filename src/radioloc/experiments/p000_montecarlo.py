@@ -50,9 +50,11 @@ class P000Config:
     error, staying there.
     equal_tolerance: "nearly identical" final errors = within this fraction of each other.
     clearly_lower: "clearly lower" = at least this fraction lower.
+    diverged_m: a run whose final error (mean over its nodes) exceeds this has diverged;
+    the figures' axes stop at 20x the prior error, diverged means leave them (noted).
     """
 
-    runs: int = 300
+    runs: int = 200
     block_size: int = 500
     iterations: int = 50
     nodes: int = 6
@@ -65,6 +67,7 @@ class P000Config:
     converge_tolerance: float = 0.10
     equal_tolerance: float = 0.10
     clearly_lower: float = 0.10
+    diverged_m: float = 10_000.0
 
 
 def transformed_noise_var(prior_mean: np.ndarray, range_var: float) -> np.ndarray:
@@ -86,7 +89,7 @@ class P000MonteCarlo(Experiment):
     description = "Distributed RLS vs sequential EKF network positioning, Figs. 1-2, with the CRB"
 
     def config(self, full: bool) -> P000Config:
-        return P000Config(runs=5000 if full else 300)
+        return P000Config(runs=5000 if full else 200)
 
     def run_block(self, config: P000Config, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
@@ -136,6 +139,7 @@ class P000MonteCarlo(Experiment):
         K, A = config.nodes, config.assisted
         wt = {"assisted": A / K, "unassisted": (K - A) / K}
         curves = results.groupby(["range_var_m2", "iteration"]).mean(numeric_only=True)
+        last = results[results["iteration"] == results["iteration"].max()]
         metrics, claims, notes = [], [], []
         final, steps, tags = {}, {}, {}
         for rv in config.range_var_m2:
@@ -161,6 +165,15 @@ class P000MonteCarlo(Experiment):
                     Metric(f"{name}_final_aligned_error_m_{tag}",
                            float(cur[f"{m}_aligned_err_m"].iloc[-1]), None, "m",
                            f"{what}: mean error after the best rigid motion (shape only)"),
+                ]
+                per_run = sum(wt[c] * last.loc[last.range_var_m2 == rv, f"{m}_err_{c}_m"]
+                              for c in CLASSES)
+                metrics += [
+                    Metric(f"{name}_final_median_error_m_{tag}", float(per_run.median()), None,
+                           "m", f"{what}: median over runs of the final error (mean over nodes)"),
+                    Metric(f"{name}_diverged_fraction_{tag}",
+                           float(np.mean(per_run > config.diverged_m)), None, "",
+                           f"{what}: fraction of runs ending more than {config.diverged_m:g} m off"),
                 ]
                 for c in CLASSES:
                     metrics.append(Metric(f"{name}_final_error_m_{c}_{tag}",
@@ -247,39 +260,57 @@ class P000MonteCarlo(Experiment):
             return cur[prefix + suffix].to_numpy()
         return sum(wt[c] * cur[f"{prefix}{c}{suffix}"] for c in CLASSES).to_numpy()
 
+    @staticmethod
+    def _limit(ax, ekf: np.ndarray) -> None:
+        """y range from the bound to 20x the prior error; curves beyond it are marked."""
+        lo, hi = 0.5 * np.nanmin(ekf), 20.0 * ekf[0]
+        off = [ln for ln in ax.get_lines() if np.nanmax(ln.get_ydata()) > hi]
+        ax.set_ylim(lo, hi)
+        for ln in off:
+            ln.set_label(ln.get_label() + " - leaves the axes (diverged runs)")
+
     def _plot(self, config: P000Config, cur: pd.DataFrame, rv: float, path: Path,
               wt: dict) -> None:
         it = cur.index.to_numpy()
-        fig, ax = figure()
+        fig, (ax, leg) = figure(2, 1, height=5.2, gridspec_kw={"height_ratios": [5, 1]})
         for m in METHODS:
             ax.plot(it, self._curve(cur, f"{m}_err_", wt, "_m"), STYLE[m], color=COLOR[m],
                     label=LABELS[m] + " (mean error)")
         ax.plot(it, np.sqrt(self._curve(cur, "crb_", wt, "_m2")), LINESTYLES["bound"],
                 color=COLORS["bound"], lw=2, label="CRB (RMSE bound)")
         ax.set_yscale("log")
+        self._limit(ax, self._curve(cur, "ekf_err_", wt, "_m"))
         ax.set_xlabel("iteration n (one packet from every node)")
         ax.set_ylabel("average position error [m]")
         ax.set_title(f"K={config.nodes} nodes, range noise variance {rv:g} m$^2$, "
                      f"{config.runs} runs")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
+        leg.axis("off")
+        leg.legend(*ax.get_legend_handles_labels(), loc="center", ncol=2, fontsize=8)
         save(fig, path)
 
     def _plot_classes(self, config: P000Config, cur: pd.DataFrame, rv: float,
                       path: Path) -> None:
         it = cur.index.to_numpy()
-        fig, axes = figure(1, 2, width=11.0, height=4.2, sharey=True)
+        fig, grid = figure(2, 2, width=11.0, height=5.2, gridspec_kw={"height_ratios": [5, 1]})
+        axes = grid[0]
+        axes[1].sharey(axes[0])
         for ax, c in zip(axes, CLASSES):
             for m in METHODS:
                 ax.plot(it, cur[f"{m}_err_{c}_m"], STYLE[m], color=COLOR[m], label=LABELS[m])
             ax.plot(it, np.sqrt(cur[f"crb_{c}_m2"]), LINESTYLES["bound"], color=COLORS["bound"],
                     lw=2, label="CRB (RMSE bound)")
             ax.set_yscale("log")
+            self._limit(ax, cur[f"ekf_err_{c}_m"].to_numpy())
             ax.set_xlabel("iteration n")
             ax.set_title(f"{c} nodes (prior var "
                          f"{config.prior_var_assisted_m2 if c == 'assisted' else config.prior_var_unassisted_m2:g} m$^2$)")
             ax.grid(True, which="both", alpha=0.3)
         axes[0].set_ylabel("average position error [m]")
-        axes[0].legend()
+        handles = [axes[0].get_legend_handles_labels(), axes[1].get_legend_handles_labels()]
+        for g in grid[1]:
+            g.axis("off")
+        for g, (h, lab) in zip(grid[1], handles):
+            g.legend(h, lab, loc="center", ncol=1, fontsize=8)
         fig.suptitle(f"By node class, range noise variance {rv:g} m$^2$, {config.runs} runs")
         save(fig, path)
