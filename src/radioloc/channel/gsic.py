@@ -5,11 +5,13 @@ with ``s_u`` the sampled code of user ``u`` and ``d`` a delay cell on the fracti
 grid (``samples_per_chip`` cells per chip).
 
 Per-user tap estimation (:func:`estimate_taps`): the normalised correlator output
-``z_u[d] = <s_u(. - d), r> / ||s_u||^2`` of a residual ``r`` is searched greedily: the
-strongest cell above the detection threshold becomes a tap with amplitude ``z_u[d]``, its
-contribution ``a R_u[d' - d]`` (``R_u`` the normalised autocorrelation) is removed from the
-correlator output, and the search repeats up to ``max_taps`` times. This cleans the user's
-own multipath sidelobes, so the earliest tap is a path and not a sidelobe.
+``z_u[d] = <s_u(. - d), r> / ||s_u||^2`` of a residual ``r`` is searched by orthogonal
+matching pursuit: the strongest cell of the current residual above the detection threshold
+joins the support, all amplitudes on the support are refitted by least squares with the
+Gram matrix ``R_u[k_i - k_j]`` (``R_u`` the normalised autocorrelation), their contribution
+is removed from the correlator output, and the search repeats up to ``max_taps`` times.
+This cleans the user's own multipath sidelobes, so the earliest tap is a path and not a
+sidelobe.
 
 Detection threshold: the noise floor of the correlator output is estimated as
 ``median_d |z_u[d]|^2 / ln 2`` (the median of an exponential variable; robust to the few
@@ -54,6 +56,9 @@ class GSICConfig:
     first_sweep_taps: taps per user in the first sweep (1: classic SIC of each user's
         strongest path), so that cross-correlation spurs of users not yet cancelled are not
         reconstructed and then subtracted from everyone else.
+    joint_refit: after every sweep, refit all users' detected taps jointly by least squares
+        (with the codes' cross-correlations) and drop taps whose amplitude does not clear
+        the noise threshold, with the noise variance estimated from the final residual.
     early_relative: in every sweep but the last, taps weaker than this fraction of the
         user's strongest correlator cell (power) are not detected (0: off); the last sweep
         uses the noise threshold alone.
@@ -64,6 +69,7 @@ class GSICConfig:
     false_alarm: float = 1e-2
     early_relative: float = 0.0
     first_sweep_taps: int = 1
+    joint_refit: bool = True
 
     def __post_init__(self):
         if self.iterations < 1 or self.max_taps < 1:
@@ -110,7 +116,7 @@ class _Codes:
 
 def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
                   relative: float = 0.0, floor: np.ndarray | None = None) -> np.ndarray:
-    """Greedy tap detection on correlator outputs (see module docstring).
+    """Tap detection on correlator outputs by orthogonal matching pursuit (module docstring).
 
     Parameters
     ----------
@@ -131,48 +137,44 @@ def estimate_taps(z: np.ndarray, R: np.ndarray, max_taps: int, eta2: float,
     -------
     ndarray (..., D) complex taps (zero where nothing was detected).
     """
-    z0 = z
-    z = z.copy()
     D = z.shape[-1]
-    taps = np.zeros_like(z)
     lead = z.shape[:-1]
-    flat_z = z.reshape(-1, D)
-    flat_t = taps.reshape(-1, D)
+    z0 = z.reshape(-1, D)
     flat_R = R.reshape(-1, R.shape[-1])
-    rows = np.arange(flat_z.shape[0])
+    n = z0.shape[0]
+    rows = np.arange(n)
     grid = np.arange(D)
-    strongest = relative * np.max(np.abs(flat_z) ** 2, axis=-1)
-    for _ in range(max_taps):                     # greedy iterations, vectorised over users
-        p = np.abs(flat_z) ** 2
+    resid = z0.copy()
+    support = np.zeros((n, max_taps), np.int64)
+    active = np.zeros((n, max_taps), bool)
+    amp = np.zeros((n, max_taps), complex)
+    strongest = relative * np.max(np.abs(z0) ** 2, axis=-1)
+    for t in range(max_taps):                     # orthogonal matching pursuit, vectorised
+        p = np.abs(resid) ** 2
         fl = np.median(p, axis=-1) / np.log(2.0) if floor is None else floor   # noise floor
         thr = np.maximum(eta2 * fl, strongest)
         k = np.argmax(p, axis=-1)
         hit = p[rows, k] > thr
+        if t:
+            hit &= active[:, t - 1]                  # a stopped search stays stopped
         if not hit.any():
             break
-        a = np.where(hit, flat_z[rows, k], 0.0)
-        flat_t[rows, k] += a
-        flat_z -= a[:, None] * flat_R[rows[:, None], grid[None, :] - k[:, None] + D - 1]
-    return _refit(flat_t, z0.reshape(-1, D), flat_R, max_taps).reshape(lead + (D,))
-
-
-def _refit(taps: np.ndarray, z0: np.ndarray, R: np.ndarray, T: int) -> np.ndarray:
-    """Least-squares amplitudes of the detected taps: solve ``G a = z0[support]`` with the
-    Gram matrix ``G_ij = R[k_i - k_j]`` (greedy amplitudes are biased where paths overlap)."""
-    rows_n, D = taps.shape
-    on = taps != 0
-    T = min(T, D)
-    k = np.argsort(~on, axis=-1, kind="stable")[:, :T]                  # support first
-    rows = np.arange(rows_n)[:, None]
-    valid = on[rows, k]                                                 # (n, T)
-    G = R[rows[:, :, None], k[:, :, None] - k[:, None, :] + D - 1]       # (n, T, T)
-    both = valid[:, :, None] & valid[:, None, :]
-    G = np.where(both, G, 0.0) + np.eye(T) * np.where(valid, 1e-9, 1.0)[:, :, None]
-    rhs = np.where(valid, z0[rows, k], 0.0)
-    a = np.linalg.solve(G.astype(complex), rhs[..., None])[..., 0]
-    out = np.zeros_like(taps)
-    out[rows, k] = np.where(valid, a, 0.0)
-    return out
+        support[:, t] = k
+        active[:, t] = hit
+        # least squares on the support: G a = z0[support], G_ij = R[k_i - k_j]
+        kk = support[:, : t + 1]
+        on = active[:, : t + 1]
+        G = flat_R[rows[:, None, None], kk[:, :, None] - kk[:, None, :] + D - 1]
+        both = on[:, :, None] & on[:, None, :]
+        G = np.where(both, G, 0.0) + np.eye(t + 1) * np.where(on, 1e-9, 1.0)[:, :, None]
+        rhs = np.where(on, z0[rows[:, None], kk], 0.0)
+        amp[:, : t + 1] = np.linalg.solve(G.astype(complex), rhs[..., None])[..., 0]
+        amp[:, : t + 1] *= on
+        contrib = flat_R[rows[:, None, None], grid[None, None, :] - kk[:, :, None] + D - 1]
+        resid = z0 - np.einsum("nt,ntd->nd", amp[:, : t + 1], contrib)
+    taps = np.zeros((n, D), complex)
+    np.add.at(taps, (np.repeat(rows, max_taps), support.reshape(-1)), (amp * active).reshape(-1))
+    return taps.reshape(lead + (D,))
 
 
 def _first_arrival(taps: np.ndarray, sample_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -235,6 +237,7 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
     C = _Codes(code_idx, codes, cdma, y.shape[1])
     eta2 = _eta2(cfg, C.D)
     rows = np.arange(B)
+    xc = _cross_table(C) if cfg.joint_refit else None
     taps = np.zeros((B, U, C.D), complex)
     total = np.zeros_like(y)                          # sum of every user's reconstruction
     for sweep in range(cfg.iterations):               # cancellation sweeps
@@ -256,5 +259,47 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
             new = np.fft.ifft(np.fft.fft(t, C.nfft, axis=-1) * C.S[rows, u], axis=-1)[:, : y.shape[1]]
             total += new - old
             taps[rows, u] = t
+        if cfg.joint_refit:
+            taps = _joint_refit(C, xc, y, taps, cfg.max_taps, eta2, noise_var)
+            H = np.fft.fft(taps, C.nfft, axis=-1)
+            total = np.fft.ifft(H * C.S, axis=-1)[..., : y.shape[1]].sum(axis=1)
     toa, det = _first_arrival(taps, cdma.sample_s)
     return ToAResult(toa, taps, det)
+
+
+def _cross_table(C: _Codes) -> np.ndarray:
+    """c_uv[m] = sum_n s_u[n] s_v[n + m] for every pair of users, index m mod nfft."""
+    return np.fft.ifft(np.conj(C.S)[:, :, None] * C.S[:, None, :], axis=-1).real
+
+
+def _joint_refit(C: _Codes, xc: np.ndarray, y: np.ndarray, taps: np.ndarray, T: int,
+                 eta2: float, noise_var: float | None) -> np.ndarray:
+    """Joint least squares of every user's detected taps, then pruning of the taps whose
+    amplitude does not clear the noise threshold, and a second solve on what is left.
+
+    A tap that one user picked up from another user's cross-correlation spur gets a small
+    amplitude once the true tap of the other user is in the joint model, and is pruned."""
+    B, U, D = taps.shape
+    rows = np.arange(B)[:, None]
+    z_y = C.correlate(y)                                                # (B, U, D)
+    for _ in range(2):
+        on = taps != 0
+        k = np.argsort(~on, axis=-1, kind="stable")[..., :T]             # (B, U, T)
+        valid = np.take_along_axis(on, k, axis=-1).reshape(B, U * T)
+        kk = k.reshape(B, U * T)
+        uu = np.repeat(np.arange(U), T)[None, :].repeat(B, axis=0)
+        lag = (kk[:, :, None] - kk[:, None, :]) % C.nfft
+        G = xc[rows[:, :, None], uu[:, :, None], uu[:, None, :], lag]     # (B, UT, UT)
+        both = valid[:, :, None] & valid[:, None, :]
+        n = U * T
+        G = np.where(both, G, 0.0) + np.eye(n) * np.where(valid, 1e-9, 1.0)[:, :, None]
+        rhs = np.where(valid, (z_y * C.energy[..., None])[rows, uu, kk], 0.0)
+        a = np.linalg.solve(G.astype(complex), rhs[..., None])[..., 0]
+        new = np.zeros_like(taps)
+        new[rows, uu, kk] = np.where(valid, a, 0.0)
+        H = np.fft.fft(new, C.nfft, axis=-1)
+        resid = y - np.fft.ifft(H * C.S, axis=-1)[..., : y.shape[1]].sum(axis=1)
+        nv = np.mean(np.abs(resid) ** 2, axis=-1) if noise_var is None else np.full(B, noise_var)
+        floor = nv[:, None, None] / C.energy[..., None]
+        taps = np.where(np.abs(new) ** 2 > eta2 * floor, new, 0.0)
+    return taps
