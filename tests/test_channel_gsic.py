@@ -112,3 +112,19 @@ def test_network_ranges_reports_unreachable_pair(tmp_path):
     assert r.gsic_m.shape == (4, 3, 3)
     assert np.isnan(r.gsic_m[:, :, 2]).mean() > 0.8 and np.isnan(r.gsic_m[:, 2, :]).mean() > 0.8
     np.testing.assert_array_less(np.abs(r.gsic_m[:, 0, 1] - 300.0), 0.25 * CFG.chip_s * C_LIGHT / 2 + 1.0)
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(0.1e-6, 14e-6), st.integers(0, 20))
+def test_single_user_high_snr_delay_within_half_cell(tau, code):
+    rng = np.random.default_rng(code)
+    s = np.sqrt(CFG.noise_var / CFG.tx_power_w)
+    y = received_acks(np.full((1, 1, 1), tau), np.full((1, 1, 1), 30 * s + 0j),
+                      np.array([[code]]), CFG, rng, CODES)
+    for est in (gsic_toa, matched_filter_toa):
+        r = est(y, np.array([[code]]), CODES, CFG)
+        assert r.detected[0, 0]
+        assert abs(r.toa_s[0, 0] - tau) <= 0.5 * CFG.sample_s + 1e-12

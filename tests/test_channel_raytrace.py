@@ -132,3 +132,27 @@ def test_bad_input():
         Scene.from_polygons([[[0, 0], [1, 1]]])
     with pytest.raises(InputError, match="geojson"):
         scene_from_geojson("/nonexistent/file.geojson")
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_CANYON = Scene.from_polygons([box(-300, 10, 300, 30), box(-300, -30, 300, -10), box(40, -8, 60, 8)])
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-250, 250), st.floats(-9, 9), st.floats(-250, 250), st.floats(-9, 9))
+def test_paths_never_shorter_than_straight_line_and_reciprocal(x0, y0, x1, y1):
+    a, b = np.array([[x0, y0]]), np.array([[x1, y1]])
+    if _CANYON.inside(np.vstack([a, b]), 0.5).any() or np.hypot(x1 - x0, y1 - y0) < 1.0:
+        return
+    cfg = TraceConfig(max_order=2)
+    fwd, back = trace_links(_CANYON, a, b, cfg), trace_links(_CANYON, b, a, cfg)
+    n = fwd.n_paths[0]
+    assert back.n_paths[0] == n
+    d = np.hypot(x1 - x0, y1 - y0)
+    assert np.all(fwd.delays[0, :n] * C_LIGHT >= d - 1e-6)
+    np.testing.assert_allclose(fwd.delays[0, :n], back.delays[0, :n], rtol=1e-9)
+    assert fwd.los[0] == (n > 0 and fwd.kind[0, 0] == 0)
+    # free-space amplitude bound: no path is stronger than free space over its length
+    lam = cfg.wavelength_m
+    assert np.all(np.abs(fwd.gains[0, :n]) <= lam / (4 * np.pi * fwd.delays[0, :n] * C_LIGHT) * (1 + 1e-9))
