@@ -27,8 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import as_float_array, check_positive, check_probability
+from radioloc.estimators.pf_kernels import link_update
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
 
@@ -45,6 +46,8 @@ class ParticleFilterSettings:
         after resampling (the paper's "number of distinct particles becomes small").
     reset_std_m: after a reset, particles are ``N(estimate, reset_std_m^2 I)``.
     resampling: "systematic" (default), "stratified", "multinomial" or "residual".
+    kernel: "numba" (fused compiled particle-link update) or "numpy" (same maths, array
+        expressions; the reference the kernel is tested against).
     """
 
     particles: int = 900
@@ -53,6 +56,7 @@ class ParticleFilterSettings:
     reset_fraction: float = 0.05
     reset_std_m: float = 0.5
     resampling: str = "systematic"
+    kernel: str = "numba"
 
     def __post_init__(self) -> None:
         if int(self.particles) < 1:
@@ -62,6 +66,8 @@ class ParticleFilterSettings:
         check_probability(self.reset_fraction, "reset_fraction")
         check_positive(self.reset_std_m, "reset_std_m")
         get_scheme(self.resampling)
+        if self.kernel not in ("numba", "numpy"):
+            raise ConfigError(f"kernel: must be 'numba' or 'numpy', got {self.kernel!r}")
 
 
 @dataclass
@@ -150,6 +156,33 @@ def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
         return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(x - m), axis=axis))
 
 
+def _link_log_phi_and_weights(particles, node_xy, th, valid, was_nb, prev, model, chain, kernel):
+    """Unnormalised ``log phi_t`` (..., N, K, L, 2) and ``log w_t`` (..., N, K) (lines 6-11)."""
+    if kernel == "numpy":
+        diff = particles[..., :, None, :] - node_xy[..., None, :, :]     # (..., N, K, L, 2)
+        dist = np.sqrt(np.sum(diff * diff, axis=-1))
+        loglik = model.logpdf_by_state(th[..., None, :], dist)
+        log_phi = link_log_phi(loglik, prev, was_nb[..., None, :], chain)
+        log_phi = np.where(valid[..., None, :, None], log_phi, 0.0)
+        per_link = np.logaddexp(log_phi[..., 0], log_phi[..., 1])
+        log_w = np.sum(np.where(valid[..., None, :], per_link, 0.0), axis=-1)
+        return log_phi, log_w
+    batch = particles.shape[:-2]
+    k, width = particles.shape[-2], node_xy.shape[-2]
+    b = int(np.prod(batch, dtype=int))
+    log_phi = np.empty((b, k, width, 2))
+    log_w = np.empty((b, k))
+    link_update(np.ascontiguousarray(particles.reshape(b, k, 2)),
+                np.ascontiguousarray(node_xy.reshape(b, width, 2)),
+                np.ascontiguousarray(th.reshape(b, width)),
+                np.ascontiguousarray(valid.reshape(b, width)),
+                np.ascontiguousarray(was_nb.reshape(b, width)),
+                np.ascontiguousarray(prev.reshape(b, k, width, 2)),
+                float(model.los_std_m), float(model.nlos_mean_m),
+                chain.log_transition, chain.log_stationary, log_phi, log_w)
+    return log_phi.reshape(batch + (k, width, 2)), log_w.reshape(batch + (k,))
+
+
 def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray,
                 in_range: np.ndarray, node_positions: np.ndarray, model: LosNlosRange,
                 settings: ParticleFilterSettings, rng: np.random.Generator) -> tuple[FilterState, StepOutput]:
@@ -192,10 +225,6 @@ def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray
     links, valid = compact_links(mask)                                   # (..., N, L)
     node_xy = np.take_along_axis(nodes, links[..., None], axis=-2)       # (..., N, L, 2)
     th = np.take_along_axis(np.where(mask, theta, 0.0), links, axis=-1)  # (..., N, L)
-    diff = particles[..., :, None, :] - node_xy[..., None, :, :]         # (..., N, K, L, 2)
-    dist = np.sqrt(np.sum(diff * diff, axis=-1))
-    loglik = model.logpdf_by_state(th[..., None, :], dist)               # (..., N, K, L, 2)
-
     # where was each current link stored at t-1?
     width_prev = state.links.shape[-1]
     pos_prev = np.full(mask.shape, -1, dtype=np.int64)
@@ -213,12 +242,10 @@ def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray
         prev = np.take_along_axis(state.log_phi, np.maximum(where_prev, 0)[..., None, :, None],
                                   axis=-2)                                # (..., N, K, L, 2)
     else:
-        prev = np.zeros(loglik.shape)
-    log_phi = link_log_phi(loglik, prev, was_nb[..., None, :], chain)
-
-    # line 11: weights = prod over links of sum over z
-    per_link = np.logaddexp(log_phi[..., 0], log_phi[..., 1])                                # (..., N, K, L)
-    log_w = np.sum(np.where(valid[..., None, :], per_link, 0.0), axis=-1)
+        prev = np.zeros(particles.shape[:-1] + (links.shape[-1], 2))
+    log_phi, log_w = _link_log_phi_and_weights(particles, node_xy, th, valid, was_nb, prev,
+                                               model, chain, settings.kernel)
+    per_link = np.logaddexp(log_phi[..., 0], log_phi[..., 1])             # (..., N, K, L)
     log_w = log_w - log_w.max(axis=-1, keepdims=True)
     w = np.exp(log_w)
     w /= w.sum(axis=-1, keepdims=True)
@@ -251,3 +278,64 @@ def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray
                             links=np.where(valid, links, -1), estimate=estimate,
                             resets=state.resets + reset)
     return new_state, StepOutput(estimate=estimate, los_detected=los_detected, reset=reset)
+
+
+MESSAGES = ("previous", "extrapolated", "given")
+
+
+@dataclass
+class TrackResult:
+    """Output of :func:`track`.
+
+    estimate : (..., T, N, 2); los_detected : (..., T, N, J) bool; resets : (..., N).
+    """
+
+    estimate: np.ndarray
+    los_detected: np.ndarray
+    resets: np.ndarray
+
+
+def track(initial: np.ndarray, ins: np.ndarray, ranges: np.ndarray, in_range: np.ndarray,
+          anchors: np.ndarray, model: LosNlosRange, settings: ParticleFilterSettings,
+          rng: np.random.Generator, messages: str = "previous",
+          given_positions: np.ndarray | None = None) -> TrackResult:
+    """Run the filter of every vehicle over ``T`` steps (the loop over time).
+
+    Parameters
+    ----------
+    initial : (..., N, 2) start positions (centre of ``p(v_0)``).
+    ins : (..., T, N, 2) INS displacement readings.
+    ranges, in_range : (..., T, N, J) with ``J = N + M``, vehicles first.
+    anchors : (M, 2) known anchor positions.
+    messages : how vehicle ``k`` places neighbour ``m`` at step ``t``:
+        ``"previous"`` its estimate of step ``t - 1`` (the paper, Fig. 3);
+        ``"extrapolated"`` that estimate plus ``m``'s own INS reading of step ``t``
+        (one more number in the message; removes the 0.2 m/step lag);
+        ``"given"`` the positions ``given_positions (..., T, N, 2)`` (e.g. the truth, to
+        measure what the approximation costs).
+    """
+    if messages not in MESSAGES:
+        raise ConfigError(f"messages: must be one of {MESSAGES}, got {messages!r}")
+    if messages == "given" and given_positions is None:
+        raise InputError("given_positions: required when messages='given'")
+    a = as_float_array(anchors, "anchors", ndim=2, last_dim=2)
+    u = as_float_array(ins, "ins", min_ndim=3, last_dim=2)
+    steps = u.shape[-3]
+    state = init_filter(initial, settings, rng)
+    batch = state.estimate.shape[:-2]
+    anchors_b = np.broadcast_to(a, batch + a.shape)
+    est, det = [], []
+    for t in range(steps):
+        ut = u[..., t, :, :]
+        if messages == "previous":
+            vehicles = state.estimate
+        elif messages == "extrapolated":
+            vehicles = state.estimate + ut
+        else:
+            vehicles = given_positions[..., t, :, :]
+        nodes = np.concatenate([vehicles, anchors_b], axis=-2)
+        state, out = filter_step(state, ut, ranges[..., t, :, :], in_range[..., t, :, :], nodes,
+                                 model, settings, rng)
+        est.append(out.estimate)
+        det.append(out.los_detected)
+    return TrackResult(np.stack(est, axis=-3), np.stack(det, axis=-3), state.resets)
