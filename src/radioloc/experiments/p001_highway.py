@@ -242,5 +242,5 @@ class HighwayExperiment(Experiment):
         ax.set_ylabel("y [m]")
         ax.set_ylim(0, 30)
         ax.set_title(f"Fig. 4(b): true and estimated trajectories, alpha = {alpha:.0%} (6 vehicles)")
-        ax.legend(loc="upper right")
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=3)
         save(fig, out_dir / "fig4b_trajectories.png")
