@@ -15,8 +15,8 @@ from radioloc.sim.highway import HighwayScenario, simulate
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 10.0], [20.0, 10.0], [10.0, 5.0]])
 
 
-def _scenario(alpha, los_std, ins_std, runs=2, steps=25, seed=0):
-    sc = HighwayScenario(vehicles=4, anchors=6, steps=steps, length_m=30.0, width_m=12.0,
+def _scenario(alpha, los_std, ins_std, runs=2, steps=25, seed=0, speed=0.2):
+    sc = HighwayScenario(vehicles=4, anchors=6, steps=steps, length_m=30.0, width_m=12.0, speed_m=speed,
                          start_width_m=5.0, curve_amplitude_m=1.0, ins_std_m=ins_std,
                          layout="centre")
     model = LosNlosRange(los_std, 5.0, alpha)
@@ -178,3 +178,16 @@ def test_highway_simulation_shapes_and_links():
     assert d.ranges.shape == (2, 5, sc.vehicles, j)
     assert not d.in_range[..., np.arange(4), np.arange(4)].any()
     assert np.all(np.isfinite(d.ranges[d.in_range])) and np.all(np.isnan(d.ranges[~d.in_range]))
+
+
+def test_ekf_alpha_one_converges_and_batched_equals_one_by_one():
+    from radioloc.estimators.ekf_ranging import ekf_track, moment_matched
+    # slow vehicles: the one-step lag of the neighbours' messages is negligible
+    sc, model, d = _scenario(alpha=1.0, los_std=0.01, ins_std=0.01, speed=1e-4, steps=80)
+    assert moment_matched(model) == pytest.approx((0.0, 1e-4))
+    est = ekf_track(d.truth[:, 0] + 0.3, d.ins, d.ranges, d.in_range, d.anchors, model, 0.01, 0.5)
+    err = np.linalg.norm(est - d.truth[:, 1:], axis=-1)
+    assert err[:, -5:].mean() < 0.05
+    one = ekf_track(d.truth[1:2, 0] + 0.3, d.ins[1:2], d.ranges[1:2], d.in_range[1:2], d.anchors,
+                    model, 0.01, 0.5)
+    np.testing.assert_allclose(one[0], est[1], atol=1e-10)
