@@ -29,7 +29,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import as_float_array, check_positive, check_probability
-from radioloc.estimators.pf_kernels import link_update
+from radioloc.estimators.pf_kernels import finish_step, link_update
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
 
@@ -156,9 +156,19 @@ def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
         return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(x - m), axis=axis))
 
 
-def _link_log_phi_and_weights(particles, node_xy, th, valid, was_nb, prev, model, chain, kernel):
-    """Unnormalised ``log phi_t`` (..., N, K, L, 2) and ``log w_t`` (..., N, K) (lines 6-11)."""
+def _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev_store, model, chain,
+                              kernel):
+    """Unnormalised ``log phi_t`` (..., N, K, L, 2) and ``log w_t`` (..., N, K) (lines 6-11).
+
+    ``where_prev`` (..., N, L): slot of each link in ``prev_store`` (..., N, K, L', 2), the
+    normalised ``log phi_{t-1}``, or -1 for a new neighbour.
+    """
     if kernel == "numpy":
+        was_nb = valid & (where_prev >= 0)
+        if prev_store.shape[-2]:
+            prev = np.take_along_axis(prev_store, np.maximum(where_prev, 0)[..., None, :, None], axis=-2)
+        else:
+            prev = np.zeros(particles.shape[:-1] + (node_xy.shape[-2], 2))
         diff = particles[..., :, None, :] - node_xy[..., None, :, :]     # (..., N, K, L, 2)
         dist = np.sqrt(np.sum(diff * diff, axis=-1))
         loglik = model.logpdf_by_state(th[..., None, :], dist)
@@ -172,15 +182,36 @@ def _link_log_phi_and_weights(particles, node_xy, th, valid, was_nb, prev, model
     b = int(np.prod(batch, dtype=int))
     log_phi = np.empty((b, k, width, 2))
     log_w = np.empty((b, k))
+    wp = np.where(valid, where_prev, -1)
+    if prev_store.shape[-2] == 0:
+        wp = np.full_like(wp, -1)
+        prev_store = np.zeros(batch + (k, 1, 2))
     link_update(np.ascontiguousarray(particles.reshape(b, k, 2)),
                 np.ascontiguousarray(node_xy.reshape(b, width, 2)),
                 np.ascontiguousarray(th.reshape(b, width)),
                 np.ascontiguousarray(valid.reshape(b, width)),
-                np.ascontiguousarray(was_nb.reshape(b, width)),
-                np.ascontiguousarray(prev.reshape(b, k, width, 2)),
+                np.ascontiguousarray(wp.reshape(b, width)),
+                np.ascontiguousarray(prev_store.reshape((b, k) + prev_store.shape[-2:])),
                 float(model.los_std_m), float(model.nlos_mean_m),
                 chain.log_transition, chain.log_stationary, log_phi, log_w)
     return log_phi.reshape(batch + (k, width, 2)), log_w.reshape(batch + (k,))
+
+
+def _posterior_and_resample(log_phi, valid, idx, kernel):
+    """``log sum_i phi^i(z)`` (..., N, L, 2) and the resampled normalised ``log phi``."""
+    if kernel == "numpy":
+        post = _logsumexp(log_phi, axis=-3)
+        norm = log_phi - np.logaddexp(log_phi[..., :1], log_phi[..., 1:])
+        norm = np.where(valid[..., None, :, None], norm, 0.0)
+        return post, np.take_along_axis(norm, idx[..., None, None], axis=-3)
+    shape = log_phi.shape
+    b = int(np.prod(shape[:-3], dtype=int))
+    post = np.empty((b, shape[-2], 2))
+    out = np.empty((b,) + shape[-3:])
+    finish_step(np.ascontiguousarray(log_phi.reshape((b,) + shape[-3:])),
+                np.ascontiguousarray(valid.reshape(b, shape[-2])),
+                np.ascontiguousarray(idx.reshape(b, shape[-3])), post, out)
+    return post.reshape(shape[:-3] + (shape[-2], 2)), out.reshape(shape)
 
 
 def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray,
@@ -237,42 +268,32 @@ def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray
         slot0 = first.min(axis=-1)
         pos_prev[..., 0] = np.where(slot0 < width_prev, slot0, -1)
     where_prev = np.take_along_axis(pos_prev, links, axis=-1)             # (..., N, L)
-    was_nb = valid & (where_prev >= 0)
-    if width_prev:
-        prev = np.take_along_axis(state.log_phi, np.maximum(where_prev, 0)[..., None, :, None],
-                                  axis=-2)                                # (..., N, K, L, 2)
-    else:
-        prev = np.zeros(particles.shape[:-1] + (links.shape[-1], 2))
-    log_phi, log_w = _link_log_phi_and_weights(particles, node_xy, th, valid, was_nb, prev,
-                                               model, chain, settings.kernel)
-    per_link = np.logaddexp(log_phi[..., 0], log_phi[..., 1])             # (..., N, K, L)
+    log_phi, log_w = _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev,
+                                               state.log_phi, model, chain, settings.kernel)
     log_w = log_w - log_w.max(axis=-1, keepdims=True)
     w = np.exp(log_w)
     w /= w.sum(axis=-1, keepdims=True)
     estimate = np.einsum("...k,...kd->...d", w, particles)
 
-    # detection rule: sum_i phi^i(z=1) > sum_i phi^i(z=0)
-    post = _logsumexp(log_phi, axis=-3)                                    # (..., N, L, 2)
+    # line 12: resample; detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0); carry the
+    # normalised link posterior of each surviving particle
+    idx = get_scheme(settings.resampling)(w, rng)                         # (..., N, K)
+    post, log_phi = _posterior_and_resample(log_phi, valid, idx, settings.kernel)
     los_compact = valid & (post[..., 1] > post[..., 0])
     los_detected = np.zeros(mask.shape, dtype=bool)
     np.put_along_axis(los_detected, links, los_compact, axis=-1)
     los_detected &= mask
-
-    # normalised link posterior per particle, then line 12: resample
-    log_phi = log_phi - per_link[..., None]
-    idx = get_scheme(settings.resampling)(w, rng)                         # (..., N, K)
     particles = np.take_along_axis(particles, idx[..., None], axis=-2)
-    log_phi = np.take_along_axis(log_phi, idx[..., None, None], axis=-3)
 
     # reset on degeneracy: few distinct ancestors
     s = np.sort(idx, axis=-1)
     distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
     reset = distinct < settings.reset_fraction * k
     if np.any(reset):
-        fresh = estimate[..., None, :] + settings.reset_std_m * rng.standard_normal(particles.shape)
-        particles = np.where(reset[..., None, None], fresh, particles)
+        particles[reset] = estimate[reset][:, None, :] + settings.reset_std_m * rng.standard_normal(
+            (int(reset.sum()), k, 2))
         mean_post = post - np.logaddexp(post[..., :1], post[..., 1:])        # (..., N, L, 2)
-        log_phi = np.where(reset[..., None, None, None], mean_post[..., None, :, :], log_phi)
+        log_phi[reset] = mean_post[reset][:, None, :, :]
 
     new_state = FilterState(particles=particles, log_phi=log_phi,
                             links=np.where(valid, links, -1), estimate=estimate,

@@ -40,12 +40,13 @@ def _logaddexp(a: float, b: float) -> float:
 
 
 @njit(cache=True, parallel=True)
-def link_update(particles, node_xy, theta, valid, was_nb, prev, los_std, nlos_mean,
+def link_update(particles, node_xy, theta, valid, where_prev, prev, los_std, nlos_mean,
                 log_trans, log_stat, log_phi, log_w):
     """Fill ``log_phi`` (B, K, L, 2) and ``log_w`` (B, K) in place.
 
-    particles (B, K, 2); node_xy (B, L, 2); theta, valid, was_nb (B, L);
-    prev (B, K, L, 2) normalised ``log phi_{t-1}`` (read only where ``was_nb``).
+    particles (B, K, 2); node_xy (B, L, 2); theta, valid (B, L);
+    where_prev (B, L) slot of the link in ``prev`` (B, K, L', 2), the normalised
+    ``log phi_{t-1}``, or -1 if the node was not a neighbour at t-1.
     """
     nb, nk, nl = log_phi.shape[0], log_phi.shape[1], log_phi.shape[2]
     lam = 1.0 / nlos_mean
@@ -67,9 +68,10 @@ def link_update(particles, node_xy, theta, valid, was_nb, prev, los_std, nlos_me
                 z = e / los_std
                 l1 = c_gauss - 0.5 * z * z
                 l0 = c_emg - lam * e + _log_ndtr((e - lam * los_std * los_std) / los_std)
-                if was_nb[b, j]:
-                    q0 = prev[b, i, j, 0]
-                    q1 = prev[b, i, j, 1]
+                jp = where_prev[b, j]
+                if jp >= 0:
+                    q0 = prev[b, i, jp, 0]
+                    q1 = prev[b, i, jp, 1]
                     p0 = _logaddexp(q0 + log_trans[0, 0], q1 + log_trans[1, 0])
                     p1 = _logaddexp(q0 + log_trans[0, 1], q1 + log_trans[1, 1])
                 else:
@@ -81,3 +83,40 @@ def link_update(particles, node_xy, theta, valid, was_nb, prev, los_std, nlos_me
                 log_phi[b, i, j, 1] = a1
                 acc += _logaddexp(a0, a1)
             log_w[b, i] = acc
+
+
+@njit(cache=True, parallel=True)
+def finish_step(log_phi, valid, idx, post, out):
+    """Link posteriors and resampled, normalised ``log phi`` in one pass.
+
+    log_phi (B, K, L, 2) unnormalised; valid (B, L); idx (B, K) ancestors.
+    Writes ``post`` (B, L, 2) = ``log sum_i phi^i`` (the detection statistic) and
+    ``out`` (B, K, L, 2) = ``log phi^{idx_i} - log sum_z phi^{idx_i}``.
+    """
+    nb, nk, nl = log_phi.shape[0], log_phi.shape[1], log_phi.shape[2]
+    for b in prange(nb):
+        for j in range(nl):
+            for z in range(2):
+                m = -np.inf
+                for i in range(nk):
+                    if log_phi[b, i, j, z] > m:
+                        m = log_phi[b, i, j, z]
+                acc = 0.0
+                if m > -np.inf:
+                    for i in range(nk):
+                        acc += math.exp(log_phi[b, i, j, z] - m)
+                    post[b, j, z] = m + math.log(acc)
+                else:
+                    post[b, j, z] = -np.inf
+        for i in range(nk):
+            a = idx[b, i]
+            for j in range(nl):
+                if valid[b, j]:
+                    q0 = log_phi[b, a, j, 0]
+                    q1 = log_phi[b, a, j, 1]
+                    n = _logaddexp(q0, q1)
+                    out[b, i, j, 0] = q0 - n
+                    out[b, i, j, 1] = q1 - n
+                else:
+                    out[b, i, j, 0] = 0.0
+                    out[b, i, j, 1] = 0.0
