@@ -36,6 +36,8 @@ class RealUwbConfig:
     particles, init_std_m, reset_*: particle filter settings; p(v_0) is centred on the
         reference start.
     ransac_threshold_m: inlier gate, 3 fitted s_LOS (at least 0.1 m) when None.
+    max_epochs: use only the first max_epochs epochs of each run (0 = all; the quick size
+        tracks the first 60 s of the first run).
     Ranges are corrected by the EM bias and projected to the horizontal plane with the tag
     at reference z + 1 m (the data set authors' convention); the filter works in 2-D.
     """
@@ -50,6 +52,7 @@ class RealUwbConfig:
     reset_fraction: float = 0.05
     reset_std_m: float = 0.3
     ransac_threshold_m: float | None = None
+    max_epochs: int = 0
 
 
 def _epochs(run, epoch_s: float):
@@ -79,7 +82,7 @@ class RealUwbHanyang(Experiment):
     def config(self, full: bool) -> RealUwbConfig:
         if full:
             return RealUwbConfig(static_samples=0, particles=900)
-        return RealUwbConfig()
+        return RealUwbConfig(runs=1, particles=200, static_samples=1500, max_epochs=600)
 
     def run_block(self, config: RealUwbConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
         c = config
@@ -97,6 +100,8 @@ class RealUwbHanyang(Experiment):
                 continue
             run = load_dynamic(folders[r])
             t, theta, truth = _epochs(run, c.epoch_s)
+            if c.max_epochs:
+                t, theta, truth = t[:c.max_epochs], theta[:c.max_epochs], truth[:c.max_epochs]
             anchors = run.anchors[["x", "y", "z"]].to_numpy()
             dz = truth[:, 2:3] + TAG_HEIGHT_OFFSET_M - anchors[None, :, 2]
             corr = theta - bias
@@ -123,7 +128,7 @@ class RealUwbHanyang(Experiment):
                                             "y_true": xy[:, 1], "error_m": position_error(p, xy)}))
             for meth, g in run.estimates.items():
                 tt = g.time_s.to_numpy()
-                ok = (tt >= run.reference.time_s.min()) & (tt <= run.reference.time_s.max())
+                ok = (tt >= run.reference.time_s.min()) & (tt <= min(run.reference.time_s.max(), t[-1]))
                 tt = tt[ok]
                 ref = np.stack([np.interp(tt, run.reference.time_s, run.reference[k]) for k in ("x", "y")], -1)
                 p = g[["x", "y"]].to_numpy()[ok]
