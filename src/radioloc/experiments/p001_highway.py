@@ -213,9 +213,28 @@ class HighwayExperiment(Experiment):
             claims.append(Claim("more vehicles (20 -> 24 -> 30) lower the PF error",
                                 bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
         self._figures(config, base, out_dir)
+        self._lag_figure(r, out_dir)
         notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
                      f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps")
         return Summary(metrics, claims, notes)
+
+    @staticmethod
+    def _lag_figure(r: pd.DataFrame, out_dir: Path) -> None:
+        g = r[(r.method == "pf") & (r.M == 26) & (r.N == 20) & np.isclose(r.alpha, 0.30)]
+        if g.empty:
+            return
+        fig, ax = figure()
+        styles = {"previous": COLORS["ours"], "extrapolated": COLORS["alt"], "given": COLORS["truth"]}
+        labels = {"previous": "previous estimates (paper)", "extrapolated": "previous + neighbour's INS",
+                  "given": "true neighbour positions"}
+        for v, gv in g.groupby("messages"):
+            curve = gv.groupby("step").error_m.mean()
+            ax.plot(curve.index, curve.to_numpy(), color=styles.get(v, COLORS["alt2"]), label=labels.get(v, v))
+        ax.set_xlabel("step (0.2 m per step)")
+        ax.set_ylabel("PF mean error over vehicles and runs [m]")
+        ax.set_title("Cost of the neighbours' message lag, alpha = 30%, M = 26, N = 20")
+        ax.legend()
+        save(fig, out_dir / "message_lag_error_vs_step.png")
 
     @staticmethod
     def _figures(config: HighwayConfig, base: pd.DataFrame, out_dir: Path) -> None:
