@@ -1,0 +1,86 @@
+"""EM estimation of the LOS/NLOS mixture parameters from pooled range errors (paper 001, Sect. V).
+
+The paper names EM for estimating ``alpha`` and the noise parameters. With range errors
+``e_i = theta_i - d_i`` (true distances known, or residuals against current estimates) and
+an optional common offset ``b`` (a ranging bias, e.g. antenna delay),
+
+* E-step: ``r_i = alpha N(e_i - b; s_LOS) / (alpha N + (1 - alpha) EMG(e_i - b; s_LOS, s_NLOS))``;
+* M-step: ``alpha = mean(r)``; ``(b, s_LOS, s_NLOS)`` maximise the expected complete
+  log-likelihood (no closed form for the EMG part: a few L-BFGS steps, a generalised EM
+  step that never decreases the likelihood).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from radioloc.core.errors import InputError
+from radioloc.core.validation import as_float_array
+from radioloc.models.los_nlos import LosNlosRange, emg_logpdf, gaussian_logpdf
+
+
+@dataclass
+class EmFit:
+    """Result of :func:`fit_los_nlos`: the model, the offset ``bias_m``, the log-likelihood
+    per iteration and the LOS responsibilities of the samples."""
+
+    model: LosNlosRange
+    bias_m: float
+    loglik: np.ndarray
+    responsibility: np.ndarray
+
+
+def _split_logs(e, b, s, mu, alpha):
+    x = e - b
+    l1 = gaussian_logpdf(x, s) + np.log(max(alpha, 1e-300))
+    l0 = emg_logpdf(x, s, mu) + np.log(max(1.0 - alpha, 1e-300))
+    return l0, l1
+
+
+def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | None = None,
+                 nlos_mean0: float | None = None, fit_bias: bool = True, iterations: int = 50,
+                 tol: float = 1e-7) -> EmFit:
+    """Fit ``alpha``, ``s_LOS``, ``s_NLOS`` (and a common bias) to range errors by EM.
+
+    Parameters
+    ----------
+    errors : (n,) measured minus true range, metres.
+    alpha0, los_std0, nlos_mean0 : starting values (defaults: 0.5, a robust spread of the
+        lower half, and the mean excess over the median).
+    fit_bias : estimate a common offset ``b`` (else ``b = 0``).
+    iterations, tol : stop after this many iterations or when the mean log-likelihood
+        improves by less than ``tol``.
+    """
+    e = as_float_array(errors, "errors", ndim=1)
+    if e.size < 10:
+        raise InputError(f"errors: need at least 10 samples, got {e.size}")
+    med = float(np.median(e))
+    b = med if fit_bias else 0.0
+    lo = e[e <= np.quantile(e, 0.5)]
+    s = los_std0 or max(float(1.4826 * np.median(np.abs(lo - np.median(lo)))), 1e-3)
+    mu = nlos_mean0 or max(float(np.mean(e) - med), 1e-2)
+    alpha = float(alpha0)
+    hist = []
+    r = np.full(e.shape, alpha)
+    for _ in range(iterations):
+        l0, l1 = _split_logs(e, b, s, mu, alpha)
+        tot = np.logaddexp(l0, l1)
+        hist.append(float(tot.mean()))
+        if len(hist) > 1 and hist[-1] - hist[-2] < tol:
+            break
+        r = np.exp(l1 - tot)
+        alpha = float(np.clip(r.mean(), 1e-6, 1 - 1e-6))
+
+        def neg(p):
+            bb = p[0] if fit_bias else 0.0
+            ss, mm = np.exp(p[1]), np.exp(p[2])
+            x = e - bb
+            return -np.mean(r * gaussian_logpdf(x, ss) + (1 - r) * emg_logpdf(x, ss, mm))
+        res = minimize(neg, np.array([b, np.log(s), np.log(mu)]), method="L-BFGS-B",
+                       options={"maxiter": 20})
+        b = float(res.x[0]) if fit_bias else 0.0
+        s, mu = float(np.exp(res.x[1])), float(np.exp(res.x[2]))
+    return EmFit(LosNlosRange(s, mu, alpha), b, np.array(hist), r)

@@ -1,0 +1,97 @@
+"""Particle resampling schemes, batched over leading axes.
+
+Every scheme takes normalised weights ``(..., K)`` and a generator and returns ancestor
+indices ``(..., K)`` (int64) such that particle ``j`` of the new set is old particle
+``idx[..., j]`` of the same batch entry. All are unbiased: the expected number of copies
+of particle ``i`` is ``K w_i``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from radioloc.core.errors import ConfigError, InputError
+
+
+def _check(weights: np.ndarray) -> np.ndarray:
+    w = np.asarray(weights, dtype=float)
+    if w.ndim < 1 or w.shape[-1] < 1:
+        raise InputError("weights: need at least one particle on the last axis")
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise InputError("weights: must be finite and non-negative")
+    s = w.sum(axis=-1, keepdims=True)
+    if np.any(s <= 0):
+        raise InputError("weights: every batch entry needs a positive total weight")
+    return w / s
+
+
+def _inverse_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Batched ``searchsorted(cumsum(w), u)``: offsets each row by its index to flatten."""
+    k = w.shape[-1]
+    cdf = np.cumsum(w, axis=-1)
+    cdf[..., -1] = 1.0 + 1e-12
+    rows = np.arange(int(np.prod(w.shape[:-1], dtype=int))).reshape(w.shape[:-1] + (1,))
+    flat_cdf = (cdf + 2.0 * rows).ravel()
+    flat_u = (u + 2.0 * rows).ravel()
+    idx = np.searchsorted(flat_cdf, flat_u, side="right").reshape(u.shape)
+    return np.minimum(idx - rows * k, k - 1).astype(np.int64)
+
+
+def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniform offset per batch entry, ``u_j = (U + j) / K``."""
+    w = _check(weights)
+    k = w.shape[-1]
+    u = (rng.random(w.shape[:-1] + (1,)) + np.arange(k)) / k
+    return _inverse_cdf(w, u)
+
+
+def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One uniform per stratum, ``u_j = (U_j + j) / K``."""
+    w = _check(weights)
+    k = w.shape[-1]
+    u = (rng.random(w.shape) + np.arange(k)) / k
+    return _inverse_cdf(w, u)
+
+
+def multinomial(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``K`` independent draws from the weights."""
+    w = _check(weights)
+    return _inverse_cdf(w, rng.random(w.shape))
+
+
+def residual(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``floor(K w_i)`` deterministic copies, the rest multinomial on the residual weights."""
+    w = _check(weights)
+    k = w.shape[-1]
+    counts = np.floor(k * w).astype(np.int64)
+    n_det = counts.sum(axis=-1, keepdims=True)                     # (..., 1)
+    rest = k * w - counts
+    rest_sum = rest.sum(axis=-1, keepdims=True)
+    rest = np.where(rest_sum > 0, rest / np.where(rest_sum > 0, rest_sum, 1.0), 1.0 / k)
+    drawn = _inverse_cdf(rest, rng.random(w.shape))
+    # deterministic copies: position j < n_det takes the particle whose cumulative count exceeds j
+    j = np.arange(k)
+    ccum = np.cumsum(counts, axis=-1)
+    flat_rows = np.arange(int(np.prod(w.shape[:-1], dtype=int))).reshape(w.shape[:-1] + (1,))
+    det = np.searchsorted((ccum + flat_rows * (k + 1)).ravel(),
+                          (j + flat_rows * (k + 1)).ravel(), side="right").reshape(w.shape)
+    det = np.minimum(det - flat_rows * k, k - 1)
+    shift = np.clip(j - n_det, 0, k - 1)
+    from_rest = np.take_along_axis(drawn, shift, axis=-1)
+    return np.where(j < n_det, det, from_rest).astype(np.int64)
+
+
+SCHEMES: dict[str, Callable[[np.ndarray, np.random.Generator], np.ndarray]] = {
+    "systematic": systematic, "stratified": stratified,
+    "multinomial": multinomial, "residual": residual,
+}
+
+
+def get_scheme(name: str) -> Callable[[np.ndarray, np.random.Generator], np.ndarray]:
+    """The resampling function called ``name``; :class:`ConfigError` if unknown."""
+    try:
+        return SCHEMES[name]
+    except KeyError:
+        raise ConfigError(f"resampling: unknown scheme {name!r}; choose from {sorted(SCHEMES)}") from None

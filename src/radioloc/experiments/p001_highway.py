@@ -1,0 +1,276 @@
+"""Paper 001 (Ekambaram & Ramchandran): peer-to-peer particle filter on a highway, Fig. 4.
+
+Table 4(c): mean error of the particle filter (PF) and the genie-aided local ML and the
+LOS detection probability P_d for alpha in {5, 15, 30, 45}%; table 4(d): PF mean error for
+five (anchors, vehicles) pairs at alpha = 30%; the RANSAC row at alpha = 30%; Fig. 4(a)
+error CDFs; Fig. 4(b) true and estimated trajectories. Extra rows at alpha = 30% measure
+what the one-step lag of the neighbours' messages costs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.metrics import error_cdf, position_error
+from radioloc.estimators.ekf_ranging import ekf_track
+from radioloc.estimators.p2p_particle import ParticleFilterSettings, compact_links, track
+from radioloc.estimators.snapshot_baselines import local_ml, ransac
+from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
+from radioloc.models.los_nlos import LosNlosRange
+from radioloc.report.style import COLORS, figure, save
+from radioloc.sim.highway import HighwayData, HighwayScenario, simulate
+
+PAPER_C = {5: (0.43, 1.04, 1.05), 15: (0.52, 0.99, 1.01), 30: (0.61, 0.93, 0.94),
+           45: (0.68, 0.71, 0.73)}
+PAPER_D = {(26, 20): 0.93, (26, 24): 0.82, (26, 30): 0.76, (30, 20): 0.74, (36, 20): 0.70}
+
+
+@dataclass(frozen=True)
+class HighwayConfig:
+    """Settings of ``p001-highway``.
+
+    Paper values (Fig. 4): s_INS = 0.1, s_LOS = 0.05, s_NLOS = 5, 900 particles, 0.2 m per
+    step, M = 26, N = 20, R = 10 m, 150 m x 30 m road. Choices the paper leaves open:
+
+    steps: 700 at full size (the vehicles, starting within ``start_width_m`` of the left
+        end, cross the 150 m road at 0.2 m/step).
+    start_width_m: starting x uniform in [0, start_width_m]; y uniform in the road minus
+        the curve amplitude. 20 m gives about 8 other vehicles within R, as the paper says.
+    layout: anchor layout, see :mod:`radioloc.sim.highway`. "centre" (one row on the
+        centre line) is kept after comparing layouts (docs/p001.md): it is the layout
+        closest to the paper's "about 4 anchors in range" (2.5 on average; no layout of
+        26 anchors reaches 4 with R = 10 m).
+    init_std_m, reset_fraction, reset_std_m, resampling: see ParticleFilterSettings.
+    ransac_threshold_m: inlier gate of RANSAC (3 s_LOS).
+    ml_every: the local ML and RANSAC are evaluated every this many steps (cost).
+    lag_variants: message variants run at alpha = 30% besides the paper's "previous".
+    """
+
+    runs: int = 10
+    block_size: int = 1
+    steps: int = 700
+    particles: int = 900
+    alphas: tuple[float, ...] = (0.05, 0.15, 0.30, 0.45)
+    table_d: tuple[tuple[int, int], ...] = ((26, 20), (26, 24), (26, 30), (30, 20), (36, 20))
+    los_std_m: float = 0.05
+    nlos_mean_m: float = 5.0
+    ins_std_m: float = 0.1
+    radius_m: float = 10.0
+    start_width_m: float = 20.0
+    layout: str = "centre"
+    init_std_m: float = 1.0
+    reset_fraction: float = 0.05
+    reset_std_m: float = 0.5
+    resampling: str = "systematic"
+    ransac_threshold_m: float = 0.15
+    ml_every: int = 1
+    lag_variants: tuple[str, ...] = ("extrapolated", "given")
+
+
+def _cases(c: HighwayConfig) -> list[dict]:
+    cases = [dict(alpha=a, M=26, N=20, messages="previous", ml=True) for a in c.alphas]
+    cases += [dict(alpha=0.30, M=m, N=n, messages="previous", ml=False)
+              for m, n in c.table_d if (m, n) != (26, 20)]
+    cases += [dict(alpha=0.30, M=26, N=20, messages=v, ml=False) for v in c.lag_variants]
+    return cases
+
+
+def _snapshot(data: HighwayData, model: LosNlosRange, c: HighwayConfig, steps: np.ndarray):
+    """Genie local ML and RANSAC at the given steps: two arrays (R, S, N, 2)."""
+    n = data.truth.shape[2]
+    ml, rs = [], []
+    for t in steps:
+        cur = data.truth[:, t + 1]
+        nodes = np.concatenate([cur, np.broadcast_to(data.anchors, (cur.shape[0],) + data.anchors.shape)], axis=1)
+        mask = data.in_range[:, t]
+        links, valid = compact_links(mask)
+        nodes_b = np.broadcast_to(nodes[:, None], (cur.shape[0], n) + nodes.shape[1:])
+        centres = np.take_along_axis(nodes_b, links[..., None], axis=-2)
+        theta = np.take_along_axis(np.where(mask, data.ranges[:, t], 0.0), links, axis=-1)
+        ml.append(local_ml(theta, centres, valid, model, c.radius_m))
+        rs.append(ransac(theta, centres, valid, c.ransac_threshold_m, c.radius_m))
+    return np.stack(ml, 1), np.stack(rs, 1)
+
+
+def _frame(case: dict, runs: np.ndarray, method: str, steps: np.ndarray, est: np.ndarray,
+           truth: np.ndarray, extra: dict | None = None) -> pd.DataFrame:
+    r, s, n = est.shape[:3]
+    idx = np.indices((r, s, n)).reshape(3, -1)
+    cols = {"alpha": case["alpha"], "M": case["M"], "N": case["N"],
+            "messages": case["messages"], "method": method,
+            "run": runs[idx[0]], "step": steps[idx[1]] + 1, "vehicle": idx[2],
+            "x_est": est[..., 0].ravel(), "y_est": est[..., 1].ravel(),
+            "x_true": truth[..., 0].ravel(), "y_true": truth[..., 1].ravel(),
+            "error_m": position_error(est, truth).ravel()}
+    for k, v in (extra or {}).items():
+        cols[k] = v.ravel()
+    return pd.DataFrame(cols)
+
+
+@register
+class HighwayExperiment(Experiment):
+    id = "p001-highway"
+    paper = "001"
+    description = "P2P particle filter with LOS/NLOS link states on a highway: tables 4(c), 4(d), Fig. 4"
+
+    def config(self, full: bool) -> HighwayConfig:
+        if full:
+            return HighwayConfig()
+        return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
+
+    def run_block(self, config: HighwayConfig, runs: np.ndarray,
+                  rng: np.random.Generator) -> pd.DataFrame:
+        c = config
+        settings = ParticleFilterSettings(particles=c.particles, ins_std_m=c.ins_std_m,
+                                          init_std_m=c.init_std_m, reset_fraction=c.reset_fraction,
+                                          reset_std_m=c.reset_std_m, resampling=c.resampling)
+        frames = []
+        for case in _cases(c):
+            model = LosNlosRange(c.los_std_m, c.nlos_mean_m, case["alpha"])
+            sc = HighwayScenario(vehicles=case["N"], anchors=case["M"], steps=c.steps,
+                                 radius_m=c.radius_m, ins_std_m=c.ins_std_m,
+                                 start_width_m=c.start_width_m, layout=c.layout)
+            data = simulate(sc, model, runs.size, rng)
+            res = track(data.truth[:, 0], data.ins, data.ranges, data.in_range, data.anchors,
+                        model, settings, rng, messages=case["messages"],
+                        given_positions=data.truth[:, 1:])
+            los = data.in_range & data.los
+            all_steps = np.arange(c.steps)
+            frames.append(_frame(case, runs, "pf", all_steps, res.estimate, data.truth[:, 1:], {
+                "los_links": los.sum(-1), "los_detected": (res.los_detected & los).sum(-1),
+                "nlos_as_los": (res.los_detected & data.in_range & ~data.los).sum(-1)}))
+            if case["ml"]:
+                sub = all_steps[::c.ml_every]
+                ml, rs = _snapshot(data, model, c, sub)
+                frames.append(_frame(case, runs, "ml", sub, ml, data.truth[:, sub + 1]))
+                frames.append(_frame(case, runs, "ransac", sub, rs, data.truth[:, sub + 1]))
+                ekf = ekf_track(data.truth[:, 0], data.ins, data.ranges, data.in_range, data.anchors,
+                                model, c.ins_std_m, c.init_std_m)
+                frames.append(_frame(case, runs, "ekf", all_steps, ekf, data.truth[:, 1:]))
+        return pd.concat(frames, ignore_index=True)
+
+    def summarize(self, config: HighwayConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        r = results
+        prev = r[r.messages == "previous"]
+        base = prev[(prev.M == 26) & (prev.N == 20)]
+        metrics, notes, claims = [], [], []
+        pf_c, ml_c, pd_c = {}, {}, {}
+        for a, g in base.groupby("alpha"):
+            tag = int(round(a * 100))
+            pf = g[g.method == "pf"]
+            pf_c[tag] = pf.error_m.mean()
+            ml_c[tag] = g[g.method == "ml"].error_m.mean()
+            pd_c[tag] = pf.los_detected.sum() / max(pf.los_links.sum(), 1)
+            paper = PAPER_C.get(tag, (None, None, None))
+            metrics += [
+                Metric(f"pf_mean_error_m_alpha{tag}", pf_c[tag], paper[1], "m", "particle filter, table 4(c)"),
+                Metric(f"ml_mean_error_m_alpha{tag}", ml_c[tag], paper[2], "m", "genie local ML, table 4(c)"),
+                Metric(f"pd_alpha{tag}", pd_c[tag], paper[0], "", "LOS detection probability"),
+                Metric(f"ekf_mean_error_m_alpha{tag}", g[g.method == "ekf"].error_m.mean(), None, "m",
+                       "Gaussian EKF (moment-matched noise), same messages as the PF"),
+                Metric(f"ransac_mean_error_m_alpha{tag}", g[g.method == "ransac"].error_m.mean(), None, "m",
+                       "RANSAC multilateration, genie neighbour positions"),
+            ]
+        a30 = prev[(prev.alpha == 0.30) & (prev.method == "pf")]
+        pf_d = {}
+        for (m, n), g in a30.groupby(["M", "N"]):
+            pf_d[(m, n)] = g.error_m.mean()
+            metrics.append(Metric(f"pf_mean_error_m_M{m}_N{n}", pf_d[(m, n)], PAPER_D.get((m, n)), "m",
+                                  "particle filter, table 4(d)"))
+        v30 = r[(r.alpha == 0.30) & (r.M == 26) & (r.N == 20) & (r.method == "pf")]
+        for v, g in v30.groupby("messages"):
+            if v != "previous":
+                metrics.append(Metric(f"pf_mean_error_m_alpha30_messages_{v}", g.error_m.mean(), None, "m",
+                                      f"variant: neighbour positions = {v} (paper: previous estimates)"))
+        # claims
+        if 30 in ml_c:
+            rans = metrics[[m.name for m in metrics].index("ransac_mean_error_m_alpha30")].value
+            claims.append(Claim("RANSAC-based methods have errors over 5 m (alpha = 30%)", bool(rans > 5.0)))
+        if pf_c:
+            claims.append(Claim("PF is slightly better than the genie local ML at every alpha",
+                                bool(all(pf_c[a] <= ml_c[a] for a in pf_c))))
+            tags = sorted(pf_c)
+            claims.append(Claim("the PF beats the Gaussian EKF at every alpha",
+                                bool(all(pf_c[a] < base[(np.isclose(base.alpha, a / 100)) & (base.method == "ekf")]
+                                         .error_m.mean() for a in pf_c))))
+            claims.append(Claim("PF mean error decreases as alpha grows",
+                                bool(np.all(np.diff([pf_c[a] for a in tags]) < 0))))
+            claims.append(Claim("P_d increases with alpha", bool(np.all(np.diff([pd_c[a] for a in tags]) > 0))))
+        if 5 in pf_c:
+            e5 = base[(base.alpha == 0.05) & (base.method == "pf")].error_m
+            frac = float((e5 < 1.5).mean())
+            notes.append(f"alpha = 5%: fraction of PF errors below 1.5 m = {frac:.3f}")
+            claims.append(Claim("at alpha = 5% more than 80% of the errors are below 1.5 m", frac > 0.8))
+        if len(pf_d) == 5:
+            claims.append(Claim("more anchors (26 -> 30 -> 36) lower the PF error, with diminishing returns",
+                                bool(pf_d[(26, 20)] > pf_d[(30, 20)] > pf_d[(36, 20)]
+                                     and pf_d[(26, 20)] - pf_d[(30, 20)] > pf_d[(30, 20)] - pf_d[(36, 20)])))
+            claims.append(Claim("more vehicles (20 -> 24 -> 30) lower the PF error",
+                                bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
+        self._figures(config, base, out_dir)
+        self._lag_figure(r, out_dir)
+        notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
+                     f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps")
+        return Summary(metrics, claims, notes)
+
+    @staticmethod
+    def _lag_figure(r: pd.DataFrame, out_dir: Path) -> None:
+        g = r[(r.method == "pf") & (r.M == 26) & (r.N == 20) & np.isclose(r.alpha, 0.30)]
+        if g.empty:
+            return
+        fig, ax = figure()
+        styles = {"previous": COLORS["ours"], "extrapolated": COLORS["alt"], "given": COLORS["truth"]}
+        labels = {"previous": "previous estimates (paper)", "extrapolated": "previous + neighbour's INS",
+                  "given": "true neighbour positions"}
+        for v, gv in g.groupby("messages"):
+            curve = gv.groupby("step").error_m.mean()
+            ax.plot(curve.index, curve.to_numpy(), color=styles.get(v, COLORS["alt2"]), label=labels.get(v, v))
+        ax.set_xlabel("step (0.2 m per step)")
+        ax.set_ylabel("PF mean error over vehicles and runs [m]")
+        ax.set_title("Cost of the neighbours' message lag, alpha = 30%, M = 26, N = 20")
+        ax.legend()
+        save(fig, out_dir / "message_lag_error_vs_step.png")
+
+    @staticmethod
+    def _figures(config: HighwayConfig, base: pd.DataFrame, out_dir: Path) -> None:
+        fig, ax = figure()
+        palette = [COLORS["ours"], COLORS["alt"], COLORS["truth"], COLORS["alt2"]]
+        for (a, g), col in zip(base.groupby("alpha"), palette):
+            for meth, ls in (("pf", "-"), ("ml", "--")):
+                e = g[g.method == meth].error_m.to_numpy()
+                if e.size:
+                    x, p = error_cdf(e)
+                    ax.plot(x, p, ls, color=col, label=f"{meth.upper()}, alpha = {a:.0%}")
+        ax.set_xlim(0, 4)
+        ax.set_xlabel("localization error [m]")
+        ax.set_ylabel("CDF")
+        ax.set_title("Fig. 4(a): error CDF (solid: particle filter, dashed: genie local ML)")
+        ax.legend(ncol=2)
+        save(fig, out_dir / "fig4a_error_cdf.png")
+
+        alpha = 0.15 if np.any(np.isclose(base.alpha, 0.15)) else base.alpha.iloc[0]
+        g = base[np.isclose(base.alpha, alpha) & (base.method == "pf") & (base.run == base.run.min())]
+        fig, ax = figure(width=8.0, height=3.6)
+        for i, (v, gv) in enumerate(g.groupby("vehicle")):
+            if i >= 6:
+                break
+            ax.plot(gv.x_true, gv.y_true, "-", color=COLORS["truth"], lw=1.2,
+                    label="true" if i == 0 else None)
+            ax.plot(gv.x_est, gv.y_est, ".", color=COLORS["ours"], ms=2, alpha=0.5,
+                    label="PF estimates" if i == 0 else None)
+            deg = min(3, max(len(gv) - 1, 0))
+            coef = np.polyfit(gv.x_est, gv.y_est, deg)
+            xs = np.linspace(gv.x_est.min(), gv.x_est.max(), 100)
+            ax.plot(xs, np.polyval(coef, xs), "--", color=COLORS["baseline"], lw=1.2,
+                    label=f"polynomial fit (degree {deg})" if i == 0 else None)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_ylim(0, 30)
+        ax.set_title(f"Fig. 4(b): true and estimated trajectories, alpha = {alpha:.0%} (6 vehicles)")
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=3)
+        save(fig, out_dir / "fig4b_trajectories.png")

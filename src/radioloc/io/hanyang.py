@@ -1,0 +1,117 @@
+"""Loader of the Hanyang outdoor UWB data set (static and dynamic DW1000 two-way ranging).
+
+Folder layout and columns: see ``SOURCE.md`` of the data set. Static files
+``Static_measurements/{LOS,NLOS}/height_<H>cm/<D>m.csv`` give ranges at a known horizontal
+distance D with the anchor at height H and the tag at 100 cm (true range
+``sqrt(D^2 + ((H - 100) / 100)^2)``); each ends with summary rows, which are dropped.
+Dynamic runs ``Dynamic_measurements/{LOS,NLOS}/Trajectory_<T>/Case_<c>/`` hold one range
+file per anchor, the RTK reference ``trajectory.csv`` and the authors' ``LS.csv`` and
+``ESKF.csv`` estimates.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import DataUnavailable, InputError
+
+TAG_HEIGHT_OFFSET_M = 1.0   # tag z = trajectory z + 1 m (the data set authors' RMSE code)
+
+
+def load_static(root: Path | str) -> pd.DataFrame:
+    """All static range samples: ``condition, height_cm, distance_m, true_range_m, range_m,
+    error_m, rssi_dbm``."""
+    base = Path(root) / "Static_measurements"
+    if not base.is_dir():
+        raise DataUnavailable(f"{base}: static measurements not found")
+    frames = []
+    for f in sorted(base.glob("*/height_*cm/*m.csv")):
+        cond = f.parent.parent.name
+        h = float(re.match(r"height_([\d.]+)cm", f.parent.name).group(1))
+        dist = float(f.stem[:-1])
+        raw = pd.read_csv(f)
+        t = pd.to_numeric(raw["timestamp"], errors="coerce")
+        raw = raw[t.notna()]
+        rng = pd.to_numeric(raw["Distance"], errors="coerce").to_numpy()
+        true = float(np.hypot(dist, (h - 100.0) / 100.0))
+        frames.append(pd.DataFrame({"condition": cond, "height_cm": h, "distance_m": dist,
+                                    "true_range_m": true, "range_m": rng, "error_m": rng - true,
+                                    "rssi_dbm": pd.to_numeric(raw["RSSI(dBm)"], errors="coerce").to_numpy()}))
+    if not frames:
+        raise DataUnavailable(f"{base}: no static files")
+    out = pd.concat(frames, ignore_index=True)
+    return out[np.isfinite(out.range_m)].reset_index(drop=True)
+
+
+@dataclass
+class DynamicRun:
+    """One moving-tag run.
+
+    name : e.g. ``"LOS_A_Case_1"``.
+    anchors : DataFrame ``id, x, y, z``.
+    ranges : DataFrame ``time_s, anchor, range_m`` (time from the run start).
+    reference : DataFrame ``time_s, x, y, z`` (RTK trajectory; tag at ``z + 1 m``).
+    estimates : dict method -> DataFrame ``time_s, x, y, z`` (``"ls"``, ``"eskf"``).
+    published : dict of the numbers in ``RMSD_results.txt`` (e.g. ``"ls_rmse_2d"``).
+    """
+
+    name: str
+    anchors: pd.DataFrame
+    ranges: pd.DataFrame
+    reference: pd.DataFrame
+    estimates: dict
+    published: dict
+
+
+def dynamic_runs(root: Path | str) -> list[Path]:
+    """Folders of the dynamic runs present, sorted."""
+    base = Path(root) / "Dynamic_measurements"
+    runs = sorted(p for p in base.glob("*/Trajectory_*/Case_*") if (p / "trajectory.csv").exists())
+    if not runs:
+        raise DataUnavailable(f"{base}: no dynamic runs")
+    return runs
+
+
+def _published(path: Path) -> dict:
+    out = {}
+    if path.exists():
+        for line in path.read_text().splitlines():
+            m = re.match(r"\s*(\w+) (RMSE(?:_2d)?):\s*([-\d.eE+]+)", line)
+            if m:
+                out[f"{m.group(1).lower()}_{m.group(2).lower()}"] = float(m.group(3))
+    return out
+
+
+def load_dynamic(folder: Path | str) -> DynamicRun:
+    """Read one dynamic run folder."""
+    folder = Path(folder)
+    traj = pd.read_csv(folder / "trajectory.csv")
+    t0 = float(traj["timestamp"].iloc[0])
+    files = sorted(folder.glob("A*.csv"), key=lambda p: int(p.stem[1:]))
+    if not files:
+        raise InputError(f"{folder}: no anchor range files A<id>.csv")
+    anchors, ranges = [], []
+    for f in files:
+        a = pd.read_csv(f)
+        aid = int(f.stem[1:])
+        anchors.append({"id": aid, "x": float(a["field.x"].iloc[0]), "y": float(a["field.y"].iloc[0]),
+                        "z": float(a["field.z"].iloc[0])})
+        ranges.append(pd.DataFrame({"time_s": (a["%time"].to_numpy(float) - t0) * 1e-9,
+                                    "anchor": aid, "range_m": a["field.distanceFromTag"].to_numpy(float)}))
+    est = {}
+    for key, fname in (("ls", "LS.csv"), ("eskf", "ESKF.csv")):
+        if (folder / fname).exists():
+            e = pd.read_csv(folder / fname)
+            est[key] = pd.DataFrame({"time_s": (e["timestamp"].to_numpy(float) - t0) * 1e-9,
+                                     "x": e["x"], "y": e["y"], "z": e["z"]})
+    ref = pd.DataFrame({"time_s": (traj["timestamp"].to_numpy(float) - t0) * 1e-9,
+                        "x": traj["x"], "y": traj["y"], "z": traj["z"]})
+    parts = folder.parts
+    name = f"{parts[-3]}_{parts[-2].split('_')[-1]}_{parts[-1]}"
+    return DynamicRun(name, pd.DataFrame(anchors), pd.concat(ranges, ignore_index=True), ref, est,
+                      _published(folder / "RMSD_results.txt"))

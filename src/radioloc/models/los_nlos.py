@@ -1,0 +1,138 @@
+"""LOS/NLOS range model of paper 001 and the sticky Markov chain over the link state.
+
+A range between nodes at distance ``d`` is
+
+* LOS (``z = 1``): ``theta = d + n``,            ``n ~ N(0, s_LOS^2)``;
+* NLOS (``z = 0``): ``theta = d + eps + n``,     ``eps ~ Exp(mean s_NLOS)``;
+
+(Sect. V of the paper). The NLOS error ``eps + n`` is an exponentially modified Gaussian
+whose log-density is evaluated through ``scipy.special.log_ndtr`` so that it stays finite
+far in both tails. The LOS fraction is ``alpha``; the link state follows a two-state
+Markov chain with ``p(z_t = 1 | z_{t-1} = 0) = alpha / 2`` and stationary distribution
+``(alpha, 1 - alpha)`` over (LOS, NLOS).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import log_ndtr
+
+from radioloc.core.errors import InputError
+from radioloc.core.validation import check_positive, check_probability
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+def gaussian_logpdf(x: np.ndarray, std: float) -> np.ndarray:
+    """Log-density of ``N(0, std^2)`` at ``x``."""
+    z = np.asarray(x, dtype=float) / std
+    return -0.5 * z * z - np.log(std) - 0.5 * _LOG_2PI
+
+
+def emg_logpdf(x: np.ndarray, std: float, mean_exp: float) -> np.ndarray:
+    """Log-density of ``Exp(mean mean_exp) + N(0, std^2)`` at ``x`` (stable in both tails).
+
+    ``log f(x) = log lam + lam^2 std^2 / 2 - lam x + log Phi((x - lam std^2) / std)`` with
+    ``lam = 1 / mean_exp``; ``log Phi`` is ``log_ndtr``, exact for large negative arguments.
+    """
+    lam = 1.0 / mean_exp
+    x = np.asarray(x, dtype=float)
+    return (np.log(lam) + 0.5 * (lam * std) ** 2 - lam * x
+            + log_ndtr((x - lam * std * std) / std))
+
+
+@dataclass(frozen=True)
+class LosNlosRange:
+    """Mixture range model of paper 001 (Sect. II, V).
+
+    Parameters
+    ----------
+    los_std_m : float
+        ``s_LOS``: standard deviation of the Gaussian error present on every link.
+    nlos_mean_m : float
+        ``s_NLOS``: mean of the exponential excess delay of NLOS links.
+    alpha : float
+        LOS fraction, in [0, 1].
+    """
+
+    los_std_m: float = 0.05
+    nlos_mean_m: float = 5.0
+    alpha: float = 0.3
+
+    def __post_init__(self) -> None:
+        check_positive(self.los_std_m, "los_std_m")
+        check_positive(self.nlos_mean_m, "nlos_mean_m")
+        check_probability(self.alpha, "alpha")
+
+    def logpdf_by_state(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
+        """``log p(theta | d, z)`` for ``z = 0`` (NLOS) and ``z = 1`` (LOS); trailing axis 2."""
+        e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
+        return np.stack([emg_logpdf(e, self.los_std_m, self.nlos_mean_m),
+                         gaussian_logpdf(e, self.los_std_m)], axis=-1)
+
+    def logpdf(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
+        """Mixture log-density ``log(alpha p_LOS + (1 - alpha) p_NLOS)``."""
+        lp = self.logpdf_by_state(measured, true_ranges)
+        with np.errstate(divide="ignore"):
+            logw = np.log([1.0 - self.alpha, self.alpha])
+        return np.logaddexp(lp[..., 0] + logw[0], lp[..., 1] + logw[1])
+
+    def sample(self, true_ranges: np.ndarray, los: np.ndarray,
+               rng: np.random.Generator) -> np.ndarray:
+        """Ranges for the given distances and link states (``los`` boolean, same shape)."""
+        d = np.asarray(true_ranges, dtype=float)
+        los = np.asarray(los, dtype=bool)
+        if los.shape != d.shape:
+            raise InputError(f"los: shape {los.shape} differs from true_ranges {d.shape}")
+        excess = rng.exponential(self.nlos_mean_m, d.shape)
+        return d + np.where(los, 0.0, excess) + self.los_std_m * rng.standard_normal(d.shape)
+
+
+@dataclass(frozen=True)
+class StickyLinkChain:
+    """Two-state Markov chain over ``z`` (0 = NLOS, 1 = LOS) with ``p(1|0) = alpha/2``.
+
+    ``p(0|1)`` follows from stationarity ``alpha p(0|1) = (1 - alpha) p(1|0)``, i.e.
+    ``p(0|1) = (1 - alpha) / 2``.
+    """
+
+    alpha: float
+
+    def __post_init__(self) -> None:
+        check_probability(self.alpha, "alpha")
+
+    @property
+    def transition(self) -> np.ndarray:
+        """``P[z_prev, z]``."""
+        a = self.alpha
+        return np.array([[1.0 - a / 2.0, a / 2.0],
+                         [(1.0 - a) / 2.0, (1.0 + a) / 2.0]])
+
+    @property
+    def stationary(self) -> np.ndarray:
+        """``(p(z=0), p(z=1)) = (1 - alpha, alpha)``."""
+        return np.array([1.0 - self.alpha, self.alpha])
+
+    @property
+    def log_transition(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.log(self.transition)
+
+    @property
+    def log_stationary(self) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.log(self.stationary)
+
+    def sample(self, steps: int, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
+        """Boolean LOS paths ``(steps, *shape)`` started from the stationary distribution."""
+        if steps < 1:
+            raise InputError(f"steps: must be >= 1, got {steps}")
+        u = rng.random((steps, *shape))
+        z = np.empty((steps, *shape), dtype=bool)
+        z[0] = u[0] < self.alpha
+        p_los = self.transition[:, 1]
+        for t in range(1, steps):
+            z[t] = u[t] < p_los[z[t - 1].astype(int)]
+        return z
