@@ -71,8 +71,8 @@ def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
 def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: float,
                       range_var=0.0, reference_index: int | None = None,
                       accel_excess_kurtosis: float = 0.0, range_excess_kurtosis: float = 0.0,
-                      tol: float = 0.1, max_iter: int = 20,
-                      cond_limit: float = 1e12) -> ClosedFormResult:
+                      tol: float = 0.1, max_iter: int = 20, cond_limit: float = 1e12,
+                      covariance_state=None) -> ClosedFormResult:
     """Estimate ``[Y_k, X_k, V_y, V_x]`` from ranges to one moving sensor (steps 1-3d).
 
     Parameters
@@ -98,6 +98,9 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
         Maximum BLUE iterations after the OLS start.
     cond_limit : float
         ``S A`` with a column-scaled condition number above this raises GeometryError.
+    covariance_state : array (..., 4), optional
+        If given, one BLUE step with ``Sigma~`` evaluated at this state (e.g. the true state:
+        the oracle BLUE) instead of the iterations 3b-3d.
 
     Returns
     -------
@@ -129,6 +132,12 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
                             "separate [Y_k, X_k, V_y, V_x]")
 
     beta = _ols(sa, sy)                                              # step 3a
+    if covariance_state is not None:
+        fixed = np.broadcast_to(np.asarray(covariance_state, dtype=float), batch + (4,))
+        state, cov, _ = _gls(sa, sy, model.differenced_covariance(fixed, s))
+        return ClosedFormResult(state=state, covariance=cov, trajectory=trajectory(state, n, T, k),
+                                ols_state=beta, iterations=np.ones(batch, dtype=int),
+                                reference_index=k)
     ols = beta.copy()
     best_crit = np.full(batch, np.inf)
     cov = np.zeros(batch + (4, 4))

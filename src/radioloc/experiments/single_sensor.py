@@ -213,14 +213,14 @@ class SingleSensorExperiment(Experiment):
                                   f"CPU time per track at n = {n_top}, batched over runs; "
                                   "paper: about 70% less time"))
             best = rmse.loc[n_top].idxmin()
-            claims.append(Claim(f"[{source}] the closed form has the lowest RMSE of the four "
+            claims.append(Claim(f"({source}) the closed form has the lowest RMSE of the four "
                                 f"methods at n = {n_top} (best: {best})", best == "blue"))
-            claims.append(Claim(f"[{source}] the closed-form RMSE decreases with n",
+            claims.append(Claim(f"({source}) the closed-form RMSE decreases with n",
                                 bool(np.all(np.diff(rmse["blue"].to_numpy()) < 0))))
-            claims.append(Claim(f"[{source}] the closed form takes about 70% less CPU time than "
+            claims.append(Claim(f"({source}) the closed form takes about 70% less CPU time than "
                                 "Newton (ratio >= 2)", bool(ratio >= 2.0)))
-            notes.append(f"[{source}] RMSE by n:\n" + rmse.round(4).to_string())
-            notes.append(f"[{source}] CPU s per track:\n" + cpu[["blue", "newton"]].to_string())
+            notes.append(f"({source}) RMSE by n:\n" + rmse.round(4).to_string())
+            notes.append(f"({source}) CPU s per track:\n" + cpu[["blue", "newton"]].to_string())
             self._fig1(rmse, crb_d, crb_r, config, source, out_dir)
             self._fig3(cpu, source, out_dir)
         if "uci-pen" not in set(results["source"]):
