@@ -24,6 +24,7 @@ from radioloc.core.validation import check_finite_output, check_positive
 from radioloc.models.single_sensor import (
     SquaredRangeModel,
     design_matrix,
+    difference_rows,
     trajectory,
     validate_inputs,
 )
@@ -53,19 +54,23 @@ class ClosedFormResult:
 
 
 def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
-    """Whitened least squares for a batch: returns (beta, covariance, criterion)."""
+    """Generalised least squares for a batch: returns (beta, covariance, criterion).
+
+    One LU solve ``w^{-1} [S A, S y]`` per run; the criterion is ``r' w^{-1} r``.
+    """
     try:
-        chol = np.linalg.cholesky(w)
+        sol = np.linalg.solve(w, np.concatenate([sa, sy[..., None]], axis=-1))
     except np.linalg.LinAlgError:
-        raise GeometryError("S Sigma S^T is not positive definite; the motion and channel "
-                            "noise variances cannot both be zero for the BLUE") from None
-    wa = np.linalg.solve(chol, sa)
-    wy = np.linalg.solve(chol, sy[..., None])
-    info = np.swapaxes(wa, -1, -2) @ wa
+        raise GeometryError("S Sigma S^T is singular (not positive definite); the motion and "
+                            "channel noise variances cannot both be zero for the BLUE") from None
+    at = np.swapaxes(sa, -1, -2)
+    info = at @ sol[..., :4]
+    rhs = at @ sol[..., 4:]
     cov = np.linalg.inv(info)
-    beta = (cov @ (np.swapaxes(wa, -1, -2) @ wy))[..., 0]
-    res = wy[..., 0] - (wa @ beta[..., None])[..., 0]
-    return beta, cov, np.sum(res**2, axis=-1)
+    beta = (cov @ rhs)[..., 0]
+    crit = (np.einsum("...i,...i->...", sy, sol[..., 4])
+            - np.einsum("...i,...i->...", beta, rhs[..., 0]))
+    return beta, cov, crit
 
 
 def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: float,
@@ -164,8 +169,8 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
 def _differenced_system(r, s, k, model):
     """Steps 1-2: mean-removed ``y`` and its third difference; returns ``(S A, S y)``."""
     y = r**2 - np.sum(s**2, axis=-1) - model.noise_mean()
-    sa = model.S @ design_matrix(s, model.T, k)
-    sy = (model.S @ y[..., None])[..., 0]
+    sa = difference_rows(design_matrix(s, model.T, k))
+    sy = difference_rows(y[..., None])[..., 0]
     return np.broadcast_to(sa, sy.shape + (4,)), sy
 
 
