@@ -241,7 +241,7 @@ class SingleSensorExperiment(Experiment):
             ax.semilogy(rmse.index, rmse[m], marker=markers[m], color=colors[m], label=LABELS[m])
         ax.semilogy(crb_d.index, crb_d, LINESTYLES["bound"], color=COLORS["bound"],
                     label="CRB eq. (23), differenced")
-        ax.semilogy(crb_r.index, crb_r, ":", color="k", label="CRB of raw ranges")
+        ax.semilogy(crb_r.index, crb_r, "--", color="k", label="CRB of raw ranges")
         ax.set_xlabel("number of samples n")
         ax.set_ylabel("RMSE of current position [m]")
         ax.set_title(f"Fig. 1 ({source}): {config.runs} runs, 10 Hz, uniform noise")
