@@ -209,3 +209,15 @@ def test_bad_input_raises_toolkit_errors():
         closed_form_track(r, s, sample_period_s=0.0, accel_var=0.1)
     with pytest.raises(GeometryError, match="positive definite"):
         closed_form_track(r, s, sample_period_s=T, accel_var=0.0, range_var=0.0)
+
+
+def test_printed_eq14_reading_changes_only_off_diagonal_channel_terms():
+    n, k, q, xi = 10, 3, 0.15, 0.2
+    sensor = circle(n)
+    state = np.array([0.3, -0.4, 1.0, 0.2])
+    derived = SquaredRangeModel(n, k, T, q, xi).noise_covariance(state, sensor)
+    printed = SquaredRangeModel(n, k, T, q, xi, printed_eq14=True).noise_covariance(state, sensor)
+    var = accumulated_noise_variance(n, k, T, q)
+    np.testing.assert_allclose(np.diag(printed), np.diag(derived))
+    i, j = 1, 7
+    np.testing.assert_allclose(derived[i, j] - printed[i, j], 2 * xi * var[i] + 2 * xi * var[j])

@@ -77,7 +77,7 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
                       range_var=0.0, reference_index: int | None = None,
                       accel_excess_kurtosis: float = 0.0, range_excess_kurtosis: float = 0.0,
                       tol: float = 0.1, max_iter: int = 20, cond_limit: float = 1e12,
-                      covariance_state=None) -> ClosedFormResult:
+                      covariance_state=None, printed_eq14: bool = False) -> ClosedFormResult:
     """Estimate ``[Y_k, X_k, V_y, V_x]`` from ranges to one moving sensor (steps 1-3d).
 
     Parameters
@@ -106,6 +106,9 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
     covariance_state : array (..., 4), optional
         If given, one BLUE step with ``Sigma~`` evaluated at this state (e.g. the true state:
         the oracle BLUE) instead of the iterations 3b-3d.
+    printed_eq14 : bool
+        Use eq. (14)'s printed off-diagonal channel terms (a reading kept for comparison;
+        see :class:`~radioloc.models.single_sensor.SquaredRangeModel`).
 
     Returns
     -------
@@ -126,7 +129,7 @@ def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: floa
     r = np.broadcast_to(r, batch + (n,))
     s = np.broadcast_to(s, batch + (n, 2))
     model = SquaredRangeModel(n, k, T, accel_var, range_var, accel_excess_kurtosis,
-                              range_excess_kurtosis)
+                              range_excess_kurtosis, printed_eq14)
 
     sa, sy = _differenced_system(r, s, k, model)                    # steps 1-2
     col = np.linalg.norm(sa, axis=-2, keepdims=True)

@@ -131,11 +131,15 @@ class SquaredRangeModel:
     accel_excess_kurtosis, range_excess_kurtosis : float
         Excess kurtosis of the accelerations and the channel noise; 0 reproduces the printed
         Gaussian-moment formulas, -1.2 is exact for uniform noise.
+    printed_eq14 : bool
+        Add the off-diagonal terms ``-2 xi_j Var(eps_i) - 2 xi_i Var(eps_j)`` printed in
+        eq. (14) (not part of the derived covariance; kept to measure what they change).
     """
 
     def __init__(self, n_samples: int, reference_index: int, sample_period_s: float,
                  accel_var: float, range_var=0.0, accel_excess_kurtosis: float = 0.0,
-                 range_excess_kurtosis: float = 0.0):
+                 range_excess_kurtosis: float = 0.0, printed_eq14: bool = False):
+        self.printed_eq14 = bool(printed_eq14)
         self.n = int(n_samples)
         if self.n < MIN_SAMPLES:
             raise InputError(f"ranges: need >= {MIN_SAMPLES} samples for 4 unknowns after the "
@@ -163,6 +167,10 @@ class SquaredRangeModel:
             xi = self.xi * np.ones(self.n)
             extra = 4.0 * xi * r2 + (2.0 + self.kappa_w) * xi**2
             cov = cov + extra[..., :, None] * np.eye(self.n)
+            if self.printed_eq14:
+                var = np.diag(self.c)
+                off = 2.0 * (xi[..., None, :] * var[:, None] + xi[..., :, None] * var[None, :])
+                cov = cov - off * (1.0 - np.eye(self.n))
         return cov
 
     def differenced_covariance(self, state: np.ndarray, sensor: np.ndarray) -> np.ndarray:
