@@ -53,6 +53,23 @@ def newton_track(ranges, sensor, initial_state, *, sample_period_s: float,
                  max_iter: int = 50) -> NewtonResult:
     """Newton iterations on the range NLLS from ``initial_state`` (..., 4) ``[Y, X, V_y, V_x]``.
 
+    Parameters
+    ----------
+    ranges : array (..., n)
+        Measured ranges; leading axes are independent runs.
+    sensor : array (n, 2) or (..., n, 2)
+        Known sensor positions ``(a_n, b_n)`` (same checks as the closed form).
+    initial_state : array (4,) or (..., 4)
+        Start of the iterations.
+    sample_period_s : float
+        T.
+    reference_index : int, optional
+        k; default n-1.
+    tol : float
+        Stop when ``|step|^2 <= tol`` (section 5.2: 0.1).
+    max_iter : int
+        Iteration cap.
+
     Runs whose Hessian is singular or whose iterate becomes non-finite stop at the last
     finite iterate with ``converged = False``; the output is always finite.
     """
