@@ -1,0 +1,67 @@
+"""Cramer-Rao bounds for the single-sensor tracker of paper 002.
+
+* :func:`differenced_crb` - eq. (23): ``(A' S' (S Sigma S')^{-1} S A)^{-1}``, the bound of the
+  differenced linear model ``S y = S A beta + S e`` when ``S e`` is Gaussian with the
+  covariance of eqs. (11)/(14) at the true state. It is a bound for estimators that only see
+  ``S y``; it equals the BLUE covariance (Lemma 2 mirrors Lemma 1).
+* :func:`raw_range_crb` - the bound from the ranges themselves, ``rhat_n = |p_n - s_n| + omega_n``
+  with ``p_n = p_k + (n-k) T v_k + eps_n``, under the Gaussian approximation
+  ``rhat ~ N(h(beta), Sigma_r)``, ``Sigma_r,ij = (u_i . u_j) E[eps_i eps_j] + xi delta_ij``
+  (motion noise projected on the line of sight ``u_n``), keeping the ``J' Sigma_r^{-1} J`` term
+  of the Fisher information (the term from the dependence of ``Sigma_r`` on beta is dropped).
+  With no motion noise it is the exact CRB for Gaussian range noise.
+
+Both return (..., 4, 4) for ``[Y_k, X_k, V_y, V_x]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radioloc.core.errors import GeometryError
+from radioloc.core.validation import as_float_array, check_positive
+from radioloc.models.motion import accumulated_noise_covariance
+from radioloc.models.single_sensor import SquaredRangeModel, predicted_offsets
+
+
+def _inverse(info: np.ndarray, what: str) -> np.ndarray:
+    cond = np.linalg.cond(info)
+    if np.any(~np.isfinite(cond) | (cond > 1e14)):
+        raise GeometryError(f"{what}: Fisher information is singular (condition {np.max(cond):.3g})")
+    return np.linalg.inv(info)
+
+
+def differenced_crb(state, sensor, *, sample_period_s: float, accel_var: float, range_var=0.0,
+                    reference_index: int | None = None, accel_excess_kurtosis: float = 0.0,
+                    range_excess_kurtosis: float = 0.0) -> np.ndarray:
+    """Eq. (23) at the true ``state`` ``[Y_k, X_k, V_y, V_x]`` (..., 4); sensor (..., n, 2)."""
+    beta = as_float_array(state, "state", min_ndim=1, last_dim=4)
+    s = as_float_array(sensor, "sensor", min_ndim=2, last_dim=2)
+    n = s.shape[-2]
+    k = n - 1 if reference_index is None else int(reference_index)
+    model = SquaredRangeModel(n, k, sample_period_s, accel_var, range_var,
+                              accel_excess_kurtosis, range_excess_kurtosis)
+    return _inverse(model.fisher_information(beta, s), "differenced_crb")
+
+
+def raw_range_crb(state, sensor, *, sample_period_s: float, accel_var: float, range_var: float,
+                  reference_index: int | None = None) -> np.ndarray:
+    """Gaussian-approximation CRB of the raw ranges (module docstring), (..., 4, 4)."""
+    beta = as_float_array(state, "state", min_ndim=1, last_dim=4)
+    s = as_float_array(sensor, "sensor", min_ndim=2, last_dim=2)
+    T = check_positive(sample_period_s, "sample_period_s")
+    xi = check_positive(range_var, "range_var", allow_zero=True)
+    n = s.shape[-2]
+    k = n - 1 if reference_index is None else int(reference_index)
+    d = predicted_offsets(beta, s, T, k)
+    u = d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[..., None]
+    t = (np.arange(n) - k) * T
+    J = np.stack([u[..., 1], u[..., 0], t * u[..., 1], t * u[..., 0]], axis=-1)
+    c = accumulated_noise_covariance(n, k, T, accel_var)
+    cov = np.einsum("...id,...jd->...ij", u, u) * c + xi * np.eye(n)
+    try:
+        white = np.linalg.solve(np.linalg.cholesky(cov), J)
+    except np.linalg.LinAlgError:
+        raise GeometryError("raw_range_crb: range covariance is singular "
+                            "(range_var = 0 and no motion noise?)") from None
+    return _inverse(np.swapaxes(white, -1, -2) @ white, "raw_range_crb")

@@ -1,0 +1,175 @@
+"""Paper 002: CRBs (Lemmas 1-2), Newton and EKF baselines, the p002 experiment smoke test."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from radioloc.bounds.single_sensor import differenced_crb, raw_range_crb
+from radioloc.core.errors import GeometryError, InputError
+from radioloc.estimators.closed_form import closed_form_track
+from radioloc.estimators.nlls_newton import _gradient_hessian, newton_track
+from radioloc.estimators.range_ekf import range_ekf
+from radioloc.models.motion import ConstantAcceleration
+
+T = 0.1
+
+
+def random_path(rng, n):
+    return rng.uniform(-5, 5, (n, 2))
+
+
+def psd(m, tol=1e-9):
+    return np.linalg.eigvalsh((m + m.T) / 2).min() >= -tol * max(1.0, np.abs(m).max())
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 100_000), n=st.integers(8, 25), noisy=st.booleans())
+def test_lemma1_and_2_bound_does_not_grow_when_a_sample_is_added(seed, n, noisy):
+    rng = np.random.default_rng(seed)
+    k = int(rng.integers(0, n))
+    state = np.r_[rng.uniform(-2, 2, 2), rng.normal(0, 1, 2)]
+    sensor = random_path(rng, n + 1)
+    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1 if noisy else 0.0,
+              reference_index=k)
+    small = differenced_crb(state, sensor[:n], **kw)
+    large = differenced_crb(state, sensor, **kw)
+    assert psd(small - large)                       # Cov(beta_1) <= Cov(beta_2), eq. (20)
+
+
+def test_differenced_crb_equals_blue_covariance_at_truth():
+    rng = np.random.default_rng(1)
+    n = 20
+    sensor = random_path(rng, n)
+    state = np.array([0.5, -0.2, 0.3, 1.0])
+    r = rng.uniform(3, 6, n)
+    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1, reference_index=7)
+    res = closed_form_track(r, sensor, covariance_state=state, **kw)
+    np.testing.assert_allclose(res.covariance, differenced_crb(state, sensor, **kw), rtol=1e-9)
+
+
+def test_raw_range_crb_without_motion_noise_is_the_gaussian_range_crb():
+    rng = np.random.default_rng(2)
+    n, xi = 12, 0.04
+    sensor = random_path(rng, n)
+    state = np.array([0.5, -0.2, 0.3, 1.0])
+    k = 5
+    crb = raw_range_crb(state, sensor, sample_period_s=T, accel_var=0.0, range_var=xi,
+                        reference_index=k)
+
+    def h(b):
+        t = (np.arange(n) - k)[:, None] * T
+        return np.linalg.norm(b[[1, 0]] + t * b[[3, 2]] - sensor, axis=-1)
+
+    J = np.stack([(h(state + 1e-6 * e) - h(state - 1e-6 * e)) / 2e-6 for e in np.eye(4)], -1)
+    np.testing.assert_allclose(crb, np.linalg.inv(J.T @ J / xi), rtol=1e-5)
+
+
+def test_raw_range_bound_is_tighter_than_differenced_bound_on_average():
+    rng = np.random.default_rng(3)
+    n = 40
+    sensor = random_path(rng, n)
+    states = np.c_[rng.uniform(-2, 2, (50, 2)), rng.normal(0, 1, (50, 2))]
+    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1)
+    d = differenced_crb(states, sensor, **kw)
+    r = raw_range_crb(states, sensor, **kw)
+    assert np.mean(np.trace(r, axis1=1, axis2=2)) < np.mean(np.trace(d, axis1=1, axis2=2))
+
+
+def test_bound_rejects_unidentifiable_geometry():
+    n = 10
+    sensor = np.zeros((n, 2))
+    with pytest.raises(GeometryError):
+        differenced_crb(np.ones(4), sensor, sample_period_s=T, accel_var=0.1, range_var=0.1)
+
+
+# ---- Newton ----------------------------------------------------------------------------
+def test_newton_gradient_and_hessian_match_finite_differences():
+    rng = np.random.default_rng(4)
+    n, k = 15, 6
+    sensor = random_path(rng, n)
+    r = rng.uniform(2, 6, n)
+    beta = np.array([0.4, -0.3, 0.8, 0.2])
+    g, H, f = _gradient_hessian(beta, r, sensor, T, k)
+    eps = 1e-6
+    g_fd = np.array([(_gradient_hessian(beta + eps * e, r, sensor, T, k)[2]
+                      - _gradient_hessian(beta - eps * e, r, sensor, T, k)[2]) / (2 * eps)
+                     for e in np.eye(4)])
+    H_fd = np.stack([(_gradient_hessian(beta + eps * e, r, sensor, T, k)[0]
+                      - _gradient_hessian(beta - eps * e, r, sensor, T, k)[0]) / (2 * eps)
+                     for e in np.eye(4)])
+    np.testing.assert_allclose(g, g_fd, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(H, H_fd, rtol=1e-4, atol=1e-5)
+
+
+def test_newton_converges_to_truth_on_noise_free_data_and_batches():
+    rng = np.random.default_rng(5)
+    n, runs = 20, 6
+    sensor = random_path(rng, n)
+    x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
+    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
+    r = np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
+    truth = tracks[:, -1][:, [1, 0, 3, 2]]
+    start = truth + rng.normal(0, 0.2, truth.shape)
+    res = newton_track(r, sensor, start, sample_period_s=T, tol=1e-20, max_iter=50)
+    np.testing.assert_allclose(res.state, truth, atol=1e-6)
+    one = newton_track(r[2], sensor, start[2], sample_period_s=T, tol=1e-20, max_iter=50)
+    np.testing.assert_allclose(one.state, res.state[2], atol=1e-10)
+
+
+def test_newton_output_is_finite_from_a_far_start():
+    rng = np.random.default_rng(6)
+    n = 15
+    sensor = random_path(rng, n)
+    r = rng.uniform(2, 6, (4, n))
+    res = newton_track(r, sensor, rng.normal(0, 100, (4, 4)), sample_period_s=T)
+    assert np.all(np.isfinite(res.state))
+
+
+def test_newton_bad_input():
+    with pytest.raises(InputError, match="initial_state"):
+        newton_track(np.ones(10), np.random.default_rng(0).normal(size=(10, 2)), np.ones(3),
+                     sample_period_s=T)
+
+
+# ---- EKF -------------------------------------------------------------------------------
+def test_ekf_tracks_noise_free_target_and_batches():
+    rng = np.random.default_rng(7)
+    n, runs = 60, 5
+    sensor = random_path(rng, n)
+    x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
+    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
+    r = np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
+    prior = x0 + rng.normal(0, 0.3, x0.shape)
+    out = range_ekf(r, sensor, prior, 0.09 * np.eye(4), sample_period_s=T, accel_var=1e-4,
+                    range_var=1e-4)
+    assert out.shape == (runs, n, 4)
+    assert np.max(np.linalg.norm(out[:, -1, :2] - tracks[:, -1, :2], axis=-1)) < 0.05
+    one = range_ekf(r[1], sensor, prior[1], 0.09 * np.eye(4), sample_period_s=T,
+                    accel_var=1e-4, range_var=1e-4)
+    np.testing.assert_allclose(one, out[1], atol=1e-10)
+
+
+def test_ekf_bad_input():
+    with pytest.raises(InputError, match="initial_covariance"):
+        range_ekf(np.ones(10), np.zeros((10, 2)), np.zeros(4), np.eye(3), sample_period_s=T,
+                  accel_var=0.1, range_var=0.1)
+
+
+# ---- experiment ------------------------------------------------------------------------
+def test_experiment_smoke(tmp_path, monkeypatch):
+    import dataclasses
+
+    from radioloc.experiments.runner import run_experiment
+    from radioloc.experiments import single_sensor
+
+    monkeypatch.setenv("RADIOLOC_DATA", str(tmp_path / "no-data"))
+    small = dataclasses.replace(single_sensor.SingleSensorConfig(), runs=4, block_size=2,
+                                n_values=(10, 20), fig2_samples=15)
+    monkeypatch.setattr(single_sensor.SingleSensorExperiment, "config",
+                        lambda self, full: small)
+    run_experiment("p002-single-sensor", out=tmp_path, progress=False)
+    folder = tmp_path / "p002-single-sensor"
+    assert (folder / "results.csv").is_file()
+    assert (folder / "fig1_rmse_vs_n_synthetic.png").is_file()
+    text = (folder / "summary.json").read_text()
+    assert "rmse_blue_n20" in text and "skipped" in text
