@@ -144,7 +144,7 @@ class TetherExperiment(Experiment):
             ax.set_xlabel("distance [m]")
             ax.set_title(title)
         axes[0].set_ylabel("RSSI (0..100)")
-        fig.colorbar(im, ax=axes, label="L(dist | rssi)")
+        fig.colorbar(im, ax=axes[1], label="L(dist | rssi)")
         fig.suptitle(f"Fig. 2: RSSI/distance likelihood from {len(r)} simulated calibration pairs")
         save(fig, out_dir / "fig2_model.png")
 
@@ -173,6 +173,7 @@ class TetherExperiment(Experiment):
                 ax.axhline(0, ls="--", lw=0.6, color="k")
                 ax.axvline(0, ls="--", lw=0.6, color="k")
                 ax.set_title(lab, fontsize=9)
+                ax.grid(False)
                 ax.set_xlabel("x [m]")
                 ax.set_ylabel("y [m]")
         axes[0, 0].legend(loc="lower left", fontsize=7)
@@ -206,22 +207,24 @@ class TetherExperiment(Experiment):
         geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
         fig, axes = figure(2, 3, width=11, height=7.4)
         for row, comp in enumerate((False, True)):
-            tr = simulate_tether(P, model, 1, config.steps, np.random.default_rng(config.calibration_seed + 2),
+            tr = simulate_tether(P, model, 8, config.steps, np.random.default_rng(config.calibration_seed + 2),
                                  compass=comp, record_steps=tuple(range(config.steps)))
-            loc = tr.localized[0]
-            t0 = int(loc.argmax()) if loc.any() else 0
+            first = np.where(tr.localized.any(axis=1), tr.localized.argmax(axis=1), config.steps)
+            b = int(first.argmin())                      # the run localized earliest
+            t0 = int(min(first[b], config.steps - 4))
             picks = np.linspace(t0, config.steps - 1, 4).astype(int)[1:]
             for col, t in enumerate(picks):
                 ax = axes[row, col]
-                s = tr.snapshots[t]
-                ax.imshow(tr.grids[t], origin="lower", extent=geom.extent(), cmap="Blues")
+                s = {k: v[b] for k, v in tr.snapshots[t].items()}
+                ax.imshow(tr.grids[t][b], origin="lower", extent=geom.extent(), cmap="Blues")
                 ax.plot(*s["tracker"], "o", color="grey", ms=5, label="tracker (odometry)")
                 ax.plot(*s["trackee"], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
                 ax.plot(*s["estimate"], ".", color=COLORS["truth"], ms=8, label="estimate")
                 ax.set_title(f"({'abcdef'[3 * row + col]}) {'compass' if comp else 'no compass'}, t = {t + 1} s",
                              fontsize=9)
+                ax.grid(False)
                 ax.set_xlabel("x [m] (tracker frame)")
                 ax.set_ylabel("y [m]")
         axes[0, 0].legend(loc="lower left", fontsize=7)
-        fig.suptitle(f"Fig. 6: grid while following; cell width {P.cell_m:g} m")
+        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of 8); cell width {P.cell_m:g} m")
         save(fig, out_dir / "fig6_snapshots.png")

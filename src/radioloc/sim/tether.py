@@ -80,7 +80,7 @@ class TetherParams:
 
 @dataclass
 class TetherTrace:
-    """Per-step records, arrays of shape ``(B, T)`` (``grids``: step -> ``(h, w)`` of run 0)."""
+    """Per-step records, arrays of shape ``(B, T)`` (``grids``: step -> ``(B, h, w)`` at the recorded steps)."""
 
     time_s: np.ndarray
     error_m: np.ndarray
@@ -187,8 +187,8 @@ def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, ste
         out["loc"][:, t] = localized
         out["syn"][:, t] = synced
         if t in record_steps:
-            grids[t] = p[0].copy()
-            snaps[t] = {"tracker": s_a[0].copy(), "trackee": truth_local[0].copy(), "estimate": est[0].copy()}
+            grids[t] = p.copy()
+            snaps[t] = {"tracker": s_a.copy(), "trackee": truth_local, "estimate": est}
     time = (np.arange(T) + 1) * P.dt_s
     return TetherTrace(np.broadcast_to(time, (B, T)), out["err"], out["dist"], out["unc"],
                        out["loc"].astype(bool), out["syn"].astype(bool), grids, snaps)
