@@ -90,7 +90,7 @@ def cell_distances(geom: GridGeometry, position) -> np.ndarray:
     return np.hypot(dx, dy)
 
 
-def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: TrapezoidModel,
+def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: "TrapezoidModel",
                        epsilon: float) -> np.ndarray:
     """Algorithm 1 (ProbabilityUpdate): ``p_i <- max(p_i L(|l_i - s_a| | rss), eps)``, then normalise.
 
@@ -102,6 +102,8 @@ def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: Trapezoid
         Tracker position ``s_a`` of each run in the grid frame.
     rssi : array_like of int, shape (B,)
         Measured RSSI of each run (0..100).
+    model : TrapezoidModel or any object with ``likelihood(dist, rssi)``
+        The sensor model ``L(dist | rssi)``.
     epsilon : float
         Minimum cell probability. With a prior whose cells are all ``>= epsilon`` the
         normaliser is ``<= 1``, so the posterior's cells stay ``>= epsilon``.
