@@ -97,3 +97,28 @@ def test_herald_experiment_smoke(tmp_path, monkeypatch):
     df = exp.run_block(cfg, np.arange(3), np.random.default_rng(0))
     summary = exp.summarize(cfg, df, tmp_path)
     assert all(np.isfinite(m.value) for m in summary.metrics)
+
+
+def test_locate_grid_rssi_finds_static_node(tmp_path):
+    import pandas as pd
+
+    from radioloc.locate.base import LocateRequest, run_method
+    rng = np.random.default_rng(4)
+    d = rng.uniform(0, 30, 8000)
+    model = fit_trapezoid_model(np.clip(np.rint(70 - 2.0 * d + rng.normal(0, 0.3, d.size)), 0, 100), d,
+                                tau_min=0.2, sigma_min=0.2, window=0)
+    path = model.save(tmp_path / "model.json")
+    anchors = pd.DataFrame({"id": ["a", "b", "c", "d"], "x": [0.0, 20, 20, 0], "y": [0.0, 0, 20, 20]})
+    truth = np.array([7.0, 12.0])
+    rows = []
+    for t in range(10):
+        for _, a in anchors.iterrows():
+            dist = np.hypot(*(truth - [a.x, a.y]))
+            rows.append((float(t), "n1", a.id, "rss", 70 - 2.0 * dist - 110, len(rows) + 2))
+    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value", "line"])
+    out = run_method("grid-rssi", LocateRequest(meas, anchors, calibration=path,
+                                                options={"cell_m": "0.5"}))
+    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m"] and len(out) == 10
+    assert np.hypot(out["x"].iloc[-1] - 7.0, out["y"].iloc[-1] - 12.0) < 1.0
+    with pytest.raises(InputError, match="calibration"):
+        run_method("grid-rssi", LocateRequest(meas, anchors))
