@@ -109,6 +109,9 @@ class TetherExperiment(Experiment):
             Metric("peak_error_m_following_compass", pk_wc, None, "m", "as above, with compass"),
             Metric("mean_true_distance_m_following_nocompass", float(nc["mean_dist"].mean()), 3.0, "m",
                    "tracker-trackee distance once localized (paper: 'typically only about 3 m')"),
+            Metric("mean_error_m_after_sync_compass",
+                   float(results.loc[results["compass"] & results["synced"], "error_m"].mean()), None, "m",
+                   "variant of the compass metric: mean error over the steps after the frames were synchronised"),
             Metric("fraction_synced_compass", float(results[results["compass"]].groupby("run")["synced"].last().mean()),
                    None, "", "compass runs whose frames were synchronised by the end"),
         ]
