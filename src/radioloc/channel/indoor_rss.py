@@ -35,6 +35,7 @@ class IndoorChannel:
     wall_db: float = 5.0
     shadow_std_db: float = 3.0
     rayleigh: bool = True
+    packets: int = 1
 
     def mean_dbm(self, d, crossings) -> np.ndarray:
         """Mean received power without shadowing or fading."""
@@ -49,7 +50,7 @@ class IndoorChannel:
         p = self.mean_dbm(d, wall_crossings(a, b, walls))
         p = p + rng.normal(0.0, self.shadow_std_db, p.shape)
         if self.rayleigh:
-            h2 = rng.exponential(1.0, p.shape)
+            h2 = rng.exponential(1.0, (int(self.packets), *p.shape)).mean(axis=0)
             p = p + 10.0 * np.log10(np.maximum(h2, 1e-6))
         return dbm_to_rssi100(p)
 
