@@ -66,17 +66,16 @@ def _fit(config: TetherConfig, params: TetherParams | None = None):
 
 
 def _following(df: pd.DataFrame) -> pd.DataFrame:
-    """Per run: localization time and error statistics once localized."""
-    rows = []
-    for (run, comp), g in df.groupby(["run", "compass"], sort=True):
-        loc = g["localized"].to_numpy(bool)
-        t_loc = float(g["time_s"].to_numpy()[loc.argmax()]) if loc.any() else np.nan
-        f = g[loc]
-        rows.append({"run": run, "compass": comp, "t_loc": t_loc,
-                     "mean_err": f["error_m"].mean() if len(f) else np.nan,
-                     "peak_err": f["error_m"].max() if len(f) else np.nan,
-                     "mean_dist": f["true_distance_m"].mean() if len(f) else np.nan})
-    return pd.DataFrame(rows)
+    """Per (run, compass): localization time and error statistics once localized.
+
+    ``localized`` never reverts within a run, so the following stage is its True rows.
+    """
+    keys = ["run", "compass"]
+    stats = df[df["localized"]].groupby(keys).agg(
+        t_loc=("time_s", "min"), mean_err=("error_m", "mean"), peak_err=("error_m", "max"),
+        mean_dist=("true_distance_m", "mean"))
+    every = df[keys].drop_duplicates().set_index(keys)
+    return every.join(stats).reset_index()
 
 
 @register
