@@ -1,0 +1,261 @@
+"""Paper 003 (Zickler & Veloso): RSS-only localization and tethering, Figs. 2-6.
+
+The RSSI/distance model is fitted on simulated calibration pairs of the same floor (one
+fixed calibration set, seeded by ``calibration_seed``, as the paper builds one model before
+its runs); every Monte Carlo run then places tracker and trackee at random poses and runs
+Algorithm 4 without and with a compass.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from radioloc.estimators.grid import GridGeometry, probability_update
+from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
+from radioloc.models.rssi_trapezoid import RSSI_LEVELS, fit_raw, fit_trapezoid_model, trapezoid
+from radioloc.report.style import COLORS, figure, save
+from radioloc.sim.tether import TetherParams, calibration_pairs, simulate_tether
+
+
+@dataclass(frozen=True)
+class TetherConfig:
+    """Settings of ``p003-tether`` (choices the paper leaves open are ours).
+
+    steps: simulated steps of ``params.dt_s`` seconds per run.
+    calibration_pairs: (RSSI, distance) pairs drawn from random placements for the model.
+    tau_min_m, sigma_min_m, smooth_window: model fit (Sect. III-B/C); window in RSSI rows.
+    near_m: the claim "error stays near 1 m" means mean following error <= near_m.
+    several_m: the claim "errors peak several metres" means median peak error >= several_m.
+    variant_packets: if set, also run a clearly labelled variant (metric suffix ``_avgN``) in
+        which each RSSI reading averages N independently faded packets (model refitted on
+        calibration pairs of that channel); a sensitivity check, not the paper's setting.
+    """
+
+    runs: int = 16
+    block_size: int = 16
+    steps: int = 300
+    calibration_pairs: int = 20000
+    calibration_seed: int = 3003
+    tau_min_m: float = 0.5
+    sigma_min_m: float = 0.5
+    smooth_window: int = 2
+    near_m: float = 1.5
+    several_m: float = 3.0
+    params: TetherParams = field(default_factory=TetherParams)
+    variant_packets: int | None = None
+
+    def variants(self) -> dict[str, TetherParams]:
+        """Label -> simulation parameters ("main" is the paper's setting as we read it)."""
+        out = {"main": self.params}
+        if self.variant_packets:
+            ch = replace(self.params.channel, packets=int(self.variant_packets))
+            out[f"avg{int(self.variant_packets)}"] = replace(self.params, channel=ch)
+        return out
+
+
+def _fit(config: TetherConfig, params: TetherParams | None = None):
+    rng = np.random.default_rng(config.calibration_seed)
+    r, d = calibration_pairs(params or config.params, config.calibration_pairs, rng)
+    model = fit_trapezoid_model(r, d, tau_min=config.tau_min_m, sigma_min=config.sigma_min_m,
+                                window=config.smooth_window)
+    return r, d, model
+
+
+def _following(df: pd.DataFrame) -> pd.DataFrame:
+    """Per (run, compass): localization time and error statistics once localized.
+
+    ``localized`` never reverts within a run, so the following stage is its True rows.
+    """
+    keys = ["run", "compass"]
+    stats = df[df["localized"]].groupby(keys).agg(
+        t_loc=("time_s", "min"), mean_err=("error_m", "mean"), peak_err=("error_m", "max"),
+        mean_dist=("true_distance_m", "mean"))
+    every = df[keys].drop_duplicates().set_index(keys)
+    return every.join(stats).reset_index()
+
+
+@register
+class TetherExperiment(Experiment):
+    id = "p003-tether"
+    paper = "003"
+    description = "RSSI trapezoid model + grid Bayes filter tethering, with and without compass (Figs. 2-6)"
+
+    def config(self, full: bool) -> TetherConfig:
+        return TetherConfig(runs=200, block_size=50, steps=400, variant_packets=10) if full else TetherConfig()
+
+    def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        frames = []
+        for label, params in config.variants().items():
+            _, _, model = _fit(config, params)
+            for compass in (False, True):
+                tr = simulate_tether(params, model, runs.size, config.steps, rng, compass=compass)
+                B, T = tr.error_m.shape
+                frames.append(pd.DataFrame({
+                    "variant": label, "run": np.repeat(runs, T), "compass": compass,
+                    "time_s": tr.time_s.ravel(), "error_m": tr.error_m.ravel(),
+                    "true_distance_m": tr.true_distance_m.ravel(),
+                    "uncertainty_m": tr.uncertainty_m.ravel(), "localized": tr.localized.ravel(),
+                    "synced": tr.synced.ravel()}))
+        return pd.concat(frames, ignore_index=True)
+
+    def summarize(self, config: TetherConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        r, d, model = _fit(config)
+        extra = []
+        for label in list(config.variants())[1:]:
+            sub = _following(results[results["variant"] == label])
+            extra += [
+                Metric(f"mean_error_m_following_compass_{label}", float(sub.loc[sub["compass"], "mean_err"].mean()),
+                       None, "m", f"VARIANT {label}: readings average {config.variant_packets} faded packets"),
+                Metric(f"mean_error_m_following_nocompass_{label}", float(sub.loc[~sub["compass"], "mean_err"].mean()),
+                       None, "m", f"VARIANT {label}"),
+                Metric(f"peak_error_m_following_nocompass_{label}", float(sub.loc[~sub["compass"], "peak_err"].median()),
+                       None, "m", f"VARIANT {label}"),
+                Metric(f"time_to_localize_s_{label}", float(sub["t_loc"].median()), None, "s", f"VARIANT {label}"),
+                Metric(f"fraction_localized_{label}", float(sub["t_loc"].notna().mean()), None, "", f"VARIANT {label}"),
+            ]
+        results = results[results["variant"] == "main"]
+        per = _following(results)
+        nc, wc = per[~per["compass"]], per[per["compass"]]
+        t_loc = per["t_loc"].dropna()
+        frac = float(per["t_loc"].notna().mean())
+        m_wc, m_nc = float(wc["mean_err"].mean()), float(nc["mean_err"].mean())
+        pk_nc, pk_wc = float(nc["peak_err"].median()), float(wc["peak_err"].median())
+        metrics = [
+            Metric("time_to_localize_s", float(t_loc.median()) if len(t_loc) else np.nan, 50.0, "s",
+                   "median over localized runs of the first time GetUncertainty < v (paper: ~50 s in Fig. 4)"),
+            Metric("fraction_localized", frac, None, "", f"runs localized within {config.steps} steps"),
+            Metric("mean_error_m_following_compass", m_wc, 1.0, "m",
+                   "mean over runs of the mean error once localized (paper: 'typically within 1 m')"),
+            Metric("mean_error_m_following_nocompass", m_nc, None, "m", "as above, no compass"),
+            Metric("peak_error_m_following_nocompass", pk_nc, 7.0, "m",
+                   "median over runs of the largest error once localized (paper: peaks near 7 m)"),
+            Metric("peak_error_m_following_compass", pk_wc, None, "m", "as above, with compass"),
+            Metric("mean_true_distance_m_following_nocompass", float(nc["mean_dist"].mean()), 3.0, "m",
+                   "tracker-trackee distance once localized (paper: 'typically only about 3 m')"),
+            Metric("mean_error_m_after_sync_compass",
+                   float(results.loc[results["compass"] & results["synced"], "error_m"].mean()), None, "m",
+                   "variant of the compass metric: mean error over the steps after the frames were synchronised"),
+            Metric("fraction_synced_compass", float(results[results["compass"]].groupby("run")["synced"].last().mean()),
+                   None, "", "compass runs whose frames were synchronised by the end"),
+        ]
+        metrics += extra
+        claims = [
+            Claim(f"With a compass the error stays near 1 m while following (mean <= {config.near_m:g} m)",
+                  bool(m_wc <= config.near_m)),
+            Claim(f"Without a compass the error peaks several metres (median peak >= {config.several_m:g} m)",
+                  bool(pk_nc >= config.several_m)),
+            Claim("Synchronising the frames with a compass lowers the following error", bool(m_wc < m_nc)),
+        ]
+        self._fig_model(config, r, d, model, out_dir)
+        self._fig_donuts(config, model, out_dir)
+        self._fig_traces(results, per, out_dir)
+        self._fig_snapshots(config, model, out_dir)
+        notes = [f"{len(per) // 2} runs per variant, {config.steps} steps of {config.params.dt_s:g} s; "
+                 f"grid {config.params.grid_cells}x{config.params.grid_cells} cells of {config.params.cell_m:g} m"]
+        return Summary(metrics, claims, notes)
+
+    # ---- figures ---------------------------------------------------------------------
+    @staticmethod
+    def _fig_model(config, r, d, model, out_dir):
+        dist = np.linspace(0, 60, 301)
+        rows = np.arange(RSSI_LEVELS)
+        mu, tau, sigma, _ = fit_raw(r, d, config.tau_min_m, config.sigma_min_m)
+        with np.errstate(invalid="ignore"):
+            raw = trapezoid(dist[None, :], mu[:, None], tau[:, None], sigma[:, None])
+        smooth = model.likelihood(dist[None, :], rows[:, None])
+        fig, axes = figure(1, 2, width=10, height=4.2, sharey=True)
+        for ax, img, title in ((axes[0], raw, "(a) before post-processing"),
+                               (axes[1], smooth, "(b) after smoothing + monotone boundaries")):
+            im = ax.imshow(np.ma.masked_invalid(img), origin="lower", aspect="auto", cmap="Blues",
+                           extent=(dist[0], dist[-1], -0.5, 100.5), vmin=0, vmax=1)
+            ax.set_xlabel("distance [m]")
+            ax.set_title(title)
+        axes[0].set_ylabel("RSSI (0..100)")
+        fig.colorbar(im, ax=axes[1], label="L(dist | rssi)")
+        fig.suptitle(f"Fig. 2: RSSI/distance likelihood from {len(r)} simulated calibration pairs")
+        save(fig, out_dir / "fig2_model.png")
+
+    @staticmethod
+    def _fig_donuts(config, model, out_dir):
+        P = config.params
+        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
+        rng = np.random.default_rng(config.calibration_seed + 1)
+        trackee = np.array([[5.0, 4.0]])
+        trackers = np.array([[-6.0, -3.0], [0.0, 6.0], [6.0, -5.0]])
+        centre = np.full(2, P.floor_m / 2)
+        p = geom.uniform(1)
+        fig, axes = figure(2, 3, width=11, height=7.4)
+        X, Y = np.meshgrid(geom.x, geom.y)
+        for i, pos in enumerate(trackers):
+            rssi = P.channel.sample_rssi(pos + centre, trackee[0] + centre, np.zeros((0, 4)), rng)
+            lik = model.likelihood(np.hypot(X - pos[0], Y - pos[1]), rssi)
+            p = probability_update(p, geom, pos[None], [rssi], model, P.epsilon)
+            for ax, img, lab in ((axes[0, i], lik, f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI {int(rssi)}"),
+                                 (axes[1, i], p[0], f"({'def'[i]}) grid after {i + 1} update(s)")):
+                ax.imshow(img, origin="lower", extent=geom.extent(), cmap="Greys")
+                ax.plot(*trackers[:i + 1].T, "o", color=COLORS["ours"], ms=5, label="tracker positions")
+                for j, q in enumerate(trackers[:i + 1]):
+                    ax.annotate(str(j + 1), q, xytext=(4, 4), textcoords="offset points", color=COLORS["ours"])
+                ax.plot(*trackee[0], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
+                ax.axhline(0, ls="--", lw=0.6, color="k")
+                ax.axvline(0, ls="--", lw=0.6, color="k")
+                ax.set_title(lab, fontsize=9)
+                ax.grid(False)
+                ax.set_xlabel("x [m]")
+                ax.set_ylabel("y [m]")
+        axes[0, 0].legend(loc="lower left", fontsize=7)
+        fig.suptitle("Fig. 3: distance likelihoods of three readings (top) and the grid posterior (bottom)")
+        save(fig, out_dir / "fig3_updates.png")
+
+    @staticmethod
+    def _fig_traces(results, per, out_dir):
+        for comp, name, num in ((False, "nocompass", 4), (True, "compass", 5)):
+            sub = results[results["compass"] == comp]
+            info = per[per["compass"] == comp].sort_values("run")
+            run = int(info.dropna(subset=["t_loc"])["run"].iloc[0]) if info["t_loc"].notna().any() else int(info["run"].iloc[0])
+            g = sub[sub["run"] == run]
+            med = sub.groupby("time_s")["error_m"].median()
+            fig, ax = figure(width=8, height=4)
+            ax.plot(g["time_s"], g["error_m"], color=COLORS["ours"], label=f"localization error, run {run}")
+            ax.plot(g["time_s"], g["true_distance_m"], color=COLORS["truth"], ls="--", label=f"true distance, run {run}")
+            ax.plot(med.index, med.values, color=COLORS["bound"], lw=0.8, alpha=0.7, label="median error over all runs")
+            t_loc = info.loc[info["run"] == run, "t_loc"].iloc[0]
+            if np.isfinite(t_loc):
+                ax.axvline(t_loc, color="k", ls=":", lw=1, label="localized (trackee starts moving)")
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("[m]")
+            ax.set_title(f"Fig. {num}: localization {'with' if comp else 'without'} orientation sensing")
+            ax.legend(loc="upper right", fontsize=8)
+            save(fig, out_dir / f"fig{num}_{name}.png")
+
+    @staticmethod
+    def _fig_snapshots(config, model, out_dir):
+        P = config.params
+        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
+        fig, axes = figure(2, 3, width=11, height=7.4)
+        for row, comp in enumerate((False, True)):
+            tr = simulate_tether(P, model, 8, config.steps, np.random.default_rng(config.calibration_seed + 2),
+                                 compass=comp, record_steps=tuple(range(config.steps)))
+            first = np.where(tr.localized.any(axis=1), tr.localized.argmax(axis=1), config.steps)
+            b = int(first.argmin())                      # the run localized earliest
+            t0 = int(min(first[b], config.steps - 4))
+            picks = np.linspace(t0, config.steps - 1, 4).astype(int)[1:]
+            for col, t in enumerate(picks):
+                ax = axes[row, col]
+                s = {k: v[b] for k, v in tr.snapshots[t].items()}
+                ax.imshow(tr.grids[t][b], origin="lower", extent=geom.extent(), cmap="Blues")
+                ax.plot(*s["tracker"], "o", color="grey", ms=5, label="tracker (odometry)")
+                ax.plot(*s["trackee"], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
+                ax.plot(*s["estimate"], ".", color=COLORS["truth"], ms=8, label="estimate")
+                ax.set_title(f"({'abcdef'[3 * row + col]}) {'compass' if comp else 'no compass'}, t = {t + 1} s",
+                             fontsize=9)
+                ax.grid(False)
+                ax.set_xlabel("x [m] (tracker frame)")
+                ax.set_ylabel("y [m]")
+        axes[0, 0].legend(loc="lower left", fontsize=7)
+        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of 8); cell width {P.cell_m:g} m")
+        save(fig, out_dir / "fig6_snapshots.png")

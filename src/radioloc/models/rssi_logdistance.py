@@ -1,0 +1,46 @@
+"""Log-distance Gaussian RSSI model, the parametric peer of the trapezoid model (paper 003).
+
+``rssi ~ N(a - 10 n log10(max(d, d_ref)), s^2)`` on the same 0..100 (or dBm) scale, fitted
+by least squares. :meth:`LogDistanceGaussian.likelihood` has peak value 1 like the trapezoid
+``L(dist | rssi)``, so either model plugs into the grid filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radioloc.core.errors import InputError
+from radioloc.core.validation import as_float_array
+
+
+@dataclass(frozen=True)
+class LogDistanceGaussian:
+    """Fitted parameters: ``a`` (RSSI at 1 m), ``n`` (exponent), ``s`` (residual std), ``d_ref_m``."""
+
+    a: float
+    n: float
+    s: float
+    d_ref_m: float = 0.1
+
+    @classmethod
+    def fit(cls, rssi, dist, d_ref_m: float = 0.1) -> "LogDistanceGaussian":
+        r = as_float_array(rssi, "rssi", ndim=1)
+        d = as_float_array(dist, "dist", ndim=1, nonnegative=True)
+        if r.shape != d.shape or r.size < 3:
+            raise InputError(f"rssi/dist: need >= 3 pairs of equal length, got {r.shape}, {d.shape}")
+        x = -10.0 * np.log10(np.maximum(d, d_ref_m))
+        A = np.stack([np.ones_like(x), x], axis=1)
+        coef, *_ = np.linalg.lstsq(A, r, rcond=None)
+        s = float(np.std(r - A @ coef))
+        return cls(float(coef[0]), float(coef[1]), max(s, 1e-6), d_ref_m)
+
+    def mean(self, dist) -> np.ndarray:
+        return self.a - 10.0 * self.n * np.log10(np.maximum(np.asarray(dist, float), self.d_ref_m))
+
+    def likelihood(self, dist, rssi) -> np.ndarray:
+        """``exp(-(rssi - mean(dist))^2 / (2 s^2))`` (peak 1), broadcast."""
+        d = as_float_array(dist, "dist", nonnegative=True)
+        r = as_float_array(rssi, "rssi")
+        return np.exp(-0.5 * ((r - self.mean(d)) / self.s) ** 2)

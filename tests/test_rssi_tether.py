@@ -1,0 +1,124 @@
+"""Tests of the tethering simulation, its channel, the Herald loader and the p003 experiments."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radioloc.channel.indoor_rss import IndoorChannel, office_walls, wall_crossings
+from radioloc.core.errors import DataUnavailable, InputError
+from radioloc.io.herald import load_session
+from radioloc.models.rssi_logdistance import LogDistanceGaussian
+from radioloc.models.rssi_trapezoid import fit_trapezoid_model
+from radioloc.sim.tether import TetherParams, calibration_pairs, simulate_tether
+
+HERALD = Path("/work/shared/data/herald-ble-rssi-distance")
+
+
+def test_wall_crossings_known_answer():
+    walls = np.array([[5.0, -10, 5.0, 10], [10.0, -10, 10.0, 10], [0, 5.0, 20, 5.0]])
+    n = wall_crossings(np.array([[0.0, 0.0], [0.0, 0.0], [6.0, 0.0]]),
+                       np.array([[12.0, 0.0], [4.0, 0.0], [6.0, 8.0]]), walls)
+    np.testing.assert_array_equal(n, [2, 0, 1])
+
+
+def test_channel_quantised_and_decreasing_with_walls():
+    ch = IndoorChannel(shadow_std_db=0.0, rayleigh=False)
+    walls = office_walls(40.0, 4)
+    rng = np.random.default_rng(0)
+    r = ch.sample_rssi(np.array([[2.0, 5.0], [2.0, 5.0]]), np.array([[8.0, 5.0], [15.0, 1.0]]), walls, rng)
+    assert r.dtype.kind == "i" and np.all((r >= 0) & (r <= 100))
+    assert r[0] > r[1]
+
+
+def test_tether_without_noise_localizes_static_trackee():
+    P = TetherParams(channel=IndoorChannel(shadow_std_db=1.0, rayleigh=False, wall_db=0.0))
+    rng = np.random.default_rng(1)
+    r, d = calibration_pairs(P, 5000, rng)
+    model = fit_trapezoid_model(r, d, tau_min=0.5, sigma_min=0.5, window=2)
+    tr = simulate_tether(P, model, 4, 120, rng, compass=True)
+    assert tr.error_m.shape == (4, 120)
+    assert np.all(tr.localized.any(axis=1))
+    first = tr.localized.argmax(axis=1)
+    assert np.all(tr.error_m[np.arange(4), first] < 4.0)
+
+
+def test_logdistance_fit_recovers_parameters():
+    rng = np.random.default_rng(2)
+    d = rng.uniform(0.2, 10, 5000)
+    r = 60 - 10 * 2.2 * np.log10(d) + rng.normal(0, 2, d.size)
+    m = LogDistanceGaussian.fit(r, d)
+    assert m.n == pytest.approx(2.2, abs=0.05) and m.s == pytest.approx(2.0, abs=0.1)
+    assert m.likelihood(1.0, m.a) == pytest.approx(1.0)
+
+
+def test_herald_missing_session_raises(tmp_path):
+    with pytest.raises(DataUnavailable, match="herald"):
+        load_session(tmp_path, "20210110-2247")
+
+
+def test_herald_bad_row_raises(tmp_path):
+    folder = tmp_path / "reference-data" / "rssi-raw-edison"
+    folder.mkdir(parents=True)
+    (folder / "s-A.csv").write_text("time,rssi,distance\nx,-60,10\ny,abc,20\n")
+    with pytest.raises(InputError, match="line 3"):
+        load_session(tmp_path, "s")
+
+
+@pytest.mark.skipif(not HERALD.is_dir(), reason="Herald data absent")
+def test_herald_loads_metres():
+    df = load_session(HERALD, "20210110-2247")
+    assert set(df["phone"]) == {"A", "B"}
+    assert df["distance_m"].max() <= 3.5 and df["rssi_dbm"].max() < 0
+
+
+def test_experiment_smoke(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from radioloc.experiments.tether import TetherExperiment
+    exp = TetherExperiment()
+    cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000)
+    df = exp.run_block(cfg, np.arange(2), np.random.default_rng(0))
+    assert set(df["compass"]) == {False, True} and len(df) == 2 * 2 * 40
+    summary = exp.summarize(cfg, df, tmp_path)
+    names = {m.name for m in summary.metrics}
+    assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s"} <= names
+    assert (tmp_path / "fig2_model.png").is_file() and (tmp_path / "fig6_snapshots.png").is_file()
+
+
+@pytest.mark.skipif(not HERALD.is_dir(), reason="Herald data absent")
+def test_herald_experiment_smoke(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    from radioloc.experiments.herald_rssi import HeraldRssi
+    monkeypatch.setenv("RADIOLOC_DATA", str(HERALD.parent))
+    exp = HeraldRssi()
+    cfg = replace(exp.config(False), runs=3, block_size=3, steps=10)
+    df = exp.run_block(cfg, np.arange(3), np.random.default_rng(0))
+    summary = exp.summarize(cfg, df, tmp_path)
+    assert all(np.isfinite(m.value) for m in summary.metrics)
+
+
+def test_locate_grid_rssi_finds_static_node(tmp_path):
+    import pandas as pd
+
+    from radioloc.locate.base import LocateRequest, run_method
+    rng = np.random.default_rng(4)
+    d = rng.uniform(0, 30, 8000)
+    model = fit_trapezoid_model(np.clip(np.rint(70 - 2.0 * d + rng.normal(0, 0.3, d.size)), 0, 100), d,
+                                tau_min=0.2, sigma_min=0.2, window=0)
+    path = model.save(tmp_path / "model.json")
+    anchors = pd.DataFrame({"id": ["a", "b", "c", "d"], "x": [0.0, 20, 20, 0], "y": [0.0, 0, 20, 20]})
+    truth = np.array([7.0, 12.0])
+    rows = []
+    for t in range(10):
+        for _, a in anchors.iterrows():
+            dist = np.hypot(*(truth - [a.x, a.y]))
+            rows.append((float(t), "n1", a.id, "rss", 70 - 2.0 * dist - 110, len(rows) + 2))
+    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value", "line"])
+    out = run_method("grid-rssi", LocateRequest(meas, anchors, calibration=path,
+                                                options={"cell_m": "0.5"}))
+    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m"] and len(out) == 10
+    assert np.hypot(out["x"].iloc[-1] - 7.0, out["y"].iloc[-1] - 12.0) < 1.0
+    with pytest.raises(InputError, match="calibration"):
+        run_method("grid-rssi", LocateRequest(meas, anchors))
