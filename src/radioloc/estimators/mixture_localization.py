@@ -120,10 +120,11 @@ def track(models: DiagMixture, rss, dt, v_max: float = 1.5, max_components: int 
     dts = np.broadcast_to(np.asarray(dt, dtype=float), (t_steps,))
     if v_max < 0 or np.any(dts[1:] < 0):
         raise InputError("v_max/dt: must be >= 0")
+    measured = localize(models, m, max_components)        # all steps at once, batch (T, ...)
     means, covs = [], []
     post = None
     for t in range(t_steps):
-        meas = localize(models, m[t], max_components)
+        meas = measured[t]
         if post is None:
             post = meas
         else:

@@ -153,11 +153,11 @@ class CorridorExperiment(Experiment):
         corridor = Corridor()
         rng = np.random.default_rng(config.figure_seed)
         noise = config.noise_db[0]
-        models = _index(_calibrate(config, corridor, noise, 1, rng), 0)    # batch (2,)
+        models = _calibrate(config, corridor, noise, 1, rng)[0]    # batch (2,)
         xs = np.linspace(0, corridor.length_m, 301)
 
         fig, ax = figure()
-        for closed, ls in ((False, ":"), (True, "-")):
+        for closed, ls in ((True, "-"), (False, ":")):
             mean = corridor.mean_rss(xs, closed)
             for k, c in enumerate((COLORS["ours"], COLORS["baseline"])):
                 ax.plot(xs, mean[:, k], ls, color=c,
@@ -167,12 +167,12 @@ class CorridorExperiment(Experiment):
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("signal strength m [dBm]")
         ax.set_title("Fig. 4: corridor with a metallic door at 30 m (noise-free)")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="lower center")
         save(fig, out_dir / "fig4_corridor_rss.png")
 
         ms = np.linspace(-90, -20, 141)
         gx, gm = np.meshgrid(xs, ms)
-        dens = _index(models, 0).pdf(np.c_[gx.ravel(), gm.ravel()]).reshape(gx.shape)
+        dens = models[0].pdf(np.c_[gx.ravel(), gm.ravel()]).reshape(gx.shape)
         fig, ax = figure()
         pc = ax.pcolormesh(gx, gm, dens, shading="auto", cmap="viridis")
         fig.colorbar(pc, ax=ax, label="density D(x, m)")
@@ -183,7 +183,7 @@ class CorridorExperiment(Experiment):
         save(fig, out_dir / "fig5_model_station1.png")
 
         xq = 50.0
-        pm = _index(models, 0).condition(0, xq)
+        pm = models[0].condition(0, xq)
         dm = pm.pdf(ms[:, None])
         fig, ax = figure()
         ax.plot(ms, dm, color=COLORS["ours"], label="model D(m | x = 50 m)")
@@ -200,11 +200,11 @@ class CorridorExperiment(Experiment):
         door = False
         rss = corridor.sample_rss(np.full((config.updates, 1), config.user_m), door, noise, rng)
         cond = models.condition(1, rss[0, 0], valid=np.ones(2, bool))
-        prod = product(_index(cond, 0), _index(cond, 1))
+        prod = product(cond[0], cond[1])
         fig, ax = figure()
         stds = []
-        for mix, lab, c, ls in ((_index(cond, 0), "station 1 (x = 0 m)", COLORS["baseline"], "--"),
-                                (_index(cond, 1), "station 2 (x = 60 m)", COLORS["alt"], ":"),
+        for mix, lab, c, ls in ((cond[0], "station 1 (x = 0 m)", COLORS["baseline"], "--"),
+                                (cond[1], "station 2 (x = 60 m)", COLORS["alt"], ":"),
                                 (prod, "product, eq. (2)", COLORS["ours"], "-")):
             ax.plot(xs, mix.pdf(xs[:, None]), ls, color=c, label=lab)
             stds.append(np.sqrt(mix.moments()[1][0, 0]))
@@ -249,7 +249,3 @@ class CorridorExperiment(Experiment):
                 Claim("The product of the per-station densities is more concentrated than "
                       "either (Fig. 9)", bool(stds[2] < min(stds[:2])))]
 
-
-def _index(mix: DiagMixture, i) -> DiagMixture:
-    """Mixture ``i`` along the first batch axis."""
-    return DiagMixture(mix.weights[i], mix.means[i], mix.variances[i])

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
@@ -77,6 +78,12 @@ class DiagMixture:
     @property
     def batch_shape(self) -> tuple[int, ...]:
         return self.weights.shape[:-1]
+
+    def __getitem__(self, index) -> "DiagMixture":
+        """Index the batch axes (not the component axis)."""
+        if not self.batch_shape:
+            raise InputError("index: this mixture has no batch axes")
+        return DiagMixture(self.weights[index], self.means[index], self.variances[index])
 
     def logpdf(self, points) -> np.ndarray:
         """Log density at ``points`` ``(..., P, D)`` (batch axes broadcast); returns ``(..., P)``."""
@@ -222,7 +229,7 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
     cost :func:`runnalls_cost` of the merge is smallest. Each merge preserves the mass, the
     mean and the per-axis variances of the pair, so the whole reduction preserves the mass,
     the mean and the diagonal of the covariance of the mixture. One merge per loop
-    iteration, applied to all mixtures of the batch that still need it.
+    iteration per mixture, in a compiled kernel (:func:`_west_kernel`).
     """
     if int(max_components) < 1:
         raise InputError(f"max_components: must be >= 1, got {max_components}")
@@ -231,30 +238,67 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
         return mix
     bshape = mix.batch_shape
     k, d = mix.n_components, mix.dim
-    w = mix.weights.reshape(-1, k).copy()
-    m = mix.means.reshape(-1, k, d).copy()
-    v = mix.variances.reshape(-1, k, d).copy()
-    rows = np.arange(w.shape[0])
-    while True:
-        active = w > 0
-        need = active.sum(-1) > max_components
-        if not need.any():
-            break
-        r = rows[need]
-        wr = np.where(active[r], w[r], np.inf)
-        i = np.argmin(wr, axis=-1)
-        wi, mi, vi = w[r, i], m[r, i], v[r, i]
-        cost = runnalls_cost(wi[:, None], mi[:, None], vi[:, None], w[r], m[r], v[r])
-        cost = np.where(active[r], cost, np.inf)
-        cost[np.arange(r.size), i] = np.inf
-        j = np.argmin(cost, axis=-1)
-        nw, nm, nv = merge_moments(wi, mi, vi, w[r, j], m[r, j], v[r, j])
-        w[r, j], m[r, j], v[r, j] = nw, nm, nv
-        w[r, i] = 0.0
+    w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float).copy()
+    m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float).copy()
+    v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float).copy()
+    _west_kernel(w, m, v, int(max_components))
     out = compact(DiagMixture(w, m, v))
     kk = out.n_components
     return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
                        out.variances.reshape(bshape + (kk, d)))
+
+
+@njit(cache=True)
+def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
+    """In-place greedy merging of :func:`reduce` (sequential by nature: each merge changes
+    the costs of the next). Same rule and formulas as :func:`merge_moments` and
+    :func:`runnalls_cost`."""
+    nb, k, d = m.shape
+    for b in range(nb):
+        n_active = 0
+        for c in range(k):
+            if w[b, c] > 0:
+                n_active += 1
+        while n_active > kmax:
+            i = -1
+            for c in range(k):
+                if w[b, c] > 0 and (i < 0 or w[b, c] < w[b, i]):
+                    i = c
+            best = np.inf
+            j = -1
+            logdet_i = 0.0
+            for e in range(d):
+                logdet_i += np.log(v[b, i, e])
+            for c in range(k):
+                if c == i or w[b, c] <= 0:
+                    continue
+                ws = w[b, i] + w[b, c]
+                a1 = w[b, i] / ws
+                a2 = w[b, c] / ws
+                ld = 0.0
+                ldc = 0.0
+                for e in range(d):
+                    mm = a1 * m[b, i, e] + a2 * m[b, c, e]
+                    vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
+                        a2 * (v[b, c, e] + (m[b, c, e] - mm) ** 2)
+                    ld += np.log(vv)
+                    ldc += np.log(v[b, c, e])
+                cost = 0.5 * (ws * ld - w[b, i] * logdet_i - w[b, c] * ldc)
+                if cost < best:
+                    best = cost
+                    j = c
+            ws = w[b, i] + w[b, j]
+            a1 = w[b, i] / ws
+            a2 = w[b, j] / ws
+            for e in range(d):
+                mm = a1 * m[b, i, e] + a2 * m[b, j, e]
+                vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
+                    a2 * (v[b, j, e] + (m[b, j, e] - mm) ** 2)
+                m[b, j, e] = mm
+                v[b, j, e] = vv
+            w[b, j] = ws
+            w[b, i] = 0.0
+            n_active -= 1
 
 
 def uniform_ball(radius, dim: int) -> DiagMixture:

@@ -108,7 +108,7 @@ def em_calibration(positions, rss, n_components: int = 16, seed: int = 0,
             raise InputError(f"rss: base station column {k} has fewer than 2 calibration samples")
         data = np.c_[pos[ok], m[ok, k]]
         kk = min(n_components, int(ok.sum()))
-        gm = GaussianMixture(kk, covariance_type="diag", random_state=seed,
+        gm = GaussianMixture(kk, covariance_type="diag", random_state=seed, init_params="k-means++",
                              reg_covar=reg_covar).fit(data)
         pad = n_components - kk
         ws.append(np.r_[gm.weights_, np.zeros(pad)])
