@@ -124,6 +124,6 @@ class BleFingerprintExperiment(Experiment):
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
         ax.set_title("Robot test run: reference and estimates")
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="center")
         save(fig, out_dir / "track.png")
         return Summary(metrics, claims, notes)
