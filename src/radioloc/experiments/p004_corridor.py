@@ -183,7 +183,7 @@ class CorridorExperiment(Experiment):
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("signal strength m [dBm]")
         ax.set_title("Fig. 4: corridor with a metallic door at 30 m (noise-free)")
-        ax.legend(fontsize=8, loc="lower center")
+        ax.legend(fontsize=8, loc="upper center")
         save(fig, out_dir / "fig4_corridor_rss.png")
 
         ms = np.linspace(-90, -20, 141)
