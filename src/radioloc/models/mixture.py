@@ -1,0 +1,336 @@
+"""Axis-aligned Gaussian mixtures with leading batch axes (paper 004, eqs. 1-2).
+
+A :class:`DiagMixture` holds ``weights`` ``(..., K)``, ``means`` ``(..., K, D)`` and
+``variances`` ``(..., K, D)``; every leading axis is an independent mixture (a Monte Carlo
+run, a base station, a measurement row). All operations act on the whole batch at once:
+
+- :meth:`DiagMixture.logpdf` evaluation;
+- :meth:`DiagMixture.condition` on one coordinate (the signal strength ``m``) in closed
+  form, which for axis-aligned components only re-weights them (Sect. 3.2);
+- :func:`product` of two mixtures (the product of eq. 2, renormalised);
+- :func:`convolve` (density of a sum of independent variables, the prediction step);
+- :func:`reduce` to a bounded number of components by West's greedy rule with Runnalls'
+  merge cost, merging by moment matching.
+
+Moment-preserving merge on axis-aligned components: the merged component keeps the total
+weight, the mean and the per-axis variances (the diagonal of the covariance) of what it
+merges. The cross-covariances between axes that the spread of the merged means creates are
+dropped so that components stay axis-aligned as eq. (1) requires; the merge is therefore
+exact in mass, mean and diagonal covariance, and an approximation in the off-diagonal terms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from radioloc.core.errors import InputError
+from radioloc.core.validation import as_float_array
+
+_LOG2PI = np.log(2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class DiagMixture:
+    """A batch of Gaussian mixtures with axis-aligned components, eq. (1).
+
+    Parameters
+    ----------
+    weights : array (..., K)
+        Non-negative component weights; each mixture's weights sum to one (zero weights
+        mark unused slots).
+    means : array (..., K, D)
+    variances : array (..., K, D)
+        Positive per-axis variances.
+    """
+
+    weights: np.ndarray
+    means: np.ndarray
+    variances: np.ndarray
+
+    @classmethod
+    def create(cls, weights, means, variances, normalize: bool = True) -> "DiagMixture":
+        """Validated constructor; ``normalize`` rescales the weights to sum to one."""
+        m = as_float_array(means, "means", min_ndim=2)
+        v = as_float_array(variances, "variances", min_ndim=2)
+        w = as_float_array(weights, "weights", min_ndim=1, nonnegative=True)
+        if v.shape != m.shape:
+            raise InputError(f"variances: shape {v.shape} differs from means {m.shape}")
+        if w.shape != m.shape[:-1]:
+            raise InputError(f"weights: shape {w.shape} does not match means {m.shape[:-1]}")
+        if np.any(v <= 0):
+            raise InputError("variances: must be > 0")
+        total = w.sum(axis=-1, keepdims=True)
+        if np.any(total <= 0):
+            raise InputError("weights: every mixture needs a positive total weight")
+        return cls(w / total if normalize else w, m, v)
+
+    @property
+    def n_components(self) -> int:
+        return self.weights.shape[-1]
+
+    @property
+    def dim(self) -> int:
+        return self.means.shape[-1]
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.weights.shape[:-1]
+
+    def __getitem__(self, index) -> "DiagMixture":
+        """Index the batch axes (not the component axis)."""
+        if not self.batch_shape:
+            raise InputError("index: this mixture has no batch axes")
+        return DiagMixture(self.weights[index], self.means[index], self.variances[index])
+
+    def logpdf(self, points) -> np.ndarray:
+        """Log density at ``points`` ``(..., P, D)`` (batch axes broadcast); returns ``(..., P)``."""
+        x = as_float_array(points, "points", min_ndim=2, last_dim=self.dim)
+        diff = x[..., :, None, :] - self.means[..., None, :, :]          # (..., P, K, D)
+        v = self.variances[..., None, :, :]
+        comp = -0.5 * np.sum(diff**2 / v + np.log(v) + _LOG2PI, axis=-1)
+        with np.errstate(divide="ignore"):
+            logw = np.log(self.weights)[..., None, :]
+        return _logsumexp(comp + logw, axis=-1)
+
+    def pdf(self, points) -> np.ndarray:
+        return np.exp(self.logpdf(points))
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean ``(..., D)`` and full covariance ``(..., D, D)`` of each mixture."""
+        w = self.weights[..., None]
+        mean = np.sum(w * self.means, axis=-2)
+        d = self.means - mean[..., None, :]
+        cov = np.einsum("...k,...ki,...kj->...ij", self.weights, d, d)
+        cov = cov + np.einsum("...k,...ki->...i", self.weights, self.variances)[..., None] \
+            * np.eye(self.dim)
+        return mean, cov
+
+    def marginal(self, dims) -> "DiagMixture":
+        """The marginal over the coordinates ``dims`` (exact for axis-aligned components)."""
+        dims = list(np.atleast_1d(dims))
+        return DiagMixture(self.weights, self.means[..., dims], self.variances[..., dims])
+
+    def condition(self, dim: int, value, valid=None) -> "DiagMixture":
+        """Condition on coordinate ``dim`` equal to ``value`` ``(...)``, in closed form.
+
+        For axis-aligned components ``N(x)N(y)N(m)``, ``D(x, y | m)`` is the mixture of the
+        remaining factors with weights ``w_j N(m; mu_mj, s_mj^2)`` renormalised (the section
+        of eq. 1 used in Sect. 3.2). Where ``valid`` is False the marginal is returned.
+        """
+        value = np.asarray(value, dtype=float)
+        mu = self.means[..., dim]
+        var = self.variances[..., dim]
+        loglik = -0.5 * ((value[..., None] - mu) ** 2 / var + np.log(var) + _LOG2PI)
+        if valid is not None:
+            loglik = np.where(np.asarray(valid)[..., None], loglik, 0.0)
+        weights = _normalized_exp(_safe_log(self.weights) + loglik)
+        keep = [d for d in range(self.dim) if d != dim]
+        return DiagMixture(weights, self.means[..., keep], self.variances[..., keep])
+
+
+def _safe_log(w: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        return np.log(w)
+
+
+def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
+    mx = np.max(a, axis=axis, keepdims=True)
+    mx = np.where(np.isfinite(mx), mx, 0.0)
+    return np.log(np.sum(np.exp(a - mx), axis=axis)) + np.squeeze(mx, axis=axis)
+
+
+def _normalized_exp(logw: np.ndarray) -> np.ndarray:
+    """exp(logw) normalised along the last axis, computed stably."""
+    mx = np.max(logw, axis=-1, keepdims=True)
+    w = np.exp(logw - np.where(np.isfinite(mx), mx, 0.0))
+    total = w.sum(axis=-1, keepdims=True)
+    if np.any(total <= 0) or not np.all(np.isfinite(total)):
+        raise InputError("weights: a mixture lost all its mass (disjoint densities)")
+    return w / total
+
+
+def product(a: DiagMixture, b: DiagMixture) -> DiagMixture:
+    """Normalised product ``c a(x) b(x)`` of two batches of mixtures (eq. 2).
+
+    Component pairs ``(i, j)`` give ``K_a K_b`` components with variance
+    ``(1/v_i + 1/v_j)^-1``, mean ``v (mu_i/v_i + mu_j/v_j)`` and weight
+    ``w_i w_j N(mu_i; mu_j, v_i + v_j)``.
+    """
+    if a.dim != b.dim:
+        raise InputError(f"product: dimensions differ ({a.dim} and {b.dim})")
+    vi, vj = a.variances[..., :, None, :], b.variances[..., None, :, :]
+    mi, mj = a.means[..., :, None, :], b.means[..., None, :, :]
+    s = vi + vj
+    var = vi * vj / s
+    mean = (mi * vj + mj * vi) / s
+    logc = -0.5 * np.sum((mi - mj) ** 2 / s + np.log(s) + _LOG2PI, axis=-1)
+    logw = _safe_log(a.weights)[..., :, None] + _safe_log(b.weights)[..., None, :] + logc
+    shape = np.broadcast_shapes(mean.shape[:-3], logw.shape[:-2])
+    k = a.n_components * b.n_components
+    mean = np.broadcast_to(mean, shape + mean.shape[-3:]).reshape(shape + (k, a.dim))
+    var = np.broadcast_to(var, shape + var.shape[-3:]).reshape(shape + (k, a.dim))
+    logw = np.broadcast_to(logw, shape + logw.shape[-2:]).reshape(shape + (k,))
+    return DiagMixture(_normalized_exp(logw), mean, var)
+
+
+def convolve(a: DiagMixture, b: DiagMixture) -> DiagMixture:
+    """Density of the sum of independent variables with densities ``a`` and ``b``
+    (the prediction integral of Sect. 4 with a mixture transition density)."""
+    if a.dim != b.dim:
+        raise InputError(f"convolve: dimensions differ ({a.dim} and {b.dim})")
+    mean = a.means[..., :, None, :] + b.means[..., None, :, :]
+    var = a.variances[..., :, None, :] + b.variances[..., None, :, :]
+    w = a.weights[..., :, None] * b.weights[..., None, :]
+    shape = np.broadcast_shapes(mean.shape[:-3], w.shape[:-2])
+    k = a.n_components * b.n_components
+    return DiagMixture(
+        np.broadcast_to(w, shape + w.shape[-2:]).reshape(shape + (k,)),
+        np.broadcast_to(mean, shape + mean.shape[-3:]).reshape(shape + (k, a.dim)),
+        np.broadcast_to(var, shape + var.shape[-3:]).reshape(shape + (k, a.dim)))
+
+
+def merge_moments(w1, m1, v1, w2, m2, v2):
+    """Moment-matched merge of two axis-aligned components: total weight, mean and per-axis
+    variance of the two-component mixture. Weights ``(...)``, means/variances ``(..., D)``."""
+    w = w1 + w2
+    safe = np.where(w > 0, w, 1.0)[..., None]
+    a1, a2 = w1[..., None] / safe, w2[..., None] / safe
+    m = a1 * m1 + a2 * m2
+    v = a1 * (v1 + (m1 - m) ** 2) + a2 * (v2 + (m2 - m) ** 2)
+    return w, m, v
+
+
+def runnalls_cost(w1, m1, v1, w2, m2, v2) -> np.ndarray:
+    """Runnalls' (2007) upper bound on the KL divergence caused by merging two components:
+    ``0.5 [(w1+w2) log|P12| - w1 log|P1| - w2 log|P2|]`` with diagonal covariances."""
+    w, _, v = merge_moments(w1, m1, v1, w2, m2, v2)
+    return 0.5 * (w * np.sum(np.log(v), -1) - w1 * np.sum(np.log(v1), -1)
+                  - w2 * np.sum(np.log(v2), -1))
+
+
+def compact(mix: DiagMixture) -> DiagMixture:
+    """Drop zero-weight slots, keeping as many components as the fullest mixture needs."""
+    order = np.argsort(-mix.weights, axis=-1, kind="stable")
+    keep = max(1, int(np.max(np.sum(mix.weights > 0, axis=-1), initial=1)))
+    order = order[..., :keep]
+    return DiagMixture(np.take_along_axis(mix.weights, order, -1),
+                       np.take_along_axis(mix.means, order[..., None], -2),
+                       np.take_along_axis(mix.variances, order[..., None], -2))
+
+
+def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
+    """Reduce every mixture of the batch to at most ``max_components`` components.
+
+    West's (1993) greedy rule: while a mixture has too many components, its lowest-weight
+    component is merged (:func:`merge_moments`) into the component for which Runnalls'
+    cost :func:`runnalls_cost` of the merge is smallest. Each merge preserves the mass, the
+    mean and the per-axis variances of the pair, so the whole reduction preserves the mass,
+    the mean and the diagonal of the covariance of the mixture. One merge per loop
+    iteration per mixture, in a compiled kernel (:func:`_west_kernel`).
+    """
+    if int(max_components) < 1:
+        raise InputError(f"max_components: must be >= 1, got {max_components}")
+    mix = compact(mix)
+    if mix.n_components <= max_components:
+        return mix
+    bshape = mix.batch_shape
+    k, d = mix.n_components, mix.dim
+    w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float).copy()
+    m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float).copy()
+    v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float).copy()
+    _west_kernel(w, m, v, int(max_components))
+    out = compact(DiagMixture(w, m, v))
+    kk = out.n_components
+    return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
+                       out.variances.reshape(bshape + (kk, d)))
+
+
+@njit(cache=True)
+def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
+    """In-place greedy merging of :func:`reduce` (sequential by nature: each merge changes
+    the costs of the next). Same rule and formulas as :func:`merge_moments` and
+    :func:`runnalls_cost`."""
+    nb, k, d = m.shape
+    for b in range(nb):
+        n_active = 0
+        for c in range(k):
+            if w[b, c] > 0:
+                n_active += 1
+        while n_active > kmax:
+            i = -1
+            for c in range(k):
+                if w[b, c] > 0 and (i < 0 or w[b, c] < w[b, i]):
+                    i = c
+            best = np.inf
+            j = -1
+            logdet_i = 0.0
+            for e in range(d):
+                logdet_i += np.log(v[b, i, e])
+            for c in range(k):
+                if c == i or w[b, c] <= 0:
+                    continue
+                ws = w[b, i] + w[b, c]
+                a1 = w[b, i] / ws
+                a2 = w[b, c] / ws
+                ld = 0.0
+                ldc = 0.0
+                for e in range(d):
+                    mm = a1 * m[b, i, e] + a2 * m[b, c, e]
+                    vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
+                        a2 * (v[b, c, e] + (m[b, c, e] - mm) ** 2)
+                    ld += np.log(vv)
+                    ldc += np.log(v[b, c, e])
+                cost = 0.5 * (ws * ld - w[b, i] * logdet_i - w[b, c] * ldc)
+                if cost < best:
+                    best = cost
+                    j = c
+            ws = w[b, i] + w[b, j]
+            a1 = w[b, i] / ws
+            a2 = w[b, j] / ws
+            for e in range(d):
+                mm = a1 * m[b, i, e] + a2 * m[b, j, e]
+                vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
+                    a2 * (v[b, j, e] + (m[b, j, e] - mm) ** 2)
+                m[b, j, e] = mm
+                v[b, j, e] = vv
+            w[b, j] = ws
+            w[b, i] = 0.0
+            n_active -= 1
+
+
+def uniform_ball(radius, dim: int) -> DiagMixture:
+    """Mixture approximating the uniform density on a ball of ``radius`` ``(...)`` centred
+    at 0 (the motion model of Sect. 4), preserving mass, mean and covariance.
+
+    ``dim=1``: the interval ``[-r, r]`` cut into 5 equal segments, each a Gaussian with the
+    segment's centre and variance ``(2r/5)^2/12``. ``dim=2``: the disk cut into 7 cells of
+    equal area (a central disk of radius ``r/sqrt 7`` and 6 annular sectors), components
+    at the cell centroids, equal weights, one common isotropic variance chosen so that the
+    per-axis variance equals the disk's ``r^2/4``.
+    """
+    r = np.asarray(radius, dtype=float)
+    if np.any(r <= 0):
+        raise InputError("radius: must be > 0")
+    if dim == 1:
+        n = 5
+        centres = (np.arange(n) + 0.5) / n * 2.0 - 1.0                  # unit interval cells
+        means = r[..., None, None] * centres[:, None]
+        var = (2.0 * r / n) ** 2 / 12.0
+        variances = np.broadcast_to(var[..., None, None], means.shape).copy()
+    elif dim == 2:
+        r0 = 1.0 / np.sqrt(7.0)
+        half = np.pi / 6.0
+        a = (2.0 / 3.0) * (1 - r0**3) / (1 - r0**2) * np.sin(half) / half
+        ang = np.arange(6) * 2 * half
+        centres = np.vstack([[0.0, 0.0], a * np.c_[np.cos(ang), np.sin(ang)]])
+        s2 = 0.25 - (6.0 / 7.0) * a**2 / 2.0
+        means = r[..., None, None] * centres
+        variances = np.broadcast_to((s2 * r**2)[..., None, None], means.shape).copy()
+        n = 7
+    else:
+        raise InputError(f"dim: uniform_ball supports 1 or 2, got {dim}")
+    weights = np.full(means.shape[:-1], 1.0 / n)
+    return DiagMixture(weights, means, variances)
