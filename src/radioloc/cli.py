@@ -10,12 +10,13 @@ from rich.console import Console
 from rich.table import Table
 
 from radioloc.core.errors import DataUnavailable, RadiolocError
+from radioloc.report.tables import wide_console
 
 app = typer.Typer(
     help="radioloc: locate and track radio nodes from ranges and signal strength, and "
          "reproduce the published results of the papers it implements.",
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
-console = Console()
+console = wide_console()
 err_console = Console(stderr=True)
 
 

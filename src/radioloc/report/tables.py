@@ -32,18 +32,28 @@ def summary_table(record: dict[str, Any]) -> Table:
     """A rich table of one experiment's ``summary.json`` record."""
     t = Table(title=f"{record['experiment']} (paper {record['paper']}, "
                     f"{record['runs']} runs, {record['elapsed_s']:.1f} s)", title_justify="left")
-    for col, just in [("metric", "left"), ("ours", "right"), ("paper", "right"),
-                      ("gap", "right"), ("unit", "left"), ("note", "left")]:
-        t.add_column(col, justify=just, overflow="fold")
+    t.add_column("metric", no_wrap=True)
+    for col in ("ours", "paper", "gap"):
+        t.add_column(col, justify="right", no_wrap=True)
+    t.add_column("unit", no_wrap=True)
+    t.add_column("note", overflow="fold", min_width=30)
     for m in record["metrics"]:
         t.add_row(m["name"], fmt(m["value"]), fmt(m["paper"]), relative_gap(m["value"], m["paper"]),
                   m["unit"], m["note"])
     return t
 
 
+def wide_console() -> Console:
+    """A console at least 150 columns wide when writing to a file or pipe, so that metric
+    names are not folded in logs."""
+    import sys
+
+    return Console() if sys.stdout.isatty() else Console(width=150)
+
+
 def print_record(record: dict[str, Any], console: Console | None = None) -> None:
     """Print the metrics table and the claims of one experiment."""
-    console = console or Console()
+    console = console or wide_console()
     if record.get("skipped"):
         console.print(f"[yellow]{record['experiment']}: {record['skipped']}[/yellow]")
         return
