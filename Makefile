@@ -29,7 +29,7 @@ full: $(STAMP)
 	$(BIN)/radioloc reproduce all --full --workers 2 --out out-full
 
 bench: $(STAMP_DEV)
-	for f in benchmarks/bench_*.py; do $(BIN)/python $$f || exit 1; done
+	for f in benchmarks/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
 	rm -rf $(VENV) out out-full .pytest_cache

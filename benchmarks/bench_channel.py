@@ -9,16 +9,13 @@ from radioloc.channel.cdma import CDMAConfig, gold_codes, received_acks
 from radioloc.channel.gsic import gsic_toa, matched_filter_toa
 from radioloc.channel.raytrace import TraceConfig, trace_links
 from radioloc.channel.scene import city_grid, street_positions
+from timing import best_of
 
 
-def timed(fn, repeat=3):
-    fn()
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+def best_of_warm(fn, repeat=3):
+    return best_of(fn, repeat, warmup=True)
+
+
 
 
 def main():
@@ -26,8 +23,8 @@ def main():
     pos = street_positions(scene, 6, np.random.default_rng(1), half_width_m=300.0)
     i, j = np.triu_indices(6, 1)
     cfg = TraceConfig(max_order=3)
-    batched = timed(lambda: trace_links(scene, pos[i], pos[j], cfg))
-    single = timed(lambda: [trace_links(scene, pos[a:a + 1], pos[b:b + 1], cfg) for a, b in zip(i, j)], 1)
+    batched = best_of_warm(lambda: trace_links(scene, pos[i], pos[j], cfg))
+    single = best_of_warm(lambda: [trace_links(scene, pos[a:a + 1], pos[b:b + 1], cfg) for a, b in zip(i, j)], 1)
     print(f"ray tracing, order 3, {len(scene.walls)} walls: batched {i.size / batched:8.1f} links/s, "
           f"one link per call {i.size / single:8.1f} links/s, ratio {single / batched:.2f}")
 
@@ -40,9 +37,9 @@ def main():
     g = s * 10 ** rng.uniform(0, 3, (B, U, 3)) * np.exp(2j * np.pi * rng.random((B, U, 3)))
     ci = np.tile(np.arange(U), (B, 1))
     y = received_acks(d, g, ci, cd, rng, codes)
-    tg = timed(lambda: gsic_toa(y, ci, codes, cd))
-    tm = timed(lambda: matched_filter_toa(y, ci, codes, cd))
-    ts = timed(lambda: received_acks(d, g, ci, cd, rng, codes))
+    tg = best_of_warm(lambda: gsic_toa(y, ci, codes, cd))
+    tm = best_of_warm(lambda: matched_filter_toa(y, ci, codes, cd))
+    ts = best_of_warm(lambda: received_acks(d, g, ci, cd, rng, codes))
     print(f"GSIC {B / tg:8.1f} ACK sets/s, matched filter {B / tm:8.1f} ACK sets/s (GSIC cost x{tg / tm:.1f}); "
           f"synthesis {B / ts:8.1f} ACK sets/s")
 

@@ -17,6 +17,12 @@ import numpy as np
 from radioloc.estimators.closed_form import closed_form_track
 from radioloc.estimators.nlls_newton import newton_track
 from radioloc.models.motion import ConstantAcceleration
+from timing import best_of
+
+
+def cpu_best_of(fn, repeat=3):
+    return best_of(fn, repeat, clock=time.process_time)
+
 
 T, Q, XI = 0.1, 0.15, 0.1
 
@@ -32,14 +38,6 @@ def data(runs, n, rng):
     return r, sensor, truth + rng.normal(0, 1, truth.shape)
 
 
-def best_of(fn, repeat=3):
-    times = []
-    for _ in range(repeat):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return min(times)
-
 
 def main():
     rng = np.random.default_rng(0)
@@ -48,13 +46,13 @@ def main():
         for mode, runs in (("batch", 1000), ("single", 50)):
             r, s, start = data(runs, n, rng)
             if mode == "batch":
-                tb = best_of(lambda: closed_form_track(r, s, sample_period_s=T, accel_var=Q,
+                tb = cpu_best_of(lambda: closed_form_track(r, s, sample_period_s=T, accel_var=Q,
                                                        range_var=XI))
-                tn = best_of(lambda: newton_track(r, s, start, sample_period_s=T))
+                tn = cpu_best_of(lambda: newton_track(r, s, start, sample_period_s=T))
             else:
-                tb = best_of(lambda: [closed_form_track(r[i], s, sample_period_s=T, accel_var=Q,
+                tb = cpu_best_of(lambda: [closed_form_track(r[i], s, sample_period_s=T, accel_var=Q,
                                                         range_var=XI) for i in range(runs)])
-                tn = best_of(lambda: [newton_track(r[i], s, start[i], sample_period_s=T)
+                tn = cpu_best_of(lambda: [newton_track(r[i], s, start[i], sample_period_s=T)
                                       for i in range(runs)])
             print(f"{n:>4} {mode:>8} {runs / tb:>14.0f} {runs / tn:>16.0f} {tn / tb:>12.2f}")
 

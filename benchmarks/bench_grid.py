@@ -15,15 +15,9 @@ from scipy.ndimage import gaussian_filter
 
 from radioloc.estimators.grid import GridGeometry, blur_grid, probability_update
 from radioloc.models.rssi_trapezoid import fit_trapezoid_model
+from timing import best_of
 
 
-def _time(fn, repeat: int = 3) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0) -> None:
@@ -48,7 +42,7 @@ def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0) -> None:
         out /= out.sum(axis=(1, 2), keepdims=True)
 
     cells = batch * n * n
-    t_ours, t_peer = _time(ours), _time(peer)
+    t_ours, t_peer = best_of(ours), best_of(peer)
     print(f"grid {n} x {n}, batch {batch}, blur radius {radius_m} m ({radius_m / geom.cell_m:.0f} cells)")
     print(f"radioloc update + FFT blur      : {cells / t_ours:,.0f} cell-updates/s ({t_ours * 1e3:.0f} ms)")
     print(f"update + scipy gaussian_filter  : {cells / t_peer:,.0f} cell-updates/s ({t_peer * 1e3:.0f} ms)")

@@ -11,6 +11,8 @@ import numpy as np
 
 from radioloc.estimators.mixture_localization import localize
 from radioloc.models.mixture import DiagMixture, merge_moments, product, reduce, runnalls_cost
+from timing import best_of
+
 
 
 def numpy_reduce(mix: DiagMixture, kmax: int) -> DiagMixture:
@@ -31,14 +33,6 @@ def numpy_reduce(mix: DiagMixture, kmax: int) -> DiagMixture:
         w[r, i] = 0.0
 
 
-def timeit(fn, repeat=3):
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
-
 
 def main():
     rng = np.random.default_rng(0)
@@ -47,14 +41,14 @@ def main():
                            rng.uniform(0.5, 2, (b, k, d)))
     prod = product(a, a)                                   # 64 components each
     reduce(prod, 8)                                        # compile
-    t_kernel = timeit(lambda: reduce(prod, 8))
-    t_numpy = timeit(lambda: numpy_reduce(prod, 8))
+    t_kernel = best_of(lambda: reduce(prod, 8))
+    t_numpy = best_of(lambda: numpy_reduce(prod, 8))
     print(f"reduce {b} mixtures 64 -> 8 components: compiled {b / t_kernel:,.0f} mixtures/s, "
           f"NumPy peer {b / t_numpy:,.0f} mixtures/s, ratio {t_numpy / t_kernel:.1f}x")
     models = DiagMixture.create(rng.uniform(0.1, 1, (6, 16)), rng.normal(0, 3, (6, 16, 3)),
                                 rng.uniform(0.5, 4, (6, 16, 3)))
     rss = rng.normal(0, 3, (1000, 6))
-    t_loc = timeit(lambda: localize(models, rss, 8))
+    t_loc = best_of(lambda: localize(models, rss, 8))
     print(f"localize (6 stations x 16 components, eq. 2): {rss.shape[0] / t_loc:,.0f} rows/s")
 
 
