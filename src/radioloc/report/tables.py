@@ -55,7 +55,7 @@ def print_record(record: dict[str, Any], console: Console | None = None) -> None
     """Print the metrics table and the claims of one experiment."""
     console = console or wide_console()
     if record.get("skipped"):
-        console.print(f"[yellow]{record['experiment']}: {record['skipped']}[/yellow]")
+        console.print(f"[yellow]{record['skipped']}[/yellow]")
         return
     console.print(summary_table(record))
     for c in record["claims"]:
