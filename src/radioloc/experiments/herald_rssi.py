@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.geometry import distances
+from radioloc.core.metrics import error_cdf
 from radioloc.estimators.grid import GridGeometry, get_location, get_uncertainty, probability_update
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.io.herald import load_session
@@ -182,10 +183,10 @@ class HeraldRssi(Experiment):
         ax.legend(fontsize=7, loc="upper right")
         ax = axes[1]
         for name, color in (("trapezoid", COLORS["ours"]), ("logdistance", COLORS["baseline"])):
-            e = np.sort(results.loc[results["model"] == name, "error_m"].to_numpy())
-            ax.step(e, np.arange(1, e.size + 1) / e.size, where="post", color=color, label=f"grid filter, {name}")
-        e = np.sort(results.loc[results["model"] == "trapezoid", "centre_error_m"].to_numpy())
-        ax.step(e, np.arange(1, e.size + 1) / e.size, where="post", color=COLORS["bound"], ls=":", label="grid centre guess")
+            e, p = error_cdf(results.loc[results["model"] == name, "error_m"])
+            ax.step(e, p, where="post", color=color, label=f"grid filter, {name}")
+        e, p = error_cdf(results.loc[results["model"] == "trapezoid", "centre_error_m"])
+        ax.step(e, p, where="post", color=COLORS["bound"], ls=":", label="grid centre guess")
         ax.set_xlabel("static-phone position error [m]")
         ax.set_ylabel("fraction of runs")
         ax.set_title(f"Static localization after {config.steps} readings")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from radioloc.core.metrics import position_error
+from radioloc.core.metrics import error_cdf, position_error
 from radioloc.estimators.mixture_localization import localize, track
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.io.kolakowski import load_fingerprints
@@ -104,9 +104,9 @@ class BleFingerprintExperiment(Experiment):
                   "gmm_progressive_tracking": ("--", COLORS["alt"]),
                   "wknn": ("-", COLORS["baseline"])}
         for name, e in g:
-            e = np.sort(e.to_numpy())
+            x, p = error_cdf(e)
             ls, c = styles.get(name, ("-", "k"))
-            ax.plot(e, np.arange(1, e.size + 1) / e.size, ls, color=c, label=name)
+            ax.plot(x, p, ls, color=c, label=name)
         ax.set_xlabel("position error [m]")
         ax.set_ylabel("empirical CDF")
         ax.set_title("BLE fingerprints (Kolakowski 2021), robot test run")
