@@ -120,3 +120,17 @@ def test_runs_must_be_positive():
     exp = get_experiment(EXP)
     with pytest.raises(ConfigError, match="--runs"):
         exp.with_runs(exp.config(False), 0)
+
+
+def test_timing_columns_go_to_timings_csv_not_results(tmp_path):
+    from radioloc.experiments.runner import write_results
+
+    class Timed(Experiment):
+        id = "timed"
+        timing_columns = ("cpu_s",)
+
+    frame = pd.DataFrame({"run": [0, 1], "method": ["a", "b"], "error_m": [0.5, 0.7],
+                          "cpu_s": [1e-3, 2e-3]})
+    write_results(Timed(), frame, tmp_path)
+    assert list(pd.read_csv(tmp_path / "results.csv").columns) == ["run", "method", "error_m"]
+    assert list(pd.read_csv(tmp_path / "timings.csv").columns) == ["run", "method", "cpu_s"]

@@ -78,12 +78,18 @@ class Experiment:
         One line for ``radioloc list``.
     data_folder : str or None
         Folder below the data root this experiment reads; ``None`` if it needs no data.
+    timing_columns : tuple of str
+        Columns of the results frame that measure this machine's speed (CPU seconds).
+        They differ from one execution to the next, so the runner writes them to
+        ``timings.csv`` and keeps them out of ``results.csv``, which is identical whatever
+        the engine; :meth:`summarize` still receives them.
     """
 
     id: ClassVar[str] = ""
     paper: ClassVar[str] = "-"
     description: ClassVar[str] = ""
     data_folder: ClassVar[str | None] = None
+    timing_columns: ClassVar[tuple[str, ...]] = ()
 
     # ---- to implement -------------------------------------------------------------
     def config(self, full: bool) -> Any:

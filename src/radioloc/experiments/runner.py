@@ -139,7 +139,7 @@ def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, 
                          progress=progress)
     summary = exp.summarize(config, results, out_dir)
     elapsed = time.perf_counter() - t0
-    results.to_csv(out_dir / "results.csv", index=False)
+    write_results(exp, results, out_dir)
     record = {
         "experiment": exp.id,
         "paper": exp.paper,
@@ -155,6 +155,17 @@ def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, 
     }
     (out_dir / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
     return RunOutcome(exp, config, results, summary, record, out_dir)
+
+
+def write_results(exp: Experiment, results: pd.DataFrame, out_dir: Path) -> None:
+    """Write ``results.csv`` (reproducible) and, if the experiment measures CPU time,
+    ``timings.csv`` (its timing columns beside the non-float identifying columns)."""
+    timing = [c for c in exp.timing_columns if c in results.columns]
+    results.drop(columns=timing).to_csv(out_dir / "results.csv", index=False)
+    if timing:
+        ids = [c for c in results.columns
+               if c not in timing and not pd.api.types.is_float_dtype(results[c])]
+        results[ids + timing].to_csv(out_dir / "timings.csv", index=False)
 
 
 def write_skipped(exp: Experiment, reason: str, *, full: bool, seed: int, out: Path | str) -> dict:

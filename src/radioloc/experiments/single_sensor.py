@@ -181,6 +181,7 @@ class SingleSensorExperiment(Experiment):
     paper = "002"
     description = "Closed-form single-sensor tracker (iterative BLUE) vs Newton, EKF, OLS and CRBs"
     data_folder = None      # the synthetic part always runs; the real-data part checks itself
+    timing_columns = ("cpu_s_per_run",)  # Fig. 3 CPU times: machine-dependent
 
     def config(self, full: bool) -> SingleSensorConfig:
         return SingleSensorConfig(runs=2000 if full else 100, block_size=50)
