@@ -18,6 +18,14 @@ def random_path(rng, n):
     return rng.uniform(-5, 5, (n, 2))
 
 
+def noise_free_tracks(rng, n, runs):
+    """A random sensor path, targets at constant velocity, and their exact ranges."""
+    sensor = random_path(rng, n)
+    x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
+    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
+    return sensor, x0, tracks, np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
+
+
 def psd(m, tol=1e-9):
     return np.linalg.eigvalsh((m + m.T) / 2).min() >= -tol * max(1.0, np.abs(m).max())
 
@@ -104,10 +112,7 @@ def test_newton_gradient_and_hessian_match_finite_differences():
 def test_newton_converges_to_truth_on_noise_free_data_and_batches():
     rng = np.random.default_rng(5)
     n, runs = 20, 6
-    sensor = random_path(rng, n)
-    x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
-    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
-    r = np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
+    sensor, x0, tracks, r = noise_free_tracks(rng, n, runs)
     truth = tracks[:, -1][:, [1, 0, 3, 2]]
     start = truth + rng.normal(0, 0.2, truth.shape)
     res = newton_track(r, sensor, start, sample_period_s=T, tol=1e-20, max_iter=50)
@@ -135,10 +140,7 @@ def test_newton_bad_input():
 def test_ekf_tracks_noise_free_target_and_batches():
     rng = np.random.default_rng(7)
     n, runs = 60, 5
-    sensor = random_path(rng, n)
-    x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
-    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
-    r = np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
+    sensor, x0, tracks, r = noise_free_tracks(rng, n, runs)
     prior = x0 + rng.normal(0, 0.3, x0.shape)
     out = range_ekf(r, sensor, prior, 0.09 * np.eye(4), sample_period_s=T, accel_var=1e-4,
                     range_var=1e-4)
