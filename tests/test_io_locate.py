@@ -92,3 +92,12 @@ def test_missing_file_and_unknown_method(tmp_path):
 def test_gn_without_anchors_file_says_so():
     res = runner.invoke(app, ["locate", str(EXAMPLES / "measurements.csv")])
     assert res.exit_code == 2 and "--anchors" in res.output
+
+
+def test_collinear_anchors_name_the_node_and_time(tmp_path):
+    anchors = write(tmp_path, "a.csv", "id,x,y\nL1,0,0\nL2,10,0\nL3,20,0\n")
+    meas = write(tmp_path, "m.csv", "time,node,peer,kind,value\n"
+                 "7,tagC,L1,range,5\n7,tagC,L2,range,5\n7,tagC,L3,range,15\n")
+    res = runner.invoke(app, ["locate", str(meas), "--anchors", str(anchors)])
+    assert res.exit_code == 2
+    assert "node 'tagC' at time 7" in res.output and "collinear" in res.output

@@ -108,7 +108,8 @@ def gauss_newton(ranges: np.ndarray, anchors: np.ndarray, *, weights: np.ndarray
     n_used = used.sum(axis=-1)
     if np.any(n_used < d + 1):
         idx = _first(n_used < d + 1)
-        raise GeometryError(f"problem {idx}: {int(n_used[idx])} ranges, {d + 1} needed in {d}-D")
+        detail = f"{int(n_used[idx])} ranges, {d + 1} needed in {d}-D"
+        raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
     if range_std_m is not None:
         check_positive(range_std_m, "range_std_m")
 
@@ -153,8 +154,10 @@ def gauss_newton(ranges: np.ndarray, anchors: np.ndarray, *, weights: np.ndarray
     cond = np.linalg.cond(JtJ)
     singular = ~np.isfinite(cond) | (cond > 1e10)
     if np.any(singular):
-        raise GeometryError(f"problem {_first(singular)}: anchors are collinear or the position "
-                            "coincides with an anchor; the geometry does not fix the position")
+        idx = _first(singular)
+        detail = ("anchors are collinear or the position coincides with an anchor; "
+                  "the geometry does not fix the position")
+        raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
     dof = n_used - d
     wsum = np.sum(w, axis=-1)
     s2_resid = np.where(dof > 0, cost / np.maximum(dof, 1) * (n_used / wsum), np.nan)

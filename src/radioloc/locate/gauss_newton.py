@@ -46,11 +46,11 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         res = gauss_newton(R, anchors[dims].to_numpy(), weights=W,
                            range_std_m=request.option("range_std_m"))
     except GeometryError as exc:
-        msg = str(exc)
-        if msg.startswith("problem ("):
-            i = int(msg.split("(")[1].split(",")[0].rstrip(")"))
-            msg = f"node {epochs['node'][i]!r} at time {epochs['time'][i]:g}: " + msg.split(": ", 1)[1]
-        raise GeometryError(f"method gn: {msg}") from None
+        if exc.index is None:
+            raise GeometryError(f"method gn: {exc}") from None
+        i = exc.index[0]
+        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g}: "
+                            f"{exc.detail}") from None
     out = epochs.copy()
     for k, c in enumerate(dims):
         out[c] = res.position[:, k]
