@@ -82,7 +82,7 @@ def _iter_blocks(exp: Experiment, config: Any, seed: int, blocks: list[np.ndarra
                 yield futures[fut], fut.result()
     else:
         for b, r in enumerate(blocks):
-            yield b, exp.run_block(config, r, block_generator(seed, b))
+            yield b, run_block(exp.id, config, seed, b, r)
 
 
 def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
