@@ -16,7 +16,7 @@ import numpy as np
 
 from radioloc.estimators.closed_form import closed_form_track
 from radioloc.estimators.nlls_newton import newton_track
-from radioloc.models.motion import ConstantAcceleration
+from radioloc.models.track_noise import ConstantAcceleration
 from timing import best_of
 
 

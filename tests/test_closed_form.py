@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.closed_form import closed_form_track, ols_track
-from radioloc.models.motion import (
+from radioloc.models.track_noise import (
     ConstantAcceleration,
     accumulated_noise_covariance,
     accumulated_noise_variance,

@@ -9,7 +9,7 @@ from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.closed_form import closed_form_track
 from radioloc.estimators.nlls_newton import _gradient_hessian, newton_track
 from radioloc.estimators.range_ekf import range_ekf
-from radioloc.models.motion import ConstantAcceleration
+from radioloc.models.track_noise import ConstantAcceleration
 
 T = 0.1
 

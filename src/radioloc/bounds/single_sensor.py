@@ -20,7 +20,7 @@ import numpy as np
 
 from radioloc.core.errors import GeometryError
 from radioloc.core.validation import as_float_array, check_positive
-from radioloc.models.motion import accumulated_noise_covariance
+from radioloc.models.track_noise import accumulated_noise_covariance
 from radioloc.models.single_sensor import SquaredRangeModel, predicted_offsets
 
 

@@ -23,7 +23,7 @@ from radioloc.estimators.nlls_newton import newton_track
 from radioloc.estimators.range_ekf import range_ekf
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, data_root, register
 from radioloc.io.uci_characters import resampled_tracks
-from radioloc.models.motion import ConstantAcceleration
+from radioloc.models.track_noise import ConstantAcceleration
 from radioloc.report.style import COLORS, LINESTYLES, figure, save
 
 METHODS = ("blue", "newton", "ekf", "ols")

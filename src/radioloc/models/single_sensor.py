@@ -1,6 +1,6 @@
 """Squared ranges to one moving sensor as a linear model in [Y_k, X_k, V_y, V_x] (paper 002).
 
-With the motion model of :mod:`radioloc.models.motion`, the target at sample n is
+With the motion model of :mod:`radioloc.models.track_noise`, the target at sample n is
 ``p_n = p_k + (n-k) T v_k + eps_n``. For a sensor at ``s_n = (a_n, b_n)`` and a measured
 range ``rhat_n = r_n + omega_n`` (eq. 12)::
 
@@ -33,7 +33,7 @@ import numpy as np
 
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.validation import as_float_array, check_positive
-from radioloc.models.motion import (
+from radioloc.models.track_noise import (
     accumulated_noise_covariance,
     squared_noise_covariance,
 )

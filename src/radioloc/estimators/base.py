@@ -1,0 +1,64 @@
+"""The estimator contract (see ``docs/architecture.md``).
+
+* Settings go to the constructor and are validated there (a bad setting raises
+  :class:`~radioloc.core.errors.ConfigError` or :class:`~radioloc.core.errors.InputError`
+  at construction, not at the first call).
+* A *snapshot* estimator has ``locate(measurements, ...) -> Estimate``.
+* A *recursive* estimator has ``init(...) -> state``, ``step(state, measurements_t, ...)
+  -> state`` (pure: the input state is not modified; batched over leading axes),
+  ``estimate(state) -> Estimate`` and ``run(...) -> Track``.
+* Batch axes lead, time follows, coordinates last; positions are ``(x, y[, z])``.
+* A missing measurement is NaN and is skipped: never an error, never a NaN estimate.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from radioloc.core.results import Estimate, Track
+
+__all__ = ["SnapshotEstimator", "RecursiveEstimator"]
+
+
+class SnapshotEstimator:
+    """Base class of one-epoch estimators: ``locate(...) -> Estimate``."""
+
+    #: how the estimator is named in tables and on the command line
+    name: str = ""
+
+    def locate(self, *args: Any, **kwargs: Any) -> Estimate:  # pragma: no cover - abstract
+        """Estimate positions for a batch of problems."""
+        raise NotImplementedError
+
+    def get_params(self) -> dict[str, Any]:
+        """The constructor settings (scikit-learn habit): public attributes set in ``__init__``."""
+        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+
+class RecursiveEstimator(SnapshotEstimator):
+    """Base class of filters: ``init``, ``step``, ``estimate`` and ``run``."""
+
+    def init(self, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover - abstract
+        """The filter state before the first measurement."""
+        raise NotImplementedError
+
+    def step(self, state: Any, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover
+        """Advance every run of the batch by one time step (returns a new state)."""
+        raise NotImplementedError
+
+    def estimate(self, state: Any) -> Estimate:  # pragma: no cover - abstract
+        """The position estimate held by a state."""
+        raise NotImplementedError
+
+    def run(self, *args: Any, **kwargs: Any) -> Track:  # pragma: no cover - abstract
+        """Filter a whole series and return the :class:`Track`."""
+        raise NotImplementedError
+
+    def locate(self, *args: Any, **kwargs: Any) -> Estimate:
+        """A recursive estimator locates by running and keeping the last step."""
+        track = self.run(*args, **kwargs)
+        return track.at(track.steps - 1)

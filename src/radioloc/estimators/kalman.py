@@ -1,0 +1,139 @@
+"""The one batched Kalman predict and update under every Kalman filter of the toolkit.
+
+Arrays carry any leading batch axes: mean ``(..., n)``, covariance ``(..., n, n)``,
+innovation ``(..., m)``, measurement Jacobian ``(..., m, n)``, measurement noise
+``(..., m, m)`` (or its diagonal ``(..., m)``).
+
+The update uses the Joseph form ``P+ = (I - K H) P (I - K H)^T + K R K^T`` and symmetrises
+its result, so the covariance stays symmetric positive semi-definite in floating point.
+A measurement marked invalid (or whose innovation is NaN) is removed exactly: its row of
+``H``, its innovation and its cross-terms of ``R`` are zeroed and its variance set to 1,
+which leaves the mean and covariance unchanged by that row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radioloc.core.errors import InputError
+
+__all__ = ["GaussianState", "kalman_predict", "kalman_update", "symmetrise",
+           "normalised_innovation_squared"]
+
+
+@dataclass(frozen=True)
+class GaussianState:
+    """State of a batch of Kalman filters.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (..., n)
+        State means (position first).
+    covariance : ndarray, shape (..., n, n)
+        State covariances.
+    time : float or ndarray, optional
+        Time of the state, seconds.
+    """
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    time: float | np.ndarray = 0.0
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.mean.shape[:-1]
+
+
+def symmetrise(cov: np.ndarray) -> np.ndarray:
+    """``(P + P^T) / 2`` on the last two axes."""
+    return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+
+def kalman_predict(mean: np.ndarray, cov: np.ndarray, F: np.ndarray, Q: np.ndarray,
+                   control: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Prediction ``x- = F x (+ u)``, ``P- = F P F^T + Q`` (symmetrised).
+
+    Parameters
+    ----------
+    mean : ndarray, shape (..., n)
+    cov : ndarray, shape (..., n, n)
+    F, Q : ndarray, shape (..., n, n)
+        Transition and process noise (broadcast against the batch).
+    control : ndarray, shape (..., n), optional
+        Added to the predicted mean.
+
+    Returns
+    -------
+    mean, cov : the predicted moments.
+    """
+    x = np.einsum("...ij,...j->...i", F, mean)
+    if control is not None:
+        x = x + control
+    P = F @ cov @ np.swapaxes(F, -1, -2) + Q
+    return x, symmetrise(P)
+
+
+def kalman_update(mean: np.ndarray, cov: np.ndarray, innovation: np.ndarray, H: np.ndarray,
+                  R: np.ndarray | None = None, *, R_diag: np.ndarray | None = None,
+                  valid: np.ndarray | None = None,
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Measurement update in Joseph form, with missing measurements skipped.
+
+    Parameters
+    ----------
+    mean : ndarray, shape (..., n)
+    cov : ndarray, shape (..., n, n)
+    innovation : ndarray, shape (..., m)
+        ``z - h(x-)``; NaN entries count as missing.
+    H : ndarray, shape (..., m, n)
+        Measurement Jacobian at the predicted mean.
+    R : ndarray, shape (..., m, m), optional
+        Measurement noise covariance.
+    R_diag : ndarray, shape (..., m), optional
+        Its diagonal, for independent measurements (give exactly one of ``R``, ``R_diag``).
+        Variances must be positive on the rows used.
+    valid : ndarray of bool, shape (..., m), optional
+        Which measurements exist; default: those with a finite innovation.
+
+    Returns
+    -------
+    mean, cov : the updated moments (new arrays).
+    innovation_covariance : ndarray, shape (..., m, m)
+        ``S = H P H^T + R`` with missing rows replaced by identity rows.
+    used : ndarray of bool, shape (..., m)
+        The measurements that entered the update.
+    """
+    nu = np.asarray(innovation, dtype=float)
+    ok = np.isfinite(nu)
+    if valid is not None:
+        ok = ok & np.asarray(valid, dtype=bool)
+    m = nu.shape[-1]
+    if (R is None) == (R_diag is None):
+        raise InputError("kalman_update: give exactly one of R and R_diag")
+    if R is None:
+        R = np.asarray(R_diag, dtype=float)[..., :, None] * np.eye(m)
+    R = np.broadcast_to(np.asarray(R, dtype=float), ok.shape + (m,))
+    both = ok[..., :, None] & ok[..., None, :]
+    R = np.where(both, R, np.eye(m))
+    if np.any(np.diagonal(R, axis1=-2, axis2=-1)[ok] <= 0):
+        raise InputError("measurement noise: variance must be > 0 for every measurement used")
+    nu = np.where(ok, nu, 0.0)
+    H = np.where(ok[..., :, None], H, 0.0)
+    PHt = cov @ np.swapaxes(H, -1, -2)                           # (..., n, m)
+    S = H @ PHt + R
+    S = symmetrise(S)
+    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)   # P H^T S^-1
+    x = mean + np.einsum("...ij,...j->...i", K, nu)
+    n = mean.shape[-1]
+    IKH = np.eye(n) - K @ H
+    P = IKH @ cov @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    return x, symmetrise(P), S, ok
+
+
+def normalised_innovation_squared(innovation: np.ndarray, S: np.ndarray,
+                                  used: np.ndarray) -> np.ndarray:
+    """NIS ``nu^T S^-1 nu`` over the used measurements ``(...)`` (0 where none were used)."""
+    nu = np.where(used, np.nan_to_num(innovation), 0.0)
+    return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])

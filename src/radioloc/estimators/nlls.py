@@ -1,0 +1,208 @@
+"""The one batched nonlinear least-squares driver: Gauss-Newton, Newton, Levenberg-Marquardt.
+
+Minimises ``c(x) = sum_m w_m r_m(x)^2`` for a whole batch of independent problems at
+once. The caller supplies ``residuals(x) -> (r, J)`` with ``x`` ``(..., n)``, residuals
+``r = z - h(x)`` ``(..., M)`` and the Jacobian of the *prediction* ``J = dh/dx``
+``(..., M, n)``; weights ``w`` ``(..., M)`` (0 = missing measurement).
+
+Steps (per problem; problems that have stopped are frozen):
+
+* ``"gauss-newton"``: ``(J^T W J) s = J^T W r``;
+* ``"newton"``: ``(J^T W J - sum_m w_m r_m d^2h_m/dx^2) s = J^T W r``, with the second
+  derivatives from ``curvature(x) -> (..., M, n, n)``;
+* ``"levenberg-marquardt"``: ``(J^T W J + lambda diag(J^T W J)) s = J^T W r`` with
+  ``lambda`` divided by 10 after an accepted step and multiplied by 10 after a rejected one.
+
+``step_control`` for the first two: ``"halving"`` accepts the largest ``2^-k s``
+(k < 8) that does not increase the cost, ``"none"`` takes the full step (the plain
+Newton iteration whose divergence paper 002 studies).
+
+A problem *converges* when an accepted step is no longer than ``tol``; it *stalls* when no
+step decreases the cost, its system is singular or its iterate stops being finite (it then
+keeps its last finite iterate). Problems neither converged nor stalled after ``max_iter``
+iterations have both flags False.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from radioloc.core.errors import ConfigError
+from radioloc.core.validation import as_float_array, check_positive
+
+__all__ = ["NLLSResult", "solve_nlls", "METHODS"]
+
+METHODS = ("gauss-newton", "newton", "levenberg-marquardt")
+_HALVINGS = 8
+
+Residuals = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+Curvature = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass
+class NLLSResult:
+    """What :func:`solve_nlls` returns.
+
+    Attributes
+    ----------
+    x : ndarray, shape (..., n)
+        Solutions (last finite iterate for stalled problems).
+    cost : ndarray, shape (...)
+        ``sum_m w_m r_m^2`` at ``x``.
+    residuals : ndarray, shape (..., M)
+    jacobian : ndarray, shape (..., M, n)
+        ``dh/dx`` at ``x``.
+    normal_matrix : ndarray, shape (..., n, n)
+        ``J^T W J`` at ``x`` (the Gauss-Newton information, for covariances).
+    iterations : ndarray of int, shape (...)
+        Accepted steps per problem.
+    converged, stalled : ndarray of bool, shape (...)
+    """
+
+    x: np.ndarray
+    cost: np.ndarray
+    residuals: np.ndarray
+    jacobian: np.ndarray
+    normal_matrix: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    stalled: np.ndarray
+
+
+def _normal(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    JtWJ = np.einsum("...m,...mi,...mj->...ij", w, J, J)
+    JtWr = np.einsum("...m,...mi,...m->...i", w, J, r)
+    return JtWJ, JtWr
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched solve; rows whose system is singular or non-finite get ``ok = False``."""
+    n = A.shape[-1]
+    finite = np.all(np.isfinite(A), axis=(-2, -1)) & np.all(np.isfinite(b), axis=-1)
+    with np.errstate(all="ignore"):
+        cond = np.linalg.cond(np.where(finite[..., None, None], A, np.eye(n)))
+    ok = finite & np.isfinite(cond) & (cond < 1e14)
+    safe = np.where(ok[..., None, None], A, np.eye(n))
+    with np.errstate(all="ignore"):
+        s = np.linalg.solve(safe, np.where(ok[..., None], b, 0.0)[..., None])[..., 0]
+    return np.where(ok[..., None], s, 0.0), ok
+
+
+def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | None = None,
+               method: str = "gauss-newton", curvature: Curvature | None = None,
+               step_control: str = "halving", max_iter: int = 50, tol: float = 1e-9,
+               ridge: float = 1e-12, lm_lambda0: float = 1e-3) -> NLLSResult:
+    """Minimise ``sum w r(x)^2`` for every problem of a batch (see the module docstring).
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(x) -> (r, J)``: ``x`` ``(..., n)`` to residuals ``(..., M)`` and the
+        prediction Jacobian ``(..., M, n)``.
+    x0 : ndarray, shape (..., n)
+        Starting points.
+    weights : ndarray, shape (..., M), optional
+        Non-negative weights; 0 marks a missing measurement. Default all ones.
+    method : {"gauss-newton", "newton", "levenberg-marquardt"}
+    curvature : callable, optional
+        ``curvature(x) -> (..., M, n, n)``, the second derivatives of each prediction;
+        required by ``"newton"``.
+    step_control : {"halving", "none"}
+        Line search of Gauss-Newton and Newton.
+    max_iter : int
+        Maximum iterations.
+    tol : float
+        Convergence when the accepted step's Euclidean norm is ``<= tol``.
+    ridge : float
+        Relative ridge ``ridge * trace(A) I`` added to the Gauss-Newton system (keeps
+        exactly determined problems solvable; 0 disables it).
+    lm_lambda0 : float
+        Initial damping of Levenberg-Marquardt.
+
+    Returns
+    -------
+    NLLSResult
+    """
+    if method not in METHODS:
+        raise ConfigError(f"method: must be one of {', '.join(METHODS)}, got {method!r}")
+    if step_control not in ("halving", "none"):
+        raise ConfigError(f"step_control: must be 'halving' or 'none', got {step_control!r}")
+    if method == "newton" and curvature is None:
+        raise ConfigError("method 'newton' needs the curvature callable")
+    if int(max_iter) < 0:
+        raise ConfigError(f"max_iter: must be >= 0, got {max_iter}")
+    check_positive(tol, "tol", allow_zero=True)
+    x = as_float_array(x0, "x0", min_ndim=1).copy()
+    n = x.shape[-1]
+    r, J = residuals(x)
+    batch = np.broadcast_shapes(x.shape[:-1], r.shape[:-1])
+    x = np.broadcast_to(x, batch + (n,)).copy()
+    w = np.ones(r.shape) if weights is None else np.asarray(weights, dtype=float)
+    w = np.broadcast_to(w, batch + r.shape[-1:])
+
+    def cost_of(res: np.ndarray) -> np.ndarray:
+        return np.sum(w * np.where(w > 0, res, 0.0) ** 2, axis=-1)
+
+    cost = cost_of(r)
+    converged = np.zeros(batch, dtype=bool)
+    stalled = np.zeros(batch, dtype=bool)
+    iterations = np.zeros(batch, dtype=np.int64)
+    lam = np.full(batch, float(lm_lambda0))
+    eye = np.eye(n)
+    for _ in range(int(max_iter)):
+        active = ~(converged | stalled)
+        if not active.any():
+            break
+        A, g = _normal(J, w, np.where(w > 0, r, 0.0))
+        if method == "newton":
+            A = A - np.einsum("...m,...mij->...ij", w * np.where(w > 0, r, 0.0), curvature(x))
+        if method == "levenberg-marquardt":
+            diag = np.diagonal(A, axis1=-2, axis2=-1)
+            A = A + lam[..., None, None] * (diag[..., :, None] * eye)
+        elif ridge > 0 and method == "gauss-newton":
+            A = A + ridge * np.trace(A, axis1=-2, axis2=-1)[..., None, None] * eye
+        step, ok = _solve(A, g)
+        stalled |= active & ~ok
+        active &= ok
+        # a step already within tolerance: converged where it stands (its cost change is
+        # at rounding level, so the line search could not judge it)
+        tiny = active & (np.sqrt(np.sum(step**2, axis=-1)) <= tol)
+        converged |= tiny
+        active &= ~tiny
+        step = np.where(active[..., None], step, 0.0)
+        if method == "levenberg-marquardt" or step_control == "halving":
+            tries = 1 if method == "levenberg-marquardt" else _HALVINGS
+            accepted = np.zeros(batch, dtype=bool)
+            new_x = x.copy()
+            for k in range(tries):
+                trial = x + step * 0.5**k
+                r_t, _ = residuals(trial)
+                c_t = cost_of(r_t)
+                take = active & ~accepted & np.isfinite(c_t) & (c_t <= cost * (1 + 1e-12) + 1e-300)
+                new_x = np.where(take[..., None], trial, new_x)
+                accepted |= take
+                if accepted[active].all():
+                    break
+            if method == "levenberg-marquardt":
+                lam = np.where(active & accepted, lam / 10.0, np.where(active, lam * 10.0, lam))
+                stalled |= active & ~accepted & (lam > 1e12)
+            else:
+                stalled |= active & ~accepted
+        else:
+            new_x = x + step
+            finite = np.all(np.isfinite(new_x), axis=-1) & (np.abs(new_x).max(axis=-1) < 1e12)
+            stalled |= active & ~finite
+            accepted = active & finite
+            new_x = np.where(accepted[..., None], new_x, x)
+        moved = np.sqrt(np.sum((new_x - x) ** 2, axis=-1))
+        x = new_x
+        iterations += accepted
+        r, J = residuals(x)
+        cost = cost_of(r)
+        converged |= accepted & (moved <= tol)
+    A, _ = _normal(J, w, np.where(w > 0, r, 0.0))
+    return NLLSResult(x=x, cost=cost, residuals=r, jacobian=J, normal_matrix=A,
+                      iterations=iterations, converged=converged, stalled=stalled)
