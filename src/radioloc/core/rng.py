@@ -29,3 +29,41 @@ def as_generator(rng: np.random.Generator | int | None) -> np.random.Generator:
     if isinstance(rng, np.random.Generator):
         return rng
     return np.random.default_rng(rng)
+
+
+#: Spawn keys of named streams start here; block keys are small integers below it.
+_NAMED_KEY = 2**32
+
+
+def stream_seed(seed: int, name: str) -> np.random.SeedSequence:
+    """The seed sequence of the named child stream ``name`` of ``SeedSequence(seed)``.
+
+    Named streams hold an experiment's draws that are not per-run (a calibration set, a
+    scene, the example shown in a figure): they change with ``--seed`` like every other
+    draw, and never coincide with a block's stream.
+    """
+    import zlib
+
+    return np.random.SeedSequence(entropy=int(seed),
+                                  spawn_key=(_NAMED_KEY + zlib.crc32(name.encode()),))
+
+
+def experiment_seed(rng: np.random.Generator) -> int:
+    """The experiment seed behind a block generator made by :func:`block_generator`."""
+    seq = getattr(rng.bit_generator, "seed_seq", None)
+    if not isinstance(seq, np.random.SeedSequence) or not isinstance(seq.entropy, int):
+        from radioloc.core.errors import ConfigError
+
+        raise ConfigError("experiment_seed: the generator was not made by block_generator")
+    return int(seq.entropy)
+
+
+def stream(seed: int | np.random.Generator, name: str) -> np.random.Generator:
+    """A generator for the named child stream ``name`` of the experiment's seed.
+
+    ``seed`` is the experiment seed or any block generator of the experiment (whose seed
+    is then recovered with :func:`experiment_seed`), so that ``run_block`` can draw a
+    per-experiment calibration without knowing the seed: every block draws the same one.
+    """
+    s = experiment_seed(seed) if isinstance(seed, np.random.Generator) else int(seed)
+    return np.random.default_rng(stream_seed(s, name))
