@@ -66,6 +66,12 @@ class LosNlosRange:
         check_positive(self.nlos_mean_m, "nlos_mean_m")
         check_probability(self.alpha, "alpha")
 
+    def moments(self) -> tuple[float, float]:
+        """Mean and variance of the mixture range error (what a Kalman filter uses):
+        ``((1 - alpha) s_NLOS, s_LOS^2 + (1 - alpha^2) s_NLOS^2)``."""
+        a, mu, s = self.alpha, self.nlos_mean_m, self.los_std_m
+        return (1 - a) * mu, s * s + (1 - a * a) * mu * mu
+
     def logpdf_by_state(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
         """``log p(theta | d, z)`` for ``z = 0`` (NLOS) and ``z = 1`` (LOS); trailing axis 2."""
         e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
