@@ -51,7 +51,8 @@ def stream_seed(seed: int, name: str) -> np.random.SeedSequence:
 def experiment_seed(rng: np.random.Generator) -> int:
     """The experiment seed behind a block generator made by :func:`block_generator`."""
     seq = getattr(rng.bit_generator, "seed_seq", None)
-    if not isinstance(seq, np.random.SeedSequence) or not isinstance(seq.entropy, int):
+    if (not isinstance(seq, np.random.SeedSequence) or not isinstance(seq.entropy, int)
+            or len(seq.spawn_key) != 1 or seq.spawn_key[0] >= _NAMED_KEY):
         from radioloc.core.errors import ConfigError
 
         raise ConfigError("experiment_seed: the generator was not made by block_generator")

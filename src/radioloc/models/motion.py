@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import as_float_array, check_positive
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -30,7 +30,7 @@ __all__ = ["MotionModel", "RandomWalk", "ConstantVelocity", "ConstantAcceleratio
 
 def _check_dim(dim: int) -> int:
     if int(dim) != dim or dim not in (1, 2, 3):
-        raise InputError(f"dim: must be 1, 2 or 3 position coordinates, got {dim!r}")
+        raise ConfigError(f"dim: must be 1, 2 or 3 position coordinates, got {dim!r}")
     return int(dim)
 
 
@@ -169,7 +169,7 @@ class ConstantVelocity(MotionModel):
         self.dim = _check_dim(dim)
         self.state_dim = 2 * self.dim
         if distribution not in ("uniform", "gaussian"):
-            raise InputError(f"distribution: must be 'uniform' or 'gaussian', got {distribution!r}")
+            raise ConfigError(f"distribution: must be 'uniform' or 'gaussian', got {distribution!r}")
         self.distribution = distribution
 
     @property
