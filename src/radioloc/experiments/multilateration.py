@@ -17,7 +17,7 @@ import pandas as pd
 from radioloc.bounds.anchors import range_crb
 from radioloc.core.geometry import distances
 from radioloc.core.metrics import position_error
-from radioloc.estimators.multilateration import gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.ranging import GaussianRange
 from radioloc.report.style import COLORS, LINESTYLES, figure, save
@@ -58,7 +58,7 @@ class GaussNewtonMultilateration(Experiment):
         for std in config.range_std_m:
             model = GaussianRange(std)
             measured = np.abs(model.sample(true_ranges, rng))
-            fit = gauss_newton(measured, anchors, range_std_m=std)
+            fit = Multilateration(range_std_m=std).locate(measured, anchors)
             crb = range_crb(truth, anchors, model.variance)
             frames.append(pd.DataFrame({
                 "run": runs, "range_std_m": std,
@@ -66,7 +66,8 @@ class GaussNewtonMultilateration(Experiment):
                 "x_est": fit.position[:, 0], "y_est": fit.position[:, 1],
                 "error_m": position_error(fit.position, truth),
                 "crb_trace_m2": np.trace(crb, axis1=-2, axis2=-1),
-                "iterations": fit.iterations,
+                "iterations": fit.diagnostics["iterations"],
+                "converged": fit.diagnostics["converged"],
             }))
         return pd.concat(frames, ignore_index=True)
 
