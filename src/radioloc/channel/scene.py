@@ -5,7 +5,7 @@ their walls as segments with outward unit normals, their corners (diffraction ed
 two shapely STRtree spatial indices (one over the polygons for blocking tests, one over the
 walls for selecting reflectors near a link).
 
-Scenes come from :func:`city_grid` (a seeded synthetic street grid), from a list of
+Scenes come from :func:`city_grid` (a random synthetic street grid), from a list of
 polygons (:meth:`Scene.from_polygons`) or from a GeoJSON file (:func:`scene_from_geojson`).
 """
 
@@ -133,9 +133,9 @@ class Scene:
         return out.reshape(shp)
 
 
-def city_grid(seed: int = 0, *, size_m: float = 1000.0, block_m: float = 90.0,
+def city_grid(rng: np.random.Generator | int, *, size_m: float = 1000.0, block_m: float = 90.0,
               street_m: float = 22.0, max_split: int = 2, setback_m: float = 4.0) -> Scene:
-    """A seeded synthetic city: a grid of blocks separated by streets.
+    """A random synthetic city: a grid of blocks separated by streets.
 
     Each ``block_m`` square block is split into 1..``max_split`` x 1..``max_split`` lots;
     every lot holds one rectangular building pulled in from the lot edges by a random
@@ -144,17 +144,25 @@ def city_grid(seed: int = 0, *, size_m: float = 1000.0, block_m: float = 90.0,
 
     Parameters
     ----------
-    seed : int
-        Seed of the layout.
+    rng : Generator or int
+        Generator of the layout (an integer is taken as a seed).
     size_m : float
         Side of the square city, centred on the origin.
     block_m, street_m : float
         Block side and street width.
+    max_split : int
+        Largest number of lots along each side of a block.
+    setback_m : float
+        Largest setback of a building from its lot edges.
+
+    Returns
+    -------
+    Scene
     """
     check_positive(size_m, "size_m")
     check_positive(block_m, "block_m")
     check_positive(street_m, "street_m")
-    rng = as_generator(seed)
+    rng = as_generator(rng)
     pitch = block_m + street_m
     n = int(size_m // pitch)
     origin = -0.5 * (n * pitch - street_m)
