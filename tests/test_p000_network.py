@@ -32,7 +32,7 @@ def _align_error(est, truth):
 # ---------------------------------------------------------------- RLS
 
 def test_rls_pair_rows_are_linear_in_the_master_position():
-    """Eq. (3): with true positions and exact ranges, z = A x_k exactly."""
+    """eq. (3): with true positions and exact ranges, z = A x_k exactly."""
     _, truth, _, _ = _network(R=3)
     D = pairwise_distances(truth)
     k = np.array([0, 2, 5])

@@ -1,4 +1,4 @@
-"""Static multilateration by Gauss-Newton against the Cramer-Rao bound.
+"""Static multilateration by Gauss-Newton (:class:`Multilateration`) against the Cramer-Rao bound.
 
 Not a paper reproduction: the toolkit's end-to-end check. Nodes are drawn uniformly in a
 square with an anchor at each corner; ranges carry Gaussian noise of several standard
@@ -41,15 +41,44 @@ class MultilaterationConfig:
 
 @register
 class GaussNewtonMultilateration(Experiment):
+    """``gn-multilateration``: :class:`Multilateration` RMSE against the anchor CRB."""
+
     id = "gn-multilateration"
     paper = "-"
     description = "Static Gauss-Newton multilateration to 4 anchors: RMSE vs the CRB over range noise"
 
     def config(self, full: bool) -> MultilaterationConfig:
+        """The quick (2000 runs) or full (100,000 runs) configuration.
+
+        Parameters
+        ----------
+        full : bool
+            The full size.
+
+        Returns
+        -------
+        MultilaterationConfig
+        """
         return MultilaterationConfig(runs=100_000 if full else 2000)
 
     def run_block(self, config: MultilaterationConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Locate one block of random nodes at every range-noise level.
+
+        Parameters
+        ----------
+        config : MultilaterationConfig
+        runs : ndarray of int
+            Run indices of the block.
+        rng : Generator
+            The block's generator.
+
+        Returns
+        -------
+        DataFrame
+            One row per (run, range_std_m): truth, estimate, error, CRB trace and the
+            solver's iterations and convergence flag.
+        """
         s = config.side_m
         anchors = np.array([[0.0, 0.0], [s, 0.0], [s, s], [0.0, s]])
         truth = rng.uniform(0.0, s, size=(runs.size, 2))
@@ -73,6 +102,20 @@ class GaussNewtonMultilateration(Experiment):
 
     def summarize(self, config: MultilaterationConfig, results: pd.DataFrame,
                   out_dir: Path) -> Summary:
+        """RMSE and CRB per noise level, the claims and the figure, from ``results``.
+
+        Parameters
+        ----------
+        config : MultilaterationConfig
+        results : DataFrame
+            The blocks of :meth:`run_block`.
+        out_dir : Path
+            Where the figure goes.
+
+        Returns
+        -------
+        Summary
+        """
         g = results.groupby("range_std_m")
         table = pd.DataFrame({
             "rmse": np.sqrt(g["error_m"].apply(lambda e: np.mean(e**2))),

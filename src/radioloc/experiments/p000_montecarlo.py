@@ -3,7 +3,7 @@
 K = 6 nodes (3 GPS-assisted, prior variance 100 m^2 per axis; 3 unassisted, 10,000 m^2),
 Gaussian range noise of variance 900 m^2 (Fig. 1) and 10,000 m^2 (Fig. 2); every iteration
 each node in turn measures its ranges to the other five. The average position error per
-iteration of RLS (eqs. 1-12) and EKF (eqs. 13-25) is compared with the Bayesian
+iteration of RLS (eq. (1)-eq. (12)) and EKF (eq. (13)-eq. (25)) is compared with the Bayesian
 Cramer-Rao bound of the network (all ranges so far plus the priors).
 """
 
@@ -44,7 +44,7 @@ class P000Config:
     side_m (*): true positions uniform in a ``side_m`` square, drawn anew for every run.
     Each ordered pair (master k, node i) gets an independent range draw at each iteration
     (*); ranges are not clipped at 0 (*). RLS uses lambda = ``forgetting`` = 1 (*) and, in
-    each iteration, the other nodes' estimates of the previous iteration (eqs. 8-9). The EKF
+    each iteration, the other nodes' estimates of the previous iteration (eq. (8), eq. (9)). The EKF
     is told the true range variance. Iteration order of masters: 0..K-1 every iteration (*).
     converge_tolerance: "converged" = first iteration within this fraction of the final
     error, staying there.
@@ -72,6 +72,8 @@ class P000Config:
 
 @register
 class P000MonteCarlo(Experiment):
+    """``p000-montecarlo``: :class:`NetworkRLS` vs :class:`NetworkEKF` and the CRB (Figs. 1-2)."""
+
     id = "p000-montecarlo"
     paper = "000"
     description = "Distributed RLS vs sequential EKF network positioning, Figs. 1-2, with the CRB"
@@ -140,6 +142,20 @@ class P000MonteCarlo(Experiment):
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: P000Config, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Error curves, convergence steps, claims and figures, from ``results`` only.
+
+        Parameters
+        ----------
+        config : P000Config
+        results : DataFrame
+            The blocks of :meth:`run_block`.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+        """
         K, A = config.nodes, config.assisted
         wt = {"assisted": A / K, "unassisted": (K - A) / K}
         curves = results.groupby(["range_var_m2", "iteration"]).mean(numeric_only=True)
@@ -232,7 +248,7 @@ class P000MonteCarlo(Experiment):
         pairs = (config.nodes - 1) * (config.nodes - 2) // 2
         ata = pairs * d2                                   # trace of A^T A, m^2 (per axis ~half)
         out = [
-            "Eq. (12) units: the rows of A_k are position differences (m), so A_k^T A_k is in "
+            "eq. (12) units: the rows of A_k are position differences (m), so A_k^T A_k is in "
             f"m^2 (trace ~ {pairs} pairs x s^2/3 = {ata:.2g} m^2 for a {config.side_m:g} m "
             "square), while P_k(0)^-1 = Cov^-1 is in 1/m^2: the trace ratio prior/A^T A is "
             f"{2 / config.prior_var_assisted_m2 / ata:.1e} for GPS-assisted and "
