@@ -1,4 +1,4 @@
-"""Throughput of batched Gauss-Newton multilateration against scipy.optimize.least_squares
+"""Throughput of batched Gauss-Newton multilateration (:class:`Multilateration`) against scipy.optimize.least_squares
 solving the same problems one by one (same draws, same process).
 
 Run: .venv/bin/python benchmarks/bench_multilateration.py [n_problems]
@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from radioloc.core.geometry import distances
-from radioloc.estimators.multilateration import gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 
 
 def main(n: int = 20_000) -> None:
@@ -23,7 +23,7 @@ def main(n: int = 20_000) -> None:
     ranges = np.abs(distances(truth[:, None], anchors) + rng.normal(0, 1.0, (n, 4)))
 
     t0 = time.perf_counter()
-    fit = gauss_newton(ranges, anchors, range_std_m=1.0)
+    fit = Multilateration(range_std_m=1.0).locate(ranges, anchors)
     t_ours = time.perf_counter() - t0
 
     m = min(n, 2000)

@@ -15,8 +15,8 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
 from radioloc.core.geometry import pairwise_distances
-from radioloc.estimators.ekf import ekf_init, ekf_iteration
-from radioloc.estimators.rls import rls_init, rls_iteration
+from radioloc.estimators.ekf import NetworkEKF
+from radioloc.estimators.rls import NetworkRLS
 
 K, ITER, RANGE_VAR = 6, 20, 900.0
 
@@ -31,12 +31,11 @@ def draws(runs: int, seed: int = 0):
 
 
 def ours(prior, var, rho, method):
-    init, step = (ekf_init, lambda s, r: ekf_iteration(s, r, range_var=RANGE_VAR)) \
-        if method == "ekf" else (rls_init, rls_iteration)
-    s = init(prior, var)
+    est = NetworkEKF(range_var_m2=RANGE_VAR) if method == "ekf" else NetworkRLS()
+    s = est.init(prior, var)
     t = time.perf_counter()
     for n in range(ITER):
-        s = step(s, rho[n])
+        s = est.iterate(s, rho[n])
     return s, time.perf_counter() - t
 
 

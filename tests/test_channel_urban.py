@@ -2,20 +2,28 @@
 
 import numpy as np
 
+from radioloc.core.rng import block_generator
 from radioloc.experiments.p000_urban import UrbanConfig, UrbanRadiolocation, simulate
+from radioloc.sim.urban import ack_set_ranges
 
 
 def test_urban_experiment_smoke(tmp_path):
     cfg = UrbanConfig(runs=4, block_size=4, rounds=3, cache_dir=str(tmp_path / "cache"))
     exp = UrbanRadiolocation()
-    scene, pos, r = simulate(cfg)
+    net = simulate(cfg, 0)
+    scene, pos, r = net.scene, net.positions, net.ranges
     assert pos.shape == (6, 2) and not scene.inside(pos).any()
     assert (r.n_paths[np.triu_indices(6, 1)] > 0).all()            # placement guarantees a path
     np.testing.assert_allclose(r.true_m, np.linalg.norm(pos[:, None] - pos[None], axis=-1))
     assert np.all(r.first_path_m[~np.eye(6, dtype=bool)] >= r.true_m[~np.eye(6, dtype=bool)] - 1e-6)
-    df = exp.run_block(cfg, np.arange(4), np.random.default_rng(0))
-    assert set(df["estimator"]) == {"rls", "ekf"} and df["step"].max() == cfg.rounds
-    assert np.isfinite(df["error_m"]).all()
+    df = exp.run_block(cfg, np.arange(4), block_generator(0, 0))
+    runs = df[df["table"] == "runs"]
+    assert set(runs["estimator"]) == {"rls", "ekf"} and runs["step"].max() == cfg.rounds
+    assert np.isfinite(runs["error_m"]).all()
+    # the scenario rows are the simulated network's
+    nodes = df[df["table"] == "nodes"].sort_values("node")
+    np.testing.assert_allclose(nodes[["x", "y"]].to_numpy(float), pos)
+    assert (df["table"] == "ranges").sum() == 2 * cfg.rounds * 30
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
     assert {"rls_final_error_unassisted_m", "ekf_final_error_unassisted_m", "range_error_median_los_m",
@@ -23,3 +31,20 @@ def test_urban_experiment_smoke(tmp_path):
     for f in ("fig3_map.png", "fig4_error_vs_packet.png", "range_error_hist.png"):
         assert (tmp_path / f).stat().st_size > 0
     assert len(list((tmp_path / "cache").glob("*.npz"))) == 2        # placement + network traces
+    # another block of the same experiment sees the same scenario; another seed another one
+    assert simulate(cfg, 0) is net
+    assert not np.allclose(simulate(cfg, 1).positions, pos)
+
+
+def test_ack_set_ranges_drop_masters_with_too_few_ranges():
+    S, K = 2, 4
+    ranges = np.arange(S * K * K, dtype=float).reshape(S, K, K) + 1.0
+    ranges[1, 2, [0, 1]] = np.nan                      # master 2 hears only node 3 in set 1
+    order = np.array([[[1, 0], [0, 1], [1, 0], [0, 1]]])
+    out = ack_set_ranges(ranges, order, min_ranges=2)
+    assert out.shape == (1, S, K, K)
+    assert np.isnan(out[0, :, np.arange(K), np.arange(K)]).all()
+    np.testing.assert_array_equal(out[0, 0, 0, 1:], ranges[1, 0, 1:])     # master 0: set 1 first
+    np.testing.assert_array_equal(out[0, 1, 1, [0, 2, 3]], ranges[1, 1, [0, 2, 3]])
+    assert np.isnan(out[0, 0, 2]).all()                # master 2's set 1 has one range: no packet
+    np.testing.assert_array_equal(out[0, 1, 2, [0, 1, 3]], ranges[0, 2, [0, 1, 3]])

@@ -1,4 +1,4 @@
-"""Gauss-Newton multilateration and the anchor CRB."""
+"""Multilateration (Gauss-Newton / Levenberg-Marquardt through the NLLS driver) and the anchor CRB."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 from radioloc.bounds.anchors import range_crb
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.geometry import distances
-from radioloc.estimators.multilateration import gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 
 SQUARE = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [0.0, 100.0]])
 coord = st.floats(1.0, 99.0, allow_nan=False)
@@ -18,15 +18,15 @@ coord = st.floats(1.0, 99.0, allow_nan=False)
 @given(x=coord, y=coord)
 def test_noise_free_ranges_give_the_true_position(x, y):
     truth = np.array([x, y])
-    fit = gauss_newton(distances(truth, SQUARE), SQUARE, range_std_m=1.0)
+    fit = Multilateration(range_std_m=1.0).locate(distances(truth, SQUARE), SQUARE)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
-    assert fit.converged
+    assert fit.diagnostics["converged"] and not fit.diagnostics["stalled"]
 
 
 def test_three_dimensions_with_five_anchors():
     anchors = np.array([[0, 0, 0], [10, 0, 1], [0, 10, 2], [10, 10, 8], [5, 5, 10.0]])
     truth = np.array([3.0, 6.0, 4.0])
-    fit = gauss_newton(distances(truth, anchors), anchors, range_std_m=0.1)
+    fit = Multilateration(range_std_m=0.1).locate(distances(truth, anchors), anchors)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
 
 
@@ -36,18 +36,19 @@ def test_batch_equals_one_by_one():
     r = distances(truth[:, None], SQUARE) + rng.normal(0, 2.0, (40, 4))
     w = (rng.uniform(size=(40, 4)) > 0.15).astype(float)
     w[:, :3] = 1.0
-    batch = gauss_newton(r, SQUARE, weights=w)
+    batch = Multilateration().locate(r, SQUARE, weights=w)
     for i in range(40):
-        one = gauss_newton(r[i], SQUARE, weights=w[i])
+        one = Multilateration().locate(r[i], SQUARE, weights=w[i])
         np.testing.assert_allclose(batch.position[i], one.position, atol=1e-9)
         np.testing.assert_allclose(batch.covariance[i], one.covariance, rtol=1e-7)
 
 
-def test_missing_range_may_be_nan_when_weight_is_zero():
+@pytest.mark.parametrize("weights", [None, [1, 1, 0, 1], [1, 1, 1, 1]])
+def test_nan_range_is_a_missing_range(weights):
     truth = np.array([30.0, 40.0])
     r = distances(truth, SQUARE)
     r[2] = np.nan
-    fit = gauss_newton(r, SQUARE, weights=[1, 1, 0, 1], range_std_m=0.5)
+    fit = Multilateration(range_std_m=0.5).locate(r, SQUARE, weights=weights)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
 
 
@@ -56,40 +57,58 @@ def test_monte_carlo_covariance_matches_the_crb_at_small_noise():
     truth = np.array([20.0, 70.0])
     std = 0.05
     r = distances(truth, SQUARE) + rng.normal(0, std, (4000, 4))
-    fit = gauss_newton(r, SQUARE, range_std_m=std)
+    fit = Multilateration(range_std_m=std).locate(r, SQUARE)
     emp = np.cov((fit.position - truth).T)
     crb = range_crb(truth, SQUARE, std**2)
     np.testing.assert_allclose(np.trace(emp), np.trace(crb), rtol=0.1)
     np.testing.assert_allclose(fit.covariance[0], crb, rtol=1e-3)
 
 
-def test_nan_range_is_rejected_naming_the_index():
+def test_infinite_range_is_rejected_naming_the_index():
     r = distances(np.array([5.0, 5.0]), SQUARE)
-    r[1] = np.nan
-    with pytest.raises(InputError, match=r"ranges: invalid range nan at index \(1,\)"):
-        gauss_newton(r, SQUARE)
+    r[1] = np.inf
+    with pytest.raises(InputError, match=r"ranges: invalid range inf at index \(1,\)"):
+        Multilateration().locate(r, SQUARE)
+
+
+def test_levenberg_marquardt_agrees_with_gauss_newton():
+    rng = np.random.default_rng(4)
+    truth = rng.uniform(0, 100, (50, 2))
+    r = distances(truth[:, None], SQUARE) + rng.normal(0, 1.0, (50, 4))
+    gn = Multilateration(range_std_m=1.0).locate(r, SQUARE)
+    lm = Multilateration("levenberg-marquardt", range_std_m=1.0, max_iter=200).locate(r, SQUARE)
+    assert lm.diagnostics["converged"].all()
+    np.testing.assert_allclose(lm.position, gn.position, atol=1e-6)
+
+
+@pytest.mark.parametrize("setting", [dict(method="newton"), dict(range_std_m=0.0),
+                                     dict(max_iter=0), dict(tol_m=-1.0)])
+def test_bad_settings_are_config_errors(setting):
+    from radioloc.core.errors import ConfigError
+    with pytest.raises(ConfigError, match=next(iter(setting))):
+        Multilateration(**setting)
 
 
 def test_negative_range_is_rejected():
     with pytest.raises(InputError, match="ranges"):
-        gauss_newton([10.0, -1.0, 3.0, 4.0], SQUARE)
+        Multilateration().locate([10.0, -1.0, 3.0, 4.0], SQUARE)
 
 
 def test_too_few_anchors_is_a_geometry_error():
     with pytest.raises(GeometryError, match="2 ranges, 3 needed"):
-        gauss_newton([10.0, 20.0], SQUARE[:2])
+        Multilateration().locate([10.0, 20.0], SQUARE[:2])
 
 
 def test_collinear_anchors_are_a_geometry_error():
     line = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]])
     truth = np.array([12.0, 5.0])
     with pytest.raises(GeometryError, match="collinear"):
-        gauss_newton(distances(truth, line), line, range_std_m=1.0)
+        Multilateration(range_std_m=1.0).locate(distances(truth, line), line)
 
 
 def test_shape_mismatch_is_an_input_error():
     with pytest.raises(InputError, match="3 ranges per problem but 4 anchors"):
-        gauss_newton([1.0, 2.0, 3.0], SQUARE)
+        Multilateration().locate([1.0, 2.0, 3.0], SQUARE)
 
 
 def test_crb_of_collinear_anchors_is_a_geometry_error():

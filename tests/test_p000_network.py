@@ -7,11 +7,12 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from radioloc.core.alignment import rigid_aligned_error
-from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
-from radioloc.estimators.ekf import (EKFState, ekf_init, ekf_iteration, ekf_update,
-                                     range_jacobian)
-from radioloc.estimators.rls import pair_rows, rls_init, rls_iteration, rls_update
+from radioloc.estimators.ekf import NetworkEKF, range_jacobian
+from radioloc.estimators.rls import NetworkRLS, pair_rows
+
+RLS = NetworkRLS()
 
 
 def _network(R=5, K=6, seed=0, prior_std=(1.0, 30.0)):
@@ -31,7 +32,7 @@ def _align_error(est, truth):
 # ---------------------------------------------------------------- RLS
 
 def test_rls_pair_rows_are_linear_in_the_master_position():
-    """Eq. (3): with true positions and exact ranges, z = A x_k exactly."""
+    """eq. (3): with true positions and exact ranges, z = A x_k exactly."""
     _, truth, _, _ = _network(R=3)
     D = pairwise_distances(truth)
     k = np.array([0, 2, 5])
@@ -46,25 +47,26 @@ def test_rls_pair_rows_are_linear_in_the_master_position():
 def test_rls_zero_noise_recovers_the_network_shape():
     _, truth, prior, var = _network(R=4, prior_std=(0.5, 20.0))
     D = pairwise_distances(truth)
-    s = rls_init(prior, var)
-    for _ in range(400):            # lambda = 1 remembers the early linearisations; forget
-        s = rls_iteration(s, D, forgetting=0.7)
+    rls = NetworkRLS(forgetting=0.7)   # lambda = 1 remembers the early linearisations
+    s = rls.init(prior, var)
+    for _ in range(400):
+        s = rls.iterate(s, D)
     assert _align_error(s.position, truth) < 1e-3 * _align_error(prior, truth)
 
 
 def test_rls_exact_start_stays_put():
     _, truth, _, var = _network(R=3)
-    s = rls_init(truth, var)
-    s = rls_iteration(s, pairwise_distances(truth))
+    s = RLS.init(truth, var)
+    s = RLS.iterate(s, pairwise_distances(truth))
     np.testing.assert_allclose(s.position, truth, atol=1e-7)
 
 
 def test_rls_update_changes_only_the_master():
     rng, truth, prior, var = _network(R=4)
-    s = rls_init(prior, var)
+    s = RLS.init(prior, var)
     master = np.array([0, 1, 2, 3])
     D = pairwise_distances(truth) + rng.normal(size=(4, 6, 6))
-    new = rls_update(s, master, D[np.arange(4), master])
+    new = RLS.step(s, master, D[np.arange(4), master])
     changed = np.any(new.position != s.position, axis=-1)
     assert np.array_equal(changed, np.eye(4, 6, dtype=bool))
 
@@ -74,9 +76,9 @@ def test_rls_batched_equals_one_by_one():
     D = pairwise_distances(truth)
     rho = D + 10 * rng.normal(size=D.shape)
     mask = rng.uniform(size=D.shape) > 0.2
-    batch = rls_iteration(rls_init(prior, var), rho, mask)
+    batch = RLS.iterate(RLS.init(prior, var), rho, mask)
     for r in range(4):
-        one = rls_iteration(rls_init(prior[r:r + 1], var[r:r + 1]), rho[r:r + 1], mask[r:r + 1])
+        one = RLS.iterate(RLS.init(prior[r:r + 1], var[r:r + 1]), rho[r:r + 1], mask[r:r + 1])
         np.testing.assert_allclose(one.position[0], batch.position[r], rtol=1e-12)
         np.testing.assert_allclose(one.information[0], batch.information[r], rtol=1e-12)
 
@@ -89,9 +91,11 @@ def test_rls_missing_link_equals_dropping_its_pairs():
     mask[:, 3] = False
     rho_nan = rho.copy()
     rho_nan[:, 3] = np.nan
-    a = rls_update(rls_init(prior, var), 0, rho_nan, mask)
+    a = RLS.step(RLS.init(prior, var), 0, rho_nan, mask)
+    np.testing.assert_array_equal(RLS.step(RLS.init(prior, var), 0, rho_nan).position,
+                                  a.position)          # NaN alone = the same missing link
     # same thing by hand: the node-3 pairs carry weight 0
-    s = rls_init(prior, var)
+    s = RLS.init(prior, var)
     valid = mask.copy()
     valid[:, 0] = False
     A, z, w = pair_rows(prior, np.where(mask, rho, 0.0), valid)
@@ -106,26 +110,28 @@ def test_rls_singular_geometry_raises():
     K = 4
     pos = np.zeros((1, K, 2))
     pos[0, :, 0] = [0.0, 100.0, 200.0, 300.0]        # all on a line
-    s = rls_init(pos, np.full((1, K, 2), 1e16))       # the prior carries no weight
+    s = RLS.init(pos, np.full((1, K, 2), 1e16))       # the prior carries no weight
     with pytest.raises(GeometryError, match="singular"):
-        rls_update(s, 0, pairwise_distances(pos)[:, 0])
+        RLS.step(s, 0, pairwise_distances(pos)[:, 0])
 
 
 def test_rls_bad_input():
     _, truth, prior, var = _network(R=2)
-    s = rls_init(prior, var)
+    s = RLS.init(prior, var)
     with pytest.raises(InputError, match="master_idx"):
-        rls_update(s, np.array([0, 7]), np.zeros((2, 6)))
+        RLS.step(s, np.array([0, 7]), np.zeros((2, 6)))
     with pytest.raises(InputError, match="ranges"):
-        rls_update(s, 0, np.zeros((2, 5)))
+        RLS.step(s, 0, np.zeros((2, 5)))
     bad = pairwise_distances(truth)[:, 0]
-    bad[1, 2] = np.nan
+    bad[1, 2] = np.inf
     with pytest.raises(InputError, match="ranges"):
-        rls_update(s, 0, bad)
+        RLS.step(s, 0, bad)
     with pytest.raises(InputError, match="prior_var"):
-        rls_init(prior, np.zeros_like(var))
-    with pytest.raises(InputError, match="forgetting"):
-        rls_update(s, 0, pairwise_distances(truth)[:, 0], forgetting=1.5)
+        RLS.init(prior, np.zeros_like(var))
+    with pytest.raises(ConfigError, match="forgetting"):
+        NetworkRLS(forgetting=1.5)
+    with pytest.raises(ConfigError, match="range_var_m2"):
+        NetworkRLS(prior_scale="transformed-noise")
 
 
 # ---------------------------------------------------------------- EKF
@@ -161,9 +167,10 @@ def test_jacobian_master_block_has_opposite_sign():
 def test_one_ekf_update_equals_hand_computation():
     pos = np.array([[0.0, 0.0], [3.0, 4.0], [10.0, 0.0]])
     var = np.array([[4.0, 4.0], [1.0, 1.0], [9.0, 9.0]])
-    s = ekf_init(pos[None], var[None])
+    ekf = NetworkEKF(range_var_m2=2.0)
+    s = ekf.init(pos[None], var[None])
     z = np.array([[0.0, 5.5, 9.0]])
-    out = ekf_update(s, 0, z, range_var=2.0)
+    out = ekf.step(s, 0, z)
     # by hand: rows p = 1, 2 of H (2 x 6), Sigma = diag, textbook EKF update
     H = np.array([[-0.6, -0.8, 0.6, 0.8, 0.0, 0.0],
                   [-1.0, 0.0, 0.0, 0.0, 1.0, 0.0]])
@@ -179,10 +186,11 @@ def test_one_ekf_update_equals_hand_computation():
 def test_ekf_zero_noise_converges_to_truth():
     _, truth, prior, var = _network(R=4, prior_std=(1e-3, 20.0))
     D = pairwise_distances(truth)
-    s = ekf_init(prior, var)
+    ekf = NetworkEKF(range_var_m2=1e-2)
+    s = ekf.init(prior, var)
     start = np.max(np.abs(prior - truth))
     for _ in range(50):
-        s = ekf_iteration(s, D, range_var=1e-2)
+        s = ekf.iterate(s, D)
     assert np.max(np.abs(s.position - truth)) < 1e-3 * start
 
 
@@ -191,18 +199,19 @@ def test_ekf_batched_equals_one_by_one_with_missing_links():
     D = pairwise_distances(truth)
     rho = D + 10 * rng.normal(size=D.shape)
     mask = rng.uniform(size=D.shape) > 0.3
-    batch = ekf_iteration(ekf_init(prior, var), rho, mask, range_var=100.0)
+    ekf = NetworkEKF(range_var_m2=100.0)
+    batch = ekf.iterate(ekf.init(prior, var), rho, mask)
     for r in range(4):
-        one = ekf_iteration(ekf_init(prior[r:r + 1], var[r:r + 1]), rho[r:r + 1],
-                            mask[r:r + 1], range_var=100.0)
+        one = ekf.iterate(ekf.init(prior[r:r + 1], var[r:r + 1]), rho[r:r + 1], mask[r:r + 1])
         np.testing.assert_allclose(one.mean[0], batch.mean[r], rtol=1e-12)
         np.testing.assert_allclose(one.covariance[0], batch.covariance[r], rtol=1e-9, atol=1e-9)
 
 
 def test_ekf_fully_masked_packet_is_a_no_op():
     _, truth, prior, var = _network(R=2)
-    s = ekf_init(prior, var)
-    out = ekf_update(s, np.array([1, 4]), np.full((2, 6), np.nan), np.zeros((2, 6), bool), 9.0)
+    ekf = NetworkEKF(range_var_m2=9.0)
+    s = ekf.init(prior, var)
+    out = ekf.step(s, np.array([1, 4]), np.full((2, 6), np.nan), np.zeros((2, 6), bool))
     np.testing.assert_allclose(out.mean, s.mean)
     np.testing.assert_allclose(out.covariance, s.covariance)
 
@@ -210,30 +219,33 @@ def test_ekf_fully_masked_packet_is_a_no_op():
 def test_ekf_coincident_nodes_raise():
     pos = np.zeros((1, 3, 2))
     pos[0, 2] = [5.0, 5.0]
-    s = ekf_init(pos, np.ones((1, 3, 2)))
+    ekf = NetworkEKF(range_var_m2=1.0)
+    s = ekf.init(pos, np.ones((1, 3, 2)))
     with pytest.raises(GeometryError, match="coincident"):
-        ekf_update(s, 0, np.array([[0.0, 1.0, 7.0]]), range_var=1.0)
+        ekf.step(s, 0, np.array([[0.0, 1.0, 7.0]]))
 
 
 def test_ekf_bad_input():
     _, truth, prior, var = _network(R=2)
-    s = ekf_init(prior, var)
+    ekf = NetworkEKF(range_var_m2=1.0)
+    s = ekf.init(prior, var)
     rho = pairwise_distances(truth)[:, 0]
-    with pytest.raises(InputError, match="range_var"):
-        ekf_update(s, 0, rho, range_var=0.0)
+    with pytest.raises(ConfigError, match="range_var"):
+        NetworkEKF(range_var_m2=0.0)
     with pytest.raises(InputError, match="master_idx"):
-        ekf_update(s, -1, rho, range_var=1.0)
+        ekf.step(s, -1, rho)
     with pytest.raises(InputError, match="prior_mean"):
-        ekf_init(prior[..., :1], var)
+        ekf.init(prior[..., :1], var)
 
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10_000), k=st.integers(0, 5))
 def test_ekf_update_shrinks_covariance_and_keeps_it_symmetric(seed, k):
     rng, truth, prior, var = _network(R=3, seed=seed)
-    s = ekf_init(prior, var)
+    ekf = NetworkEKF(range_var_m2=4.0)
+    s = ekf.init(prior, var)
     rho = pairwise_distances(truth)[:, k] + rng.normal(size=(3, 6))
-    out = ekf_update(s, k, rho, range_var=4.0)
+    out = ekf.step(s, k, rho)
     np.testing.assert_allclose(out.covariance, out.covariance.transpose(0, 2, 1))
     diff = s.covariance - out.covariance            # prior - posterior is PSD
     assert np.all(np.linalg.eigvalsh(diff) > -1e-8 * np.abs(s.covariance).max())
@@ -249,8 +261,8 @@ def test_rls_is_equivariant_to_rigid_motions(seed, shift, angle):
     rho = pairwise_distances(truth) + rng.normal(size=(2, 6, 6))
     c, s_ = np.cos(angle), np.sin(angle)
     Q = np.array([[c, -s_], [s_, c]])
-    a = rls_iteration(rls_init(prior, var), rho)
-    b = rls_iteration(rls_init(prior @ Q.T + shift, var), rho)
+    a = RLS.iterate(RLS.init(prior, var), rho)
+    b = RLS.iterate(RLS.init(prior @ Q.T + shift, var), rho)
     np.testing.assert_allclose(b.position, a.position @ Q.T + shift, atol=1e-6 * (1 + abs(shift)))
 
 
@@ -376,7 +388,8 @@ def test_rigid_aligned_error_ignores_rigid_motions(seed, shift, angle):
 def test_ekf_is_equivariant_to_translations(seed, shift):
     rng, truth, prior, var = _network(R=2, seed=seed)
     rho = pairwise_distances(truth) + rng.normal(size=(2, 6, 6))
-    a = ekf_iteration(ekf_init(prior, var), rho, range_var=4.0)
-    b = ekf_iteration(ekf_init(prior + shift, var), rho, range_var=4.0)
+    ekf = NetworkEKF(range_var_m2=4.0)
+    a = ekf.iterate(ekf.init(prior, var), rho)
+    b = ekf.iterate(ekf.init(prior + shift, var), rho)
     np.testing.assert_allclose(b.position, a.position + shift, atol=1e-6 * (1 + abs(shift)))
     np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-6, atol=1e-6)

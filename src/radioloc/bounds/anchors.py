@@ -40,6 +40,21 @@ def range_crb(position: np.ndarray, anchors: np.ndarray, range_variance: np.ndar
               weights: np.ndarray | None = None) -> np.ndarray:
     """Cramer-Rao bound ``(..., d, d)``: the inverse of :func:`range_fisher_information`.
 
+    Parameters
+    ----------
+    position : (..., d) array
+        True positions, metres.
+    anchors : (..., M, d) array
+        Anchor positions (broadcast against ``position``).
+    range_variance : float or (..., M) array, m^2
+    weights : (..., M) array of 0/1, optional
+        Which ranges exist.
+
+    Returns
+    -------
+    (..., d, d) array
+        The bound on the position covariance, m^2.
+
     Raises
     ------
     GeometryError

@@ -29,6 +29,16 @@ def network_range_information(position: np.ndarray, range_var: float | np.ndarra
         Number of independent ranges of each ordered pair ``(k, p)`` (k measured p); the
         diagonal is ignored. One iteration of the paper's protocol gives 1 for every
         ordered pair, i.e. 2 per unordered pair.
+
+    Returns
+    -------
+    (..., 2K, 2K) array
+        Information of the stacked positions ``[x_1, y_1, x_2, ...]``, 1/m^2.
+
+    Raises
+    ------
+    GeometryError
+        Two nodes coincide.
     """
     pos = as_positions(position, "position", dims=(2,))
     K = pos.shape[-2]
@@ -60,6 +70,11 @@ def network_crb(position: np.ndarray, range_var: float | np.ndarray, prior_var: 
         Per-axis prior variances (independent priors).
     counts : float or (..., K, K) array
         Ranges per ordered pair (e.g. the number of iterations ``n``).
+
+    Returns
+    -------
+    (..., 2K, 2K) array
+        The bound on the covariance of the stacked positions, m^2.
     """
     info = network_range_information(position, range_var, counts)
     var = as_float_array(prior_var, "prior_var", nonnegative=True)
@@ -73,7 +88,18 @@ def network_crb(position: np.ndarray, range_var: float | np.ndarray, prior_var: 
 
 
 def node_crb_trace(crb: np.ndarray) -> np.ndarray:
-    """Per-node ``trace`` of the 2x2 diagonal blocks of a ``(..., 2K, 2K)`` bound, m^2."""
+    """Per-node ``trace`` of the 2x2 diagonal blocks of a stacked bound.
+
+    Parameters
+    ----------
+    crb : (..., 2K, 2K) array
+        Bound on the stacked positions, m^2.
+
+    Returns
+    -------
+    (..., K) array
+        Trace of each node's block, m^2.
+    """
     d = np.diagonal(crb, axis1=-2, axis2=-1)
     return d[..., 0::2] + d[..., 1::2]
 
@@ -95,6 +121,11 @@ def network_crb_node_traces(position: np.ndarray, range_var: float | np.ndarray,
     prior_var : (..., K, 2) array, m^2
     counts : (N,) array
         Ranges per ordered pair (e.g. iterations 0..N-1).
+
+    Returns
+    -------
+    (N, ..., K) array
+        Per-node traces of the bound for each count, m^2.
     """
     info = network_range_information(position, range_var)
     var = as_float_array(prior_var, "prior_var", nonnegative=True)

@@ -41,6 +41,18 @@ def m_sequence(degree: int, taps: tuple[int, ...]) -> np.ndarray:
     """Binary m-sequence of ``x^degree + sum x^t + 1`` (period ``2^degree - 1``).
 
     Recurrence ``a[k + degree] = a[k] xor a[k + t1] xor ...``, all-ones initial state.
+
+    Parameters
+    ----------
+    degree : int
+        Degree of the feedback polynomial.
+    taps : tuple of int
+        Exponents of its middle terms (below ``degree``).
+
+    Returns
+    -------
+    ndarray of int8, shape (2^degree - 1,)
+        One period of the sequence (0/1).
     """
     n = 2**degree - 1
     a = np.zeros(n + degree, np.int8)
@@ -59,6 +71,21 @@ def gold_codes(degree: int = 7) -> np.ndarray:
     Codes ``u``, ``v`` and ``u xor shift(v, k)``, ``k = 0..N-1``, from a preferred pair: the
     periodic cross-correlations take only the values ``-1``, ``-t(n)`` and ``t(n) - 2`` with
     ``t(n) = 1 + 2^((n + 2) // 2)`` (Gold, 1967).
+
+    Parameters
+    ----------
+    degree : int
+        Degree of the preferred pair (one of ``PREFERRED_PAIRS``).
+
+    Returns
+    -------
+    ndarray, shape (N + 2, N)
+        The codes as +-1 chips.
+
+    Raises
+    ------
+    ConfigError
+        No preferred pair of that degree.
     """
     if degree not in PREFERRED_PAIRS:
         raise ConfigError(f"code_degree: Gold codes available for {sorted(PREFERRED_PAIRS)}, got {degree}")
@@ -112,6 +139,7 @@ class CDMAConfig:
 
     @property
     def sample_s(self) -> float:
+        """Sample period [s]: the chip period over the samples per chip."""
         return self.chip_s / self.samples_per_chip
 
     @property
@@ -126,6 +154,7 @@ class CDMAConfig:
 
     @property
     def code_samples(self) -> int:
+        """Samples per code period."""
         return (2**self.code_degree - 1) * self.samples_per_chip
 
     @property
@@ -135,7 +164,18 @@ class CDMAConfig:
 
 
 def upsample(codes: np.ndarray, samples_per_chip: int) -> np.ndarray:
-    """Rectangular chips sampled ``samples_per_chip`` times: (..., N) -> (..., N * spc)."""
+    """Rectangular chips sampled ``samples_per_chip`` times.
+
+    Parameters
+    ----------
+    codes : ndarray, shape (..., N)
+        Chips.
+    samples_per_chip : int
+
+    Returns
+    -------
+    ndarray, shape (..., N * samples_per_chip)
+    """
     return np.repeat(codes, samples_per_chip, axis=-1)
 
 

@@ -216,6 +216,11 @@ def matched_filter_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray,
     cdma : CDMAConfig
     config : GSICConfig, optional
         ``max_taps`` and ``false_alarm`` are used.
+
+    Returns
+    -------
+    ToAResult
+        First-arrival times (NaN where nothing was detected), taps and detections.
     """
     cfg = config or GSICConfig()
     y, code_idx = _check(y, code_idx, cdma)
@@ -229,7 +234,24 @@ def gsic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAC
              config: GSICConfig | None = None, noise_var: float | None = None) -> ToAResult:
     """GSIC multi-user first-arrival estimation (see module docstring).
 
-    Parameters as :func:`matched_filter_toa`.
+    Parameters
+    ----------
+    y : ndarray (B, N) complex
+        Received windows (:func:`radioloc.channel.cdma.received_acks`).
+    code_idx : ndarray (B, U) int
+        Code of each user of each window.
+    codes : ndarray
+        The code table (+-1 chips).
+    cdma : CDMAConfig
+    config : GSICConfig, optional
+        Cancellation settings.
+    noise_var : float, optional
+        Noise variance per sample; default the configuration's thermal noise.
+
+    Returns
+    -------
+    ToAResult
+        First-arrival times (NaN where nothing was detected), taps and detections.
     """
     cfg = config or GSICConfig()
     y, code_idx = _check(y, code_idx, cdma)

@@ -44,7 +44,18 @@ class NetworkRanges:
 
 
 def link_index(K: int) -> np.ndarray:
-    """(K, K) index of the link {i, j} in the ``np.triu_indices(K, 1)`` order; -1 on the diagonal."""
+    """Index of the link ``{i, j}`` in the ``np.triu_indices(K, 1)`` order.
+
+    Parameters
+    ----------
+    K : int
+        Number of nodes.
+
+    Returns
+    -------
+    ndarray of int, shape (K, K)
+        Link index of every ordered pair; -1 on the diagonal.
+    """
     idx = -np.ones((K, K), int)
     i, j = np.triu_indices(K, 1)
     idx[i, j] = np.arange(i.size)
@@ -54,7 +65,22 @@ def link_index(K: int) -> np.ndarray:
 
 def trace_network(scene: Scene, positions: np.ndarray, config: TraceConfig | None = None,
                   cache_dir: Path | str | None = None) -> LinkChannels:
-    """Channels of every pair ``i < j`` (``np.triu_indices`` order), cached."""
+    """Channels of every pair ``i < j`` (``np.triu_indices`` order), cached.
+
+    Parameters
+    ----------
+    scene : Scene
+    positions : ndarray (K, 2)
+        Node positions, metres.
+    config : TraceConfig, optional
+    cache_dir : path, optional
+        Ray-tracing cache.
+
+    Returns
+    -------
+    LinkChannels
+        ``K (K - 1) / 2`` links.
+    """
     positions = as_positions(positions, "positions", dims=(2,))
     i, j = np.triu_indices(len(positions), 1)
     return trace_links_cached(scene, positions[i], positions[j], config, cache_dir)
@@ -80,6 +106,10 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
         Ray-tracing cache (default :func:`radioloc.channel.raytrace.default_cache_dir`).
     channels : LinkChannels, optional
         Already traced channels of the pairs (skips tracing).
+
+    Returns
+    -------
+    NetworkRanges
     """
     positions = as_positions(positions, "positions", dims=(2,))
     if positions.ndim != 2 or len(positions) < 2:

@@ -25,7 +25,7 @@ Coefficients (the paper's [15] does not state them; these are the documented cho
   of tx -> corner -> rx over the straight line, the shadow-side Fresnel-Kirchhoff
   parameter ``nu = h sqrt(2 (d1 + d2) / (lambda d1 d2))`` written with ``Delta ~ h^2 (d1 +
   d2) / (2 d1 d2)``) and loss ``J(nu) = 6.9 + 20 log10(sqrt((nu - 0.1)^2 + 1) + nu - 0.1)``
-  dB (ITU-R P.526, eq. 31), an extra phase of ``-pi/4``, and the free-space amplitude of
+  dB (ITU-R P.526, eq. (31)), an extra phase of ``-pi/4``, and the free-space amplitude of
   length ``d1 + d2``.
 """
 
@@ -77,6 +77,7 @@ class TraceConfig:
 
     @property
     def wavelength_m(self) -> float:
+        """Carrier wavelength [m]."""
         return C_LIGHT / self.carrier_hz
 
 
@@ -110,7 +111,13 @@ class LinkChannels:
         return self.n_paths == 0
 
     def first_delay(self) -> np.ndarray:
-        """Delay of the earliest path of each link [s]; NaN when there is no path."""
+        """Delay of the earliest path of each link.
+
+        Returns
+        -------
+        ndarray, shape (L,)
+            Seconds; NaN when the link has no path.
+        """
         out = np.full(self.delays.shape[0], np.nan)
         ok = self.n_paths > 0
         out[ok] = self.delays[ok, 0]
@@ -141,7 +148,18 @@ def _fresnel(cos_t: np.ndarray, eps: float) -> np.ndarray:
 
 
 def knife_edge_loss_db(nu: np.ndarray) -> np.ndarray:
-    """Knife-edge diffraction loss J(nu) [dB] (ITU-R P.526 eq. 31), 0 for nu <= -0.78."""
+    """Knife-edge diffraction loss ``J(nu)`` (ITU-R P.526, eq. (31)), 0 for ``nu <= -0.78``.
+
+    Parameters
+    ----------
+    nu : ndarray
+        Fresnel-Kirchhoff diffraction parameter.
+
+    Returns
+    -------
+    ndarray
+        Loss in dB, same shape as ``nu``.
+    """
     nu = np.asarray(nu, float)
     j = 6.9 + 20 * np.log10(np.sqrt((nu - 0.1) ** 2 + 1) + nu - 0.1)
     return np.where(nu > -0.78, j, 0.0)
@@ -357,7 +375,13 @@ def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
 
 
 def default_cache_dir() -> Path:
-    """``$RADIOLOC_CACHE/channels`` or ``~/.cache/radioloc/channels``."""
+    """The ray-tracing cache folder.
+
+    Returns
+    -------
+    Path
+        ``$RADIOLOC_CACHE/channels`` or ``~/.cache/radioloc/channels``.
+    """
     root = os.environ.get("RADIOLOC_CACHE")
     return (Path(root) if root else Path.home() / ".cache" / "radioloc") / "channels"
 
@@ -367,7 +391,19 @@ def trace_links_cached(scene: Scene, tx: np.ndarray, rx: np.ndarray,
                        cache_dir: Path | str | None = None) -> LinkChannels:
     """:func:`trace_links` with an ``.npz`` cache keyed by scene, end points and config.
 
-    ``cache_dir=None`` uses :func:`default_cache_dir`.
+    Parameters
+    ----------
+    scene : Scene
+    tx, rx : ndarray, shape (L, 2)
+        End points of the links, metres.
+    config : TraceConfig, optional
+        Default ``TraceConfig()``.
+    cache_dir : Path or str, optional
+        ``None`` uses :func:`default_cache_dir`.
+
+    Returns
+    -------
+    LinkChannels
     """
     cfg = config or TraceConfig()
     tx = as_positions(tx, "tx", dims=(2,)).reshape(-1, 2)
@@ -393,7 +429,16 @@ def trace_links_cached(scene: Scene, tx: np.ndarray, rx: np.ndarray,
 
 
 def all_pairs(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(i, j)``, ``i < j``, of ``K`` nodes (the reciprocal links)."""
+    """Index pairs ``(i, j)``, ``i < j``, of ``K`` nodes (the reciprocal links).
+
+    Parameters
+    ----------
+    positions : ndarray, shape (K, D)
+
+    Returns
+    -------
+    i, j : ndarray of int, shape (K (K - 1) / 2,)
+    """
     K = len(positions)
     i, j = np.triu_indices(K, 1)
     return i, j

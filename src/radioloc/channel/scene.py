@@ -5,7 +5,7 @@ their walls as segments with outward unit normals, their corners (diffraction ed
 two shapely STRtree spatial indices (one over the polygons for blocking tests, one over the
 walls for selecting reflectors near a link).
 
-Scenes come from :func:`city_grid` (a seeded synthetic street grid), from a list of
+Scenes come from :func:`city_grid` (a random synthetic street grid), from a list of
 polygons (:meth:`Scene.from_polygons`) or from a GeoJSON file (:func:`scene_from_geojson`).
 """
 
@@ -55,7 +55,22 @@ class Scene:
 
     @classmethod
     def from_polygons(cls, polygons: Iterable[object]) -> "Scene":
-        """Build a scene from shapely polygons or coordinate lists ``[[x, y], ...]``."""
+        """Build a scene from shapely polygons or coordinate lists ``[[x, y], ...]``.
+
+        Parameters
+        ----------
+        polygons : iterable of Polygon or array_like (V, 2)
+            Building footprints, metres (holes are dropped).
+
+        Returns
+        -------
+        Scene
+
+        Raises
+        ------
+        InputError
+            A polygon has fewer than 3 vertices, is invalid or has no area.
+        """
         polys = []
         for i, p in enumerate(polygons):
             if not isinstance(p, Polygon):
@@ -88,11 +103,29 @@ class Scene:
                    shapely.STRtree(shapely.linestrings(W)))
 
     def digest(self) -> str:
-        """A SHA-256 of the wall coordinates (the scene's identity for caching)."""
+        """A SHA-256 of the wall coordinates (the scene's identity for caching).
+
+        Returns
+        -------
+        str
+            Hexadecimal digest.
+        """
         return hashlib.sha256(np.round(self.walls, 6).tobytes()).hexdigest()
 
     def inside(self, points: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
-        """Whether each point lies inside (or within ``margin_m`` of) a building."""
+        """Whether each point lies inside (or within ``margin_m`` of) a building.
+
+        Parameters
+        ----------
+        points : ndarray, shape (..., 2)
+            Points, metres.
+        margin_m : float
+            Distance to a building that counts as inside.
+
+        Returns
+        -------
+        ndarray of bool, shape (...)
+        """
         pts = shapely.points(np.asarray(points, float).reshape(-1, 2))
         hit = np.zeros(len(pts), bool)
         if len(self.polygons):
@@ -133,9 +166,9 @@ class Scene:
         return out.reshape(shp)
 
 
-def city_grid(seed: int = 0, *, size_m: float = 1000.0, block_m: float = 90.0,
+def city_grid(rng: np.random.Generator | int, *, size_m: float = 1000.0, block_m: float = 90.0,
               street_m: float = 22.0, max_split: int = 2, setback_m: float = 4.0) -> Scene:
-    """A seeded synthetic city: a grid of blocks separated by streets.
+    """A random synthetic city: a grid of blocks separated by streets.
 
     Each ``block_m`` square block is split into 1..``max_split`` x 1..``max_split`` lots;
     every lot holds one rectangular building pulled in from the lot edges by a random
@@ -144,17 +177,25 @@ def city_grid(seed: int = 0, *, size_m: float = 1000.0, block_m: float = 90.0,
 
     Parameters
     ----------
-    seed : int
-        Seed of the layout.
+    rng : Generator or int
+        Generator of the layout (an integer is taken as a seed).
     size_m : float
         Side of the square city, centred on the origin.
     block_m, street_m : float
         Block side and street width.
+    max_split : int
+        Largest number of lots along each side of a block.
+    setback_m : float
+        Largest setback of a building from its lot edges.
+
+    Returns
+    -------
+    Scene
     """
     check_positive(size_m, "size_m")
     check_positive(block_m, "block_m")
     check_positive(street_m, "street_m")
-    rng = as_generator(seed)
+    rng = as_generator(rng)
     pitch = block_m + street_m
     n = int(size_m // pitch)
     origin = -0.5 * (n * pitch - street_m)
@@ -181,6 +222,20 @@ def scene_from_geojson(path: str | Path) -> Scene:
     """Read building footprints from a GeoJSON file (Polygon / MultiPolygon features).
 
     Coordinates are taken as planar metres (project the file beforehand).
+
+    Parameters
+    ----------
+    path : str or Path
+        The GeoJSON file (a FeatureCollection, a Feature or a geometry).
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    InputError
+        The file is unreadable or holds no polygon.
     """
     path = Path(path)
     try:
@@ -212,6 +267,28 @@ def street_positions(scene: Scene, n: int, rng: np.random.Generator, *, half_wid
 
     Points closer than ``clearance_m`` to a building are rejected (vectorised rejection
     sampling in batches).
+
+    Parameters
+    ----------
+    scene : Scene
+    n : int
+        Number of points.
+    rng : Generator
+    half_width_m : float
+        Half side of the sampling square, centred on the origin.
+    clearance_m : float
+        Smallest distance to a building.
+    max_tries : int
+        Candidate points drawn at most.
+
+    Returns
+    -------
+    ndarray, shape (n, 2)
+
+    Raises
+    ------
+    InputError
+        Fewer than ``n`` free points were found.
     """
     out = np.zeros((0, 2))
     for _ in range(max_tries // 256 + 1):

@@ -16,6 +16,11 @@ def rigid_aligned_error(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     ----------
     estimate, truth : (..., K, d) arrays
         The rotation is proper (no reflection).
+
+    Returns
+    -------
+    (..., K) array
+        Error of every node after the alignment.
     """
     a = estimate - estimate.mean(axis=-2, keepdims=True)
     b = truth - truth.mean(axis=-2, keepdims=True)

@@ -1,5 +1,5 @@
 """Estimators: functions and small classes that take measurements and return estimates."""
 
-from radioloc.estimators.multilateration import MultilaterationResult, gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 
-__all__ = ["gauss_newton", "MultilaterationResult"]
+__all__ = ["Multilateration"]

@@ -1,16 +1,18 @@
-"""Sequential EKF network positioning over the stacked 2K state (Brown & Iltis, eqs. 13-25).
+"""Sequential EKF network positioning over the stacked 2K state (Brown & Iltis,
+eq. (13)-eq. (25)).
 
-The state is ``x = [x_1; ...; x_K]`` (eq. 13), static, so the prediction is the identity
-(eqs. 20, 24). At each packet a master node ``k`` measures its ranges to the others
-(eqs. 14-15) and updates the *global* estimate (eqs. 19, 21-23); the next master starts from
-that estimate. Missing links are rows with a zero Jacobian and zero innovation, which is
-an exact no-op in the update.
+The state is ``x = [x_1; ...; x_K]`` (eq. (13)), static, so the prediction is the identity
+(eq. (20), eq. (24)). At each packet a master node ``k`` measures its ranges to the others
+(eq. (14), eq. (15)) and updates the *global* estimate (eq. (19), eq. (21), eq. (22),
+eq. (23)); the next master starts from that estimate. A missing link (NaN range, or a
+false mask entry) is a row skipped by the update.
 
-The covariance update is the Joseph form ``(I - L H^T) S (I - L H^T)^T + L R L^T``,
-algebraically eq. (21) but symmetric and positive semi-definite in floating point; it is
-symmetrised after each update.
+The update is the toolkit's one Kalman update
+(:func:`radioloc.estimators.kalman.kalman_update`): the Joseph form
+``(I - L H^T) S (I - L H^T)^T + L R L^T``, algebraically eq. (21) but symmetric and
+positive semi-definite in floating point, symmetrised after each update.
 
-Every function advances a batch of ``R`` independent runs: state ``(R, 2K)``.
+:class:`NetworkEKF` advances a batch of ``R`` independent runs: state ``(R, 2K)``.
 """
 
 from __future__ import annotations
@@ -19,32 +21,47 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.validation import as_float_array, check_finite_output
-from radioloc.estimators.network import check_packet, check_prior
+from radioloc.core.errors import ConfigError, GeometryError
+from radioloc.core.results import Estimate, Track
+from radioloc.core.validation import check_finite_output
+from radioloc.estimators.base import RecursiveEstimator
+from radioloc.estimators.kalman import kalman_update, normalised_innovation_squared
+from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
+                                         run_iterations)
+
+__all__ = ["NetworkEKF", "EKFState", "range_jacobian"]
 
 
 @dataclass(frozen=True)
 class EKFState:
-    """State of ``R`` independent runs of the sequential EKF.
+    """Filter state of ``R`` independent runs of the sequential EKF.
 
     Attributes
     ----------
-    mean : (R, 2K) array, m
-        Stacked estimate ``[x_1, y_1, x_2, y_2, ...]`` (eq. 13).
-    covariance : (R, 2K, 2K) array, m^2
-        ``Sigma`` of eq. (21).
+    mean : ndarray, shape (R, 2K)
+        Stacked estimate ``[x_1, y_1, x_2, y_2, ...]`` (eq. (13)), metres.
+    covariance : ndarray, shape (R, 2K, 2K)
+        ``Sigma`` of eq. (21), m^2.
+    nis : ndarray, shape (R, K)
+        Normalised innovation squared of each node's latest packet as master (NaN
+        before its first).
+    used : ndarray of int, shape (R, K)
+        Ranges that entered each node's latest packet (0 before its first).
     """
 
     mean: np.ndarray
     covariance: np.ndarray
+    nis: np.ndarray
+    used: np.ndarray
 
     @property
     def runs(self) -> int:
+        """Number of runs ``R``."""
         return self.mean.shape[0]
 
     @property
     def nodes(self) -> int:
+        """Number of nodes ``K``."""
         return self.mean.shape[1] // 2
 
     @property
@@ -61,42 +78,30 @@ class EKFState:
         return c[:, k, :, k, :].transpose(1, 0, 2, 3)
 
 
-def ekf_init(prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
-    """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. 25).
-
-    Parameters
-    ----------
-    prior_mean : (R, K, 2) array, m
-    prior_var : (R, K, 2) array (or broadcastable), m^2, per axis
-    """
-    mean, var = check_prior(prior_mean, prior_var)
-    R, K, _ = mean.shape
-    cov = np.zeros((R, 2 * K, 2 * K))
-    idx = np.arange(2 * K)
-    cov[:, idx, idx] = var.reshape(R, 2 * K)
-    return EKFState(mean.reshape(R, 2 * K), cov)
-
-
 def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray | None = None,
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted ranges ``h_k(x)`` (eq. 15) and Jacobian ``H_k^T`` (eqs. 16-17).
+    """Predicted ranges ``h_k(x)`` (eq. (15)) and Jacobian ``H_k^T`` (eq. (16), eq. (17)).
 
     Row ``p`` of ``H_k^T`` holds ``u^T = (x_p - x_k)^T / |x_p - x_k|`` in column block ``p``
-    and ``-u^T`` in column block ``k``. Eq. (17) prints the same sign for both blocks; the
+    and ``-u^T`` in column block ``k``. eq. (17) prints the same sign for both blocks; the
     derivative of ``|x_p - x_k|`` with respect to ``x_k`` is the negative of that with
     respect to ``x_p``, which is what is implemented here.
 
     Parameters
     ----------
-    position : (R, K, 2) array
-    master : (R,) int array
-    valid : (R, K) bool array, optional
+    position : ndarray, shape (R, K, 2)
+        Current estimates, metres.
+    master : ndarray of int, shape (R,)
+        The master node of each run.
+    valid : ndarray of bool, shape (R, K), optional
         Rows with a false entry (and the master's own row) are zero.
 
     Returns
     -------
-    h : (R, K) predicted ranges (0 on the master's own entry)
-    H : (R, K, 2K) Jacobian, one row per node ``p``
+    h : ndarray, shape (R, K)
+        Predicted ranges (0 on the master's own entry).
+    H : ndarray, shape (R, K, 2K)
+        Jacobian, one row per node ``p``.
 
     Raises
     ------
@@ -115,7 +120,8 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
     if np.any(coincident):
         r, p = (int(i) for i in np.argwhere(coincident)[0])
         raise GeometryError(f"run {r}: nodes {int(master[r])} and {p} have coincident position "
-                            "estimates; the range Jacobian is undefined")
+                            "estimates; the range Jacobian is undefined", index=(r,),
+                            detail=f"nodes {int(master[r])} and {p} have coincident estimates")
     u = np.where(valid[..., None], diff / np.where(h > 0, h, 1.0)[..., None], 0.0)
     H = np.zeros((R, K, K, 2))
     kk = np.arange(K)
@@ -124,71 +130,151 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
     return h, H.reshape(R, K, 2 * K)
 
 
-def ekf_update(state: EKFState, master_idx: np.ndarray | int, ranges: np.ndarray,
-               mask: np.ndarray | None = None, range_var: float | np.ndarray = 1.0) -> EKFState:
-    """One packet per run: the master's ranges update the global state (eqs. 18-23).
+class NetworkEKF(RecursiveEstimator):
+    """Sequential EKF network positioning over the stacked state (Brown & Iltis,
+    eq. (13)-eq. (25)).
 
     Parameters
     ----------
-    state : EKFState
-    master_idx : (R,) int array or int
-        Node that measured in each run.
-    ranges : (R, K) array, m
-        The master's ranges to every node (own entry and masked entries ignored).
-    mask : (R, K) bool array, optional
-        Which ranges exist (missing links).
-    range_var : float or (R, K) array, m^2
-        ``sigma_v^2``, the diagonal of ``R_k`` (eq. 15).
+    range_var_m2 : float
+        ``sigma_v^2``, the diagonal of ``R_k`` (eq. (15)), m^2.
 
-    Returns
-    -------
-    EKFState
-        A new state (the input is not modified).
+    Raises
+    ------
+    ConfigError
+        ``range_var_m2`` is not a positive number.
     """
-    R, K = state.runs, state.nodes
-    master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
-    var = as_float_array(range_var, "range_var", nonnegative=True)
-    try:
-        var = np.broadcast_to(var, (R, K))
-    except ValueError:
-        raise InputError(f"range_var: shape {var.shape} does not broadcast to ({R}, {K})") from None
-    if np.any(var[valid] <= 0):
-        raise InputError("range_var: must be > 0 (m^2) for every measured range")
-    var = np.where(valid, var, 1.0)
-    h, H = range_jacobian(state.position, master, valid)
-    innov = np.where(valid, rho - h, 0.0)                            # eq. 19 bracket
-    S = state.covariance
-    SH = S @ H.transpose(0, 2, 1)                                    # Sigma H_k, (R, 2K, K)
-    omega = H @ SH                                                   # eq. 23
-    idx = np.arange(K)
-    omega[:, idx, idx] += var
-    L = np.linalg.solve(omega, SH.transpose(0, 2, 1)).transpose(0, 2, 1)  # eq. 22 (Omega sym.)
-    mean = state.mean + np.einsum("rij,rj->ri", L, innov)            # eq. 19
-    IKH = np.eye(2 * K) - L @ H
-    cov = IKH @ S @ IKH.transpose(0, 2, 1) + (L * var[:, None, :]) @ L.transpose(0, 2, 1)
-    cov = 0.5 * (cov + cov.transpose(0, 2, 1))                       # eq. 21, Joseph form
-    return EKFState(check_finite_output(mean, "ekf mean"), cov)
 
+    name = "ekf"
 
-def ekf_iteration(state: EKFState, ranges: np.ndarray, mask: np.ndarray | None = None,
-                  range_var: float | np.ndarray = 1.0) -> EKFState:
-    """One iteration ``n``: masters ``k = 0..K-1`` update the global state in turn.
+    def __init__(self, range_var_m2: float = 900.0) -> None:
+        if not (np.isfinite(range_var_m2) and range_var_m2 > 0):
+            raise ConfigError(f"range_var_m2: must be > 0 (m^2), got {range_var_m2!r}")
+        self.range_var_m2 = float(range_var_m2)
 
-    Parameters
-    ----------
-    ranges : (R, K, K) array
-        ``ranges[r, k, i]``: range measured at master ``k`` to node ``i`` in run ``r``.
-    mask : (R, K, K) bool array, optional
-    range_var : float or (R, K, K) array, m^2
-    """
-    rho = as_float_array(ranges, "ranges", ndim=3, allow_nan=True)
-    R, K = state.runs, state.nodes
-    if rho.shape != (R, K, K):
-        raise InputError(f"ranges: expected shape ({R}, {K}, {K}), got {rho.shape}")
-    var = np.broadcast_to(np.asarray(range_var, dtype=float), (R, K, K)) \
-        if np.ndim(range_var) else range_var
-    for k in range(K):
-        state = ekf_update(state, np.full(R, k), rho[:, k],
-                           None if mask is None else np.asarray(mask)[:, k],
-                           var if np.ndim(var) == 0 else var[:, k])
-    return state
+    def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
+        """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. (25)).
+
+        Parameters
+        ----------
+        prior_mean : ndarray, shape (R, K, 2)
+            Prior mean positions, metres.
+        prior_var : ndarray, broadcastable to (R, K, 2)
+            Per-axis prior variances, m^2.
+
+        Returns
+        -------
+        EKFState
+        """
+        mean, var = check_prior(prior_mean, prior_var)
+        R, K, _ = mean.shape
+        cov = np.zeros((R, 2 * K, 2 * K))
+        idx = np.arange(2 * K)
+        cov[:, idx, idx] = var.reshape(R, 2 * K)
+        return EKFState(mean.reshape(R, 2 * K), cov, np.full((R, K), np.nan),
+                        np.zeros((R, K), dtype=np.int64))
+
+    def step(self, state: EKFState, master_idx: np.ndarray | int, ranges: np.ndarray,
+             mask: np.ndarray | None = None) -> EKFState:
+        """One packet per run: the master's ranges update the global state (eq. (18)-eq. (23)).
+
+        Parameters
+        ----------
+        state : EKFState
+        master_idx : int or ndarray of int, shape (R,)
+            Node that measured in each run.
+        ranges : ndarray, shape (R, K)
+            The master's ranges to every node, metres; NaN = missing link; the master's
+            own entry is ignored.
+        mask : ndarray of bool, shape (R, K), optional
+            Which ranges exist, besides the NaN test.
+
+        Returns
+        -------
+        EKFState
+            A new state (the input is not modified).
+
+        Raises
+        ------
+        GeometryError
+            A used link joins two nodes with coincident estimates.
+        """
+        R, K = state.runs, state.nodes
+        master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
+        h, H = range_jacobian(state.position, master, valid)
+        innov = np.where(valid, rho - h, np.nan)                         # eq. (19) bracket
+        mean, cov, S, used = kalman_update(state.mean, state.covariance, innov, H,
+                                           R_diag=np.full((R, K), self.range_var_m2),
+                                           valid=valid)                  # eq. (19)-eq. (23)
+        rr = np.arange(R)
+        nis = state.nis.copy()
+        nis[rr, master] = normalised_innovation_squared(innov, S, used)
+        n_used = state.used.copy()
+        n_used[rr, master] = used.sum(axis=-1)
+        return EKFState(check_finite_output(mean, "ekf mean"), cov, nis, n_used)
+
+    def iterate(self, state: EKFState, ranges: np.ndarray, mask: np.ndarray | None = None
+                ) -> EKFState:
+        """One iteration ``n``: masters ``k = 0..K-1`` update the global state in turn.
+
+        Parameters
+        ----------
+        state : EKFState
+        ranges : ndarray, shape (R, K, K)
+            ``ranges[r, k, i]``: range measured at master ``k`` to node ``i`` in run
+            ``r``; NaN = missing link.
+        mask : ndarray of bool, shape (R, K, K), optional
+            Which ranges exist, besides the NaN test.
+
+        Returns
+        -------
+        EKFState
+        """
+        R, K = state.runs, state.nodes
+        rho, mask = check_iteration(ranges, mask, R, K)
+        for k in range(K):
+            state = self.step(state, np.full(R, k), rho[:, k],
+                              None if mask is None else mask[:, k])
+        return state
+
+    def estimate(self, state: EKFState) -> Estimate:
+        """The current estimate of every node with its own 2x2 covariance block.
+
+        Parameters
+        ----------
+        state : EKFState
+
+        Returns
+        -------
+        Estimate
+            ``position`` ``(R, K, 2)``, ``covariance`` ``(R, K, 2, 2)``; diagnostics
+            ``nis`` and ``measurements_used`` ``(R, K)`` of each node's latest packet as
+            master.
+        """
+        return Estimate(state.position, state.position_covariance, None,
+                        {"nis": state.nis, "measurements_used": state.used})
+
+    def run(self, ranges: np.ndarray, prior_mean: np.ndarray, prior_var: np.ndarray,
+            mask: np.ndarray | None = None, time: np.ndarray | None = None) -> Track:
+        """Run ``N`` iterations of every master from the priors.
+
+        Parameters
+        ----------
+        ranges : ndarray, shape (R, N, K, K)
+            ``ranges[r, n, k, i]``: range at master ``k`` to node ``i`` in iteration
+            ``n`` of run ``r``; NaN = missing link.
+        prior_mean : ndarray, shape (R, K, 2)
+        prior_var : ndarray, broadcastable to (R, K, 2)
+            Per-axis prior variances, m^2.
+        mask : ndarray of bool, shape (R, N, K, K), optional
+        time : ndarray, shape (N,), optional
+            Time of each iteration; default the iteration number ``1..N``.
+
+        Returns
+        -------
+        Track
+            ``position`` ``(R, K, N, 2)`` and ``covariance`` ``(R, K, N, 2, 2)`` after each
+            iteration (the prior, iteration 0, is not included).
+        """
+        return run_iterations(self, self.init(prior_mean, prior_var), ranges, mask, time,
+                              self.estimate)

@@ -1,4 +1,4 @@
-"""Static multilateration by Gauss-Newton against the Cramer-Rao bound.
+"""Static multilateration by Gauss-Newton (:class:`Multilateration`) against the Cramer-Rao bound.
 
 Not a paper reproduction: the toolkit's end-to-end check. Nodes are drawn uniformly in a
 square with an anchor at each corner; ranges carry Gaussian noise of several standard
@@ -17,7 +17,7 @@ import pandas as pd
 from radioloc.bounds.anchors import range_crb
 from radioloc.core.geometry import distances
 from radioloc.core.metrics import position_error
-from radioloc.estimators.multilateration import gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.ranging import GaussianRange
 from radioloc.report.style import COLORS, LINESTYLES, figure, save
@@ -41,15 +41,44 @@ class MultilaterationConfig:
 
 @register
 class GaussNewtonMultilateration(Experiment):
+    """``gn-multilateration``: :class:`Multilateration` RMSE against the anchor CRB."""
+
     id = "gn-multilateration"
     paper = "-"
     description = "Static Gauss-Newton multilateration to 4 anchors: RMSE vs the CRB over range noise"
 
     def config(self, full: bool) -> MultilaterationConfig:
+        """The quick (2000 runs) or full (100,000 runs) configuration.
+
+        Parameters
+        ----------
+        full : bool
+            The full size.
+
+        Returns
+        -------
+        MultilaterationConfig
+        """
         return MultilaterationConfig(runs=100_000 if full else 2000)
 
     def run_block(self, config: MultilaterationConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Locate one block of random nodes at every range-noise level.
+
+        Parameters
+        ----------
+        config : MultilaterationConfig
+        runs : ndarray of int
+            Run indices of the block.
+        rng : Generator
+            The block's generator.
+
+        Returns
+        -------
+        DataFrame
+            One row per (run, range_std_m): truth, estimate, error, CRB trace and the
+            solver's iterations and convergence flag.
+        """
         s = config.side_m
         anchors = np.array([[0.0, 0.0], [s, 0.0], [s, s], [0.0, s]])
         truth = rng.uniform(0.0, s, size=(runs.size, 2))
@@ -58,7 +87,7 @@ class GaussNewtonMultilateration(Experiment):
         for std in config.range_std_m:
             model = GaussianRange(std)
             measured = np.abs(model.sample(true_ranges, rng))
-            fit = gauss_newton(measured, anchors, range_std_m=std)
+            fit = Multilateration(range_std_m=std).locate(measured, anchors)
             crb = range_crb(truth, anchors, model.variance)
             frames.append(pd.DataFrame({
                 "run": runs, "range_std_m": std,
@@ -66,12 +95,27 @@ class GaussNewtonMultilateration(Experiment):
                 "x_est": fit.position[:, 0], "y_est": fit.position[:, 1],
                 "error_m": position_error(fit.position, truth),
                 "crb_trace_m2": np.trace(crb, axis1=-2, axis2=-1),
-                "iterations": fit.iterations,
+                "iterations": fit.diagnostics["iterations"],
+                "converged": fit.diagnostics["converged"],
             }))
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: MultilaterationConfig, results: pd.DataFrame,
                   out_dir: Path) -> Summary:
+        """RMSE and CRB per noise level, the claims and the figure, from ``results``.
+
+        Parameters
+        ----------
+        config : MultilaterationConfig
+        results : DataFrame
+            The blocks of :meth:`run_block`.
+        out_dir : Path
+            Where the figure goes.
+
+        Returns
+        -------
+        Summary
+        """
         g = results.groupby("range_std_m")
         table = pd.DataFrame({
             "rmse": np.sqrt(g["error_m"].apply(lambda e: np.mean(e**2))),

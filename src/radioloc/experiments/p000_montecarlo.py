@@ -3,7 +3,7 @@
 K = 6 nodes (3 GPS-assisted, prior variance 100 m^2 per axis; 3 unassisted, 10,000 m^2),
 Gaussian range noise of variance 900 m^2 (Fig. 1) and 10,000 m^2 (Fig. 2); every iteration
 each node in turn measures its ranges to the other five. The average position error per
-iteration of RLS (eqs. 1-12) and EKF (eqs. 13-25) is compared with the Bayesian
+iteration of RLS (eq. (1)-eq. (12)) and EKF (eq. (13)-eq. (25)) is compared with the Bayesian
 Cramer-Rao bound of the network (all ranges so far plus the priors).
 """
 
@@ -17,12 +17,12 @@ import pandas as pd
 
 from radioloc.bounds.cooperative import network_crb_node_traces
 from radioloc.core.alignment import rigid_aligned_error
-from radioloc.core.geometry import pairwise_distances
 from radioloc.core.metrics import first_step_within
-from radioloc.estimators.ekf import ekf_init, ekf_iteration
-from radioloc.estimators.rls import rls_init, rls_iteration
+from radioloc.estimators.ekf import NetworkEKF
+from radioloc.estimators.rls import NetworkRLS
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.report.style import COLORS, LINESTYLES, figure, save
+from radioloc.sim.network import draw_network, iteration_ranges
 
 METHODS = ("rls", "ekf", "rlsw")
 LABELS = {"rls": "RLS, eq. (12) as printed", "ekf": "EKF",
@@ -44,7 +44,7 @@ class P000Config:
     side_m (*): true positions uniform in a ``side_m`` square, drawn anew for every run.
     Each ordered pair (master k, node i) gets an independent range draw at each iteration
     (*); ranges are not clipped at 0 (*). RLS uses lambda = ``forgetting`` = 1 (*) and, in
-    each iteration, the other nodes' estimates of the previous iteration (eqs. 8-9). The EKF
+    each iteration, the other nodes' estimates of the previous iteration (eq. (8), eq. (9)). The EKF
     is told the true range variance. Iteration order of masters: 0..K-1 every iteration (*).
     converge_tolerance: "converged" = first iteration within this fraction of the final
     error, staying there.
@@ -70,72 +70,92 @@ class P000Config:
     diverged_m: float = 10_000.0
 
 
-def transformed_noise_var(prior_mean: np.ndarray, range_var: float) -> np.ndarray:
-    """Variance (m^4) of the differenced squared range ``v_{i,j,k}`` of eq. (2) per node.
-
-    ``1/2 (rho_i^2 - rho_j^2)`` has noise ``d_i v_i - d_j v_j`` to first order, variance
-    ``(d_i^2 + d_j^2) sigma_v^2``; averaged over the pairs this is
-    ``2 sigma_v^2 mean_i d_i^2``, evaluated at the prior means.
-    """
-    d2 = pairwise_distances(prior_mean) ** 2
-    K = prior_mean.shape[-2]
-    return 2.0 * range_var * d2.sum(axis=-1) / (K - 1)
-
-
 @register
 class P000MonteCarlo(Experiment):
+    """``p000-montecarlo``: :class:`NetworkRLS` vs :class:`NetworkEKF` and the CRB (Figs. 1-2)."""
+
     id = "p000-montecarlo"
     paper = "000"
     description = "Distributed RLS vs sequential EKF network positioning, Figs. 1-2, with the CRB"
 
     def config(self, full: bool) -> P000Config:
+        """The quick (200 runs) or full (5000 runs, the paper's) configuration.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size.
+
+        Returns
+        -------
+        P000Config
+        """
         return P000Config(runs=5000 if full else 200)
 
     def run_block(self, config: P000Config, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Run one block: per run and range variance, the error curves of RLS, EKF, the
+        prior-weighted RLS and the CRB.
+
+        Parameters
+        ----------
+        config : P000Config
+        runs : ndarray of int
+            Run indices of the block.
+        rng : Generator
+            The block's generator.
+
+        Returns
+        -------
+        DataFrame
+            One row per (run, range variance, iteration 0..N), errors per node class.
+        """
         R, K, N = runs.size, config.nodes, config.iterations
-        truth = rng.uniform(0.0, config.side_m, size=(R, K, 2))
-        var = np.where(np.arange(K) < config.assisted, config.prior_var_assisted_m2,
-                       config.prior_var_unassisted_m2)
-        prior_var = np.broadcast_to(var[None, :, None], (R, K, 2)).astype(float)
-        prior = truth + rng.normal(size=truth.shape) * np.sqrt(prior_var)
-        D = pairwise_distances(truth)
-        cls = {"assisted": np.arange(K) < config.assisted}
-        cls["unassisted"] = ~cls["assisted"]
+        net = draw_network(rng, R, K, config.assisted, side_m=config.side_m,
+                           var_assisted_m2=config.prior_var_assisted_m2,
+                           var_unassisted_m2=config.prior_var_unassisted_m2)
+        truth, prior, prior_var = net.truth, net.prior_mean, net.prior_var
+        cls = {"assisted": net.assisted, "unassisted": ~net.assisted}
         frames = []
         for rv in config.range_var_m2:
-            noise = rng.normal(size=(N, R, K, K)) * np.sqrt(rv)
-            states = {"rls": rls_init(prior, prior_var),
-                      "ekf": ekf_init(prior, prior_var),
-                      "rlsw": rls_init(prior, prior_var,
-                                       prior_scale=transformed_noise_var(prior, rv))}
-            rows = {m: [self._errors(prior, truth)] for m in METHODS}
-            for n in range(N):
-                rho = D + noise[n]
-                for m in ("rls", "rlsw"):
-                    states[m] = rls_iteration(states[m], rho, forgetting=config.forgetting)
-                states["ekf"] = ekf_iteration(states["ekf"], rho, range_var=rv)
-                for m in METHODS:
-                    rows[m].append(self._errors(states[m].position, truth))
+            rho = iteration_ranges(truth, N, rv, rng)                      # (R, N, K, K)
+            estimators = {
+                "rls": NetworkRLS(forgetting=config.forgetting),
+                "ekf": NetworkEKF(range_var_m2=rv),
+                "rlsw": NetworkRLS(forgetting=config.forgetting, prior_scale="transformed-noise",
+                                   range_var_m2=rv)}
             crb = network_crb_node_traces(truth, rv, prior_var, np.arange(N + 1))  # (N+1, R, K)
             data = {"run": np.repeat(runs, N + 1), "range_var_m2": rv,
                     "iteration": np.tile(np.arange(N + 1), R)}
-            for m in METHODS:
-                err, aligned = (np.stack(a) for a in zip(*rows[m]))  # (N+1, R, K)
+            for m, est in estimators.items():
+                track = est.run(rho, prior, prior_var)
+                pos = np.concatenate([prior[:, :, None], track.position], axis=2)  # (R,K,N+1,2)
+                err = np.linalg.norm(pos - truth[:, :, None], axis=-1)            # (R, K, N+1)
+                aligned = rigid_aligned_error(pos.transpose(0, 2, 1, 3), truth[:, None])
                 for c in CLASSES:
-                    data[f"{m}_err_{c}_m"] = err[..., cls[c]].mean(-1).T.ravel()
-                    data[f"{m}_sqerr_{c}_m2"] = (err[..., cls[c]] ** 2).mean(-1).T.ravel()
-                data[f"{m}_aligned_err_m"] = aligned.mean(-1).T.ravel()
+                    data[f"{m}_err_{c}_m"] = err[:, cls[c]].mean(1).ravel()
+                    data[f"{m}_sqerr_{c}_m2"] = (err[:, cls[c]] ** 2).mean(1).ravel()
+                data[f"{m}_aligned_err_m"] = aligned.mean(-1).ravel()             # (R, N+1)
             for c in CLASSES:
                 data[f"crb_{c}_m2"] = crb[..., cls[c]].mean(-1).T.ravel()
             frames.append(pd.DataFrame(data).round(4))      # 0.1 mm: keeps the CSV small
         return pd.concat(frames, ignore_index=True)
 
-    @staticmethod
-    def _errors(position: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (np.linalg.norm(position - truth, axis=-1), rigid_aligned_error(position, truth))
-
     def summarize(self, config: P000Config, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Error curves, convergence steps, claims and figures, from ``results`` only.
+
+        Parameters
+        ----------
+        config : P000Config
+        results : DataFrame
+            The blocks of :meth:`run_block`.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+        """
         K, A = config.nodes, config.assisted
         wt = {"assisted": A / K, "unassisted": (K - A) / K}
         curves = results.groupby(["range_var_m2", "iteration"]).mean(numeric_only=True)
@@ -228,7 +248,7 @@ class P000MonteCarlo(Experiment):
         pairs = (config.nodes - 1) * (config.nodes - 2) // 2
         ata = pairs * d2                                   # trace of A^T A, m^2 (per axis ~half)
         out = [
-            "Eq. (12) units: the rows of A_k are position differences (m), so A_k^T A_k is in "
+            "eq. (12) units: the rows of A_k are position differences (m), so A_k^T A_k is in "
             f"m^2 (trace ~ {pairs} pairs x s^2/3 = {ata:.2g} m^2 for a {config.side_m:g} m "
             "square), while P_k(0)^-1 = Cov^-1 is in 1/m^2: the trace ratio prior/A^T A is "
             f"{2 / config.prior_var_assisted_m2 / ata:.1e} for GPS-assisted and "

@@ -1,18 +1,25 @@
 """Paper 000, complete radiolocation simulation (Figs. 3, 4): urban multipath, DS-CDMA
 RTS/ACK ranging with GSIC, then the distributed RLS and EKF.
 
-Six nodes stand on the streets of a seeded synthetic city (:func:`city_grid`); their 15
-links are ray traced once (cached). Every node is master in turn and collects ``rounds``
-ACK sets (paper: 28); GSIC and the single-user matched filter turn each ACK set into
-ranges. The GSIC ranges then feed the RLS (eqs. 1-12) and the EKF (eqs. 13-25) in a random
-order of the ACK sets, from random priors (3 GPS-assisted nodes with prior variance
-100 m^2 per axis, 3 unassisted with 10,000 m^2), ``runs`` times (paper: 5000).
+Six nodes stand on the streets of a synthetic city; their 15 links are ray traced once
+(cached). Every node is master in turn and collects ``rounds`` ACK sets (paper: 28); GSIC
+and the single-user matched filter turn each ACK set into ranges (the scenario lives in
+:mod:`radioloc.sim.urban`). The GSIC ranges then feed the RLS (eq. (1)-eq. (12)) and the EKF
+(eq. (13)-eq. (25)) in a random order of the ACK sets, from random priors (3 GPS-assisted
+nodes with prior variance 100 m^2 per axis, 3 unassisted with 10,000 m^2), ``runs`` times
+(paper: 5000).
+
+The city, the node placement and the hand-shake noise come from the ``"scene"``,
+``"placement"`` and ``"channel"`` streams of the experiment seed: ``--seed`` changes the
+whole scenario, and every block of runs sees the same one. The block holding run 0 also
+writes the scenario (ranges, node positions, buildings, the run-0 traces) as rows of the
+results table (column ``table``), from which :meth:`UrbanRadiolocation.summarize` draws
+its range metrics and figures.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -20,14 +27,18 @@ import pandas as pd
 
 from radioloc.channel.cdma import CDMAConfig
 from radioloc.channel.gsic import GSICConfig
-from radioloc.channel.ranging import NetworkRanges, network_ranges, trace_network
-from radioloc.channel.raytrace import TraceConfig, trace_links_cached
-from radioloc.channel.scene import Scene, city_grid, street_positions
-from radioloc.core.metrics import position_error
-from radioloc.estimators.ekf import ekf_init, ekf_iteration
-from radioloc.estimators.rls import rls_init, rls_iteration
+from radioloc.channel.raytrace import TraceConfig
+from radioloc.core.rng import experiment_seed
+from radioloc.estimators.ekf import NetworkEKF
+from radioloc.estimators.rls import NetworkRLS
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.report.style import COLORS, LINESTYLES, figure, save
+from radioloc.sim.network import prior_variances
+from radioloc.sim.urban import (UrbanNetwork, ack_set_ranges, building_table, range_table,
+                                simulate_urban_network)
+
+ESTIMATORS = ("rls", "ekf")
+GROUPS = ("assisted", "unassisted")
 
 
 @dataclass(frozen=True)
@@ -36,14 +47,15 @@ class UrbanConfig:
 
     runs, block_size: realizations of ACK-set order and priors (paper: 5000), per block.
     rounds: ACK sets collected by every master (paper: 28).
-    scene_seed, city_size_m: the synthetic city (*) (paper: an urban ray-tracing scene [15]).
-    placement_seed, placement_half_width_m, candidates: node placement (*): ``candidates``
-        street points in the central square are traced pairwise (order 1) and the first
-        6-node set of a seeded search in which every link has a traced path is kept.
+    city_size_m: side of the synthetic city (*) (paper: an urban ray-tracing scene [15]),
+        drawn from the ``"scene"`` stream of the seed.
+    placement_half_width_m, candidates: node placement (*): ``candidates`` street points in
+        the central square (``"placement"`` stream) are traced pairwise (order 1) and a
+        random 6-node set in which every link has a traced path is kept.
     assisted: how many nodes have GPS priors (the first ones); prior variances per axis.
     range_var_m2: range variance the EKF assumes (*): 900 m^2, one chip (the paper's note).
-    channel_seed: seed of the hand-shake noise, jitter and path phases (ranges are
-        simulated once per configuration, like the paper's 28 recorded ACK sets).
+    The hand-shake noise, jitter and path phases come from the ``"channel"`` stream (ranges
+    are simulated once per seed and configuration, like the paper's 28 recorded ACK sets).
     trace, cdma, gsic: physical-layer settings (*), see their docstrings.
     cache_dir: ray-tracing cache (None: ~/.cache/radioloc/channels or $RADIOLOC_CACHE).
     """
@@ -56,138 +68,136 @@ class UrbanConfig:
     prior_var_assisted_m2: float = 100.0
     prior_var_unassisted_m2: float = 10_000.0
     range_var_m2: float = 900.0
-    scene_seed: int = 0
     city_size_m: float = 1000.0
-    placement_seed: int = 3
     placement_half_width_m: float = 300.0
     candidates: int = 24
-    channel_seed: int = 7
     trace: TraceConfig = field(default_factory=TraceConfig)
     cdma: CDMAConfig = field(default_factory=CDMAConfig)
     gsic: GSICConfig = field(default_factory=GSICConfig)
     cache_dir: str | None = None
 
 
-def _scene(config: UrbanConfig) -> Scene:
-    return city_grid(config.scene_seed, size_m=config.city_size_m)
+def simulate(config: UrbanConfig, seed: int) -> UrbanNetwork:
+    """The urban network of a configuration and experiment seed (cached).
 
+    Parameters
+    ----------
+    config : UrbanConfig
+    seed : int
+        Experiment seed.
 
-def place_nodes(scene: Scene, config: UrbanConfig) -> np.ndarray:
-    """``K`` street positions in which every pair has at least one traced path."""
-    rng = np.random.default_rng(config.placement_seed)
-    cand = street_positions(scene, config.candidates, rng, half_width_m=config.placement_half_width_m,
-                            clearance_m=3.0)
-    i, j = np.triu_indices(len(cand), 1)
-    quick = TraceConfig(max_order=1, max_excess_m=config.trace.max_excess_m,
-                        carrier_hz=config.trace.carrier_hz,
-                        wall_permittivity=config.trace.wall_permittivity)
-    ch = trace_links_cached(scene, cand[i], cand[j], quick, config.cache_dir)
-    ok = np.zeros((len(cand), len(cand)), bool)
-    ok[i, j] = ok[j, i] = ch.n_paths > 0
-    # seeded depth-first search for a K-clique of the connectivity graph (small graph)
-    order = rng.permutation(len(cand))
-
-    def grow(chosen, rest):
-        if len(chosen) == config.K:
-            return chosen
-        for n, c in enumerate(rest):
-            if all(ok[c, p] for p in chosen):
-                found = grow(chosen + [c], rest[n + 1:])
-                if found:
-                    return found
-        return None
-
-    found = grow([], list(order))
-    if found is None:
-        raise RuntimeError("no node set with a path on every link; change placement_seed")
-    return cand[np.array(found)]
-
-
-@lru_cache(maxsize=4)
-def simulate(config: UrbanConfig) -> tuple[Scene, np.ndarray, NetworkRanges]:
-    """Scene, node positions and the ranges of every ACK set (deterministic per config)."""
-    scene = _scene(config)
-    pos = place_nodes(scene, config)
-    ch = trace_network(scene, pos, config.trace, config.cache_dir)
-    rng = np.random.default_rng(config.channel_seed)
-    ranges = network_ranges(scene, pos, config.rounds, rng, cdma=config.cdma, gsic=config.gsic,
-                            channels=ch)
-    return scene, pos, ranges
-
-
-def range_errors(r: NetworkRanges) -> pd.DataFrame:
-    """Tidy range errors: one row per (round, master, node, estimator)."""
-    S, K, _ = r.gsic_m.shape
-    s, k, i = np.meshgrid(np.arange(S), np.arange(K), np.arange(K), indexing="ij")
-    off = k != i
-    frames = []
-    for name, arr in (("gsic", r.gsic_m), ("matched_filter", r.matched_filter_m)):
-        frames.append(pd.DataFrame({
-            "round": s[off], "master": k[off], "node": i[off], "estimator": name,
-            "range_m": arr[off], "true_m": np.broadcast_to(r.true_m, arr.shape)[off],
-            "los": np.broadcast_to(r.los, arr.shape)[off],
-            "first_path_m": np.broadcast_to(r.first_path_m, arr.shape)[off]}))
-    df = pd.concat(frames, ignore_index=True)
-    df["error_m"] = df["range_m"] - df["true_m"]
-    return df
+    Returns
+    -------
+    UrbanNetwork
+    """
+    return simulate_urban_network(seed, nodes=config.K, rounds=config.rounds,
+                                  city_size_m=config.city_size_m,
+                                  half_width_m=config.placement_half_width_m,
+                                  candidates=config.candidates, trace=config.trace,
+                                  cdma=config.cdma, gsic=config.gsic, cache_dir=config.cache_dir)
 
 
 @register
 class UrbanRadiolocation(Experiment):
+    """``p000-urban``: ray-traced urban channels, GSIC ranging, RLS and EKF (Figs. 3-4)."""
+
     id = "p000-urban"
     paper = "000"
     description = "Ray-traced urban channels, DS-CDMA GSIC ranging, distributed RLS/EKF (Figs. 3-4)"
 
     def config(self, full: bool) -> UrbanConfig:
+        """The quick (200 runs) or full (5000 runs, the paper's) configuration.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size.
+
+        Returns
+        -------
+        UrbanConfig
+        """
         return UrbanConfig(runs=5000 if full else 200)
 
     def run_block(self, config: UrbanConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
-        _, truth, r = simulate(config)
+        """Run one block of ACK-set orders and priors through the RLS and the EKF.
+
+        Parameters
+        ----------
+        config : UrbanConfig
+        runs : ndarray of int
+            Run indices of the block.
+        rng : Generator
+            The block's generator (made by ``block_generator``: the scenario streams come
+            from its experiment seed).
+
+        Returns
+        -------
+        DataFrame
+            ``table == "runs"``: mean error per (run, estimator, step, group); the block
+            of run 0 adds ``"trace"`` (run 0, every node), ``"ranges"``, ``"nodes"`` and
+            ``"buildings"`` rows.
+        """
+        net = simulate(config, experiment_seed(rng))
+        truth, r = net.positions, net.ranges
         R, K, S = runs.size, config.K, config.rounds
-        var = np.where(np.arange(K) < config.assisted, config.prior_var_assisted_m2,
-                       config.prior_var_unassisted_m2)
-        prior_var = np.broadcast_to(var[None, :, None], (R, K, 2))
+        prior_var = prior_variances(R, K, config.assisted, config.prior_var_assisted_m2,
+                                    config.prior_var_unassisted_m2)
         prior = truth[None] + rng.standard_normal((R, K, 2)) * np.sqrt(prior_var)
-        perm = np.argsort(rng.random((R, K, S)), axis=-1)          # ACK-set order per master
-        states = {"rls": rls_init(prior, prior_var), "ekf": ekf_init(prior, prior_var)}
+        order = np.argsort(rng.random((R, K, S)), axis=-1)          # ACK-set order per master
+        rho = ack_set_ranges(r.gsic_m, order)                       # (R, S, K, K), NaN = missing
+        estimators = {"rls": NetworkRLS(), "ekf": NetworkEKF(range_var_m2=config.range_var_m2)}
+        assisted = np.arange(K) < config.assisted
         rows = []
-        kk = np.arange(K)
-
-        def record(step):
-            for name, st in states.items():
-                err = position_error(st.position, truth[None])           # (R, K)
-                for grp, sel in (("assisted", kk < config.assisted), ("unassisted", kk >= config.assisted)):
-                    rows.append(pd.DataFrame({"run": runs, "estimator": name, "step": step,
-                                              "group": grp, "error_m": err[:, sel].mean(axis=1)}))
-                if runs[0] == 0:                                         # trace of run 0 (Fig. 3)
-                    rows.append(pd.DataFrame({"run": 0, "estimator": name, "step": step,
-                                              "group": [f"node{k}" for k in kk],
-                                              "error_m": err[0], "x": st.position[0, :, 0],
-                                              "y": st.position[0, :, 1]}))
-
-        record(0)
-        for n in range(S):                                   # packet number (time step)
-            rho = r.gsic_m[perm[:, :, n], kk[None, :], :]                # (R, K, K)
-            mask = np.isfinite(rho)
-            mask[:, kk, kk] = False
-            # a master with fewer than 3 detected ranges sends no packet (RLS needs pairs)
-            mask &= (mask.sum(axis=-1) >= 3)[..., None]
-            rho = np.where(mask, rho, 0.0)
-            states["rls"] = rls_iteration(states["rls"], rho, mask)
-            states["ekf"] = ekf_iteration(states["ekf"], rho, mask, range_var=config.range_var_m2)
-            record(n + 1)
+        for name, est in estimators.items():
+            track = est.run(rho, prior, prior_var)
+            pos = np.concatenate([prior[:, :, None], track.position], axis=2)  # (R, K, S+1, 2)
+            err = np.linalg.norm(pos - truth[None, :, None], axis=-1)          # (R, K, S+1)
+            for grp, sel in zip(GROUPS, (assisted, ~assisted)):
+                rows.append(pd.DataFrame({
+                    "table": "runs", "run": np.repeat(runs, S + 1), "estimator": name,
+                    "step": np.tile(np.arange(S + 1), R), "group": grp,
+                    "error_m": err[:, sel].mean(axis=1).ravel()}))
+            if runs[0] == 0:                                                   # Fig. 3 trace
+                rows.append(pd.DataFrame({
+                    "table": "trace", "run": 0, "estimator": name,
+                    "step": np.tile(np.arange(S + 1), K), "node": np.repeat(np.arange(K), S + 1),
+                    "error_m": err[0].ravel(), "x": pos[0, ..., 0].ravel(),
+                    "y": pos[0, ..., 1].ravel()}))
+        if runs[0] == 0:
+            rows += [range_table(r).assign(table="ranges", run=0),
+                     pd.DataFrame({"table": "nodes", "run": 0, "node": np.arange(K),
+                                   "x": truth[:, 0], "y": truth[:, 1], "assisted": assisted}),
+                     building_table(net.scene).assign(table="buildings", run=0)]
         return pd.concat(rows, ignore_index=True)
 
     def summarize(self, config: UrbanConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
-        scene, truth, r = simulate(config)
-        groups = results[results["group"].isin(["assisted", "unassisted"])]
-        curve = groups.groupby(["estimator", "group", "step"])["error_m"].mean()
+        """Metrics, claims and figures from the results table only.
+
+        Parameters
+        ----------
+        config : UrbanConfig
+        results : DataFrame
+            The concatenated blocks of :meth:`run_block`.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+        """
+        runs = results[results["table"] == "runs"]
+        curve = runs.groupby(["estimator", "group", "step"])["error_m"].mean()
         last = config.rounds
-        fin = {(e, g): float(curve[(e, g, last)]) for e in ("rls", "ekf") for g in ("assisted", "unassisted")}
-        re = range_errors(r)
-        g = re[re["estimator"] == "gsic"]
-        m = re[re["estimator"] == "matched_filter"]
+        fin = {(e, g): float(curve[(e, g, last)]) for e in ESTIMATORS for g in GROUPS}
+        re = results[results["table"] == "ranges"].copy()
+        re["los"] = re["los"].astype(str).isin(["True", "1", "1.0"])    # also after a CSV trip
+        nodes = results[results["table"] == "nodes"].sort_values("node")
+        truth = nodes[["x", "y"]].to_numpy(float)
+        g = re[re["detector"] == "gsic"]
+        m = re[re["detector"] == "matched_filter"]
+        links = g[(g["round"] == 0) & (g["master"] < g["node"])].sort_values(["master", "node"])
 
         def rmse(d):
             e = d["error_m"].dropna()
@@ -212,7 +222,7 @@ class UrbanRadiolocation(Experiment):
             Metric("matched_filter_range_rmse_m", rmse(m), None, "m", "matched filter, detected ranges"),
             Metric("gsic_detection_rate", float(g["range_m"].notna().mean()), None, "", "ranges detected"),
             Metric("matched_filter_detection_rate", float(m["range_m"].notna().mean()), None, "", "ranges detected"),
-            Metric("los_links", float(r.los[np.triu_indices(config.K, 1)].sum()), None, "",
+            Metric("los_links", float(links["los"].sum()), None, "",
                    f"of {config.K * (config.K - 1) // 2} links"),
         ]
         excess = (g["first_path_m"] - g["true_m"])[~g["los"]]
@@ -245,23 +255,24 @@ class UrbanRadiolocation(Experiment):
                   float(curve[("ekf", "unassisted", early)]) < 0.5 * float(curve[("ekf", "unassisted", 0)])),
             Claim("GSIC ranges have a lower RMSE than the matched filter's", rmse(g) < rmse(m)),
         ]
-        self._fig_map(scene, truth, results, config, out_dir)
+        self._fig_map(results, truth, config, out_dir)
         self._fig_curve(curve, config, out_dir)
         self._fig_hist(re, out_dir)
         notes = [f"node positions (m): {np.round(truth, 1).tolist()}",
-                 f"traced paths per link: {r.n_paths[np.triu_indices(config.K, 1)].tolist()}"]
+                 f"traced paths per link: {links['n_paths'].astype(int).tolist()}",
+                 "the city, node placement and hand-shake noise come from the 'scene', "
+                 "'placement' and 'channel' streams of the experiment seed"]
         return Summary(metrics, claims, notes)
 
     @staticmethod
-    def _fig_map(scene, truth, results, config, out_dir):
+    def _fig_map(results, truth, config, out_dir):
         fig, ax = figure(width=7.0, height=7.0)
-        for p in scene.polygons:
-            x, y = p.exterior.xy
-            ax.fill(x, y, color="#bbbbbb", lw=0)
-        tr = results[(results["run"] == 0) & (results["estimator"] == "rls")
-                     & results["group"].str.startswith("node")]
+        for _, b in results[results["table"] == "buildings"].groupby("building"):
+            b = b.sort_values("vertex")
+            ax.fill(b["x"], b["y"], color="#bbbbbb", lw=0)
+        tr = results[(results["table"] == "trace") & (results["estimator"] == "rls")]
         for k in range(config.K):
-            t = tr[tr["group"] == f"node{k}"].sort_values("step")
+            t = tr[tr["node"] == k].sort_values("step")
             ax.plot(t["x"], t["y"], "-", color=COLORS["ours"], lw=0.8, alpha=0.8,
                     label="RLS estimates (run 0)" if k == 0 else None)
             ax.plot(t["x"].iloc[0], t["y"].iloc[0], "x", color=COLORS["baseline"], ms=6,
@@ -306,7 +317,7 @@ class UrbanRadiolocation(Experiment):
             bins = np.linspace(-lim, lim, 41)
             for name, col, lab in (("gsic", COLORS["ours"], "GSIC"),
                                    ("matched_filter", COLORS["baseline"], "matched filter")):
-                e = d[d["estimator"] == name]["error_m"]
+                e = d[d["detector"] == name]["error_m"]
                 miss = e.isna().mean() if len(e) else 0.0
                 ax.hist(np.clip(e.dropna(), -lim, lim), bins=bins, histtype="step", lw=1.6, color=col,
                         label=f"{lab} (missed {miss:.0%})")

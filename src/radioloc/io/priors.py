@@ -34,6 +34,11 @@ PRIOR_COLUMNS = ("node", "x", "y", "var_x", "var_y")
 def read_node_priors(path: Path | str) -> pd.DataFrame:
     """Read and validate a priors CSV (``node, x, y, var_x, var_y``).
 
+    Parameters
+    ----------
+    path : Path or str
+        The CSV file.
+
     Returns
     -------
     DataFrame with ``node`` (str), ``x``, ``y``, ``var_x``, ``var_y`` (float) and ``line``.

@@ -1,4 +1,5 @@
-"""``radioloc locate --method gn``: per-epoch Gauss-Newton multilateration to anchors."""
+"""``radioloc locate --method gn``: per-epoch Gauss-Newton multilateration to anchors
+(:class:`radioloc.estimators.multilateration.Multilateration`)."""
 
 from __future__ import annotations
 
@@ -6,17 +7,37 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError
-from radioloc.estimators.multilateration import gauss_newton
+from radioloc.estimators.multilateration import Multilateration
 from radioloc.locate.base import LocateRequest, locate_method
 
 
 @locate_method("gn", "Gauss-Newton multilateration of each node at each time from its ranges "
                      "to anchors (options: range_std_m)")
 def locate_gn(request: LocateRequest) -> pd.DataFrame:
-    """Each ``(time, node)`` epoch with at least ``d + 1`` anchor ranges is solved
-    independently; all epochs go through one batched Gauss-Newton call. Ranges to other
-    nodes are not used by this method. Option ``range_std_m`` sets the range noise used
-    for the uncertainty (default: estimated from the residuals of each epoch)."""
+    """Locate every ``(time, node)`` epoch from its ranges to the anchors.
+
+    Each epoch with at least ``d + 1`` anchor ranges is solved independently; all epochs
+    go through one batched :class:`Multilateration` call (missing anchor ranges are NaN).
+    Ranges to other nodes are not used by this method. Option ``range_std_m`` sets the
+    range noise used for the uncertainty (default: estimated from the residuals of each
+    epoch).
+
+    Parameters
+    ----------
+    request : LocateRequest
+        The parsed measurements, the anchors and the ``-o`` options.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``time, node, x, y[, z], uncertainty_m`` (one row per epoch).
+
+    Raises
+    ------
+    GeometryError
+        An epoch has too few anchor ranges or a degenerate geometry; the message names
+        the node and the time.
+    """
     anchors = request.require_anchors("gn")
     ranges = request.kind("range", "gn")
     ranges = ranges[ranges["peer"].isin(set(anchors["id"]))]
@@ -32,10 +53,8 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     a_idx = ranges["peer"].map(anchor_index).to_numpy()
     n_e, n_a = len(epochs), len(anchors)
     R = np.full((n_e, n_a), np.nan)
-    W = np.zeros((n_e, n_a))
     R[e_idx, a_idx] = ranges["value"].to_numpy()
-    W[e_idx, a_idx] = 1.0
-    counts = W.sum(axis=1)
+    counts = np.isfinite(R).sum(axis=1)
     need = len(dims) + 1
     if np.any(counts < need):
         i = int(np.flatnonzero(counts < need)[0])
@@ -43,8 +62,8 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
                             f"has ranges to {int(counts[i])} anchor(s); {need} are needed in "
                             f"{len(dims)}-D")
     try:
-        res = gauss_newton(R, anchors[dims].to_numpy(), weights=W,
-                           range_std_m=request.option("range_std_m"))
+        fit = Multilateration(range_std_m=request.option("range_std_m")).locate(
+            R, anchors[dims].to_numpy())
     except GeometryError as exc:
         if exc.index is None:
             raise GeometryError(f"method gn: {exc}") from None
@@ -53,6 +72,6 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
                             f"{exc.detail}") from None
     out = epochs.copy()
     for k, c in enumerate(dims):
-        out[c] = res.position[:, k]
-    out["uncertainty_m"] = np.sqrt(np.trace(res.covariance, axis1=-2, axis2=-1))
+        out[c] = fit.position[:, k]
+    out["uncertainty_m"] = fit.uncertainty_m
     return out

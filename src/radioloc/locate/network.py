@@ -22,8 +22,8 @@ import pandas as pd
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import check_positive
-from radioloc.estimators.ekf import ekf_init, ekf_update
-from radioloc.estimators.rls import rls_init, rls_update
+from radioloc.estimators.ekf import NetworkEKF
+from radioloc.estimators.rls import NetworkRLS
 from radioloc.io.priors import read_node_priors
 from radioloc.locate.base import LocateRequest, locate_method
 
@@ -89,31 +89,61 @@ def _report(net: _Network, estimates: list[np.ndarray], sigma: list[np.ndarray] 
 
 
 @locate_method("rls", "Distributed RLS network positioning from pairwise ranges and node priors "
-                      "(Brown & Iltis eqs. 1-12; --priors; options: forgetting)")
+                      "(Brown & Iltis eq. (1)-eq. (12); --priors; options: forgetting)")
 def locate_rls(request: LocateRequest) -> pd.DataFrame:
-    """Each packet updates only its master's position from differenced squared ranges.
-    No uncertainty is reported: the RLS pseudo-covariance is not a covariance in m^2."""
+    """Run :class:`NetworkRLS` over the packets of a measurement log.
+
+    Each packet updates only its master's position from differenced squared ranges.
+    No uncertainty is reported: the RLS pseudo-covariance is not a covariance in m^2.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Measurements (``range`` rows), ``--priors``, optional anchors and the option
+        ``forgetting``.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``time, node, x, y``: every node's estimate after each packet.
+    """
     net = _network(request, "rls")
-    lam = request.option("forgetting", 1.0)
-    state = rls_init(net.prior_mean, net.prior_var)
+    rls = NetworkRLS(forgetting=request.option("forgetting", 1.0))
+    state = rls.init(net.prior_mean, net.prior_var)
     estimates = []
-    for m, rho, mask in zip(net.masters, net.ranges, net.masks):
-        state = rls_update(state, np.array([m]), rho[None], mask[None], forgetting=lam)
-        estimates.append(state.position[0])
+    for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order
+        state = rls.step(state, np.array([m]), rho[None], mask[None])
+        estimates.append(rls.estimate(state).position[0])
     return _report(net, estimates, None)
 
 
 @locate_method("ekf", "Sequential EKF network positioning from pairwise ranges and node priors "
-                      "(Brown & Iltis eqs. 13-25; --priors; options: range_std_m)")
+                      "(Brown & Iltis eq. (13)-eq. (25); --priors; options: range_std_m)")
 def locate_ekf(request: LocateRequest) -> pd.DataFrame:
-    """Each packet's ranges update the joint estimate of all nodes; ``uncertainty_m`` is
-    the square root of the trace of each node's 2x2 covariance block."""
+    """Run :class:`NetworkEKF` over the packets of a measurement log.
+
+    Each packet's ranges update the joint estimate of all nodes; ``uncertainty_m`` is
+    the square root of the trace of each node's 2x2 covariance block.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Measurements (``range`` rows), ``--priors``, optional anchors and the option
+        ``range_std_m`` (default 30 m).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``time, node, x, y, uncertainty_m`` after each packet.
+    """
     net = _network(request, "ekf")
     std = check_positive(request.option("range_std_m", 30.0), "range_std_m")
-    state = ekf_init(net.prior_mean, net.prior_var)
+    ekf = NetworkEKF(range_var_m2=std**2)
+    state = ekf.init(net.prior_mean, net.prior_var)
     estimates, sigma = [], []
-    for m, rho, mask in zip(net.masters, net.ranges, net.masks):
-        state = ekf_update(state, np.array([m]), rho[None], mask[None], std**2)
-        estimates.append(state.position[0])
-        sigma.append(np.sqrt(np.trace(state.position_covariance[0], axis1=-2, axis2=-1)))
+    for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order
+        state = ekf.step(state, np.array([m]), rho[None], mask[None])
+        est = ekf.estimate(state)
+        estimates.append(est.position[0])
+        sigma.append(est.uncertainty_m[0])
     return _report(net, estimates, sigma)
