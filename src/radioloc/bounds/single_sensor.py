@@ -31,7 +31,8 @@ __all__ = ["differenced_crb", "raw_range_crb"]
 def _inverse(info: np.ndarray, what: str) -> np.ndarray:
     cond = np.linalg.cond(info)
     if np.any(~np.isfinite(cond) | (cond > 1e14)):
-        raise GeometryError(f"{what}: Fisher information is singular (condition {np.max(cond):.3g})")
+        raise GeometryError(f"{what}: Fisher information is singular "
+                            f"(condition {np.max(cond):.3g})")
     return np.linalg.inv(info)
 
 

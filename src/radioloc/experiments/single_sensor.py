@@ -1,4 +1,4 @@
-"""Paper 002: closed-form single-sensor tracking (iterative BLUE) against Newton, EKF, OLS and the CRBs.
+"""Paper 002: closed-form single-sensor tracking (iterative BLUE) vs Newton, EKF, OLS and the CRBs.
 
 Fig. 1 RMSE of the current position versus the number of samples n = 10..60; Fig. 2 a
 y = sin x trajectory, Newton against the closed form; Fig. 3 CPU time per track versus n

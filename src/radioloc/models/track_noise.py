@@ -62,7 +62,7 @@ def noise_coefficients(n_samples: int, reference_index: int) -> np.ndarray:
 
 def accumulated_noise_variance(n_samples: int, reference_index: int, sample_period_s: float,
                                accel_var: float) -> np.ndarray:
-    """The variance of eq. (5), ``Var(eps_n) = |n-k| (4 (n-k)^2 - 1) / 12 T^4 delta_g^2`` per axis.
+    """The variance of eq. (5): ``Var(eps_n) = |n-k| (4 (n-k)^2 - 1) / 12 T^4 delta_g^2``.
 
     Parameters
     ----------
@@ -116,8 +116,8 @@ def squared_noise_covariance(n_samples: int, reference_index: int, sample_period
     """``cov(eps_i^2, eps_j^2)`` per axis.
 
     ``= 2 E[eps_i eps_j]^2 + kappa delta_g^4 T^8 sum_m c_{i,m}^2 c_{j,m}^2`` where ``kappa`` is
-    the excess kurtosis of the acceleration (0 Gaussian, -1.2 uniform). The model of eq. (11) uses the
-    Gaussian value (``kappa = 0``).
+    the excess kurtosis of the acceleration (0 Gaussian, -1.2 uniform). The model of
+    eq. (11) uses the Gaussian value (``kappa = 0``).
 
     Parameters
     ----------
