@@ -7,10 +7,10 @@ y = sin x trajectory, Newton against the closed form; Fig. 3 CPU time per track 
 Character Trajectories set (the paper's UCI ASL hand trajectories are not available).
 
 ``run_block`` writes one table with a ``table`` column: ``"runs"`` rows (one per run, n and
-method), ``"fig2"`` rows (the y = sin x example, written by the block holding run 0, drawn
-from the named stream ``"fig2"``) and ``"sensitivity"`` rows (the bound of eq. (23) versus
-the sensor path and k; deterministic, also written by that block). ``summarize`` only reads
-the table.
+method), ``"fig2"`` rows (the y = sin x example, drawn from the named stream ``"fig2"``) and
+``"sensitivity"`` rows (the bound of eq. (23) versus the sensor path and k; deterministic).
+The last two are per-experiment rows, written once by the block holding run 0 and filed
+under ``run = 0``. ``summarize`` only reads the table.
 """
 
 from __future__ import annotations
@@ -224,7 +224,7 @@ def _fig2_rows(config, rng) -> pd.DataFrame:
         nt = newton.locate(r[win], sensor[win], T, initial_state=start)
         nc = newton.locate(r[win], sensor[win], T, initial_state=np.zeros(4))
         for name, e in (("blue", cf), ("newton_warm", nt), ("newton_cold", nc)):
-            rows.append({"table": "fig2", "run": -1, "n": j + 1, "method": name,
+            rows.append({"table": "fig2", "run": 0, "n": j + 1, "method": name,
                          "x_hat": e.position[0], "y_hat": e.position[1],
                          "x_true": pos[j, 0], "y_true": pos[j, 1],
                          "pos_err2": float(np.sum((e.position - pos[j]) ** 2))})
@@ -244,13 +244,13 @@ def _sensitivity_rows(config) -> pd.DataFrame:
         s = circular_sensor_path(n, config.sensor_radius_m, st)
         c = differenced_crb(state, s, reference_index=n - 1, **kw)
         c_raw = raw_range_crb(state, s, reference_index=n - 1, **kw)
-        rows.append({"table": "sensitivity", "run": -1, "n": n, "method": "step",
+        rows.append({"table": "sensitivity", "run": 0, "n": n, "method": "step",
                      "param": st, "crb_diff_pos": c[0, 0] + c[1, 1],
                      "crb_raw_pos": c_raw[0, 0] + c_raw[1, 1]})
     s = circular_sensor_path(n, config.sensor_radius_m, config.sensor_step_rad)
     for k in np.r_[np.arange(0, n - 1, 5), n - 1]:
         c = differenced_crb(state, s, reference_index=int(k), **kw)
-        rows.append({"table": "sensitivity", "run": -1, "n": n, "method": "k",
+        rows.append({"table": "sensitivity", "run": 0, "n": n, "method": "k",
                      "param": float(k), "crb_diff_pos": c[0, 0] + c[1, 1],
                      "crb_raw_pos": np.nan})
     return pd.DataFrame(rows)
