@@ -6,10 +6,11 @@ from hypothesis import given, settings, strategies as st
 
 from radioloc.bounds.single_sensor import differenced_crb, raw_range_crb
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.estimators.closed_form import closed_form_track
-from radioloc.estimators.nlls_newton import _gradient_hessian, newton_track
-from radioloc.estimators.range_ekf import range_ekf
-from radioloc.models.track_noise import ConstantAcceleration
+from radioloc.estimators.closed_form import ClosedFormTracker
+from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.estimators.nlls_newton import NewtonTracker, range_residuals
+from radioloc.models.motion import ConstantVelocity
+from radioloc.models.ranging import GaussianRange
 
 T = 0.1
 
@@ -22,7 +23,7 @@ def noise_free_tracks(rng, n, runs):
     """A random sensor path, targets at constant velocity, and their exact ranges."""
     sensor = random_path(rng, n)
     x0 = np.c_[rng.uniform(-2, 2, (runs, 2)), rng.normal(0, 1, (runs, 2))]
-    tracks = ConstantAcceleration(T, 0.0).sample(x0, n, rng)
+    tracks = ConstantVelocity(0.0).simulate(x0, n, T, rng)
     return sensor, x0, tracks, np.linalg.norm(tracks[..., :2] - sensor, axis=-1)
 
 
@@ -50,9 +51,11 @@ def test_differenced_crb_equals_blue_covariance_at_truth():
     sensor = random_path(rng, n)
     state = np.array([0.5, -0.2, 0.3, 1.0])
     r = rng.uniform(3, 6, n)
-    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1, reference_index=7)
-    res = closed_form_track(r, sensor, covariance_state=state, **kw)
-    np.testing.assert_allclose(res.covariance, differenced_crb(state, sensor, **kw), rtol=1e-9)
+    kw = dict(accel_var=0.15, range_var=0.1, reference_index=7)
+    est = ClosedFormTracker(**kw).locate(r, sensor, T, covariance_state=state)
+    crb = differenced_crb(state, sensor, sample_period_s=T, **kw)
+    np.testing.assert_allclose(est.diagnostics["state_covariance"], crb, rtol=1e-9)
+    np.testing.assert_allclose(est.covariance, crb[:2, :2], rtol=1e-9)
 
 
 def test_raw_range_crb_without_motion_noise_is_the_gaussian_range_crb():
@@ -66,7 +69,7 @@ def test_raw_range_crb_without_motion_noise_is_the_gaussian_range_crb():
 
     def h(b):
         t = (np.arange(n) - k)[:, None] * T
-        return np.linalg.norm(b[[1, 0]] + t * b[[3, 2]] - sensor, axis=-1)
+        return np.linalg.norm(b[:2] + t * b[2:] - sensor, axis=-1)
 
     J = np.stack([(h(state + 1e-6 * e) - h(state - 1e-6 * e)) / 2e-6 for e in np.eye(4)], -1)
     np.testing.assert_allclose(crb, np.linalg.inv(J.T @ J / xi), rtol=1e-5)
@@ -91,34 +94,48 @@ def test_bound_rejects_unidentifiable_geometry():
 
 
 # ---- Newton ----------------------------------------------------------------------------
-def test_newton_gradient_and_hessian_match_finite_differences():
+def test_newton_jacobian_and_curvature_match_finite_differences():
     rng = np.random.default_rng(4)
     n, k = 15, 6
     sensor = random_path(rng, n)
     r = rng.uniform(2, 6, n)
-    beta = np.array([0.4, -0.3, 0.8, 0.2])
-    g, H, f = _gradient_hessian(beta, r, sensor, T, k)
+    beta = np.array([-0.3, 0.4, 0.2, 0.8])
+    res, J, curv = range_residuals(beta, r, sensor, T, k, curvature=True)
     eps = 1e-6
-    g_fd = np.array([(_gradient_hessian(beta + eps * e, r, sensor, T, k)[2]
-                      - _gradient_hessian(beta - eps * e, r, sensor, T, k)[2]) / (2 * eps)
-                     for e in np.eye(4)])
-    H_fd = np.stack([(_gradient_hessian(beta + eps * e, r, sensor, T, k)[0]
-                      - _gradient_hessian(beta - eps * e, r, sensor, T, k)[0]) / (2 * eps)
-                     for e in np.eye(4)])
-    np.testing.assert_allclose(g, g_fd, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(H, H_fd, rtol=1e-4, atol=1e-5)
+    J_fd = np.stack([(range_residuals(beta - eps * e, r, sensor, T, k)[0]
+                      - range_residuals(beta + eps * e, r, sensor, T, k)[0]) / (2 * eps)
+                     for e in np.eye(4)], -1)
+    C_fd = np.stack([(range_residuals(beta + eps * e, r, sensor, T, k)[1]
+                      - range_residuals(beta - eps * e, r, sensor, T, k)[1]) / (2 * eps)
+                     for e in np.eye(4)], -1)
+    np.testing.assert_allclose(J, J_fd, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(curv, C_fd, rtol=1e-4, atol=1e-6)
 
 
 def test_newton_converges_to_truth_on_noise_free_data_and_batches():
     rng = np.random.default_rng(5)
     n, runs = 20, 6
     sensor, x0, tracks, r = noise_free_tracks(rng, n, runs)
-    truth = tracks[:, -1][:, [1, 0, 3, 2]]
+    truth = tracks[:, -1]
     start = truth + rng.normal(0, 0.2, truth.shape)
-    res = newton_track(r, sensor, start, sample_period_s=T, tol=1e-20, max_iter=50)
-    np.testing.assert_allclose(res.state, truth, atol=1e-6)
-    one = newton_track(r[2], sensor, start[2], sample_period_s=T, tol=1e-20, max_iter=50)
-    np.testing.assert_allclose(one.state, res.state[2], atol=1e-10)
+    newton = NewtonTracker(tol=1e-10, max_iter=50)
+    est = newton.locate(r, sensor, T, initial_state=start)
+    np.testing.assert_allclose(est.diagnostics["state"], truth, atol=1e-6)
+    assert est.converged.all() and not est.diagnostics["stalled"].any()
+    one = newton.locate(r[2], sensor, T, initial_state=start[2])
+    np.testing.assert_allclose(one.diagnostics["state"], est.diagnostics["state"][2], atol=1e-10)
+
+
+def test_newton_takes_the_step_that_meets_the_stopping_rule():
+    """The paper's rule |step|^2 <= 0.1: the last (small) step is taken, then it stops."""
+    rng = np.random.default_rng(8)
+    n = 20
+    sensor, x0, tracks, r = noise_free_tracks(rng, n, 1)
+    start = tracks[0, -1] + np.array([0.05, -0.05, 0.1, 0.0])
+    loose = NewtonTracker(tol=0.1**0.5).locate(r[0], sensor, T, initial_state=start)
+    assert loose.converged and loose.diagnostics["iterations"] == 1
+    # one full Newton step from a start this close is already far inside the tolerance
+    assert np.linalg.norm(loose.diagnostics["state"] - tracks[0, -1]) < 1e-3
 
 
 def test_newton_output_is_finite_from_a_far_start():
@@ -126,40 +143,38 @@ def test_newton_output_is_finite_from_a_far_start():
     n = 15
     sensor = random_path(rng, n)
     r = rng.uniform(2, 6, (4, n))
-    res = newton_track(r, sensor, rng.normal(0, 100, (4, 4)), sample_period_s=T)
-    assert np.all(np.isfinite(res.state))
+    est = NewtonTracker().locate(r, sensor, T, initial_state=rng.normal(0, 100, (4, 4)))
+    assert np.all(np.isfinite(est.position))
 
 
 def test_newton_bad_input():
     with pytest.raises(InputError, match="initial_state"):
-        newton_track(np.ones(10), np.random.default_rng(0).normal(size=(10, 2)), np.ones(3),
-                     sample_period_s=T)
+        NewtonTracker().locate(np.ones(10), np.random.default_rng(0).normal(size=(10, 2)), T,
+                               initial_state=np.ones(3))
 
 
-# ---- EKF -------------------------------------------------------------------------------
+# ---- EKF (RangeEKF with the paper's motion model) ----------------------------------------
 def test_ekf_tracks_noise_free_target_and_batches():
     rng = np.random.default_rng(7)
     n, runs = 60, 5
     sensor, x0, tracks, r = noise_free_tracks(rng, n, runs)
     prior = x0 + rng.normal(0, 0.3, x0.shape)
-    out = range_ekf(r, sensor, prior, 0.09 * np.eye(4), sample_period_s=T, accel_var=1e-4,
-                    range_var=1e-4)
-    assert out.shape == (runs, n, 4)
-    assert np.max(np.linalg.norm(out[:, -1, :2] - tracks[:, -1, :2], axis=-1)) < 0.05
-    one = range_ekf(r[1], sensor, prior[1], 0.09 * np.eye(4), sample_period_s=T,
-                    accel_var=1e-4, range_var=1e-4)
-    np.testing.assert_allclose(one, out[1], atol=1e-10)
-
-
-def test_ekf_bad_input():
-    with pytest.raises(InputError, match="initial_covariance"):
-        range_ekf(np.ones(10), np.zeros((10, 2)), np.zeros(4), np.eye(3), sample_period_s=T,
-                  accel_var=0.1, range_var=0.1)
+    ekf = RangeEKF(ConstantVelocity(1e-4), GaussianRange(1e-2))
+    kw = dict(time=np.arange(n) * T, prior_cov=0.09 * np.eye(4),
+              anchor_path=sensor[:, None, :])
+    track = ekf.run(r[..., None], prior_mean=prior, **kw)
+    assert track.position.shape == (runs, n, 2)
+    assert np.max(np.linalg.norm(track.position[:, -1] - tracks[:, -1, :2], axis=-1)) < 0.05
+    one = ekf.run(r[1, :, None], prior_mean=prior[1], **kw)
+    np.testing.assert_allclose(one.position, track.position[1], atol=1e-10)
 
 
 # ---- experiment ------------------------------------------------------------------------
 def test_experiment_smoke(tmp_path, monkeypatch):
     import dataclasses
+    import json
+
+    import pandas as pd
 
     from radioloc.experiments.runner import run_experiment
     from radioloc.experiments import single_sensor
@@ -175,3 +190,7 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     assert (folder / "fig1_rmse_vs_n_synthetic.png").is_file()
     text = (folder / "summary.json").read_text()
     assert "rmse_blue_n20" in text and "skipped" in text
+    assert "cpu" not in " ".join(c["claim"] for c in json.loads(text)["claims"]).lower()
+    table = pd.read_csv(folder / "results.csv")
+    assert set(table["table"]) == {"runs", "fig2", "sensitivity"}
+    assert (table["table"] == "fig2").sum() == 3 * (15 - 9)

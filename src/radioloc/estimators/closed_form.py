@@ -1,62 +1,47 @@
 """Closed-form single-sensor tracker: third-difference linearisation + iterative BLUE (paper 002).
 
-Steps of section 3 (ideal channel eq. 11, noisy channel eqs. 12-14), batched over runs:
+Steps of section 3 (ideal channel eq. (11), noisy channel eq. (12), eq. (13), eq. (14)),
+batched over problems:
 
 1. subtract the noise mean ``E[e_n]`` from ``y_n = rhat_n^2 - a_n^2 - b_n^2``;
-2. apply the third difference S of eq. (10): ``S y = (S A) beta + S e`` (eq. 9);
+2. apply the third difference S of eq. (10): ``S y = (S A) beta + S e`` (eq. (9));
 3a. OLS start ``beta0 = (A~' A~)^{-1} A~' S y``;
 3b. evaluate ``Sigma~ = S Sigma(beta_m) S'`` at the current estimate;
 3c. BLUE/GLS ``beta_{m+1} = (A~' Sigma~^{-1} A~)^{-1} A~' Sigma~^{-1} S y``;
-3d. stop when ``Delta = |beta_{m+1} - beta_m|^2 <= tol`` (the stopping rule of section 5.2)
-    or when the GLS criterion ``r' Sigma~^{-1} r`` stops decreasing, or after ``max_iter``.
+3d. stop when ``|beta_{m+1} - beta_m| <= tol`` (section 5.2's ``|.|^2 <= 0.1`` is
+    ``tol = sqrt(0.1)``) or when the GLS criterion ``r' Sigma~^{-1} r`` stops decreasing
+    (the previous estimate is kept), or after ``max_iter``.
 
-``beta = [Y_k, X_k, V_y, V_x]``; the model lives in :mod:`radioloc.models.single_sensor`.
+The state is ``beta = [x_k, y_k, vx_k, vy_k]`` (the paper orders it ``[Y_k, X_k, V_y, V_x]``);
+the model lives in :mod:`radioloc.models.single_sensor`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from radioloc.core.errors import GeometryError
-from radioloc.core.validation import check_finite_output, check_positive
+from radioloc.core.errors import ConfigError, GeometryError
+from radioloc.core.results import Estimate
+from radioloc.core.validation import as_float_array, check_finite_output, check_positive
+from radioloc.estimators.base import SnapshotEstimator
 from radioloc.models.single_sensor import (
     SquaredRangeModel,
     design_matrix,
     difference_rows,
+    resolve_sampling,
     trajectory,
     validate_inputs,
 )
 
+__all__ = ["ClosedFormTracker"]
 
-@dataclass
-class ClosedFormResult:
-    """Output of :func:`closed_form_track`.
-
-    Attributes
-    ----------
-    state : (..., 4)      ``[Y_k, X_k, V_y, V_x]`` (BLUE).
-    covariance : (..., 4, 4)  ``(A~' Sigma~^{-1} A~)^{-1}`` (eq. 15) with the Sigma~ of the
-        last accepted BLUE step.
-    trajectory : (..., n, 2)  ``(x, y)`` of ``p_k + (n-k) T v_k`` at every sample.
-    ols_state : (..., 4)  the OLS start of step 3a (the unweighted linear-model fit).
-    iterations : (...,)   BLUE iterations done.
-    reference_index : int the k used.
-    """
-
-    state: np.ndarray
-    covariance: np.ndarray
-    trajectory: np.ndarray
-    ols_state: np.ndarray
-    iterations: np.ndarray
-    reference_index: int
+WEIGHTINGS = ("blue", "ols")
 
 
 def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
     """Generalised least squares for a batch: returns (beta, covariance, criterion).
 
-    One LU solve ``w^{-1} [S A, S y]`` per run; the criterion is ``r' w^{-1} r``.
+    One LU solve ``w^{-1} [S A, S y]`` per problem; the criterion is ``r' w^{-1} r``.
     """
     try:
         sol = np.linalg.solve(w, np.concatenate([sa, sy[..., None]], axis=-1))
@@ -73,126 +58,195 @@ def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
     return beta, cov, crit
 
 
-def closed_form_track(ranges, sensor, *, sample_period_s: float, accel_var: float,
-                      range_var=0.0, reference_index: int | None = None,
-                      accel_excess_kurtosis: float = 0.0, range_excess_kurtosis: float = 0.0,
-                      tol: float = 0.1, max_iter: int = 20, cond_limit: float = 1e12,
-                      covariance_state=None, printed_eq14: bool = False) -> ClosedFormResult:
-    """Estimate ``[Y_k, X_k, V_y, V_x]`` from ranges to one moving sensor (steps 1-3d).
-
-    Parameters
-    ----------
-    ranges : array (..., n)
-        Measured ranges ``rhat_n`` (eq. 12); leading axes are independent runs.
-    sensor : array (n, 2) or (..., n, 2)
-        Known sensor positions ``(a_n, b_n)``. Must not be quadratic in n.
-    sample_period_s : float
-        T.
-    accel_var : float
-        ``delta_g^2`` (eq. 1), per axis.
-    range_var : float or array (..., n)
-        Channel noise variance ``xi_n``; 0 is the ideal channel (eq. 11).
-    reference_index : int, optional
-        k; default the last sample (n-1), i.e. the current position.
-    accel_excess_kurtosis, range_excess_kurtosis : float
-        0 (default) uses the Gaussian moments printed in eqs. (11)-(14); -1.2 is exact for
-        uniform noise.
-    tol : float
-        Stopping rule ``|beta_{m+1} - beta_m|^2 <= tol`` (section 5.2 uses 0.1).
-    max_iter : int
-        Maximum BLUE iterations after the OLS start.
-    cond_limit : float
-        ``S A`` with a column-scaled condition number above this raises GeometryError.
-    covariance_state : array (..., 4), optional
-        If given, one BLUE step with ``Sigma~`` evaluated at this state (e.g. the true state:
-        the oracle BLUE) instead of the iterations 3b-3d.
-    printed_eq14 : bool
-        Use eq. (14)'s printed off-diagonal channel terms (a reading kept for comparison;
-        see :class:`~radioloc.models.single_sensor.SquaredRangeModel`).
-
-    Returns
-    -------
-    ClosedFormResult
-
-    Raises
-    ------
-    InputError
-        Bad shapes, negative or NaN ranges, too few samples (< 7), k out of range.
-    GeometryError
-        Sensor path quadratic in n, or ``S A`` numerically rank deficient.
-    """
-    r, s, k = validate_inputs(ranges, sensor, reference_index)
-    T = check_positive(sample_period_s, "sample_period_s")
-    check_positive(tol, "tol")
-    n = r.shape[-1]
-    batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2])
-    r = np.broadcast_to(r, batch + (n,))
-    s = np.broadcast_to(s, batch + (n, 2))
-    model = SquaredRangeModel(n, k, T, accel_var, range_var, accel_excess_kurtosis,
-                              range_excess_kurtosis, printed_eq14)
-
-    sa, sy = _differenced_system(r, s, k, model)                    # steps 1-2
-    col = np.linalg.norm(sa, axis=-2, keepdims=True)
-    cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
-    if np.any(~np.isfinite(cond) | (cond > cond_limit)):
-        raise GeometryError(f"sensor: S A is rank deficient (condition number "
-                            f"{np.max(cond):.3g} > {cond_limit:.0e}); the sensor path does not "
-                            "separate [Y_k, X_k, V_y, V_x]")
-
-    beta = _ols(sa, sy)                                              # step 3a
-    if covariance_state is not None:
-        fixed = np.broadcast_to(np.asarray(covariance_state, dtype=float), batch + (4,))
-        state, cov, _ = _gls(sa, sy, model.differenced_covariance(fixed, s))
-        return ClosedFormResult(state=state, covariance=cov, trajectory=trajectory(state, n, T, k),
-                                ols_state=beta, iterations=np.ones(batch, dtype=int),
-                                reference_index=k)
-    ols = beta.copy()
-    best_crit = np.full(batch, np.inf)
-    cov = np.zeros(batch + (4, 4))
-    active = np.ones(batch, dtype=bool)
-    iterations = np.zeros(batch, dtype=int)
-    for _ in range(int(max_iter)):
-        if not np.any(active):
-            break
-        w = model.differenced_covariance(beta, s)                    # step 3b
-        new, new_cov, crit = _gls(sa, sy, w)                         # step 3c
-        improved = crit < best_crit
-        take = active & improved
-        delta = np.sum((new - beta) ** 2, axis=-1)
-        beta = np.where(take[..., None], new, beta)
-        cov = np.where(take[..., None, None], new_cov, cov)
-        best_crit = np.where(take, crit, best_crit)
-        iterations = iterations + take
-        active = take & (delta > tol)                                # step 3d
-    check_finite_output(beta, "closed_form_track state")
-    return ClosedFormResult(state=beta, covariance=cov, trajectory=trajectory(beta, n, T, k),
-                            ols_state=ols, iterations=iterations, reference_index=k)
-
-
-def _differenced_system(r, s, k, model):
-    """Steps 1-2: mean-removed ``y`` and its third difference; returns ``(S A, S y)``."""
-    y = r**2 - np.sum(s**2, axis=-1) - model.noise_mean()
-    sa = difference_rows(design_matrix(s, model.T, k))
-    sy = difference_rows(y[..., None])[..., 0]
-    return np.broadcast_to(sa, sy.shape + (4,)), sy
-
-
 def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
     """Step 3a, batched: ``(A~' A~)^{-1} A~' S y``."""
     at = np.swapaxes(sa, -1, -2)
     return np.linalg.solve(at @ sa, (at @ sy[..., None]))[..., 0]
 
 
-def ols_track(ranges, sensor, *, sample_period_s: float, accel_var: float, range_var=0.0,
-              reference_index: int | None = None) -> np.ndarray:
-    """Unweighted multivariate linear-model fit of the differenced model (the MANOVA baseline).
+class ClosedFormTracker(SnapshotEstimator):
+    """The closed-form tracker of paper 002: the iterative BLUE of the differenced model.
 
-    Reading of the paper's MANOVA comparison: the same linear model ``S y = S A beta + S e``
-    fitted by ordinary least squares, i.e. every differenced equation weighted equally
-    (step 3a without the BLUE iterations). Returns ``[Y_k, X_k, V_y, V_x]``, shape (..., 4).
+    From ranges to one moving sensor over a window of n uniformly spaced samples it
+    estimates the straight-track state ``[x_k, y_k, vx_k, vy_k]`` at a reference sample k
+    (default the last one: the current position) without iterating on the ranges
+    themselves: every step is a linear solve (steps 1-3d, see the module docstring).
+
+    Parameters
+    ----------
+    accel_var : float
+        ``delta_g^2`` of eq. (1), per axis, (m/s^2)^2.
+    range_var : float or array_like, shape (n,) or (..., n)
+        Channel noise variance ``xi_n`` in m^2; 0 is the ideal channel of eq. (11).
+    reference_index : int, optional
+        k; default the last sample (n-1); negative values count from the end.
+    weighting : {"blue", "ols"}
+        ``"blue"``: the iterative BLUE (the paper's method). ``"ols"``: step 3a only, every
+        differenced equation weighted equally (the reading of the paper's MANOVA baseline);
+        its covariance is the sandwich ``(A~'A~)^{-1} A~' Sigma~ A~ (A~'A~)^{-1}`` at the
+        OLS estimate.
+    accel_excess_kurtosis, range_excess_kurtosis : float
+        0 (default) uses the Gaussian moments printed in eq. (11)-eq. (14); -1.2 is exact
+        for uniform noise.
+    tol : float
+        Stopping rule ``|beta_{m+1} - beta_m| <= tol`` (Euclidean norm of the change of
+        ``[x, y, vx, vy]``); section 5.2's ``|.|^2 <= 0.1`` is the default ``sqrt(0.1)``.
+    max_iter : int
+        Maximum BLUE iterations after the OLS start.
+    cond_limit : float
+        ``S A`` with a column-scaled condition number above this raises ``GeometryError``.
+    printed_eq14 : bool
+        Use eq. (14)'s printed off-diagonal channel terms (a reading kept for comparison;
+        see :class:`~radioloc.models.single_sensor.SquaredRangeModel`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> n, T = 20, 0.1
+    >>> ang = 1.3 * np.arange(n)
+    >>> sensor = 5.0 * np.stack([np.cos(ang), np.sin(ang)], -1)
+    >>> truth = np.array([1.0, 0.5]) + (np.arange(n) - (n - 1))[:, None] * T * [0.8, -0.2]
+    >>> ranges = np.linalg.norm(truth - sensor, axis=-1)
+    >>> est = ClosedFormTracker(accel_var=0.0, range_var=1e-10).locate(ranges, sensor, T)
+    >>> np.round(est.position, 6).tolist(), np.round(est.diagnostics["state"][2:], 6).tolist()
+    ([1.0, 0.5], [0.8, -0.2])
     """
-    r, s, k = validate_inputs(ranges, sensor, reference_index)
-    n = r.shape[-1]
-    model = SquaredRangeModel(n, k, sample_period_s, accel_var, range_var)
-    sa, sy = _differenced_system(r, s, k, model)
-    return check_finite_output(_ols(sa, sy), "ols_track state")
+
+    name = "closed-form"
+
+    def __init__(self, accel_var: float, range_var=0.0, *, reference_index: int | None = None,
+                 weighting: str = "blue", accel_excess_kurtosis: float = 0.0,
+                 range_excess_kurtosis: float = 0.0, tol: float = 0.1**0.5,
+                 max_iter: int = 20, cond_limit: float = 1e12,
+                 printed_eq14: bool = False) -> None:
+        self.accel_var = check_positive(accel_var, "accel_var", allow_zero=True)
+        self.range_var = as_float_array(range_var, "range_var", nonnegative=True)
+        if reference_index is not None and not isinstance(reference_index, (int, np.integer)):
+            raise ConfigError(f"reference_index: must be an int or None, got {reference_index!r}")
+        self.reference_index = None if reference_index is None else int(reference_index)
+        if weighting not in WEIGHTINGS:
+            raise ConfigError(f"weighting: must be one of {', '.join(WEIGHTINGS)}, "
+                              f"got {weighting!r}")
+        self.weighting = weighting
+        for name, val in (("accel_excess_kurtosis", accel_excess_kurtosis),
+                          ("range_excess_kurtosis", range_excess_kurtosis)):
+            if not np.isfinite(val) or val < -2.0:
+                raise ConfigError(f"{name}: must be finite and >= -2, got {val!r}")
+        self.accel_excess_kurtosis = float(accel_excess_kurtosis)
+        self.range_excess_kurtosis = float(range_excess_kurtosis)
+        self.tol = check_positive(tol, "tol")
+        if int(max_iter) < 0 or int(max_iter) != max_iter:
+            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
+        self.max_iter = int(max_iter)
+        self.cond_limit = check_positive(cond_limit, "cond_limit")
+        self.printed_eq14 = bool(printed_eq14)
+
+    def locate(self, ranges, sensor_path, sample_period_s: float | None = None, *,
+               time=None, covariance_state=None) -> Estimate:
+        """Estimate the state at sample k from one window of ranges (steps 1-3d).
+
+        Parameters
+        ----------
+        ranges : array_like, shape (..., n)
+            Measured ranges ``rhat_n`` (eq. (12)), n >= 7; leading axes are independent
+            problems. Every sample is needed: a NaN range raises ``InputError`` naming it.
+        sensor_path : array_like, shape (n, 2) or (..., n, 2)
+            Known sensor positions ``(a_n, b_n)``; must not be quadratic in n.
+        sample_period_s : float, optional
+            T; or give ``time``.
+        time : array_like, shape (n,) or (..., n), optional
+            Uniformly spaced sample times, seconds.
+        covariance_state : array_like, shape (4,) or (..., 4), optional
+            If given, one BLUE step with ``Sigma~`` evaluated at this ``[x, y, vx, vy]``
+            (e.g. the true state: the oracle BLUE) instead of the iterations 3b-3d.
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., 2) = ``(x_k, y_k)``, ``covariance`` (..., 2, 2) (its block of
+            eq. (15)), ``time`` of sample k; diagnostics ``state`` (..., 4)
+            ``[x_k, y_k, vx_k, vy_k]``, ``state_covariance`` (..., 4, 4), ``trajectory``
+            (..., n, 2) (the straight track ``p_k + (n-k) T v_k`` at every sample),
+            ``ols_state`` (..., 4) (step 3a), ``iterations``, ``converged`` (the step rule
+            met), ``stalled`` (stopped because the GLS criterion no longer decreased).
+
+        Raises
+        ------
+        InputError
+            Bad shapes, negative or NaN ranges, fewer than 7 samples, k out of range,
+            non-uniform ``time``.
+        GeometryError
+            Sensor path quadratic in n, or ``S A`` numerically rank deficient, or a
+            singular noise covariance (zero motion and channel noise).
+        """
+        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index)
+        n = r.shape[-1]
+        T, t_k = resolve_sampling(n, k, sample_period_s, time)
+        batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self.range_var.shape[:-1])
+        r = np.broadcast_to(r, batch + (n,))
+        s = np.broadcast_to(s, batch + (n, 2))
+        model = SquaredRangeModel(n, k, T, self.accel_var, self.range_var,
+                                  self.accel_excess_kurtosis, self.range_excess_kurtosis,
+                                  self.printed_eq14)
+        sa, sy = self._differenced_system(r, s, k, model)          # steps 1-2
+        col = np.linalg.norm(sa, axis=-2, keepdims=True)
+        cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
+        if np.any(~np.isfinite(cond) | (cond > self.cond_limit)):
+            raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
+                                f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "
+                                "does not separate [x_k, y_k, vx_k, vy_k]")
+        ols = _ols(sa, sy)                                          # step 3a
+        ones = np.ones(batch, dtype=bool)
+        if covariance_state is not None:
+            fixed = as_float_array(covariance_state, "covariance_state", min_ndim=1, last_dim=4)
+            fixed = np.broadcast_to(fixed, batch + (4,))
+            beta, cov, _ = _gls(sa, sy, model.differenced_covariance(fixed, s))
+            return self._estimate(beta, cov, ols, n, T, k, t_k, np.ones(batch, dtype=int),
+                                  ones, ~ones)
+        if self.weighting == "ols":
+            at = np.swapaxes(sa, -1, -2)
+            bread = np.linalg.inv(at @ sa)
+            cov = bread @ at @ model.differenced_covariance(ols, s) @ sa @ bread
+            return self._estimate(ols, cov, ols, n, T, k, t_k, np.zeros(batch, dtype=int),
+                                  ones, ~ones)
+        beta = ols.copy()
+        best_crit = np.full(batch, np.inf)
+        cov = np.zeros(batch + (4, 4))
+        active = np.ones(batch, dtype=bool)
+        converged = np.zeros(batch, dtype=bool)
+        stalled = np.zeros(batch, dtype=bool)
+        iterations = np.zeros(batch, dtype=int)
+        for _ in range(self.max_iter):
+            if not np.any(active):
+                break
+            w = model.differenced_covariance(beta, s)               # step 3b
+            new, new_cov, crit = _gls(sa, sy, w)                    # step 3c
+            improved = crit < best_crit
+            take = active & improved
+            stalled |= active & ~improved
+            change = np.sqrt(np.sum((new - beta) ** 2, axis=-1))
+            beta = np.where(take[..., None], new, beta)
+            cov = np.where(take[..., None, None], new_cov, cov)
+            best_crit = np.where(take, crit, best_crit)
+            iterations = iterations + take
+            done = take & (change <= self.tol)                      # step 3d
+            converged |= done
+            active = take & ~done
+        check_finite_output(beta, "ClosedFormTracker state")
+        return self._estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled)
+
+    # ---- helpers --------------------------------------------------------------------
+    @staticmethod
+    def _differenced_system(r, s, k, model):
+        """Steps 1-2: mean-removed ``y`` and its third difference; returns ``(S A, S y)``."""
+        y = r**2 - np.sum(s**2, axis=-1) - model.noise_mean()
+        sa = difference_rows(design_matrix(s, model.T, k))
+        sy = difference_rows(y[..., None])[..., 0]
+        return np.broadcast_to(sa, sy.shape + (4,)), sy
+
+    @staticmethod
+    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled) -> Estimate:
+        diag = {"state": beta, "state_covariance": cov, "trajectory": trajectory(beta, n, T, k),
+                "ols_state": ols, "iterations": iterations, "converged": converged,
+                "stalled": stalled}
+        return Estimate(beta[..., :2], cov[..., :2, :2], t_k, diag)

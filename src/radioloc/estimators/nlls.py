@@ -167,9 +167,11 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         step, ok = _solve(A, g)
         stalled |= active & ~ok
         active &= ok
-        # a step already within tolerance: converged where it stands (its cost change is
-        # at rounding level, so the line search could not judge it)
-        tiny = active & (np.sqrt(np.sum(step**2, axis=-1)) <= tol)
+        # a step already within tolerance: with a line search, converged where it stands
+        # (its cost change is at rounding level, so the line search could not judge it);
+        # without one the step is taken and converges below
+        searched = method == "levenberg-marquardt" or step_control == "halving"
+        tiny = active & (np.sqrt(np.sum(step**2, axis=-1)) <= tol) & searched
         converged |= tiny
         active &= ~tiny
         step = np.where(active[..., None], step, 0.0)

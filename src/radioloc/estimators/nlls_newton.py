@@ -1,104 +1,177 @@
-"""Newton's method on the nonlinear least squares of ranges to one moving sensor (paper 002 baseline).
+"""Newton's method on the range nonlinear least squares of one moving sensor (paper 002 baseline).
 
-Unknowns ``beta = [Y_k, X_k, V_y, V_x]`` of the straight track ``p_n = p_k + (n-k) T v_k``;
-cost ``f = 1/2 sum_n (rhat_n - |p_n - s_n|)^2``; full Newton steps with the exact Hessian
-``H = sum_n J_n' J_n - sum_n res_n B_n' (I - u_n u_n') / h_n B_n``; the stopping rule is the
-closed-form tracker's (``|step|^2 <= tol``, section 5.2). No line search, no damping: the
-paper's point is that Newton leaves its convergence region from a poor start or an
-indefinite Hessian, and that is what this baseline shows.
+Unknowns ``beta = [x_k, y_k, vx_k, vy_k]`` of the straight track ``p_n = p_k + (n-k) T v_k``
+(eq. (4) without its noise); cost ``sum_n (rhat_n - |p_n - s_n|)^2``. The iteration is the
+one nonlinear least-squares driver :func:`radioloc.estimators.nlls.solve_nlls` with
+``method="newton"`` (the exact Hessian ``J'J - sum_n res_n B_n' (I - u_n u_n') B_n / h_n``)
+and ``step_control="none"``: full Newton steps, no line search, no damping. The paper's
+point is that Newton leaves its convergence region from a poor start or an indefinite
+Hessian, and that is what this baseline shows. The stopping rule is the closed-form
+tracker's, ``|step| <= tol`` (section 5.2's ``|step|^2 <= 0.1`` is ``tol = sqrt(0.1)``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from radioloc.core.errors import ConfigError
+from radioloc.core.results import Estimate
 from radioloc.core.validation import as_float_array, check_positive
-from radioloc.models.single_sensor import predicted_offsets, trajectory, validate_inputs
+from radioloc.estimators.base import SnapshotEstimator
+from radioloc.estimators.nlls import solve_nlls
+from radioloc.models.single_sensor import (
+    predicted_offsets,
+    resolve_sampling,
+    trajectory,
+    validate_inputs,
+)
+
+__all__ = ["NewtonTracker", "range_residuals"]
 
 
-@dataclass
-class NewtonResult:
-    """``state`` (..., 4) ``[Y_k, X_k, V_y, V_x]``; ``trajectory`` (..., n, 2); ``iterations``;
-    ``converged`` (stopping rule met with a finite, invertible Hessian)."""
-
-    state: np.ndarray
-    trajectory: np.ndarray
-    iterations: np.ndarray
-    converged: np.ndarray
-
-
-def _gradient_hessian(beta, r, s, T, k):
-    d = predicted_offsets(beta, s, T, k)                  # (..., n, 2) x,y
-    h = np.maximum(np.linalg.norm(d, axis=-1), 1e-12)
-    u = d / h[..., None]
-    t = (np.arange(r.shape[-1]) - k) * T
-    zeros = np.zeros_like(t)
-    ones = np.ones_like(t)
-    # B_n maps beta=[Y,X,Vy,Vx] to (x, y): rows x -> [0,1,0,t], y -> [1,0,t,0]
-    B = np.stack([np.stack([zeros, ones, zeros, t], -1),
-                  np.stack([ones, zeros, t, zeros], -1)], -2)     # (n, 2, 4)
-    J = np.einsum("...nd,ndp->...np", u, B)                       # (..., n, 4)
-    res = r - h
-    grad = -np.einsum("...n,...np->...p", res, J)
-    proj = (np.eye(2) - u[..., :, None] * u[..., None, :]) / h[..., None, None]
-    curv = np.einsum("ndp,...nde,neq->...npq", B, proj, B)
-    hess = np.swapaxes(J, -1, -2) @ J - np.einsum("...n,...npq->...pq", res, curv)
-    return grad, hess, 0.5 * np.sum(res**2, axis=-1)
-
-
-def newton_track(ranges, sensor, initial_state, *, sample_period_s: float,
-                 reference_index: int | None = None, tol: float = 0.1,
-                 max_iter: int = 50) -> NewtonResult:
-    """Newton iterations on the range NLLS from ``initial_state`` (..., 4) ``[Y, X, V_y, V_x]``.
+def range_residuals(state, ranges, sensor_path, sample_period_s: float, reference_index: int,
+                    *, curvature: bool = False):
+    """Residuals, Jacobian (and curvature) of the range model of the straight track.
 
     Parameters
     ----------
-    ranges : array (..., n)
-        Measured ranges; leading axes are independent runs.
-    sensor : array (n, 2) or (..., n, 2)
-        Known sensor positions ``(a_n, b_n)`` (same checks as the closed form).
-    initial_state : array (4,) or (..., 4)
-        Start of the iterations.
+    state : ndarray, shape (..., 4)
+        ``[x_k, y_k, vx_k, vy_k]``.
+    ranges : ndarray, shape (..., n)
+        Measured ranges (NaN allowed: its residual is NaN).
+    sensor_path : ndarray, shape (..., n, 2)
+        Sensor positions.
     sample_period_s : float
         T.
+    reference_index : int
+        k.
+    curvature : bool
+        Also return the second derivatives.
+
+    Returns
+    -------
+    residuals : ndarray, shape (..., n)
+        ``rhat_n - h_n``, ``h_n = |p_k + (n-k) T v_k - s_n|``.
+    jacobian : ndarray, shape (..., n, 4)
+        ``dh_n / d beta = [u_n, t_n u_n]`` with ``u_n = d_n / h_n``, ``t_n = (n-k) T``.
+    curvature : ndarray, shape (..., n, 4, 4)
+        Only with ``curvature=True``: ``d^2 h_n / d beta^2 = B_n' P_n B_n`` with
+        ``B_n = [I, t_n I]`` and ``P_n = (I - u_n u_n') / h_n``, i.e. the blocks
+        ``[[P_n, t_n P_n], [t_n P_n, t_n^2 P_n]]``.
+    """
+    n = sensor_path.shape[-2]
+    d = predicted_offsets(state, sensor_path, sample_period_s, reference_index)
+    h = np.maximum(np.linalg.norm(d, axis=-1), 1e-12)
+    u = d / h[..., None]
+    t = (np.arange(n) - reference_index) * sample_period_s
+    J = np.concatenate([u, t[:, None] * u], axis=-1)
+    if not curvature:
+        return ranges - h, J
+    P = (np.eye(2) - u[..., :, None] * u[..., None, :]) / h[..., None, None]
+    tP = t[:, None, None] * P
+    curv = np.concatenate([np.concatenate([P, tP], axis=-1),
+                           np.concatenate([tP, t[:, None, None] * tP], axis=-1)], axis=-2)
+    return ranges - h, J, curv
+
+
+class NewtonTracker(SnapshotEstimator):
+    """Newton iterations on the range NLLS of one moving sensor (the paper's baseline).
+
+    Parameters
+    ----------
     reference_index : int, optional
-        k; default n-1.
+        k; default the last sample (n-1); negative values count from the end.
     tol : float
-        Stop when ``|step|^2 <= tol`` (section 5.2: 0.1).
+        Stop when the Newton step's Euclidean norm is ``<= tol`` (default ``sqrt(0.1)``,
+        section 5.2's ``|step|^2 <= 0.1``).
     max_iter : int
         Iteration cap.
+    step_control : {"none", "halving"}
+        ``"none"`` (default): the plain Newton iteration of the paper; ``"halving"``: a
+        backtracking line search (a safer variant).
 
-    Runs whose Hessian is singular or whose iterate becomes non-finite stop at the last
-    finite iterate with ``converged = False``; the output is always finite.
+    Examples
+    --------
+    >>> import numpy as np
+    >>> n, T = 20, 0.1
+    >>> ang = 1.3 * np.arange(n)
+    >>> sensor = 5.0 * np.stack([np.cos(ang), np.sin(ang)], -1)
+    >>> truth = np.array([1.0, 0.5]) + (np.arange(n) - (n - 1))[:, None] * T * [0.8, -0.2]
+    >>> ranges = np.linalg.norm(truth - sensor, axis=-1)
+    >>> est = NewtonTracker(tol=1e-10).locate(ranges, sensor, T,
+    ...                                       initial_state=[1.2, 0.3, 0.5, 0.0])
+    >>> np.round(est.position, 6).tolist(), bool(est.converged)
+    ([1.0, 0.5], True)
     """
-    r, s, k = validate_inputs(ranges, sensor, reference_index)
-    T = check_positive(sample_period_s, "sample_period_s")
-    beta = as_float_array(initial_state, "initial_state", last_dim=4, min_ndim=1)
-    n = r.shape[-1]
-    batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], beta.shape[:-1])
-    r = np.broadcast_to(r, batch + (n,))
-    s = np.broadcast_to(s, batch + (n, 2))
-    beta = np.broadcast_to(beta, batch + (4,)).copy()
-    active = np.ones(batch, dtype=bool)
-    converged = np.zeros(batch, dtype=bool)
-    iterations = np.zeros(batch, dtype=int)
-    for _ in range(int(max_iter)):
-        if not np.any(active):
-            break
-        grad, hess, _ = _gradient_hessian(beta, r, s, T, k)
-        det_ok = np.abs(np.linalg.det(hess)) > 1e-300
-        safe = np.where(det_ok[..., None, None], hess, np.eye(4))
-        with np.errstate(all="ignore"):
-            step = np.linalg.solve(safe, grad[..., None])[..., 0]
-        new = beta - step
-        ok = det_ok & np.all(np.isfinite(new), axis=-1) & (np.abs(new).max(axis=-1) < 1e12)
-        upd = active & ok
-        beta = np.where(upd[..., None], new, beta)
-        iterations = iterations + upd
-        done = upd & (np.sum(step**2, axis=-1) <= tol)
-        converged |= done
-        active = upd & ~done
-    return NewtonResult(state=beta, trajectory=trajectory(beta, n, T, k),
-                        iterations=iterations, converged=converged)
+
+    name = "newton"
+
+    def __init__(self, *, reference_index: int | None = None, tol: float = 0.1**0.5,
+                 max_iter: int = 50, step_control: str = "none") -> None:
+        if reference_index is not None and not isinstance(reference_index, (int, np.integer)):
+            raise ConfigError(f"reference_index: must be an int or None, got {reference_index!r}")
+        self.reference_index = None if reference_index is None else int(reference_index)
+        self.tol = check_positive(tol, "tol")
+        if int(max_iter) < 0 or int(max_iter) != max_iter:
+            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
+        self.max_iter = int(max_iter)
+        if step_control not in ("none", "halving"):
+            raise ConfigError(f"step_control: must be 'none' or 'halving', got {step_control!r}")
+        self.step_control = step_control
+
+    def locate(self, ranges, sensor_path, sample_period_s: float | None = None, *,
+               time=None, initial_state) -> Estimate:
+        """Newton iterations from ``initial_state`` for every problem of the batch.
+
+        Parameters
+        ----------
+        ranges : array_like, shape (..., n)
+            Measured ranges; leading axes are independent problems. A NaN range is a
+            missing sample and is left out of the sum of squares.
+        sensor_path : array_like, shape (n, 2) or (..., n, 2)
+            Known sensor positions ``(a_n, b_n)`` (same checks as the closed form).
+        sample_period_s : float, optional
+            T; or give ``time``.
+        time : array_like, shape (n,) or (..., n), optional
+            Uniformly spaced sample times, seconds.
+        initial_state : array_like, shape (4,) or (..., 4)
+            Start ``[x_k, y_k, vx_k, vy_k]``.
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., 2) = ``(x_k, y_k)``, no covariance, ``time`` of sample k;
+            diagnostics ``state`` (..., 4), ``trajectory`` (..., n, 2), ``iterations``,
+            ``converged``, ``stalled`` (singular Hessian or non-finite iterate: the last
+            finite iterate is kept) and ``residual_rms_m``, all from the driver.
+
+        Raises
+        ------
+        InputError
+            Bad shapes or values of ``ranges``, ``sensor_path``, ``time`` or
+            ``initial_state``.
+        """
+        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True)
+        n = r.shape[-1]
+        T, t_k = resolve_sampling(n, k, sample_period_s, time)
+        beta0 = as_float_array(initial_state, "initial_state", last_dim=4, min_ndim=1)
+        batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], beta0.shape[:-1])
+        r = np.broadcast_to(r, batch + (n,))
+        s = np.broadcast_to(s, batch + (n, 2))
+        w = np.isfinite(r).astype(float)
+        z = np.where(w > 0, r, 0.0)
+
+        def residuals(x):
+            return range_residuals(x, z, s, T, k)
+
+        def curvature(x):
+            return range_residuals(x, z, s, T, k, curvature=True)[2]
+
+        out = solve_nlls(residuals, np.broadcast_to(beta0, batch + (4,)), weights=w,
+                         method="newton", curvature=curvature, step_control=self.step_control,
+                         max_iter=self.max_iter, tol=self.tol)
+        used = np.maximum(w.sum(axis=-1), 1.0)
+        diag = {"state": out.x, "trajectory": trajectory(out.x, n, T, k),
+                "iterations": out.iterations, "converged": out.converged,
+                "stalled": out.stalled, "residual_rms_m": np.sqrt(out.cost / used)}
+        return Estimate(out.x[..., :2], None, t_k, diag)

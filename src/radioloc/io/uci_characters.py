@@ -14,6 +14,8 @@ import numpy as np
 
 from radioloc.core.errors import DataUnavailable, InputError
 
+__all__ = ["load_pen_positions", "resampled_tracks", "FILE_NAME"]
+
 FILE_NAME = "trajectories_train.mat"
 
 
@@ -65,8 +67,32 @@ def load_pen_positions(folder: Path | str) -> tuple[list[np.ndarray], np.ndarray
 
 def resampled_tracks(folder: Path | str, n_samples: int, stride: int,
                      scale: float) -> np.ndarray:
-    """Every sequence long enough, cut to ``n_samples`` samples taken every ``stride``-th,
-    positions multiplied by ``scale``; shape (n_sequences, n_samples, 2)."""
+    """Every sequence long enough, cut to ``n_samples`` samples taken every ``stride``-th.
+
+    Parameters
+    ----------
+    folder : path
+        The ``uci-character-trajectories`` folder.
+    n_samples : int
+        Samples kept per sequence.
+    stride : int
+        Keep every ``stride``-th 200 Hz sample.
+    scale : float
+        Factor applied to the positions (their unit is undocumented).
+
+    Returns
+    -------
+    ndarray, shape (n_sequences, n_samples, 2)
+        Positions ``(x, y)`` of every sequence with at least ``(n_samples - 1) stride + 1``
+        samples.
+
+    Raises
+    ------
+    DataUnavailable
+        The file is absent.
+    InputError
+        Bad ``n_samples``/``stride`` or no sequence long enough.
+    """
     if n_samples < 1 or stride < 1:
         raise InputError(f"n_samples, stride: must be >= 1, got {n_samples}, {stride}")
     pos, _, _ = load_pen_positions(folder)
