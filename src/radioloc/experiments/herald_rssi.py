@@ -20,7 +20,7 @@ import pandas as pd
 
 from radioloc.core.geometry import distances
 from radioloc.core.metrics import error_cdf
-from radioloc.estimators.grid import GridGeometry, get_location, get_uncertainty, probability_update
+from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.io.herald import load_session
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
@@ -112,23 +112,21 @@ class HeraldRssi(Experiment):
             return np.stack([rad * np.cos(a), rad * np.sin(a)], -1)
 
         phone = disc(config.phone_radius_m, B)
-        grids = {"trapezoid": geom.uniform(B), "logdistance": geom.uniform(B)}
-        models = {"trapezoid": trap, "logdistance": gauss}
-        rows = []
+        walker, rssi = np.zeros((B, T, 2)), np.zeros((B, T))
         for t in range(T):
-            walker = disc(config.walk_radius_m, B)
-            d = distances(walker, phone)
+            walker[:, t] = disc(config.walk_radius_m, B)
+            d = distances(walker[:, t], phone)
             lvl = np.clip(np.searchsorted(levels, d), 0, levels.size - 1)
             lower = np.clip(lvl - 1, 0, levels.size - 1)
             lvl = np.where(np.abs(levels[lower] - d) < np.abs(levels[lvl] - d), lower, lvl)
-            rssi = r_sorted[start[lvl] + (rng.uniform(0, 1, B) * count[lvl]).astype(int)]
-            for name in grids:
-                grids[name] = probability_update(grids[name], geom, walker, rssi, models[name], config.epsilon)
-        for name, p in grids.items():
-            est = get_location(p, geom)
+            rssi[:, t] = r_sorted[start[lvl] + (rng.uniform(0, 1, B) * count[lvl]).astype(int)]
+        rows = []
+        for name, model in (("trapezoid", trap), ("logdistance", gauss)):
+            filt = GridFilter(geom, model, epsilon=config.epsilon, location="peak")
+            last = filt.run(walker, rssi).at(T - 1)
             rows.append(pd.DataFrame({"run": runs, "model": name,
-                                      "error_m": np.linalg.norm(est - phone, axis=-1),
-                                      "uncertainty_m": get_uncertainty(p, geom),
+                                      "error_m": np.linalg.norm(last.position - phone, axis=-1),
+                                      "uncertainty_m": last.diagnostics["uncertainty_m"],
                                       "centre_error_m": np.linalg.norm(phone, axis=-1)}))
         return pd.concat(rows, ignore_index=True)
 

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from radioloc.estimators.grid import GridGeometry, probability_update
+from radioloc.estimators.grid import GridFilter, GridGeometry, probability_update
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.rssi_trapezoid import RSSI_LEVELS, fit_raw, fit_trapezoid_model, trapezoid
 from radioloc.report.style import COLORS, figure, save
-from radioloc.sim.tether import TetherParams, calibration_pairs, simulate_tether
+from radioloc.sim.tether import TetherParams, calibration_pairs, read_rssi, simulate_tether
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,10 @@ class TetherConfig:
     smooth_window: int = 2
     near_m: float = 1.5
     several_m: float = 3.0
+    grid_cells: int = 40
+    cell_m: float = 1.0
+    epsilon: float = 1e-6
+    gamma_m: float = 0.3
     params: TetherParams = field(default_factory=TetherParams)
     variant_packets: int | None = None
 
@@ -63,6 +67,11 @@ def _fit(config: TetherConfig, params: TetherParams | None = None):
     model = fit_trapezoid_model(r, d, tau_min=config.tau_min_m, sigma_min=config.sigma_min_m,
                                 window=config.smooth_window)
     return r, d, model
+
+
+def _tracker(config, model):
+    geom = GridGeometry.centred(config.grid_cells, config.grid_cells, config.cell_m)
+    return GridFilter(geom, model, epsilon=config.epsilon, blur_m=config.gamma_m, location="peak")
 
 
 def _following(df: pd.DataFrame) -> pd.DataFrame:
@@ -92,7 +101,7 @@ class TetherExperiment(Experiment):
         for label, params in config.variants().items():
             _, _, model = _fit(config, params)
             for compass in (False, True):
-                tr = simulate_tether(params, model, runs.size, config.steps, rng, compass=compass)
+                tr = simulate_tether(params, _tracker(config, model), runs.size, config.steps, rng, compass=compass)
                 B, T = tr.error_m.shape
                 frames.append(pd.DataFrame({
                     "variant": label, "run": np.repeat(runs, T), "compass": compass,
@@ -155,7 +164,7 @@ class TetherExperiment(Experiment):
         self._fig_traces(results, per, out_dir)
         self._fig_snapshots(config, model, out_dir)
         notes = [f"{len(per) // 2} runs per variant, {config.steps} steps of {config.params.dt_s:g} s; "
-                 f"grid {config.params.grid_cells}x{config.params.grid_cells} cells of {config.params.cell_m:g} m"]
+                 f"grid {config.grid_cells}x{config.grid_cells} cells of {config.cell_m:g} m"]
         return Summary(metrics, claims, notes)
 
     # ---- figures ---------------------------------------------------------------------
@@ -182,7 +191,7 @@ class TetherExperiment(Experiment):
     @staticmethod
     def _fig_donuts(config, model, out_dir):
         P = config.params
-        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
+        geom = GridGeometry.centred(config.grid_cells, config.grid_cells, config.cell_m)
         rng = np.random.default_rng(config.calibration_seed + 1)
         trackee = np.array([[5.0, 4.0]])
         trackers = np.array([[-6.0, -3.0], [0.0, 6.0], [6.0, -5.0]])
@@ -191,9 +200,9 @@ class TetherExperiment(Experiment):
         fig, axes = figure(2, 3, width=11, height=7.4)
         X, Y = np.meshgrid(geom.x, geom.y)
         for i, pos in enumerate(trackers):
-            rssi = P.channel.sample_rssi(pos + centre, trackee[0] + centre, np.zeros((0, 4)), rng)
+            rssi = read_rssi(P.channel, pos + centre, trackee[0] + centre, np.zeros((0, 4)), rng)
             lik = model.likelihood(np.hypot(X - pos[0], Y - pos[1]), rssi)
-            p = probability_update(p, geom, pos[None], [rssi], model, P.epsilon)
+            p = probability_update(p, geom, pos[None], [rssi], model, config.epsilon)
             for ax, img, lab in ((axes[0, i], lik, f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI {int(rssi)}"),
                                  (axes[1, i], p[0], f"({'def'[i]}) grid after {i + 1} update(s)")):
                 ax.imshow(img, origin="lower", extent=geom.extent(), cmap="Greys")
@@ -235,10 +244,10 @@ class TetherExperiment(Experiment):
     @staticmethod
     def _fig_snapshots(config, model, out_dir):
         P = config.params
-        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
+        geom = GridGeometry.centred(config.grid_cells, config.grid_cells, config.cell_m)
         fig, axes = figure(2, 3, width=11, height=7.4)
         for row, comp in enumerate((False, True)):
-            tr = simulate_tether(P, model, 8, config.steps, np.random.default_rng(config.calibration_seed + 2),
+            tr = simulate_tether(P, _tracker(config, model), 8, config.steps, np.random.default_rng(config.calibration_seed + 2),
                                  compass=comp, record_steps=tuple(range(config.steps)))
             first = np.where(tr.localized.any(axis=1), tr.localized.argmax(axis=1), config.steps)
             b = int(first.argmin())                      # the run localized earliest
@@ -246,8 +255,9 @@ class TetherExperiment(Experiment):
             picks = np.linspace(t0, config.steps - 1, 4).astype(int)[1:]
             for col, t in enumerate(picks):
                 ax = axes[row, col]
-                s = {k: v[b] for k, v in tr.snapshots[t].items()}
-                ax.imshow(tr.grids[t][b], origin="lower", extent=geom.extent(), cmap="Blues")
+                s = {"tracker": tr.tracker_xy[b, t], "trackee": tr.trackee_xy[b, t],
+                     "estimate": tr.track.position[b, t]}
+                ax.imshow(tr.states[t].p[b], origin="lower", extent=geom.extent(), cmap="Blues")
                 ax.plot(*s["tracker"], "o", color="grey", ms=5, label="tracker (odometry)")
                 ax.plot(*s["trackee"], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
                 ax.plot(*s["estimate"], ".", color=COLORS["truth"], ms=8, label="estimate")
@@ -257,5 +267,5 @@ class TetherExperiment(Experiment):
                 ax.set_xlabel("x [m] (tracker frame)")
                 ax.set_ylabel("y [m]")
         axes[0, 0].legend(loc="lower left", fontsize=7)
-        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of 8); cell width {P.cell_m:g} m")
+        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of 8); cell width {config.cell_m:g} m")
         save(fig, out_dir / "fig6_snapshots.png")
