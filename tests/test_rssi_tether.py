@@ -108,7 +108,12 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     exp = TetherExperiment()
     cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000)
     df = exp.run_block(cfg, np.arange(2), np.random.default_rng(0))
-    assert set(df["compass"]) == {False, True} and len(df) == 2 * 2 * 40
+    runs = df[df["table"] == "runs"]
+    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 40
+    assert set(df["table"]) == {"runs", "model", "fig3", "fig6"}
+    # a block without run 0 holds no figure rows
+    other = exp.run_block(cfg, np.arange(2, 4), np.random.default_rng(0))
+    assert set(other["table"]) == {"runs"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
     assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s"} <= names
@@ -124,6 +129,7 @@ def test_herald_experiment_smoke(tmp_path, monkeypatch):
     exp = HeraldRssi()
     cfg = replace(exp.config(False), runs=3, block_size=3, steps=10)
     df = exp.run_block(cfg, np.arange(3), np.random.default_rng(0))
+    assert set(df["table"]) == {"runs", "loglik", "model", "readings"}
     summary = exp.summarize(cfg, df, tmp_path)
     assert all(np.isfinite(m.value) for m in summary.metrics)
 

@@ -292,8 +292,10 @@ def get_uncertainty(p, geom: GridGeometry) -> np.ndarray:
 def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarray:
     """BlurGrid: circular Gaussian blur with standard deviation ``radius_m`` per run.
 
-    The blur is applied in the Fourier domain on a zero-padded grid (so nothing wraps round
-    the border), which lets every run use its own radius in one batched FFT; mass blurred
+    The blur is applied in the Fourier domain on a grid zero-padded by ``ceil(4 radius /
+    cell_m)`` cells (so nothing wraps round the border), which lets every run use its own
+    radius in one batched FFT per distinct padding; the padding of a run depends on its own
+    radius only, so a run's result does not depend on the rest of the batch. Mass blurred
     beyond the border is lost and the grid renormalised by :func:`floor_normalise`.
     The paper calls the argument a radius; we use it as the Gaussian's standard deviation.
 
@@ -317,14 +319,18 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarr
     B, h, w = p.shape
     rad = np.broadcast_to(as_float_array(radius_m, "radius_m", nonnegative=True), (B,))
     s = rad / geom.cell_m                                            # std in cells
-    pad = int(np.ceil(4.0 * s.max())) if s.size else 0
-    pad = min(pad, max(h, w))
-    H, W = h + 2 * pad, w + 2 * pad
-    fy = np.fft.fftfreq(H)[:, None]
-    fx = np.fft.rfftfreq(W)[None, :]
-    kernel = np.exp(-2.0 * np.pi**2 * s[:, None, None] ** 2 * (fx**2 + fy**2)[None])
-    spec = np.fft.rfft2(p, s=(H, W), axes=(1, 2))
-    out = np.fft.irfft2(spec * kernel, s=(H, W), axes=(1, 2))[:, :h, :w]
+    # each run's padding depends on its own radius only (so a run's result does not depend
+    # on the other runs of the batch); one batched FFT per distinct padding
+    pads = np.minimum(np.ceil(4.0 * s).astype(np.int64), max(h, w))
+    out = np.empty_like(p)
+    for pad in np.unique(pads):
+        sel = pads == pad
+        H, W = h + 2 * int(pad), w + 2 * int(pad)
+        fy = np.fft.fftfreq(H)[:, None]
+        fx = np.fft.rfftfreq(W)[None, :]
+        kernel = np.exp(-2.0 * np.pi**2 * s[sel, None, None] ** 2 * (fx**2 + fy**2)[None])
+        spec = np.fft.rfft2(p[sel], s=(H, W), axes=(1, 2))
+        out[sel] = np.fft.irfft2(spec * kernel, s=(H, W), axes=(1, 2))[:, :h, :w]
     return floor_normalise(np.maximum(out, 0.0), epsilon)
 
 
