@@ -39,6 +39,10 @@ from radioloc.report.style import COLORS, figure, save
 class HeraldConfig:
     """Settings of ``real-rssi-herald``.
 
+    Parameters
+    ----------
+    (the fields below)
+
     train_session / test_session: Herald sessions (both phones' files of each are used).
     tau_min_m, sigma_min_m, smooth_window: trapezoid fit (metres, RSSI rows).
     d_max_m, d_step_m: distance grid over which both likelihoods are normalised.
@@ -97,6 +101,13 @@ def _conditional_loglik(model, r, d, config: HeraldConfig) -> np.ndarray:
 
 @register
 class HeraldRssi(Experiment):
+    """Experiment ``real-rssi-herald``: paper 003's model on real BLE data.
+
+    Parameters
+    ----------
+    (none: settings are in :class:`HeraldConfig`)
+    """
+
     id = "real-rssi-herald"
     paper = "003"
     description = "Trapezoid RSSI/distance model vs log-distance Gaussian on Herald BLE data; grid-filter static localization"

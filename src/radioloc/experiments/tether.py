@@ -34,6 +34,10 @@ from radioloc.sim.tether import TetherParams, calibration_pairs, read_rssi, simu
 class TetherConfig:
     """Settings of ``p003-tether`` (choices the paper leaves open are ours).
 
+    Parameters
+    ----------
+    (the fields below)
+
     steps: simulated steps of ``params.dt_s`` seconds per run.
     calibration_pairs: (RSSI, distance) pairs drawn from random placements for the model.
     tau_min_m, sigma_min_m, smooth_window: model fit (Sect. III-B/C); window in RSSI rows.
@@ -128,6 +132,13 @@ def _following(df: pd.DataFrame) -> pd.DataFrame:
 
 @register
 class TetherExperiment(Experiment):
+    """Experiment ``p003-tether``: Figs. 2-6 of paper 003.
+
+    Parameters
+    ----------
+    (none: settings are in :class:`TetherConfig`)
+    """
+
     id = "p003-tether"
     paper = "003"
     description = "RSSI trapezoid model + grid Bayes filter tethering, with and without compass (Figs. 2-6)"

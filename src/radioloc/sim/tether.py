@@ -46,23 +46,81 @@ class Tracker(Protocol):
 
     The grid filter ``GridFilter`` (estimators layer) has this interface. The world calls, every
     step, ``predict``, then ``estimate`` (the behaviour acts on the predicted belief), then
-    ``update`` with the new reading, then ``estimate`` again (recorded).
+    ``update`` with the new reading, then ``estimate`` again (recorded). A plain ``step``
+    (predict and update at once) would not do: Algorithm 4 acts between the two.
+
+    Attributes
+    ----------
+    (none required; any object with the four methods below)
     """
 
     def init(self, batch: int) -> Any:
-        """State of ``batch`` runs before any reading."""
+        """State of ``batch`` runs before any reading.
+
+        Parameters
+        ----------
+        batch : int
+            Number of runs B.
+
+        Returns
+        -------
+        object
+            The tracker's state (opaque to the world).
+        """
 
     def predict(self, state: Any, *, dt: float, shift_m: np.ndarray,
                 extra_blur_m: np.ndarray) -> Any:
-        """Predict over ``dt``: the target moved by the known ``shift_m`` ``(B, 2)`` plus an
-        unknown displacement of radius ``extra_blur_m`` ``(B,)`` (in the tracker's frame)."""
+        """Predict over ``dt``.
+
+        Parameters
+        ----------
+        state : object
+            Current state.
+        dt : float
+            Step length, seconds.
+        shift_m : ndarray, shape (B, 2)
+            Known displacement of the trackee in the tracker's frame, metres.
+        extra_blur_m : ndarray, shape (B,)
+            Radius of an unknown displacement of the trackee, metres.
+
+        Returns
+        -------
+        object
+            The predicted state.
+        """
 
     def update(self, state: Any, tracker_xy: np.ndarray, rssi: np.ndarray) -> Any:
-        """Update with one RSSI reading ``(B,)`` taken at ``tracker_xy`` ``(B, 2)``."""
+        """Update with one RSSI reading per run.
+
+        Parameters
+        ----------
+        state : object
+            Current state.
+        tracker_xy : ndarray, shape (B, 2)
+            The tracker's odometry position, metres.
+        rssi : ndarray, shape (B,)
+            Readings on the 0..100 scale.
+
+        Returns
+        -------
+        object
+            The posterior state.
+        """
 
     def estimate(self, state: Any) -> Estimate:
-        """The trackee's position in the tracker's frame; its spread is read from
-        ``diagnostics['uncertainty_m']`` (else ``Estimate.uncertainty_m``)."""
+        """The trackee's position in the tracker's frame.
+
+        Parameters
+        ----------
+        state : object
+            A state.
+
+        Returns
+        -------
+        Estimate
+            ``position`` ``(B, 2)``; its spread is read from ``diagnostics['uncertainty_m']``
+            (else ``Estimate.uncertainty_m``).
+        """
 
 
 @dataclass(frozen=True)
