@@ -10,7 +10,8 @@ from radioloc.core.errors import DataUnavailable, InputError
 from radioloc.io.herald import load_session
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
 from radioloc.models.rssi_trapezoid import fit_trapezoid_model
-from radioloc.sim.tether import TetherParams, calibration_pairs, simulate_tether
+from radioloc.estimators.grid import GridFilter, GridGeometry
+from radioloc.sim.tether import TetherParams, calibration_pairs, read_rssi, simulate_tether
 
 HERALD = Path("/work/shared/data/herald-ble-rssi-distance")
 
@@ -22,13 +23,36 @@ def test_wall_crossings_known_answer():
     np.testing.assert_array_equal(n, [2, 0, 1])
 
 
-def test_channel_quantised_and_decreasing_with_walls():
+def test_channel_dbm_known_answer_and_radio_quantises():
     ch = IndoorChannel(shadow_std_db=0.0, rayleigh=False)
     walls = office_walls(40.0, 4)
-    rng = np.random.default_rng(0)
-    r = ch.sample_rssi(np.array([[2.0, 5.0], [2.0, 5.0]]), np.array([[8.0, 5.0], [15.0, 1.0]]), walls, rng)
+    a, b = np.array([[2.0, 5.0], [2.0, 5.0]]), np.array([[8.0, 5.0], [15.0, 1.0]])
+    p = ch.sample_dbm(a, b, walls, np.random.default_rng(0))
+    # no shadowing/fading: P0 - 10 n log10(d) - W crossings; the second link crosses x = 10
+    d = np.linalg.norm(a - b, axis=-1)
+    np.testing.assert_allclose(p, -40.0 - 25.0 * np.log10(d) - 5.0 * np.array([0, 1]))
+    r = read_rssi(ch, a, b, walls, np.random.default_rng(0))
     assert r.dtype.kind == "i" and np.all((r >= 0) & (r <= 100))
+    np.testing.assert_array_equal(r, np.rint(p + 110).astype(int))
     assert r[0] > r[1]
+
+
+def _imports(module) -> set[str]:
+    import ast
+    tree = ast.parse(Path(module.__file__).read_text())
+    return {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)} | {
+        a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+
+
+def test_channel_does_not_import_the_sensor_quantiser():
+    import radioloc.channel.indoor_rss as mod
+    assert not any(m.startswith("radioloc.models") for m in _imports(mod))
+    assert not hasattr(mod, "dbm_to_rssi100")
+
+
+def test_tether_world_does_not_import_estimators():
+    import radioloc.sim.tether as mod
+    assert "radioloc.estimators" not in Path(mod.__file__).read_text()
 
 
 def test_tether_without_noise_localizes_static_trackee():
@@ -36,8 +60,13 @@ def test_tether_without_noise_localizes_static_trackee():
     rng = np.random.default_rng(1)
     r, d = calibration_pairs(P, 5000, rng)
     model = fit_trapezoid_model(r, d, tau_min=0.5, sigma_min=0.5, window=2)
-    tr = simulate_tether(P, model, 4, 120, rng, compass=True)
-    assert tr.error_m.shape == (4, 120)
+    tracker = GridFilter(GridGeometry.centred(40, 40, 1.0), model, epsilon=1e-6, blur_m=0.3,
+                         location="peak")
+    tr = simulate_tether(P, tracker, 4, 120, rng, compass=True, record_steps=(119,))
+    assert tr.error_m.shape == (4, 120) and tr.track.position.shape == (4, 120, 2)
+    # the recorded error is the injected tracker's estimate against the trackee's truth
+    np.testing.assert_allclose(tr.error_m, np.linalg.norm(tr.track.position - tr.trackee_xy, axis=-1))
+    assert set(tr.states) == {119}
     assert np.all(tr.localized.any(axis=1))
     first = tr.localized.argmax(axis=1)
     assert np.all(tr.error_m[np.arange(4), first] < 4.0)
@@ -79,7 +108,12 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     exp = TetherExperiment()
     cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000)
     df = exp.run_block(cfg, np.arange(2), np.random.default_rng(0))
-    assert set(df["compass"]) == {False, True} and len(df) == 2 * 2 * 40
+    runs = df[df["table"] == "runs"]
+    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 40
+    assert set(df["table"]) == {"runs", "model", "fig3", "fig6"}
+    # a block without run 0 holds no figure rows
+    other = exp.run_block(cfg, np.arange(2, 4), np.random.default_rng(0))
+    assert set(other["table"]) == {"runs"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
     assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s"} <= names
@@ -95,6 +129,7 @@ def test_herald_experiment_smoke(tmp_path, monkeypatch):
     exp = HeraldRssi()
     cfg = replace(exp.config(False), runs=3, block_size=3, steps=10)
     df = exp.run_block(cfg, np.arange(3), np.random.default_rng(0))
+    assert set(df["table"]) == {"runs", "loglik", "model", "readings"}
     summary = exp.summarize(cfg, df, tmp_path)
     assert all(np.isfinite(m.value) for m in summary.metrics)
 

@@ -1,5 +1,5 @@
 """Indoor received signal strength: log-distance path loss, wall attenuation per crossing,
-log-normal shadowing and Rayleigh multipath fading, quantised to the 0..100 RSSI scale.
+log-normal shadowing and Rayleigh multipath fading, in dBm.
 
 Used by the tethering simulation of paper 003 (Sect. V: "simulation of RSS interference
 effects based on walls"). The paper does not give its simulator's channel; this one is ours::
@@ -7,7 +7,10 @@ effects based on walls"). The paper does not give its simulator's channel; this 
     P [dBm] = P0 - 10 n log10(max(d, d0) / d0) - W * crossings + X_sh + F,
     X_sh ~ N(0, shadow_std_db),  F = 10 log10 |h|^2, h ~ CN(0, 1)
 
-and ``rssi = dbm_to_rssi100(P)``.
+The channel returns the received power ``P`` in dBm. What a radio reports (the paper's
+unitless 0..100 RSSI) is the sensor's business: the tethering world
+(:mod:`radioloc.sim.tether`) quantises ``P`` with
+``dbm_to_rssi100`` of the models layer.
 """
 
 from __future__ import annotations
@@ -16,17 +19,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radioloc.core.geometry import segments_cross
 from radioloc.core.validation import as_float_array
-from radioloc.models.rssi_trapezoid import dbm_to_rssi100
 
 
 @dataclass(frozen=True)
 class IndoorChannel:
     """Channel parameters (2.4 GHz indoor defaults).
 
-    p0_dbm: received power at ``d0_m``; exponent: path-loss exponent n; wall_db: loss per
-    wall crossed; shadow_std_db: i.i.d. log-normal shadowing per reading; rayleigh: add
-    Rayleigh fading in dB.
+    Parameters
+    ----------
+    p0_dbm : float
+        Received power at ``d0_m``, dBm.
+    d0_m : float
+        Reference distance, metres (closer links read as if at ``d0_m``).
+    exponent : float
+        Path-loss exponent n.
+    wall_db : float
+        Loss per wall crossed, dB.
+    shadow_std_db : float
+        Standard deviation of the i.i.d. log-normal shadowing of each reading, dB.
+    rayleigh : bool
+        Add Rayleigh fading (in dB) to each reading.
+    packets : int
+        Each reading averages the faded power of this many independent packets.
     """
 
     p0_dbm: float = -40.0
@@ -38,12 +54,40 @@ class IndoorChannel:
     packets: int = 1
 
     def mean_dbm(self, d, crossings) -> np.ndarray:
-        """Mean received power without shadowing or fading."""
+        """Mean received power without shadowing or fading.
+
+        Parameters
+        ----------
+        d : array_like
+            Link distances, metres.
+        crossings : array_like
+            Walls crossed by each link (broadcast with ``d``).
+
+        Returns
+        -------
+        ndarray
+            ``P0 - 10 n log10(max(d, d0) / d0) - W crossings`` in dBm.
+        """
         d = np.maximum(np.asarray(d, float), self.d0_m)
         return self.p0_dbm - 10.0 * self.exponent * np.log10(d / self.d0_m) - self.wall_db * crossings
 
-    def sample_rssi(self, a, b, walls, rng: np.random.Generator) -> np.ndarray:
-        """Quantised RSSI (int 0..100) between points ``a`` and ``b`` ``(..., 2)``."""
+    def sample_dbm(self, a, b, walls, rng: np.random.Generator) -> np.ndarray:
+        """Received power (dBm) of one reading between points ``a`` and ``b``.
+
+        Parameters
+        ----------
+        a, b : array_like, shape (..., 2)
+            Transmitter and receiver positions, metres (broadcast).
+        walls : array_like, shape (M, 4)
+            Wall segments ``x1, y1, x2, y2``.
+        rng : numpy.random.Generator
+            Source of the shadowing and fading draws.
+
+        Returns
+        -------
+        ndarray, shape (...)
+            Received power in dBm (shadowed and, with ``rayleigh``, faded).
+        """
         a = as_float_array(a, "a", last_dim=2)
         b = as_float_array(b, "b", last_dim=2)
         d = np.linalg.norm(a - b, axis=-1)
@@ -52,34 +96,53 @@ class IndoorChannel:
         if self.rayleigh:
             h2 = rng.exponential(1.0, (int(self.packets), *p.shape)).mean(axis=0)
             p = p + 10.0 * np.log10(np.maximum(h2, 1e-6))
-        return dbm_to_rssi100(p)
+        return p
 
 
 def wall_crossings(a, b, walls) -> np.ndarray:
-    """Number of wall segments crossed by the segments ``a -> b`` (``(..., 2)`` each).
+    """Number of wall segments crossed by the segments ``a -> b``.
 
-    ``walls`` is ``(M, 4)`` rows ``x1, y1, x2, y2``. Proper intersections only (touching
-    endpoints does not count).
+    Proper intersections only (touching an endpoint does not count), decided by
+    :func:`radioloc.core.geometry.segments_cross`.
+
+    Parameters
+    ----------
+    a, b : array_like, shape (..., 2)
+        End points of the links (broadcast).
+    walls : array_like, shape (M, 4)
+        Wall segments, rows ``x1, y1, x2, y2``.
+
+    Returns
+    -------
+    ndarray of float, shape (...)
+        Walls crossed by each link.
     """
     walls = np.asarray(walls, float).reshape(-1, 4)
     if walls.shape[0] == 0:
         return np.zeros(np.broadcast_shapes(np.shape(a)[:-1], np.shape(b)[:-1]))
     a = np.asarray(a, float)[..., None, :]
     b = np.asarray(b, float)[..., None, :]
-    p, q = walls[:, :2], walls[:, 2:]
-
-    def cross(o, u, v):
-        return (u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0])
-
-    d1, d2 = cross(a, b, p), cross(a, b, q)
-    d3, d4 = cross(p, q, a), cross(p, q, b)
-    hit = (d1 * d2 < 0) & (d3 * d4 < 0)
+    hit = segments_cross(a, b, walls[:, :2], walls[:, 2:])
     return hit.sum(axis=-1).astype(float)
 
 
 def office_walls(size_m: float = 40.0, rooms: int = 4) -> np.ndarray:
-    """A square floor of side ``size_m`` divided into ``rooms x rooms`` rooms, each inner wall
-    with a 1.5 m door gap in its middle; the outer walls are included."""
+    """A square floor divided into ``rooms x rooms`` rooms with door gaps.
+
+    Each inner wall has a 1.5 m door gap in its middle; the outer walls are included.
+
+    Parameters
+    ----------
+    size_m : float
+        Side of the square floor, metres.
+    rooms : int
+        Rooms along each side.
+
+    Returns
+    -------
+    ndarray, shape (M, 4)
+        Wall segments ``x1, y1, x2, y2``.
+    """
     s = size_m
     walls = [[0, 0, s, 0], [s, 0, s, s], [s, s, 0, s], [0, s, 0, 0]]
     step = s / rooms

@@ -42,6 +42,7 @@ from numba import njit
 
 from radioloc.channel.scene import Scene
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.geometry import segment_intersections
 from radioloc.core.validation import as_positions, check_positive
 
 #: Speed of light [m/s].
@@ -165,18 +166,6 @@ def knife_edge_loss_db(nu: np.ndarray) -> np.ndarray:
     return np.where(nu > -0.78, j, 0.0)
 
 
-def _segment_cross(p0, p1, a, b):
-    """Intersection parameters of segments p0->p1 (u) and a->b (t), vectorised."""
-    r = p1 - p0
-    s = b - a
-    den = r[:, 0] * s[:, 1] - r[:, 1] * s[:, 0]
-    q = a - p0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = (q[:, 0] * s[:, 1] - q[:, 1] * s[:, 0]) / den
-        t = (q[:, 0] * r[:, 1] - q[:, 1] * r[:, 0]) / den
-    return u, t
-
-
 @njit(cache=True)
 def _extend(last_img, last_wall, link, counts, offsets, wk, A, B, N, rx, lmax):
     """Children (parent index, wall) of every sequence: walls of the same link that face
@@ -277,7 +266,7 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
         p = rx[link].copy()
         for m in range(k - 1, -1, -1):
             w = seq[:, m]
-            u, t = _segment_cross(imgs[:, m], p, A[w], B[w])
+            u, t = segment_intersections(imgs[:, m], p, A[w], B[w])
             good = np.isfinite(u) & np.isfinite(t)                 # parallel: no crossing
             ok &= good & (u > 0) & (u < 1) & (t >= 0) & (t <= 1)
             u = np.where(ok, u, 0.0)

@@ -5,8 +5,15 @@
    distance given the RSSI, ``log p(d | rssi)``, each normalised over distances
    ``[0, d_max]`` with a small uniform floor (so a reading outside a trapezoid's support
    does not give ``-inf``).
-2. Localize a static phone with the grid filter: a walker at random points around it reads
-   RSSI values drawn from the test session's recordings at the nearest recorded distance.
+2. Localize a static phone with the grid filter (:class:`~radioloc.estimators.grid.GridFilter`,
+   no motion, GetLocation of Algorithm 2): a walker at random points around it reads RSSI
+   values drawn from the test session's recordings at the nearest recorded distance.
+
+The results table has a ``table`` column: ``"runs"`` rows are the static-localization runs;
+the block holding run 0 adds the model comparison (``"loglik"``), the fitted models
+(``"model"``: trapezoid support per RSSI row and the log-distance parameters) and an evenly
+spaced subsample of the test readings for the figure (``"readings"``).
+:meth:`HeraldRssi.summarize` only reads that table.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ import pandas as pd
 
 from radioloc.core.geometry import distances
 from radioloc.core.metrics import error_cdf
-from radioloc.estimators.grid import GridGeometry, get_location, get_uncertainty, probability_update
+from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.io.herald import load_session
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
@@ -32,6 +39,10 @@ from radioloc.report.style import COLORS, figure, save
 class HeraldConfig:
     """Settings of ``real-rssi-herald``.
 
+    Parameters
+    ----------
+    (the fields below)
+
     train_session / test_session: Herald sessions (both phones' files of each are used).
     tau_min_m, sigma_min_m, smooth_window: trapezoid fit (metres, RSSI rows).
     d_max_m, d_step_m: distance grid over which both likelihoods are normalised.
@@ -40,6 +51,7 @@ class HeraldConfig:
     phone_radius_m: the phone is uniform in a disc of this radius around the grid centre.
     walk_radius_m: the walker's reading points are uniform in a disc of this radius.
     steps: readings per run; epsilon: grid floor.
+    figure_readings: test readings shown in the figure (an evenly spaced subsample).
     RSSI in dBm is mapped to 0..100 with dbm_to_rssi100 (rssi = dBm + 110).
     """
 
@@ -59,6 +71,7 @@ class HeraldConfig:
     walk_radius_m: float = 2.0
     steps: int = 150
     epsilon: float = 1e-7
+    figure_readings: int = 4000
 
 
 @lru_cache(maxsize=4)
@@ -88,15 +101,50 @@ def _conditional_loglik(model, r, d, config: HeraldConfig) -> np.ndarray:
 
 @register
 class HeraldRssi(Experiment):
+    """Experiment ``real-rssi-herald``: paper 003's model on real BLE data.
+
+    Parameters
+    ----------
+    (none: settings are in :class:`HeraldConfig`)
+    """
+
     id = "real-rssi-herald"
     paper = "003"
     description = "Trapezoid RSSI/distance model vs log-distance Gaussian on Herald BLE data; grid-filter static localization"
     data_folder = "herald-ble-rssi-distance"
 
     def config(self, full: bool) -> HeraldConfig:
+        """The quick or full configuration.
+
+        Parameters
+        ----------
+        full : bool
+            Full size (200 runs).
+
+        Returns
+        -------
+        HeraldConfig
+        """
         return HeraldConfig(runs=200, block_size=50) if full else HeraldConfig()
 
     def run_block(self, config: HeraldConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Static-phone runs of one block (and, in the block holding run 0, the model rows).
+
+        Parameters
+        ----------
+        config : HeraldConfig
+            Settings.
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (phone positions, reading points, recorded readings).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Rows of the tables ``runs`` and (block with run 0) ``loglik``, ``model``,
+            ``readings``, told apart by the ``table`` column.
+        """
         root = str(self.data_path())
         trap, gauss = _models(root, config)
         r_test, d_test = _data(root, config.test_session)
@@ -112,86 +160,128 @@ class HeraldRssi(Experiment):
             return np.stack([rad * np.cos(a), rad * np.sin(a)], -1)
 
         phone = disc(config.phone_radius_m, B)
-        grids = {"trapezoid": geom.uniform(B), "logdistance": geom.uniform(B)}
-        models = {"trapezoid": trap, "logdistance": gauss}
-        rows = []
+        walker, rssi = np.zeros((B, T, 2)), np.zeros((B, T))
         for t in range(T):
-            walker = disc(config.walk_radius_m, B)
-            d = distances(walker, phone)
+            walker[:, t] = disc(config.walk_radius_m, B)
+            d = distances(walker[:, t], phone)
             lvl = np.clip(np.searchsorted(levels, d), 0, levels.size - 1)
             lower = np.clip(lvl - 1, 0, levels.size - 1)
             lvl = np.where(np.abs(levels[lower] - d) < np.abs(levels[lvl] - d), lower, lvl)
-            rssi = r_sorted[start[lvl] + (rng.uniform(0, 1, B) * count[lvl]).astype(int)]
-            for name in grids:
-                grids[name] = probability_update(grids[name], geom, walker, rssi, models[name], config.epsilon)
-        for name, p in grids.items():
-            est = get_location(p, geom)
-            rows.append(pd.DataFrame({"run": runs, "model": name,
-                                      "error_m": np.linalg.norm(est - phone, axis=-1),
-                                      "uncertainty_m": get_uncertainty(p, geom),
+            rssi[:, t] = r_sorted[start[lvl] + (rng.uniform(0, 1, B) * count[lvl]).astype(int)]
+        rows = []
+        for name, model in (("trapezoid", trap), ("logdistance", gauss)):
+            filt = GridFilter(geom, model, epsilon=config.epsilon, location="peak")
+            last = filt.run(walker, rssi).at(T - 1)
+            rows.append(pd.DataFrame({"table": "runs", "run": runs, "model": name,
+                                      "error_m": np.linalg.norm(last.position - phone, axis=-1),
+                                      "uncertainty_m": last.diagnostics["uncertainty_m"],
                                       "centre_error_m": np.linalg.norm(phone, axis=-1)}))
+        if np.any(runs == 0):
+            rows += self._model_rows(root, config, trap, gauss, int(runs[0]))
         return pd.concat(rows, ignore_index=True)
 
-    def summarize(self, config: HeraldConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
-        root = str(self.data_path())
-        trap, gauss = _models(root, config)
+    @staticmethod
+    def _model_rows(root: str, config: HeraldConfig, trap, gauss, run: int) -> list[pd.DataFrame]:
+        """Held-out comparison of the two models, their curves and a subsample of readings."""
         r_test, d_test = _data(root, config.test_session)
         r_tr, d_tr = _data(root, config.train_session)
-        ll_t = _conditional_loglik(trap, r_test, d_test, config)
-        ll_g = _conditional_loglik(gauss, r_test, d_test, config)
-        ll_t_in = _conditional_loglik(trap, r_tr, d_tr, config)
-        ll_g_in = _conditional_loglik(gauss, r_tr, d_tr, config)
-        outside = float(np.mean(trap.likelihood(d_test, r_test) == 0))
-        err = results.groupby("model")["error_m"]
+        ll = []
+        for name, model in (("trapezoid", trap), ("logdistance", gauss)):
+            for split, (r, d) in (("test", (r_test, d_test)), ("train", (r_tr, d_tr))):
+                ll.append({"table": "loglik", "run": run, "model": name, "split": split,
+                           "loglik": float(_conditional_loglik(model, r, d, config).mean()),
+                           "readings": r.size,
+                           "outside": float(np.mean(trap.likelihood(d, r) == 0))
+                           if name == "trapezoid" else np.nan})
+        levels = np.arange(RSSI_LEVELS)
+        model_rows = pd.DataFrame({"table": "model", "run": run, "rssi": levels,
+                                   "lower_m": trap.lower, "upper_m": trap.upper,
+                                   "a": gauss.a, "n": gauss.n, "s": gauss.s,
+                                   "d_ref_m": gauss.d_ref_m})
+        pick = np.unique(np.linspace(0, r_test.size - 1, min(config.figure_readings, r_test.size)).astype(int))
+        readings = pd.DataFrame({"table": "readings", "run": run, "rssi": r_test[pick],
+                                 "distance_m": d_test[pick]})
+        return [pd.DataFrame(ll), model_rows, readings]
+
+    def summarize(self, config: HeraldConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and the figure, all from the results table.
+
+        Parameters
+        ----------
+        config : HeraldConfig
+            Settings.
+        results : pandas.DataFrame
+            The concatenated :meth:`run_block` frames.
+        out_dir : pathlib.Path
+            Where the figure goes.
+
+        Returns
+        -------
+        Summary
+        """
+        tab = lambda name: results[results["table"] == name].dropna(axis=1, how="all")
+        runs = tab("runs")
+        ll = tab("loglik").set_index(["model", "split"])
+        model = tab("model").sort_values("rssi")
+        readings = tab("readings")
+        gauss = LogDistanceGaussian(*(float(model[k].iloc[0]) for k in ("a", "n", "s", "d_ref_m")))
+        ll_t, ll_g = ll.loc[("trapezoid", "test"), "loglik"], ll.loc[("logdistance", "test"), "loglik"]
+        n_test = int(ll.loc[("trapezoid", "test"), "readings"])
+        n_train = int(ll.loc[("trapezoid", "train"), "readings"])
+        err = runs.groupby("model")["error_m"]
+        centre = float(runs.loc[runs["model"] == "trapezoid", "centre_error_m"].mean())
         metrics = [
-            Metric("loglik_trapezoid_test", float(ll_t.mean()), None, "nats/reading",
+            Metric("loglik_trapezoid_test", float(ll_t), None, "nats/reading",
                    f"mean log p(d | rssi) on {config.test_session}, model fitted on {config.train_session}"),
-            Metric("loglik_logdistance_test", float(ll_g.mean()), None, "nats/reading", "same, log-distance Gaussian"),
-            Metric("loglik_trapezoid_train", float(ll_t_in.mean()), None, "nats/reading", "in-sample"),
-            Metric("loglik_logdistance_train", float(ll_g_in.mean()), None, "nats/reading", "in-sample"),
-            Metric("fraction_test_outside_trapezoid", outside, None, "",
+            Metric("loglik_logdistance_test", float(ll_g), None, "nats/reading", "same, log-distance Gaussian"),
+            Metric("loglik_trapezoid_train", float(ll.loc[("trapezoid", "train"), "loglik"]), None,
+                   "nats/reading", "in-sample"),
+            Metric("loglik_logdistance_train", float(ll.loc[("logdistance", "train"), "loglik"]), None,
+                   "nats/reading", "in-sample"),
+            Metric("fraction_test_outside_trapezoid", float(ll.loc[("trapezoid", "test"), "outside"]), None, "",
                    "test readings whose distance lies outside the trapezoid of their RSSI"),
             Metric("static_error_m_trapezoid", float(err.mean()["trapezoid"]), None, "m",
                    f"grid filter after {config.steps} readings, mean over runs"),
             Metric("static_error_m_logdistance", float(err.mean()["logdistance"]), None, "m",
                    "same grid filter with the log-distance Gaussian likelihood"),
-            Metric("static_error_m_centre_guess", float(results.loc[results["model"] == "trapezoid", "centre_error_m"].mean()),
-                   None, "m", "error of guessing the grid centre (no measurement)"),
+            Metric("static_error_m_centre_guess", centre, None, "m",
+                   "error of guessing the grid centre (no measurement)"),
             Metric("logdistance_exponent", gauss.n, None, "", f"fitted n; residual std {gauss.s:.1f} dB"),
         ]
         claims = [
             Claim("The data-driven trapezoid model describes held-out RSSI/distance pairs better than "
-                  "a log-distance Gaussian (higher held-out log-likelihood)", bool(ll_t.mean() > ll_g.mean())),
+                  "a log-distance Gaussian (higher held-out log-likelihood)", bool(ll_t > ll_g)),
             Claim("The grid filter with the trapezoid model localizes a static phone better than guessing "
-                  "the centre", bool(err.mean()["trapezoid"] < results["centre_error_m"].mean())),
+                  "the centre", bool(err.mean()["trapezoid"] < centre)),
         ]
         # figure: the model over the data
         fig, axes = figure(1, 2, width=11, height=4.2)
         ax = axes[0]
-        sub = np.random.default_rng(0).choice(r_test.size, min(4000, r_test.size), replace=False)
-        ax.plot(d_test[sub], r_test[sub], ".", ms=2, alpha=0.3, color=COLORS["bound"], label=f"test readings ({config.test_session})")
-        rows = np.arange(RSSI_LEVELS)
-        ax.plot(trap.lower.clip(0), rows, color=COLORS["ours"], label="trapezoid support (train)")
-        ax.plot(trap.upper, rows, color=COLORS["ours"])
+        r_fig, d_fig = readings["rssi"].to_numpy(), readings["distance_m"].to_numpy()
+        ax.plot(d_fig, r_fig, ".", ms=2, alpha=0.3, color=COLORS["bound"],
+                label=f"test readings ({config.test_session}, every {max(n_test // len(readings), 1)}th)")
+        rows = model["rssi"].to_numpy()
+        ax.plot(model["lower_m"].clip(0), rows, color=COLORS["ours"], label="trapezoid support (train)")
+        ax.plot(model["upper_m"], rows, color=COLORS["ours"])
         dd = np.linspace(0, config.d_max_m, 200)
         ax.plot(dd, gauss.mean(dd), color=COLORS["baseline"], ls="--", label="log-distance mean (train)")
         ax.set_xlim(0, config.d_max_m + 0.5)
-        ax.set_ylim(max(0, r_test.min() - 5), min(100, r_test.max() + 5))
+        ax.set_ylim(max(0, r_fig.min() - 5), min(100, r_fig.max() + 5))
         ax.set_xlabel("distance [m]")
         ax.set_ylabel("RSSI (0..100 = dBm + 110)")
         ax.set_title("Herald BLE: model fitted on one session vs the other")
         ax.legend(fontsize=7, loc="upper right")
         ax = axes[1]
         for name, color in (("trapezoid", COLORS["ours"]), ("logdistance", COLORS["baseline"])):
-            e, p = error_cdf(results.loc[results["model"] == name, "error_m"])
+            e, p = error_cdf(runs.loc[runs["model"] == name, "error_m"])
             ax.step(e, p, where="post", color=color, label=f"grid filter, {name}")
-        e, p = error_cdf(results.loc[results["model"] == "trapezoid", "centre_error_m"])
+        e, p = error_cdf(runs.loc[runs["model"] == "trapezoid", "centre_error_m"])
         ax.step(e, p, where="post", color=COLORS["bound"], ls=":", label="grid centre guess")
         ax.set_xlabel("static-phone position error [m]")
         ax.set_ylabel("fraction of runs")
         ax.set_title(f"Static localization after {config.steps} readings")
         ax.legend(fontsize=8)
         save(fig, out_dir / "herald_model_and_errors.png")
-        notes = [f"train {config.train_session}: {r_tr.size} readings; test {config.test_session}: {r_test.size}",
+        notes = [f"train {config.train_session}: {n_train} readings; test {config.test_session}: {n_test}",
                  "different phone pairs in the two sessions (Samsung A20/Pixel 2 vs Pixel 2/Pixel 3)"]
         return Summary(metrics, claims, notes)

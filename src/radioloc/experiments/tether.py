@@ -1,9 +1,17 @@
 """Paper 003 (Zickler & Veloso): RSS-only localization and tethering, Figs. 2-6.
 
 The RSSI/distance model is fitted on simulated calibration pairs of the same floor (one
-fixed calibration set, seeded by ``calibration_seed``, as the paper builds one model before
-its runs); every Monte Carlo run then places tracker and trackee at random poses and runs
-Algorithm 4 without and with a compass.
+calibration set per experiment, drawn from the named stream ``"calibration"`` of the
+experiment seed, as the paper builds one model before its runs); every Monte Carlo run then
+places tracker and trackee at random poses and runs Algorithm 4 without and with a
+compass, with :class:`~radioloc.estimators.grid.GridFilter` injected into the tethering
+world as the tracker.
+
+The results table has a ``table`` column: ``"runs"`` rows are the Monte Carlo steps; the
+block holding run 0 adds the rows the figures need (``"model"``: the fitted trapezoid rows
+of Fig. 2; ``"fig3"``: three readings' likelihoods and posteriors; ``"fig6"``: grids of an
+example simulation, from the named streams ``"fig3-readings"`` and ``"fig6-example"``).
+:meth:`TetherExperiment.summarize` only reads that table.
 """
 
 from __future__ import annotations
@@ -14,20 +22,28 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from radioloc.estimators.grid import GridGeometry, probability_update
+from radioloc.core.rng import stream
+from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
-from radioloc.models.rssi_trapezoid import RSSI_LEVELS, fit_raw, fit_trapezoid_model, trapezoid
+from radioloc.models.rssi_trapezoid import RSSI_LEVELS, fit_raw, smooth, trapezoid
 from radioloc.report.style import COLORS, figure, save
-from radioloc.sim.tether import TetherParams, calibration_pairs, simulate_tether
+from radioloc.sim.tether import TetherParams, calibration_pairs, read_rssi, simulate_tether
 
 
 @dataclass(frozen=True)
 class TetherConfig:
     """Settings of ``p003-tether`` (choices the paper leaves open are ours).
 
+    Parameters
+    ----------
+    (the fields below)
+
     steps: simulated steps of ``params.dt_s`` seconds per run.
     calibration_pairs: (RSSI, distance) pairs drawn from random placements for the model.
     tau_min_m, sigma_min_m, smooth_window: model fit (Sect. III-B/C); window in RSSI rows.
+    grid_cells, cell_m: the tracker's grid (square, centred on its local origin).
+    epsilon: minimum cell probability (Algorithm 1). gamma_m: blur per step (Algorithm 4).
+    example_runs: runs of the example simulation whose grids Fig. 6 shows.
     near_m: the claim "error stays near 1 m" means mean following error <= near_m.
     several_m: the claim "errors peak several metres" means median peak error >= several_m.
     variant_packets: if set, also run a clearly labelled variant (metric suffix ``_avgN``) in
@@ -39,17 +55,27 @@ class TetherConfig:
     block_size: int = 16
     steps: int = 300
     calibration_pairs: int = 20000
-    calibration_seed: int = 3003
     tau_min_m: float = 0.5
     sigma_min_m: float = 0.5
     smooth_window: int = 2
     near_m: float = 1.5
     several_m: float = 3.0
+    grid_cells: int = 40
+    cell_m: float = 1.0
+    epsilon: float = 1e-6
+    gamma_m: float = 0.3
+    example_runs: int = 8
     params: TetherParams = field(default_factory=TetherParams)
     variant_packets: int | None = None
 
     def variants(self) -> dict[str, TetherParams]:
-        """Label -> simulation parameters ("main" is the paper's setting as we read it)."""
+        """The simulated settings.
+
+        Returns
+        -------
+        dict of str to TetherParams
+            Label -> world parameters (``"main"`` is the paper's setting as we read it).
+        """
         out = {"main": self.params}
         if self.variant_packets:
             ch = replace(self.params.channel, packets=int(self.variant_packets))
@@ -57,12 +83,38 @@ class TetherConfig:
         return out
 
 
-def _fit(config: TetherConfig, params: TetherParams | None = None):
-    rng = np.random.default_rng(config.calibration_seed)
-    r, d = calibration_pairs(params or config.params, config.calibration_pairs, rng)
-    model = fit_trapezoid_model(r, d, tau_min=config.tau_min_m, sigma_min=config.sigma_min_m,
-                                window=config.smooth_window)
-    return r, d, model
+def _fit(config: TetherConfig, params: TetherParams, rng: np.random.Generator):
+    """Calibration pairs and the trapezoid model: raw rows (Sect. III-B), smoothed model."""
+    r, d = calibration_pairs(params, config.calibration_pairs, rng)
+    raw = fit_raw(r, d, config.tau_min_m, config.sigma_min_m)
+    model = smooth(*raw, window=config.smooth_window, tau_min=config.tau_min_m,
+                   sigma_min=config.sigma_min_m)
+    return raw, model
+
+
+def _geometry(config: TetherConfig) -> GridGeometry:
+    return GridGeometry.centred(config.grid_cells, config.grid_cells, config.cell_m)
+
+
+def _tracker(config: TetherConfig, model) -> GridFilter:
+    """The tracker of Algorithm 4: the grid filter with the paper's GetLocation."""
+    return GridFilter(_geometry(config), model, epsilon=config.epsilon, blur_m=config.gamma_m,
+                      location="peak")
+
+
+def _table(results: pd.DataFrame, name: str) -> pd.DataFrame:
+    """The rows of one table, without the columns of the others."""
+    sub = results[results["table"] == name].dropna(axis=1, how="all")
+    for col in ("compass", "localized", "synced"):
+        if col in sub.columns:
+            sub = sub.assign(**{col: sub[col].astype(bool)})
+    return sub
+
+
+def _cells(geom: GridGeometry, **grids: np.ndarray) -> dict:
+    """Columns x, y and one column per ``(h, w)`` grid, one row per cell."""
+    X, Y = np.meshgrid(geom.x, geom.y)
+    return {"x": X.ravel(), "y": Y.ravel(), **{k: np.asarray(v).ravel() for k, v in grids.items()}}
 
 
 def _following(df: pd.DataFrame) -> pd.DataFrame:
@@ -80,33 +132,144 @@ def _following(df: pd.DataFrame) -> pd.DataFrame:
 
 @register
 class TetherExperiment(Experiment):
+    """Experiment ``p003-tether``: Figs. 2-6 of paper 003.
+
+    Parameters
+    ----------
+    (none: settings are in :class:`TetherConfig`)
+    """
+
     id = "p003-tether"
     paper = "003"
     description = "RSSI trapezoid model + grid Bayes filter tethering, with and without compass (Figs. 2-6)"
 
     def config(self, full: bool) -> TetherConfig:
+        """The quick or full configuration.
+
+        Parameters
+        ----------
+        full : bool
+            Full size (200 runs of 400 s, with the packet-averaging variant).
+
+        Returns
+        -------
+        TetherConfig
+        """
         return TetherConfig(runs=200, block_size=50, steps=400, variant_packets=10) if full else TetherConfig()
 
     def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Simulate one block of runs without and with a compass (and the figure rows).
+
+        Parameters
+        ----------
+        config : TetherConfig
+            Settings.
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (its experiment seed also names the calibration and
+            figure streams, so every block fits the same model).
+
+        Returns
+        -------
+        pandas.DataFrame
+            Rows of the tables ``runs`` (every block) and ``model``, ``fig3``, ``fig6``
+            (the block holding run 0), told apart by the ``table`` column.
+        """
         frames = []
+        examples = bool(np.any(runs == 0))
+        main_model = None
         for label, params in config.variants().items():
-            _, _, model = _fit(config, params)
+            raw, model = _fit(config, params, stream(rng, "calibration"))
+            if label == "main":
+                main_model = model
+            if examples:
+                frames.append(pd.DataFrame({
+                    "table": "model", "variant": label, "run": int(runs[0]),
+                    "rssi": np.arange(RSSI_LEVELS), "raw_mu": raw[0], "raw_tau": raw[1],
+                    "raw_sigma": raw[2], "count": raw[3], "mu": model.mu, "tau": model.tau,
+                    "sigma": model.sigma}))
             for compass in (False, True):
-                tr = simulate_tether(params, model, runs.size, config.steps, rng, compass=compass)
+                tr = simulate_tether(params, _tracker(config, model), runs.size, config.steps, rng,
+                                     compass=compass)
                 B, T = tr.error_m.shape
                 frames.append(pd.DataFrame({
-                    "variant": label, "run": np.repeat(runs, T), "compass": compass,
+                    "table": "runs", "variant": label, "run": np.repeat(runs, T), "compass": compass,
                     "time_s": tr.time_s.ravel(), "error_m": tr.error_m.ravel(),
                     "true_distance_m": tr.true_distance_m.ravel(),
                     "uncertainty_m": tr.uncertainty_m.ravel(), "localized": tr.localized.ravel(),
                     "synced": tr.synced.ravel()}))
+        if examples:
+            frames.append(self._fig3_rows(config, main_model, stream(rng, "fig3-readings"), int(runs[0])))
+            frames.append(self._fig6_rows(config, main_model, stream(rng, "fig6-example"), int(runs[0])))
+        return pd.concat(frames, ignore_index=True)
+
+    #: Fig. 3's trackee and three tracker positions (tracker frame, metres)
+    FIG3_TRACKEE = (5.0, 4.0)
+    FIG3_TRACKERS = ((-6.0, -3.0), (0.0, 6.0), (6.0, -5.0))
+
+    @classmethod
+    def _fig3_rows(cls, config: TetherConfig, model, rng: np.random.Generator, run: int) -> pd.DataFrame:
+        """Three readings in an empty room: each one's likelihood and the posterior after it."""
+        P = config.params
+        geom = _geometry(config)
+        filt = GridFilter(geom, model, epsilon=config.epsilon, location="peak")
+        state = filt.init(1)
+        trackee = np.array(cls.FIG3_TRACKEE)
+        centre = np.full(2, P.floor_m / 2)
+        X, Y = np.meshgrid(geom.x, geom.y)
+        frames = []
+        for i, pos in enumerate(np.array(cls.FIG3_TRACKERS)):
+            rssi = read_rssi(P.channel, pos + centre, trackee + centre, np.zeros((0, 4)), rng)
+            lik = model.likelihood(np.hypot(X - pos[0], Y - pos[1]), rssi)
+            state = filt.update(state, pos[None], [rssi])
+            frames.append(pd.DataFrame({"table": "fig3", "run": run, "step": i, "rssi": int(rssi),
+                                        **_cells(geom, likelihood=lik, posterior=state.p[0])}))
+        return pd.concat(frames, ignore_index=True)
+
+    @staticmethod
+    def _fig6_rows(config: TetherConfig, model, rng: np.random.Generator, run: int) -> pd.DataFrame:
+        """Grids while following: the example run localized earliest, at three steps."""
+        P, T = config.params, config.steps
+        geom = _geometry(config)
+        frames = []
+        for comp in (False, True):
+            tr = simulate_tether(P, _tracker(config, model), config.example_runs, T, rng,
+                                 compass=comp, record_steps=tuple(range(T)))
+            first = np.where(tr.localized.any(axis=1), tr.localized.argmax(axis=1), T)
+            b = int(first.argmin())                      # the run localized earliest
+            t0 = int(min(first[b], T - 4))
+            for t in np.linspace(t0, T - 1, 4).astype(int)[1:]:
+                est = tr.track.position[b, t]
+                frames.append(pd.DataFrame({
+                    "table": "fig6", "run": run, "compass": comp, "step": int(t),
+                    "tracker_x": tr.tracker_xy[b, t, 0], "tracker_y": tr.tracker_xy[b, t, 1],
+                    "trackee_x": tr.trackee_xy[b, t, 0], "trackee_y": tr.trackee_xy[b, t, 1],
+                    "estimate_x": est[0], "estimate_y": est[1], **_cells(geom, p=tr.states[t].p[b])}))
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: TetherConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
-        r, d, model = _fit(config)
+        """Metrics, claims and figures, all from the results table.
+
+        Parameters
+        ----------
+        config : TetherConfig
+            Settings.
+        results : pandas.DataFrame
+            The concatenated :meth:`run_block` frames.
+        out_dir : pathlib.Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+        """
+        models = _table(results, "model")
+        runs_all = _table(results, "runs")
+        fig3_rows, fig6_rows = _table(results, "fig3"), _table(results, "fig6")
         extra = []
         for label in list(config.variants())[1:]:
-            sub = _following(results[results["variant"] == label])
+            sub = _following(runs_all[runs_all["variant"] == label])
             extra += [
                 Metric(f"mean_error_m_following_compass_{label}", float(sub.loc[sub["compass"], "mean_err"].mean()),
                        None, "m", f"VARIANT {label}: readings average {config.variant_packets} faded packets"),
@@ -117,7 +280,7 @@ class TetherExperiment(Experiment):
                 Metric(f"time_to_localize_s_{label}", float(sub["t_loc"].median()), None, "s", f"VARIANT {label}"),
                 Metric(f"fraction_localized_{label}", float(sub["t_loc"].notna().mean()), None, "", f"VARIANT {label}"),
             ]
-        results = results[results["variant"] == "main"]
+        results = runs_all[runs_all["variant"] == "main"]
         per = _following(results)
         nc, wc = per[~per["compass"]], per[per["compass"]]
         t_loc = per["t_loc"].dropna()
@@ -150,57 +313,53 @@ class TetherExperiment(Experiment):
                   bool(pk_nc >= config.several_m)),
             Claim("Synchronising the frames with a compass lowers the following error", bool(m_wc < m_nc)),
         ]
-        self._fig_model(config, r, d, model, out_dir)
-        self._fig_donuts(config, model, out_dir)
+        self._fig_model(config, models[models["variant"] == "main"], out_dir)
+        self._fig_donuts(config, fig3_rows, out_dir)
         self._fig_traces(results, per, out_dir)
-        self._fig_snapshots(config, model, out_dir)
+        self._fig_snapshots(config, fig6_rows, out_dir)
         notes = [f"{len(per) // 2} runs per variant, {config.steps} steps of {config.params.dt_s:g} s; "
-                 f"grid {config.params.grid_cells}x{config.params.grid_cells} cells of {config.params.cell_m:g} m"]
+                 f"grid {config.grid_cells}x{config.grid_cells} cells of {config.cell_m:g} m"]
         return Summary(metrics, claims, notes)
 
     # ---- figures ---------------------------------------------------------------------
     @staticmethod
-    def _fig_model(config, r, d, model, out_dir):
+    def _fig_model(config, rows, out_dir):
         dist = np.linspace(0, 60, 301)
-        rows = np.arange(RSSI_LEVELS)
-        mu, tau, sigma, _ = fit_raw(r, d, config.tau_min_m, config.sigma_min_m)
+        rows = rows.sort_values("rssi")
+        col = lambda c: rows[c].to_numpy()[:, None]
         with np.errstate(invalid="ignore"):
-            raw = trapezoid(dist[None, :], mu[:, None], tau[:, None], sigma[:, None])
-        smooth = model.likelihood(dist[None, :], rows[:, None])
+            raw = trapezoid(dist[None, :], col("raw_mu"), col("raw_tau"), col("raw_sigma"))
+        smooth_img = trapezoid(dist[None, :], col("mu"), col("tau"), col("sigma"))
         fig, axes = figure(1, 2, width=10, height=4.2, sharey=True)
         for ax, img, title in ((axes[0], raw, "(a) before post-processing"),
-                               (axes[1], smooth, "(b) after smoothing + monotone boundaries")):
+                               (axes[1], smooth_img, "(b) after smoothing + monotone boundaries")):
             im = ax.imshow(np.ma.masked_invalid(img), origin="lower", aspect="auto", cmap="Blues",
                            extent=(dist[0], dist[-1], -0.5, 100.5), vmin=0, vmax=1)
             ax.set_xlabel("distance [m]")
             ax.set_title(title)
         axes[0].set_ylabel("RSSI (0..100)")
         fig.colorbar(im, ax=axes[1], label="L(dist | rssi)")
-        fig.suptitle(f"Fig. 2: RSSI/distance likelihood from {len(r)} simulated calibration pairs")
+        fig.suptitle(f"Fig. 2: RSSI/distance likelihood from {config.calibration_pairs} simulated calibration pairs")
         save(fig, out_dir / "fig2_model.png")
 
-    @staticmethod
-    def _fig_donuts(config, model, out_dir):
-        P = config.params
-        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
-        rng = np.random.default_rng(config.calibration_seed + 1)
-        trackee = np.array([[5.0, 4.0]])
-        trackers = np.array([[-6.0, -3.0], [0.0, 6.0], [6.0, -5.0]])
-        centre = np.full(2, P.floor_m / 2)
-        p = geom.uniform(1)
+    @classmethod
+    def _fig_donuts(cls, config, rows, out_dir):
+        geom = _geometry(config)
+        trackee = np.array(cls.FIG3_TRACKEE)
+        trackers = np.array(cls.FIG3_TRACKERS)
         fig, axes = figure(2, 3, width=11, height=7.4)
-        X, Y = np.meshgrid(geom.x, geom.y)
-        for i, pos in enumerate(trackers):
-            rssi = P.channel.sample_rssi(pos + centre, trackee[0] + centre, np.zeros((0, 4)), rng)
-            lik = model.likelihood(np.hypot(X - pos[0], Y - pos[1]), rssi)
-            p = probability_update(p, geom, pos[None], [rssi], model, P.epsilon)
-            for ax, img, lab in ((axes[0, i], lik, f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI {int(rssi)}"),
-                                 (axes[1, i], p[0], f"({'def'[i]}) grid after {i + 1} update(s)")):
+        for i in range(len(trackers)):
+            g = rows[rows["step"] == i].sort_values(["y", "x"])
+            lik = g["likelihood"].to_numpy().reshape(geom.h, geom.w)
+            post = g["posterior"].to_numpy().reshape(geom.h, geom.w)
+            rssi = int(g["rssi"].iloc[0])
+            for ax, img, lab in ((axes[0, i], lik, f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI {rssi}"),
+                                 (axes[1, i], post, f"({'def'[i]}) grid after {i + 1} update(s)")):
                 ax.imshow(img, origin="lower", extent=geom.extent(), cmap="Greys")
                 ax.plot(*trackers[:i + 1].T, "o", color=COLORS["ours"], ms=5, label="tracker positions")
                 for j, q in enumerate(trackers[:i + 1]):
                     ax.annotate(str(j + 1), q, xytext=(4, 4), textcoords="offset points", color=COLORS["ours"])
-                ax.plot(*trackee[0], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
+                ax.plot(*trackee, "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
                 ax.axhline(0, ls="--", lw=0.6, color="k")
                 ax.axvline(0, ls="--", lw=0.6, color="k")
                 ax.set_title(lab, fontsize=9)
@@ -233,29 +392,27 @@ class TetherExperiment(Experiment):
             save(fig, out_dir / f"fig{num}_{name}.png")
 
     @staticmethod
-    def _fig_snapshots(config, model, out_dir):
-        P = config.params
-        geom = GridGeometry.centred(P.grid_cells, P.grid_cells, P.cell_m)
+    def _fig_snapshots(config, rows, out_dir):
+        geom = _geometry(config)
         fig, axes = figure(2, 3, width=11, height=7.4)
         for row, comp in enumerate((False, True)):
-            tr = simulate_tether(P, model, 8, config.steps, np.random.default_rng(config.calibration_seed + 2),
-                                 compass=comp, record_steps=tuple(range(config.steps)))
-            first = np.where(tr.localized.any(axis=1), tr.localized.argmax(axis=1), config.steps)
-            b = int(first.argmin())                      # the run localized earliest
-            t0 = int(min(first[b], config.steps - 4))
-            picks = np.linspace(t0, config.steps - 1, 4).astype(int)[1:]
-            for col, t in enumerate(picks):
+            sub = rows[rows["compass"] == comp]
+            for col, t in enumerate(sorted(sub["step"].unique())):
                 ax = axes[row, col]
-                s = {k: v[b] for k, v in tr.snapshots[t].items()}
-                ax.imshow(tr.grids[t][b], origin="lower", extent=geom.extent(), cmap="Blues")
-                ax.plot(*s["tracker"], "o", color="grey", ms=5, label="tracker (odometry)")
-                ax.plot(*s["trackee"], "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
-                ax.plot(*s["estimate"], ".", color=COLORS["truth"], ms=8, label="estimate")
-                ax.set_title(f"({'abcdef'[3 * row + col]}) {'compass' if comp else 'no compass'}, t = {t + 1} s",
+                g = sub[sub["step"] == t].sort_values(["y", "x"])
+                first = g.iloc[0]
+                ax.imshow(g["p"].to_numpy().reshape(geom.h, geom.w), origin="lower",
+                          extent=geom.extent(), cmap="Blues")
+                ax.plot(first["tracker_x"], first["tracker_y"], "o", color="grey", ms=5, label="tracker (odometry)")
+                ax.plot(first["trackee_x"], first["trackee_y"], "s", color=COLORS["baseline"], mfc="none", ms=8,
+                        label="trackee (true)")
+                ax.plot(first["estimate_x"], first["estimate_y"], ".", color=COLORS["truth"], ms=8, label="estimate")
+                ax.set_title(f"({'abcdef'[3 * row + col]}) {'compass' if comp else 'no compass'}, t = {int(t) + 1} s",
                              fontsize=9)
                 ax.grid(False)
                 ax.set_xlabel("x [m] (tracker frame)")
                 ax.set_ylabel("y [m]")
         axes[0, 0].legend(loc="lower left", fontsize=7)
-        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of 8); cell width {P.cell_m:g} m")
+        fig.suptitle(f"Fig. 6: grid while following (run localized earliest of {config.example_runs}); "
+                     f"cell width {config.cell_m:g} m")
         save(fig, out_dir / "fig6_snapshots.png")

@@ -22,7 +22,19 @@ SUBDIR = Path("reference-data") / "rssi-raw-edison"
 
 
 def session_files(root: Path | str, session: str) -> list[Path]:
-    """The A and B files of ``session`` (e.g. ``"20210110-2247"``) that exist."""
+    """The A and B files of ``session`` that exist.
+
+    Parameters
+    ----------
+    root : path-like
+        The data set folder.
+    session : str
+        Session name, e.g. ``"20210110-2247"``.
+
+    Returns
+    -------
+    list of pathlib.Path
+    """
     folder = Path(root) / SUBDIR
     files = [folder / f"{session}-{side}.csv" for side in "AB"]
     found = [f for f in files if f.is_file()]
@@ -51,8 +63,21 @@ def _read(path: str) -> pd.DataFrame:
 
 
 def load_session(root: Path | str, session: str) -> pd.DataFrame:
-    """All readings of ``session``: columns ``rssi_dbm``, ``distance_m`` (casing to casing),
-    ``phone`` (``"A"`` or ``"B"``: which phone recorded)."""
+    """All readings of ``session``.
+
+    Parameters
+    ----------
+    root : path-like
+        The data set folder.
+    session : str
+        Session name, e.g. ``"20210110-2247"``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``rssi_dbm``, ``distance_m`` (casing to casing), ``phone`` (``"A"`` or
+        ``"B"``: which phone recorded).
+    """
     frames = []
     for f in session_files(root, session):
         df = _read(str(f)).copy()

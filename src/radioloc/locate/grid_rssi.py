@@ -1,9 +1,9 @@
 """``radioloc locate --method grid-rssi``: grid Bayes filter on RSS to anchors (paper 003).
 
-Each node's ``rss`` rows to anchors are applied in time order as ProbabilityUpdate steps
-(Algorithm 1) with the anchor as the "tracker" position; the estimate after each epoch is
-GetLocation (Algorithm 2), its uncertainty GetUncertainty (Algorithm 3). All nodes run as
-one batch. The sensor model is a trapezoid model JSON (``--calibration``, written by
+Each node's ``rss`` rows to anchors are applied in time order by the grid filter
+(:class:`radioloc.estimators.grid.GridFilter`): one ProbabilityUpdate (Algorithm 1) per row
+with the anchor as the "tracker" position; the estimate after each epoch is GetLocation
+(Algorithm 2), its uncertainty GetUncertainty (Algorithm 3). All nodes run as one batch. The sensor model is a trapezoid model JSON (``--calibration``, written by
 :meth:`radioloc.models.rssi_trapezoid.TrapezoidModel.save`); dBm values are mapped to 0..100
 with ``rssi = round(100 (dBm - dbm_min) / (dbm_max - dbm_min))``.
 
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import InputError
-from radioloc.estimators.grid import GridGeometry, blur_grid, get_location, get_uncertainty, probability_update
+from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.locate.base import LocateRequest, locate_method
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
 
@@ -27,6 +27,19 @@ from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
                             "RSSI/distance model given by --calibration (options: cell_m, margin_m, "
                             "epsilon, blur_m, dbm_min, dbm_max)")
 def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
+    """Run the grid filter on every node's RSS rows to anchors.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Measurements (``kind = rss``, dBm), anchors, ``calibration`` (trapezoid model JSON)
+        and the options listed in the module docstring.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per ``(time, node)`` epoch: ``time, node, x, y, uncertainty_m``.
+    """
     if request.calibration is None:
         raise InputError("method grid-rssi: needs a trapezoid model JSON file (--calibration)")
     model = TrapezoidModel.load(request.calibration)
@@ -70,18 +83,19 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     t_of = np.full((N, J), np.nan)
     t_of[n_idx, j_idx] = times
 
-    p = geom.uniform(N)
+    filt = GridFilter(geom, model, epsilon=eps, location="peak")
+    state = filt.init(N)
+    reading = np.where(valid, meas, np.nan)
     out = []
     for j in range(J):
         if blur > 0 and first[:, j].any():
-            p = np.where(first[:, j, None, None], blur_grid(p, geom, blur, eps), p)
-        upd = probability_update(p, geom, pos[:, j], meas[:, j], model, eps)
-        p = np.where(valid[:, j, None, None], upd, p)
+            state = filt.predict(state, dt=0.0, extra_blur_m=np.where(first[:, j], blur, 0.0))
+        state = filt.update(state, np.where(valid[:, j, None], pos[:, j], np.nan), reading[:, j])
         done = last[:, j]
         if done.any():
-            loc = get_location(p[done], geom)
-            unc = get_uncertainty(p[done], geom)
+            est = filt.estimate(state[done])
             idx = np.flatnonzero(done)
             out.append(pd.DataFrame({"time": t_of[idx, j], "node": [nodes[i] for i in idx],
-                                     "x": loc[:, 0], "y": loc[:, 1], "uncertainty_m": unc}))
+                                     "x": est.position[:, 0], "y": est.position[:, 1],
+                                     "uncertainty_m": est.diagnostics["uncertainty_m"]}))
     return pd.concat(out, ignore_index=True).sort_values(["time", "node"]).reset_index(drop=True)

@@ -17,7 +17,19 @@ from radioloc.core.validation import as_float_array
 
 @dataclass(frozen=True)
 class LogDistanceGaussian:
-    """Fitted parameters: ``a`` (RSSI at 1 m), ``n`` (exponent), ``s`` (residual std), ``d_ref_m``."""
+    """Log-distance Gaussian RSSI model.
+
+    Parameters
+    ----------
+    a : float
+        Mean RSSI at 1 m.
+    n : float
+        Path-loss exponent.
+    s : float
+        Residual standard deviation (RSSI units).
+    d_ref_m : float
+        Distances below this read as ``d_ref_m``, metres.
+    """
 
     a: float
     n: float
@@ -26,6 +38,21 @@ class LogDistanceGaussian:
 
     @classmethod
     def fit(cls, rssi, dist, d_ref_m: float = 0.1) -> "LogDistanceGaussian":
+        """Least-squares fit of ``a`` and ``n``; ``s`` is the residual standard deviation.
+
+        Parameters
+        ----------
+        rssi : array_like, shape (N,)
+            Readings.
+        dist : array_like, shape (N,)
+            True distances, metres.
+        d_ref_m : float
+            Distance floor, metres.
+
+        Returns
+        -------
+        LogDistanceGaussian
+        """
         r = as_float_array(rssi, "rssi", ndim=1)
         d = as_float_array(dist, "dist", ndim=1, nonnegative=True)
         if r.shape != d.shape or r.size < 3:
@@ -37,10 +64,34 @@ class LogDistanceGaussian:
         return cls(float(coef[0]), float(coef[1]), max(s, 1e-6), d_ref_m)
 
     def mean(self, dist) -> np.ndarray:
+        """Mean RSSI ``a - 10 n log10(max(d, d_ref))``.
+
+        Parameters
+        ----------
+        dist : array_like
+            Distances, metres.
+
+        Returns
+        -------
+        ndarray
+        """
         return self.a - 10.0 * self.n * np.log10(np.maximum(np.asarray(dist, float), self.d_ref_m))
 
     def likelihood(self, dist, rssi) -> np.ndarray:
-        """``exp(-(rssi - mean(dist))^2 / (2 s^2))`` (peak 1), broadcast."""
+        """``exp(-(rssi - mean(dist))^2 / (2 s^2))`` (peak 1), broadcast.
+
+        Parameters
+        ----------
+        dist : array_like
+            Distances, metres.
+        rssi : array_like
+            Readings.
+
+        Returns
+        -------
+        ndarray
+            Likelihood in (0, 1].
+        """
         d = as_float_array(dist, "dist", nonnegative=True)
         r = as_float_array(rssi, "rssi")
         return np.exp(-0.5 * ((r - self.mean(d)) / self.s) ** 2)

@@ -36,7 +36,21 @@ def dbm_to_rssi100(dbm, dbm_min: float = DBM_MIN, dbm_max: float = DBM_MAX) -> n
 
     ``rssi = round(100 * (dBm - dbm_min) / (dbm_max - dbm_min))``, clipped to 0..100
     (readings below ``dbm_min`` read 0 and above ``dbm_max`` read 100, as a saturating
-    receiver would). With the defaults this is ``rssi = dBm + 110``.
+    receiver would). With the defaults this is ``rssi = dBm + 110``. This is the sensor
+    quantiser: the radio of the tethering world (``radioloc.sim.tether.read_rssi``) applies
+    it to the channel's dBm.
+
+    Parameters
+    ----------
+    dbm : array_like
+        Received power, dBm.
+    dbm_min, dbm_max : float
+        Powers that map to RSSI 0 and 100.
+
+    Returns
+    -------
+    ndarray of int64
+        RSSI values in 0..100.
     """
     dbm = as_float_array(dbm, "dbm")
     if not dbm_max > dbm_min:
@@ -46,7 +60,19 @@ def dbm_to_rssi100(dbm, dbm_min: float = DBM_MIN, dbm_max: float = DBM_MAX) -> n
 
 
 def as_rssi(rssi, name: str = "rssi") -> np.ndarray:
-    """Validate integer RSSI values in 0..100 and return them as int64."""
+    """Validate integer RSSI values in 0..100 and return them as int64.
+
+    Parameters
+    ----------
+    rssi : array_like
+        Values that must be integers in 0..100.
+    name : str
+        Argument name for the error message.
+
+    Returns
+    -------
+    ndarray of int64
+    """
     arr = as_float_array(rssi, name)
     bad = (arr < 0) | (arr > RSSI_LEVELS - 1) | (arr != np.rint(arr))
     if np.any(bad):
@@ -60,8 +86,14 @@ def as_rssi(rssi, name: str = "rssi") -> np.ndarray:
 class TrapezoidModel:
     """Per-RSSI trapezoids ``<mu, tau, sigma>`` (arrays of length 101, metres).
 
-    ``count`` holds the number of calibration pairs behind each row (0 for a row filled by
-    smoothing). Rows are indexed by the RSSI value.
+    Rows are indexed by the RSSI value.
+
+    Parameters
+    ----------
+    mu, tau, sigma : array_like, shape (101,)
+        Centre, half-width of the plateau and width of each flank, metres.
+    count : array_like, shape (101,)
+        Calibration pairs behind each row (0 for a row filled by smoothing).
     """
 
     mu: np.ndarray
@@ -103,30 +135,76 @@ class TrapezoidModel:
             Distances in metres (any shape broadcastable with ``rssi``).
         rssi : array_like of int
             RSSI values in 0..100.
+
+        Returns
+        -------
+        ndarray
+            Likelihood in [0, 1] (broadcast shape).
         """
         d = as_float_array(dist, "dist", nonnegative=True)
         i = as_rssi(rssi)
         return trapezoid(d, self.mu[i], self.tau[i], self.sigma[i])
 
     def density(self, dist, rssi) -> np.ndarray:
-        """``L(dist | rssi)`` divided by the trapezoid's area ``2 tau + sigma`` (a pdf on the real line)."""
+        """``L(dist | rssi)`` divided by the trapezoid's area ``2 tau + sigma``.
+
+        Parameters
+        ----------
+        dist : array_like
+            Distances, metres.
+        rssi : array_like of int
+            RSSI values in 0..100.
+
+        Returns
+        -------
+        ndarray
+            A probability density of the distance on the real line, 1/m.
+        """
         i = as_rssi(rssi)
         return self.likelihood(dist, i) / (2.0 * self.tau[i] + self.sigma[i])
 
     def to_dict(self) -> dict:
+        """The model as a JSON-ready dict.
+
+        Returns
+        -------
+        dict
+            Keys ``format``, ``rssi_levels``, ``mu``, ``tau``, ``sigma``, ``count``.
+        """
         return {"format": "radioloc-rssi-trapezoid-v1", "rssi_levels": RSSI_LEVELS,
                 "mu": self.mu.tolist(), "tau": self.tau.tolist(),
                 "sigma": self.sigma.tolist(), "count": self.count.astype(int).tolist()}
 
     def save(self, path: Path | str) -> Path:
-        """Write the model as JSON (keys ``mu``, ``tau``, ``sigma``, ``count``: 101 numbers each)."""
+        """Write the model as JSON (keys ``mu``, ``tau``, ``sigma``, ``count``: 101 numbers each).
+
+        Parameters
+        ----------
+        path : path-like
+            File to write.
+
+        Returns
+        -------
+        pathlib.Path
+            The path written.
+        """
         path = Path(path)
         path.write_text(json.dumps(self.to_dict(), indent=1))
         return path
 
     @classmethod
     def load(cls, path: Path | str) -> "TrapezoidModel":
-        """Read a model written by :meth:`save`."""
+        """Read a model written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : path-like
+            JSON file.
+
+        Returns
+        -------
+        TrapezoidModel
+        """
         path = Path(path)
         try:
             data = json.loads(path.read_text())
@@ -141,7 +219,18 @@ class TrapezoidModel:
 
 
 def trapezoid(dist, mu, tau, sigma) -> np.ndarray:
-    """The symmetric trapezoid of Fig. 1: ``max(0, sigma - max(0, |d - mu| - tau)) / sigma``."""
+    """The symmetric trapezoid of Fig. 1: ``max(0, sigma - max(0, |d - mu| - tau)) / sigma``.
+
+    Parameters
+    ----------
+    dist, mu, tau, sigma : array_like
+        Distance and trapezoid parameters, metres (broadcast).
+
+    Returns
+    -------
+    ndarray
+        Values in [0, 1].
+    """
     return np.maximum(0.0, sigma - np.maximum(0.0, np.abs(dist - mu) - tau)) / sigma
 
 
@@ -151,6 +240,15 @@ def fit_raw(rssi, dist, tau_min: float, sigma_min: float) -> tuple[np.ndarray, n
     ``mu = (min + max) / 2``, ``tau = max(tau_min, (max - min) / 2)``,
     ``sigma = max(sigma_min, std)`` over the distances recorded with each RSSI value
     (population standard deviation).
+
+    Parameters
+    ----------
+    rssi : array_like of int, shape (N,)
+        RSSI values in 0..100.
+    dist : array_like, shape (N,)
+        True distances, metres.
+    tau_min, sigma_min : float
+        Lower bounds of ``tau`` and ``sigma``, metres.
 
     Returns
     -------
@@ -194,6 +292,19 @@ def smooth(mu, tau, sigma, count, *, window: int, tau_min: float, sigma_min: flo
        ``tau = half_width - sigma``. The boundaries of step 3 are kept exactly.
 
     The paper names the operations but not their order or window; this is our choice.
+
+    Parameters
+    ----------
+    mu, tau, sigma, count : array_like, shape (101,)
+        Raw rows of :func:`fit_raw` (NaN where a row has no pair).
+    window : int
+        Half-width of the sliding window, RSSI rows.
+    tau_min, sigma_min : float
+        Lower bounds of ``tau`` and ``sigma``, metres.
+
+    Returns
+    -------
+    TrapezoidModel
     """
     if int(window) != window or window < 0:
         raise InputError(f"window: expected a non-negative integer, got {window}")
@@ -222,6 +333,22 @@ def smooth(mu, tau, sigma, count, *, window: int, tau_min: float, sigma_min: flo
 
 def fit_trapezoid_model(rssi, dist, *, tau_min: float = 0.5, sigma_min: float = 0.5,
                         window: int = 2) -> TrapezoidModel:
-    """Fit (Sect. III-B) and smooth (Sect. III-C) the model from (RSSI, distance) pairs."""
+    """Fit (Sect. III-B) and smooth (Sect. III-C) the model from (RSSI, distance) pairs.
+
+    Parameters
+    ----------
+    rssi : array_like of int, shape (N,)
+        RSSI values in 0..100.
+    dist : array_like, shape (N,)
+        True distances, metres.
+    tau_min, sigma_min : float
+        Lower bounds of ``tau`` and ``sigma``, metres.
+    window : int
+        Smoothing half-width, RSSI rows.
+
+    Returns
+    -------
+    TrapezoidModel
+    """
     mu, tau, sigma, count = fit_raw(rssi, dist, tau_min, sigma_min)
     return smooth(mu, tau, sigma, count, window=window, tau_min=tau_min, sigma_min=sigma_min)

@@ -1,18 +1,26 @@
-"""Tethering simulation of paper 003 (Sect. IV, Algorithm 4; Sect. V), batched over runs.
+"""Tethering world of paper 003 (Sect. IV, Algorithm 4; Sect. V), batched over runs.
 
 A tracker robot localizes and follows a trackee on a 2-D office floor whose walls attenuate
 the RSS (:mod:`radioloc.channel.indoor_rss`). Both are point robots that start at random
 global poses; each keeps odometry in its own local frame (origin and heading at its start),
-so the two frames differ by an unknown rotation and translation. The tracker's grid lives in
-the tracker's local frame. Every step of ``dt_s`` runs Algorithm 4 once for all runs:
+so the two frames differ by an unknown rotation and translation. The tracker's estimator is
+*injected*: any object with the :class:`Tracker` interface (the experiment passes
+the grid filter ``GridFilter`` of the estimators layer); its frame is the tracker's local frame. Every
+step of ``dt_s`` runs Algorithm 4 once for all runs:
 
 1. the trackee moves (only once the tracker has localized it, as in Sect. V) and reports
    its odometry pose ``s_b``;
-2. frames synchronised: ShiftGrid by the trackee's odometry step rotated into the tracker's
-   frame with the compass headings, then BlurGrid(gamma); otherwise BlurGrid(|step| + gamma);
-3. GetLocation / GetUncertainty; below ``v`` the tracker drives toward the estimate (and, with
-   a compass, synchronises the frames once within ``delta``), otherwise ExploreGrid;
-4. ProbabilityUpdate with a new RSSI reading.
+2. prediction: frames synchronised: the trackee's odometry step rotated into the tracker's
+   frame with the compass headings is a known shift (ShiftGrid), plus the tracker's own
+   blur ``gamma``; otherwise an extra blur of ``|step|`` (BlurGrid(|step| + gamma));
+3. the tracker's estimate (GetLocation / GetUncertainty): below ``v`` the tracker drives
+   toward it (and, with a compass, synchronises the frames once within ``delta``),
+   otherwise ExploreGrid;
+4. update with a new RSSI reading (ProbabilityUpdate).
+
+The radio: the channel gives the received power in dBm; the tracker's radio reports it on
+the paper's 0..100 RSSI scale (:func:`read_rssi`, the sensor quantiser
+:func:`radioloc.models.rssi_trapezoid.dbm_to_rssi100`).
 
 Choices the paper leaves open (all in :class:`TetherParams`): the channel, robot speeds,
 odometry noise model, the exploration pattern (random waypoints around the tracker's origin),
@@ -24,30 +32,129 @@ Robots pass through walls (walls only attenuate); positions are clipped to the f
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from radioloc.channel.indoor_rss import IndoorChannel, office_walls
-from radioloc.estimators.grid import (
-    GridGeometry, blur_grid, get_location, get_uncertainty, probability_update, shift_grid)
-from radioloc.models.rssi_trapezoid import TrapezoidModel
+from radioloc.core.results import Estimate, Track, track_from_steps
+from radioloc.models.rssi_trapezoid import dbm_to_rssi100
+
+
+class Tracker(Protocol):
+    """What the tethering world needs from the tracker's estimator (injected).
+
+    The grid filter ``GridFilter`` (estimators layer) has this interface. The world calls, every
+    step, ``predict``, then ``estimate`` (the behaviour acts on the predicted belief), then
+    ``update`` with the new reading, then ``estimate`` again (recorded). A plain ``step``
+    (predict and update at once) would not do: Algorithm 4 acts between the two.
+
+    Attributes
+    ----------
+    (none required; any object with the four methods below)
+    """
+
+    def init(self, batch: int) -> Any:
+        """State of ``batch`` runs before any reading.
+
+        Parameters
+        ----------
+        batch : int
+            Number of runs B.
+
+        Returns
+        -------
+        object
+            The tracker's state (opaque to the world).
+        """
+
+    def predict(self, state: Any, *, dt: float, shift_m: np.ndarray,
+                extra_blur_m: np.ndarray) -> Any:
+        """Predict over ``dt``.
+
+        Parameters
+        ----------
+        state : object
+            Current state.
+        dt : float
+            Step length, seconds.
+        shift_m : ndarray, shape (B, 2)
+            Known displacement of the trackee in the tracker's frame, metres.
+        extra_blur_m : ndarray, shape (B,)
+            Radius of an unknown displacement of the trackee, metres.
+
+        Returns
+        -------
+        object
+            The predicted state.
+        """
+
+    def update(self, state: Any, tracker_xy: np.ndarray, rssi: np.ndarray) -> Any:
+        """Update with one RSSI reading per run.
+
+        Parameters
+        ----------
+        state : object
+            Current state.
+        tracker_xy : ndarray, shape (B, 2)
+            The tracker's odometry position, metres.
+        rssi : ndarray, shape (B,)
+            Readings on the 0..100 scale.
+
+        Returns
+        -------
+        object
+            The posterior state.
+        """
+
+    def estimate(self, state: Any) -> Estimate:
+        """The trackee's position in the tracker's frame.
+
+        Parameters
+        ----------
+        state : object
+            A state.
+
+        Returns
+        -------
+        Estimate
+            ``position`` ``(B, 2)``; its spread is read from ``diagnostics['uncertainty_m']``
+            (else ``Estimate.uncertainty_m``).
+        """
 
 
 @dataclass(frozen=True)
 class TetherParams:
-    """World, robots and filter settings.
+    """World, robots and behaviour settings (the tracker's estimator is injected).
 
-    floor_m, rooms: square floor split into rooms x rooms rooms with door gaps.
-    start_range_m: initial tracker-trackee distance drawn uniformly in this interval.
-    speed_tracker, speed_trackee: m/s. standoff_m: DriveToward stops this close to the estimate.
-    explore_radius_m: ExploreGrid visits random waypoints within this radius of the origin.
-    roam_radius_m: the trackee walks between random waypoints within this radius of its start.
-    odo_scale_std: relative std of each odometry step length error.
-    odo_heading_std: heading drift, rad per sqrt(metre) driven.
-    compass_std_deg: std of each compass heading.
-    grid_cells, cell_m: the tracker's grid (square, centred on its local origin).
-    epsilon: minimum cell probability (Algorithm 1). gamma_m: odometry blur (Algorithm 4).
-    v_m: uncertainty threshold for "localized". delta_m: sync distance.
+    Parameters
+    ----------
+    dt_s : float
+        Step length, seconds.
+    floor_m, rooms : float, int
+        Square floor of side ``floor_m`` split into ``rooms x rooms`` rooms with door gaps.
+    start_range_m : tuple of float
+        Initial tracker-trackee distance, uniform in this interval, metres.
+    speed_tracker, speed_trackee : float
+        Speeds, m/s.
+    standoff_m : float
+        DriveToward stops this close to the estimate, metres.
+    explore_radius_m : float
+        ExploreGrid visits random waypoints within this radius of the tracker's origin.
+    roam_radius_m : float
+        The trackee walks between random waypoints within this radius of its start.
+    odo_scale_std : float
+        Relative standard deviation of each odometry step length.
+    odo_heading_std : float
+        Heading drift, rad per sqrt(metre) driven.
+    compass_std_deg : float
+        Standard deviation of each compass heading, degrees.
+    v_m : float
+        Uncertainty threshold for "localized" (Algorithm 4's ``v``), metres.
+    delta_m : float
+        Frames are synchronised once the tracker is this close to the estimate, metres.
+    channel : IndoorChannel
+        The radio channel.
     """
 
     dt_s: float = 1.0
@@ -62,25 +169,40 @@ class TetherParams:
     odo_scale_std: float = 0.05
     odo_heading_std: float = 0.03
     compass_std_deg: float = 3.0
-    grid_cells: int = 40
-    cell_m: float = 1.0
-    epsilon: float = 1e-6
-    gamma_m: float = 0.3
     v_m: float = 3.0
     delta_m: float = 2.0
     channel: IndoorChannel = field(default_factory=IndoorChannel)
 
-    @property
-    def grid(self) -> GridGeometry:
-        return GridGeometry.centred(self.grid_cells, self.grid_cells, self.cell_m)
-
     def walls(self) -> np.ndarray:
+        """The floor's wall segments.
+
+        Returns
+        -------
+        ndarray, shape (M, 4)
+            Rows ``x1, y1, x2, y2``.
+        """
         return office_walls(self.floor_m, self.rooms)
 
 
 @dataclass
 class TetherTrace:
-    """Per-step records, arrays of shape ``(B, T)`` (``grids``: step -> ``(B, h, w)`` at the recorded steps)."""
+    """What the world recorded, per run and step.
+
+    Attributes
+    ----------
+    time_s, error_m, true_distance_m, uncertainty_m : ndarray, shape (B, T)
+        Step time; tracker's estimation error in its initial frame; tracker-trackee
+        distance; the tracker's reported spread.
+    localized, synced : ndarray of bool, shape (B, T)
+        Localized (spread once below ``v``) and frames synchronised.
+    trackee_xy, tracker_xy : ndarray, shape (B, T, 2)
+        The trackee's true position and the tracker's odometry position, both in the
+        tracker's initial frame.
+    track : Track
+        The tracker's estimates after each update.
+    states : dict
+        Step -> the tracker's state after that step's update, at ``record_steps``.
+    """
 
     time_s: np.ndarray
     error_m: np.ndarray
@@ -88,8 +210,37 @@ class TetherTrace:
     uncertainty_m: np.ndarray
     localized: np.ndarray
     synced: np.ndarray
-    grids: dict = field(default_factory=dict)
-    snapshots: dict = field(default_factory=dict)
+    trackee_xy: np.ndarray
+    tracker_xy: np.ndarray
+    track: Track
+    states: dict = field(default_factory=dict)
+
+
+def read_rssi(channel: IndoorChannel, a, b, walls, rng: np.random.Generator) -> np.ndarray:
+    """One reading of the tracker's radio: channel power in dBm quantised to 0..100.
+
+    Parameters
+    ----------
+    channel : IndoorChannel
+        The channel.
+    a, b : array_like, shape (..., 2)
+        End points of the links, metres.
+    walls : array_like, shape (M, 4)
+        Wall segments.
+    rng : numpy.random.Generator
+        Source of the channel's shadowing and fading.
+
+    Returns
+    -------
+    ndarray of int, shape (...)
+        RSSI on the 0..100 scale (``dbm_to_rssi100``, i.e. ``dBm + 110`` clipped).
+    """
+    return dbm_to_rssi100(channel.sample_dbm(a, b, walls, rng))
+
+
+def _spread(est: Estimate) -> np.ndarray:
+    u = est.diagnostics.get("uncertainty_m")
+    return np.asarray(est.uncertainty_m if u is None else u)
 
 
 def _rot(theta: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -106,19 +257,55 @@ def _step_toward(pos, target, speed, stop):
 
 
 def calibration_pairs(params: TetherParams, n: int, rng: np.random.Generator):
-    """(RSSI, distance) pairs from random node placements on the floor (Sect. III-B)."""
+    """(RSSI, distance) pairs from random node placements on the floor (Sect. III-B).
+
+    Parameters
+    ----------
+    params : TetherParams
+        Floor and channel.
+    n : int
+        Number of pairs.
+    rng : numpy.random.Generator
+        Source of the placements and readings.
+
+    Returns
+    -------
+    rssi : ndarray of int, shape (n,)
+        Readings on the 0..100 scale.
+    dist : ndarray, shape (n,)
+        True distances, metres.
+    """
     f = params.floor_m
     a = rng.uniform(0.5, f - 0.5, (n, 2))
     b = rng.uniform(0.5, f - 0.5, (n, 2))
-    return params.channel.sample_rssi(a, b, params.walls(), rng), np.linalg.norm(a - b, axis=-1)
+    return read_rssi(params.channel, a, b, params.walls(), rng), np.linalg.norm(a - b, axis=-1)
 
 
-def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, steps: int,
+def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: int,
                     rng: np.random.Generator, *, compass: bool,
                     record_steps: tuple[int, ...] = ()) -> TetherTrace:
-    """Run Algorithm 4 for ``batch`` independent runs for ``steps`` steps."""
+    """Run Algorithm 4 for ``batch`` independent runs for ``steps`` steps.
+
+    Parameters
+    ----------
+    params : TetherParams
+        World, robots and behaviour.
+    tracker : Tracker
+        The tracker's estimator (e.g. the grid filter ``GridFilter``).
+    batch, steps : int
+        Runs B and steps T.
+    rng : numpy.random.Generator
+        Source of every draw of the world (poses, waypoints, odometry, compass, channel).
+    compass : bool
+        Whether the robots have a compass (frames can be synchronised).
+    record_steps : tuple of int
+        Steps whose tracker state is kept in :attr:`TetherTrace.states`.
+
+    Returns
+    -------
+    TetherTrace
+    """
     B, T, P = int(batch), int(steps), params
-    geom = P.grid
     walls = P.walls()
     lo, hi = 0.5, P.floor_m - 0.5
     # global initial poses: frame origins and headings
@@ -132,7 +319,7 @@ def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, ste
     frame0_a = th_a.copy()
     s_a = np.zeros((B, 2))                      # tracker odometry (local frame)
     s_b = np.zeros((B, 2))                      # trackee odometry (its local frame)
-    p = geom.uniform(B)
+    state = tracker.init(B)
     synced = np.zeros(B, bool)
     localized = np.zeros(B, bool)
     wp_a = rng.uniform(-P.explore_radius_m, P.explore_radius_m, (B, 2))
@@ -144,7 +331,8 @@ def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, ste
     wp_b = roam()
     comp = np.deg2rad(P.compass_std_deg)
     out = {k: np.zeros((B, T)) for k in ("err", "dist", "unc", "loc", "syn")}
-    grids, snaps = {}, {}
+    truth_xy, own_xy = np.zeros((B, T, 2)), np.zeros((B, T, 2))
+    states, estimates = {}, []
     for t in range(T):
         # 1. trackee motion (stationary until localized) and its odometry report
         step_b = np.where(localized[:, None], _step_toward(g_b, wp_b, P.speed_trackee * P.dt_s, 0.0), 0.0)
@@ -155,15 +343,14 @@ def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, ste
         odo_b = _rot(-th_b, step_b) * (1 + rng.normal(0, P.odo_scale_std, B))[:, None]
         th_b = th_b + rng.normal(0, P.odo_heading_std, B) * np.sqrt(length)
         s_b_prev, s_b = s_b, s_b + odo_b
-        # 2. motion model of the grid
+        # 2. prediction: a known shift once the frames are synchronised, else a wider blur
         d_b = s_b - s_b_prev
         rel = (th_b + rng.normal(0, comp, B)) - (th_a + rng.normal(0, comp, B))
-        shifted = shift_grid(p, geom, np.where(synced[:, None], _rot(rel, d_b), 0.0), P.epsilon)
-        p = np.where(synced[:, None, None], shifted, p)
-        p = blur_grid(p, geom, np.where(synced, 0.0, np.linalg.norm(d_b, axis=-1)) + P.gamma_m, P.epsilon)
-        # 3. behaviour
-        loc = get_location(p, geom)
-        unc = get_uncertainty(p, geom)
+        state = tracker.predict(state, dt=P.dt_s, shift_m=np.where(synced[:, None], _rot(rel, d_b), 0.0),
+                                extra_blur_m=np.where(synced, 0.0, np.linalg.norm(d_b, axis=-1)))
+        # 3. behaviour on the predicted belief
+        belief = tracker.estimate(state)
+        loc, unc = belief.position, _spread(belief)
         good = unc < P.v_m
         localized |= good
         reached = np.linalg.norm(s_a - wp_a, axis=-1) < 0.3
@@ -177,18 +364,20 @@ def simulate_tether(params: TetherParams, model: TrapezoidModel, batch: int, ste
         g_a = np.clip(g_a + _rot(th_a, u) * (1 + rng.normal(0, P.odo_scale_std, B))[:, None], lo, hi)
         th_a = th_a + rng.normal(0, P.odo_heading_std, B) * np.sqrt(ulen)
         # 4. measurement update
-        rssi = P.channel.sample_rssi(g_a, g_b, walls, rng)
-        p = probability_update(p, geom, s_a, rssi, model, P.epsilon)
-        est = get_location(p, geom)
+        rssi = read_rssi(P.channel, g_a, g_b, walls, rng)
+        state = tracker.update(state, s_a, rssi)
+        est = tracker.estimate(state)
+        estimates.append(est)
         truth_local = _rot(-frame0_a, g_b - g0_a)
-        out["err"][:, t] = np.linalg.norm(est - truth_local, axis=-1)
+        out["err"][:, t] = np.linalg.norm(est.position - truth_local, axis=-1)
         out["dist"][:, t] = np.linalg.norm(g_a - g_b, axis=-1)
-        out["unc"][:, t] = get_uncertainty(p, geom)
+        out["unc"][:, t] = _spread(est)
         out["loc"][:, t] = localized
         out["syn"][:, t] = synced
+        truth_xy[:, t], own_xy[:, t] = truth_local, s_a
         if t in record_steps:
-            grids[t] = p.copy()
-            snaps[t] = {"tracker": s_a.copy(), "trackee": truth_local, "estimate": est}
+            states[t] = state
     time = (np.arange(T) + 1) * P.dt_s
     return TetherTrace(np.broadcast_to(time, (B, T)), out["err"], out["dist"], out["unc"],
-                       out["loc"].astype(bool), out["syn"].astype(bool), grids, snaps)
+                       out["loc"].astype(bool), out["syn"].astype(bool), truth_xy, own_xy,
+                       track_from_steps(estimates, time=time), states)
