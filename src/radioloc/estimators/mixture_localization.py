@@ -311,7 +311,8 @@ class MixtureTracker(RecursiveEstimator):
         s, k = marg.batch_shape[-1], marg.n_components
         lead = marg.batch_shape[:-1]
         w = marg.weights / marg.weights.sum(-1, keepdims=True) / s
-        pooled = DiagMixture(w.reshape(lead + (s * k,)), marg.means.reshape(lead + (s * k, self.dim)),
+        pooled = DiagMixture(w.reshape(lead + (s * k,)),
+                             marg.means.reshape(lead + (s * k, self.dim)),
                              marg.variances.reshape(lead + (s * k, self.dim)))
         return reduce(pooled, self.max_components)
 

@@ -98,10 +98,39 @@ class CorridorExperiment(Experiment):
                    "localization updates (Fig. 10) and tracking")
 
     def config(self, full: bool) -> CorridorConfig:
+        """The configuration at the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        CorridorConfig
+            The settings.
+        """
         return CorridorConfig(runs=200 if full else 20)
 
     def run_block(self, config: CorridorConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Run one block of runs.
+
+        Parameters
+        ----------
+        config : CorridorConfig
+            The settings.
+        runs : ndarray of int
+            The block's run indices.
+        rng : numpy.random.Generator
+            The block's generator (named streams of the experiment seed derive from it).
+
+        Returns
+        -------
+        pandas.DataFrame
+            The tidy rows of the block (``table`` "runs", and "figure" rows from the
+            block of run 0).
+        """
         corridor = Corridor()
         n = runs.size
         walk = _walk(config)
@@ -186,6 +215,22 @@ class CorridorExperiment(Experiment):
         return pd.concat(rows, ignore_index=True)
 
     def summarize(self, config: CorridorConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the rows the blocks returned.
+
+        Parameters
+        ----------
+        config : CorridorConfig
+            The settings.
+        results : pandas.DataFrame
+            Every block's rows, concatenated.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+            Metrics, claims and notes.
+        """
         metrics, claims, notes = [], [], []
         runs = results[results["table"] == "runs"]
         static = runs[runs["scenario"] == "static"]

@@ -60,9 +60,37 @@ class BleFingerprintExperiment(Experiment):
     data_folder = "kolakowski-ble-fingerprints-2021"
 
     def config(self, full: bool) -> BleConfig:
+        """The configuration at the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        BleConfig
+            The settings.
+        """
         return BleConfig(calib_stride=1 if full else 2)
 
     def run_block(self, config: BleConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Run one block of runs.
+
+        Parameters
+        ----------
+        config : BleConfig
+            The settings.
+        runs : ndarray of int
+            The block's run indices.
+        rng : numpy.random.Generator
+            The block's generator (named streams of the experiment seed derive from it).
+
+        Returns
+        -------
+        pandas.DataFrame
+            The tidy rows of the block (one per method and test row).
+        """
         from sklearn.neighbors import KNeighborsRegressor
 
         folder = self.data_path()
@@ -90,6 +118,22 @@ class BleFingerprintExperiment(Experiment):
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: BleConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the rows the blocks returned.
+
+        Parameters
+        ----------
+        config : BleConfig
+            The settings.
+        results : pandas.DataFrame
+            Every block's rows, concatenated.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+            Metrics, claims and notes.
+        """
         metrics = []
         g = results.groupby("method", sort=False)["error_m"]
         mean, p90 = g.mean(), g.quantile(0.9)
@@ -101,7 +145,10 @@ class BleFingerprintExperiment(Experiment):
         claims = [Claim("Tracking with the motion model reduces the mean error of one-shot "
                         "mixture localization (EM models)",
                         bool(mean["gmm_em_tracking"] < mean["gmm_em"]))]
-        notes = [f"weighted kNN baseline k={config.knn_k}; the paper publishes no BLE numbers"]
+        notes = [f"weighted kNN baseline k={config.knn_k}; the paper publishes no BLE numbers",
+                 "EM is one k-means++ initialisation per anchor (stream 'em-init'): the "
+                 "mixture errors, and whether tracking beats one-shot, change with it "
+                 "(--seed); see docs/p004.md"]
 
         fig, ax = figure()
         styles = {"gmm_em": ("-", COLORS["ours"]), "gmm_em_tracking": ("--", COLORS["ours"]),

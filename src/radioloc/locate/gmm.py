@@ -98,7 +98,8 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     table = rss.pivot_table(index=["node", "time"], columns="peer", values="value")
     table = table.reindex(columns=ids).sort_index()
     content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
-    rng = np.random.default_rng(np.frombuffer(content.tobytes(), dtype=np.uint32))
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+        np.frombuffer(content.tobytes(), dtype=np.uint32))))
     models = em_calibration(pos, cal_rss, int(request.option("components", 16)), rng=rng)
     kmax = int(request.option("position_components", 8))
     meas = table.to_numpy(float)

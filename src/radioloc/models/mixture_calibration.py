@@ -130,7 +130,8 @@ def em_calibration(positions, rss, n_components: int = 16, *, rng: np.random.Gen
             raise InputError(f"rss: base station column {k} has fewer than 2 calibration samples")
         data = np.c_[pos[ok], m[ok, k]]
         kk = min(n_components, int(ok.sum()))
-        gm = GaussianMixture(kk, covariance_type="diag", random_state=int(states[k]), init_params="k-means++",
+        gm = GaussianMixture(kk, covariance_type="diag", random_state=int(states[k]),
+                             init_params="k-means++",
                              reg_covar=reg_covar).fit(data)
         pad = n_components - kk
         ws.append(np.r_[gm.weights_, np.zeros(pad)])
