@@ -9,10 +9,9 @@ import time
 
 import numpy as np
 
-from radioloc.estimators.mixture_localization import localize
+from radioloc.estimators.mixture_localization import MixtureLocalizer
 from radioloc.models.mixture import DiagMixture, merge_moments, product, reduce, runnalls_cost
 from timing import best_of
-
 
 
 def numpy_reduce(mix: DiagMixture, kmax: int) -> DiagMixture:
@@ -33,7 +32,6 @@ def numpy_reduce(mix: DiagMixture, kmax: int) -> DiagMixture:
         w[r, i] = 0.0
 
 
-
 def main():
     rng = np.random.default_rng(0)
     b, k, d = 500, 8, 2
@@ -48,8 +46,10 @@ def main():
     models = DiagMixture.create(rng.uniform(0.1, 1, (6, 16)), rng.normal(0, 3, (6, 16, 3)),
                                 rng.uniform(0.5, 4, (6, 16, 3)))
     rss = rng.normal(0, 3, (1000, 6))
-    t_loc = best_of(lambda: localize(models, rss, 8))
-    print(f"localize (6 stations x 16 components, eq. 2): {rss.shape[0] / t_loc:,.0f} rows/s")
+    loc = MixtureLocalizer(models, 8)
+    t_loc = best_of(lambda: loc.locate(rss))
+    print(f"MixtureLocalizer.locate (6 stations x 16 components, eq. (2)): "
+          f"{rss.shape[0] / t_loc:,.0f} rows/s")
 
 
 if __name__ == "__main__":

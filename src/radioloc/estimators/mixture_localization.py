@@ -1,15 +1,21 @@
 """Localization and tracking with Gaussian-mixture signal-strength models (paper 004, Sects. 3.2, 4).
 
-- :func:`localize`: each received base station's model ``D^(k)(x, y, m)`` is conditioned on
-  its measured ``m^(k)`` (closed form, :meth:`DiagMixture.condition`), and the ``N_r``
-  position densities are multiplied and renormalised, eq. (2); after each product the
-  result is reduced to ``max_components`` (:func:`radioloc.models.mixture.reduce`). Base
-  stations not received (NaN) are left out.
-- :func:`track`: per time step, prediction by convolution with the uniform disk of radius
-  ``v_max * dt`` re-approximated as a mixture (:func:`uniform_ball`), then the filter step
-  (product of the prediction with the measurement density of eq. 2), reduction, and the
+- :class:`MixtureLocalizer` (snapshot): each received base station's model
+  ``D^(k)(x, y, m)`` (eq. (1)) is conditioned on its measured ``m^(k)`` in closed form
+  (:meth:`DiagMixture.condition`), and the ``N_r`` position densities are multiplied and
+  renormalised, eq. (2); after each product the result is reduced to ``max_components``
+  (:func:`radioloc.models.mixture.reduce`). Base stations not received (NaN) are left out.
+- :class:`MixtureTracker` (recursive): per time step, prediction by convolution with the
+  uniform disk of radius ``v_max * dt`` of a :class:`~radioloc.models.motion.UniformDisk`
+  motion model, re-approximated as a mixture (:func:`uniform_ball`), then the filter step
+  (product of the prediction with the measurement density of eq. (2)), reduction, and the
   mixture mean and covariance as the per-step estimate. ``v_max = 0`` skips the prediction
-  (the static user of Sect. 5).
+  (the static user of Sect. 5). A step where no base station is received is a prediction.
+
+Both return the posterior mixture with the estimate: diagnostics ``mixture_weights``
+``(..., K)``, ``mixture_means`` and ``mixture_variances`` ``(..., K, D)`` (unused slots have
+weight 0), read back with :func:`posterior_mixture`; ``measurements_used`` is the number of
+base stations received.
 """
 
 from __future__ import annotations
@@ -19,121 +25,443 @@ from dataclasses import dataclass
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import as_float_array
-from radioloc.models.mixture import DiagMixture, convolve, product, reduce, uniform_ball
+from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
+from radioloc.models.mixture import (DiagMixture, convolve, pad_components, product, reduce,
+                                     select, uniform_ball)
+from radioloc.models.motion import UniformDisk
+
+__all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture"]
+
+#: diagnostics keys holding the posterior mixture
+MIXTURE_KEYS = ("mixture_weights", "mixture_means", "mixture_variances")
 
 
-def _pad(mix: DiagMixture, k: int) -> DiagMixture:
-    extra = k - mix.n_components
-    if extra <= 0:
-        return mix
-    b = mix.batch_shape
-    return DiagMixture(np.concatenate([mix.weights, np.zeros(b + (extra,))], -1),
-                       np.concatenate([mix.means, np.zeros(b + (extra, mix.dim))], -2),
-                       np.concatenate([mix.variances, np.ones(b + (extra, mix.dim))], -2))
+def _check_models(models: object) -> DiagMixture:
+    if not isinstance(models, DiagMixture):
+        raise InputError(f"models: expected a DiagMixture, got {type(models).__name__}")
+    if not models.batch_shape:
+        raise InputError("models: needs a base-station axis (batch shape (..., S))")
+    if models.dim < 2:
+        raise InputError(f"models: dimension {models.dim}, expected position coordinates and m")
+    for name in ("weights", "means", "variances"):
+        arr = np.asarray(getattr(models, name))
+        if not np.all(np.isfinite(arr)):
+            idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+            raise InputError(f"models: non-finite {name} at index {idx}")
+    if np.any(models.variances <= 0):
+        raise InputError("models: variances must be > 0")
+    if np.any(models.weights < 0) or np.any(models.weights.sum(-1) <= 0):
+        raise InputError("models: weights must be >= 0 with a positive total per station")
+    return models
 
 
-def select(mask, new: DiagMixture, old: DiagMixture) -> DiagMixture:
-    """``new`` where ``mask`` ``(...)`` is True, else ``old`` (component counts padded)."""
-    k = max(new.n_components, old.n_components)
-    new, old = _pad(new, k), _pad(old, k)
-    mk = np.asarray(mask)[..., None]
-    return DiagMixture(np.where(mk, new.weights, old.weights),
-                       np.where(mk[..., None], new.means, old.means),
-                       np.where(mk[..., None], new.variances, old.variances))
+def _check_max_components(k: object) -> int:
+    if isinstance(k, bool) or int(k) != k or int(k) < 1:
+        raise InputError(f"max_components: must be an integer >= 1, got {k!r}")
+    return int(k)
 
 
-def localize(models: DiagMixture, rss, max_components: int = 16) -> DiagMixture:
-    """Position density ``D(x, y | m)`` of eq. (2) for a batch of measurement vectors.
+def _with_mixture(mix: DiagMixture, k: int) -> dict[str, np.ndarray]:
+    mix = pad_components(mix, k)
+    return {"mixture_weights": mix.weights, "mixture_means": mix.means,
+            "mixture_variances": mix.variances}
+
+
+def posterior_mixture(result: Estimate) -> DiagMixture:
+    """The posterior mixture carried by an estimate of :class:`MixtureLocalizer` or
+    :class:`MixtureTracker` (``track.at(t)`` for a step of a track).
 
     Parameters
     ----------
-    models : DiagMixture
-        Batch shape ``(..., S)`` (one model per base station; extra leading axes
-        broadcast against ``rss``), last coordinate = signal strength.
-    rss : array (..., S)
-        Measured signal strengths; NaN = base station not received.
-    max_components : int
-        Bound on the components after each product.
+    result : Estimate
+        An estimate whose diagnostics hold ``mixture_weights``, ``mixture_means`` and
+        ``mixture_variances``.
 
     Returns
     -------
     DiagMixture
-        Batch shape ``rss.shape[:-1]``, dimension ``models.dim - 1``.
+        Batch shape ``result.batch_shape``, dimension ``result.dim``.
     """
-    m = as_float_array(rss, "rss", min_ndim=1, allow_nan=True)
-    s = models.batch_shape[-1] if models.batch_shape else 0
-    if m.shape[-1] != s:
-        raise InputError(f"rss: {m.shape[-1]} base station columns, the models have {s}")
-    got = np.isfinite(m)
-    if not np.all(got.any(-1)):
-        bad = np.argwhere(~got.any(-1))[0]
-        raise InputError(f"rss: row {tuple(int(i) for i in bad)} has no received base station")
-    cond = models.condition(models.dim - 1, np.where(got, m, 0.0), valid=got)
-    post = None
-    for k in range(s):
-        ck = DiagMixture(np.broadcast_to(cond.weights[..., k, :], m.shape[:-1] + cond.weights.shape[-1:]),
-                         np.broadcast_to(cond.means[..., k, :, :], m.shape[:-1] + cond.means.shape[-2:]),
-                         np.broadcast_to(cond.variances[..., k, :, :],
-                                         m.shape[:-1] + cond.variances.shape[-2:]))
-        ck = reduce(ck, max_components)
-        if post is None:
-            post = ck
-            have = got[..., k]
-            continue
-        both = reduce(product(post, ck), max_components)
-        post = select(got[..., k] & have, both, select(got[..., k], ck, post))
-        have = have | got[..., k]
-    return post
+    missing = [k for k in MIXTURE_KEYS if k not in result.diagnostics]
+    if missing:
+        raise InputError(f"result: no posterior mixture in its diagnostics ({', '.join(missing)})")
+    d = result.diagnostics
+    return DiagMixture(np.asarray(d["mixture_weights"]), np.asarray(d["mixture_means"]),
+                       np.asarray(d["mixture_variances"]))
+
+
+class MixtureLocalizer(SnapshotEstimator):
+    """One-shot localization by the product of conditioned station models, eq. (2).
+
+    Parameters
+    ----------
+    models : DiagMixture
+        One calibration model per base station, batch shape ``(..., S)`` (extra leading
+        axes broadcast against the measurements), dimension ``D + 1``: the position
+        coordinates ``(x[, y])`` then the signal strength ``m`` (eq. (1)).
+    max_components : int
+        Bound on the components of every position density (after each product).
+
+    Raises
+    ------
+    InputError
+        Naming ``models`` or ``max_components`` when they are not valid.
+    """
+
+    name = "mixture"
+
+    def __init__(self, models: DiagMixture, max_components: int = 16) -> None:
+        self.models = _check_models(models)
+        self.max_components = _check_max_components(max_components)
+
+    @property
+    def n_stations(self) -> int:
+        """Number of base stations S."""
+        return self.models.batch_shape[-1]
+
+    @property
+    def dim(self) -> int:
+        """Position coordinates D."""
+        return self.models.dim - 1
+
+    def _check_rss(self, rss: object, name: str = "rss", min_ndim: int = 1) -> np.ndarray:
+        m = as_float_array(rss, name, min_ndim=min_ndim, allow_nan=True)
+        if m.shape[-1] != self.n_stations:
+            raise InputError(f"{name}: {m.shape[-1]} base station columns, the models have "
+                             f"{self.n_stations}")
+        if np.any(np.isinf(m)):
+            idx = tuple(int(i) for i in np.argwhere(np.isinf(m))[0])
+            raise InputError(f"{name}: infinite signal strength at index {idx}")
+        return m
+
+    def density_and_mask(self, rss: np.ndarray, models: DiagMixture | None = None
+                         ) -> tuple[DiagMixture, np.ndarray]:
+        """Position density of eq. (2) for every row, rows with no station included.
+
+        Parameters
+        ----------
+        rss : ndarray, shape (..., S)
+            Signal strengths, NaN = not received (already validated).
+        models : DiagMixture, optional
+            The station models broadcast against ``rss`` (default: this localizer's).
+
+        Returns
+        -------
+        density : DiagMixture
+            Batch shape ``rss.shape[:-1]`` (broadcast with the models' leading axes); where
+            no station is received it is a meaningless placeholder.
+        received : ndarray of bool, shape (...)
+            True where at least one station was received.
+        """
+        models = self.models if models is None else models
+        got = np.isfinite(rss)
+        try:
+            shape = np.broadcast_shapes(models.batch_shape[:-1], rss.shape[:-1])
+        except ValueError:
+            raise InputError(f"rss: batch shape {rss.shape[:-1]} does not broadcast with the "
+                             f"models' {models.batch_shape[:-1]}") from None
+        cond = models.condition(models.dim - 1, np.where(got, rss, 0.0), valid=got)
+        post = None
+        have = None
+        for k in range(self.n_stations):
+            ck = DiagMixture(
+                np.broadcast_to(cond.weights[..., k, :], shape + cond.weights.shape[-1:]),
+                np.broadcast_to(cond.means[..., k, :, :], shape + cond.means.shape[-2:]),
+                np.broadcast_to(cond.variances[..., k, :, :], shape + cond.variances.shape[-2:]))
+            ck = reduce(ck, self.max_components)
+            gk = np.broadcast_to(got[..., k], shape)
+            if post is None:
+                post, have = ck, gk
+                continue
+            both = reduce(product(post, ck), self.max_components)
+            post = select(gk & have, both, select(gk, ck, post))
+            have = have | gk
+        return post, have
+
+    def density(self, rss: object) -> DiagMixture:
+        """Position density ``D(x, y | m)`` of eq. (2) for a batch of measurement vectors.
+
+        Parameters
+        ----------
+        rss : array_like, shape (..., S)
+            Measured signal strengths; NaN = base station not received.
+
+        Returns
+        -------
+        DiagMixture
+            Batch shape ``rss.shape[:-1]``, dimension D.
+
+        Raises
+        ------
+        InputError
+            If a row has no received base station, or on a shape mismatch.
+        """
+        m = self._check_rss(rss)
+        post, have = self.density_and_mask(m)
+        if not np.all(have):
+            bad = tuple(int(i) for i in np.argwhere(~np.broadcast_to(have, post.batch_shape))[0])
+            raise InputError(f"rss: row {bad} has no received base station")
+        return post
+
+    def locate(self, rss: object) -> Estimate:
+        """Locate every measurement vector of a batch (eq. (2)).
+
+        Parameters
+        ----------
+        rss : array_like, shape (..., S)
+            Measured signal strengths in dBm; NaN = base station not received (skipped).
+
+        Returns
+        -------
+        Estimate
+            ``position`` ``(..., D)`` = the mixture mean, ``covariance`` ``(..., D, D)`` =
+            the mixture covariance; diagnostics ``measurements_used`` and the posterior
+            mixture (:func:`posterior_mixture`).
+
+        Raises
+        ------
+        InputError
+            If a row has no received base station, or on a shape mismatch.
+        """
+        m = self._check_rss(rss)
+        post = self.density(m)
+        mean, cov = post.moments()
+        used = np.broadcast_to(np.isfinite(m).sum(-1), post.batch_shape)
+        return Estimate(mean, cov, None, {"measurements_used": used,
+                                          **_with_mixture(post, self.max_components)})
 
 
 @dataclass(frozen=True)
-class TrackResult:
-    """Per-step estimates: ``mean`` ``(T, ..., D)``, ``covariance`` ``(T, ..., D, D)`` and
-    the final posterior mixture."""
+class MixtureState:
+    """State of :class:`MixtureTracker` for a batch of runs.
 
-    mean: np.ndarray
-    covariance: np.ndarray
-    posterior: DiagMixture
+    Attributes
+    ----------
+    mixture : DiagMixture
+        Current position density, batch shape ``(...)``.
+    informed : ndarray of bool, shape (...)
+        False until a first base station is received (and no prior was given): the
+        density is then the calibration area (flat prior), replaced at the first
+        measurement.
+    used : ndarray of int, shape (...)
+        Base stations received at the last step.
+    time : float
+        Time of the last step, seconds.
+    """
+
+    mixture: DiagMixture
+    informed: np.ndarray
+    used: np.ndarray
+    time: float = 0.0
 
 
-def track(models: DiagMixture, rss, dt, v_max: float = 1.5, max_components: int = 16,
-          motion_components: int | None = None) -> TrackResult:
+class MixtureTracker(RecursiveEstimator):
     """Recursive Bayesian tracking with mixture densities (Sect. 4, Fig. 7).
 
     Parameters
     ----------
     models : DiagMixture
-        Per-base-station calibration models, batch shape ``(..., S)``.
-    rss : array (T, ..., S)
-        Measurement vectors per time step (NaN = not received).
-    dt : float or array (T,)
-        Time since the previous step (the first entry is unused).
-    v_max : float
-        Maximum speed (m/s); the prediction density is uniform on the disk of radius
-        ``v_max * dt``. ``0`` disables the prediction (static user).
+        Per-base-station calibration models, batch shape ``(..., S)``, dimension ``D + 1``
+        (as for :class:`MixtureLocalizer`).
+    motion : UniformDisk
+        Motion model: the next position is uniform in the disk of radius ``v_max * dt``
+        (paper: ``v_max`` = 1.5 m/s); ``v_max = 0`` is a static user (no prediction).
     max_components : int
         Bound on the components of every density.
+
+    Raises
+    ------
+    InputError
+        Naming ``models``, ``motion`` or ``max_components`` when they are not valid.
     """
-    m = as_float_array(rss, "rss", min_ndim=2, allow_nan=True)
-    t_steps = m.shape[0]
-    dts = np.broadcast_to(np.asarray(dt, dtype=float), (t_steps,))
-    if v_max < 0 or np.any(dts[1:] < 0):
-        raise InputError("v_max/dt: must be >= 0")
-    measured = localize(models, m, max_components)        # all steps at once, batch (T, ...)
-    means, covs = [], []
-    post = None
-    for t in range(t_steps):
-        meas = measured[t]
-        if post is None:
-            post = meas
+
+    name = "mixture-tracker"
+
+    def __init__(self, models: DiagMixture, motion: UniformDisk,
+                 max_components: int = 16) -> None:
+        self.models = _check_models(models)
+        self.max_components = _check_max_components(max_components)
+        if not isinstance(motion, UniformDisk):
+            raise InputError(f"motion: expected radioloc.models.motion.UniformDisk, got "
+                             f"{type(motion).__name__}")
+        if motion.dim != self.models.dim - 1:
+            raise InputError(f"motion: dim {motion.dim} differs from the models' position "
+                             f"dimension {self.models.dim - 1}")
+        if motion.dim > 2 and motion.v_max_m_per_s > 0:
+            raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
+        self.motion = motion
+        self._localizer = MixtureLocalizer(models, max_components)
+
+    @property
+    def dim(self) -> int:
+        """Position coordinates D."""
+        return self.models.dim - 1
+
+    def calibration_area(self) -> DiagMixture:
+        """The flat-prior stand-in: the position marginal of all station models pooled.
+
+        Returns
+        -------
+        DiagMixture
+            Batch shape ``models.batch_shape[:-1]``, at most ``max_components`` components.
+        """
+        marg = self.models.marginal(list(range(self.dim)))
+        s, k = marg.batch_shape[-1], marg.n_components
+        lead = marg.batch_shape[:-1]
+        w = marg.weights / marg.weights.sum(-1, keepdims=True) / s
+        pooled = DiagMixture(w.reshape(lead + (s * k,)),
+                             marg.means.reshape(lead + (s * k, self.dim)),
+                             marg.variances.reshape(lead + (s * k, self.dim)))
+        return reduce(pooled, self.max_components)
+
+    def init(self, prior: DiagMixture | None = None, batch_shape: tuple[int, ...] | None = None,
+             time: float = 0.0) -> MixtureState:
+        """The state before the first measurement.
+
+        Parameters
+        ----------
+        prior : DiagMixture, optional
+            Prior position density (dimension D). Default: none (a flat prior: the first
+            step with a received station starts from its measurement density alone; until
+            then the estimate is the calibration area).
+        batch_shape : tuple of int, optional
+            Batch axes of the runs (default: the models' leading axes, or the prior's).
+        time : float
+            Time of the state, seconds.
+
+        Returns
+        -------
+        MixtureState
+            The initial state.
+        """
+        if prior is None:
+            mix = self.calibration_area()
+            informed = False
         else:
-            prior = post
-            r = v_max * dts[t]
-            if r > 0:
-                prior = reduce(convolve(post, uniform_ball(r, post.dim)), max_components)
-            post = reduce(product(prior, meas), max_components)
-        mu, cov = post.moments()
-        means.append(mu)
-        covs.append(cov)
-    return TrackResult(np.array(means), np.array(covs), post)
+            if not isinstance(prior, DiagMixture) or prior.dim != self.dim:
+                raise InputError(f"prior: expected a DiagMixture of dimension {self.dim}")
+            mix = reduce(prior, self.max_components)
+            informed = True
+        shape = mix.batch_shape if batch_shape is None else tuple(batch_shape)
+        try:
+            shape = np.broadcast_shapes(shape, mix.batch_shape)
+        except ValueError:
+            raise InputError(f"batch_shape: {shape} does not broadcast with "
+                             f"{mix.batch_shape}") from None
+        mix = DiagMixture(np.broadcast_to(mix.weights, shape + mix.weights.shape[-1:]),
+                          np.broadcast_to(mix.means, shape + mix.means.shape[-2:]),
+                          np.broadcast_to(mix.variances, shape + mix.variances.shape[-2:]))
+        return MixtureState(mix, np.full(shape, informed), np.zeros(shape, int), float(time))
+
+    def _predict(self, mix: DiagMixture, dt: float) -> DiagMixture:
+        r = float(self.motion.radius(dt))
+        if r <= 0:
+            return mix
+        return reduce(convolve(mix, uniform_ball(r, self.dim)), self.max_components)
+
+    def _update(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
+                used: np.ndarray, dt: float) -> MixtureState:
+        informed = np.broadcast_to(state.informed, meas.batch_shape)
+        received = np.broadcast_to(received, meas.batch_shape)
+        prior = state.mixture
+        if np.any(informed):
+            prior = select(informed, self._predict(prior, dt), prior)
+        filtered = reduce(product(prior, meas), self.max_components)
+        post = select(received & informed, filtered, select(received, meas, prior))
+        return MixtureState(reduce(post, self.max_components), informed | received,
+                            np.broadcast_to(used, meas.batch_shape), state.time + dt)
+
+    def _check_dt(self, dt: object) -> float:
+        d = as_float_array(dt, "dt")
+        if d.ndim != 0 or d < 0:
+            raise InputError(f"dt: must be one finite time step >= 0 s, got {dt!r}")
+        return float(d)
+
+    def step(self, state: MixtureState, rss_t: object, dt: float) -> MixtureState:
+        """Prediction over ``dt`` and filter step with one measurement vector per run.
+
+        Parameters
+        ----------
+        state : MixtureState
+            The state at the previous step (not modified).
+        rss_t : array_like, shape (..., S)
+            Signal strengths of this step, NaN = not received; a run with no station
+            received is only predicted.
+        dt : float
+            Time since the previous step, seconds (>= 0).
+
+        Returns
+        -------
+        MixtureState
+            The new state.
+        """
+        m = self._localizer._check_rss(rss_t, "rss_t")
+        dt = self._check_dt(dt)
+        meas, received = self._localizer.density_and_mask(m)
+        used = np.isfinite(m).sum(-1)
+        return self._update(state, meas, received, used, dt)
+
+    def estimate(self, state: MixtureState) -> Estimate:
+        """Mixture mean and covariance of a state.
+
+        Parameters
+        ----------
+        state : MixtureState
+            A tracker state.
+
+        Returns
+        -------
+        Estimate
+            ``position`` ``(..., D)``, ``covariance`` ``(..., D, D)``, ``time``;
+            diagnostics ``measurements_used`` and the posterior mixture (padded to
+            ``max_components`` slots; :func:`posterior_mixture`).
+        """
+        mean, cov = state.mixture.moments()
+        return Estimate(mean, cov, state.time, {
+            "measurements_used": np.asarray(state.used),
+            **_with_mixture(state.mixture, self.max_components)})
+
+    def run(self, rss: object, time: object, prior: DiagMixture | None = None) -> Track:
+        """Track every run of a batch through a series of measurement vectors.
+
+        Parameters
+        ----------
+        rss : array_like, shape (..., T, S)
+            Signal strengths per step, NaN = not received (a step with no station received
+            is a prediction only).
+        time : array_like, shape (T,)
+            Step times in seconds, non-decreasing (the first step is not predicted).
+        prior : DiagMixture, optional
+            Prior position density (see :meth:`init`).
+
+        Returns
+        -------
+        Track
+            ``position`` ``(..., T, D)``, ``covariance`` ``(..., T, D, D)``, ``time``;
+            per-step diagnostics as in :meth:`estimate`.
+        """
+        m = self._localizer._check_rss(rss, min_ndim=2)
+        t = as_float_array(time, "time", ndim=1)
+        if t.shape[0] != m.shape[-2]:
+            raise InputError(f"time: {t.shape[0]} steps, rss has {m.shape[-2]}")
+        dts = np.diff(t, prepend=t[0])
+        if np.any(dts < 0):
+            i = int(np.flatnonzero(dts < 0)[0])
+            raise InputError(f"time: decreases at step {i} ({t[i - 1]} -> {t[i]})")
+        # the measurement densities of all steps at once: a time axis in the models
+        mod = self.models
+        tm = DiagMixture(mod.weights[..., None, :, :], mod.means[..., None, :, :, :],
+                         mod.variances[..., None, :, :, :])
+        meas, received = self._localizer.density_and_mask(m, tm)
+        used = np.isfinite(m).sum(-1)
+        batch = meas.batch_shape[:-1]
+        state = self.init(prior, batch, float(t[0]))
+        steps = []
+        for i in range(t.size):
+            mi = DiagMixture(meas.weights[..., i, :], meas.means[..., i, :, :],
+                             meas.variances[..., i, :, :])
+            state = self._update(state, mi, received[..., i], used[..., i], float(dts[i]))
+            steps.append(self.estimate(state))
+        return track_from_steps(steps, t)

@@ -16,12 +16,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from radioloc.estimators.mixture_localization import localize, track
+from radioloc.core.rng import stream
+from radioloc.estimators.mixture_localization import (MixtureLocalizer, MixtureTracker,
+                                                      posterior_mixture)
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.mixture import DiagMixture, product
 from radioloc.models.mixture_calibration import progressive_calibration
+from radioloc.models.motion import UniformDisk
 from radioloc.report.style import COLORS, figure, save
-from radioloc.sim.corridor import Corridor
+from radioloc.sim.corridor import Corridor, walk_positions
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,11 @@ class CorridorConfig:
         measurement per dt_s; the door state is drawn once per run.
     v_max: maximum speed of the motion model (paper: 1.5 m/s).
     converged_tolerance_m: "concentrates at 45 m" means |mean estimate - 45| <= this.
+    figure_x_m: position of the expected-signal-strength section of Fig. 6.
+
+    The figures' example (one calibration at the first noise level, one static user with
+    the door open) is drawn from the named stream ``"figure-example"`` of the experiment
+    seed, by the block that holds run 0, as ``table == "figure"`` rows.
     """
 
     runs: int = 20
@@ -56,20 +64,30 @@ class CorridorConfig:
     dt_s: float = 1.0
     v_max: float = 1.5
     converged_tolerance_m: float = 1.0
-    figure_seed: int = 4
+    figure_x_m: float = 50.0
+
+
+#: grids of the figure rows
+_X_GRID = np.linspace(0.0, 60.0, 301)
+_M_GRID = np.linspace(-90.0, -20.0, 141)
+_X_COARSE = np.linspace(0.0, 60.0, 121)
+_M_COARSE = np.linspace(-90.0, -20.0, 71)
 
 
 def _calibrate(config: CorridorConfig, corridor: Corridor, noise: float, n_runs: int,
                rng: np.random.Generator) -> DiagMixture:
-    x = rng.uniform(0.0, corridor.length_m, (n_runs, config.calib_samples))
-    door = rng.random(x.shape) < 0.5
-    rss = corridor.sample_rss(x, door, noise, rng)
-    return progressive_calibration(x[..., None], rss, config.bandwidth, config.model_components)
+    x, rss = corridor.calibration_set(n_runs, config.calib_samples, noise, rng)
+    return progressive_calibration(x, rss, config.bandwidth, config.model_components)
 
 
 def _walk(config: CorridorConfig) -> np.ndarray:
-    steps = int(np.floor((config.walk_end_m - config.walk_start_m) / (config.walk_speed * config.dt_s)))
-    return config.walk_start_m + config.walk_speed * config.dt_s * np.arange(steps + 1)
+    return walk_positions(config.walk_start_m, config.walk_end_m, config.walk_speed, config.dt_s)
+
+
+def _rows(run: int, fig: str, series: str, x, value, m=np.nan) -> pd.DataFrame:
+    x, value, m = np.broadcast_arrays(np.atleast_1d(x), np.atleast_1d(value), np.atleast_1d(m))
+    return pd.DataFrame({"run": run, "table": "figure", "figure": fig, "series": series,
+                         "x": x, "m": m, "value": value})
 
 
 @register
@@ -80,47 +98,143 @@ class CorridorExperiment(Experiment):
                    "localization updates (Fig. 10) and tracking")
 
     def config(self, full: bool) -> CorridorConfig:
+        """The configuration at the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        CorridorConfig
+            The settings.
+        """
         return CorridorConfig(runs=200 if full else 20)
 
     def run_block(self, config: CorridorConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Run one block of runs.
+
+        Parameters
+        ----------
+        config : CorridorConfig
+            The settings.
+        runs : ndarray of int
+            The block's run indices.
+        rng : numpy.random.Generator
+            The block's generator (named streams of the experiment seed derive from it).
+
+        Returns
+        -------
+        pandas.DataFrame
+            The tidy rows of the block (``table`` "runs", and "figure" rows from the
+            block of run 0).
+        """
         corridor = Corridor()
         n = runs.size
         walk = _walk(config)
+        time = config.dt_s * np.arange(walk.size)
         frames = []
         for noise in config.noise_db:
             models = _calibrate(config, corridor, noise, n, rng)              # batch (R, 2)
             door = rng.random(n) < 0.5
-            # static user: the models broadcast over the update axis
+            static = MixtureTracker(models, UniformDisk(0.0, dim=1), config.position_components)
+            moving = MixtureTracker(models, UniformDisk(config.v_max, dim=1),
+                                    config.position_components)
+            # static user: (R, updates, 2) measurements, the door fixed per run
             rss = corridor.sample_rss(np.full((config.updates, n), config.user_m),
-                                      door, noise, rng)
-            res = track(models, rss, config.dt_s, v_max=0.0,
-                        max_components=config.position_components)
+                                      door, noise, rng).transpose(1, 0, 2)
+            res = static.run(rss, config.dt_s * np.arange(config.updates))
             for t in range(config.updates):
                 frames.append(pd.DataFrame({
-                    "run": runs, "noise_db": noise, "scenario": "static", "step": t + 1,
-                    "x_true": config.user_m, "x_est": res.mean[t, :, 0],
-                    "std_m": np.sqrt(res.covariance[t, :, 0, 0])}))
+                    "run": runs, "table": "runs", "noise_db": noise, "scenario": "static",
+                    "step": t + 1, "x_true": config.user_m, "x_est": res.position[:, t, 0],
+                    "std_m": np.sqrt(res.covariance[:, t, 0, 0])}))
+            # Fig. 9 over the runs: each station alone at the first update
+            for k in range(2):
+                alone = rss[:, 0, :].copy()
+                alone[:, 1 - k] = np.nan
+                est = MixtureLocalizer(models, config.position_components).locate(alone)
+                frames.append(pd.DataFrame({
+                    "run": runs, "table": "runs", "noise_db": noise,
+                    "scenario": f"static_station{k + 1}", "step": 1, "x_true": config.user_m,
+                    "x_est": est.position[:, 0], "std_m": np.sqrt(est.covariance[:, 0, 0])}))
             rss = corridor.sample_rss(np.broadcast_to(walk[:, None], (walk.size, n)),
-                                      door, noise, rng)
-            res = track(models, rss, config.dt_s, v_max=config.v_max,
-                        max_components=config.position_components)
-            one, one_cov = localize(models, rss, config.position_components).moments()
+                                      door, noise, rng).transpose(1, 0, 2)
+            res = moving.run(rss, time)
+            one = MixtureLocalizer(models[:, None], config.position_components).locate(rss)
             for t in range(walk.size):
                 frames.append(pd.DataFrame({
-                    "run": runs, "noise_db": noise, "scenario": "tracking", "step": t + 1,
-                    "x_true": walk[t], "x_est": res.mean[t, :, 0],
-                    "std_m": np.sqrt(res.covariance[t, :, 0, 0])}))
+                    "run": runs, "table": "runs", "noise_db": noise, "scenario": "tracking",
+                    "step": t + 1, "x_true": walk[t], "x_est": res.position[:, t, 0],
+                    "std_m": np.sqrt(res.covariance[:, t, 0, 0])}))
                 frames.append(pd.DataFrame({
-                    "run": runs, "noise_db": noise, "scenario": "walk_oneshot", "step": t + 1,
-                    "x_true": walk[t], "x_est": one[t, :, 0],
-                    "std_m": np.sqrt(one_cov[t, :, 0, 0])}))
+                    "run": runs, "table": "runs", "noise_db": noise, "scenario": "walk_oneshot",
+                    "step": t + 1, "x_true": walk[t], "x_est": one.position[:, t, 0],
+                    "std_m": np.sqrt(one.covariance[:, t, 0, 0])}))
+        if runs[0] == 0:
+            frames.append(self._figure_rows(config, corridor, rng, int(runs[0])))
         return pd.concat(frames, ignore_index=True)
 
+    @staticmethod
+    def _figure_rows(config: CorridorConfig, corridor: Corridor, rng: np.random.Generator,
+                     run: int) -> pd.DataFrame:
+        """The example the figures show: one calibration and one static user (door open)
+        at the first noise level, from the named stream ``"figure-example"``."""
+        ex = stream(rng, "figure-example")
+        noise = config.noise_db[0]
+        models = _calibrate(config, corridor, noise, 1, ex)[0]                # batch (2,)
+        rows = []
+        for closed in (True, False):                                          # Fig. 4
+            mean = corridor.mean_rss(_X_GRID, closed)
+            for k in range(2):
+                rows.append(_rows(run, "fig4", f"station{k + 1}_{'closed' if closed else 'open'}",
+                                  _X_GRID, mean[:, k]))
+        gx, gm = np.meshgrid(_X_COARSE, _M_COARSE)                            # Fig. 5
+        dens = models[0].pdf(np.c_[gx.ravel(), gm.ravel()])
+        rows.append(_rows(run, "fig5", f"station1_{models.n_components}_components",
+                          gx.ravel(), dens, gm.ravel()))
+        cond_x = models[0].condition(0, config.figure_x_m)                    # Fig. 6
+        rows.append(_rows(run, "fig6", "model", np.nan, cond_x.pdf(_M_GRID[:, None]), _M_GRID))
+        for closed in (False, True):
+            rows.append(_rows(run, "fig6", f"door_{'closed' if closed else 'open'}", np.nan,
+                              np.nan, corridor.mean_rss(config.figure_x_m, closed)[0]))
+        rss = corridor.sample_rss(np.full(config.updates, config.user_m), False, noise, ex)
+        cond = models.condition(1, rss[0], valid=np.ones(2, bool))            # Fig. 9
+        prod = product(cond[0], cond[1])
+        for mix, series in ((cond[0], "station1"), (cond[1], "station2"), (prod, "product")):
+            rows.append(_rows(run, "fig9", series, _X_GRID, mix.pdf(_X_GRID[:, None])))
+            rows.append(_rows(run, "fig9_std", series, np.nan,
+                              np.sqrt(mix.moments()[1][0, 0])))
+        static = MixtureTracker(models, UniformDisk(0.0, dim=1), config.position_components)
+        trk = static.run(rss, config.dt_s * np.arange(config.updates))        # Fig. 10
+        for k in (1, 2, config.updates):
+            post = posterior_mixture(trk.at(k - 1))
+            rows.append(_rows(run, "fig10", f"after_{k}", _X_GRID, post.pdf(_X_GRID[:, None])))
+        return pd.concat(rows, ignore_index=True)
+
     def summarize(self, config: CorridorConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the rows the blocks returned.
+
+        Parameters
+        ----------
+        config : CorridorConfig
+            The settings.
+        results : pandas.DataFrame
+            Every block's rows, concatenated.
+        out_dir : Path
+            Where the figures go.
+
+        Returns
+        -------
+        Summary
+            Metrics, claims and notes.
+        """
         metrics, claims, notes = [], [], []
-        static = results[results["scenario"] == "static"]
-        trk = results[results["scenario"] == "tracking"]
+        runs = results[results["table"] == "runs"]
+        static = runs[runs["scenario"] == "static"]
+        trk = runs[runs["scenario"] == "tracking"]
         for noise in config.noise_db:
             tag = "" if noise == config.noise_db[0] else f"_noise{noise:g}db"
             s = static[static["noise_db"] == noise].groupby("step")
@@ -140,10 +254,10 @@ class CorridorExperiment(Experiment):
                                   f"walk at {config.walk_speed} m/s, v_max {config.v_max} m/s"))
             metrics.append(Metric(f"tracking_mean_lag_m{tag}", float(np.mean(t["x_true"] - t["x_est"])),
                                   None, "m", "mean of true - estimated position on the walk"))
-            w1 = results[(results["scenario"] == "walk_oneshot") & (results["noise_db"] == noise)]
+            w1 = runs[(runs["scenario"] == "walk_oneshot") & (runs["noise_db"] == noise)]
             rmse_w1 = float(np.sqrt(np.mean((w1["x_est"] - w1["x_true"]) ** 2)))
             metrics.append(Metric(f"walk_oneshot_rmse_m{tag}", rmse_w1, None, "m",
-                                  "same walk, each step localized alone (eq. 2, no motion model)"))
+                                  "same walk, each step localized alone (eq. (2), no motion model)"))
             claims.append(Claim(f"Tracking with the motion model is more accurate than one-shot "
                                 f"positioning of a walking user (Sect. 2; {noise:g} dB)",
                                 bool(rmse < rmse_w1)))
@@ -151,7 +265,18 @@ class CorridorExperiment(Experiment):
             rmse1 = float(np.sqrt(np.mean((one["x_est"] - one["x_true"]) ** 2)))
             metrics.append(Metric(f"oneshot_rmse_m{tag}", rmse1, None, "m",
                                   "static user, one update (no tracking)"))
+            st = {k: runs[(runs["scenario"] == k) & (runs["noise_db"] == noise)]
+                  .set_index("run")["std_m"] for k in ("static_station1", "static_station2")}
+            prod_std = one.set_index("run")["std_m"]
+            frac = float(np.mean(prod_std < np.minimum(st["static_station1"],
+                                                       st["static_station2"])))
+            metrics.append(Metric(f"product_sharper_fraction{tag}", frac, None, "",
+                                  "fraction of runs whose eq. (2) product (first static update) "
+                                  "has a smaller std than each station's density alone"))
             if noise == config.noise_db[0]:
+                claims.append(Claim(
+                    f"The product of the per-station densities is more concentrated than "
+                    f"either (Fig. 9): in most runs ({noise:g} dB)", bool(frac > 0.5)))
                 claims.append(Claim(
                     f"After {config.updates} updates the estimate concentrates at "
                     f"{config.user_m:g} m ({noise:g} dB)",
@@ -160,70 +285,66 @@ class CorridorExperiment(Experiment):
         notes.append("metric names without suffix are at 2 dB noise; '_noise10db' at 10 dB")
         notes.append("the disk motion model has zero mean: a user walking at a constant speed "
                      "close to v_max is followed with a lag (tracking_mean_lag_m)")
-        claims += self._figures(config, trk, out_dir, notes)
+        claims += self._figures(config, results[results["table"] == "figure"], trk, out_dir, notes)
         return Summary(metrics, claims, notes)
 
-    # ---- figures -------------------------------------------------------------------
-    def _figures(self, config: CorridorConfig, trk: pd.DataFrame, out_dir: Path,
-                 notes: list[str]) -> list[Claim]:
-        corridor = Corridor()
-        rng = np.random.default_rng(config.figure_seed)
+    # ---- figures (plots of the "figure" rows; no computation beyond reading them) -----------
+    def _figures(self, config: CorridorConfig, figs: pd.DataFrame, trk: pd.DataFrame,
+                 out_dir: Path, notes: list[str]) -> list[Claim]:
         noise = config.noise_db[0]
-        models = _calibrate(config, corridor, noise, 1, rng)[0]    # batch (2,)
-        xs = np.linspace(0, corridor.length_m, 301)
+        corridor = Corridor()                     # labels only: station and door positions
+
+        def rows(fig: str, series: str | None = None) -> pd.DataFrame:
+            f = figs[figs["figure"] == fig]
+            return f if series is None else f[f["series"] == series]
 
         fig, ax = figure()
-        for closed, ls in ((True, "-"), (False, ":")):
-            mean = corridor.mean_rss(xs, closed)
+        for closed, ls in (("closed", "-"), ("open", ":")):
             for k, c in enumerate((COLORS["ours"], COLORS["baseline"])):
-                ax.plot(xs, mean[:, k], ls, color=c,
-                        label=f"station {k + 1} (x={corridor.stations[k]:g} m), door "
-                              f"{'closed' if closed else 'open'}")
+                r = rows("fig4", f"station{k + 1}_{closed}")
+                ax.plot(r["x"], r["value"], ls, color=c,
+                        label=f"station {k + 1} (x={corridor.stations[k]:g} m), door {closed}")
         ax.axvline(corridor.door_m, color="grey", lw=0.8)
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("signal strength m [dBm]")
-        ax.set_title("Fig. 4: corridor with a metallic door at 30 m (noise-free)")
+        ax.set_title(f"Fig. 4: corridor with a metallic door at {corridor.door_m:g} m (noise-free)")
         ax.legend(fontsize=8, loc="upper center")
         save(fig, out_dir / "fig4_corridor_rss.png")
 
-        ms = np.linspace(-90, -20, 141)
-        gx, gm = np.meshgrid(xs, ms)
-        dens = models[0].pdf(np.c_[gx.ravel(), gm.ravel()]).reshape(gx.shape)
+        r5 = rows("fig5")
+        grid = r5.pivot_table(index="m", columns="x", values="value")
         fig, ax = figure()
-        pc = ax.pcolormesh(gx, gm, dens, shading="auto", cmap="viridis")
+        pc = ax.pcolormesh(grid.columns.to_numpy(), grid.index.to_numpy(), grid.to_numpy(),
+                           shading="auto", cmap="viridis")
         fig.colorbar(pc, ax=ax, label="density D(x, m)")
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("signal strength m of station 1 [dBm]")
-        ax.set_title(f"Fig. 5: calibrated model of station 1 ({noise:g} dB, "
-                     f"{models.n_components} components)")
+        n_comp = r5["series"].iloc[0].split("_")[1]
+        ax.set_title(f"Fig. 5: calibrated model of station 1 ({noise:g} dB, {n_comp} components)")
         save(fig, out_dir / "fig5_model_station1.png")
 
-        xq = 50.0
-        pm = models[0].condition(0, xq)
-        dm = pm.pdf(ms[:, None])
+        r6 = rows("fig6", "model")
+        ms, dm = r6["m"].to_numpy(), r6["value"].to_numpy()
         fig, ax = figure()
-        ax.plot(ms, dm, color=COLORS["ours"], label="model D(m | x = 50 m)")
-        for closed in (False, True):
-            ax.axvline(corridor.mean_rss(xq, closed)[0], ls="--", color="grey")
+        ax.plot(ms, dm, color=COLORS["ours"], label=f"model D(m | x = {config.figure_x_m:g} m)")
+        for series in ("door_open", "door_closed"):
+            ax.axvline(float(rows("fig6", series)["m"].iloc[0]), ls="--", color="grey")
         ax.set_xlabel("signal strength m of station 1 [dBm]")
         ax.set_ylabel("density [1/dB]")
-        ax.set_title("Fig. 6: expected signal strength at x = 50 m (dashed: open / closed)")
+        ax.set_title(f"Fig. 6: expected signal strength at x = {config.figure_x_m:g} m "
+                     "(dashed: open / closed)")
         ax.legend()
         save(fig, out_dir / "fig6_rss_at_50m.png")
         peaks = np.flatnonzero((dm[1:-1] > dm[:-2]) & (dm[1:-1] > dm[2:]) & (dm[1:-1] > 0.1 * dm.max()))
         bimodal = peaks.size >= 2
 
-        door = False
-        rss = corridor.sample_rss(np.full((config.updates, 1), config.user_m), door, noise, rng)
-        cond = models.condition(1, rss[0, 0], valid=np.ones(2, bool))
-        prod = product(cond[0], cond[1])
         fig, ax = figure()
-        stds = []
-        for mix, lab, c, ls in ((cond[0], "station 1 (x = 0 m)", COLORS["baseline"], "--"),
-                                (cond[1], "station 2 (x = 60 m)", COLORS["alt"], ":"),
-                                (prod, "product, eq. (2)", COLORS["ours"], "-")):
-            ax.plot(xs, mix.pdf(xs[:, None]), ls, color=c, label=lab)
-            stds.append(np.sqrt(mix.moments()[1][0, 0]))
+        for series, lab, c, ls in (("station1", "station 1 (x = 0 m)", COLORS["baseline"], "--"),
+                                   ("station2", "station 2 (x = 60 m)", COLORS["alt"], ":"),
+                                   ("product", "product, eq. (2)", COLORS["ours"], "-")):
+            r = rows("fig9", series)
+            ax.plot(r["x"], r["value"], ls, color=c, label=lab)
+        stds = [float(rows("fig9_std", s)["value"].iloc[0]) for s in ("station1", "station2", "product")]
         ax.axvline(config.user_m, color="grey", lw=0.8)
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("density [1/m]")
@@ -233,12 +354,9 @@ class CorridorExperiment(Experiment):
         save(fig, out_dir / "fig9_product.png")
 
         fig, ax = figure()
-        steps = (1, 2, config.updates)
-        for k, ls in zip(steps, ("--", ":", "-")):
-            res = track(models, rss[:k, 0, :], config.dt_s, v_max=0.0,
-                        max_components=config.position_components)
-            dens_k = res.posterior.pdf(xs[:, None])
-            ax.plot(xs, dens_k, ls, label=f"after {k} update{'s' if k > 1 else ''}")
+        for k, ls in zip((1, 2, config.updates), ("--", ":", "-")):
+            r = rows("fig10", f"after_{k}")
+            ax.plot(r["x"], r["value"], ls, label=f"after {k} update{'s' if k > 1 else ''}")
         ax.axvline(config.user_m, color="grey", lw=0.8)
         ax.set_xlabel("user position x [m]")
         ax.set_ylabel("density [1/m]")
@@ -258,10 +376,9 @@ class CorridorExperiment(Experiment):
         ax.set_title(f"Tracking a walking user ({noise:g} dB, run {int(t['run'].iloc[0])})")
         ax.legend()
         save(fig, out_dir / "tracking.png")
-        notes.append(f"Fig. 9 example: std station 1 {stds[0]:.2f} m, station 2 {stds[1]:.2f} m, "
-                     f"product {stds[2]:.2f} m")
+        notes.append(f"Fig. 9 example (one draw): std station 1 {stds[0]:.2f} m, station 2 "
+                     f"{stds[1]:.2f} m, product {stds[2]:.2f} m; the Fig. 9 claim is decided "
+                     "over the runs (product_sharper_fraction)")
         return [Claim("Calibration in both door states gives a bimodal D(m | x) past the door "
                       "(Fig. 6)", bool(bimodal)),
-                Claim("The product of the per-station densities is more concentrated than "
-                      "either (Fig. 9)", bool(stds[2] < min(stds[:2])))]
-
+                ]

@@ -21,8 +21,19 @@ FILES = {"calibration": "calibration/calibration_df.csv", "robot": "tests/test_r
 
 @dataclass(frozen=True)
 class Fingerprints:
-    """One fingerprint table: ``time_s`` (N,), ``position`` (N, 2), ``rss`` (N, S) with
-    NaN for not received, and the anchor ids of the ``rss`` columns."""
+    """One fingerprint table.
+
+    Attributes
+    ----------
+    time_s : ndarray, shape (N,)
+        Seconds since the first row.
+    position : ndarray, shape (N, 2)
+        Tag positions ``(x, y)``, metres.
+    rss : ndarray, shape (N, S)
+        Signal strengths in dBm, NaN = not received.
+    anchor_ids : tuple of int
+        The anchor id of each ``rss`` column.
+    """
 
     time_s: np.ndarray
     position: np.ndarray
@@ -31,7 +42,27 @@ class Fingerprints:
 
 
 def load_fingerprints(folder, part: str) -> Fingerprints:
-    """Read ``part`` (``"calibration"`` or ``"robot"``) from the data set ``folder``."""
+    """Read one part of the data set.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The data set folder.
+    part : {"calibration", "robot"}
+        Which table.
+
+    Returns
+    -------
+    Fingerprints
+        The table as arrays.
+
+    Raises
+    ------
+    DataUnavailable
+        If the file is absent.
+    InputError
+        If ``part`` is unknown or columns are missing.
+    """
     if part not in FILES:
         raise InputError(f"part: {part!r} is not one of {', '.join(FILES)}")
     path = Path(folder) / FILES[part]
@@ -48,7 +79,18 @@ def load_fingerprints(folder, part: str) -> Fingerprints:
 
 
 def load_anchors(folder) -> pd.DataFrame:
-    """``anchors.csv``: ``id, x, y, z``."""
+    """Read the anchor positions.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The data set folder.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``anchors.csv``: columns ``id, x, y, z``.
+    """
     path = Path(folder) / "anchors.csv"
     if not path.is_file():
         raise DataUnavailable(f"{path}: not found")

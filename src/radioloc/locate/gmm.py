@@ -10,6 +10,9 @@ signal strength in dBm, empty when that station was not received::
 
 Measurements: ``rss`` rows, ``node`` = the mobile, ``peer`` = the base station id; all
 rows of one ``(time, node)`` form one measurement vector (duplicates are averaged).
+
+The EM initialisation draws from a generator seeded by the content of the calibration file,
+so the same file always gives the same models.
 """
 
 from __future__ import annotations
@@ -18,13 +21,29 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import InputError
-from radioloc.estimators.mixture_localization import localize, track
+from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
 from radioloc.locate.base import LocateRequest, locate_method
 from radioloc.models.mixture_calibration import em_calibration
+from radioloc.models.motion import UniformDisk
 
 
 def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Positions ``(N, 2)``, signal strengths ``(N, S)`` (NaN = not received), station ids."""
+    """Read a calibration file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (columns ``x, y`` and one per base station).
+
+    Returns
+    -------
+    positions : ndarray, shape (N, 2)
+        Calibration positions, metres.
+    rss : ndarray, shape (N, S)
+        Signal strengths, NaN = not received.
+    ids : list of str
+        The station ids (column names).
+    """
     try:
         frame = pd.read_csv(path, dtype={"x": float, "y": float})
     except (OSError, ValueError) as exc:
@@ -50,9 +69,22 @@ def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
 @locate_method("gmm", "Gaussian-mixture RSS fingerprinting (paper 004) from a calibration file "
                       "(options: components, position_components, track=0/1, v_max)")
 def locate_gmm(request: LocateRequest) -> pd.DataFrame:
-    """Each base station's model is fitted by EM to the calibration file; each
+    """Fingerprint localization with mixture models fitted to a calibration file.
+
+    Each base station's model is fitted by EM to the calibration file; each
     ``(time, node)`` measurement vector is localized by eq. (2); with ``-o track=1`` each
-    node is tracked over time with the uniform-disk motion model of radius ``v_max * dt``."""
+    node is tracked over time with the uniform-disk motion model of radius ``v_max * dt``.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Measurements (``rss`` rows), the calibration file and the options.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``time, node, x, y, uncertainty_m``, one row per ``(time, node)``.
+    """
     if request.calibration is None:
         raise InputError("method gmm: needs a calibration file (--calibration)")
     pos, cal_rss, ids = read_calibration(request.calibration)
@@ -65,21 +97,25 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     rss = rss.groupby(["time", "node", "peer"], sort=True, as_index=False)["value"].mean()
     table = rss.pivot_table(index=["node", "time"], columns="peer", values="value")
     table = table.reindex(columns=ids).sort_index()
-    models = em_calibration(pos, cal_rss, int(request.option("components", 16)))
+    content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+        np.frombuffer(content.tobytes(), dtype=np.uint32))))
+    models = em_calibration(pos, cal_rss, int(request.option("components", 16)), rng=rng)
     kmax = int(request.option("position_components", 8))
     meas = table.to_numpy(float)
     out = table.index.to_frame(index=False)[["time", "node"]]
     if request.option("track", 0.0):
         mean = np.empty((len(out), 2))
         cov = np.empty((len(out), 2, 2))
+        tracker = MixtureTracker(models, UniformDisk(float(request.option("v_max", 1.5)), dim=2),
+                                 kmax)
         for node in out["node"].unique():         # nodes have different time axes
             idx = np.flatnonzero(out["node"].to_numpy() == node)
-            t = out["time"].to_numpy()[idx]
-            res = track(models, meas[idx], np.diff(t, prepend=t[0]),
-                        float(request.option("v_max", 1.5)), kmax)
-            mean[idx], cov[idx] = res.mean, res.covariance
+            res = tracker.run(meas[idx], out["time"].to_numpy()[idx])
+            mean[idx], cov[idx] = res.position, res.covariance
     else:
-        mean, cov = localize(models, meas, kmax).moments()
+        est = MixtureLocalizer(models, kmax).locate(meas)
+        mean, cov = est.position, est.covariance
     out["x"], out["y"] = mean[:, 0], mean[:, 1]
     out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
     return out

@@ -1,4 +1,4 @@
-"""Axis-aligned Gaussian mixtures with leading batch axes (paper 004, eqs. 1-2).
+"""Axis-aligned Gaussian mixtures with leading batch axes (paper 004, eq. (1), eq. (2)).
 
 A :class:`DiagMixture` holds ``weights`` ``(..., K)``, ``means`` ``(..., K, D)`` and
 ``variances`` ``(..., K, D)``; every leading axis is an independent mixture (a Monte Carlo
@@ -7,10 +7,12 @@ run, a base station, a measurement row). All operations act on the whole batch a
 - :meth:`DiagMixture.logpdf` evaluation;
 - :meth:`DiagMixture.condition` on one coordinate (the signal strength ``m``) in closed
   form, which for axis-aligned components only re-weights them (Sect. 3.2);
-- :func:`product` of two mixtures (the product of eq. 2, renormalised);
+- :func:`product` of two mixtures (the product of eq. (2), renormalised);
 - :func:`convolve` (density of a sum of independent variables, the prediction step);
 - :func:`reduce` to a bounded number of components by West's greedy rule with Runnalls'
-  merge cost, merging by moment matching.
+  merge cost, merging by moment matching;
+- :func:`pad_components` and :func:`select` to combine batches of mixtures with different
+  component counts.
 
 Moment-preserving merge on axis-aligned components: the merged component keeps the total
 weight, the mean and the per-axis variances (the diagonal of the covariance) of what it
@@ -25,11 +27,16 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy.special import logsumexp, softmax
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
 
 _LOG2PI = np.log(2.0 * np.pi)
+
+#: relative tolerance under which two weights or two merge costs count as tied in
+#: :func:`reduce` (ties go to the lower component index, whatever the rounding).
+_TIE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -38,11 +45,12 @@ class DiagMixture:
 
     Parameters
     ----------
-    weights : array (..., K)
+    weights : ndarray, shape (..., K)
         Non-negative component weights; each mixture's weights sum to one (zero weights
         mark unused slots).
-    means : array (..., K, D)
-    variances : array (..., K, D)
+    means : ndarray, shape (..., K, D)
+        Component means.
+    variances : ndarray, shape (..., K, D)
         Positive per-axis variances.
     """
 
@@ -52,7 +60,24 @@ class DiagMixture:
 
     @classmethod
     def create(cls, weights, means, variances, normalize: bool = True) -> "DiagMixture":
-        """Validated constructor; ``normalize`` rescales the weights to sum to one."""
+        """Validated constructor.
+
+        Parameters
+        ----------
+        weights : array_like, shape (..., K)
+            Non-negative weights, a positive total per mixture.
+        means : array_like, shape (..., K, D)
+            Finite component means.
+        variances : array_like, shape (..., K, D)
+            Positive per-axis variances.
+        normalize : bool
+            Rescale the weights of each mixture to sum to one.
+
+        Returns
+        -------
+        DiagMixture
+            The validated mixture batch.
+        """
         m = as_float_array(means, "means", min_ndim=2)
         v = as_float_array(variances, "variances", min_ndim=2)
         w = as_float_array(weights, "weights", min_ndim=1, nonnegative=True)
@@ -69,37 +94,82 @@ class DiagMixture:
 
     @property
     def n_components(self) -> int:
+        """Number of component slots K (zero-weight slots included)."""
         return self.weights.shape[-1]
 
     @property
     def dim(self) -> int:
+        """Dimension D of the variable."""
         return self.means.shape[-1]
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
+        """The leading (batch) axes."""
         return self.weights.shape[:-1]
 
     def __getitem__(self, index) -> "DiagMixture":
-        """Index the batch axes (not the component axis)."""
+        """Index the batch axes (not the component axis).
+
+        Parameters
+        ----------
+        index : int, slice or tuple
+            Index into the batch axes.
+
+        Returns
+        -------
+        DiagMixture
+            The selected mixtures.
+        """
         if not self.batch_shape:
             raise InputError("index: this mixture has no batch axes")
         return DiagMixture(self.weights[index], self.means[index], self.variances[index])
 
     def logpdf(self, points) -> np.ndarray:
-        """Log density at ``points`` ``(..., P, D)`` (batch axes broadcast); returns ``(..., P)``."""
+        """Log density of each mixture at a set of points.
+
+        Parameters
+        ----------
+        points : array_like, shape (..., P, D)
+            Evaluation points; batch axes broadcast against the mixture's.
+
+        Returns
+        -------
+        ndarray, shape (..., P)
+            Log densities.
+        """
         x = as_float_array(points, "points", min_ndim=2, last_dim=self.dim)
         diff = x[..., :, None, :] - self.means[..., None, :, :]          # (..., P, K, D)
         v = self.variances[..., None, :, :]
         comp = -0.5 * np.sum(diff**2 / v + np.log(v) + _LOG2PI, axis=-1)
         with np.errstate(divide="ignore"):
             logw = np.log(self.weights)[..., None, :]
-        return _logsumexp(comp + logw, axis=-1)
+        return logsumexp(comp + logw, axis=-1)
 
     def pdf(self, points) -> np.ndarray:
+        """Density at ``points``.
+
+        Parameters
+        ----------
+        points : array_like, shape (..., P, D)
+            Evaluation points.
+
+        Returns
+        -------
+        ndarray, shape (..., P)
+            ``exp(logpdf(points))``.
+        """
         return np.exp(self.logpdf(points))
 
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
-        """Mean ``(..., D)`` and full covariance ``(..., D, D)`` of each mixture."""
+        """First two moments of each mixture.
+
+        Returns
+        -------
+        mean : ndarray, shape (..., D)
+            Mixture mean.
+        covariance : ndarray, shape (..., D, D)
+            Full mixture covariance (spread of the means plus the component variances).
+        """
         w = self.weights[..., None]
         mean = np.sum(w * self.means, axis=-2)
         d = self.means - mean[..., None, :]
@@ -109,7 +179,18 @@ class DiagMixture:
         return mean, cov
 
     def marginal(self, dims) -> "DiagMixture":
-        """The marginal over the coordinates ``dims`` (exact for axis-aligned components)."""
+        """The marginal over some coordinates (exact for axis-aligned components).
+
+        Parameters
+        ----------
+        dims : int or sequence of int
+            Coordinates kept.
+
+        Returns
+        -------
+        DiagMixture
+            Same weights, the kept coordinates of the means and variances.
+        """
         dims = list(np.atleast_1d(dims))
         return DiagMixture(self.weights, self.means[..., dims], self.variances[..., dims])
 
@@ -118,7 +199,21 @@ class DiagMixture:
 
         For axis-aligned components ``N(x)N(y)N(m)``, ``D(x, y | m)`` is the mixture of the
         remaining factors with weights ``w_j N(m; mu_mj, s_mj^2)`` renormalised (the section
-        of eq. 1 used in Sect. 3.2). Where ``valid`` is False the marginal is returned.
+        of eq. (1) used in Sect. 3.2). Where ``valid`` is False the marginal is returned.
+
+        Parameters
+        ----------
+        dim : int
+            The coordinate conditioned on (the signal strength is the last one).
+        value : array_like, shape (...)
+            Its value per mixture (batch axes broadcast).
+        valid : array_like of bool, shape (...), optional
+            False where there is no value (the marginal is returned there).
+
+        Returns
+        -------
+        DiagMixture
+            Dimension ``D - 1``: the conditional densities.
         """
         value = np.asarray(value, dtype=float)
         mu = self.means[..., dim]
@@ -136,28 +231,31 @@ def _safe_log(w: np.ndarray) -> np.ndarray:
         return np.log(w)
 
 
-def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
-    mx = np.max(a, axis=axis, keepdims=True)
-    mx = np.where(np.isfinite(mx), mx, 0.0)
-    return np.log(np.sum(np.exp(a - mx), axis=axis)) + np.squeeze(mx, axis=axis)
-
-
 def _normalized_exp(logw: np.ndarray) -> np.ndarray:
-    """exp(logw) normalised along the last axis, computed stably."""
-    mx = np.max(logw, axis=-1, keepdims=True)
-    w = np.exp(logw - np.where(np.isfinite(mx), mx, 0.0))
-    total = w.sum(axis=-1, keepdims=True)
-    if np.any(total <= 0) or not np.all(np.isfinite(total)):
+    """``exp(logw)`` normalised along the last axis (scipy's softmax); a mixture whose
+    log-weights are all ``-inf`` or NaN has lost its mass and raises."""
+    ok = np.isfinite(np.max(logw, axis=-1)) & ~np.any(np.isnan(logw), axis=-1)
+    if not np.all(ok):
         raise InputError("weights: a mixture lost all its mass (disjoint densities)")
-    return w / total
+    return softmax(logw, axis=-1)
 
 
 def product(a: DiagMixture, b: DiagMixture) -> DiagMixture:
-    """Normalised product ``c a(x) b(x)`` of two batches of mixtures (eq. 2).
+    """Normalised product ``c a(x) b(x)`` of two batches of mixtures (eq. (2)).
 
     Component pairs ``(i, j)`` give ``K_a K_b`` components with variance
     ``(1/v_i + 1/v_j)^-1``, mean ``v (mu_i/v_i + mu_j/v_j)`` and weight
     ``w_i w_j N(mu_i; mu_j, v_i + v_j)``.
+
+    Parameters
+    ----------
+    a, b : DiagMixture
+        Batches of the same dimension (batch axes broadcast).
+
+    Returns
+    -------
+    DiagMixture
+        ``K_a K_b`` components per mixture, weights renormalised.
     """
     if a.dim != b.dim:
         raise InputError(f"product: dimensions differ ({a.dim} and {b.dim})")
@@ -178,7 +276,18 @@ def product(a: DiagMixture, b: DiagMixture) -> DiagMixture:
 
 def convolve(a: DiagMixture, b: DiagMixture) -> DiagMixture:
     """Density of the sum of independent variables with densities ``a`` and ``b``
-    (the prediction integral of Sect. 4 with a mixture transition density)."""
+    (the prediction integral of Sect. 4 with a mixture transition density).
+
+    Parameters
+    ----------
+    a, b : DiagMixture
+        Batches of the same dimension (batch axes broadcast).
+
+    Returns
+    -------
+    DiagMixture
+        ``K_a K_b`` components per mixture.
+    """
     if a.dim != b.dim:
         raise InputError(f"convolve: dimensions differ ({a.dim} and {b.dim})")
     mean = a.means[..., :, None, :] + b.means[..., None, :, :]
@@ -193,8 +302,26 @@ def convolve(a: DiagMixture, b: DiagMixture) -> DiagMixture:
 
 
 def merge_moments(w1, m1, v1, w2, m2, v2):
-    """Moment-matched merge of two axis-aligned components: total weight, mean and per-axis
-    variance of the two-component mixture. Weights ``(...)``, means/variances ``(..., D)``."""
+    """Moment-matched merge of two axis-aligned components.
+
+    Parameters
+    ----------
+    w1, w2 : ndarray, shape (...)
+        Weights.
+    m1, m2 : ndarray, shape (..., D)
+        Means.
+    v1, v2 : ndarray, shape (..., D)
+        Per-axis variances.
+
+    Returns
+    -------
+    w : ndarray, shape (...)
+        Total weight.
+    m : ndarray, shape (..., D)
+        Mean of the two-component mixture.
+    v : ndarray, shape (..., D)
+        Its per-axis variances.
+    """
     w = w1 + w2
     safe = np.where(w > 0, w, 1.0)[..., None]
     a1, a2 = w1[..., None] / safe, w2[..., None] / safe
@@ -205,14 +332,36 @@ def merge_moments(w1, m1, v1, w2, m2, v2):
 
 def runnalls_cost(w1, m1, v1, w2, m2, v2) -> np.ndarray:
     """Runnalls' (2007) upper bound on the KL divergence caused by merging two components:
-    ``0.5 [(w1+w2) log|P12| - w1 log|P1| - w2 log|P2|]`` with diagonal covariances."""
+    ``0.5 [(w1+w2) log|P12| - w1 log|P1| - w2 log|P2|]`` with diagonal covariances.
+
+    Parameters
+    ----------
+    w1, m1, v1, w2, m2, v2 : ndarray
+        As in :func:`merge_moments`.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        The merge cost.
+    """
     w, _, v = merge_moments(w1, m1, v1, w2, m2, v2)
     return 0.5 * (w * np.sum(np.log(v), -1) - w1 * np.sum(np.log(v1), -1)
                   - w2 * np.sum(np.log(v2), -1))
 
 
 def compact(mix: DiagMixture) -> DiagMixture:
-    """Drop zero-weight slots, keeping as many components as the fullest mixture needs."""
+    """Drop zero-weight slots, keeping as many components as the fullest mixture needs.
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of mixtures.
+
+    Returns
+    -------
+    DiagMixture
+        Components sorted by decreasing weight (stable), trailing empty slots removed.
+    """
     order = np.argsort(-mix.weights, axis=-1, kind="stable")
     keep = max(1, int(np.max(np.sum(mix.weights > 0, axis=-1), initial=1)))
     order = order[..., :keep]
@@ -230,6 +379,23 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
     mean and the per-axis variances of the pair, so the whole reduction preserves the mass,
     the mean and the diagonal of the covariance of the mixture. One merge per loop
     iteration per mixture, in a compiled kernel (:func:`_west_kernel`).
+
+    Weights, and merge costs, that agree to a relative ``1e-9`` count as tied and the tie
+    goes to the lower component index. Without this, exact ties (the symmetric cells of
+    :func:`uniform_ball`) were broken by rounding, and a change of ``1e-12`` in a radius
+    flipped a merge and moved a tracked position by a metre.
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of mixtures.
+    max_components : int
+        The bound, >= 1.
+
+    Returns
+    -------
+    DiagMixture
+        At most ``max_components`` components per mixture (compacted).
     """
     if int(max_components) < 1:
         raise InputError(f"max_components: must be >= 1, got {max_components}")
@@ -241,7 +407,7 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
     w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float).copy()
     m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float).copy()
     v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float).copy()
-    _west_kernel(w, m, v, int(max_components))
+    _west_kernel(w, m, v, int(max_components), _TIE)
     out = compact(DiagMixture(w, m, v))
     kk = out.n_components
     return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
@@ -249,7 +415,7 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
 
 
 @njit(cache=True)
-def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
+def _west_kernel(w, m, v, kmax, tie):  # pragma: no cover - compiled
     """In-place greedy merging of :func:`reduce` (sequential by nature: each merge changes
     the costs of the next). Same rule and formulas as :func:`merge_moments` and
     :func:`runnalls_cost`."""
@@ -262,9 +428,10 @@ def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
         while n_active > kmax:
             i = -1
             for c in range(k):
-                if w[b, c] > 0 and (i < 0 or w[b, c] < w[b, i]):
+                if w[b, c] > 0 and (i < 0 or w[b, c] < w[b, i] * (1.0 - tie)):
                     i = c
             best = np.inf
+            best_scale = 0.0
             j = -1
             logdet_i = 0.0
             for e in range(d):
@@ -284,8 +451,10 @@ def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
                     ld += np.log(vv)
                     ldc += np.log(v[b, c, e])
                 cost = 0.5 * (ws * ld - w[b, i] * logdet_i - w[b, c] * ldc)
-                if cost < best:
+                scale = 0.5 * (ws * abs(ld) + w[b, i] * abs(logdet_i) + w[b, c] * abs(ldc))
+                if j < 0 or cost < best - tie * (scale + best_scale):
                     best = cost
+                    best_scale = scale
                     j = c
             ws = w[b, i] + w[b, j]
             a1 = w[b, i] / ws
@@ -302,14 +471,27 @@ def _west_kernel(w, m, v, kmax):  # pragma: no cover - compiled
 
 
 def uniform_ball(radius, dim: int) -> DiagMixture:
-    """Mixture approximating the uniform density on a ball of ``radius`` ``(...)`` centred
-    at 0 (the motion model of Sect. 4), preserving mass, mean and covariance.
+    """Mixture approximating the uniform density on a ball centred at 0 (the motion model
+    of Sect. 4), preserving mass, mean and covariance.
 
     ``dim=1``: the interval ``[-r, r]`` cut into 5 equal segments, each a Gaussian with the
     segment's centre and variance ``(2r/5)^2/12``. ``dim=2``: the disk cut into 7 cells of
     equal area (a central disk of radius ``r/sqrt 7`` and 6 annular sectors), components
     at the cell centroids, equal weights, one common isotropic variance chosen so that the
-    per-axis variance equals the disk's ``r^2/4``.
+    per-axis variance equals the disk's ``r^2/4``. The component count does not depend on
+    the radius.
+
+    Parameters
+    ----------
+    radius : float or ndarray, shape (...)
+        Radius ``r`` > 0.
+    dim : int
+        1 (interval) or 2 (disk).
+
+    Returns
+    -------
+    DiagMixture
+        Batch shape ``radius.shape``, 5 (1-D) or 7 (2-D) components.
     """
     r = np.asarray(radius, dtype=float)
     if np.any(r <= 0):
@@ -334,3 +516,50 @@ def uniform_ball(radius, dim: int) -> DiagMixture:
         raise InputError(f"dim: uniform_ball supports 1 or 2, got {dim}")
     weights = np.full(means.shape[:-1], 1.0 / n)
     return DiagMixture(weights, means, variances)
+
+
+def pad_components(mix: DiagMixture, k: int) -> DiagMixture:
+    """Pad every mixture with empty slots (weight 0, mean 0, variance 1) up to ``k``.
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of mixtures.
+    k : int
+        Number of component slots wanted (no change when ``mix`` has as many or more).
+
+    Returns
+    -------
+    DiagMixture
+        Same densities, ``max(k, K)`` slots.
+    """
+    extra = int(k) - mix.n_components
+    if extra <= 0:
+        return mix
+    b = mix.batch_shape
+    return DiagMixture(np.concatenate([mix.weights, np.zeros(b + (extra,))], -1),
+                       np.concatenate([mix.means, np.zeros(b + (extra, mix.dim))], -2),
+                       np.concatenate([mix.variances, np.ones(b + (extra, mix.dim))], -2))
+
+
+def select(mask, new: DiagMixture, old: DiagMixture) -> DiagMixture:
+    """Per-mixture choice between two batches: ``new`` where ``mask`` is True, else ``old``.
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (...)
+        The choice per mixture (broadcast against both batches).
+    new, old : DiagMixture
+        Batches of the same dimension; component counts are padded to the larger.
+
+    Returns
+    -------
+    DiagMixture
+        The chosen mixtures.
+    """
+    k = max(new.n_components, old.n_components)
+    new, old = pad_components(new, k), pad_components(old, k)
+    mk = np.asarray(mask)[..., None]
+    return DiagMixture(np.where(mk, new.weights, old.weights),
+                       np.where(mk[..., None], new.means, old.means),
+                       np.where(mk[..., None], new.variances, old.variances))

@@ -87,20 +87,42 @@ def progressive_calibration(positions, rss, bandwidth, max_components: int = 16,
     return DiagMixture(w / w.sum(-1, keepdims=True), mu, var)
 
 
-def em_calibration(positions, rss, n_components: int = 16, seed: int = 0,
+def em_calibration(positions, rss, n_components: int = 16, *, rng: np.random.Generator,
                    reg_covar: float = 1e-3) -> DiagMixture:
     """Batch EM fit of one axis-aligned mixture per base station (scikit-learn).
 
-    ``positions`` ``(N, P)``, ``rss`` ``(N, S)`` with NaN for not received. Returns a
-    :class:`DiagMixture` with batch shape ``(S,)``; stations with fewer samples than
-    components get as many components as samples (padded with zero weights).
+    Parameters
+    ----------
+    positions : array_like, shape (N, P)
+        Calibration positions.
+    rss : array_like, shape (N, S)
+        Signal strengths, NaN = not received (the row is not used for that station).
+    n_components : int
+        Components per station (>= 1); a station with fewer samples gets as many
+        components as samples, padded with zero weights.
+    rng : numpy.random.Generator
+        Source of the k-means++ initialisation (one ``random_state`` per station is drawn
+        from it).
+    reg_covar : float
+        Variance added to the diagonal of every component (scikit-learn).
+
+    Returns
+    -------
+    DiagMixture
+        Batch shape ``(S,)``, dimension ``P + 1``.
     """
     from sklearn.mixture import GaussianMixture
 
     pos, m = _check_samples(positions, rss)
     if pos.ndim != 2:
         raise InputError("positions: em_calibration takes one calibration set (N, P)")
+    if isinstance(n_components, bool) or int(n_components) != n_components or n_components < 1:
+        raise InputError(f"n_components: must be an integer >= 1, got {n_components!r}")
+    n_components = int(n_components)
+    if not isinstance(rng, np.random.Generator):
+        raise InputError(f"rng: expected a numpy Generator, got {type(rng).__name__}")
     p = pos.shape[1]
+    states = rng.integers(0, 2**31 - 1, size=m.shape[1])
     ws, mus, vs = [], [], []
     for k in range(m.shape[1]):      # one sklearn fit per base station
         ok = np.isfinite(m[:, k])
@@ -108,7 +130,8 @@ def em_calibration(positions, rss, n_components: int = 16, seed: int = 0,
             raise InputError(f"rss: base station column {k} has fewer than 2 calibration samples")
         data = np.c_[pos[ok], m[ok, k]]
         kk = min(n_components, int(ok.sum()))
-        gm = GaussianMixture(kk, covariance_type="diag", random_state=seed, init_params="k-means++",
+        gm = GaussianMixture(kk, covariance_type="diag", random_state=int(states[k]),
+                             init_params="k-means++",
                              reg_covar=reg_covar).fit(data)
         pad = n_components - kk
         ws.append(np.r_[gm.weights_, np.zeros(pad)])

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
 
 
@@ -20,11 +21,20 @@ from radioloc.core.validation import as_float_array, check_positive
 class Corridor:
     """Corridor geometry and propagation (all choices of ours where the paper is silent).
 
-    length_m: corridor length (paper: 60 m); stations at 0 and ``length_m``.
-    door_m: door position (paper: the middle).
-    p0_dbm: received power at ``d0_m`` from a station.
-    exponent: path-loss exponent.
-    door_loss_db: extra attenuation of a closed metallic door.
+    Parameters
+    ----------
+    length_m : float
+        Corridor length (paper: 60 m); stations at 0 and ``length_m``.
+    door_m : float
+        Door position (paper: the middle).
+    p0_dbm : float
+        Received power at ``d0_m`` from a station.
+    d0_m : float
+        Reference distance of the path loss.
+    exponent : float
+        Path-loss exponent.
+    door_loss_db : float
+        Extra attenuation of a closed metallic door.
     """
 
     length_m: float = 60.0
@@ -36,11 +46,24 @@ class Corridor:
 
     @property
     def stations(self) -> np.ndarray:
+        """Station positions ``[0, length_m]``."""
         return np.array([0.0, self.length_m])
 
     def mean_rss(self, x, door_closed) -> np.ndarray:
-        """Noise-free signal strength ``(..., 2)`` at positions ``x`` ``(...)`` for door
-        states ``door_closed`` (bool, broadcast against ``x``)."""
+        """Noise-free signal strength of both stations.
+
+        Parameters
+        ----------
+        x : array_like, shape (...)
+            User positions, metres.
+        door_closed : array_like of bool
+            Door state, broadcast against ``x``.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            Signal strengths in dBm.
+        """
         x = as_float_array(x, "x")
         d = np.abs(x[..., None] - self.stations)
         loss = 10 * self.exponent * np.log10(np.maximum(d, self.d0_m) / self.d0_m)
@@ -50,7 +73,78 @@ class Corridor:
         return self.p0_dbm - loss - self.door_loss_db * (between & closed)
 
     def sample_rss(self, x, door_closed, noise_db: float, rng: np.random.Generator) -> np.ndarray:
-        """Noisy signal strength ``(..., 2)``."""
+        """Noisy signal strength of both stations.
+
+        Parameters
+        ----------
+        x : array_like, shape (...)
+            User positions, metres.
+        door_closed : array_like of bool
+            Door state, broadcast against ``x``.
+        noise_db : float
+            Standard deviation of the Gaussian noise, dB (>= 0).
+        rng : numpy.random.Generator
+            Source of the noise.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            Signal strengths in dBm.
+        """
         check_positive(noise_db, "noise_db", allow_zero=True)
         mean = self.mean_rss(x, door_closed)
         return mean + noise_db * rng.standard_normal(mean.shape)
+
+    def calibration_set(self, n_runs: int, n_samples: int, noise_db: float,
+                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Calibration samples in both door states (Sect. 3.1.1).
+
+        Positions are uniform along the corridor, the door is closed with probability 1/2
+        per sample, and each sample's signal strengths carry ``noise_db`` of noise.
+
+        Parameters
+        ----------
+        n_runs : int
+            Independent calibration sets (one per Monte Carlo run).
+        n_samples : int
+            Samples per set.
+        noise_db : float
+            Measurement noise, dB.
+        rng : numpy.random.Generator
+            Source of positions, door states and noise (drawn in that order).
+
+        Returns
+        -------
+        positions : ndarray, shape (n_runs, n_samples, 1)
+            Sample positions, metres.
+        rss : ndarray, shape (n_runs, n_samples, 2)
+            Signal strengths of both stations, dBm.
+        """
+        x = rng.uniform(0.0, self.length_m, (int(n_runs), int(n_samples)))
+        door = rng.random(x.shape) < 0.5
+        return x[..., None], self.sample_rss(x, door, noise_db, rng)
+
+
+def walk_positions(start_m: float, end_m: float, speed_m_per_s: float, dt_s: float) -> np.ndarray:
+    """Positions of a user walking at constant speed, sampled every ``dt_s``.
+
+    Parameters
+    ----------
+    start_m, end_m : float
+        First position and the position not to pass, metres (``end_m > start_m``).
+    speed_m_per_s : float
+        Walking speed, > 0.
+    dt_s : float
+        Sampling interval, > 0.
+
+    Returns
+    -------
+    ndarray, shape (T,)
+        ``start_m + speed dt k`` for every ``k`` that stays at or before ``end_m``.
+    """
+    check_positive(speed_m_per_s, "speed_m_per_s")
+    check_positive(dt_s, "dt_s")
+    steps = int(np.floor((end_m - start_m) / (speed_m_per_s * dt_s)))
+    if steps < 0:
+        raise InputError(f"end_m: {end_m} is before start_m {start_m}")
+    return start_m + speed_m_per_s * dt_s * np.arange(steps + 1)
