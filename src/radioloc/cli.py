@@ -74,6 +74,8 @@ class OneLineErrors(TyperGroup):
             with _warnings_on_one_line():
                 rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
             code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+            if code == EXIT_INTERRUPTED:  # typer turns KeyboardInterrupt into Exit(130)
+                _echo_err("interrupted")
         except _NO_ARGS as exc:
             ctx = getattr(exc, "ctx", None)
             _echo_err(ctx.get_help() if ctx is not None else exc.format_message())
