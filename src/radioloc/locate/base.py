@@ -118,7 +118,8 @@ class Option:
 
     def _range(self) -> str:
         if self.min is not None and self.max is not None:
-            return f" (allowed: {self.min:g} to {self.max:g})"
+            low = f"above {self.min:g}" if self.min_exclusive else f"{self.min:g}"
+            return f" (allowed: {low} to {self.max:g})"
         return ""
 
     def describe(self) -> str:
