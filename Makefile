@@ -33,3 +33,8 @@ bench: $(STAMP_DEV)
 
 clean:
 	rm -rf $(VENV) out out-full .pytest_cache
+
+# Long fuzz of `radioloc locate` (>= 10,000 generated cases; `make test` runs a fast profile).
+.PHONY: fuzz
+fuzz: $(STAMP_DEV)
+	RADIOLOC_FUZZ_PROFILE=long $(BIN)/python -m pytest -n 2 -p no:cacheprovider tests/fuzz

@@ -1,28 +1,148 @@
-"""The command line: ``radioloc list | reproduce | locate``."""
+"""The command line: ``radioloc list | reproduce | locate``.
+
+Errors are one line on standard error, never a traceback or a usage box:
+
+- ``error: ...``, exit code 2: the toolkit's own errors (:class:`RadiolocError`: bad input,
+  configuration, geometry, output path) and command-line usage errors;
+- ``internal error: ...``, exit code 3: anything else (a bug), with a request to report it;
+  ``RADIOLOC_DEBUG=1`` prints the traceback as well;
+- ``interrupted``, exit code 130: Ctrl-C.
+
+Floating-point trouble never reaches the terminal as ``RuntimeWarning`` noise: inside
+``locate`` a RuntimeWarning (overflow, invalid value, division by zero) is an error; other
+warnings are printed as one ``warning: ...`` line each.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import traceback
+import warnings
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated, Any, Iterator, Optional
 
+import click
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 from radioloc.core.errors import DataUnavailable, RadiolocError
 from radioloc.report.tables import wide_console
 
+EXIT_ERROR = 2
+EXIT_INTERNAL = 3
+EXIT_INTERRUPTED = 130
+REPORT_HINT = ("this is a bug in radioloc: please report it with the command and its input "
+               "files (RADIOLOC_DEBUG=1 shows the traceback)")
+
+
+def _click_classes(name: str) -> tuple[type, ...]:
+    """Exception class ``name`` of click and of the click that typer vendors (if any)."""
+    classes = [getattr(click.exceptions, name, None)]
+    try:
+        from typer._click import exceptions as vendored
+        classes.append(getattr(vendored, name, None))
+    except ImportError:  # pragma: no cover - older typer uses click itself
+        pass
+    return tuple(c for c in dict.fromkeys(classes) if isinstance(c, type))
+
+
+_NO_ARGS = _click_classes("NoArgsIsHelpError")
+_CLICK_ERRORS = _click_classes("ClickException")
+_ABORT = _click_classes("Abort") + (typer.Abort, KeyboardInterrupt)
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())
+
+
+def _echo_err(text: str) -> None:
+    click.echo(text, err=True)
+
+
+class OneLineErrors(TyperGroup):
+    """The top-level group: every failure of every (sub)command becomes one line."""
+
+    def main(self, args: Any = None, prog_name: str | None = None,
+             complete_var: str | None = None, standalone_mode: bool = True,
+             **extra: Any) -> Any:
+        code = 0
+        try:
+            with _warnings_on_one_line():
+                rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+            code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+            if code == EXIT_INTERRUPTED:  # typer turns KeyboardInterrupt into Exit(130)
+                _echo_err("interrupted")
+        except _NO_ARGS as exc:
+            ctx = getattr(exc, "ctx", None)
+            _echo_err(ctx.get_help() if ctx is not None else exc.format_message())
+            code = EXIT_ERROR
+        except _CLICK_ERRORS as exc:  # usage errors: bad option, missing argument
+            ctx = getattr(exc, "ctx", None)
+            cmd = ctx.command_path if ctx is not None else "radioloc"
+            _echo_err(f"error: {_one_line(exc.format_message())} (see '{cmd} --help')")
+            code = exc.exit_code
+        except _ABORT:
+            _echo_err("interrupted")
+            code = EXIT_INTERRUPTED
+        except RadiolocError as exc:
+            if os.environ.get("RADIOLOC_DEBUG") == "1":
+                traceback.print_exc()
+            _echo_err(f"error: {_one_line(exc)}")
+            code = EXIT_ERROR
+        except Exception as exc:  # noqa: BLE001 - the boundary: a bug, reported on one line
+            if os.environ.get("RADIOLOC_DEBUG") == "1":
+                traceback.print_exc()
+            what = type(exc).__name__
+            if isinstance(exc, (RuntimeWarning, FloatingPointError)):
+                what = f"floating-point failure ({what})"
+            _echo_err(f"internal error: {what}: {_one_line(exc)}; {REPORT_HINT}")
+            code = EXIT_INTERNAL
+        if not standalone_mode:
+            return code
+        sys.exit(code)
+
+
+@contextlib.contextmanager
+def _warnings_on_one_line() -> Iterator[None]:
+    """Print warnings as ``warning: <message>`` (one line, once per message)."""
+    seen: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001
+        text = f"warning: {_one_line(message)}"
+        if text not in seen:
+            seen.add(text)
+            _echo_err(text)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
+@contextlib.contextmanager
+def numeric_errors_raise() -> Iterator[None]:
+    """Turn floating-point warnings (overflow, invalid, divide) into exceptions."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        yield
+
+
 app = typer.Typer(
     help="radioloc: locate and track radio nodes from ranges and signal strength, and "
          "reproduce the published results of the papers it implements.",
-    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+    cls=OneLineErrors)
 console = wide_console()
 err_console = Console(stderr=True)
 
 
 def _fail(exc: Exception) -> None:
-    err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code=2)
+    """Report ``exc`` as ``error: ...`` and exit 2 (kept for sub-commands that call it)."""
+    _echo_err(f"error: {_one_line(exc)}")
+    raise typer.Exit(code=EXIT_ERROR)
 
 
 @app.command("list")
@@ -58,21 +178,21 @@ def reproduce(
     from radioloc.report.html import write_index
     from radioloc.report.tables import print_record
 
-    try:
-        ids = list(registry()) if experiment == "all" else [get_experiment(experiment).id]
-        for eid in ids:
-            try:
-                outcome = run_experiment(eid, full=full, runs=runs, seed=seed, out=out,
-                                         workers=workers, scheduler=scheduler)
-                print_record(outcome.record, console)
-            except DataUnavailable as exc:
-                print_record(write_skipped(get_experiment(eid), str(exc), full=full, seed=seed,
-                                           out=out), console)
-        if experiment == "all":
-            index = write_index(out, {k: v.description for k, v in registry().items()})
-            console.print(f"report: {index}")
-    except RadiolocError as exc:
-        _fail(exc)
+    from radioloc.core.atomic import check_folder_path
+
+    check_folder_path(out)
+    ids = list(registry()) if experiment == "all" else [get_experiment(experiment).id]
+    for eid in ids:
+        try:
+            outcome = run_experiment(eid, full=full, runs=runs, seed=seed, out=out,
+                                     workers=workers, scheduler=scheduler)
+            print_record(outcome.record, console)
+        except DataUnavailable as exc:
+            print_record(write_skipped(get_experiment(eid), str(exc), full=full, seed=seed,
+                                       out=out), console)
+    if experiment == "all":
+        index = write_index(out, {k: v.description for k, v in registry().items()})
+        console.print(f"report: {index}")
 
 
 @app.command()
@@ -90,24 +210,26 @@ def locate(
     Output: CSV with time, node, x, y and, where the method has one, uncertainty_m
     (square root of the trace of the position covariance, metres).
     """
-    from radioloc.io.logs import read_anchors, read_measurements, write_estimates
+    from radioloc.io.logs import check_output_path, read_anchors, read_measurements, write_estimates
     from radioloc.locate.base import LocateRequest, run_method
 
-    try:
-        opts: dict[str, str] = {}
-        for item in option or []:
-            if "=" not in item:
-                raise RadiolocError(f"--option {item!r}: expected key=value")
-            k, v = item.split("=", 1)
-            opts[k.strip()] = v.strip()
+    check_output_path(out)
+    opts: dict[str, str] = {}
+    for item in option or []:
+        k, sep, v = item.partition("=")
+        if not sep or not k.strip():
+            raise RadiolocError(f"--option {item!r}: expected key=value")
+        if k.strip() in opts:
+            raise RadiolocError(f"--option {k.strip()!r} given twice")
+        opts[k.strip()] = v.strip()
+    with numeric_errors_raise():
         anchor_table = read_anchors(anchors) if anchors is not None else None
         meas = read_measurements(measurements, anchors=anchor_table)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
-        write_estimates(run_method(method, request), out)
-    except RadiolocError as exc:
-        _fail(exc)
-    if out is not None:
-        err_console.print(f"wrote {out}")
+        estimates = run_method(method, request)
+    write_estimates(estimates, out)
+    if out is not None and str(out) != "-":
+        _echo_err(f"wrote {out}")
 
 
 @app.command("methods")
@@ -115,9 +237,12 @@ def list_methods() -> None:
     """List the estimators available to `radioloc locate`."""
     from radioloc.locate.base import methods
 
-    table = Table("method", "what it does", title="radioloc locate methods", title_justify="left")
+    table = Table("method", "what it does", "options (-o key=value)",
+                  title="radioloc locate methods", title_justify="left")
     for name, m in methods().items():
-        table.add_row(name, m.summary)
+        opts = "" if m.options is None else "\n".join(
+            f"{k}: {spec.describe()}" for k, spec in m.options.items()) or "none"
+        table.add_row(name, m.summary, opts)
     console.print(table)
 
 

@@ -39,6 +39,14 @@ class ConfigError(RadiolocError):
     """An experiment or estimator parameter is out of its valid range."""
 
 
+class OutputError(RadiolocError):
+    """An output file or folder cannot be written: ``--out`` names a folder where a file
+    is expected (or the reverse), a path below a file, a read-only place or a full device.
+
+    The message names the path and the reason (the operating system's, in words).
+    """
+
+
 class DataUnavailable(RadiolocError):
     """A real data set that an experiment needs is not on this machine.
 

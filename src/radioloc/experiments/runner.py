@@ -5,6 +5,12 @@ The runs ``0..N-1`` are cut into blocks of ``config.block_size``; block ``b`` dr
 pool of local processes (``workers > 1``) or on a Dask cluster (``scheduler``), and their
 frames are concatenated in block order, so ``results.csv`` is the same byte for byte
 whatever the engine and the number of workers.
+
+Output folders are all or nothing: every file of a run (``results.csv``, ``timings.csv``,
+the figures, ``summary.json``) is written into a staging folder beside ``OUT/<id>``
+(:func:`radioloc.core.atomic.staged_folder`), which replaces ``OUT/<id>`` as a whole once
+the run is complete. An interruption at any point (Ctrl-C, an error, a full disk) leaves
+``OUT/<id>`` holding the previous complete run, or nothing if there was none.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from typing import Any, Iterator
 import numpy as np
 import pandas as pd
 
+from radioloc.core.atomic import atomic_write_text, atomic_write_with, staged_folder
 from radioloc.core.errors import ConfigError
 from radioloc.core.rng import block_generator
 from radioloc.experiments.base import Experiment, Summary, get_experiment
@@ -133,47 +140,100 @@ def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, 
     exp.check_available()
     config = exp.with_runs(exp.config(full), runs)
     out_dir = Path(out) / exp.id
-    out_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    results = run_blocks(exp, config, seed=seed, workers=workers, scheduler=scheduler,
-                         progress=progress)
-    summary = exp.summarize(config, results, out_dir)
-    elapsed = time.perf_counter() - t0
-    write_results(exp, results, out_dir)
-    record = {
-        "experiment": exp.id,
-        "paper": exp.paper,
-        "seed": int(seed),
-        "runs": int(config.runs),
-        "full": bool(full),
-        "elapsed_s": round(elapsed, 3),
-        "metrics": [m.as_dict() for m in summary.metrics],
-        "claims": [c.as_dict() for c in summary.claims],
-        "notes": list(summary.notes),
-        "skipped": None,
-        "config": _jsonable(config),
-    }
-    (out_dir / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
+    with staged_folder(out_dir) as stage:
+        t0 = time.perf_counter()
+        results = run_blocks(exp, config, seed=seed, workers=workers, scheduler=scheduler,
+                             progress=progress)
+        summary = exp.summarize(config, results, stage)
+        elapsed = time.perf_counter() - t0
+        write_results(exp, results, stage)
+        record = {
+            "experiment": exp.id,
+            "paper": exp.paper,
+            "seed": int(seed),
+            "runs": int(config.runs),
+            "full": bool(full),
+            "elapsed_s": round(elapsed, 3),
+            "metrics": [m.as_dict() for m in summary.metrics],
+            "claims": [c.as_dict() for c in summary.claims],
+            "notes": list(summary.notes),
+            "skipped": None,
+            "config": _jsonable(config),
+        }
+        write_summary(record, stage)
     return RunOutcome(exp, config, results, summary, record, out_dir)
+
+
+def write_summary(record: dict, out_dir: Path) -> Path:
+    """Write ``summary.json`` (atomically) into ``out_dir``.
+
+    Parameters
+    ----------
+    record : dict
+        The run's record (JSON-serialisable).
+    out_dir : Path
+        The folder.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    return atomic_write_text(Path(out_dir) / "summary.json", json.dumps(record, indent=2) + "\n")
 
 
 def write_results(exp: Experiment, results: pd.DataFrame, out_dir: Path) -> None:
     """Write ``results.csv`` (reproducible) and, if the experiment measures CPU time,
-    ``timings.csv`` (its timing columns beside the non-float identifying columns)."""
+    ``timings.csv`` (its timing columns beside the non-float identifying columns).
+
+    Parameters
+    ----------
+    exp : Experiment
+        The experiment (for its ``timing_columns``).
+    results : DataFrame
+        The concatenated frames of every block.
+    out_dir : Path
+        The folder; each file is written atomically.
+
+    Returns
+    -------
+    None
+    """
     timing = [c for c in exp.timing_columns if c in results.columns]
-    results.drop(columns=timing).to_csv(out_dir / "results.csv", index=False)
+    frame = results.drop(columns=timing)
+    atomic_write_with(Path(out_dir) / "results.csv", lambda f: frame.to_csv(f, index=False))
     if timing:
         ids = [c for c in results.columns
                if c not in timing and not pd.api.types.is_float_dtype(results[c])]
-        results[ids + timing].to_csv(out_dir / "timings.csv", index=False)
+        atomic_write_with(Path(out_dir) / "timings.csv",
+                          lambda f: results[ids + timing].to_csv(f, index=False))
 
 
 def write_skipped(exp: Experiment, reason: str, *, full: bool, seed: int, out: Path | str) -> dict:
-    """Write the ``summary.json`` of an experiment that was skipped (data absent)."""
-    out_dir = Path(out) / exp.id
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Write the ``summary.json`` of an experiment that was skipped (data absent).
+
+    The folder ``OUT/<id>`` is replaced as a whole, like a run's: it then holds only this
+    ``summary.json``, never a previous run's results beside a "skipped" summary.
+
+    Parameters
+    ----------
+    exp : Experiment
+        The skipped experiment.
+    reason : str
+        Why (the :class:`~radioloc.core.errors.DataUnavailable` message).
+    full, seed : bool, int
+        The command's options, recorded.
+    out : path
+        The output root.
+
+    Returns
+    -------
+    dict
+        The record written.
+    """
     record = {"experiment": exp.id, "paper": exp.paper, "seed": int(seed), "runs": 0,
               "full": bool(full), "elapsed_s": 0.0, "metrics": [], "claims": [], "notes": [],
               "skipped": reason, "config": None}
-    (out_dir / "summary.json").write_text(json.dumps(record, indent=2) + "\n")
+    with staged_folder(Path(out) / exp.id) as stage:
+        write_summary(record, stage)
     return record

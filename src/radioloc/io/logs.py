@@ -14,37 +14,117 @@ column      meaning
 
 Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique.
 
-Errors name the file, the line (as a spreadsheet shows it: the header is line 1) and the
-column, so that a user can open the file and fix it.
+Errors name the file, the line (as a text editor shows it: the header is line 1; blank
+lines and quoted line breaks counted) and the column, so that a user can open the file and
+fix it. Refused besides malformed cells: a column named twice, a row with more or fewer
+cells than the header, magnitudes no real log holds (see :data:`LIMITS`: a range beyond
+10,000 km, an RSS above +30 dBm, such as the +100 dBm "not detected" sentinel of WiFi
+fingerprint sets, or below -200 dBm, a time stamp beyond 1e12 s, an anchor coordinate
+beyond 10,000 km).
+
+Estimates are written with every float in its shortest exact form (``repr``), so that the
+times and positions read back are bit-for-bit the ones computed; the file is written to a
+temporary name and renamed, so it is complete or absent.
 """
 
 from __future__ import annotations
 
+import csv
+import sys
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 import pandas as pd
 
+from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 KINDS = ("range", "rss")
 
+#: Plausibility limits of the input values (refused beyond, naming line and column).
+LIMITS = {
+    "range_m": 1e7,          # 10,000 km: beyond any terrestrial link
+    "coordinate_m": 1e7,     # |x|, |y|, |z| of an anchor (UTM northings and ECEF fit)
+    "rss_max_dbm": 30.0,     # 1 W received
+    "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
+    "time_s": 1e12,          # ~31,700 years; epoch milliseconds are 1.7e12
+}
+RSS_NOT_DETECTED_DBM = 100.0
+
+
+def _line(frame: pd.DataFrame, i: int) -> int:
+    """File line of row ``i`` (position) of a frame read by :func:`_read_csv`."""
+    lines = frame.attrs.get("lines")
+    return int(lines[i]) if lines is not None and i < len(lines) else i + 2
+
 
 def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
+    """Read a CSV as text cells with lower-case, stripped, unique column names.
+
+    The frame's ``attrs["lines"]`` holds the file line where each row starts (blank lines
+    and rows of empty cells are skipped but counted).
+    """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{what} file {path}: not found")
+    if path.is_dir():
+        raise InputError(f"{what} file {path}: is a folder, not a file")
+    header: list[str] | None = None
+    header_line = 1
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    line = 0
     try:
-        frame = pd.read_csv(path, dtype=str, skipinitialspace=True, keep_default_na=False)
-    except pd.errors.EmptyDataError:
-        raise InputError(f"{path}: the file is empty") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a readable CSV file ({str(exc).strip()})") from None
-    frame.columns = [c.strip().lower() for c in frame.columns]
-    if frame.empty:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh, skipinitialspace=True)
+            while True:
+                line = reader.line_num + 1
+                try:
+                    rec = next(reader)
+                except StopIteration:
+                    break
+                if not any(c.strip() for c in rec):
+                    continue
+                if header is None:
+                    header, header_line = rec, line
+                else:
+                    rows.append(rec)
+                    lines.append(line)
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file in UTF-8 (line {line})") from None
+    except csv.Error as exc:
+        raise InputError(f"{path}: line {line}: not readable as CSV ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if header is None:
+        raise InputError(f"{path}: the file is empty")
+    names = [c.strip().lower() for c in header]
+    width = len(names)
+    for k, rec in enumerate(rows):
+        if len(rec) != width and any(c.strip() for c in rec[width:]) or len(rec) < width:
+            raise InputError(f"{path}: line {lines[k]}: {len(rec)} cells, the header (line "
+                             f"{header_line}) has {width}")
+        if len(rec) > width:
+            rows[k] = rec[:width]
+    if not rows:
         raise InputError(f"{path}: no data rows below the header")
+    keep = []
+    for j, name in enumerate(names):
+        if name == "":
+            if any(r[j].strip() for r in rows):
+                raise InputError(f"{path}: line {header_line}: column {j + 1} holds values but "
+                                 "has no name in the header")
+            continue
+        if name in names[:j]:
+            first = names.index(name)
+            raise InputError(f"{path}: line {header_line}: column '{name}' appears twice "
+                             f"(columns {first + 1} and {j + 1}); which one is meant?")
+        keep.append(j)
+    frame = pd.DataFrame([[r[j] for j in keep] for r in rows],
+                         columns=[names[j] for j in keep], dtype=str)
+    frame.attrs["lines"] = np.asarray(lines)
     return frame
 
 
@@ -56,37 +136,61 @@ def _require_columns(frame: pd.DataFrame, columns: Iterable[str], path: Path | s
 
 
 def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    raw = frame[column].str.strip()
-    values = pd.to_numeric(raw, errors="coerce")
+    raw = frame[column].astype(str).str.strip()
+    values = pd.to_numeric(raw, errors="coerce").astype(float)
     bad = values.isna() & (raw.str.lower() != "nan") | (raw == "")
     if bad.any():
         i = int(np.flatnonzero(bad.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}, column '{column}': not a number: {raw.iloc[i]!r}")
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': not a number: "
+                         f"{raw.iloc[i]!r}")
     nonfinite = ~np.isfinite(values.to_numpy())
     if nonfinite.any():
         i = int(np.flatnonzero(nonfinite)[0])
-        raise InputError(f"{path}: line {i + 2}, column '{column}': {raw.iloc[i]} is not a finite number")
-    return values.astype(float)
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': {raw.iloc[i]} is "
+                         "not a finite number")
+    return values
 
 
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    ids = frame[column].str.strip()
+    ids = frame[column].astype(str).str.strip()
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}, column '{column}': empty id")
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': empty id")
     return ids
+
+
+def _first(mask: pd.Series | np.ndarray) -> int | None:
+    idx = np.flatnonzero(np.asarray(mask))
+    return int(idx[0]) if idx.size else None
+
+
+def _check_magnitude(frame: pd.DataFrame, values: pd.Series, column: str, limit: float,
+                     unit: str, path: Path | str) -> None:
+    i = _first(np.abs(values.to_numpy()) > limit)
+    if i is not None:
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': {values.iloc[i]:g}"
+                         f" {unit} is beyond the limit of {limit:g} {unit}")
 
 
 def read_anchors(path: Path | str) -> pd.DataFrame:
     """Read and validate an anchors CSV (``id, x, y[, z]``).
 
-    Returns a frame with columns ``id`` (str), ``x``, ``y`` and ``z`` if present.
+    Parameters
+    ----------
+    path : path
+        The file.
+
+    Returns
+    -------
+    DataFrame
+        Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``.
 
     Raises
     ------
     InputError
-        Missing column, text in a coordinate, non-finite coordinate, duplicate or empty id.
+        Missing or duplicated column, text in a coordinate, non-finite coordinate or one
+        beyond 1e7 m, duplicate or empty id.
     """
     frame = _read_csv(path, "anchors")
     _require_columns(frame, ("id", "x", "y"), path)
@@ -94,10 +198,13 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     for c in ("x", "y", "z"):
         if c in frame.columns:
             out[c] = _numeric(frame, c, path)
+            _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"], "m", path)
     dup = out["id"].duplicated()
     if dup.any():
         i = int(np.flatnonzero(dup.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}, column 'id': duplicate anchor id {out['id'].iloc[i]!r}")
+        raise InputError(f"{path}: line {_line(frame, i)}, column 'id': duplicate anchor id "
+                         f"{out['id'].iloc[i]!r}")
+    out["line"] = frame.attrs["lines"]
     return out
 
 
@@ -107,14 +214,23 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) 
     Parameters
     ----------
     path : path
+        The file.
     anchors : DataFrame, optional
         The anchors table. If given, every ``peer`` must be an anchor id or an id that
         appears in the ``node`` column, otherwise :class:`InputError` names the row.
 
     Returns
     -------
-    DataFrame with ``time`` (float), ``node``, ``peer`` (str), ``kind`` (str), ``value``
-    (float), and ``line`` (the file line of each row, for later error messages).
+    DataFrame
+        ``time`` (float), ``node``, ``peer`` (str), ``kind`` (str), ``value`` (float), and
+        ``line`` (the file line of each row, for later error messages).
+
+    Raises
+    ------
+    InputError
+        Naming the file, line and column: a malformed cell, a column named twice, an
+        unknown kind, a negative range, a value beyond :data:`LIMITS` (an RSS of +100 dBm
+        is named as the "not detected" sentinel), a node measuring itself, an unknown peer.
     """
     frame = _read_csv(path, "measurements")
     _require_columns(frame, MEASUREMENT_COLUMNS, path)
@@ -122,44 +238,128 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) 
         "time": _numeric(frame, "time", path),
         "node": _ids(frame, "node", path),
         "peer": _ids(frame, "peer", path),
-        "kind": frame["kind"].str.strip().str.lower(),
+        "kind": frame["kind"].astype(str).str.strip().str.lower(),
         "value": _numeric(frame, "value", path),
-        "line": np.arange(2, len(frame) + 2),
+        "line": frame.attrs["lines"],
     })
-    bad_kind = ~out["kind"].isin(KINDS)
-    if bad_kind.any():
-        i = int(np.flatnonzero(bad_kind.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}, column 'kind': {frame['kind'].iloc[i]!r} is not one "
-                         f"of {', '.join(KINDS)}")
-    neg = (out["kind"] == "range") & (out["value"] < 0)
-    if neg.any():
-        i = int(np.flatnonzero(neg.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}, column 'value': negative range {out['value'].iloc[i]}")
-    self_link = out["node"] == out["peer"]
-    if self_link.any():
-        i = int(np.flatnonzero(self_link.to_numpy())[0])
-        raise InputError(f"{path}: line {i + 2}: node {out['node'].iloc[i]!r} measured itself")
+
+    def fail(i: int, message: str) -> None:
+        raise InputError(f"{path}: line {int(out['line'].iloc[i])}, {message}")
+
+    if (i := _first(~out["kind"].isin(KINDS))) is not None:
+        fail(i, f"column 'kind': {frame['kind'].iloc[i]!r} is not one of {', '.join(KINDS)}")
+    _check_magnitude(frame, out["time"], "time", LIMITS["time_s"], "s", path)
+    is_range = (out["kind"] == "range").to_numpy()
+    is_rss = (out["kind"] == "rss").to_numpy()
+    value = out["value"].to_numpy()
+    if (i := _first(is_range & (value < 0))) is not None:
+        fail(i, f"column 'value': negative range {value[i]:g}")
+    if (i := _first(is_range & (value > LIMITS["range_m"]))) is not None:
+        fail(i, f"column 'value': range {value[i]:g} m is beyond the limit of "
+                f"{LIMITS['range_m']:g} m")
+    if (i := _first(is_rss & (value > LIMITS["rss_max_dbm"]))) is not None:
+        sentinel = (" (+100 dBm is the 'not detected' marker of WiFi fingerprint data sets: "
+                    "drop those rows, a station not received has no rss row)"
+                    if value[i] == RSS_NOT_DETECTED_DBM else "")
+        fail(i, f"column 'value': rss {value[i]:g} dBm is above the plausible maximum of "
+                f"{LIMITS['rss_max_dbm']:g} dBm{sentinel}")
+    if (i := _first(is_rss & (value < LIMITS["rss_min_dbm"]))) is not None:
+        fail(i, f"column 'value': rss {value[i]:g} dBm is below the plausible minimum of "
+                f"{LIMITS['rss_min_dbm']:g} dBm")
+    if (i := _first(out["node"] == out["peer"])) is not None:
+        raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
+                         " measured itself")
     if anchors is not None:
         known = set(anchors["id"]) | set(out["node"])
-        unknown = ~out["peer"].isin(known)
-        if unknown.any():
-            i = int(np.flatnonzero(unknown.to_numpy())[0])
-            raise InputError(f"{path}: line {i + 2}, column 'peer': unknown anchor or node "
-                             f"{out['peer'].iloc[i]!r} (not in the anchors file nor a node)")
-        clash = out["node"].isin(set(anchors["id"]))
-        if clash.any():
-            i = int(np.flatnonzero(clash.to_numpy())[0])
-            raise InputError(f"{path}: line {i + 2}, column 'node': {out['node'].iloc[i]!r} is an "
-                             "anchor id; anchors do not need locating")
+        if (i := _first(~out["peer"].isin(known))) is not None:
+            fail(i, f"column 'peer': unknown anchor or node {out['peer'].iloc[i]!r} (not in the "
+                    "anchors file nor a node)")
+        if (i := _first(out["node"].isin(set(anchors["id"])))) is not None:
+            fail(i, f"column 'node': {out['node'].iloc[i]!r} is an anchor id; anchors do not "
+                    "need locating")
     return out
 
 
-def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
-    """Write ``time, node, x, y[, ...]`` estimates as CSV (stdout if ``path`` is None or '-')."""
-    if path is None or str(path) == "-":
-        import sys
+def check_kinds(measurements: pd.DataFrame, used: Iterable[str], method: str) -> None:
+    """Refuse rows of a kind that ``method`` does not use (they would be dropped silently).
 
-        frame.to_csv(sys.stdout, index=False, float_format="%.6f")
+    Parameters
+    ----------
+    measurements : DataFrame
+        As returned by :func:`read_measurements`.
+    used : iterable of str
+        The kinds the method uses.
+    method : str
+        Its name, for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the unused kind, how many rows have it and the first line.
+    """
+    used = tuple(used)
+    other = ~measurements["kind"].isin(used)
+    if other.any():
+        rows = measurements[other]
+        kind = rows["kind"].iloc[0]
+        n = int((rows["kind"] == kind).sum())
+        raise InputError(f"method {method}: uses only {', '.join(repr(k) for k in used)} rows; "
+                         f"the measurements hold {n} {kind!r} row(s) (first at line "
+                         f"{int(rows['line'].iloc[0])}): remove them or choose a method that "
+                         "uses them")
+
+
+def check_output_path(path: Path | str | None) -> None:
+    """Refuse an output path that cannot be a file before any work is done.
+
+    Parameters
+    ----------
+    path : path or None
+        ``--out``; None or ``-`` is standard output.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a folder, or below a file.
+    """
+    if path is not None and str(path) != "-":
+        check_output_file(path)
+
+
+def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
+    """Write ``time, node, x, y[, ...]`` estimates as CSV (stdout if ``path`` is None or '-').
+
+    Parameters
+    ----------
+    frame : DataFrame
+        The estimates.
+    path : path or None
+        The output file, written atomically (temporary name, then renamed); a device such
+        as ``/dev/stdout`` is written in place.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (a folder, no permission, a full device, ...).
+
+    Notes
+    -----
+    Floats are written in their shortest exact decimal form, so that reading the file back
+    gives the same numbers bit for bit (distinct time stamps stay distinct).
+    """
+    if path is None or str(path) == "-":
+        frame.to_csv(sys.stdout, index=False)
     else:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        frame.to_csv(path, index=False, float_format="%.6f")
+        atomic_write_with(path, lambda f: frame.to_csv(f, index=False))

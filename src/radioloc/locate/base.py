@@ -5,17 +5,133 @@ A method is a function ``fn(request: LocateRequest) -> DataFrame`` returning col
 covariance, metres) where the method has one, registered with :func:`locate_method`.
 Every module of :mod:`radioloc.locate` is imported on first use, so adding a method is
 adding a module.
+
+A method declares what it reads, and :func:`run_method` refuses anything else before the
+method runs, so that nothing a user gives is silently ignored:
+
+- ``options``: its ``-o key=value`` options, ``{name: help}`` or ``{name: Option(...)}``
+  (type, bounds, choices); an unknown key is refused, naming it and listing the known
+  ones; a value that is not of the type, not finite or out of bounds is refused.
+- ``kinds``: the measurement kinds it uses (``"range"``, ``"rss"``); rows of another kind
+  are refused, naming the kind and the count.
+- ``inputs``: the files it reads besides the measurements (``"anchors"``, ``"priors"``,
+  ``"calibration"``); another file given is refused.
+
+A method that declares nothing (``None``) accepts anything, as before declarations existed.
+Its output is checked too: a non-finite position is a method failure, never printed.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Mapping
 
+import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
+
+INPUTS = ("anchors", "priors", "calibration")
+_TRUE = ("1", "true", "yes", "on")
+_FALSE = ("0", "false", "no", "off")
+
+
+@dataclass(frozen=True)
+class Option:
+    """Declaration of one ``-o key=value`` option of a locate method.
+
+    Attributes
+    ----------
+    help : str
+        One line for ``radioloc methods``.
+    type : {float, int, bool, str}
+        The value's type. ``float`` and ``int`` values must be finite; an ``int`` written
+        as ``1e3`` or ``16.0`` is accepted when integral. ``bool`` accepts 0/1, true/false,
+        yes/no, on/off.
+    min, max : float, optional
+        Inclusive bounds (numbers).
+    min_exclusive : bool
+        Whether ``min`` itself is refused (``min=0, min_exclusive=True``: strictly positive).
+    choices : tuple of str, optional
+        Allowed values (``str`` options).
+    """
+
+    help: str = ""
+    type: type = float
+    min: float | None = None
+    max: float | None = None
+    min_exclusive: bool = False
+    choices: tuple[str, ...] | None = None
+
+    def parse(self, key: str, text: str) -> Any:
+        """The value of ``-o key=text``, converted and checked.
+
+        Parameters
+        ----------
+        key : str
+            The option name, for the message.
+        text : str
+            The value as typed.
+
+        Returns
+        -------
+        float, int, bool or str
+
+        Raises
+        ------
+        ConfigError
+            Naming the option, the value and what is expected.
+        """
+        raw = text.strip()
+        if self.type is bool:
+            low = raw.lower()
+            if low in _TRUE or low in _FALSE:
+                return low in _TRUE
+            raise ConfigError(f"option {key}: expected 0/1 (or true/false), got {text!r}")
+        if self.type is str:
+            if self.choices is not None and raw not in self.choices:
+                raise ConfigError(f"option {key}: expected one of {', '.join(self.choices)}, "
+                                  f"got {text!r}")
+            return raw
+        try:
+            number = float(raw)
+        except ValueError:
+            raise ConfigError(f"option {key}: expected a number, got {text!r}") from None
+        if not math.isfinite(number):
+            raise ConfigError(f"option {key}: must be a finite number, got {text!r}")
+        if self.type is int:
+            if number != math.floor(number):
+                raise ConfigError(f"option {key}: expected a whole number, got {text!r}")
+            value: Any = int(number)
+        else:
+            value = number
+        if self.min is not None and (value < self.min or (self.min_exclusive and value == self.min)):
+            op = ">" if self.min_exclusive else ">="
+            raise ConfigError(f"option {key}: must be {op} {self.min:g}{self._range()}, got {text!r}")
+        if self.max is not None and value > self.max:
+            raise ConfigError(f"option {key}: must be <= {self.max:g}{self._range()}, got {text!r}")
+        if self.choices is not None and raw not in self.choices:
+            raise ConfigError(f"option {key}: expected one of {', '.join(self.choices)}, got {text!r}")
+        return value
+
+    def _range(self) -> str:
+        if self.min is not None and self.max is not None:
+            low = f"above {self.min:g}" if self.min_exclusive else f"{self.min:g}"
+            return f" (allowed: {low} to {self.max:g})"
+        return ""
+
+    def describe(self) -> str:
+        """``help`` with the type and bounds, for listings."""
+        parts = [self.type.__name__]
+        if self.min is not None:
+            parts.append(f"{'>' if self.min_exclusive else '>='} {self.min:g}")
+        if self.max is not None:
+            parts.append(f"<= {self.max:g}")
+        if self.choices:
+            parts.append("one of " + "/".join(self.choices))
+        return f"{self.help} [{', '.join(parts)}]" if self.help else f"[{', '.join(parts)}]"
 
 
 @dataclass
@@ -34,6 +150,9 @@ class LocateRequest:
         Method-specific calibration file (see the method's documentation).
     options : dict of str to str
         ``-o key=value`` pairs; read them with :meth:`option`.
+    parsed : dict of str to value
+        Options already converted and checked against the method's declaration
+        (filled by :func:`run_method`).
     """
 
     measurements: pd.DataFrame
@@ -41,16 +160,44 @@ class LocateRequest:
     priors: Path | None = None
     calibration: Path | None = None
     options: dict[str, str] = field(default_factory=dict)
+    parsed: dict[str, Any] = field(default_factory=dict)
 
-    def option(self, key: str, default: float | None = None, cast: type = float):
-        """The option ``key`` converted with ``cast``; ``default`` if absent."""
+    def option(self, key: str, default: Any = None, cast: type = float):
+        """The option ``key`` converted with ``cast``; ``default`` if absent.
+
+        Parameters
+        ----------
+        key : str
+            Option name.
+        default : any
+            Returned when the user did not give the option.
+        cast : type
+            Conversion of an undeclared option's text (``float``, ``int``, ...). A declared
+            option's value was already converted by its :class:`Option`.
+
+        Returns
+        -------
+        The value.
+
+        Raises
+        ------
+        ConfigError
+            The text cannot be converted, or a number is not finite (``inf``, ``nan``),
+            or an ``int`` is not whole.
+        """
+        if key in self.parsed:
+            value = self.parsed[key]
+            return cast(value) if cast in (int, float) and isinstance(value, (int, float)) else value
         if key not in self.options:
             return default
+        text = self.options[key]
+        if cast in (int, float):
+            return cast(Option(type=cast).parse(key, text))
         try:
-            return cast(self.options[key])
-        except ValueError:
-            raise ConfigError(f"option {key}: cannot read {self.options[key]!r} as "
-                              f"{cast.__name__}") from None
+            return cast(text)
+        except (TypeError, ValueError, OverflowError):
+            raise ConfigError(f"option {key}: cannot read {text!r} as "
+                              f"{getattr(cast, '__name__', 'the expected type')}") from None
 
     def require_anchors(self, method: str) -> pd.DataFrame:
         if self.anchors is None:
@@ -67,22 +214,116 @@ class LocateRequest:
 
 @dataclass(frozen=True)
 class LocateMethod:
+    """A registered method and what it declares (``None``: not declared, anything goes)."""
+
     name: str
     summary: str
     fn: Callable[[LocateRequest], pd.DataFrame]
+    options: dict[str, Option] | None = None
+    kinds: tuple[str, ...] | None = None
+    inputs: tuple[str, ...] | None = None
 
 
 _METHODS: dict[str, LocateMethod] = {}
 
 
-def locate_method(name: str, summary: str):
-    """Decorator registering ``fn(request) -> DataFrame`` as ``radioloc locate --method name``."""
+def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option] | None = None,
+                  kinds: tuple[str, ...] | None = None, inputs: tuple[str, ...] | None = None):
+    """Decorator registering ``fn(request) -> DataFrame`` as ``radioloc locate --method name``.
+
+    Parameters
+    ----------
+    name : str
+        The method's name on the command line.
+    summary : str
+        One line for ``radioloc methods``.
+    options : dict of str to (str or Option), optional
+        Its ``-o`` options: name to help text (the value is then read by the method with
+        :meth:`LocateRequest.option`) or to an :class:`Option` (type and bounds checked
+        before the method runs). ``{}`` declares that it takes none.
+    kinds : tuple of str, optional
+        Measurement kinds it uses (``"range"``, ``"rss"``).
+    inputs : tuple of str, optional
+        Files it reads besides the measurements, among ``"anchors"``, ``"priors"``,
+        ``"calibration"``.
+
+    Returns
+    -------
+    callable
+        The decorator (returns ``fn`` unchanged).
+    """
+    if inputs is not None and (bad := set(inputs) - set(INPUTS)):
+        raise ValueError(f"locate_method {name}: unknown input(s) {sorted(bad)}; known {INPUTS}")
+    if kinds is not None:
+        from radioloc.io.logs import KINDS
+
+        if bad := set(kinds) - set(KINDS):
+            raise ValueError(f"locate_method {name}: unknown kind(s) {sorted(bad)}")
+    decl = None if options is None else {
+        k: v if isinstance(v, Option) else Option(help=str(v), type=str)
+        for k, v in options.items()}
 
     def deco(fn: Callable[[LocateRequest], pd.DataFrame]):
-        _METHODS[name] = LocateMethod(name, summary, fn)
+        _METHODS[name] = LocateMethod(name, summary, fn, decl,
+                                      None if kinds is None else tuple(kinds),
+                                      None if inputs is None else tuple(inputs))
         return fn
 
     return deco
+
+
+def check_request(method: LocateMethod, request: LocateRequest) -> None:
+    """Refuse what ``method`` does not declare; convert its declared options.
+
+    Parameters
+    ----------
+    method : LocateMethod
+        The registered method.
+    request : LocateRequest
+        Updated in place: ``request.parsed`` receives the converted typed options.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ConfigError
+        An unknown option key (the known ones are listed), or a bad option value.
+    InputError
+        A file the method does not read, or rows of a kind it does not use.
+    """
+    name = method.name
+    if method.options is not None:
+        for key, text in request.options.items():
+            if key not in method.options:
+                known = ", ".join(sorted(method.options)) or "none"
+                raise ConfigError(f"method {name}: unknown option {key!r}; its options: {known}")
+            spec = method.options[key]
+            if spec.type is not str or spec.choices is not None:
+                request.parsed[key] = spec.parse(key, text)
+    if method.inputs is not None:
+        for what in INPUTS:
+            if getattr(request, what) is not None and what not in method.inputs:
+                raise InputError(f"method {name}: does not read a {what} file; remove "
+                                 f"--{what} (it reads: {', '.join(method.inputs) or 'none'})")
+    if method.kinds is not None:
+        from radioloc.io.logs import check_kinds
+
+        check_kinds(request.measurements, method.kinds, name)
+
+
+def _check_output(name: str, out: pd.DataFrame) -> None:
+    missing = [c for c in ("time", "node", "x", "y") if c not in out.columns]
+    if missing:  # a method bug, not a user error
+        raise RuntimeError(f"method {name} returned no column(s) {missing}")
+    value_cols = [c for c in out.columns if c in ("x", "y", "z", "uncertainty_m")]
+    values = out[value_cols].to_numpy(dtype=float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i, j = (int(v) for v in np.argwhere(bad)[0])
+        raise RuntimeError(f"method {name} produced a non-finite {value_cols[j]} for node "
+                           f"{out['node'].iloc[i]!r} at time {out['time'].iloc[i]!r}")
 
 
 def methods() -> dict[str, LocateMethod]:
@@ -99,12 +340,31 @@ def methods() -> dict[str, LocateMethod]:
 
 
 def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
-    """Apply method ``name`` to ``request``."""
+    """Apply method ``name`` to ``request``.
+
+    Parameters
+    ----------
+    name : str
+        A registered method.
+    request : LocateRequest
+        The inputs; checked against the method's declarations first (:func:`check_request`).
+
+    Returns
+    -------
+    DataFrame
+        ``time, node, x, y[, z][, uncertainty_m]``, every value finite.
+
+    Raises
+    ------
+    ConfigError, InputError
+        Unknown method, or input the method does not take (see :func:`check_request`).
+    RuntimeError
+        The method returned no position columns or a non-finite value (a method bug).
+    """
     known = methods()
     if name not in known:
         raise ConfigError(f"unknown method {name!r}; known: {', '.join(known)}")
+    check_request(known[name], request)
     out = known[name].fn(request)
-    missing = [c for c in ("time", "node", "x", "y") if c not in out.columns]
-    if missing:  # a method bug, not a user error
-        raise RuntimeError(f"method {name} returned no column(s) {missing}")
+    _check_output(name, out)
     return out

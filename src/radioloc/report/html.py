@@ -70,5 +70,7 @@ def write_index(out: Path | str, descriptions: dict[str, str]) -> Path:
             f"paper's claims checked on our numbers, and the figures.</p><nav>{nav}</nav>"
             f"{sections}</body></html>\n")
     index = out / "index.html"
-    index.write_text(page)
+    from radioloc.core.atomic import atomic_write_text
+
+    atomic_write_text(index, page)
     return index
