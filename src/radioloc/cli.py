@@ -9,6 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from radioloc.cli_datasets import datasets_app
 from radioloc.core.errors import DataUnavailable, RadiolocError
 from radioloc.report.tables import wide_console
 
@@ -18,6 +19,7 @@ app = typer.Typer(
     no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False)
 console = wide_console()
 err_console = Console(stderr=True)
+app.add_typer(datasets_app, name="datasets")
 
 
 def _fail(exc: Exception) -> None:
