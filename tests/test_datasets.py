@@ -294,3 +294,26 @@ def test_cli_list_says_which_sets_are_present(test_root):
 def test_cli_errors_are_one_line(test_root, tmp_path):
     res = runner.invoke(datasets_app, ["export", "herald", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "nothing to export" in res.output
+
+
+def test_locate_reads_and_writes_parquet(test_root, tmp_path):
+    """`radioloc locate` on an exported Parquet log gives what it gives on the CSV log
+    (needs the Parquet branch of radioloc.io.logs)."""
+    pytest.importorskip("pyarrow")
+    from radioloc.cli import app
+    from radioloc.core.errors import InputError
+
+    paths = ds.export("hanyang", tmp_path / "pq", fmt="parquet", tag_height_m=1.1)
+    try:
+        read_anchors(paths["anchors"])
+    except InputError as exc:
+        pytest.skip(f"radioloc.io.logs does not read Parquet yet ({exc})")
+    ds.export("hanyang", tmp_path / "csv", tag_height_m=1.1)
+    for kind, ext in (("csv", "csv"), ("pq", "parquet")):
+        res = runner.invoke(app, ["locate", str(tmp_path / kind / f"measurements.{ext}"),
+                                  "--anchors", str(tmp_path / kind / f"anchors.{ext}"),
+                                  "--out", str(tmp_path / f"est_{kind}.{ext}")])
+        assert res.exit_code == 0, res.output
+    a = pd.read_csv(tmp_path / "est_csv.csv")
+    b = pd.read_parquet(tmp_path / "est_pq.parquet")
+    np.testing.assert_allclose(b[["x", "y"]].to_numpy(), a[["x", "y"]].to_numpy(), atol=1e-5)

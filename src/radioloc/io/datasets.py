@@ -277,7 +277,7 @@ def missing_message(name: str) -> str:
     where = ", ".join(str(r) for r in data_roots())
     how = (f"fetch it with `radioloc datasets fetch {folder}`" if _known(name)
            else "copy it there")
-    return (f"data set '{folder}' not found (looked in: {where}); {how}, or set RADIOLOC_DATA "
+    return (f"data set folder '{folder}' is absent (looked in: {where}); {how}, or set RADIOLOC_DATA "
             f"to the folder that holds '{folder}'")
 
 
