@@ -202,15 +202,27 @@ def get(name: str) -> DataSet:
 # ---- where the data sets are ----------------------------------------------------------
 
 def repository_root() -> Path | None:
-    """The root of the source checkout this package runs from, or ``None`` when it is
-    installed elsewhere (no ``pyproject.toml`` two levels above the package)."""
+    """The root of the source checkout this package runs from.
+
+    Returns
+    -------
+    Path or None
+        ``None`` when the package is installed elsewhere (no ``pyproject.toml`` and
+        ``src/radioloc`` two levels above the package).
+    """
     root = Path(__file__).resolve().parents[3]
     return root if (root / "pyproject.toml").is_file() and (root / "src" / "radioloc").is_dir() \
         else None
 
 
 def platform_cache() -> Path:
-    """The platform's cache folder for radioloc (``pooch.os_cache("radioloc")``)."""
+    """The platform's cache folder for radioloc.
+
+    Returns
+    -------
+    Path
+        ``pooch.os_cache("radioloc")``, e.g. ``~/.cache/radioloc`` on Linux.
+    """
     try:
         import pooch
     except ImportError:  # pragma: no cover - pooch is a dependency
@@ -239,7 +251,13 @@ def data_roots() -> list[Path]:
 
 
 def download_root() -> Path:
-    """Where :func:`fetch` writes: ``$RADIOLOC_DATA`` if set, else the platform cache."""
+    """Where :func:`fetch` writes.
+
+    Returns
+    -------
+    Path
+        ``$RADIOLOC_DATA`` if set, else the platform cache.
+    """
     return data_roots()[0]
 
 
@@ -272,7 +290,17 @@ def _known(name: str) -> bool:
 
 
 def missing_message(name: str) -> str:
-    """One sentence: data set ``name`` was not found, where it was looked for, how to fetch it."""
+    """One sentence: data set ``name`` is absent, where it was looked for, how to fetch it.
+
+    Parameters
+    ----------
+    name : str
+        Data set folder name or alias (or any folder name).
+
+    Returns
+    -------
+    str
+    """
     folder = get(name).name if _known(name) else name
     where = ", ".join(str(r) for r in data_roots())
     how = (f"fetch it with `radioloc datasets fetch {folder}`" if _known(name)
@@ -305,7 +333,14 @@ def require(name: str) -> Path:
 
 
 def status() -> pd.DataFrame:
-    """One row per data set: ``name, present, path, license, checksums, exports, title``."""
+    """Which data sets are present.
+
+    Returns
+    -------
+    DataFrame
+        One row per data set: ``name, present, path, license, checksums, exports, title,
+        note``.
+    """
     rows = []
     for d in DATASETS.values():
         path = find(d.name)
@@ -519,7 +554,18 @@ def write_table(frame: pd.DataFrame, path: Path | str) -> Path:
 # ---- exporting --------------------------------------------------------------------------
 
 def hanyang_runs(root: Path | str) -> list[str]:
-    """Run names of the Hanyang dynamic runs present, e.g. ``"LOS/A/1"``."""
+    """Run names of the Hanyang dynamic runs present.
+
+    Parameters
+    ----------
+    root : path
+        The data set folder.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["LOS/A/1", "LOS/A/2", ...]``.
+    """
     from radioloc.io.hanyang import dynamic_runs
 
     return [f"{p.parts[-3]}/{p.parts[-2].split('_')[-1]}/{p.parts[-1].split('_')[-1]}"

@@ -80,19 +80,53 @@ def gap_class(value: float | None, paper: float | None) -> str:
 
 
 def claims_score(record: dict[str, Any]) -> tuple[int, int]:
-    """``(claims that hold, claims)`` of one ``summary.json`` record."""
+    """``(claims that hold, claims)`` of one ``summary.json`` record.
+
+    Parameters
+    ----------
+    record : dict
+        A ``summary.json`` record.
+
+    Returns
+    -------
+    tuple of int
+    """
     claims = record.get("claims") or []
     return sum(bool(c["holds"]) for c in claims), len(claims)
 
 
 def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[str, Any]]:
-    """The first ``n`` metrics that have a paper value (the experiment's headline numbers)."""
+    """The first ``n`` metrics that have a paper value (the experiment's headline numbers).
+
+    Parameters
+    ----------
+    record : dict
+        A ``summary.json`` record.
+    n : int
+        How many.
+
+    Returns
+    -------
+    list of dict
+    """
     return [m for m in record.get("metrics") or [] if m.get("paper") is not None][:n]
 
 
 def figure_caption(stem: str, paper: str) -> str:
     """Caption of figure file ``stem``: a readable title and the paper figure it reproduces
-    (``fig4a_error_cdf`` -> ``Error cdf. Reproduces Fig. 4(a) of paper 001.``)."""
+    (``fig4a_error_cdf`` -> ``Error cdf. Reproduces Fig. 4(a) of paper 001.``).
+
+    Parameters
+    ----------
+    stem : str
+        File name without ``.png``.
+    paper : str
+        The experiment's paper id.
+
+    Returns
+    -------
+    str
+    """
     m = re.match(r"fig(\d+)([a-z]?)(?:_(.*))?$", stem)
     title = (m.group(3) if m else stem) or stem
     title = title.replace("_", " ").strip()
