@@ -4,8 +4,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 STAMP_DEV := $(VENV)/.installed-dev
+STAMP_DOCS := $(VENV)/.installed-docs
 
-.PHONY: demo test full bench clean
+.PHONY: demo test full bench docs browser clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -19,11 +20,28 @@ $(STAMP_DEV): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e ".[dev]"
 	touch $(STAMP) $@
 
+$(STAMP_DOCS): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e ".[docs]"
+	touch $(STAMP) $@
+
+# Headless Chromium for the report's browser test (Debian's package). Installed when absent
+# and this is root (or sudo works); otherwise the test is skipped and says why.
+browser:
+	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then :; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install chromium to run the report's browser test"; \
+	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
+	    --no-install-recommends chromium fonts-dejavu-core \
+	  || echo "chromium could not be installed: the report's browser test will be skipped"; fi
+
 demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
-test: $(STAMP_DEV)
+test: $(STAMP_DEV) browser
 	$(BIN)/python -m pytest -n 2
+
+docs: $(STAMP_DOCS)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
 
 full: $(STAMP)
 	$(BIN)/radioloc reproduce all --full --workers 2 --out out-full
@@ -32,7 +50,7 @@ bench: $(STAMP_DEV)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) out out-full .pytest_cache
+	rm -rf $(VENV) out out-full site .pytest_cache
 
 # Long fuzz of `radioloc locate` (>= 10,000 generated cases; `make test` runs a fast profile).
 .PHONY: fuzz

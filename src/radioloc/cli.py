@@ -29,6 +29,7 @@ from rich.console import Console
 from rich.table import Table
 from typer.core import TyperGroup
 
+from radioloc.cli_datasets import datasets_app
 from radioloc.core.errors import DataUnavailable, RadiolocError
 from radioloc.report.tables import wide_console
 
@@ -137,6 +138,7 @@ app = typer.Typer(
     cls=OneLineErrors)
 console = wide_console()
 err_console = Console(stderr=True)
+app.add_typer(datasets_app, name="datasets")
 
 
 def _fail(exc: Exception) -> None:

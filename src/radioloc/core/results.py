@@ -58,7 +58,7 @@ def _check_covariance(cov: Any, position: np.ndarray, name: str) -> np.ndarray |
     return c
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class Estimate:
     """A position estimate at one epoch for a batch of problems.
 
@@ -117,8 +117,43 @@ class Estimate:
         time = self.time if np.ndim(self.time) == 0 else np.asarray(self.time)[idx]
         return Estimate(self.position[idx], cov, time, diag)
 
+    def plot(self, ax=None, *, confidence: float = 0.95, every: int | None = None, color=None,
+             label: str | None = None, ellipses: bool = True, **kwargs):
+        """Draw the estimated positions (every batch entry) in the (x, y) plane with their uncertainty ellipses.
 
-@dataclass(frozen=True)
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Where to draw; default the current axes of pyplot (imported only then, with
+            the backend the user has chosen).
+        confidence : float
+            Probability mass inside each ellipse (Gaussian, 2 degrees of freedom).
+        every : int, optional
+            Unused for an estimate.
+        color : matplotlib colour, optional
+            Default: the axes' next colour.
+        label : str, optional
+            Legend label.
+        ellipses : bool
+            Draw the uncertainty ellipses (when there is a covariance).
+        **kwargs
+            Passed to ``Axes.scatter``.
+
+        Returns
+        -------
+        matplotlib Axes
+        """
+        return _plot(self, ax, confidence=confidence, every=every, color=color, label=label,
+                     ellipses=ellipses, **kwargs)
+
+    def __repr__(self) -> str:
+        return _repr(self)
+
+    def _repr_html_(self) -> str:
+        return _repr_html(self)
+
+
+@dataclass(frozen=True, repr=False)
 class Track:
     """Estimates over time for a batch of independent runs (or nodes).
 
@@ -195,6 +230,159 @@ class Track:
         if truth.shape[-1] != self.dim:
             raise InputError(f"truth: expected {self.dim} coordinates, got shape {truth.shape}")
         return np.sqrt(np.sum((self.position - truth) ** 2, axis=-1))
+
+    def plot(self, ax=None, *, confidence: float = 0.95, every: int | None = None, color=None,
+             label: str | None = None, ellipses: bool = True, **kwargs):
+        """Draw the track of every run (one line each) in the (x, y) plane with uncertainty ellipses at every ``every``-th step.
+
+        Parameters
+        ----------
+        ax : matplotlib Axes, optional
+            Where to draw; default the current axes of pyplot (imported only then, with
+            the backend the user has chosen).
+        confidence : float
+            Probability mass inside each ellipse (Gaussian, 2 degrees of freedom).
+        every : int, optional
+            Step stride of the ellipses (default: about 20 per track).
+        color : matplotlib colour, optional
+            Default: the axes' next colour.
+        label : str, optional
+            Legend label.
+        ellipses : bool
+            Draw the uncertainty ellipses (when there is a covariance).
+        **kwargs
+            Passed to ``Axes.plot``.
+
+        Returns
+        -------
+        matplotlib Axes
+        """
+        return _plot(self, ax, confidence=confidence, every=every, color=color, label=label,
+                     ellipses=ellipses, **kwargs)
+
+    def __repr__(self) -> str:
+        return _repr(self)
+
+    def _repr_html_(self) -> str:
+        return _repr_html(self)
+
+
+# ---- display (repr, notebooks, plots) ---------------------------------------------------
+
+def _shape_text(shape: tuple[int, ...]) -> str:
+    return "x".join(str(n) for n in shape)
+
+
+def _diag_text(diagnostics: Mapping[str, Any]) -> str:
+    return ", ".join(sorted(diagnostics)) if diagnostics else "none"
+
+
+def _summary_rows(obj: "Estimate | Track") -> list[tuple[str, str]]:
+    """``(field, text)`` rows shared by ``__repr__`` and ``_repr_html_``."""
+    p = obj.position
+    is_track = isinstance(obj, Track)
+    batch = obj.batch_shape
+    rows: list[tuple[str, str]] = []
+    rows.append(("batch", _shape_text(batch) if batch else "single"))
+    if is_track:
+        t = np.asarray(obj.time, dtype=float)
+        rows.append(("steps", f"{obj.steps} ({t.min():.4g} to {t.max():.4g} s)"))
+    coords = "xyz"[: obj.dim]
+    flat = p.reshape(-1, obj.dim)
+    finite = np.isfinite(flat).all(axis=1)
+    if not batch and not is_track:
+        rows.append(("position", ", ".join(f"{c}={v:.4g}" for c, v in zip(coords, flat[0])) + " m"))
+    elif finite.any():
+        lo, hi = flat[finite].min(axis=0), flat[finite].max(axis=0)
+        rows.append(("extent", ", ".join(f"{c} {a:.4g}..{b:.4g}" for c, a, b in zip(coords, lo, hi))
+                     + " m"))
+    if not finite.all():
+        rows.append(("NaN positions", f"{int((~finite).sum())} of {finite.size}"))
+    unc = obj.uncertainty_m
+    if unc is None:
+        rows.append(("uncertainty", "none (no covariance)"))
+    else:
+        u = np.asarray(unc, dtype=float)
+        rows.append(("uncertainty", f"{float(u):.3g} m" if u.ndim == 0 else
+                     f"median {np.nanmedian(u):.3g} m"))
+    if "converged" in obj.diagnostics:
+        conv = np.asarray(obj.diagnostics["converged"], dtype=bool)
+        rows.append(("converged", f"{int(conv.sum())} of {conv.size}"))
+    if not is_track and obj.time is not None and np.ndim(obj.time) == 0:
+        rows.append(("time", f"{float(obj.time):.4g} s"))
+    rows.append(("diagnostics", _diag_text(obj.diagnostics)))
+    return rows
+
+
+def _repr(obj: "Estimate | Track") -> str:
+    name = type(obj).__name__
+    body = "; ".join(v if k == "position" else f"{k} {v}" for k, v in _summary_rows(obj)
+                     if (k, v) != ("batch", "single"))
+    return f"{name}({obj.dim}-D; {body})"
+
+
+def _repr_html(obj: "Estimate | Track") -> str:
+    import html
+
+    rows = "".join(f"<tr><th style='text-align:left'>{html.escape(k)}</th>"
+                   f"<td style='text-align:left'>{html.escape(v)}</td></tr>"
+                   for k, v in _summary_rows(obj))
+    return (f"<div><b>{type(obj).__name__}</b> ({obj.dim}-D)"
+            f"<table>{rows}</table></div>")
+
+
+def _ellipse_collection(ax, centres: np.ndarray, covs: np.ndarray, confidence: float, color,
+                        alpha: float):
+    """Add the ``confidence`` ellipses of 2-D Gaussians ``(N, 2)``, ``(N, 2, 2)`` to ``ax``."""
+    from matplotlib.collections import EllipseCollection
+
+    ok = np.isfinite(centres).all(-1) & np.isfinite(covs).all((-1, -2))
+    centres, covs = centres[ok], covs[ok]
+    if len(centres) == 0:
+        return None
+    vals, vecs = np.linalg.eigh(0.5 * (covs + np.swapaxes(covs, -1, -2)))
+    scale = np.sqrt(-2.0 * np.log1p(-confidence))          # chi-square quantile, 2 dof
+    axes = 2.0 * scale * np.sqrt(np.clip(vals, 0.0, None))  # full widths, ascending
+    angles = np.degrees(np.arctan2(vecs[:, 1, 1], vecs[:, 0, 1]))
+    coll = EllipseCollection(axes[:, 1], axes[:, 0], angles, units="xy", offsets=centres,
+                             offset_transform=ax.transData, facecolors="none",
+                             edgecolors=[color], alpha=alpha, linewidths=1.0)
+    ax.add_collection(coll)
+    return coll
+
+
+def _plot(obj: "Estimate | Track", ax=None, *, confidence: float = 0.95, every: int | None = None,
+          color=None, label: str | None = None, ellipses: bool = True, **kwargs):
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"confidence: must be in (0, 1), got {confidence}")
+    if obj.dim < 2:
+        raise InputError("plot: needs at least 2 coordinates")
+    if ax is None:
+        import matplotlib.pyplot as plt   # only here: the user's backend, chosen by the user
+
+        ax = plt.gca()
+    is_track = isinstance(obj, Track)
+    steps = obj.steps if is_track else 1
+    pos = obj.position[..., :2].reshape(-1, steps, 2)
+    cov = None if obj.covariance is None else obj.covariance[..., :2, :2].reshape(-1, steps, 2, 2)
+    color = color if color is not None else ax._get_lines.get_next_color()
+    if is_track:
+        for k in range(pos.shape[0]):                       # one line per run / node
+            ax.plot(pos[k, :, 0], pos[k, :, 1], color=color,
+                    label=label if k == 0 else None, **kwargs)
+        stride = every if every is not None else max(1, steps // 20)
+        sel = np.arange(0, steps, stride)
+    else:
+        ax.scatter(pos[:, 0, 0], pos[:, 0, 1], color=color, label=label, s=12, **kwargs)
+        sel = np.array([0])
+    if ellipses and cov is not None:
+        _ellipse_collection(ax, pos[:, sel].reshape(-1, 2), cov[:, sel].reshape(-1, 2, 2),
+                            confidence, color, 0.6)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return ax
 
 
 def stack_steps(steps: list[np.ndarray], batch_ndim: int) -> np.ndarray:

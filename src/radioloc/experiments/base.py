@@ -114,12 +114,11 @@ class Experiment:
         """The data set folder; raises :class:`DataUnavailable` if it is absent."""
         if self.data_folder is None:
             raise ConfigError(f"{self.id}: this experiment uses no data set")
-        path = data_root() / self.data_folder
+        path = data_root(self.data_folder) / self.data_folder
         if not path.is_dir():
-            raise DataUnavailable(
-                f"{self.id}: skipped, data set folder {path} is absent "
-                f"(set RADIOLOC_DATA to the folder that holds '{self.data_folder}')"
-            )
+            from radioloc.io.datasets import missing_message
+
+            raise DataUnavailable(f"{self.id}: skipped, {missing_message(self.data_folder)}")
         return path
 
     def check_available(self) -> None:
@@ -136,9 +135,30 @@ class Experiment:
         return dataclasses.replace(config, runs=int(runs))
 
 
-def data_root() -> Path:
-    """Root folder of the real data sets: ``$RADIOLOC_DATA`` or ``../shared/data``."""
-    return Path(os.environ.get("RADIOLOC_DATA", "../shared/data")).expanduser()
+def data_root(folder: str | None = None) -> Path:
+    """Root folder of the real data sets.
+
+    Parameters
+    ----------
+    folder : str, optional
+        A data set folder name: the root returned is the first that holds it.
+
+    Returns
+    -------
+    Path
+        ``$RADIOLOC_DATA`` when set; otherwise the first of the platform cache and the
+        ``shared/data`` folder next to the source checkout that holds ``folder`` (or, without
+        ``folder``, any known data set), else the first of them (see
+        :func:`radioloc.io.datasets.data_roots`). Never relative to the current directory.
+    """
+    from radioloc.io.datasets import DATASETS, data_roots
+
+    roots = data_roots()
+    names = [folder] if folder else list(DATASETS)
+    for root in roots:
+        if any((root / n).is_dir() for n in names):
+            return root
+    return roots[0]
 
 
 _REGISTRY: dict[str, Experiment] = {}

@@ -1,76 +1,322 @@
-"""The one-page HTML report of all experiments (``out/index.html``)."""
+"""The one-page HTML report of all experiments (``out/index.html``).
+
+The page opens with a **scoreboard**: one row per experiment with the paper's claims that
+hold on our numbers (k of n), the headline numbers beside the paper's with the gap coloured,
+and a link to the experiment's section. Each section then shows the claims, the figures at
+full width with a caption naming the paper figure they reproduce (from the file name
+``figN[a-z]_*.png``, or from an optional ``captions.json`` ``{file stem: caption}`` in the
+experiment's folder), and the full metric table folded in a ``<details>`` element.
+
+Nothing here imports pyplot or switches the matplotlib backend.
+"""
 
 from __future__ import annotations
 
 import html
 import json
+import math
+import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 from radioloc.report.tables import fmt, relative_gap
 
+#: Relative gaps (ours against the paper's) up to these bounds are coloured good / fair;
+#: larger ones poor.
+GAP_GOOD = 0.10
+GAP_FAIR = 0.30
+#: Headline numbers shown per experiment in the scoreboard.
+HEADLINES = 3
+
 _CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1100px;margin:2em auto;
-padding:0 1em;color:#222;line-height:1.45}
-h1{margin-bottom:.2em} h2{border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}
-table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
-th,td{border:1px solid #ddd;padding:.25em .6em;text-align:right} th{background:#f5f5f5}
-td.l,th.l{text-align:left} .holds{color:#1a7f37} .fails{color:#b42318} .skip{color:#9a6700}
-.figs{display:flex;flex-wrap:wrap;gap:12px} .figs img{max-width:100%;width:520px;border:1px solid #eee}
-nav a{margin-right:1em} .meta{color:#666;font-size:.9em} .note{color:#555;font-size:.9em}
+*{box-sizing:border-box}
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;max-width:1180px;margin:0 auto;
+padding:.6em 1.2em 3em;color:#1f2328;line-height:1.45;font-size:15px}
+h1{font-size:1.45em;margin:.3em 0 .1em} h2{border-bottom:1px solid #d0d7de;padding-bottom:.2em;
+margin-top:2.2em;font-size:1.3em}
+a{color:#0969da;text-decoration:none} a:hover{text-decoration:underline}
+table{border-collapse:collapse;font-size:.9em;width:100%}
+th,td{border-bottom:1px solid #e5e7eb;padding:.3em .55em;vertical-align:top;text-align:left}
+th{background:#f6f8fa;font-weight:600}
+td.num,th.num{text-align:right;white-space:nowrap}
+.scoreboard td{padding:.28em .55em} .scoreboard td.exp{white-space:nowrap}
+.hl{display:inline-block;margin:0 .9em .1em 0;white-space:nowrap}
+.hl .n{color:#57606a}
+.good{color:#1a7f37} .fair{color:#9a6700} .poor{color:#cf222e} .skip{color:#9a6700}
+.pill{display:inline-block;border-radius:1em;padding:0 .6em;font-weight:600;font-size:.92em;
+white-space:nowrap}
+.pill.good{background:#dafbe1} .pill.fair{background:#fff8c5} .pill.poor{background:#ffebe9}
+.pill.none{background:#eaeef2;color:#57606a}
+.meta{color:#57606a;font-size:.9em} .note{color:#57606a;font-size:.9em}
+ul.claims{padding-left:1.2em} ul.claims li{margin:.15em 0}
+figure{margin:1.2em 0;max-width:100%} figure img{display:block;max-width:100%;height:auto;
+border:1px solid #eaeef2} figcaption{color:#57606a;font-size:.9em;margin-top:.3em}
+details{margin:1em 0} summary{cursor:pointer;font-weight:600}
+.wrap{overflow-x:auto;max-width:100%} td.note{min-width:16em}
 """
 
 
-def _experiment_section(record: dict[str, Any], out: Path, description: str) -> str:
-    eid = html.escape(record["experiment"])
-    parts = [f'<h2 id="{eid}">{eid}</h2>',
-             f'<p>{html.escape(description)} <span class="meta">(paper {html.escape(str(record["paper"]))})</span></p>']
+def _esc(value: Any) -> str:
+    return html.escape(str(value))
+
+
+def gap_class(value: float | None, paper: float | None) -> str:
+    """``good`` / ``fair`` / ``poor`` for the relative gap of ``value`` to ``paper`` (see
+    :data:`GAP_GOOD`, :data:`GAP_FAIR`), ``""`` when either is missing.
+
+    Parameters
+    ----------
+    value, paper : float or None
+        Our number and the paper's.
+
+    Returns
+    -------
+    str
+    """
+    if value is None or paper is None or paper == 0 or not math.isfinite(value):
+        return ""
+    rel = abs(value - paper) / abs(paper)
+    return "good" if rel <= GAP_GOOD else "fair" if rel <= GAP_FAIR else "poor"
+
+
+def claims_score(record: dict[str, Any]) -> tuple[int, int]:
+    """``(claims that hold, claims)`` of one ``summary.json`` record.
+
+    Parameters
+    ----------
+    record : dict
+        A ``summary.json`` record.
+
+    Returns
+    -------
+    tuple of int
+    """
+    claims = record.get("claims") or []
+    return sum(bool(c["holds"]) for c in claims), len(claims)
+
+
+def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[str, Any]]:
+    """The first ``n`` metrics that have a paper value (the experiment's headline numbers).
+
+    Parameters
+    ----------
+    record : dict
+        A ``summary.json`` record.
+    n : int
+        How many.
+
+    Returns
+    -------
+    list of dict
+    """
+    return [m for m in record.get("metrics") or [] if m.get("paper") is not None][:n]
+
+
+def figure_caption(stem: str, paper: str) -> str:
+    """Caption of figure file ``stem``: a readable title and the paper figure it reproduces
+    (``fig4a_error_cdf`` -> ``Error cdf. Reproduces Fig. 4(a) of paper 001.``).
+
+    Parameters
+    ----------
+    stem : str
+        File name without ``.png``.
+    paper : str
+        The experiment's paper id.
+
+    Returns
+    -------
+    str
+    """
+    m = re.match(r"fig(\d+)([a-z]?)(?:_(.*))?$", stem)
+    title = (m.group(3) if m else stem) or stem
+    title = title.replace("_", " ").strip()
+    title = title[:1].upper() + title[1:]
+    if m:
+        sub = f"({m.group(2)})" if m.group(2) else ""
+        return f"{title}. Reproduces Fig. {m.group(1)}{sub} of paper {paper}."
+    return f"{title}."
+
+
+def _headline_cell(record: dict[str, Any]) -> str:
+    items = []
+    for m in headline_metrics(record):
+        cls = gap_class(m["value"], m["paper"])
+        gap = relative_gap(m["value"], m["paper"])
+        items.append(f'<span class="hl" title="{_esc(m["note"])}"><span class="n">'
+                     f'{_esc(m["name"])}</span> {fmt(m["value"])} / {fmt(m["paper"])} '
+                     f'<b class="{cls}">{_esc(gap)}</b></span>')
+    return "".join(items) or '<span class="meta">no number with a published value</span>'
+
+
+def _score_pill(record: dict[str, Any]) -> str:
+    k, n = claims_score(record)
+    if n == 0:
+        return '<span class="pill none">no claim</span>'
+    cls = "good" if k == n else "poor" if k == 0 else "fair"
+    return f'<span class="pill {cls}">{k} of {n}</span>'
+
+
+def scoreboard(records: Iterable[dict[str, Any]]) -> str:
+    """The scoreboard table (HTML) of the ``summary.json`` records.
+
+    Parameters
+    ----------
+    records : iterable of dict
+        ``summary.json`` records.
+
+    Returns
+    -------
+    str
+        One ``<table>`` with a row per experiment: link to its section, paper, claims that
+        hold (k of n), headline numbers ``ours / paper gap``.
+    """
+    rows = []
+    for r in records:
+        eid = _esc(r["experiment"])
+        link = f'<a href="#{eid}">{eid}</a>'
+        if r.get("skipped"):
+            rows.append(f'<tr><td class="exp">{link}</td><td>{_esc(r["paper"])}</td>'
+                        f'<td><span class="pill none">skipped</span></td>'
+                        f'<td class="skip">{_esc(r["skipped"])}</td></tr>')
+            continue
+        rows.append(f'<tr><td class="exp">{link}</td><td>{_esc(r["paper"])}</td>'
+                    f'<td>{_score_pill(r)}</td><td>{_headline_cell(r)}</td></tr>')
+    return ('<table class="scoreboard"><thead><tr><th>experiment</th><th>paper</th>'
+            '<th>claims hold</th><th>headline numbers: ours / paper, gap '
+            f'(<span class="good">&le;{GAP_GOOD:.0%}</span>, '
+            f'<span class="fair">&le;{GAP_FAIR:.0%}</span>, <span class="poor">more</span>)'
+            f'</th></tr></thead><tbody>{"".join(rows)}</tbody></table>')
+
+
+def _metric_table(record: dict[str, Any]) -> str:
+    rows = "".join(
+        f'<tr><td>{_esc(m["name"])}</td><td class="num">{fmt(m["value"])}</td>'
+        f'<td class="num">{fmt(m["paper"])}</td>'
+        f'<td class="num {gap_class(m["value"], m["paper"])}">{relative_gap(m["value"], m["paper"])}</td>'
+        f'<td>{_esc(m["unit"])}</td><td class="note">{_esc(m["note"])}</td></tr>'
+        for m in record["metrics"])
+    return (f'<details><summary>All {len(record["metrics"])} metrics</summary><div class="wrap">'
+            '<table><thead><tr><th>metric</th><th class="num">ours</th><th class="num">paper</th>'
+            '<th class="num">gap</th><th>unit</th><th>note</th></tr></thead>'
+            f'<tbody>{rows}</tbody></table></div></details>')
+
+
+def _captions(folder: Path) -> dict[str, str]:
+    path = folder / "captions.json"
+    if path.is_file():
+        try:
+            return {str(k): str(v) for k, v in json.loads(path.read_text()).items()}
+        except (ValueError, AttributeError):
+            return {}
+    return {}
+
+
+def _figure_order(path: Path) -> tuple:
+    m = re.match(r"fig(\d+)([a-z]?)", path.stem)
+    return (0, int(m.group(1)), m.group(2), path.stem) if m else (1, 0, "", path.stem)
+
+
+def experiment_section(record: dict[str, Any], out: Path, description: str = "") -> str:
+    """The HTML section of one experiment (claims, figures with captions, folded metrics).
+
+    Parameters
+    ----------
+    record : dict
+        The experiment's ``summary.json`` record.
+    out : Path
+        The report folder (figures are read from ``out/<id>/*.png``).
+    description : str
+        One line describing the experiment.
+
+    Returns
+    -------
+    str
+    """
+    eid = _esc(record["experiment"])
+    parts = [f'<section id="{eid}"><h2>{eid} {_score_pill(record) if not record.get("skipped") else ""}</h2>',
+             f'<p>{_esc(description)} <span class="meta">(paper {_esc(record["paper"])})</span></p>']
     if record.get("skipped"):
-        parts.append(f'<p class="skip">Skipped: {html.escape(record["skipped"])}</p>')
+        parts.append(f'<p class="skip">Skipped: {_esc(record["skipped"])}</p></section>')
         return "\n".join(parts)
     parts.append(f'<p class="meta">{record["runs"]} runs, seed {record["seed"]}, '
                  f'{"full" if record["full"] else "quick"} size, {record["elapsed_s"]:.1f} s</p>')
-    rows = "".join(
-        f'<tr><td class="l">{html.escape(m["name"])}</td><td>{fmt(m["value"])}</td>'
-        f'<td>{fmt(m["paper"])}</td><td>{relative_gap(m["value"], m["paper"])}</td>'
-        f'<td class="l">{html.escape(m["unit"])}</td><td class="l">{html.escape(m["note"])}</td></tr>'
-        for m in record["metrics"])
-    parts.append('<table><tr><th class="l">metric</th><th>ours</th><th>paper</th><th>gap</th>'
-                 f'<th class="l">unit</th><th class="l">note</th></tr>{rows}</table>')
     if record["claims"]:
         items = "".join(
-            f'<li class="{"holds" if c["holds"] else "fails"}">'
-            f'{"holds" if c["holds"] else "does not hold"}: {html.escape(c["claim"])}</li>'
+            f'<li class="{"good" if c["holds"] else "poor"}">'
+            f'{"&#10003; holds" if c["holds"] else "&#10007; does not hold"}: '
+            f'<span style="color:#1f2328">{_esc(c["claim"])}</span></li>'
             for c in record["claims"])
-        parts.append(f"<p><b>Claims of the paper, checked on our numbers</b></p><ul>{items}</ul>")
+        parts.append(f'<p><b>Claims of the paper, checked on our numbers</b></p>'
+                     f'<ul class="claims">{items}</ul>')
+    folder = out / record["experiment"]
+    captions = _captions(folder)
+    for f in sorted(folder.glob("*.png"), key=_figure_order):
+        src = _esc(f.relative_to(out).as_posix())
+        cap = captions.get(f.stem) or figure_caption(f.stem, str(record["paper"]))
+        parts.append(f'<figure><a href="{src}"><img src="{src}" alt="{_esc(f.stem)}" '
+                     f'loading="lazy"></a><figcaption>{_esc(cap)}</figcaption></figure>')
+    if record["metrics"]:
+        parts.append(_metric_table(record))
     if record.get("notes"):
-        notes = "".join(f"<li>{html.escape(n)}</li>" for n in record["notes"])
-        parts.append(f'<ul class="note">{notes}</ul>')
-    figs = sorted((out / record["experiment"]).glob("*.png"))
-    if figs:
-        imgs = "".join(f'<a href="{html.escape(str(f.relative_to(out)))}"><img src="{html.escape(str(f.relative_to(out)))}" '
-                       f'alt="{html.escape(f.stem)}"></a>' for f in figs)
-        parts.append(f'<div class="figs">{imgs}</div>')
+        notes = "".join(f"<li>{_esc(n)}</li>" for n in record["notes"])
+        parts.append(f'<details><summary>Notes</summary><ul class="note">{notes}</ul></details>')
+    parts.append("</section>")
     return "\n".join(parts)
 
 
-def write_index(out: Path | str, descriptions: dict[str, str]) -> Path:
-    """Write ``out/index.html`` from every ``out/<id>/summary.json`` it finds."""
+def render(records: list[dict[str, Any]], out: Path | str,
+           descriptions: dict[str, str] | None = None) -> str:
+    """The whole report page (HTML text) for ``records``.
+
+    Parameters
+    ----------
+    records : list of dict
+        ``summary.json`` records, in display order.
+    out : path
+        The report folder (for the figures).
+    descriptions : dict of str to str, optional
+        One line per experiment id.
+
+    Returns
+    -------
+    str
+    """
     out = Path(out)
-    records = []
-    for path in sorted(out.glob("*/summary.json")):
-        records.append(json.loads(path.read_text()))
-    nav = " ".join(f'<a href="#{html.escape(r["experiment"])}">{html.escape(r["experiment"])}</a>'
-                   for r in records)
-    sections = "\n".join(_experiment_section(r, out, descriptions.get(r["experiment"], ""))
+    descriptions = descriptions or {}
+    ran = [r for r in records if not r.get("skipped")]
+    held = sum(claims_score(r)[0] for r in ran)
+    total = sum(claims_score(r)[1] for r in ran)
+    sections = "\n".join(experiment_section(r, out, descriptions.get(r["experiment"], ""))
                          for r in records)
-    page = (f'<!doctype html><html><head><meta charset="utf-8"><title>radioloc report</title>'
-            f"<style>{_CSS}</style></head><body><h1>radioloc: reproductions</h1>"
-            f'<p class="meta">Each section shows our numbers beside the published ones, the '
-            f"paper's claims checked on our numbers, and the figures.</p><nav>{nav}</nav>"
-            f"{sections}</body></html>\n")
+    return (f'<!doctype html><html lang="en"><head><meta charset="utf-8">'
+            '<meta name="viewport" content="width=device-width, initial-scale=1">'
+            f"<title>radioloc report</title><style>{_CSS}</style></head><body>"
+            "<h1>radioloc: reproductions</h1>"
+            f'<p class="meta">{len(ran)} of {len(records)} experiments ran; {held} of {total} '
+            "claims of the papers hold on our numbers. Each row links to its section (figures, "
+            "claims, all metrics).</p>"
+            f"{scoreboard(records)}{sections}</body></html>\n")
+
+
+def write_index(out: Path | str, descriptions: dict[str, str]) -> Path:
+    """Write ``out/index.html`` from every ``out/<id>/summary.json`` it finds.
+
+    Parameters
+    ----------
+    out : path
+        The report folder.
+    descriptions : dict of str to str
+        One line per experiment id.
+
+    Returns
+    -------
+    Path
+        The page written.
+    """
+    out = Path(out)
+    records = [json.loads(p.read_text()) for p in sorted(out.glob("*/summary.json"))]
     index = out / "index.html"
     from radioloc.core.atomic import atomic_write_text
 
-    atomic_write_text(index, page)
+    atomic_write_text(index, render(records, out, descriptions))
     return index

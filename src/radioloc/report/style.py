@@ -1,7 +1,10 @@
 """One figure style for every experiment.
 
-Use :func:`figure` to make a figure and :func:`save` to write it; both set the Agg backend
-and the house style so that all reports look alike and stay legible at page width.
+Use :func:`figure` to make a figure and :func:`save` to write it, so that all reports look
+alike and stay legible at page width. Figures are :class:`matplotlib.figure.Figure` objects
+made without pyplot and written with the Agg canvas: importing this module does not touch
+the matplotlib backend (a notebook's backend stays as it is), and no figure is registered
+with pyplot, so none needs closing.
 """
 
 from __future__ import annotations
@@ -9,9 +12,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 #: Colours by role, used consistently across experiments.
 COLORS = {
@@ -43,17 +45,45 @@ _RC = {
 
 
 def figure(nrows: int = 1, ncols: int = 1, *, width: float = 6.4, height: float = 4.0, **kw):
-    """A new figure and axes in the house style: ``fig, ax = figure()``."""
-    plt.rcParams.update(_RC)
-    fig, ax = plt.subplots(nrows, ncols, figsize=(width, height), **kw)
+    """A new figure and axes in the house style: ``fig, ax = figure()``.
+
+    Parameters
+    ----------
+    nrows, ncols : int
+        Grid of axes, as :meth:`matplotlib.figure.Figure.subplots`.
+    width, height : float
+        Figure size in inches.
+    **kw
+        Passed to :meth:`matplotlib.figure.Figure.subplots` (``squeeze``,
+        ``gridspec_kw``, ``sharex``, ...).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+        A figure with an Agg canvas, not registered with pyplot.
+    ax : Axes or array of Axes
+    """
+    matplotlib.rcParams.update(_RC)
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots(nrows, ncols, **kw)
     return fig, ax
 
 
 def save(fig, path: Path | str) -> Path:
-    """Write ``fig`` as a PNG (tight layout) and close it."""
+    """Write ``fig`` as a PNG (tight layout).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    path : path
+
+    Returns
+    -------
+    Path
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path

@@ -1,0 +1,102 @@
+"""The HTML report: scoreboard, gap colours, captions, folded tables; no backend switch."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from radioloc.report.html import (claims_score, figure_caption, gap_class, headline_metrics,
+                                  render, scoreboard, write_index)
+
+
+def fake_record(eid: str, paper: str = "001", holds=(True, False), skipped: str | None = None,
+                n_metrics: int = 6) -> dict:
+    metrics = [{"name": f"metric_{k}", "value": 1.0 + 0.2 * k, "paper": 1.0 if k % 2 == 0 else None,
+                "unit": "m", "note": f"note {k} " + "word " * 30} for k in range(n_metrics)]
+    return {"experiment": eid, "paper": paper, "seed": 0, "runs": 10, "full": False,
+            "elapsed_s": 1.5, "metrics": [] if skipped else metrics,
+            "claims": [] if skipped else [{"claim": f"claim {i}", "holds": h}
+                                          for i, h in enumerate(holds)],
+            "notes": ["a note"], "skipped": skipped, "config": None}
+
+
+def write_fake_report(out: Path) -> Path:
+    """A small report: three experiments (one skipped) with figures of several sizes."""
+    from radioloc.report.style import figure, save
+
+    records = [fake_record("alpha", "000", (True, True, True)),
+               fake_record("beta", "001", (True, False)),
+               fake_record("gamma", "004", skipped="data set 'x' not found (looked in: /a, /b)")]
+    for r in records:
+        (out / r["experiment"]).mkdir(parents=True, exist_ok=True)
+        (out / r["experiment"] / "summary.json").write_text(json.dumps(r))
+    for name, width in (("fig3_map", 6.4), ("fig4a_error_cdf", 11.0), ("extra_view", 14.0)):
+        fig, ax = figure(width=width, height=3.5)
+        ax.plot([0, 1, 2], [0, 1, 0.5], label="ours")
+        ax.legend()
+        save(fig, out / "alpha" / f"{name}.png")
+    fig, ax = figure()
+    ax.plot([0, 1], [1, 0])
+    save(fig, out / "beta" / "fig1_rmse.png")
+    (out / "beta" / "captions.json").write_text(json.dumps({"fig1_rmse": "Custom caption."}))
+    return write_index(out, {"alpha": "First experiment.", "beta": "Second."})
+
+
+def test_gap_classes():
+    assert gap_class(1.05, 1.0) == "good"
+    assert gap_class(0.8, 1.0) == "fair"
+    assert gap_class(2.0, 1.0) == "poor"
+    assert gap_class(1.0, None) == "" and gap_class(None, 1.0) == "" and gap_class(1.0, 0.0) == ""
+
+
+def test_claims_score_and_headlines():
+    r = fake_record("a", holds=(True, False, True))
+    assert claims_score(r) == (2, 3)
+    assert [m["name"] for m in headline_metrics(r)] == ["metric_0", "metric_2", "metric_4"]
+
+
+def test_captions_name_the_paper_figure():
+    assert figure_caption("fig4a_error_cdf", "001") == "Error cdf. Reproduces Fig. 4(a) of paper 001."
+    assert figure_caption("fig3_map", "000") == "Map. Reproduces Fig. 3 of paper 000."
+    assert figure_caption("track", "004") == "Track."
+
+
+def test_scoreboard_rows_link_to_sections():
+    html = scoreboard([fake_record("alpha", holds=(True, True)), fake_record("beta", holds=(False,)),
+                       fake_record("gamma", skipped="absent")])
+    assert html.count("<tr>") == 4
+    for eid in ("alpha", "beta", "gamma"):
+        assert f'href="#{eid}"' in html
+    assert 'pill good">2 of 2' in html and 'pill poor">0 of 1' in html and "skipped" in html
+
+
+def test_page_leads_with_the_scoreboard_and_folds_tables(tmp_path):
+    index = write_fake_report(tmp_path)
+    page = index.read_text()
+    assert page.index('class="scoreboard"') < page.index('<section id="alpha">')
+    assert page.count("<details>") >= 2 and "All 6 metrics" in page
+    assert "Reproduces Fig. 4(a) of paper 000." in page and "Custom caption." in page
+    # figures in paper order, then the others
+    assert page.index("fig3_map.png") < page.index("fig4a_error_cdf.png") < page.index("extra_view.png")
+    assert "4 of 5 claims" in page and "2 of 3 experiments ran" in page
+
+
+def test_render_escapes_text(tmp_path):
+    r = fake_record("alpha")
+    r["claims"][0]["claim"] = "<script>x</script>"
+    assert "<script>x" not in render([r], tmp_path)
+
+
+def test_import_does_not_switch_the_backend():
+    code = ("import matplotlib, sys; matplotlib.use('svg'); "
+            "import radioloc.report.style, radioloc.report.html, radioloc.cli; "
+            "from radioloc.report.style import figure; figure(); "
+            "assert matplotlib.get_backend().lower() == 'svg', matplotlib.get_backend(); "
+            "assert 'matplotlib.pyplot' not in sys.modules")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={"PYTHONPATH": src, "PATH": "/usr/bin:/bin", "MPLBACKEND": "",
+                              "HOME": "/nonexistent"})
+    assert res.returncode == 0, res.stderr
