@@ -212,7 +212,7 @@ def test_export_hanyang_2d_then_locate_end_to_end(test_root, tmp_path):
     res = runner.invoke(app, ["datasets", "export", "hanyang", "--out", str(tmp_path),
                               "--tag-height", "1.1"])
     assert res.exit_code == 0, res.output
-    assert list(read_anchors(tmp_path / "anchors.csv").columns) == ["id", "x", "y"]
+    assert list(read_anchors(tmp_path / "anchors.csv").columns)[:3] == ["id", "x", "y"]
     res = runner.invoke(app, ["locate", str(tmp_path / "measurements.csv"), "--anchors",
                               str(tmp_path / "anchors.csv"), "--out", str(tmp_path / "est.csv")])
     assert res.exit_code == 0, res.output

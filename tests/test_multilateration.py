@@ -115,3 +115,32 @@ def test_crb_of_collinear_anchors_is_a_geometry_error():
     line = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
     with pytest.raises(GeometryError, match="singular"):
         range_crb(np.array([5.0, 0.0]), line, 1.0)
+
+
+def test_collinear_anchors_refuse_the_mirror_ambiguity():
+    from radioloc.estimators import Multilateration
+    a = np.array([[0.0, 3.0], [5.0, 3.0], [10.0, 3.0]])
+    r = np.linalg.norm(a - [6.0, 8.0], axis=-1)
+    with pytest.raises(GeometryError, match="collinear"):
+        Multilateration().locate(r, a)
+    a3 = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0.0]])
+    with pytest.raises(GeometryError, match="coplanar"):
+        Multilateration().locate(np.linalg.norm(a3 - [3, 4, 5.0], axis=-1), a3)
+
+
+def test_a_local_minimum_is_left_for_the_better_mirror_basin():
+    from radioloc.estimators import Multilateration
+    a = np.array([[-10, 99], [-5.299, -20.834], [-5.299, -5.299]])
+    truth = np.array([-5.299, -94.364])
+    fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a)
+    np.testing.assert_allclose(fit.position, truth, atol=1e-6)
+
+
+def test_nearly_collinear_anchors_with_noise_give_an_ambiguous_fix_error():
+    from radioloc.estimators import Multilateration
+    a = np.array([[0.0, 0.0], [5.0, 0.02], [10.0, -0.01], [15.0, 0.0]])
+    truth = np.array([7.0, 20.0])
+    r = np.linalg.norm(a - truth, axis=-1) + np.array([0.05, -0.03, 0.02, -0.04])
+    with pytest.raises(GeometryError, match="ambiguous fix") as err:
+        Multilateration(range_std_m=0.05).locate(r, a)
+    assert err.value.index == ()

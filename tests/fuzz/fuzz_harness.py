@@ -283,25 +283,9 @@ def classify(res, scenario: Scenario, meas: Path) -> tuple[str, str]:
     return "success", ""
 
 
-# Known failures in files owned by others (estimators/, locate/ methods): (id, method,
-# outcome, regex on the detail). Reported in the final hand-over; each has an xfail test.
-KNOWN: list[tuple[str, str, str, str]] = [
-    # gn (locate/gauss_newton.py, estimators/multilateration.py): exact ranges to collinear
-    # or nearly collinear anchors give the mirror image with exit 0 (issue 17's example).
-    ("gn-ambiguous-fix", "gn", "wrong answer", r"^(near-)?collinear anchors"),
-    # gn: non-collinear anchors, exact ranges, a fix far from the truth with exit 0
-    # (a local minimum or a non-converged solve reported as a fix).
-    ("gn-wrong-fix", "gn", "wrong answer", r"^general anchors"),
-    # gn: coincident anchors (all at one point): numpy's LinAlgError escapes.
-    ("gn-singular", "gn", "internal error", r"LinAlgError: Singular matrix"),
-    # gmm (locate/gmm.py): -o components=0 / negative / 0.4 (int() truncation) reaches
-    # scikit-learn, which raises its InvalidParameterError.
-    ("gmm-components", "gmm", "internal error", r"InvalidParameterError: The 'n_components'"),
-    # gmm: the calibration reader accepts 1.8e308 in a cell; the EM fit overflows.
-    ("gmm-calibration-magnitude", "gmm", "internal error", r"floating-point failure .*overflow"),
-    # grid-rssi (locate/grid_rssi.py): -o cell_m=0 divides by zero.
-    ("grid-cell-zero", "grid-rssi", "internal error", r"divide by zero"),
-]
+# Known failures not yet fixed: (id, method, outcome, regex on the detail); each needs a
+# regression test in test_fuzz_known.py. Empty: every failure found so far is fixed.
+KNOWN: list[tuple[str, str, str, str]] = []
 
 
 def known(method: str, outcome: str, detail: str) -> str | None:

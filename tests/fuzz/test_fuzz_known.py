@@ -1,9 +1,6 @@
-"""Failures the fuzz found in files owned by other parts of the code (locate methods,
-estimators): one concrete regression input each, marked xfail until they are fixed.
-
-When a fix lands the test xpasses (non-strict, so `make test` stays green); remove the
-test and its entry in ``fuzz_harness.KNOWN`` then.
-"""
+"""Regression inputs from failures the fuzz found (mirror fixes of collinear anchors,
+local minima, coincident anchors, option bounds, calibration magnitudes): each must now end
+in a clean one-line error or a correct answer."""
 
 from __future__ import annotations
 
@@ -44,10 +41,6 @@ def _ranges(pts, truth):
                      for i, p in enumerate(pts)]
 
 
-@pytest.mark.xfail(reason="gn-ambiguous-fix: exact ranges to collinear anchors (0,3) (5,3) "
-                          "(10,3) from (6, 8) give the mirror image (6, -2) with exit 0; "
-                          "should be a GeometryError naming the node and time",
-                   strict=False)
 def test_gn_collinear_anchors_mirror(scenarios, workdir):
     pts, truth = [(0.0, 3.0), (5.0, 3.0), (10.0, 3.0)], (6.0, 8.0)
     sc, meas, args = _case(workdir, scenarios, "gn", _ranges(pts, truth),
@@ -55,10 +48,6 @@ def test_gn_collinear_anchors_mirror(scenarios, workdir):
     _assert_clean(run(args), sc, meas, truth)
 
 
-@pytest.mark.xfail(reason="gn-wrong-fix: three non-collinear but ill-conditioned anchors "
-                          "(LOS conditioning 0.02), exact ranges, a fix 5.6 m from the truth "
-                          "with exit 0; two coincident anchors of three: the mirror, 178 m off",
-                   strict=False)
 @pytest.mark.parametrize("pts", [[(-10.0, 99.0), (-5.299, -20.834), (-5.299, -5.299)],
                                  [(-10.0, -5.299), (-5.299, -5.299), (-5.299, -5.299)]])
 def test_gn_wrong_fix_general_anchors(scenarios, workdir, pts):
@@ -68,8 +57,6 @@ def test_gn_wrong_fix_general_anchors(scenarios, workdir, pts):
     _assert_clean(run(args), sc, meas, truth)
 
 
-@pytest.mark.xfail(reason="gn-singular: three coincident anchors -> numpy LinAlgError "
-                          "(internal error) instead of a GeometryError", strict=False)
 def test_gn_coincident_anchors(scenarios, workdir):
     pts, truth = [(0.0, 0.0)] * 3, (0.0, 0.0)
     sc, meas, args = _case(workdir, scenarios, "gn", _ranges(pts, truth),
@@ -77,17 +64,12 @@ def test_gn_coincident_anchors(scenarios, workdir):
     _assert_clean(run(args), sc, meas)
 
 
-@pytest.mark.xfail(reason="gmm-components: -o components=0 reaches scikit-learn "
-                          "(InvalidParameterError); declare Option(type=int, min=1, max=...)",
-                   strict=False)
 @pytest.mark.parametrize("value", ["0", "-5", "0.4"])
 def test_gmm_components_out_of_range(scenarios, workdir, value):
     sc, meas, args = _case(workdir, scenarios, "gmm", options={"components": value})
     _assert_clean(run(args), sc, meas)
 
 
-@pytest.mark.xfail(reason="gmm-calibration-magnitude: a calibration cell of 1.8e308 is "
-                          "accepted and the EM fit overflows (internal error)", strict=False)
 def test_gmm_calibration_huge_value(scenarios, workdir):
     cal = scenarios["gmm"].files["calibration"].read_text().splitlines()
     cells = cal[1].split(",")
@@ -99,8 +81,6 @@ def test_gmm_calibration_huge_value(scenarios, workdir):
     _assert_clean(run(args), sc, meas)
 
 
-@pytest.mark.xfail(reason="grid-cell-zero: -o cell_m=0 divides by zero (internal error); "
-                          "declare Option(float, min=0, min_exclusive=True)", strict=False)
 def test_grid_rssi_zero_cell(scenarios, workdir):
     sc, meas, args = _case(workdir, scenarios, "grid-rssi", options={"cell_m": "0"})
     _assert_clean(run(args), sc, meas)

@@ -58,6 +58,30 @@ def linear_initial(ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray)
     return np.linalg.solve(AtA, Atb[..., None])[..., 0][..., :d]
 
 
+def _anchor_frame(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centroid ``(..., D)``, singular values ``(..., D)`` and right singular vectors
+    ``(..., D, D)`` of the used anchors (centred)."""
+    w = used.astype(float)
+    centroid = np.einsum("...m,...md->...d", w, anchors) / w.sum(-1)[..., None]
+    centred = np.where(used[..., None], anchors - centroid[..., None, :], 0.0)
+    _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    return centroid, sv, vt
+
+
+def _check_affine_rank(anchors: np.ndarray, used: np.ndarray) -> None:
+    """Raise :class:`GeometryError` where the used anchors are coincident, collinear (2-D)
+    or coplanar (3-D): the ranges then fit a mirror image of the position as well."""
+    d = anchors.shape[-1]
+    _, sv, _ = _anchor_frame(anchors, used)
+    flat = sv[..., d - 1] <= 1e-9 * np.maximum(sv[..., 0], 1e-300)
+    if np.any(flat):
+        idx = _first(flat)
+        shape = "collinear" if d == 2 else "coplanar"
+        detail = (f"the anchors used are {shape}: the position and its mirror image across "
+                  f"them fit the ranges equally")
+        raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
+
+
 class Multilateration(SnapshotEstimator):
     """Batched multilateration to anchors by nonlinear least squares.
 
@@ -100,6 +124,39 @@ class Multilateration(SnapshotEstimator):
         self.range_std_m = None if range_std_m is None else float(range_std_m)
         self.max_iter = int(max_iter)
         self.tol_m = float(tol_m)
+
+    def _resolve_mirror(self, fit, residuals, anchors, used, w, n_used):
+        """Solve again from the mirror image of each solution across the anchors' best-fit
+        line (2-D) or plane (3-D). Keep the better fit; where both fit the ranges within
+        the noise and lie apart, the fix is ambiguous: :class:`GeometryError`."""
+        d = anchors.shape[-1]
+        centroid, sv, vt = _anchor_frame(anchors, used)
+        normal = vt[..., d - 1, :]                              # least-spread direction
+        offset = np.einsum("...d,...d->...", fit.x - centroid, normal)
+        mirror_start = fit.x - 2.0 * offset[..., None] * normal
+        alt = solve_nlls(residuals, mirror_start, weights=w, method=self.method,
+                         max_iter=self.max_iter, tol=self.tol_m)
+        better = alt.cost < fit.cost * (1 - 1e-9) - 1e-300
+        dof = np.maximum(n_used - d, 1)
+        scale = np.maximum(sv[..., 0], 1.0)
+        if self.range_std_m is not None:
+            s2 = np.full(fit.cost.shape, self.range_std_m**2)
+        else:
+            s2 = np.minimum(fit.cost, alt.cost) / dof
+        s2 = np.maximum(s2, (1e-9 * scale) ** 2)
+        apart = np.linalg.norm(alt.x - fit.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
+        ambiguous = apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
+        if np.any(ambiguous):
+            idx = _first(ambiguous)
+            p, q = fit.x[idx], alt.x[idx]
+            detail = (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
+                      f"{np.array2string(q, precision=3)} fit the ranges equally well "
+                      "(anchors nearly collinear or coplanar seen from the node)")
+            raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
+        if not np.any(better):
+            return fit
+        pick = lambda a, b: np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)), b, a)  # noqa: E731
+        return type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
 
     def locate(self, ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray | None = None,
                initial: np.ndarray | None = None) -> Estimate:
@@ -181,8 +238,10 @@ class Multilateration(SnapshotEstimator):
             J = diff / np.maximum(dist, 1e-12)[..., None]     # d||x - a_i|| / dx
             return r - dist, J
 
+        _check_affine_rank(a, used)
         fit = solve_nlls(residuals, x0, weights=w, method=self.method, max_iter=self.max_iter,
                          tol=self.tol_m)
+        fit = self._resolve_mirror(fit, residuals, a, used, w, n_used)
         JtWJ = fit.normal_matrix
         with np.errstate(all="ignore"):
             cond = np.linalg.cond(JtWJ)

@@ -8,11 +8,15 @@ import pandas as pd
 
 from radioloc.core.errors import GeometryError
 from radioloc.estimators.multilateration import Multilateration
-from radioloc.locate.base import LocateRequest, locate_method
+from radioloc.locate.base import LocateRequest, Option, locate_method
 
 
 @locate_method("gn", "Gauss-Newton multilateration of each node at each time from its ranges "
-                     "to anchors (options: range_std_m)")
+                     "to anchors (options: range_std_m)",
+               options={"range_std_m": Option("range error standard deviation, m (default: from "
+                                              "the residuals)", float, min=0, min_exclusive=True,
+                                              max=1e7)},
+               kinds=("range",), inputs=("anchors",))
 def locate_gn(request: LocateRequest) -> pd.DataFrame:
     """Locate every ``(time, node)`` epoch from its ranges to the anchors.
 

@@ -22,7 +22,8 @@ import pandas as pd
 
 from radioloc.core.errors import InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
-from radioloc.locate.base import LocateRequest, locate_method
+from radioloc.io.logs import LIMITS
+from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.models.mixture_calibration import em_calibration
 from radioloc.models.motion import UniformDisk
 
@@ -63,11 +64,36 @@ def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if not np.all(np.isfinite(pos)):
         i = int(np.flatnonzero(~np.isfinite(pos).all(1))[0])
         raise InputError(f"{path}: line {i + 2}: x, y must be finite")
+    far = np.abs(pos) > LIMITS["coordinate_m"]
+    if far.any():
+        i, j = (int(k) for k in np.argwhere(far)[0])
+        raise InputError(f"{path}: line {i + 2}, column {'xy'[j]}: |{pos[i, j]:g}| m exceeds "
+                         f"{LIMITS['coordinate_m']:g} m")
+    got = np.isfinite(rss)
+    if np.isinf(rss).any():
+        i, j = (int(k) for k in np.argwhere(np.isinf(rss))[0])
+        raise InputError(f"{path}: line {i + 2}, column {ids[j]}: RSS must be finite "
+                         "(leave the cell empty for a station not received)")
+    out = got & ((rss > LIMITS["rss_max_dbm"]) | (rss < LIMITS["rss_min_dbm"]))
+    if out.any():
+        i, j = (int(k) for k in np.argwhere(out)[0])
+        hint = (" (+100 is the 'not detected' sentinel of WiFi sets: leave such cells empty)"
+                if rss[i, j] == 100 else "")
+        raise InputError(f"{path}: line {i + 2}, column {ids[j]}: RSS {rss[i, j]:g} dBm outside "
+                         f"[{LIMITS['rss_min_dbm']:g}, {LIMITS['rss_max_dbm']:g}]{hint}")
     return pos, rss, ids
 
 
 @locate_method("gmm", "Gaussian-mixture RSS fingerprinting (paper 004) from a calibration file "
-                      "(options: components, position_components, track=0/1, v_max)")
+                      "(options: components, position_components, track=0/1, v_max)",
+               options={"components": Option("mixture components per station model (16)", int,
+                                             min=1, max=256),
+                        "position_components": Option("components kept in position densities (8)",
+                                                      int, min=1, max=256),
+                        "track": Option("1: recursive tracking, 0: one-shot per row (0)", bool),
+                        "v_max": Option("maximum speed when tracking, m/s (1.5)", float, min=0,
+                                        max=1e3)},
+               kinds=("rss",), inputs=("calibration",))
 def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     """Fingerprint localization with mixture models fitted to a calibration file.
 

@@ -19,13 +19,23 @@ import pandas as pd
 
 from radioloc.core.errors import InputError
 from radioloc.estimators.grid import GridFilter, GridGeometry
-from radioloc.locate.base import LocateRequest, locate_method
+from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
 
 
 @locate_method("grid-rssi", "Grid Bayes filter (Zickler & Veloso) on RSS to anchors with a trapezoid "
                             "RSSI/distance model given by --calibration (options: cell_m, margin_m, "
-                            "epsilon, blur_m, dbm_min, dbm_max)")
+                            "epsilon, blur_m, dbm_min, dbm_max)",
+               options={"cell_m": Option("grid cell side, m (0.5)", float, min=0, min_exclusive=True,
+                                         max=1e4),
+                        "margin_m": Option("grid margin beyond the anchors, m (5)", float, min=0,
+                                           max=1e5),
+                        "epsilon": Option("floor of a cell's probability (1e-9)", float, min=0,
+                                          max=1),
+                        "blur_m": Option("blur radius per row, m (0)", float, min=0, max=1e4),
+                        "dbm_min": Option("dBm mapped to RSSI 0 (-110)", float, min=-200, max=30),
+                        "dbm_max": Option("dBm mapped to RSSI 100 (-10)", float, min=-200, max=30)},
+               kinds=("rss",), inputs=("anchors", "calibration"))
 def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     """Run the grid filter on every node's RSS rows to anchors.
 
@@ -64,6 +74,10 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     rssi = dbm_to_rssi100(rss["value"].to_numpy(), request.option("dbm_min", -110.0),
                           request.option("dbm_max", -10.0))
     nodes = list(dict.fromkeys(rss["node"]))
+    if w * h * len(nodes) > 20_000_000:       # one float64 grid per node, several copies a step
+        raise InputError(f"option cell_m: {len(nodes)} nodes x {w} x {h} cells need about "
+                         f"{w * h * len(nodes) * 8 * 4 / 1e9:.1f} GB; use a larger cell_m or "
+                         "smaller margin_m (limit 2e7 node-cells)")
     n_idx = rss["node"].map({n: i for i, n in enumerate(nodes)}).to_numpy()
     j_idx = rss.groupby("node").cumcount().to_numpy()
     N, J = len(nodes), int(j_idx.max()) + 1

@@ -25,7 +25,7 @@ from radioloc.core.validation import check_positive
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.io.priors import read_node_priors
-from radioloc.locate.base import LocateRequest, locate_method
+from radioloc.locate.base import LocateRequest, Option, locate_method
 
 
 @dataclass
@@ -89,7 +89,12 @@ def _report(net: _Network, estimates: list[np.ndarray], sigma: list[np.ndarray] 
 
 
 @locate_method("rls", "Distributed RLS network positioning from pairwise ranges and node priors "
-                      "(Brown & Iltis eq. (1)-eq. (12); --priors; options: forgetting)")
+                      "(Brown & Iltis eq. (1)-eq. (12); --priors; options: forgetting)",
+               options={"forgetting": Option("forgetting factor lambda in (0, 1] (1)", float, min=0,
+                                             min_exclusive=True, max=1),
+                        "anchor_var_m2": Option("prior variance of anchors in the network, m^2 "
+                                                "(1e-6)", float, min=0, min_exclusive=True)},
+               kinds=("range",), inputs=("priors", "anchors"))
 def locate_rls(request: LocateRequest) -> pd.DataFrame:
     """Run :class:`NetworkRLS` over the packets of a measurement log.
 
@@ -118,7 +123,12 @@ def locate_rls(request: LocateRequest) -> pd.DataFrame:
 
 
 @locate_method("ekf", "Sequential EKF network positioning from pairwise ranges and node priors "
-                      "(Brown & Iltis eq. (13)-eq. (25); --priors; options: range_std_m)")
+                      "(Brown & Iltis eq. (13)-eq. (25); --priors; options: range_std_m)",
+               options={"range_std_m": Option("range error standard deviation, m (30)", float,
+                                              min=0, min_exclusive=True, max=1e7),
+                        "anchor_var_m2": Option("prior variance of anchors in the network, m^2 "
+                                                "(1e-6)", float, min=0, min_exclusive=True)},
+               kinds=("range",), inputs=("priors", "anchors"))
 def locate_ekf(request: LocateRequest) -> pd.DataFrame:
     """Run :class:`NetworkEKF` over the packets of a measurement log.
 
