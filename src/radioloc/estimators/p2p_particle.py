@@ -9,8 +9,9 @@ recursion of Sect. IV::
     phi_t^i(km, z) = p(z) p(theta_t(km) | z, v_t^i(k))            (m new neighbour)
     w_t^i(k)       = prod_m sum_z phi_t^i(km, z)
 
-(Algorithm 2, lines 6, 8 and 11). Neighbour positions are the neighbours' estimates sent as
-messages (the approximation of Fig. 3); anchors are known. Everything is batched over
+(Algorithm 2, lines 6, 8 and 11), the filter of the joint distribution eq. (1) under the
+approximation of Fig. 3: neighbour positions are the neighbours' estimates sent as
+messages; anchors are known. Everything is batched over
 leading axes ``(runs, vehicles)``, particles and links; the only Python loop is the loop
 over time in :meth:`P2PParticleFilter.run`.
 
@@ -96,7 +97,13 @@ class ParticleState:
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
-        """The leading axes ``(..., N)``."""
+        """The leading axes.
+
+        Returns
+        -------
+        tuple of int
+            ``(..., N)``.
+        """
         return self.mean.shape[:-1]
 
 

@@ -120,17 +120,45 @@ def _frame(case: dict, runs: np.ndarray, method: str, steps: np.ndarray, est: np
 
 @register
 class HighwayExperiment(Experiment):
+    """``p001-highway``: tables 4(c), 4(d) and Fig. 4 of paper 001 (see the module docstring)."""
+
     id = "p001-highway"
     paper = "001"
     description = "P2P particle filter with LOS/NLOS link states on a highway: tables 4(c), 4(d), Fig. 4"
 
     def config(self, full: bool) -> HighwayConfig:
+        """The settings of the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        HighwayConfig
+        """
         if full:
             return HighwayConfig()
         return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
 
     def run_block(self, config: HighwayConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Simulate (or load) and estimate the runs of one block.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (per-experiment draws use named streams of it).
+
+        Returns
+        -------
+        DataFrame
+            The tidy results table (one row per method, run, step and vehicle).
+        """
         c = config
         frames = []
         for case in _cases(c):
@@ -168,6 +196,20 @@ class HighwayExperiment(Experiment):
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: HighwayConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the results table only.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        results : DataFrame
+            The concatenated tables of every block.
+        out_dir : Path
+            Folder of the figures.
+
+        Returns
+        -------
+        Summary
+        """
         r = results
         prev = r[r.messages == "previous"]
         base = prev[(prev.M == 26) & (prev.N == 20)]

@@ -61,17 +61,45 @@ class RealUwbConfig:
 
 @register
 class RealUwbHanyang(Experiment):
+    """``real-uwb-hanyang``: paper 001's filter on the Hanyang outdoor UWB runs."""
+
     id = "real-uwb-hanyang"
     paper = "001"
     description = "P2P PF (anchors only) on Hanyang outdoor UWB runs vs the data set's LS and ESKF"
     data_folder = "hanyang-uwb-outdoor"
 
     def config(self, full: bool) -> RealUwbConfig:
+        """The settings of the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        RealUwbConfig
+        """
         if full:
             return RealUwbConfig(static_samples=0, particles=900)
         return RealUwbConfig(runs=1, particles=200, static_samples=1500, max_epochs=600)
 
     def run_block(self, config: RealUwbConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Simulate (or load) and estimate the runs of one block.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (per-experiment draws use named streams of it).
+
+        Returns
+        -------
+        DataFrame
+            The tidy results table (one row per method, run, step and vehicle).
+        """
         c = config
         root = self.data_path()
         static = load_static(root)
@@ -126,6 +154,20 @@ class RealUwbHanyang(Experiment):
         return out
 
     def summarize(self, config: RealUwbConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the results table only.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        results : DataFrame
+            The concatenated tables of every block.
+        out_dir : Path
+            Folder of the figures.
+
+        Returns
+        -------
+        Summary
+        """
         metrics, rm = [], {}
         for (name, meth), g in results.groupby(["name", "method"]):
             rm[(name, meth)] = float(np.sqrt(np.mean(g.error_m**2)))

@@ -142,7 +142,13 @@ class HighwayData:
 
     @property
     def in_range(self) -> np.ndarray:
-        """Links that exist: ``isfinite(ranges)``, (R, N, T, J)."""
+        """Links that exist.
+
+        Returns
+        -------
+        ndarray of bool, shape (R, N, T, J)
+            ``isfinite(ranges)``.
+        """
         return np.isfinite(self.ranges)
 
     def node_positions(self) -> np.ndarray:
