@@ -156,6 +156,13 @@ def test_peer_ekf_contract():
     np.testing.assert_array_equal(a.position, b.position)
     with pytest.raises(InputError, match="ranges"):
         run_peer_ekf(ekf, ranges[..., :-1], truth[:, :, 0], init_std_m=0.3, anchors=ANCHORS)
+    # a range pushed below zero by noise is read as 0, not an error
+    neg = ranges.copy()
+    neg[0, 0, 4, 1] = -0.01
+    np.testing.assert_array_equal(
+        run_peer_ekf(ekf, neg, truth[:, :, 0], init_std_m=0.3, anchors=ANCHORS, controls=ins).position,
+        run_peer_ekf(ekf, np.where(neg < 0, 0.0, neg), truth[:, :, 0], init_std_m=0.3,
+                     anchors=ANCHORS, controls=ins).position)
 
 
 # ------------------------------------------------------------------ snapshot baselines

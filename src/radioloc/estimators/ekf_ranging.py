@@ -35,7 +35,7 @@ def run_peer_ekf(ekf: RangeEKF, ranges, initial, *, init_std_m: float, anchors=N
     ranges : array_like, shape (..., N, T, J)
         Ranges from vehicle ``k`` at step ``t`` to node ``j``, ``J = N + M`` (the N
         vehicles first, a vehicle's range to itself NaN, then the M anchors); NaN = no
-        link (skipped).
+        link (skipped). A negative range (noise on two nodes a few cm apart) is used as 0.
     initial : array_like, shape (..., N, n)
         Prior mean (position first; n = ``ekf.motion.state_dim``).
     init_std_m : float
@@ -87,7 +87,9 @@ def run_peer_ekf(ekf: RangeEKF, ranges, initial, *, init_std_m: float, anchors=N
             nodes = np.concatenate([msgs, anchors_b], axis=-2)            # (..., J, 2)
             nodes = np.broadcast_to(nodes[..., None, :, :], rk.shape + (2,))
             points = gather_packed(nodes, index, axis=-2)
-            rows = np.where(valid, gather_packed(rk, index), np.nan)
+            # RangeEKF takes ranges >= 0: a simulated range pushed below zero by the noise
+            # (two vehicles within a few cm) is read as 0, as a receiver would report it
+            rows = np.where(valid, np.maximum(gather_packed(rk, index), 0.0), np.nan)
             state, info = ekf.update(state, rows, anchors=points)
             nis.append(info["nis"])
             used.append(info["measurements_used"])

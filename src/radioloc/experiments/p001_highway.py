@@ -9,7 +9,6 @@ what the one-step lag of the neighbours' messages costs.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
