@@ -1,17 +1,16 @@
-import dataclasses
-
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.estimators.p2p_particle import (ParticleFilterSettings, _link_log_phi_and_weights,
-                                              _posterior_and_resample,
-                                              compact_links, filter_step, init_filter, track)
+from radioloc.core.links import gather_packed, pack_mask, scatter_packed
+from radioloc.estimators.p2p_particle import (P2PParticleFilter, _link_log_phi_and_weights,
+                                              _posterior_and_resample)
 from radioloc.estimators.resampling import SCHEMES, get_scheme
-from radioloc.estimators.snapshot_baselines import local_ml, ransac
+from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
-from radioloc.sim.highway import HighwayScenario, simulate
+from radioloc.models.motion import InputDriven
+from radioloc.sim.highway import HighwayScenario, anchor_layout, simulate
 
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 10.0], [20.0, 10.0], [10.0, 5.0]])
 
@@ -70,15 +69,17 @@ def test_resampling_bad_input():
 # ---------------------------------------------------------------- filter
 def test_alpha_one_tiny_noise_converges_to_truth():
     sc, model, d = _scenario(alpha=1.0, los_std=0.01, ins_std=0.01)
-    s = ParticleFilterSettings(particles=300, ins_std_m=0.01, init_std_m=0.5, reset_std_m=0.05)
-    res = track(d.truth[:, 0], d.ins, d.ranges, d.in_range, d.anchors, model, s,
-                np.random.default_rng(1), messages="given", given_positions=d.truth[:, 1:])
-    err = np.linalg.norm(res.estimate - d.truth[:, 1:], axis=-1)
+    pf = P2PParticleFilter(InputDriven(0.01), model, particles=300, init_std=0.5,
+                           reset_std_m=0.05, messages="given")
+    res = pf.run(d.ranges, d.truth[:, :, 0], np.random.default_rng(1), anchors=d.anchors,
+                 controls=d.ins, given_positions=d.truth[:, :, 1:])
+    err = res.error(d.truth[:, :, 1:])
     assert np.all(np.isfinite(err))
-    assert err[:, -5:].mean() < 0.05
-    assert err[:, -5:].mean() < 0.1 * s.init_std_m
+    assert err[..., -5:].mean() < 0.05
+    assert err[..., -5:].mean() < 0.1 * 0.5
     # with alpha = 1 every link is LOS and detected as such
-    assert np.all(res.los_detected[:, -5:] == d.in_range[:, -5:])
+    det = res.diagnostics["los_detected"]
+    assert np.all(det[:, :, -5:] == d.in_range[:, :, -5:])
 
 
 def test_numba_kernel_equals_numpy_and_batched_equals_one_by_one():
@@ -122,44 +123,64 @@ def test_phi_without_history_is_prior_times_likelihood():
 
 def test_vehicle_without_neighbours_keeps_predicting():
     rng = np.random.default_rng(2)
-    s = ParticleFilterSettings(particles=100)
-    state = init_filter(np.zeros((1, 2, 2)), s, rng)
+    pf = P2PParticleFilter(InputDriven(0.1), LosNlosRange(), particles=100)
+    state = pf.init(np.zeros((1, 2, 2)), rng)
     u = np.array([[[0.2, 0.0], [0.0, 0.2]]])
     ranges = np.full((1, 2, 2), np.nan)
-    no_links = np.zeros((1, 2, 2), dtype=bool)
-    model = LosNlosRange()
     for _ in range(10):
-        state, out = filter_step(state, u, ranges, no_links, np.zeros((1, 2, 2)), model, s, rng)
-    assert np.all(np.isfinite(out.estimate))
-    np.testing.assert_allclose(out.estimate, 10 * u, atol=0.8)
-    assert not out.los_detected.any()
+        state = pf.step(state, ranges, np.zeros((1, 2, 2)), rng, control=u)
+    est = pf.estimate(state)
+    assert np.all(np.isfinite(est.position))
+    np.testing.assert_allclose(est.position, 10 * u, atol=0.8)
+    assert not est.diagnostics["los_detected"].any()
 
 
 def test_filter_bad_input():
-    s = ParticleFilterSettings(particles=10)
+    pf = P2PParticleFilter(InputDriven(0.1), LosNlosRange(), particles=10)
     rng = np.random.default_rng(0)
-    state = init_filter(np.zeros((1, 2, 2)), s, rng)
-    mask = np.array([[[False, True], [True, False]]])
+    state = pf.init(np.zeros((1, 2, 2)), rng)
+    bad = np.array([[[np.nan, np.inf], [1.0, np.nan]]])
     with pytest.raises(InputError, match="ranges"):
-        filter_step(state, np.zeros((1, 2, 2)), np.full((1, 2, 2), np.nan), mask,
-                    np.zeros((1, 2, 2)), LosNlosRange(), s, rng)
-    with pytest.raises(InputError, match="in_range"):
-        filter_step(state, np.zeros((1, 2, 2)), np.ones((3, 2, 2)), np.ones((3, 2, 2), bool),
-                    np.zeros((3, 2, 2)), LosNlosRange(), s, rng)
+        pf.step(state, bad, np.zeros((1, 2, 2)), rng, control=np.zeros((1, 2, 2)))
+    with pytest.raises(InputError, match="ranges"):
+        pf.step(state, np.ones((3, 2, 2)), np.zeros((3, 2, 2)), rng, control=np.zeros((1, 2, 2)))
+    with pytest.raises(InputError, match="control"):
+        pf.step(state, np.full((1, 2, 2), np.nan), np.zeros((1, 2, 2)), rng)
     with pytest.raises(ConfigError, match="kernel"):
-        ParticleFilterSettings(kernel="gpu")
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), kernel="gpu")
     with pytest.raises(ConfigError, match="messages"):
-        track(np.zeros((1, 2, 2)), np.zeros((1, 3, 2, 2)), np.zeros((1, 3, 2, 2)),
-              np.zeros((1, 3, 2, 2), bool), np.zeros((0, 2)), LosNlosRange(), s, rng, messages="x")
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), messages="x")
+    with pytest.raises(ConfigError, match="particles"):
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), particles=0)
+    with pytest.raises(ConfigError, match="resampling"):
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), resampling="bogus")
+    with pytest.raises(ConfigError, match="measurement"):
+        P2PParticleFilter(InputDriven(0.1), object())
+    with pytest.raises(InputError, match="given_positions"):
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), messages="given").run(
+            np.full((1, 2, 3, 2), np.nan), np.zeros((1, 2, 2)), rng, controls=np.zeros((1, 2, 3, 2)))
 
 
-def test_compact_links():
+def test_pack_mask_gather_and_scatter():
     m = np.array([[True, False, True, False], [False, False, False, True]])
-    links, valid = compact_links(m)
+    links, valid = pack_mask(m)
     assert links.shape == (2, 2)
     np.testing.assert_array_equal(links[0], [0, 2])
     np.testing.assert_array_equal(valid, [[True, True], [True, False]])
     assert links[1, 0] == 3
+    vals = np.array([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]])
+    packed = gather_packed(vals, links)
+    np.testing.assert_array_equal(packed[valid], [1.0, 3.0, 8.0])
+    back = scatter_packed(packed, links, valid, 4, fill=np.nan)
+    np.testing.assert_array_equal(np.isfinite(back), m)
+    np.testing.assert_array_equal(back[m], vals[m])
+    # fixed width (the GSIC tap refit): the first `width` of argsort(~mask)
+    idx, ok = pack_mask(m, 3)
+    np.testing.assert_array_equal(idx, np.argsort(~m, axis=-1, kind="stable")[..., :3])
+    np.testing.assert_array_equal(ok, np.take_along_axis(m, idx, axis=-1))
+    assert pack_mask(np.zeros((3, 0), bool))[0].shape == (3, 0)
+    with pytest.raises(InputError, match="width"):
+        pack_mask(m, -1)
 
 
 # ---------------------------------------------------------------- baselines
@@ -167,33 +188,53 @@ def test_ml_and_ransac_exact_with_los_ranges():
     rng = np.random.default_rng(4)
     x = rng.uniform([2, 2], [18, 8], size=(5, 2))
     d = np.linalg.norm(x[:, None] - ANCHORS, axis=-1)
-    valid = np.ones(d.shape, bool)
     model = LosNlosRange(0.01, 5.0, 0.9)
-    c = np.broadcast_to(ANCHORS, (5,) + ANCHORS.shape)
-    ml = local_ml(d, c, valid, model, 20.0)
-    rs = ransac(d + np.array([0, 0, 0, 0, 4.0]), c, valid, 0.05, 20.0)
-    np.testing.assert_allclose(ml, x, atol=0.01)
-    np.testing.assert_allclose(rs, x, atol=0.01)
-    one = local_ml(d[2], c[2], valid[2], model, 20.0)
-    np.testing.assert_allclose(one, ml[2])
+    ml = LocalML(model, 20.0).locate(d, ANCHORS)
+    rs = Ransac(0.05, 20.0).locate(d + np.array([0, 0, 0, 0, 4.0]), ANCHORS)
+    np.testing.assert_allclose(ml.position, x, atol=0.01)
+    # the Gauss-Newton refit on the inliers is exact with exact inlier ranges
+    np.testing.assert_allclose(rs.position, x, atol=1e-8)
+    assert rs.converged.all() and np.all(rs.diagnostics["inliers"] == 4)
+    one = LocalML(model, 20.0).locate(d[2], ANCHORS)
+    np.testing.assert_allclose(one.position, ml.position[2])
 
 
 def test_highway_simulation_shapes_and_links():
     sc, model, d = _scenario(alpha=0.3, los_std=0.05, ins_std=0.1, runs=2, steps=5)
     j = sc.vehicles + sc.anchors
-    assert d.ranges.shape == (2, 5, sc.vehicles, j)
-    assert not d.in_range[..., np.arange(4), np.arange(4)].any()
-    assert np.all(np.isfinite(d.ranges[d.in_range])) and np.all(np.isnan(d.ranges[~d.in_range]))
+    assert d.ranges.shape == (2, sc.vehicles, 5, j) and d.truth.shape == (2, sc.vehicles, 6, 2)
+    assert d.ins.shape == (2, sc.vehicles, 5, 2) and d.los.shape == d.ranges.shape
+    assert not d.in_range[:, np.arange(4), :, np.arange(4)].any()
+    assert d.node_positions().shape == (2, 5, j, 2)
+    np.testing.assert_array_equal(d.node_positions()[:, :, :4], np.moveaxis(d.truth[:, :, 1:], 1, 2))
+    # measured ranges sit near the true distances of the links that exist
+    dist = np.linalg.norm(d.node_positions()[:, None] - d.truth[:, :, 1:, None], axis=-1)
+    ok = d.in_range
+    assert np.all(dist[ok] < sc.radius_m)
+    assert np.all(d.ranges[ok] - dist[ok] > -0.5)
+
+
+def test_uniform_anchor_layout_needs_a_generator():
+    with pytest.raises(InputError, match="rng"):
+        anchor_layout("uniform", 5, 100.0, 20.0)
+    a = anchor_layout("uniform", 5, 100.0, 20.0, np.random.default_rng(1))
+    b = anchor_layout("uniform", 5, 100.0, 20.0, np.random.default_rng(1))
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (5, 2) and np.all((a >= 0) & (a <= [100.0, 20.0]))
 
 
 def test_ekf_alpha_one_converges_and_batched_equals_one_by_one():
-    from radioloc.estimators.ekf_ranging import ekf_track, moment_matched
+    from radioloc.estimators.ekf_ranging import run_peer_ekf
+    from radioloc.estimators.ekf_tracker import RangeEKF
     # slow vehicles: the one-step lag of the neighbours' messages is negligible
     sc, model, d = _scenario(alpha=1.0, los_std=0.01, ins_std=0.01, speed=1e-4, steps=80)
-    assert moment_matched(model) == pytest.approx((0.0, 1e-4))
-    est = ekf_track(d.truth[:, 0] + 0.3, d.ins, d.ranges, d.in_range, d.anchors, model, 0.01, 0.5)
-    err = np.linalg.norm(est - d.truth[:, 1:], axis=-1)
-    assert err[:, -5:].mean() < 0.05
-    one = ekf_track(d.truth[1:2, 0] + 0.3, d.ins[1:2], d.ranges[1:2], d.in_range[1:2], d.anchors,
-                    model, 0.01, 0.5)
-    np.testing.assert_allclose(one[0], est[1], atol=1e-10)
+    assert model.moments() == pytest.approx((0.0, 1e-4))
+    ekf = RangeEKF(InputDriven(0.01), model)
+    tr = run_peer_ekf(ekf, d.ranges, d.truth[:, :, 0] + 0.3, init_std_m=0.5, anchors=d.anchors,
+                      controls=d.ins)
+    assert tr.position.shape == (2, 4, 80, 2)
+    err = tr.error(d.truth[:, :, 1:])
+    assert err[..., -5:].mean() < 0.05
+    one = run_peer_ekf(ekf, d.ranges[1:2], d.truth[1:2, :, 0] + 0.3, init_std_m=0.5,
+                       anchors=d.anchors, controls=d.ins[1:2])
+    np.testing.assert_allclose(one.position[0], tr.position[1], atol=1e-10)

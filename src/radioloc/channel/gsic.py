@@ -42,6 +42,7 @@ import numpy as np
 
 from radioloc.channel.cdma import CDMAConfig, upsample
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.links import pack_mask
 from radioloc.core.validation import check_probability
 
 
@@ -306,7 +307,7 @@ def _joint_refit(C: _Codes, xc: np.ndarray, y: np.ndarray, taps: np.ndarray, T: 
     z_y = C.correlate(y)                                                # (B, U, D)
     for _ in range(2):
         on = taps != 0
-        k = np.argsort(~on, axis=-1, kind="stable")[..., :T]             # (B, U, T)
+        k = pack_mask(on, T)[0]                                          # (B, U, T)
         valid = np.take_along_axis(on, k, axis=-1).reshape(B, U * T)
         kk = k.reshape(B, U * T)
         uu = np.repeat(np.arange(U), T)[None, :].repeat(B, axis=0)

@@ -17,10 +17,23 @@ Objective = Callable[[np.ndarray], np.ndarray]
 
 def circle_intersections(centres: np.ndarray, radii: np.ndarray,
                          valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Intersections of every pair of circles: points ``(..., 2P, 2)`` and ``ok (..., 2P)``.
+    """Intersections of every pair of circles.
 
-    ``P = L (L - 1) / 2`` pairs of the ``L`` circles; pairs with a missing circle,
-    coincident centres or no intersection are ``ok = False``.
+    Parameters
+    ----------
+    centres : ndarray, shape (..., L, 2)
+        Circle centres.
+    radii : ndarray, shape (..., L)
+        Circle radii.
+    valid : ndarray of bool, shape (..., L)
+        Which circles exist.
+
+    Returns
+    -------
+    points : ndarray, shape (..., 2P, 2)
+        Both intersections of each of the ``P = L (L - 1) / 2`` pairs.
+    ok : ndarray of bool, shape (..., 2P)
+        False for pairs with a missing circle, coincident centres or no intersection.
     """
     n = centres.shape[-2]
     i, j = np.triu_indices(n, 1)
@@ -40,14 +53,39 @@ def circle_intersections(centres: np.ndarray, radii: np.ndarray,
 
 
 def local_grid(half_width: float, n: int) -> np.ndarray:
-    """``(n * n, 2)`` offsets of a square grid of the given half width."""
+    """Offsets of a square grid.
+
+    Parameters
+    ----------
+    half_width : float
+        Half width of the grid, metres.
+    n : int
+        Points per axis.
+
+    Returns
+    -------
+    ndarray, shape (n * n, 2)
+    """
     g = np.linspace(-half_width, half_width, n)
     gx, gy = np.meshgrid(g, g, indexing="ij")
     return np.stack([gx.ravel(), gy.ravel()], axis=-1)
 
 
 def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """The candidate ``(..., 2)`` with the highest score among ``ok`` ones."""
+    """The candidate with the highest score among the ``ok`` ones.
+
+    Parameters
+    ----------
+    objective : callable
+        Candidates ``(..., C, 2)`` to scores ``(..., C)`` (larger is better).
+    candidates : ndarray, shape (..., C, 2)
+    ok : ndarray of bool, shape (..., C)
+        Candidates allowed.
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+    """
     score = np.where(ok, objective(candidates), -np.inf)
     best = np.argmax(score, axis=-1)
     return np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
@@ -59,6 +97,28 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
     """Maximise ``objective`` over circle intersections and a coarse grid, then refine.
 
     The coarse grid is centred on the mean of the valid centres (the origin where none).
+
+    Parameters
+    ----------
+    objective : callable
+        Candidates ``(..., C, 2)`` to scores ``(..., C)`` (larger is better).
+    centres : ndarray, shape (..., L, 2)
+        Points ranged to.
+    radii : ndarray, shape (..., L)
+        Measured ranges (any value where not ``valid``).
+    valid : ndarray of bool, shape (..., L)
+        Which ranges exist.
+    coarse_half_width_m : float
+        Half width of the coarse grid.
+    coarse_points : int
+        Points per axis of the coarse grid.
+    refine : tuple of (half_width, points)
+        Successive local grids around the best candidate.
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+        The best candidate found.
     """
     w = valid.astype(float)
     centroid = (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]

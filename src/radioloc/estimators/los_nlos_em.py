@@ -24,8 +24,19 @@ from radioloc.models.los_nlos import LosNlosRange, emg_logpdf, gaussian_logpdf
 
 @dataclass
 class EmFit:
-    """Result of :func:`fit_los_nlos`: the model, the offset ``bias_m``, the log-likelihood
-    per iteration and the LOS responsibilities of the samples."""
+    """Result of :func:`fit_los_nlos`.
+
+    Attributes
+    ----------
+    model : LosNlosRange
+        The fitted ``s_LOS``, ``s_NLOS`` and ``alpha``.
+    bias_m : float
+        The fitted common offset ``b`` (0 when not fitted).
+    loglik : ndarray, shape (iterations,)
+        Mean log-likelihood per iteration (never decreases).
+    responsibility : ndarray, shape (n,)
+        LOS responsibility of each sample at the last E-step.
+    """
 
     model: LosNlosRange
     bias_m: float
@@ -47,12 +58,23 @@ def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | N
 
     Parameters
     ----------
-    errors : (n,) measured minus true range, metres.
-    alpha0, los_std0, nlos_mean0 : starting values (defaults: 0.5, a robust spread of the
-        lower half, and the mean excess over the median).
-    fit_bias : estimate a common offset ``b`` (else ``b = 0``).
-    iterations, tol : stop after this many iterations or when the mean log-likelihood
-        improves by less than ``tol``.
+    errors : array_like, shape (n,)
+        Measured minus true range, metres (n >= 10).
+    alpha0 : float
+        Starting LOS fraction.
+    los_std0, nlos_mean0 : float, optional
+        Starting ``s_LOS`` and ``s_NLOS`` (defaults: a robust spread of the lower half of
+        the errors, and the mean excess over the median).
+    fit_bias : bool
+        Estimate a common offset ``b`` (else ``b = 0``).
+    iterations : int
+        Maximum EM iterations.
+    tol : float
+        Stop when the mean log-likelihood improves by less than this.
+
+    Returns
+    -------
+    EmFit
     """
     e = as_float_array(errors, "errors", ndim=1)
     if e.size < 10:

@@ -1,17 +1,25 @@
 """Peer-to-peer particle filter with per-link LOS/NLOS states (paper 001, Algorithm 2).
 
-Each vehicle ``k`` runs its own particle filter over its position ``v_t(k)``; the binary
-link states ``z_t(km)`` are not sampled but summed out exactly per particle through the
-``phi`` recursion of Sect. IV::
+Each vehicle ``k`` runs its own particle filter over its state ``v_t(k)`` (the position,
+or position and velocity for a constant-velocity motion model); the binary link states
+``z_t(km)`` are not sampled but summed out exactly per particle through the ``phi``
+recursion of Sect. IV::
 
     phi_t^i(km, z) = p(theta_t(km) | z, v_t^i(k)) * sum_{z'} p(z | z') phi_{t-1}^i(km, z')
     phi_t^i(km, z) = p(z) p(theta_t(km) | z, v_t^i(k))            (m new neighbour)
     w_t^i(k)       = prod_m sum_z phi_t^i(km, z)
 
-(Algorithm 2, lines 6, 8 and 11). Neighbour positions are the neighbours' estimates sent as
-messages (the approximation of Fig. 3); anchors are known. Everything is batched over
-leading axes ``(runs, vehicles)``, particles and links; the only Python loop is the
-caller's loop over time.
+(Algorithm 2, lines 6, 8 and 11), the filter of the joint distribution eq. (1) under the
+approximation of Fig. 3: neighbour positions are the neighbours' estimates sent as
+messages; anchors are known. Everything is batched over
+leading axes ``(runs, vehicles)``, particles and links; the only Python loop is the loop
+over time in :meth:`P2PParticleFilter.run`.
+
+The models are arguments: the motion model (``InputDriven(s_INS)`` with the INS reading as
+control, the paper's; or ``RandomWalk``, ``ConstantVelocity`` with no INS) draws the
+prediction (line 3) through its ``sample``; the measurement model ``LosNlosRange`` gives
+the per-state likelihoods and its sticky link chain. The likelihood uses the position
+part of the state.
 
 Correction of Algorithm 2 as printed: it resamples at every step (line 12) but carries the
 unnormalised ``phi_{t-1}`` forward, which would count the history of each link twice (once
@@ -26,119 +34,97 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import logsumexp
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.links import gather_packed, pack_mask, scatter_packed
+from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import as_float_array, check_positive, check_probability
+from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.pf_kernels import finish_step, link_update
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
 
+__all__ = ["P2PParticleFilter", "ParticleState", "MESSAGES", "link_log_phi"]
+
+#: How vehicle ``k`` places neighbour ``m`` at step ``t`` (see :class:`P2PParticleFilter`).
+MESSAGES = ("previous", "extrapolated", "given")
+KERNELS = ("numba", "numpy")
+
 
 @dataclass(frozen=True)
-class ParticleFilterSettings:
-    """Choices of the particle filter the paper leaves open.
+class ParticleState:
+    """State of a batch of peer-to-peer particle filters (one per vehicle).
 
-    particles: K particles per vehicle (paper: 900).
-    ins_std_m: std of the INS velocity reading per axis and step; the prediction adds this
-        noise to the reading, ``p(v_t | v_{t-1}) = N(v_{t-1} + u_t, s_INS^2 I)``.
-    init_std_m: ``p(v_0)`` is ``N(initial, init_std_m^2 I)`` around the given start.
-    reset_fraction: reset when fewer than this fraction of the K particles are distinct
-        after resampling (the paper's "number of distinct particles becomes small").
-    reset_std_m: after a reset, particles are ``N(estimate, reset_std_m^2 I)``.
-    resampling: "systematic" (default), "stratified", "multinomial" or "residual".
-    kernel: "numba" (fused compiled particle-link update) or "numpy" (same maths, array
-        expressions; the reference the kernel is tested against).
-    """
-
-    particles: int = 900
-    ins_std_m: float = 0.1
-    init_std_m: float = 1.0
-    reset_fraction: float = 0.05
-    reset_std_m: float = 0.5
-    resampling: str = "systematic"
-    kernel: str = "numba"
-
-    def __post_init__(self) -> None:
-        if int(self.particles) < 1:
-            raise InputError(f"particles: must be >= 1, got {self.particles}")
-        check_positive(self.ins_std_m, "ins_std_m")
-        check_positive(self.init_std_m, "init_std_m")
-        check_probability(self.reset_fraction, "reset_fraction")
-        check_positive(self.reset_std_m, "reset_std_m")
-        get_scheme(self.resampling)
-        if self.kernel not in ("numba", "numpy"):
-            raise ConfigError(f"kernel: must be 'numba' or 'numpy', got {self.kernel!r}")
-
-
-@dataclass
-class FilterState:
-    """State of the batched filter.
-
-    particles : (..., N, K, 2) positions.
-    log_phi : (..., N, K, L, 2) normalised log link posteriors ``log p(z | .)`` per particle
-        for the links of ``links`` (z = 0 NLOS, 1 LOS).
-    links : (..., N, L) node index of each stored link, ``-1`` for padding.
-    estimate : (..., N, 2) current position estimates.
-    resets : (..., N) number of resets so far.
+    Attributes
+    ----------
+    particles : ndarray, shape (..., N, K, n)
+        Equally weighted particles (after resampling) of the ``n``-dimensional state,
+        position first.
+    log_phi : ndarray, shape (..., N, K, L, 2)
+        Normalised log link posteriors ``log p(z | .)`` per particle for the stored links
+        (z = 0 NLOS, 1 LOS).
+    links : ndarray of int64, shape (..., N, L)
+        Node index of each stored link, ``-1`` for padding.
+    mean : ndarray, shape (..., N, n)
+        Weighted particle mean of the last step (Algorithm 2, line 14); the prior centre
+        before the first step.
+    covariance : ndarray, shape (..., N, n, n)
+        Weighted particle covariance of the last step.
+    ess : ndarray, shape (..., N)
+        Effective sample size ``1 / sum_i w_i^2`` of the last step's weights.
+    los_detected : ndarray of bool, shape (..., N, J)
+        Detection rule ``sum_i phi(z=1) > sum_i phi(z=0)`` per node of the last step
+        (``J = 0`` before the first step); False where there is no link.
+    reset : ndarray of bool, shape (..., N)
+        Vehicles whose particles were reset at the last step.
+    resets : ndarray of int64, shape (..., N)
+        Resets so far.
+    time : float or ndarray
+        Time of the state.
     """
 
     particles: np.ndarray
     log_phi: np.ndarray
     links: np.ndarray
-    estimate: np.ndarray
-    resets: np.ndarray
-
-
-@dataclass
-class StepOutput:
-    """What one filter step reports.
-
-    estimate : (..., N, 2) weighted particle mean (Algorithm 2, line 14).
-    los_detected : (..., N, J) bool, the detection rule ``sum_i phi(z=1) > sum_i phi(z=0)``;
-        False where there is no link.
-    reset : (..., N) bool, vehicles whose particles were reset this step.
-    """
-
-    estimate: np.ndarray
+    mean: np.ndarray
+    covariance: np.ndarray
+    ess: np.ndarray
     los_detected: np.ndarray
     reset: np.ndarray
+    resets: np.ndarray
+    time: float | np.ndarray = 0.0
 
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """The leading axes.
 
-def init_filter(initial: np.ndarray, settings: ParticleFilterSettings,
-                rng: np.random.Generator) -> FilterState:
-    """Particles from ``p(v_0) = N(initial, init_std_m^2 I)`` (Algorithm 2, line 1)."""
-    v0 = as_float_array(initial, "initial", min_ndim=2, last_dim=2)
-    k = int(settings.particles)
-    particles = v0[..., None, :] + settings.init_std_m * rng.standard_normal(v0.shape[:-1] + (k, 2))
-    batch = v0.shape[:-1]
-    return FilterState(particles=particles,
-                       log_phi=np.zeros(batch + (k, 0, 2)),
-                       links=np.full(batch + (0,), -1, dtype=np.int64),
-                       estimate=v0.copy(),
-                       resets=np.zeros(batch, dtype=np.int64))
-
-
-def compact_links(in_range: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Node indices of the links in range, packed to the front: ``(links, valid)``, ``(..., L)``.
-
-    ``L`` is the largest number of links of any batch entry; padding has index 0 and
-    ``valid`` False.
-    """
-    order = np.argsort(~in_range, axis=-1, kind="stable")
-    count = in_range.sum(axis=-1)
-    width = int(count.max()) if count.size else 0
-    links = order[..., :width]
-    valid = np.arange(width) < count[..., None]
-    return links, valid
+        Returns
+        -------
+        tuple of int
+            ``(..., N)``.
+        """
+        return self.mean.shape[:-1]
 
 
 def link_log_phi(loglik: np.ndarray, prev_log_phi: np.ndarray, was_neighbour: np.ndarray,
                  chain: StickyLinkChain) -> np.ndarray:
     """Unnormalised ``log phi_t(z)`` of Algorithm 2, lines 6 and 8, in log space.
 
-    loglik : (..., L, 2) ``log p(theta_t | z, v_t^i)``.
-    prev_log_phi : (..., L, 2) normalised ``log phi_{t-1}``; ignored where not ``was_neighbour``.
-    was_neighbour : broadcastable to (..., L) bool.
+    Parameters
+    ----------
+    loglik : ndarray, shape (..., L, 2)
+        ``log p(theta_t | z, v_t^i)``.
+    prev_log_phi : ndarray, shape (..., L, 2)
+        Normalised ``log phi_{t-1}``; ignored where not ``was_neighbour``.
+    was_neighbour : ndarray of bool, broadcastable to (..., L)
+        Whether the link existed at ``t - 1`` (line 6) or is new (line 8).
+    chain : StickyLinkChain
+        The link-state chain.
+
+    Returns
+    -------
+    ndarray, shape (..., L, 2)
     """
     lt = chain.log_transition
     p0, p1 = prev_log_phi[..., 0], prev_log_phi[..., 1]
@@ -148,20 +134,13 @@ def link_log_phi(loglik: np.ndarray, prev_log_phi: np.ndarray, was_neighbour: np
     return loglik + prior
 
 
-def _logsumexp(x: np.ndarray, axis: int) -> np.ndarray:
-    """``log sum exp`` along ``axis`` (max-shifted; all ``-inf`` gives ``-inf``)."""
-    m = np.max(x, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.squeeze(m, axis=axis) + np.log(np.sum(np.exp(x - m), axis=axis))
-
-
 def _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev_store, model, chain,
                               kernel):
     """Unnormalised ``log phi_t`` (..., N, K, L, 2) and ``log w_t`` (..., N, K) (lines 6-11).
 
-    ``where_prev`` (..., N, L): slot of each link in ``prev_store`` (..., N, K, L', 2), the
-    normalised ``log phi_{t-1}``, or -1 for a new neighbour.
+    ``particles`` are the positions (..., N, K, 2); ``where_prev`` (..., N, L): slot of each
+    link in ``prev_store`` (..., N, K, L', 2), the normalised ``log phi_{t-1}``, or -1 for a
+    new neighbour.
     """
     if kernel == "numpy":
         was_nb = valid & (where_prev >= 0)
@@ -200,7 +179,7 @@ def _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev_st
 def _posterior_and_resample(log_phi, valid, idx, kernel):
     """``log sum_i phi^i(z)`` (..., N, L, 2) and the resampled normalised ``log phi``."""
     if kernel == "numpy":
-        post = _logsumexp(log_phi, axis=-3)
+        post = logsumexp(log_phi, axis=-3)
         norm = log_phi - np.logaddexp(log_phi[..., :1], log_phi[..., 1:])
         norm = np.where(valid[..., None, :, None], norm, 0.0)
         return post, np.take_along_axis(norm, idx[..., None, None], axis=-3)
@@ -214,149 +193,338 @@ def _posterior_and_resample(log_phi, valid, idx, kernel):
     return post.reshape(shape[:-3] + (shape[-2], 2)), out.reshape(shape)
 
 
-def filter_step(state: FilterState, ins_velocity: np.ndarray, ranges: np.ndarray,
-                in_range: np.ndarray, node_positions: np.ndarray, model: LosNlosRange,
-                settings: ParticleFilterSettings, rng: np.random.Generator) -> tuple[FilterState, StepOutput]:
-    """One step of Algorithm 2 for every vehicle of every batch entry.
+def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.ndarray:
+    """Slot of each current link in the previous step's link list, ``-1`` if new.
 
-    Parameters
-    ----------
-    state : FilterState
-    ins_velocity : (..., N, 2) INS displacement reading of each vehicle for this step.
-    ranges : (..., N, J) measured range from vehicle k to node j (NaN where no link).
-    in_range : (..., N, J) bool, which links exist this step (``in_range[k, k]`` must be False).
-    node_positions : (..., N, J, 2) or (..., J, 2) positions each vehicle assumes for node j:
-        the neighbours' messages (their previous estimates) and the known anchors.
-    model : LosNlosRange
-    settings : ParticleFilterSettings
-    rng : numpy Generator
-
-    Returns
-    -------
-    (FilterState, StepOutput)
+    ``links_prev`` (..., L') node indices (``-1`` padding); ``links`` (..., L) current node
+    indices; ``size`` the number of nodes J.
     """
-    chain = StickyLinkChain(model.alpha)
-    batch = state.particles.shape[:-2]
-    k = state.particles.shape[-2]
-    u = as_float_array(ins_velocity, "ins_velocity", last_dim=2)
-    mask = np.asarray(in_range, dtype=bool)
-    if mask.shape[:-1] != batch:
-        raise InputError(f"in_range: leading shape {mask.shape[:-1]} differs from the filter's {batch}")
-    theta = np.asarray(ranges, dtype=float)
-    if np.any(mask & ~np.isfinite(theta)):
-        raise InputError("ranges: a link marked in_range has a non-finite range")
-    nodes = np.asarray(node_positions, dtype=float)
-    if nodes.ndim == mask.ndim:                       # (..., J, 2): same for every vehicle
-        nodes = np.broadcast_to(nodes[..., None, :, :], mask.shape + (2,))
-
-    # line 3: propagate with the INS reading
-    particles = state.particles + u[..., None, :] + settings.ins_std_m * rng.standard_normal(
-        state.particles.shape)
-
-    links, valid = compact_links(mask)                                   # (..., N, L)
-    node_xy = np.take_along_axis(nodes, links[..., None], axis=-2)       # (..., N, L, 2)
-    th = np.take_along_axis(np.where(mask, theta, 0.0), links, axis=-1)  # (..., N, L)
-    # where was each current link stored at t-1?
-    width_prev = state.links.shape[-1]
-    pos_prev = np.full(mask.shape, -1, dtype=np.int64)
+    width_prev = links_prev.shape[-1]
+    pos_prev = np.full(links.shape[:-1] + (size,), -1, dtype=np.int64)
     if width_prev:
-        prev_ok = state.links >= 0
-        np.put_along_axis(pos_prev, np.where(prev_ok, state.links, 0),
+        prev_ok = links_prev >= 0
+        np.put_along_axis(pos_prev, np.where(prev_ok, links_prev, 0),
                           np.where(prev_ok, np.arange(width_prev), -1), axis=-1)
         # put_along_axis with duplicate index 0 for padding: restore true slot of node 0
-        first = np.where(prev_ok & (state.links == 0), np.arange(width_prev), width_prev)
+        first = np.where(prev_ok & (links_prev == 0), np.arange(width_prev), width_prev)
         slot0 = first.min(axis=-1)
         pos_prev[..., 0] = np.where(slot0 < width_prev, slot0, -1)
-    where_prev = np.take_along_axis(pos_prev, links, axis=-1)             # (..., N, L)
-    log_phi, log_w = _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev,
-                                               state.log_phi, model, chain, settings.kernel)
-    log_w = log_w - log_w.max(axis=-1, keepdims=True)
-    w = np.exp(log_w)
-    w /= w.sum(axis=-1, keepdims=True)
-    estimate = np.einsum("...k,...kd->...d", w, particles)
-
-    # line 12: resample; detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0); carry the
-    # normalised link posterior of each surviving particle
-    idx = get_scheme(settings.resampling)(w, rng)                         # (..., N, K)
-    post, log_phi = _posterior_and_resample(log_phi, valid, idx, settings.kernel)
-    los_compact = valid & (post[..., 1] > post[..., 0])
-    los_detected = np.zeros(mask.shape, dtype=bool)
-    np.put_along_axis(los_detected, links, los_compact, axis=-1)
-    los_detected &= mask
-    particles = np.take_along_axis(particles, idx[..., None], axis=-2)
-
-    # reset on degeneracy: few distinct ancestors
-    s = np.sort(idx, axis=-1)
-    distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
-    reset = distinct < settings.reset_fraction * k
-    if np.any(reset):
-        particles[reset] = estimate[reset][:, None, :] + settings.reset_std_m * rng.standard_normal(
-            (int(reset.sum()), k, 2))
-        mean_post = post - np.logaddexp(post[..., :1], post[..., 1:])        # (..., N, L, 2)
-        log_phi[reset] = mean_post[reset][:, None, :, :]
-
-    new_state = FilterState(particles=particles, log_phi=log_phi,
-                            links=np.where(valid, links, -1), estimate=estimate,
-                            resets=state.resets + reset)
-    return new_state, StepOutput(estimate=estimate, los_detected=los_detected, reset=reset)
+    return np.take_along_axis(pos_prev, links, axis=-1)
 
 
-MESSAGES = ("previous", "extrapolated", "given")
-
-
-@dataclass
-class TrackResult:
-    """Output of :func:`track`.
-
-    estimate : (..., T, N, 2); los_detected : (..., T, N, J) bool; resets : (..., N).
-    """
-
-    estimate: np.ndarray
-    los_detected: np.ndarray
-    resets: np.ndarray
-
-
-def track(initial: np.ndarray, ins: np.ndarray, ranges: np.ndarray, in_range: np.ndarray,
-          anchors: np.ndarray, model: LosNlosRange, settings: ParticleFilterSettings,
-          rng: np.random.Generator, messages: str = "previous",
-          given_positions: np.ndarray | None = None) -> TrackResult:
-    """Run the filter of every vehicle over ``T`` steps (the loop over time).
+class P2PParticleFilter(RecursiveEstimator):
+    """Peer-to-peer particle filter of paper 001 (Algorithm 2), one filter per vehicle.
 
     Parameters
     ----------
-    initial : (..., N, 2) start positions (centre of ``p(v_0)``).
-    ins : (..., T, N, 2) INS displacement readings.
-    ranges, in_range : (..., T, N, J) with ``J = N + M``, vehicles first.
-    anchors : (M, 2) known anchor positions.
-    messages : how vehicle ``k`` places neighbour ``m`` at step ``t``:
+    motion : motion model
+        Draws the prediction (Algorithm 2, line 3) with ``sample(state, dt, rng, control)``;
+        2-D position first in the state. ``InputDriven(s_INS)`` with the INS displacement
+        as control is the paper's ``p(v_t | v_{t-1}) = N(v_{t-1} + u_t, s_INS^2 I)``;
+        ``RandomWalk(q)`` or ``ConstantVelocity(accel_var)`` (state ``[x, y, vx, vy]``)
+        track with no INS.
+    measurement : LosNlosRange
+        Range model; its sticky link chain (``measurement.chain``) carries the link
+        states from step to step.
+    particles : int
+        K particles per vehicle (paper: 900).
+    resampling : {"systematic", "stratified", "multinomial", "residual"}
+        Resampling scheme of line 12.
+    init_std : float or array_like, shape (n,)
+        Standard deviation of ``p(v_0)`` around the initial state, per state component
+        (m for positions, m/s for velocities); a scalar applies to every component.
+    reset_fraction : float
+        Reset rule: a vehicle whose resampled set has fewer than this fraction of K
+        distinct particles (the paper's "number of distinct particles becomes small") is
+        reset.
+    reset_std_m : float
+        After a reset the particle positions are ``N(estimate, reset_std_m^2 I)`` (other
+        state components are kept) and every particle gets the particle-averaged link
+        posterior.
+    kernel : {"numba", "numpy"}
+        Fused compiled particle-link update, or the same maths as array expressions (the
+        reference the kernel is tested against).
+    messages : {"previous", "extrapolated", "given"}
+        How vehicle ``k`` places neighbour ``m`` at step ``t`` in :meth:`run`:
         ``"previous"`` its estimate of step ``t - 1`` (the paper, Fig. 3);
-        ``"extrapolated"`` that estimate plus ``m``'s own INS reading of step ``t``
-        (one more number in the message; removes the 0.2 m/step lag);
-        ``"given"`` the positions ``given_positions (..., T, N, 2)`` (e.g. the truth, to
-        measure what the approximation costs).
+        ``"extrapolated"`` that estimate moved by the motion model's prediction over the
+        step (with INS: plus the neighbour's own INS reading, one more number in the
+        message); ``"given"`` positions passed to :meth:`run` (e.g. the truth, to measure
+        what the approximation costs).
+
+    Examples
+    --------
+    >>> from radioloc.models.motion import InputDriven
+    >>> from radioloc.models.los_nlos import LosNlosRange
+    >>> pf = P2PParticleFilter(InputDriven(0.1), LosNlosRange(0.05, 5.0, 0.3), particles=200)
     """
-    if messages not in MESSAGES:
-        raise ConfigError(f"messages: must be one of {MESSAGES}, got {messages!r}")
-    if messages == "given" and given_positions is None:
-        raise InputError("given_positions: required when messages='given'")
-    a = as_float_array(anchors, "anchors", ndim=2, last_dim=2)
-    u = as_float_array(ins, "ins", min_ndim=3, last_dim=2)
-    steps = u.shape[-3]
-    state = init_filter(initial, settings, rng)
-    batch = state.estimate.shape[:-2]
-    anchors_b = np.broadcast_to(a, batch + a.shape)
-    est, det = [], []
-    for t in range(steps):
-        ut = u[..., t, :, :]
-        if messages == "previous":
-            vehicles = state.estimate
-        elif messages == "extrapolated":
-            vehicles = state.estimate + ut
+
+    name = "p2p-particle"
+
+    def __init__(self, motion, measurement, *, particles: int = 900,
+                 resampling: str = "systematic", init_std=1.0, reset_fraction: float = 0.05,
+                 reset_std_m: float = 0.5, kernel: str = "numba",
+                 messages: str = "previous") -> None:
+        for attr in ("sample", "predict", "dim", "state_dim"):
+            if not hasattr(motion, attr):
+                raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
+        if motion.dim != 2:
+            raise ConfigError(f"motion: the filter tracks 2-D positions, got dim={motion.dim}")
+        if not isinstance(measurement, LosNlosRange):
+            raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
+        if int(particles) != particles or int(particles) < 1:
+            raise ConfigError(f"particles: must be an integer >= 1, got {particles!r}")
+        get_scheme(resampling)
+        std = np.asarray(init_std, dtype=float)
+        if std.ndim > 1 or (std.ndim == 1 and std.shape[0] != motion.state_dim):
+            raise ConfigError(f"init_std: expected a scalar or {motion.state_dim} values, "
+                              f"got shape {std.shape}")
+        if not np.all(np.isfinite(std)) or np.any(std <= 0):
+            raise ConfigError(f"init_std: must be finite and > 0, got {init_std!r}")
+        check_probability(reset_fraction, "reset_fraction")
+        check_positive(reset_std_m, "reset_std_m")
+        if kernel not in KERNELS:
+            raise ConfigError(f"kernel: must be 'numba' or 'numpy', got {kernel!r}")
+        if messages not in MESSAGES:
+            raise ConfigError(f"messages: must be one of {MESSAGES}, got {messages!r}")
+        self.motion = motion
+        self.measurement = measurement
+        self.particles = int(particles)
+        self.resampling = resampling
+        self.init_std = init_std
+        self.reset_fraction = float(reset_fraction)
+        self.reset_std_m = float(reset_std_m)
+        self.kernel = kernel
+        self.messages = messages
+        self._init_std = std
+        self._input_driven = type(motion).__name__ == "InputDriven"
+
+    # ---- contract -------------------------------------------------------------------
+    def init(self, initial, rng: np.random.Generator, time: float | np.ndarray = 0.0
+             ) -> ParticleState:
+        """Particles from ``p(v_0) = N(initial, diag(init_std^2))`` (Algorithm 2, line 1).
+
+        Parameters
+        ----------
+        initial : array_like, shape (..., N, 2) or (..., N, n)
+            Start positions, or full start states (n = ``motion.state_dim``; components
+            not given start at 0, e.g. the velocity).
+        rng : numpy.random.Generator
+            Source of the particle draws.
+        time : float or ndarray
+            Time of the prior, seconds.
+
+        Returns
+        -------
+        ParticleState
+        """
+        n, D = self.motion.state_dim, self.motion.dim
+        v0 = as_float_array(initial, "initial", min_ndim=1, last_dim=tuple({D, n}))
+        if v0.shape[-1] < n:
+            v0 = np.concatenate([v0, np.zeros(v0.shape[:-1] + (n - D,))], axis=-1)
+        k = self.particles
+        batch = v0.shape[:-1]
+        particles = v0[..., None, :] + self._init_std * rng.standard_normal(batch + (k, n))
+        cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
+                              batch + (n, n)).copy()
+        return ParticleState(particles=particles,
+                             log_phi=np.zeros(batch + (k, 0, 2)),
+                             links=np.full(batch + (0,), -1, dtype=np.int64),
+                             mean=v0.copy(), covariance=cov,
+                             ess=np.full(batch, float(k)),
+                             los_detected=np.zeros(batch + (0,), dtype=bool),
+                             reset=np.zeros(batch, dtype=bool),
+                             resets=np.zeros(batch, dtype=np.int64), time=time)
+
+    def step(self, state: ParticleState, ranges, node_positions, rng: np.random.Generator,
+             control=None, dt: float | np.ndarray = 1.0) -> ParticleState:
+        """One step of Algorithm 2 for every vehicle of every batch entry.
+
+        Parameters
+        ----------
+        state : ParticleState
+            From :meth:`init` or the previous step.
+        ranges : array_like, shape (..., N, J)
+            Measured range from vehicle ``k`` to node ``j``; NaN where there is no link
+            (skipped). ``ranges[..., k, k]`` (a vehicle to itself) must be NaN when the
+            vehicles are among the nodes.
+        node_positions : array_like, shape (..., N, J, 2) or (..., J, 2)
+            Positions each vehicle assumes for node ``j`` (the neighbours' messages and the
+            known anchors); the second form is shared by every vehicle.
+        rng : numpy.random.Generator
+            Source of the prediction noise and the resampling.
+        control : array_like, shape (..., N, 2), optional
+            Displacement reading of each vehicle for this step (INS); required by an
+            input-driven motion model.
+        dt : float or ndarray
+            Step length in seconds (used by time-based motion models).
+
+        Returns
+        -------
+        ParticleState
+            The new state (the input state is not modified).
+        """
+        D = self.motion.dim
+        batch = state.batch_shape
+        k = state.particles.shape[-2]
+        theta = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
+        if theta.shape[:-1] != batch:
+            raise InputError(f"ranges: leading shape {theta.shape[:-1]} differs from the "
+                             f"filter's {batch}")
+        if np.any(np.isinf(theta)):
+            raise InputError("ranges: infinite value (NaN marks an absent link)")
+        mask = np.isfinite(theta)
+        nodes = as_float_array(node_positions, "node_positions", min_ndim=2, last_dim=2,
+                               allow_nan=True)
+        if nodes.ndim == theta.ndim:                      # (..., J, 2): same for every vehicle
+            nodes = nodes[..., None, :, :]
+        try:
+            nodes = np.broadcast_to(nodes, theta.shape + (2,))
+        except ValueError:
+            raise InputError(f"node_positions: shape {nodes.shape} does not fit ranges "
+                             f"{theta.shape}") from None
+        if np.any(mask & ~np.all(np.isfinite(nodes), axis=-1)):
+            raise InputError("node_positions: non-finite position of a node with a range")
+        u = None
+        if control is not None:
+            u = as_float_array(control, "control", last_dim=D)
+            if u.shape[:-1] != batch:
+                raise InputError(f"control: leading shape {u.shape[:-1]} differs from {batch}")
+            u = u[..., None, :]
+        elif self._input_driven:
+            raise InputError("control: the input-driven motion model needs the displacement "
+                             "reading of every step")
+
+        # line 3: propagate every particle through the motion model
+        particles = self.motion.sample(state.particles, dt, rng, control=u)
+        pos = particles[..., :D]
+
+        links, valid = pack_mask(mask)                                        # (..., N, L)
+        node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)
+        th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
+        where_prev = _previous_slots(state.links, links, mask.shape[-1])
+        chain = self.measurement.chain
+        log_phi, log_w = _link_log_phi_and_weights(pos, node_xy, th, valid, where_prev,
+                                                   state.log_phi, self.measurement, chain,
+                                                   self.kernel)
+        log_w = log_w - log_w.max(axis=-1, keepdims=True)
+        w = np.exp(log_w)
+        w /= w.sum(axis=-1, keepdims=True)
+        # line 14: weighted mean; weighted covariance and effective sample size
+        mean = np.einsum("...k,...kd->...d", w, particles)
+        dev = particles - mean[..., None, :]
+        cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
+        ess = 1.0 / np.sum(w * w, axis=-1)
+
+        # line 12: resample; detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0); carry the
+        # normalised link posterior of each surviving particle
+        idx = get_scheme(self.resampling)(w, rng)                             # (..., N, K)
+        post, log_phi = _posterior_and_resample(log_phi, valid, idx, self.kernel)
+        los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
+                                      mask.shape[-1]) & mask
+        particles = np.take_along_axis(particles, idx[..., None], axis=-2)
+
+        # reset on degeneracy: few distinct ancestors
+        s = np.sort(idx, axis=-1)
+        distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
+        reset = distinct < self.reset_fraction * k
+        if np.any(reset):
+            particles[reset, :, :D] = mean[reset][:, None, :D] + self.reset_std_m * \
+                rng.standard_normal((int(reset.sum()), k, D))
+            mean_post = post - np.logaddexp(post[..., :1], post[..., 1:])     # (..., N, L, 2)
+            log_phi[reset] = mean_post[reset][:, None, :, :]
+        return ParticleState(particles=particles, log_phi=log_phi,
+                             links=np.where(valid, links, -1), mean=mean, covariance=cov,
+                             ess=ess, los_detected=los_detected, reset=reset,
+                             resets=state.resets + reset, time=state.time + dt)
+
+    def estimate(self, state: ParticleState) -> Estimate:
+        """The weighted particle mean and covariance of the last step.
+
+        Parameters
+        ----------
+        state : ParticleState
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., N, 2), ``covariance`` (..., N, 2, 2); diagnostics ``state``
+            and ``state_covariance`` (full state), ``ess``, ``los_detected`` (..., N, J),
+            ``resets`` (count so far).
+        """
+        D = self.motion.dim
+        return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time,
+                        {"state": state.mean, "state_covariance": state.covariance,
+                         "ess": state.ess, "los_detected": state.los_detected,
+                         "resets": state.resets})
+
+    def run(self, ranges, initial, rng: np.random.Generator, *, anchors=None, controls=None,
+            time=None, given_positions=None) -> Track:
+        """Filter every vehicle over ``T`` steps (the loop over time).
+
+        Parameters
+        ----------
+        ranges : array_like, shape (..., N, T, J)
+            Ranges from vehicle ``k`` at step ``t`` to node ``j``, ``J = N + M``: the N
+            vehicles of the same batch entry first (a vehicle's range to itself NaN), then
+            the M anchors. NaN = no link (skipped).
+        initial : array_like, shape (..., N, 2) or (..., N, n)
+            Centre of ``p(v_0)`` (see :meth:`init`).
+        rng : numpy.random.Generator
+            Source of every draw of the filter.
+        anchors : array_like, shape (M, 2) or (..., M, 2), optional
+            Known anchor positions (none: ``J = N``).
+        controls : array_like, shape (..., N, T, 2), optional
+            INS displacement readings (required by an input-driven motion model).
+        time : array_like, shape (T,), optional
+            Step times in seconds; the prior is at ``time[0]`` (default ``0..T-1``).
+        given_positions : array_like, shape (..., N, T, 2), optional
+            Neighbour positions for ``messages="given"``.
+
+        Returns
+        -------
+        Track
+            ``position`` (..., N, T, 2), ``covariance`` (..., N, T, 2, 2); per-step
+            diagnostics ``state``, ``state_covariance``, ``ess``, ``los_detected``
+            (..., N, T, J) and ``resets`` (cumulative).
+        """
+        r = as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True)
+        n_veh, T, J = r.shape[-3:]
+        if anchors is None:
+            a = np.zeros((0, 2))
         else:
-            vehicles = given_positions[..., t, :, :]
-        nodes = np.concatenate([vehicles, anchors_b], axis=-2)
-        state, out = filter_step(state, ut, ranges[..., t, :, :], in_range[..., t, :, :], nodes,
-                                 model, settings, rng)
-        est.append(out.estimate)
-        det.append(out.los_detected)
-    return TrackResult(np.stack(est, axis=-3), np.stack(det, axis=-3), state.resets)
+            a = as_float_array(anchors, "anchors", min_ndim=2, last_dim=2)
+        if J != n_veh + a.shape[-2]:
+            raise InputError(f"ranges: {J} nodes per row, expected N + M = {n_veh} + "
+                             f"{a.shape[-2]} (vehicles first, then anchors)")
+        t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
+        if t.shape != (T,) or np.any(np.diff(t) < 0):
+            raise InputError(f"time: expected {T} non-decreasing step times, got {t.shape}")
+        dts = np.diff(t, prepend=t[0])
+        u = None
+        if controls is not None:
+            u = as_float_array(controls, "controls", min_ndim=3, last_dim=2)
+            if u.shape[-2] != T:
+                raise InputError(f"controls: expected {T} steps on axis -2, got {u.shape}")
+        if self.messages == "given":
+            if given_positions is None:
+                raise InputError("given_positions: required when messages='given'")
+            given = as_float_array(given_positions, "given_positions", min_ndim=3, last_dim=2)
+        state = self.init(initial, rng, time=t[0])
+        if state.batch_shape[-1] != n_veh:
+            raise InputError(f"initial: {state.batch_shape[-1]} vehicles, ranges have {n_veh}")
+        batch = state.batch_shape[:-1]
+        anchors_b = np.broadcast_to(a, batch + a.shape[-2:])
+        estimates = []
+        for k in range(T):
+            uk = None if u is None else u[..., k, :]
+            if self.messages == "previous":
+                peers = state.mean[..., : self.motion.dim]
+            elif self.messages == "extrapolated":
+                peers = self.motion.predict(state.mean, dts[k], control=uk)[..., : self.motion.dim]
+            else:
+                peers = given[..., k, :]
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b], axis=-2)
+            state = self.step(state, r[..., k, :], nodes, rng, control=uk, dt=dts[k])
+            estimates.append(self.estimate(state))
+        return track_from_steps(estimates, t)

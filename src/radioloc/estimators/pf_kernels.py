@@ -1,6 +1,6 @@
 """Fused numba kernel of the particle-link update of the peer-to-peer particle filter.
 
-The numpy form of :func:`radioloc.estimators.p2p_particle.filter_step` materialises
+The numpy form of :meth:`radioloc.estimators.p2p_particle.P2PParticleFilter.step` materialises
 several ``(vehicles, particles, links, 2)`` temporaries per step; this kernel computes the
 same quantities (LOS/NLOS log-likelihoods, the phi recursion of Algorithm 2, lines 6/8, and
 the log-weights of line 11) in one pass with no temporaries. It is the inner loop the
@@ -42,11 +42,37 @@ def _logaddexp(a: float, b: float) -> float:
 @njit(cache=True, parallel=True)
 def link_update(particles, node_xy, theta, valid, where_prev, prev, los_std, nlos_mean,
                 log_trans, log_stat, log_phi, log_w):
-    """Fill ``log_phi`` (B, K, L, 2) and ``log_w`` (B, K) in place.
+    """Fill ``log_phi`` and ``log_w`` in place (Algorithm 2, lines 6, 8 and 11).
 
-    particles (B, K, 2); node_xy (B, L, 2); theta, valid (B, L);
-    where_prev (B, L) slot of the link in ``prev`` (B, K, L', 2), the normalised
-    ``log phi_{t-1}``, or -1 if the node was not a neighbour at t-1.
+    Parameters
+    ----------
+    particles : ndarray, shape (B, K, 2)
+        Particle positions.
+    node_xy : ndarray, shape (B, L, 2)
+        Positions of the linked nodes.
+    theta : ndarray, shape (B, L)
+        Measured ranges.
+    valid : ndarray of bool, shape (B, L)
+        Which link slots exist.
+    where_prev : ndarray of int, shape (B, L)
+        Slot of the link in ``prev``, or -1 if the node was not a neighbour at t-1.
+    prev : ndarray, shape (B, K, L', 2)
+        Normalised ``log phi_{t-1}``.
+    los_std, nlos_mean : float
+        ``s_LOS`` and ``s_NLOS`` of the range model.
+    log_trans : ndarray, shape (2, 2)
+        Log transition matrix of the link chain.
+    log_stat : ndarray, shape (2,)
+        Log stationary distribution of the link chain.
+    log_phi : ndarray, shape (B, K, L, 2)
+        Output: unnormalised ``log phi_t``.
+    log_w : ndarray, shape (B, K)
+        Output: log weights.
+
+    Returns
+    -------
+    None
+        The results are written into ``log_phi`` and ``log_w``.
     """
     nb, nk, nl = log_phi.shape[0], log_phi.shape[1], log_phi.shape[2]
     lam = 1.0 / nlos_mean
@@ -89,9 +115,23 @@ def link_update(particles, node_xy, theta, valid, where_prev, prev, los_std, nlo
 def finish_step(log_phi, valid, idx, post, out):
     """Link posteriors and resampled, normalised ``log phi`` in one pass.
 
-    log_phi (B, K, L, 2) unnormalised; valid (B, L); idx (B, K) ancestors.
-    Writes ``post`` (B, L, 2) = ``log sum_i phi^i`` (the detection statistic) and
-    ``out`` (B, K, L, 2) = ``log phi^{idx_i} - log sum_z phi^{idx_i}``.
+    Parameters
+    ----------
+    log_phi : ndarray, shape (B, K, L, 2)
+        Unnormalised ``log phi_t``.
+    valid : ndarray of bool, shape (B, L)
+        Which link slots exist.
+    idx : ndarray of int, shape (B, K)
+        Ancestor of each resampled particle.
+    post : ndarray, shape (B, L, 2)
+        Output: ``log sum_i phi^i`` (the detection statistic).
+    out : ndarray, shape (B, K, L, 2)
+        Output: ``log phi^{idx_i} - log sum_z phi^{idx_i}``.
+
+    Returns
+    -------
+    None
+        The results are written into ``post`` and ``out``.
     """
     nb, nk, nl = log_phi.shape[0], log_phi.shape[1], log_phi.shape[2]
     for b in prange(nb):

@@ -40,7 +40,20 @@ def _inverse_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One uniform offset per batch entry, ``u_j = (U + j) / K``."""
+    """One uniform offset per batch entry, ``u_j = (U + j) / K``.
+
+    Parameters
+    ----------
+    weights : array_like, shape (..., K)
+        Non-negative weights (normalised here) of each batch entry.
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int64, shape (..., K)
+        Ancestor index of every new particle.
+    """
     w = _check(weights)
     k = w.shape[-1]
     u = (rng.random(w.shape[:-1] + (1,)) + np.arange(k)) / k
@@ -48,7 +61,20 @@ def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One uniform per stratum, ``u_j = (U_j + j) / K``."""
+    """One uniform per stratum, ``u_j = (U_j + j) / K``.
+
+    Parameters
+    ----------
+    weights : array_like, shape (..., K)
+        Non-negative weights (normalised here) of each batch entry.
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int64, shape (..., K)
+        Ancestor index of every new particle.
+    """
     w = _check(weights)
     k = w.shape[-1]
     u = (rng.random(w.shape) + np.arange(k)) / k
@@ -56,13 +82,39 @@ def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def multinomial(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``K`` independent draws from the weights."""
+    """``K`` independent draws from the weights.
+
+    Parameters
+    ----------
+    weights : array_like, shape (..., K)
+        Non-negative weights (normalised here) of each batch entry.
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int64, shape (..., K)
+        Ancestor index of every new particle.
+    """
     w = _check(weights)
     return _inverse_cdf(w, rng.random(w.shape))
 
 
 def residual(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``floor(K w_i)`` deterministic copies, the rest multinomial on the residual weights."""
+    """``floor(K w_i)`` deterministic copies, the rest multinomial on the residual weights.
+
+    Parameters
+    ----------
+    weights : array_like, shape (..., K)
+        Non-negative weights (normalised here) of each batch entry.
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int64, shape (..., K)
+        Ancestor index of every new particle.
+    """
     w = _check(weights)
     k = w.shape[-1]
     counts = np.floor(k * w).astype(np.int64)
@@ -90,7 +142,22 @@ SCHEMES: dict[str, Callable[[np.ndarray, np.random.Generator], np.ndarray]] = {
 
 
 def get_scheme(name: str) -> Callable[[np.ndarray, np.random.Generator], np.ndarray]:
-    """The resampling function called ``name``; :class:`ConfigError` if unknown."""
+    """The resampling function called ``name``.
+
+    Parameters
+    ----------
+    name : {"systematic", "stratified", "multinomial", "residual"}
+
+    Returns
+    -------
+    callable
+        ``scheme(weights, rng) -> ancestor indices``.
+
+    Raises
+    ------
+    ConfigError
+        If ``name`` is unknown.
+    """
     try:
         return SCHEMES[name]
     except KeyError:

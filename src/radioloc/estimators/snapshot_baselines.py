@@ -1,17 +1,28 @@
 """Single-epoch baselines of paper 001: genie-aided local ML and RANSAC multilateration.
 
-Both see, at one instant, the ranges of a vehicle to its neighbours whose positions are
-given (the genie of Sect. V supplies the true neighbour positions), batched over leading
-axes ``(..., L)`` with a ``valid`` mask for absent links.
+Both see, at one instant, the ranges of a node to the points whose positions are given
+(the genie of Sect. V supplies the true neighbour positions; with anchors only, the
+anchors), batched over leading axes. A NaN range is an absent link. The links present are
+packed with :func:`radioloc.core.links.pack_mask` before the search, so the cost grows with
+the number of links heard, not with the number of candidate nodes.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.geometry import distances
-from radioloc.estimators.local_search import best_candidate, local_grid, search
+from radioloc.core.links import gather_packed, pack_mask
+from radioloc.core.results import Estimate
+from radioloc.core.validation import as_float_array, check_positive
+from radioloc.estimators.base import SnapshotEstimator
+from radioloc.estimators.local_search import search
+from radioloc.estimators.nlls import solve_nlls
 from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.ranging import range_geometry
+
+__all__ = ["LocalML", "Ransac"]
 
 
 def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.ndarray:
@@ -19,44 +30,149 @@ def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.nda
     return ranges[..., None, :] - distances(x[..., :, None, :], centres[..., None, :, :])
 
 
-def local_ml(ranges: np.ndarray, centres: np.ndarray, valid: np.ndarray, model: LosNlosRange,
-             radius_m: float) -> np.ndarray:
-    """Local maximum-likelihood position under the LOS/NLOS mixture ``(..., 2)``.
+def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid."""
+    r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
+    if np.any(np.isinf(r)):
+        raise InputError("ranges: infinite value (NaN marks an absent link)")
+    c = as_float_array(centres, "centres", min_ndim=2, last_dim=2, allow_nan=True)
+    try:
+        c = np.broadcast_to(c, r.shape + (2,))
+    except ValueError:
+        raise InputError(f"centres: shape {c.shape} does not fit ranges {r.shape}") from None
+    mask = np.isfinite(r)
+    if np.any(mask & ~np.all(np.isfinite(c), axis=-1)):
+        raise InputError("centres: non-finite position of a point with a range")
+    index, valid = pack_mask(mask)
+    th = gather_packed(np.where(mask, r, 0.0), index)
+    cen = gather_packed(np.where(mask[..., None], c, 0.0), index, axis=-2)
+    return th, cen, valid
+
+
+class LocalML(SnapshotEstimator):
+    """Local maximum-likelihood position under the LOS/NLOS mixture (paper 001, Sect. V).
 
     Maximises ``sum_m log(alpha p_LOS + (1 - alpha) p_NLOS)`` over the candidates of
-    :func:`radioloc.estimators.local_search.search` (coarse grid of half width
-    ``radius_m``, since the vehicle is within ``radius_m`` of every neighbour).
+    :func:`radioloc.estimators.local_search.search`: the pairwise intersections of the
+    range circles plus a coarse grid of half width ``radius_m`` around the mean of the
+    points heard (the node is within ``radius_m`` of every one), polished by two finer
+    local grids. A global search heuristic, not a certified optimum.
+
+    Parameters
+    ----------
+    measurement : LosNlosRange
+        The mixture range model.
+    radius_m : float
+        Half width of the coarse grid (the communication radius).
+    coarse_points : int
+        Points per axis of the coarse grid.
     """
-    def objective(x):
-        e = _residuals(x, centres, ranges)
-        lp = model.logpdf(e, 0.0)
-        return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
-    return search(objective, centres, np.where(valid, ranges, 0.0), valid, radius_m)
+
+    name = "local-ml"
+
+    def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21) -> None:
+        if not isinstance(measurement, LosNlosRange):
+            raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
+        self.measurement = measurement
+        self.radius_m = check_positive(radius_m, "radius_m")
+        if int(coarse_points) != coarse_points or coarse_points < 2:
+            raise ConfigError(f"coarse_points: must be an integer >= 2, got {coarse_points!r}")
+        self.coarse_points = int(coarse_points)
+
+    def locate(self, ranges, centres) -> Estimate:
+        """Maximum-likelihood positions for a batch of snapshots.
+
+        Parameters
+        ----------
+        ranges : array_like, shape (..., L)
+            Measured ranges to the points; NaN = absent link.
+        centres : array_like, shape (..., L, 2) (broadcast against ``ranges``)
+            Positions of the points ranged to.
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., 2), no covariance; diagnostics ``log_likelihood`` at the
+            estimate and ``measurements_used``.
+        """
+        th, cen, valid = _packed(ranges, centres)
+        model = self.measurement
+
+        def objective(x):
+            e = _residuals(x, cen, th)
+            lp = model.logpdf(e, 0.0)
+            return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
+        x = search(objective, cen, th, valid, self.radius_m, self.coarse_points)
+        return Estimate(x, None, None, {"log_likelihood": objective(x[..., None, :])[..., 0],
+                                        "measurements_used": valid.sum(axis=-1)})
 
 
-def ransac(ranges: np.ndarray, centres: np.ndarray, valid: np.ndarray, threshold_m: float,
-           radius_m: float) -> np.ndarray:
-    """RANSAC-style multilateration ``(..., 2)``.
+class Ransac(SnapshotEstimator):
+    """RANSAC-style multilateration (paper 001, Sect. V).
 
     Hypotheses are the intersections of every pair of range circles (minimal sets of two
-    ranges in 2-D); the consensus of a hypothesis is the number of ranges with
-    ``|residual| < threshold_m``. The largest consensus wins (ties: smaller squared
-    residual over the inliers), then the least-squares fit on that hypothesis's inlier
-    set is refined on local grids. Exhaustive over pairs instead of random draws.
-    """
-    def consensus(x):
-        e = _residuals(x, centres, ranges)
-        inl = valid[..., None, :] & (np.abs(e) < threshold_m)
-        sq = np.sum(np.where(inl, e * e, 0.0), axis=-1)
-        return inl.sum(-1) - sq / (inl.sum(-1) * threshold_m**2 + 1.0)
-    x0 = search(consensus, centres, np.where(valid, ranges, 0.0), valid, radius_m, refine=())
-    e0 = ranges - distances(x0[..., None, :], centres)
-    inliers = valid & (np.abs(e0) < threshold_m)
+    ranges in 2-D) and a coarse grid; the consensus of a hypothesis is the number of ranges
+    with ``|residual| < threshold_m`` (ties: smaller squared residual over the inliers).
+    The best hypothesis is refitted by Gauss-Newton least squares on its inlier set
+    (:func:`radioloc.estimators.nlls.solve_nlls`, outliers weighted 0). Exhaustive over
+    pairs instead of random draws.
 
-    def least_squares(x):
-        e = _residuals(x, centres, ranges)
-        return -np.sum(np.where(inliers[..., None, :], e * e, 0.0), axis=-1)
-    for half, n in ((0.5, 21), (0.05, 21)):
-        local = x0[..., None, :] + local_grid(half, n)
-        x0 = best_candidate(least_squares, local, np.ones(local.shape[:-1], dtype=bool))
-    return x0
+    Parameters
+    ----------
+    threshold_m : float
+        Inlier gate on the range residual.
+    radius_m : float
+        Half width of the coarse grid of hypotheses.
+    max_iter : int
+        Gauss-Newton iterations of the refit.
+    """
+
+    name = "ransac"
+
+    def __init__(self, threshold_m: float, radius_m: float, max_iter: int = 50) -> None:
+        self.threshold_m = check_positive(threshold_m, "threshold_m")
+        self.radius_m = check_positive(radius_m, "radius_m")
+        if int(max_iter) != max_iter or max_iter < 0:
+            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
+        self.max_iter = int(max_iter)
+
+    def locate(self, ranges, centres) -> Estimate:
+        """RANSAC positions for a batch of snapshots.
+
+        Parameters
+        ----------
+        ranges : array_like, shape (..., L)
+            Measured ranges to the points; NaN = absent link.
+        centres : array_like, shape (..., L, 2) (broadcast against ``ranges``)
+            Positions of the points ranged to.
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., 2), covariance ``None``; diagnostics ``converged``,
+            ``stalled``, ``iterations`` of the refit, ``inliers`` (count),
+            ``residual_rms_m`` over the inliers and ``measurements_used``.
+        """
+        th, cen, valid = _packed(ranges, centres)
+        thr = self.threshold_m
+
+        def consensus(x):
+            e = _residuals(x, cen, th)
+            inl = valid[..., None, :] & (np.abs(e) < thr)
+            sq = np.sum(np.where(inl, e * e, 0.0), axis=-1)
+            return inl.sum(-1) - sq / (inl.sum(-1) * thr**2 + 1.0)
+        x0 = search(consensus, cen, th, valid, self.radius_m, refine=())
+        e0 = th - distances(x0[..., None, :], cen)
+        inliers = valid & (np.abs(e0) < thr)
+
+        def residuals(x):
+            d, J = range_geometry(x, cen)
+            return th - d, J
+        fit = solve_nlls(residuals, x0, weights=inliers.astype(float), method="gauss-newton",
+                         max_iter=self.max_iter)
+        n_in = inliers.sum(axis=-1)
+        rms = np.sqrt(fit.cost / np.maximum(n_in, 1))
+        return Estimate(fit.x, None, None, {"converged": fit.converged, "stalled": fit.stalled,
+                                            "iterations": fit.iterations, "inliers": n_in,
+                                            "residual_rms_m": rms,
+                                            "measurements_used": valid.sum(axis=-1)})

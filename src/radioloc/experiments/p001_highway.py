@@ -9,7 +9,6 @@ what the one-step lag of the neighbours' messages costs.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,13 +16,16 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.metrics import error_cdf, position_error
-from radioloc.estimators.ekf_ranging import ekf_track
-from radioloc.estimators.p2p_particle import ParticleFilterSettings, compact_links, track
-from radioloc.estimators.snapshot_baselines import local_ml, ransac
+from radioloc.core.rng import stream
+from radioloc.estimators.ekf_ranging import run_peer_ekf
+from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.motion import InputDriven
 from radioloc.report.style import COLORS, figure, save
-from radioloc.sim.highway import HighwayData, HighwayScenario, simulate
+from radioloc.sim.highway import HighwayData, HighwayScenario, anchor_layout, simulate
 
 PAPER_C = {5: (0.43, 1.04, 1.05), 15: (0.52, 0.99, 1.01), 30: (0.61, 0.93, 0.94),
            45: (0.68, 0.71, 0.73)}
@@ -45,7 +47,7 @@ class HighwayConfig:
         centre line) is kept after comparing layouts (docs/p001.md): it is the layout
         closest to the paper's "about 4 anchors in range" (2.5 on average; no layout of
         26 anchors reaches 4 with R = 10 m).
-    init_std_m, reset_fraction, reset_std_m, resampling: see ParticleFilterSettings.
+    init_std_m, reset_fraction, reset_std_m, resampling: see P2PParticleFilter (init_std).
     ransac_threshold_m: inlier gate of RANSAC (3 s_LOS).
     ml_every: the local ML and RANSAC are evaluated every this many steps (cost).
     lag_variants: message variants run at alpha = 30% besides the paper's "previous".
@@ -81,24 +83,27 @@ def _cases(c: HighwayConfig) -> list[dict]:
 
 
 def _snapshot(data: HighwayData, model: LosNlosRange, c: HighwayConfig, steps: np.ndarray):
-    """Genie local ML and RANSAC at the given steps: two arrays (R, S, N, 2)."""
-    n = data.truth.shape[2]
+    """Genie local ML and RANSAC (true neighbour positions) at the given steps.
+
+    Returns two arrays (R, N, S, 2); one snapshot call per step (the candidate sets of a
+    whole run at once would not fit in memory).
+    """
+    nodes = data.node_positions()                                         # (R, T, J, 2)
+    ml_est = LocalML(model, c.radius_m)
+    rs_est = Ransac(c.ransac_threshold_m, c.radius_m)
     ml, rs = [], []
     for t in steps:
-        cur = data.truth[:, t + 1]
-        nodes = np.concatenate([cur, np.broadcast_to(data.anchors, (cur.shape[0],) + data.anchors.shape)], axis=1)
-        mask = data.in_range[:, t]
-        links, valid = compact_links(mask)
-        nodes_b = np.broadcast_to(nodes[:, None], (cur.shape[0], n) + nodes.shape[1:])
-        centres = np.take_along_axis(nodes_b, links[..., None], axis=-2)
-        theta = np.take_along_axis(np.where(mask, data.ranges[:, t], 0.0), links, axis=-1)
-        ml.append(local_ml(theta, centres, valid, model, c.radius_m))
-        rs.append(ransac(theta, centres, valid, c.ransac_threshold_m, c.radius_m))
-    return np.stack(ml, 1), np.stack(rs, 1)
+        ranges, centres = data.ranges[:, :, t], nodes[:, None, t]          # (R, N, J), (R, 1, J, 2)
+        ml.append(ml_est.locate(ranges, centres).position)
+        rs.append(rs_est.locate(ranges, centres).position)
+    return np.stack(ml, axis=2), np.stack(rs, axis=2)
 
 
 def _frame(case: dict, runs: np.ndarray, method: str, steps: np.ndarray, est: np.ndarray,
            truth: np.ndarray, extra: dict | None = None) -> pd.DataFrame:
+    """Rows (run, step, vehicle) of estimates ``est`` and ``truth`` (R, N, S, 2) and
+    per-vehicle-step ``extra`` columns (R, N, S)."""
+    est, truth = np.moveaxis(est, 1, 2), np.moveaxis(truth, 1, 2)          # (R, S, N, 2)
     r, s, n = est.shape[:3]
     idx = np.indices((r, s, n)).reshape(3, -1)
     cols = {"alpha": case["alpha"], "M": case["M"], "N": case["N"],
@@ -108,53 +113,102 @@ def _frame(case: dict, runs: np.ndarray, method: str, steps: np.ndarray, est: np
             "x_true": truth[..., 0].ravel(), "y_true": truth[..., 1].ravel(),
             "error_m": position_error(est, truth).ravel()}
     for k, v in (extra or {}).items():
-        cols[k] = v.ravel()
+        cols[k] = np.moveaxis(v, 1, 2).ravel()
     return pd.DataFrame(cols)
 
 
 @register
 class HighwayExperiment(Experiment):
+    """``p001-highway``: tables 4(c), 4(d) and Fig. 4 of paper 001 (see the module docstring)."""
+
     id = "p001-highway"
     paper = "001"
     description = "P2P particle filter with LOS/NLOS link states on a highway: tables 4(c), 4(d), Fig. 4"
 
     def config(self, full: bool) -> HighwayConfig:
+        """The settings of the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        HighwayConfig
+        """
         if full:
             return HighwayConfig()
         return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
 
     def run_block(self, config: HighwayConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
+        """Simulate (or load) and estimate the runs of one block.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (per-experiment draws use named streams of it).
+
+        Returns
+        -------
+        DataFrame
+            The tidy results table (one row per method, run, step and vehicle).
+        """
         c = config
-        settings = ParticleFilterSettings(particles=c.particles, ins_std_m=c.ins_std_m,
-                                          init_std_m=c.init_std_m, reset_fraction=c.reset_fraction,
-                                          reset_std_m=c.reset_std_m, resampling=c.resampling)
         frames = []
         for case in _cases(c):
             model = LosNlosRange(c.los_std_m, c.nlos_mean_m, case["alpha"])
             sc = HighwayScenario(vehicles=case["N"], anchors=case["M"], steps=c.steps,
                                  radius_m=c.radius_m, ins_std_m=c.ins_std_m,
                                  start_width_m=c.start_width_m, layout=c.layout)
-            data = simulate(sc, model, runs.size, rng)
-            res = track(data.truth[:, 0], data.ins, data.ranges, data.in_range, data.anchors,
-                        model, settings, rng, messages=case["messages"],
-                        given_positions=data.truth[:, 1:])
-            los = data.in_range & data.los
+            # the layout is a per-experiment draw (only "uniform" uses the stream)
+            anchors = anchor_layout(c.layout, case["M"], sc.length_m, sc.width_m,
+                                    rng=stream(rng, f"anchor-layout-M{case['M']}"))
+            data = simulate(sc, model, runs.size, rng, anchors=anchors)
+            pf = P2PParticleFilter(InputDriven(c.ins_std_m), model, particles=c.particles,
+                                   resampling=c.resampling, init_std=c.init_std_m,
+                                   reset_fraction=c.reset_fraction, reset_std_m=c.reset_std_m,
+                                   messages=case["messages"])
+            truth = data.truth[:, :, 1:]                                  # (R, N, T, 2)
+            res = pf.run(data.ranges, data.truth[:, :, 0], rng, anchors=data.anchors,
+                         controls=data.ins, given_positions=truth)
+            in_range = data.in_range
+            los = in_range & data.los
+            det = res.diagnostics["los_detected"]
             all_steps = np.arange(c.steps)
-            frames.append(_frame(case, runs, "pf", all_steps, res.estimate, data.truth[:, 1:], {
-                "los_links": los.sum(-1), "los_detected": (res.los_detected & los).sum(-1),
-                "nlos_as_los": (res.los_detected & data.in_range & ~data.los).sum(-1)}))
+            frames.append(_frame(case, runs, "pf", all_steps, res.position, truth, {
+                "los_links": los.sum(-1), "los_detected": (det & los).sum(-1),
+                "nlos_as_los": (det & in_range & ~data.los).sum(-1)}))
             if case["ml"]:
                 sub = all_steps[::c.ml_every]
                 ml, rs = _snapshot(data, model, c, sub)
-                frames.append(_frame(case, runs, "ml", sub, ml, data.truth[:, sub + 1]))
-                frames.append(_frame(case, runs, "ransac", sub, rs, data.truth[:, sub + 1]))
-                ekf = ekf_track(data.truth[:, 0], data.ins, data.ranges, data.in_range, data.anchors,
-                                model, c.ins_std_m, c.init_std_m)
-                frames.append(_frame(case, runs, "ekf", all_steps, ekf, data.truth[:, 1:]))
+                frames.append(_frame(case, runs, "ml", sub, ml, truth[:, :, sub]))
+                frames.append(_frame(case, runs, "ransac", sub, rs, truth[:, :, sub]))
+                ekf = run_peer_ekf(RangeEKF(InputDriven(c.ins_std_m), model), data.ranges,
+                                   data.truth[:, :, 0], init_std_m=c.init_std_m,
+                                   anchors=data.anchors, controls=data.ins)
+                frames.append(_frame(case, runs, "ekf", all_steps, ekf.position, truth))
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: HighwayConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the results table only.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        results : DataFrame
+            The concatenated tables of every block.
+        out_dir : Path
+            Folder of the figures.
+
+        Returns
+        -------
+        Summary
+        """
         r = results
         prev = r[r.messages == "previous"]
         base = prev[(prev.M == 26) & (prev.N == 20)]

@@ -16,11 +16,14 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.metrics import position_error
+from radioloc.core.rng import stream
 from radioloc.estimators.los_nlos_em import fit_los_nlos
-from radioloc.estimators.p2p_particle import ParticleFilterSettings, track
-from radioloc.estimators.snapshot_baselines import local_ml, ransac
+from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
-from radioloc.io.hanyang import TAG_HEIGHT_OFFSET_M, dynamic_runs, load_dynamic, load_static
+from radioloc.io.hanyang import (dynamic_runs, horizontal_ranges, load_dynamic, load_static,
+                                 resample_epochs)
+from radioloc.models.motion import InputDriven
 from radioloc.report.style import COLORS, figure, save
 
 
@@ -32,7 +35,8 @@ class RealUwbConfig:
     velocity_std_m: the data has no IMU; the INS reading of a step is the difference of the
         RTK reference over the step plus N(0, velocity_std_m^2) per axis, and the filter
         uses the same value as s_INS.
-    static_samples: static range errors used by EM (0 = all), drawn with a fixed seed.
+    static_samples: static range errors used by EM (0 = all), drawn from the named stream
+        "em-static-subsample" of the experiment seed.
     particles, init_std_m, reset_*: particle filter settings; p(v_0) is centred on the
         reference start.
     ransac_threshold_m: inlier gate, 3 fitted s_LOS (at least 0.1 m) when None.
@@ -55,73 +59,81 @@ class RealUwbConfig:
     max_epochs: int = 0
 
 
-def _epochs(run, epoch_s: float):
-    ref = run.reference
-    start = max(float(run.ranges.time_s.min()), float(ref.time_s.min())) + epoch_s
-    stop = float(ref.time_s.max())
-    t = np.arange(start, stop, epoch_s)
-    ids = run.anchors.id.to_numpy()
-    theta = np.full((t.size, ids.size), np.nan)
-    for j, aid in enumerate(ids):                      # loop over the 4 anchor files
-        g = run.ranges[run.ranges.anchor == aid].sort_values("time_s")
-        ts, r = g.time_s.to_numpy(), g.range_m.to_numpy()
-        k = np.searchsorted(ts, t, side="right") - 1
-        ok = (k >= 0) & (t - ts[np.maximum(k, 0)] < epoch_s)
-        theta[ok, j] = r[k[ok]]
-    truth = np.stack([np.interp(t, ref.time_s, ref[c]) for c in ("x", "y", "z")], axis=-1)
-    return t, theta, truth
-
-
 @register
 class RealUwbHanyang(Experiment):
+    """``real-uwb-hanyang``: paper 001's filter on the Hanyang outdoor UWB runs."""
+
     id = "real-uwb-hanyang"
     paper = "001"
     description = "P2P PF (anchors only) on Hanyang outdoor UWB runs vs the data set's LS and ESKF"
     data_folder = "hanyang-uwb-outdoor"
 
     def config(self, full: bool) -> RealUwbConfig:
+        """The settings of the quick or the full size.
+
+        Parameters
+        ----------
+        full : bool
+            The paper's size instead of the quick one.
+
+        Returns
+        -------
+        RealUwbConfig
+        """
         if full:
             return RealUwbConfig(static_samples=0, particles=900)
         return RealUwbConfig(runs=1, particles=200, static_samples=1500, max_epochs=600)
 
     def run_block(self, config: RealUwbConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
+        """Simulate (or load) and estimate the runs of one block.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        runs : ndarray of int
+            Run indices of the block.
+        rng : numpy.random.Generator
+            The block's generator (per-experiment draws use named streams of it).
+
+        Returns
+        -------
+        DataFrame
+            The tidy results table (one row per method, run, step and vehicle).
+        """
         c = config
         root = self.data_path()
         static = load_static(root)
         e = static.error_m.to_numpy()
         if c.static_samples and c.static_samples < e.size:
-            e = np.random.default_rng(0).choice(e, c.static_samples, replace=False)
+            # a per-experiment draw: every block fits the same subsample
+            e = stream(rng, "em-static-subsample").choice(e, c.static_samples, replace=False)
         fit = fit_los_nlos(e)
         model, bias = fit.model, fit.bias_m
         folders = dynamic_runs(root)
+        pf = P2PParticleFilter(InputDriven(c.velocity_std_m), model, particles=c.particles,
+                               init_std=c.init_std_m, reset_fraction=c.reset_fraction,
+                               reset_std_m=c.reset_std_m)
+        ml = LocalML(model, 60.0)
+        ransac = Ransac(c.ransac_threshold_m or max(3 * model.los_std_m, 0.1), 60.0)
         frames = []
         for r in runs:
             if r >= len(folders):
                 continue
             run = load_dynamic(folders[r])
-            t, theta, truth = _epochs(run, c.epoch_s)
+            t, theta, truth = resample_epochs(run, c.epoch_s)
             if c.max_epochs:
                 t, theta, truth = t[:c.max_epochs], theta[:c.max_epochs], truth[:c.max_epochs]
             anchors = run.anchors[["x", "y", "z"]].to_numpy()
-            dz = truth[:, 2:3] + TAG_HEIGHT_OFFSET_M - anchors[None, :, 2]
-            corr = theta - bias
-            horiz = np.sqrt(np.maximum(corr**2 - dz**2, 0.0))
-            valid = np.isfinite(horiz)
+            horiz = horizontal_ranges(theta, anchors, truth[:, 2], bias)         # (T, M)
             xy = truth[:, :2]
             ins = np.diff(xy, axis=0, prepend=xy[:1]) + c.velocity_std_m * rng.standard_normal(xy.shape)
-            m = anchors.shape[0]
-            ranges = np.concatenate([np.full((t.size, 1), np.nan), horiz], axis=1)[None, :, None, :]
-            in_range = np.concatenate([np.zeros((t.size, 1), bool), valid], axis=1)[None, :, None, :]
-            settings = ParticleFilterSettings(particles=c.particles, ins_std_m=c.velocity_std_m,
-                                              init_std_m=c.init_std_m, reset_fraction=c.reset_fraction,
-                                              reset_std_m=c.reset_std_m)
-            res = track(xy[None, :1], ins[None, :, None], ranges, in_range, anchors[:, :2],
-                        model, settings, rng)
-            centres = np.broadcast_to(anchors[:, :2], (t.size, m, 2))
-            thr = c.ransac_threshold_m or max(3 * model.los_std_m, 0.1)
-            est = {"pf": res.estimate[0, :, 0],
-                   "ml": local_ml(np.where(valid, horiz, 0.0), centres, valid, model, 60.0),
-                   "ransac": ransac(np.where(valid, horiz, 0.0), centres, valid, thr, 60.0)}
+            # one vehicle (N = 1) whose range to itself is absent, then the anchors
+            ranges = np.concatenate([np.full((t.size, 1), np.nan), horiz], axis=1)[None, None]
+            res = pf.run(ranges, xy[None, :1], rng, anchors=anchors[:, :2],
+                         controls=ins[None, None], time=t)
+            est = {"pf": res.position[0, 0],
+                   "ml": ml.locate(horiz, anchors[:, :2]).position,
+                   "ransac": ransac.locate(horiz, anchors[:, :2]).position}
             for meth, p in est.items():
                 frames.append(pd.DataFrame({"run": r, "name": run.name, "method": meth, "time_s": t,
                                             "x_est": p[:, 0], "y_est": p[:, 1], "x_true": xy[:, 0],
@@ -142,6 +154,20 @@ class RealUwbHanyang(Experiment):
         return out
 
     def summarize(self, config: RealUwbConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
+        """Metrics, claims and figures from the results table only.
+
+        Parameters
+        ----------
+        config : the experiment's config
+        results : DataFrame
+            The concatenated tables of every block.
+        out_dir : Path
+            Folder of the figures.
+
+        Returns
+        -------
+        Summary
+        """
         metrics, rm = [], {}
         for (name, meth), g in results.groupby(["name", "method"]):
             rm[(name, meth)] = float(np.sqrt(np.mean(g.error_m**2)))

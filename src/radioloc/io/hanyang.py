@@ -24,8 +24,18 @@ TAG_HEIGHT_OFFSET_M = 1.0   # tag z = trajectory z + 1 m (the data set authors' 
 
 
 def load_static(root: Path | str) -> pd.DataFrame:
-    """All static range samples: ``condition, height_cm, distance_m, true_range_m, range_m,
-    error_m, rssi_dbm``."""
+    """All static range samples of the data set.
+
+    Parameters
+    ----------
+    root : path
+        Folder of the data set.
+
+    Returns
+    -------
+    DataFrame
+        ``condition, height_cm, distance_m, true_range_m, range_m, error_m, rssi_dbm``.
+    """
     base = Path(root) / "Static_measurements"
     if not base.is_dir():
         raise DataUnavailable(f"{base}: static measurements not found")
@@ -69,7 +79,17 @@ class DynamicRun:
 
 
 def dynamic_runs(root: Path | str) -> list[Path]:
-    """Folders of the dynamic runs present, sorted."""
+    """Folders of the dynamic runs present, sorted.
+
+    Parameters
+    ----------
+    root : path
+        Folder of the data set.
+
+    Returns
+    -------
+    list of Path
+    """
     base = Path(root) / "Dynamic_measurements"
     runs = sorted(p for p in base.glob("*/Trajectory_*/Case_*") if (p / "trajectory.csv").exists())
     if not runs:
@@ -88,7 +108,17 @@ def _published(path: Path) -> dict:
 
 
 def load_dynamic(folder: Path | str) -> DynamicRun:
-    """Read one dynamic run folder."""
+    """Read one dynamic run folder.
+
+    Parameters
+    ----------
+    folder : path
+        One ``Dynamic_measurements/<cond>/Trajectory_<T>/Case_<c>`` folder.
+
+    Returns
+    -------
+    DynamicRun
+    """
     folder = Path(folder)
     traj = pd.read_csv(folder / "trajectory.csv")
     t0 = float(traj["timestamp"].iloc[0])
@@ -115,3 +145,76 @@ def load_dynamic(folder: Path | str) -> DynamicRun:
     name = f"{parts[-3]}_{parts[-2].split('_')[-1]}_{parts[-1]}"
     return DynamicRun(name, pd.DataFrame(anchors), pd.concat(ranges, ignore_index=True), ref, est,
                       _published(folder / "RMSD_results.txt"))
+
+
+def resample_epochs(run: DynamicRun, epoch_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Resample a run's range streams to a common epoch grid.
+
+    At each epoch every anchor contributes its latest range of the last ``epoch_s``
+    seconds (none: NaN); the RTK reference is interpolated to the epochs. The epochs run
+    from ``epoch_s`` after the later of the first range and the first reference sample to
+    the last reference sample.
+
+    Parameters
+    ----------
+    run : DynamicRun
+        From :func:`load_dynamic`.
+    epoch_s : float
+        Epoch length, seconds.
+
+    Returns
+    -------
+    time_s : ndarray, shape (T,)
+        Epoch times from the run start.
+    ranges_m : ndarray, shape (T, A)
+        Range to each anchor of ``run.anchors`` (in that order); NaN = none in the epoch.
+    reference : ndarray, shape (T, 3)
+        RTK reference ``(x, y, z)`` at the epochs.
+    """
+    if not np.isfinite(epoch_s) or epoch_s <= 0:
+        raise InputError(f"epoch_s: must be > 0, got {epoch_s!r}")
+    ref = run.reference
+    start = max(float(run.ranges.time_s.min()), float(ref.time_s.min())) + epoch_s
+    stop = float(ref.time_s.max())
+    t = np.arange(start, stop, epoch_s)
+    ids = run.anchors.id.to_numpy()
+    epochs = pd.DataFrame({"epoch": np.repeat(np.arange(t.size), ids.size),
+                           "time_s": np.repeat(t, ids.size), "anchor": np.tile(ids, t.size)})
+    stream = run.ranges.sort_values("time_s", kind="stable").assign(
+        range_time_s=lambda d: d.time_s)
+    latest = pd.merge_asof(epochs, stream, on="time_s", by="anchor", direction="backward",
+                           allow_exact_matches=True)
+    fresh = (latest.time_s - latest.range_time_s) < epoch_s
+    latest["range_m"] = latest.range_m.where(fresh)
+    theta = latest.pivot(index="epoch", columns="anchor", values="range_m")
+    theta = theta.reindex(index=np.arange(t.size), columns=ids).to_numpy(float)
+    truth = np.stack([np.interp(t, ref.time_s, ref[c]) for c in ("x", "y", "z")], axis=-1)
+    return t, theta, truth
+
+
+def horizontal_ranges(ranges_m: np.ndarray, anchors: np.ndarray, tag_z: np.ndarray,
+                      bias_m: float = 0.0) -> np.ndarray:
+    """Bias-corrected ranges projected to the horizontal plane.
+
+    The tag is at ``tag_z + TAG_HEIGHT_OFFSET_M`` (the data set authors' convention);
+    ``sqrt(max((r - bias)^2 - dz^2, 0))`` with ``dz`` the height difference to each anchor.
+
+    Parameters
+    ----------
+    ranges_m : ndarray, shape (T, A)
+        Measured ranges (NaN = none).
+    anchors : ndarray, shape (A, 3)
+        Anchor positions.
+    tag_z : ndarray, shape (T,)
+        Reference height of the tag mount.
+    bias_m : float
+        Common ranging bias subtracted first.
+
+    Returns
+    -------
+    ndarray, shape (T, A)
+        Horizontal ranges (NaN where the range is NaN).
+    """
+    dz = np.asarray(tag_z, dtype=float)[:, None] + TAG_HEIGHT_OFFSET_M - np.asarray(anchors)[None, :, 2]
+    corr = np.asarray(ranges_m, dtype=float) - bias_m
+    return np.sqrt(np.maximum(corr**2 - dz**2, 0.0))

@@ -9,7 +9,8 @@ A range between nodes at distance ``d`` is
 whose log-density is evaluated through ``scipy.special.log_ndtr`` so that it stays finite
 far in both tails. The LOS fraction is ``alpha``; the link state follows a two-state
 Markov chain with ``p(z_t = 1 | z_{t-1} = 0) = alpha / 2`` and stationary distribution
-``(alpha, 1 - alpha)`` over (LOS, NLOS).
+``(alpha, 1 - alpha)`` over (LOS, NLOS). A Kalman filter uses the mixture through its
+first two moments (:meth:`LosNlosRange.moments`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,20 @@ _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
 def gaussian_logpdf(x: np.ndarray, std: float) -> np.ndarray:
-    """Log-density of ``N(0, std^2)`` at ``x``."""
+    """Log-density of ``N(0, std^2)`` at ``x``.
+
+    Parameters
+    ----------
+    x : array_like
+        Points (range errors), metres.
+    std : float
+        Standard deviation, metres.
+
+    Returns
+    -------
+    ndarray
+        ``log N(x; 0, std^2)``, same shape as ``x``.
+    """
     z = np.asarray(x, dtype=float) / std
     return -0.5 * z * z - np.log(std) - 0.5 * _LOG_2PI
 
@@ -36,6 +50,20 @@ def emg_logpdf(x: np.ndarray, std: float, mean_exp: float) -> np.ndarray:
 
     ``log f(x) = log lam + lam^2 std^2 / 2 - lam x + log Phi((x - lam std^2) / std)`` with
     ``lam = 1 / mean_exp``; ``log Phi`` is ``log_ndtr``, exact for large negative arguments.
+
+    Parameters
+    ----------
+    x : array_like
+        Points (range errors), metres.
+    std : float
+        Standard deviation of the Gaussian part, metres.
+    mean_exp : float
+        Mean of the exponential part, metres.
+
+    Returns
+    -------
+    ndarray
+        The log-density, same shape as ``x``.
     """
     lam = 1.0 / mean_exp
     x = np.asarray(x, dtype=float)
@@ -66,20 +94,64 @@ class LosNlosRange:
         check_positive(self.nlos_mean_m, "nlos_mean_m")
         check_probability(self.alpha, "alpha")
 
+    @property
+    def chain(self) -> "StickyLinkChain":
+        """The sticky link-state chain of this model's LOS fraction.
+
+        Returns
+        -------
+        StickyLinkChain
+            ``StickyLinkChain(alpha)``.
+        """
+        return StickyLinkChain(self.alpha)
+
     def moments(self) -> tuple[float, float]:
-        """Mean and variance of the mixture range error (what a Kalman filter uses):
-        ``((1 - alpha) s_NLOS, s_LOS^2 + (1 - alpha^2) s_NLOS^2)``."""
+        """Mean and variance of the mixture range error (what a Kalman filter uses).
+
+        Returns
+        -------
+        mean_m : float
+            ``(1 - alpha) s_NLOS``.
+        variance_m2 : float
+            ``s_LOS^2 + (1 - alpha^2) s_NLOS^2``.
+        """
         a, mu, s = self.alpha, self.nlos_mean_m, self.los_std_m
         return (1 - a) * mu, s * s + (1 - a * a) * mu * mu
 
     def logpdf_by_state(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
-        """``log p(theta | d, z)`` for ``z = 0`` (NLOS) and ``z = 1`` (LOS); trailing axis 2."""
+        """``log p(theta | d, z)`` for ``z = 0`` (NLOS) and ``z = 1`` (LOS).
+
+        Parameters
+        ----------
+        measured : array_like
+            Measured ranges ``theta``, metres.
+        true_ranges : array_like
+            Distances ``d`` (broadcast against ``measured``).
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            Log-densities under NLOS (index 0) and LOS (index 1).
+        """
         e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
         return np.stack([emg_logpdf(e, self.los_std_m, self.nlos_mean_m),
                          gaussian_logpdf(e, self.los_std_m)], axis=-1)
 
     def logpdf(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
-        """Mixture log-density ``log(alpha p_LOS + (1 - alpha) p_NLOS)``."""
+        """Mixture log-density ``log(alpha p_LOS + (1 - alpha) p_NLOS)``.
+
+        Parameters
+        ----------
+        measured : array_like
+            Measured ranges, metres.
+        true_ranges : array_like
+            Distances (broadcast against ``measured``).
+
+        Returns
+        -------
+        ndarray
+            The log-density, broadcast shape.
+        """
         lp = self.logpdf_by_state(measured, true_ranges)
         with np.errstate(divide="ignore"):
             logw = np.log([1.0 - self.alpha, self.alpha])
@@ -87,7 +159,22 @@ class LosNlosRange:
 
     def sample(self, true_ranges: np.ndarray, los: np.ndarray,
                rng: np.random.Generator) -> np.ndarray:
-        """Ranges for the given distances and link states (``los`` boolean, same shape)."""
+        """Ranges for the given distances and link states.
+
+        Parameters
+        ----------
+        true_ranges : array_like
+            Distances, metres.
+        los : array_like of bool
+            Link states (True = LOS), same shape as ``true_ranges``.
+        rng : numpy.random.Generator
+            Source of the exponential excess and the Gaussian noise.
+
+        Returns
+        -------
+        ndarray
+            Measured ranges, same shape as ``true_ranges``.
+        """
         d = np.asarray(true_ranges, dtype=float)
         los = np.asarray(los, dtype=bool)
         if los.shape != d.shape:
@@ -111,28 +198,66 @@ class StickyLinkChain:
 
     @property
     def transition(self) -> np.ndarray:
-        """``P[z_prev, z]``."""
+        """Transition matrix.
+
+        Returns
+        -------
+        ndarray, shape (2, 2)
+            ``P[z_prev, z]`` (0 = NLOS, 1 = LOS).
+        """
         a = self.alpha
         return np.array([[1.0 - a / 2.0, a / 2.0],
                          [(1.0 - a) / 2.0, (1.0 + a) / 2.0]])
 
     @property
     def stationary(self) -> np.ndarray:
-        """``(p(z=0), p(z=1)) = (1 - alpha, alpha)``."""
+        """Stationary distribution.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+            ``(p(z=0), p(z=1)) = (1 - alpha, alpha)``.
+        """
         return np.array([1.0 - self.alpha, self.alpha])
 
     @property
     def log_transition(self) -> np.ndarray:
+        """Log of :attr:`transition`.
+
+        Returns
+        -------
+        ndarray, shape (2, 2)
+        """
         with np.errstate(divide="ignore"):
             return np.log(self.transition)
 
     @property
     def log_stationary(self) -> np.ndarray:
+        """Log of :attr:`stationary`.
+
+        Returns
+        -------
+        ndarray, shape (2,)
+        """
         with np.errstate(divide="ignore"):
             return np.log(self.stationary)
 
     def sample(self, steps: int, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
-        """Boolean LOS paths ``(steps, *shape)`` started from the stationary distribution."""
+        """Boolean LOS paths started from the stationary distribution.
+
+        Parameters
+        ----------
+        steps : int
+            Number of time steps.
+        shape : tuple of int
+            Shape of the batch of independent links.
+        rng : numpy.random.Generator
+            Source of the uniforms.
+
+        Returns
+        -------
+        ndarray of bool, shape (steps, *shape)
+        """
         if steps < 1:
             raise InputError(f"steps: must be >= 1, got {steps}")
         u = rng.random((steps, *shape))
