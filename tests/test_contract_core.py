@@ -288,7 +288,7 @@ def test_range_ekf_bad_input():
     with pytest.raises(InputError, match="ranges"):
         ekf.run(np.full((5, 3), 1.0), prior_mean=[1, 1], prior_cov=np.eye(2))
     with pytest.raises(InputError, match="ranges"):
-        ekf.run(np.full((5, 4), -1.0), prior_mean=[1, 1], prior_cov=np.eye(2))
+        ekf.run(np.full((5, 4), np.inf), prior_mean=[1, 1], prior_cov=np.eye(2))
     with pytest.raises(InputError, match="prior_cov"):
         ekf.run(np.full((5, 4), 1.0), prior_mean=[1, 1], prior_cov=-np.eye(2))
     with pytest.raises(InputError, match="time"):

@@ -144,3 +144,16 @@ def test_nearly_collinear_anchors_with_noise_give_an_ambiguous_fix_error():
     with pytest.raises(GeometryError, match="ambiguous fix") as err:
         Multilateration(range_std_m=0.05).locate(r, a)
     assert err.value.index == ()
+
+
+def test_flag_mode_marks_degenerate_problems_instead_of_raising():
+    from radioloc.estimators import Multilateration
+    good = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    line = np.array([[0.0, 3.0], [5.0, 3.0], [10.0, 3.0]])
+    a = np.stack([good, line])
+    r = np.linalg.norm(a - np.array([6.0, 8.0]), axis=-1)
+    fit = Multilateration(on_degenerate="flag").locate(r, a)
+    np.testing.assert_array_equal(fit.diagnostics["degenerate"], [False, True])
+    np.testing.assert_allclose(fit.position[0], [6.0, 8.0], atol=1e-8)
+    assert np.isfinite(fit.covariance[0]).all() and np.isnan(fit.covariance[1]).all()
+    assert not fit.converged[1]

@@ -8,6 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from radioloc.core.alignment import rigid_aligned_error
 from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.rng import block_generator
 from radioloc.core.geometry import pairwise_distances
 from radioloc.estimators.ekf import NetworkEKF, range_jacobian
 from radioloc.estimators.rls import NetworkRLS, pair_rows
@@ -306,7 +307,7 @@ def test_p000_experiment_smoke(tmp_path):
     from radioloc.experiments.p000_montecarlo import P000MonteCarlo
     exp = P000MonteCarlo()
     cfg = replace(exp.config(False), runs=6, block_size=6, iterations=4)
-    frame = exp.run_block(cfg, np.arange(6), np.random.default_rng(0))
+    frame = exp.run_block(cfg, np.arange(6), block_generator(0, 0))
     assert len(frame) == 6 * 5 * len(cfg.range_var_m2)
     assert np.all(np.isfinite(frame.to_numpy(dtype=float)))
     summary = exp.summarize(cfg, frame, tmp_path)
@@ -352,7 +353,7 @@ def test_locate_ekf_and_rls_from_csv(tmp_path):
     assert np.all(np.isfinite(last["uncertainty_m"]))
     err = np.linalg.norm(last[["x", "y"]].to_numpy() - truth, axis=1)
     assert np.all(err < 4 * last["uncertainty_m"].to_numpy() + 1.0)
-    req.options["forgetting"] = "0.7"     # lambda = 1 keeps the early linearisation errors
+    req.options = {"forgetting": "0.7"}  # lambda = 1 keeps the early linearisation errors
     rls = run_method("rls", req)
     assert len(rls) == len(ekf) and "uncertainty_m" not in rls.columns
     final = rls[rls.time == rls.time.max()].set_index("node").loc[ids][["x", "y"]].to_numpy()

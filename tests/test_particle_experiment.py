@@ -2,13 +2,14 @@ import dataclasses
 
 import numpy as np
 
+from radioloc.core.rng import block_generator
 from radioloc.experiments.base import get_experiment
 
 
 def test_highway_experiment_smoke(tmp_path):
     exp = get_experiment("p001-highway")
     cfg = dataclasses.replace(exp.config(full=False), steps=6, particles=30, ml_every=3)
-    res = exp.run_block(cfg, np.array([0]), np.random.default_rng(0))
+    res = exp.run_block(cfg, np.array([0]), block_generator(0, 0))
     summary = exp.summarize(cfg, res, tmp_path)
     names = {m.name: m for m in summary.metrics}
     for a in (5, 15, 30, 45):
@@ -33,7 +34,7 @@ def test_real_uwb_experiment_smoke(tmp_path, monkeypatch):
     monkeypatch.setenv("RADIOLOC_DATA", str(root))
     exp = get_experiment("real-uwb-hanyang")
     cfg = dataclasses.replace(exp.config(full=False), max_epochs=40, particles=50, static_samples=300)
-    res = exp.run_block(cfg, np.array([0]), np.random.default_rng(0))
+    res = exp.run_block(cfg, np.array([0]), block_generator(0, 0))
     summary = exp.summarize(cfg, res, tmp_path)
     names = {m.name for m in summary.metrics}
     run = res.name.iloc[0]

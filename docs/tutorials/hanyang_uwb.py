@@ -36,9 +36,12 @@ def main(out: str | Path = "tutorial-hanyang", small: bool = False) -> pd.DataFr
     #    ground: projecting the ranges to the horizontal plane lets us solve in 2-D.
     radioloc("datasets", "export", "hanyang", "--run", "LOS/A/1", "--tag-height", "1.1",
              "--epoch-s", "0.5" if small else "0.1", "--out", out)
-    # 2. Locate the tag at every epoch (Gauss-Newton multilateration, 4 anchors).
+    # 2. Locate the tag at every epoch (Gauss-Newton multilateration, 4 anchors). Seen from
+    #    the tag, this small anchor box can fit the tag's mirror image as well as the tag at
+    #    some epochs: `gn` refuses such a fix, and `on_degenerate=skip` leaves those epochs
+    #    out with one warning that counts them.
     radioloc("locate", out / "measurements.csv", "--anchors", out / "anchors.csv",
-             "--out", out / "gn.csv")
+             "-o", "on_degenerate=skip", "--out", out / "gn.csv")
     # 3. Compare with the data set's own estimates (LS, ESKF) against the RTK reference.
     ref = pd.read_csv(out / "reference.csv")
     est = {"radioloc gn": pd.read_csv(out / "gn.csv"), "data set LS": pd.read_csv(out / "ls.csv"),

@@ -141,8 +141,10 @@ class RangeEKF(RecursiveEstimator):
         r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
         if r.shape[-1] != a.shape[-2]:
             raise InputError(f"ranges: {r.shape[-1]} per row but {a.shape[-2]} anchors")
-        if np.any(r[np.isfinite(r)] < 0) or np.any(np.isinf(r)):
-            raise InputError("ranges: must be finite and >= 0 (NaN marks an absent range)")
+        if np.any(np.isinf(r)):
+            idx = tuple(int(i) for i in np.argwhere(np.isinf(r))[0])
+            raise InputError(f"ranges: infinite value at index {idx} (NaN marks an absent "
+                             "range; a measured range may be slightly negative, not infinite)")
         D, n = self.motion.dim, self.motion.state_dim
         h, J = range_geometry(state.mean[..., :D], a, self.height_m)
         H = np.zeros(J.shape[:-1] + (n,))

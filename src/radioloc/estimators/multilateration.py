@@ -68,18 +68,15 @@ def _anchor_frame(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np
     return centroid, sv, vt
 
 
-def _check_affine_rank(anchors: np.ndarray, used: np.ndarray) -> None:
-    """Raise :class:`GeometryError` where the used anchors are coincident, collinear (2-D)
-    or coplanar (3-D): the ranges then fit a mirror image of the position as well."""
+def _flat_anchors(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, str]:
+    """Where the used anchors are coincident, collinear (2-D) or coplanar (3-D) (the ranges
+    then fit a mirror image of the position as well), and the reason."""
     d = anchors.shape[-1]
     _, sv, _ = _anchor_frame(anchors, used)
     flat = sv[..., d - 1] <= 1e-9 * np.maximum(sv[..., 0], 1e-300)
-    if np.any(flat):
-        idx = _first(flat)
-        shape = "collinear" if d == 2 else "coplanar"
-        detail = (f"the anchors used are {shape}: the position and its mirror image across "
-                  f"them fit the ranges equally")
-        raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
+    shape = "collinear" if d == 2 else "coplanar"
+    return flat, (f"the anchors used are {shape}: the position and its mirror image across "
+                  "them fit the ranges equally")
 
 
 class Multilateration(SnapshotEstimator):
@@ -97,6 +94,12 @@ class Multilateration(SnapshotEstimator):
         Maximum iterations per problem.
     tol_m : float
         A problem converges when its accepted step is no longer than this (m).
+    on_degenerate : {"raise", "flag"}
+        What a problem whose geometry does not fix the position does (collinear or
+        coplanar anchors, an ambiguous mirror fix, a singular information matrix):
+        ``"raise"`` a :class:`GeometryError` naming the first such problem, or ``"flag"``
+        it in ``diagnostics["degenerate"]`` (its covariance is then NaN, and the caller
+        must drop or report it).
 
     Raises
     ------
@@ -107,7 +110,10 @@ class Multilateration(SnapshotEstimator):
     name = "gn"
 
     def __init__(self, method: str = "gauss-newton", range_std_m: float | None = None,
-                 max_iter: int = 50, tol_m: float = 1e-9) -> None:
+                 max_iter: int = 50, tol_m: float = 1e-9, on_degenerate: str = "raise") -> None:
+        if on_degenerate not in ("raise", "flag"):
+            raise ConfigError(f"on_degenerate: must be 'raise' or 'flag', got {on_degenerate!r}")
+        self.on_degenerate = on_degenerate
         if method not in ("gauss-newton", "levenberg-marquardt"):
             raise ConfigError("method: must be 'gauss-newton' or 'levenberg-marquardt', "
                               f"got {method!r}")
@@ -128,7 +134,8 @@ class Multilateration(SnapshotEstimator):
     def _resolve_mirror(self, fit, residuals, anchors, used, w, n_used):
         """Solve again from the mirror image of each solution across the anchors' best-fit
         line (2-D) or plane (3-D). Keep the better fit; where both fit the ranges within
-        the noise and lie apart, the fix is ambiguous: :class:`GeometryError`."""
+        the noise and lie apart, the fix is ambiguous (returned as a mask with a function
+        that words the reason for one problem)."""
         d = anchors.shape[-1]
         centroid, sv, vt = _anchor_frame(anchors, used)
         normal = vt[..., d - 1, :]                              # least-spread direction
@@ -146,17 +153,17 @@ class Multilateration(SnapshotEstimator):
         s2 = np.maximum(s2, (1e-9 * scale) ** 2)
         apart = np.linalg.norm(alt.x - fit.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
         ambiguous = apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
-        if np.any(ambiguous):
-            idx = _first(ambiguous)
+
+        def detail(idx):
             p, q = fit.x[idx], alt.x[idx]
-            detail = (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
-                      f"{np.array2string(q, precision=3)} fit the ranges equally well "
-                      "(anchors nearly collinear or coplanar seen from the node)")
-            raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
-        if not np.any(better):
-            return fit
-        pick = lambda a, b: np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)), b, a)  # noqa: E731
-        return type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
+            return (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
+                    f"{np.array2string(q, precision=3)} fit the ranges equally well "
+                    "(anchors nearly collinear or coplanar seen from the node)")
+        if np.any(better):
+            def pick(a, b):
+                return np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)), b, a)
+            fit = type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
+        return fit, ambiguous, detail
 
     def locate(self, ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray | None = None,
                initial: np.ndarray | None = None) -> Estimate:
@@ -238,19 +245,21 @@ class Multilateration(SnapshotEstimator):
             J = diff / np.maximum(dist, 1e-12)[..., None]     # d||x - a_i|| / dx
             return r - dist, J
 
-        _check_affine_rank(a, used)
+        flat, flat_detail = _flat_anchors(a, used)
+        self._degenerate(flat, flat_detail)
         fit = solve_nlls(residuals, x0, weights=w, method=self.method, max_iter=self.max_iter,
                          tol=self.tol_m)
-        fit = self._resolve_mirror(fit, residuals, a, used, w, n_used)
+        fit, ambiguous, amb_detail = self._resolve_mirror(fit, residuals, a, used, w, n_used)
+        self._degenerate(ambiguous & ~flat, amb_detail)
         JtWJ = fit.normal_matrix
         with np.errstate(all="ignore"):
             cond = np.linalg.cond(JtWJ)
         singular = ~np.isfinite(cond) | (cond > _COND_LIMIT)
-        if np.any(singular):
-            idx = _first(singular)
-            detail = ("anchors are collinear or the position coincides with an anchor; "
-                      "the geometry does not fix the position")
-            raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
+        self._degenerate(singular & ~flat & ~ambiguous,
+                         "anchors are collinear or the position coincides with an anchor; "
+                         "the geometry does not fix the position")
+        degenerate = flat | ambiguous | singular
+        JtWJ = np.where(degenerate[..., None, None], np.eye(d), JtWJ)
         dof = n_used - d                                  # >= 1: D + 1 ranges are required
         wsum = np.sum(w, axis=-1)
         if self.range_std_m is not None:
@@ -258,7 +267,15 @@ class Multilateration(SnapshotEstimator):
         else:
             s2 = fit.cost / dof * (n_used / wsum)
         cov = s2[..., None, None] * np.linalg.inv(JtWJ)
+        cov = np.where(degenerate[..., None, None], np.nan, cov)
         rms = np.sqrt(fit.cost / np.maximum(wsum, 1e-300))
         return Estimate(fit.x, cov, None, {
-            "converged": fit.converged, "stalled": fit.stalled,
-            "iterations": fit.iterations, "residual_rms_m": rms})
+            "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
+            "iterations": fit.iterations, "residual_rms_m": rms, "degenerate": degenerate})
+
+    def _degenerate(self, mask: np.ndarray, detail: str) -> None:
+        """Raise for the first masked problem when ``on_degenerate="raise"``."""
+        if self.on_degenerate == "raise" and np.any(mask):
+            idx = _first(mask)
+            text = detail(idx) if callable(detail) else detail
+            raise GeometryError(f"problem {idx}: {text}", index=idx, detail=text)

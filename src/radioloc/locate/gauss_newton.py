@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pandas as pd
 
@@ -15,7 +17,11 @@ from radioloc.locate.base import LocateRequest, Option, locate_method
                      "to anchors (options: range_std_m)",
                options={"range_std_m": Option("range error standard deviation, m (default: from "
                                               "the residuals)", float, min=0, min_exclusive=True,
-                                              max=1e7)},
+                                              max=1e7),
+                        "on_degenerate": Option("'error' (default): stop at the first epoch whose "
+                                                "geometry does not fix the position (e.g. a mirror "
+                                                "fix); 'skip': leave such epochs out and say how "
+                                                "many", str, choices=("error", "skip"))},
                kinds=("range",), inputs=("anchors",))
 def locate_gn(request: LocateRequest) -> pd.DataFrame:
     """Locate every ``(time, node)`` epoch from its ranges to the anchors.
@@ -24,7 +30,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     go through one batched :class:`Multilateration` call (missing anchor ranges are NaN).
     Ranges to other nodes are not used by this method. Option ``range_std_m`` sets the
     range noise used for the uncertainty (default: estimated from the residuals of each
-    epoch).
+    epoch). An epoch whose geometry does not fix the position (collinear anchors, a mirror
+    fix that fits the ranges as well, a singular information matrix) stops the method with
+    a :class:`GeometryError`, or, with ``-o on_degenerate=skip``, is left out of the output
+    with one warning that counts such epochs and names the first.
 
     Parameters
     ----------
@@ -65,8 +74,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g} "
                             f"has ranges to {int(counts[i])} anchor(s); {need} are needed in "
                             f"{len(dims)}-D")
+    skip = request.option("on_degenerate", "error", str) == "skip"
     try:
-        fit = Multilateration(range_std_m=request.option("range_std_m")).locate(
+        fit = Multilateration(range_std_m=request.option("range_std_m"),
+                              on_degenerate="flag" if skip else "raise").locate(
             R, anchors[dims].to_numpy())
     except GeometryError as exc:
         if exc.index is None:
@@ -78,4 +89,14 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     for k, c in enumerate(dims):
         out[c] = fit.position[:, k]
     out["uncertainty_m"] = fit.uncertainty_m
+    bad = np.asarray(fit.diagnostics["degenerate"])
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        if bad.all():
+            raise GeometryError(f"method gn: no epoch has a geometry that fixes the position "
+                                f"(first: node {epochs['node'][i]!r} at time {epochs['time'][i]:g})")
+        warnings.warn(f"method gn: {int(bad.sum())} of {bad.size} epochs left out: their geometry "
+                      f"does not fix the position (first: node {epochs['node'][i]!r} at time "
+                      f"{epochs['time'][i]:g})", stacklevel=2)
+        out = out[~bad].reset_index(drop=True)
     return out
