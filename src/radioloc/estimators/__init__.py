@@ -1,5 +1,58 @@
-"""Estimators: functions and small classes that take measurements and return estimates."""
+"""Estimators: one contract for every algorithm (see ``docs/architecture.md``).
 
+Snapshot estimators locate from one epoch: ``Estimator(settings).locate(...) -> Estimate``.
+Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
+``run(...) -> Track``. Models (motion, measurement) are constructor arguments.
+
+========================  ==========  =========================================
+class                     kind        paper
+========================  ==========  =========================================
+``Multilateration``       snapshot    ranges to anchors (toolkit baseline)
+``NetworkRLS``            recursive   000, distributed RLS
+``NetworkEKF``            recursive   000, sequential network EKF
+``RangeEKF``              recursive   any motion model, any range model (001/002)
+``P2PParticleFilter``     recursive   001, Algorithm 2
+``LocalML``, ``Ransac``   snapshot    001 baselines
+``ClosedFormTracker``     snapshot    002, closed-form BLUE
+``NewtonTracker``         snapshot    002, Newton baseline
+``GridFilter``            recursive   003, grid Bayes filter
+``MixtureLocalizer``      snapshot    004, eq. (2)
+``MixtureTracker``        recursive   004, Sect. 4
+========================  ==========  =========================================
+
+The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` (the one
+Kalman filter), :func:`solve_nlls` (the one nonlinear least-squares driver).
+"""
+
+from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
+from radioloc.estimators.closed_form import ClosedFormTracker
+from radioloc.estimators.ekf import NetworkEKF
+from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.estimators.grid import GridFilter, GridGeometry
+from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update
+from radioloc.estimators.los_nlos_em import fit_los_nlos
+from radioloc.estimators.mixture_localization import (
+    MixtureLocalizer,
+    MixtureTracker,
+    posterior_mixture,
+)
 from radioloc.estimators.multilateration import Multilateration
+from radioloc.estimators.nlls import NLLSResult, solve_nlls
+from radioloc.estimators.nlls_newton import NewtonTracker
+from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.rls import NetworkRLS
+from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 
-__all__ = ["Multilateration"]
+#: every estimator class of the toolkit (the contract test runs each)
+ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilter, LocalML,
+              Ransac, ClosedFormTracker, NewtonTracker, GridFilter, MixtureLocalizer,
+              MixtureTracker)
+
+__all__ = [
+    "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
+    "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
+    "MixtureTracker",
+    "GridGeometry", "posterior_mixture", "fit_los_nlos",
+    "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
+    "GaussianState", "kalman_predict", "kalman_update", "NLLSResult", "solve_nlls",
+]

@@ -27,11 +27,22 @@ class SnapshotEstimator:
     name: str = ""
 
     def locate(self, *args: Any, **kwargs: Any) -> Estimate:  # pragma: no cover - abstract
-        """Estimate positions for a batch of problems."""
+        """Estimate positions for a batch of problems.
+
+        Returns
+        -------
+        Estimate
+        """
         raise NotImplementedError
 
     def get_params(self) -> dict[str, Any]:
-        """The constructor settings (scikit-learn habit): public attributes set in ``__init__``."""
+        """The constructor settings (scikit-learn habit).
+
+        Returns
+        -------
+        dict
+            Public attributes set in ``__init__``.
+        """
         return {k: v for k, v in vars(self).items() if not k.startswith("_")}
 
     def __repr__(self) -> str:
@@ -43,22 +54,58 @@ class RecursiveEstimator(SnapshotEstimator):
     """Base class of filters: ``init``, ``step``, ``estimate`` and ``run``."""
 
     def init(self, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover - abstract
-        """The filter state before the first measurement."""
+        """The filter state before the first measurement.
+
+        Returns
+        -------
+        state
+        """
         raise NotImplementedError
 
     def step(self, state: Any, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover
-        """Advance every run of the batch by one time step (returns a new state)."""
+        """Advance every run of the batch by one time step.
+
+        Parameters
+        ----------
+        state
+            The current state (not modified).
+
+        Returns
+        -------
+        state
+            A new state.
+        """
         raise NotImplementedError
 
     def estimate(self, state: Any) -> Estimate:  # pragma: no cover - abstract
-        """The position estimate held by a state."""
+        """The position estimate held by a state.
+
+        Parameters
+        ----------
+        state
+
+        Returns
+        -------
+        Estimate
+        """
         raise NotImplementedError
 
     def run(self, *args: Any, **kwargs: Any) -> Track:  # pragma: no cover - abstract
-        """Filter a whole series and return the :class:`Track`."""
+        """Filter a whole series.
+
+        Returns
+        -------
+        Track
+        """
         raise NotImplementedError
 
     def locate(self, *args: Any, **kwargs: Any) -> Estimate:
-        """A recursive estimator locates by running and keeping the last step."""
+        """A recursive estimator locates by running and keeping the last step.
+
+        Returns
+        -------
+        Estimate
+            The last step of :meth:`run`.
+        """
         track = self.run(*args, **kwargs)
         return track.at(track.steps - 1)

@@ -114,8 +114,21 @@ class RangeEKF(RecursiveEstimator):
                              np.broadcast_to(cov, batch + (n, n)).copy(), time)
 
     def predict(self, state: GaussianState, dt, control=None) -> GaussianState:
-        """Propagate the state by ``dt`` seconds (``control``: displacement for an
-        input-driven model, ``(..., D)``)."""
+        """Propagate the state by ``dt`` seconds.
+
+        Parameters
+        ----------
+        state : GaussianState
+        dt : float or ndarray, shape (...)
+            Interval in seconds (0: no motion noise for a time-driven model).
+        control : ndarray, shape (..., D), optional
+            Displacement read over the step, for an input-driven model.
+
+        Returns
+        -------
+        GaussianState
+            The predicted state (a new object).
+        """
         dt_arr = as_float_array(dt, "dt")
         u = None
         if control is not None:
@@ -128,7 +141,16 @@ class RangeEKF(RecursiveEstimator):
 
     def update(self, state: GaussianState, ranges, anchors=None,
                ) -> tuple[GaussianState, dict[str, np.ndarray]]:
-        """Update with one row of ranges ``(..., M)`` (NaN = absent).
+        """Update with one row of ranges (NaN = absent, skipped).
+
+        Parameters
+        ----------
+        state : GaussianState
+            The predicted state.
+        ranges : ndarray, shape (..., M)
+            Measured ranges, metres.
+        anchors : ndarray, shape (M, D) or (..., M, D), optional
+            Points ranged to (default: the constructor's).
 
         Returns
         -------
@@ -159,11 +181,39 @@ class RangeEKF(RecursiveEstimator):
 
     def step(self, state: GaussianState, ranges, dt=0.0, anchors=None, control=None
              ) -> GaussianState:
-        """Predict by ``dt`` then update with ``ranges`` ``(..., M)`` (NaN = absent)."""
+        """Predict by ``dt``, then update with a row of ranges.
+
+        Parameters
+        ----------
+        state : GaussianState
+        ranges : ndarray, shape (..., M)
+            Measured ranges (NaN = absent).
+        dt : float or ndarray
+            Time since ``state``, seconds.
+        anchors : ndarray, optional
+            Points ranged to (default: the constructor's).
+        control : ndarray, shape (..., D), optional
+            Displacement over the step (input-driven motion).
+
+        Returns
+        -------
+        GaussianState
+        """
         return self.update(self.predict(state, dt, control), ranges, anchors)[0]
 
     def estimate(self, state: GaussianState) -> Estimate:
-        """Position and its covariance; the full state in ``diagnostics['state']``."""
+        """Position and its covariance.
+
+        Parameters
+        ----------
+        state : GaussianState
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., D), ``covariance`` (..., D, D); the full state and its
+            covariance in ``diagnostics['state']`` and ``['state_covariance']``.
+        """
         D = self.motion.dim
         return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time,
                         {"state": state.mean, "state_covariance": state.covariance})

@@ -1,5 +1,25 @@
-"""Measurement and motion models: vectorised ``logpdf`` and ``sample``."""
+"""Measurement and motion models: objects with ``logpdf`` and ``sample`` (and what a
+Kalman filter needs: ``F(dt)``/``Q(dt)`` for motion, ``moments()`` and
+:func:`range_geometry` for ranges) that any estimator they fit takes as arguments."""
 
-from radioloc.models.ranging import GaussianRange
+from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
+from radioloc.models.mixture import DiagMixture
+from radioloc.models.mixture_calibration import em_calibration, progressive_calibration
+from radioloc.models.motion import (
+    ConstantAcceleration,
+    ConstantVelocity,
+    InputDriven,
+    RandomWalk,
+    UniformDisk,
+)
+from radioloc.models.ranging import GaussianRange, range_geometry
+from radioloc.models.rssi_logdistance import LogDistanceGaussian
+from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_trapezoid_model
+from radioloc.models.single_sensor import SquaredRangeModel
 
-__all__ = ["GaussianRange"]
+__all__ = [
+    "RandomWalk", "ConstantVelocity", "ConstantAcceleration", "InputDriven", "UniformDisk",
+    "GaussianRange", "range_geometry", "LosNlosRange", "StickyLinkChain",
+    "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
+    "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",
+]

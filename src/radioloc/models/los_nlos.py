@@ -189,6 +189,11 @@ class StickyLinkChain:
 
     ``p(0|1)`` follows from stationarity ``alpha p(0|1) = (1 - alpha) p(1|0)``, i.e.
     ``p(0|1) = (1 - alpha) / 2``.
+
+    Parameters
+    ----------
+    alpha : float
+        LOS fraction in [0, 1] (the stationary probability of ``z = 1``).
     """
 
     alpha: float

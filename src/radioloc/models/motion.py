@@ -187,7 +187,18 @@ class ConstantVelocity(MotionModel):
                              np.stack([dt**3 / 2, dt**2], -1)], -2)
 
     def sample_accelerations(self, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
-        """Accelerations of the given shape (zero mean, variance ``accel_var``)."""
+        """Draw accelerations of :attr:`distribution`.
+
+        Parameters
+        ----------
+        shape : tuple of int
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray
+            Zero-mean accelerations of variance ``accel_var``, (m/s^2).
+        """
         s = np.sqrt(self.accel_var)
         if self.distribution == "uniform":
             return rng.uniform(-np.sqrt(3.0) * s, np.sqrt(3.0) * s, size=shape)
@@ -230,8 +241,22 @@ class ConstantVelocity(MotionModel):
 
     def simulate(self, initial_state: np.ndarray, n_steps: int, dt: float,
                  rng: np.random.Generator) -> np.ndarray:
-        """Simulate ``n_steps`` states ``(..., n_steps, 2D)`` from ``initial_state`` (..., 2D)
-        with accelerations of :attr:`distribution`."""
+        """Simulate a track with accelerations of :attr:`distribution`.
+
+        Parameters
+        ----------
+        initial_state : ndarray, shape (..., 2D)
+            State at step 0.
+        n_steps : int
+            Number of states, the first included.
+        dt : float
+            Interval T, seconds.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (..., n_steps, 2D)
+        """
         s0 = self._check_state(initial_state, "initial_state")
         if int(n_steps) < 1:
             raise InputError(f"n_steps: must be >= 1, got {n_steps}")
@@ -303,7 +328,21 @@ class InputDriven(MotionModel):
         return np.full(dt.shape + (1, 1), self.std_m**2)
 
     def sample(self, state, dt, rng, control=None):
-        """``x + u + std_m N(0, I)`` (cheaper than the generic draw)."""
+        """Draw ``x + u + std_m N(0, I)``.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., D)
+        dt : float or ndarray
+            Unused (the noise is per step).
+        rng : numpy.random.Generator
+        control : ndarray, shape (..., D), optional
+            Displacement reading ``u``.
+
+        Returns
+        -------
+        ndarray, shape (..., D)
+        """
         mean = self.predict(state, dt, control)
         return mean + self.std_m * rng.standard_normal(mean.shape)
 
@@ -333,27 +372,91 @@ class UniformDisk:
         self.state_dim = self.dim
 
     def radius(self, dt: float | np.ndarray) -> np.ndarray:
-        """Radius ``v_max dt`` of the reachable disk, metres."""
+        """Radius of the reachable disk.
+
+        Parameters
+        ----------
+        dt : float or ndarray
+            Interval, seconds.
+
+        Returns
+        -------
+        ndarray
+            ``v_max dt``, metres.
+        """
         return self.v_max_m_per_s * _as_dt(dt)
 
     def F(self, dt):
-        """Identity (the mean displacement is zero)."""
+        """Transition matrix: the identity (the mean displacement is zero).
+
+        Parameters
+        ----------
+        dt : float or ndarray
+
+        Returns
+        -------
+        ndarray, shape (..., D, D)
+        """
         return np.broadcast_to(np.eye(self.dim), _as_dt(dt).shape + (self.dim, self.dim)).copy()
 
     def Q(self, dt):
-        """Covariance of the uniform displacement, ``r^2 / (D + 2) I``."""
+        """Covariance of the uniform displacement.
+
+        Parameters
+        ----------
+        dt : float or ndarray
+
+        Returns
+        -------
+        ndarray, shape (..., D, D)
+            ``r^2 / (D + 2) I`` with ``r = v_max dt``.
+        """
         r = self.radius(dt)
         return (r**2 / (self.dim + 2))[..., None, None] * np.eye(self.dim)
 
     def position(self, state):
+        """The position part of a state.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., D)
+
+        Returns
+        -------
+        ndarray, shape (..., D)
+        """
         return np.asarray(state)[..., : self.dim]
 
     def predict(self, state, dt, control=None):
+        """Mean of the next position: the current one (plus ``control``).
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., D)
+        dt : float or ndarray
+        control : ndarray, shape (..., D), optional
+
+        Returns
+        -------
+        ndarray, shape (..., D)
+        """
         x = as_float_array(state, "state", last_dim=self.dim)
         return x if control is None else x + as_float_array(control, "control", last_dim=self.dim)
 
     def sample(self, state, dt, rng, control=None):
-        """Uniform draw in the ball of radius ``v_max dt`` around each state."""
+        """Uniform draw in the ball of radius ``v_max dt`` around each state.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., D)
+        dt : float or ndarray
+        rng : numpy.random.Generator
+        control : ndarray, shape (..., D), optional
+
+        Returns
+        -------
+        ndarray, shape (..., D)
+        """
         mean = self.predict(state, dt, control)
         r = np.broadcast_to(self.radius(dt), mean.shape[:-1])
         direction = rng.standard_normal(mean.shape)
@@ -362,7 +465,19 @@ class UniformDisk:
         return mean + radius[..., None] * direction
 
     def logpdf(self, next_state, state, dt, control=None):
-        """``-log(volume)`` inside the ball, ``-inf`` outside (a point mass when r = 0)."""
+        """Transition log-density.
+
+        Parameters
+        ----------
+        next_state, state : ndarray, shape (..., D)
+        dt : float or ndarray
+        control : ndarray, shape (..., D), optional
+
+        Returns
+        -------
+        ndarray, shape (...)
+            ``-log(volume)`` inside the ball, ``-inf`` outside (a point mass when r = 0).
+        """
         from scipy.special import gammaln
 
         mean = self.predict(state, dt, control)

@@ -81,15 +81,44 @@ class GaussianRange:
         return self.std_m**2
 
     def moments(self) -> tuple[float, float]:
-        """Mean and variance of the range error: ``(0, std_m^2)``."""
+        """Mean and variance of the range error.
+
+        Returns
+        -------
+        tuple of float
+            ``(0, std_m^2)``.
+        """
         return 0.0, self.variance
 
     def sample(self, true_ranges: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Noisy ranges of the same shape as ``true_ranges``."""
+        """Draw noisy ranges.
+
+        Parameters
+        ----------
+        true_ranges : ndarray
+            Distances, metres.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray
+            Ranges of the same shape.
+        """
         d = np.asarray(true_ranges, dtype=float)
         return d + self.std_m * rng.standard_normal(d.shape)
 
     def logpdf(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
-        """Elementwise log-density of ``measured`` given ``true_ranges``."""
+        """Elementwise log-density of measured ranges.
+
+        Parameters
+        ----------
+        measured : ndarray
+        true_ranges : ndarray
+            Broadcastable against ``measured``.
+
+        Returns
+        -------
+        ndarray
+        """
         z = (np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)) / self.std_m
         return -0.5 * z**2 - np.log(self.std_m) - 0.5 * _LOG_2PI
