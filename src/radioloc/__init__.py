@@ -1,8 +1,25 @@
 """radioloc: locating and tracking radio nodes from ranges and received signal strength.
 
-Layers (imports point downward only): ``cli`` > ``experiments`` > ``report`` > ``sim`` >
-``channel`` > ``estimators`` > ``bounds`` > ``models`` > ``core``; ``io`` reads logs and
-data sets; ``locate`` applies estimators to a user's log.
+Layers (imports point downward only; ``tests/test_library_rules.py`` checks them)::
+
+    cli ─────────────┬──────────────────────┐
+    experiments      │                      locate   (a user's log -> estimator -> table)
+      │   │   │      │                        │
+      │   │   report │                        │
+      │   sim ──┐    │                        │
+      │   │   channel│                        │
+      └───┴──> estimators <───────────────────┘
+                  │
+               bounds
+                  │
+               models        motion and measurement models
+                  │
+                core         Estimate, Track, errors, validation, rng
+    io ──> core              logs and data sets
+
+``sim`` never imports ``estimators`` (a tracker under test is injected); ``channel``
+imports only ``core``; every estimator follows the contract of
+:mod:`radioloc.estimators.base` (``docs/architecture.md``).
 """
 
 from radioloc.core.errors import (
