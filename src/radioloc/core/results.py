@@ -38,6 +38,13 @@ DIAGNOSTICS: dict[str, str] = {
     "measurements_used": "int: measurements that entered the update at each step",
     "ess": "effective sample size of the particle weights",
     "resets": "int: particle-filter resets (degeneracy recoveries)",
+    "los_detected": "bool per link: the filter's line-of-sight decision",
+    "degenerate": "bool: the geometry does not fix the position (flagged, not raised)",
+    "uncertainty_m": "an estimator's own spread measure (m), e.g. the grid filter's",
+    "grid_mean": "the grid filter's posterior mean when it reports the peak",
+    "mixture_weights": "posterior mixture weights (mixture estimators)",
+    "mixture_means": "posterior mixture means",
+    "mixture_variances": "posterior mixture variances",
 }
 
 
