@@ -332,3 +332,11 @@ def test_nan_measurement_is_skipped(case):
     assert np.all(np.isfinite(res.position))
     if res.covariance is not None:
         assert np.all(np.isfinite(res.covariance))
+
+
+def test_diagnostics_use_the_shared_names(case):
+    from radioloc.core.results import DIAGNOSTICS
+    _, c = case
+    res = c.solve(slice(None))
+    unknown = set(res.diagnostics) - set(DIAGNOSTICS)
+    assert not unknown, f"diagnostics not in core.results.DIAGNOSTICS: {sorted(unknown)}"

@@ -45,6 +45,10 @@ DIAGNOSTICS: dict[str, str] = {
     "mixture_weights": "posterior mixture weights (mixture estimators)",
     "mixture_means": "posterior mixture means",
     "mixture_variances": "posterior mixture variances",
+    "log_likelihood": "log-likelihood of the measurements at the estimate",
+    "inliers": "int: measurements a robust estimator kept",
+    "trajectory": "the whole estimated trajectory of a snapshot track fit, (..., n, D)",
+    "ols_state": "the ordinary least-squares state a closed-form fit starts from",
 }
 
 
