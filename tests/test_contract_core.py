@@ -308,3 +308,23 @@ def test_named_streams_follow_the_experiment_seed():
     assert not np.array_equal(a, stream(17, "scene").random(3))
     with pytest.raises(ConfigError):
         experiment_seed(np.random.default_rng())
+
+
+def test_rss_models_logpdf_and_sample_agree():
+    from radioloc.models import LogDistanceGaussian, fit_trapezoid_model
+    rng = np.random.default_rng(14)
+    ld = LogDistanceGaussian(a=60.0, n=2.0, s=3.0)
+    draws = ld.sample(np.full(200_000, 5.0), rng)
+    assert draws.mean() == pytest.approx(float(ld.mean(5.0)), abs=0.05)
+    assert draws.std() == pytest.approx(3.0, rel=0.01)
+    grid = np.linspace(30, 70, 4001)
+    assert np.trapezoid(np.exp(ld.logpdf(grid, 5.0)), grid) == pytest.approx(1.0, abs=1e-6)
+    d = rng.uniform(0, 20, 6000)
+    r = np.clip(np.rint(80 - 3.0 * d + rng.normal(0, 1.5, d.size)), 0, 100)
+    trap = fit_trapezoid_model(r, d, tau_min=0.3, sigma_min=0.3, window=1)
+    dist = trap.sample(np.full(200_000, 50), rng)
+    assert np.all(np.isfinite(trap.logpdf(dist, 50)))
+    hist, edges = np.histogram(dist, bins=60, density=True)
+    mid = 0.5 * (edges[1:] + edges[:-1])
+    np.testing.assert_allclose(hist, trap.density(np.maximum(mid, 0), 50), atol=0.05)
+    assert trap.logpdf(trap.upper[50] + 1.0, 50) == -np.inf

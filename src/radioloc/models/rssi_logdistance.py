@@ -95,3 +95,38 @@ class LogDistanceGaussian:
         d = as_float_array(dist, "dist", nonnegative=True)
         r = as_float_array(rssi, "rssi")
         return np.exp(-0.5 * ((r - self.mean(d)) / self.s) ** 2)
+
+    def logpdf(self, rssi, dist) -> np.ndarray:
+        """Gaussian log-density of readings given distances.
+
+        Parameters
+        ----------
+        rssi : array_like
+            Readings.
+        dist : array_like
+            Distances, metres (broadcast against ``rssi``).
+
+        Returns
+        -------
+        ndarray
+        """
+        z = (as_float_array(rssi, "rssi") - self.mean(as_float_array(dist, "dist",
+                                                                     nonnegative=True))) / self.s
+        return -0.5 * z * z - np.log(self.s) - 0.5 * np.log(2.0 * np.pi)
+
+    def sample(self, dist, rng: np.random.Generator) -> np.ndarray:
+        """Draw readings at the given distances.
+
+        Parameters
+        ----------
+        dist : array_like
+            Distances, metres.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray
+            Readings ``mean(dist) + s N(0, 1)``.
+        """
+        m = self.mean(as_float_array(dist, "dist", nonnegative=True))
+        return m + self.s * rng.standard_normal(m.shape)

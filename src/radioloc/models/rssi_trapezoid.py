@@ -163,6 +163,47 @@ class TrapezoidModel:
         i = as_rssi(rssi)
         return self.likelihood(dist, i) / (2.0 * self.tau[i] + self.sigma[i])
 
+    def logpdf(self, dist, rssi) -> np.ndarray:
+        """Log of :meth:`density`: ``-inf`` outside the trapezoid.
+
+        Parameters
+        ----------
+        dist : array_like
+            Distances, metres.
+        rssi : array_like of int
+            RSSI values in 0..100.
+
+        Returns
+        -------
+        ndarray
+        """
+        with np.errstate(divide="ignore"):
+            return np.log(self.density(dist, rssi))
+
+    def sample(self, rssi, rng: np.random.Generator) -> np.ndarray:
+        """Draw distances from :meth:`density` given each reading.
+
+        The trapezoid with plateau half-width ``tau`` and flanks ``sigma`` is the sum of
+        two centred uniforms of widths ``2 tau + sigma`` and ``sigma``.
+
+        Parameters
+        ----------
+        rssi : array_like of int
+            RSSI values in 0..100.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray
+            Distances (metres, same shape as ``rssi``; a row whose trapezoid reaches
+            below zero can give a negative draw, as its density does).
+        """
+        i = as_rssi(rssi)
+        tau, sigma = self.tau[i], self.sigma[i]
+        wide = (rng.random(np.shape(i)) - 0.5) * (2.0 * tau + sigma)
+        narrow = (rng.random(np.shape(i)) - 0.5) * sigma
+        return self.mu[i] + wide + narrow
+
     def to_dict(self) -> dict:
         """The model as a JSON-ready dict.
 
