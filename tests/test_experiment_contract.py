@@ -40,3 +40,45 @@ def test_run_block_is_deterministic_and_tidy(exp_id):
     assert set(a["run"].unique()) == set(runs.tolist())
     timing = list(exp.timing_columns)
     pd.testing.assert_frame_equal(a.drop(columns=timing), b.drop(columns=timing))
+
+
+class _Forbidden(AssertionError):
+    pass
+
+
+def _forbid(*args, **kwargs):
+    raise _Forbidden("summarize() may only read the results table: it simulated or estimated")
+
+
+@pytest.mark.parametrize("exp_id", EXPERIMENTS)
+def test_summarize_only_reads_the_table(exp_id, tmp_path, monkeypatch):
+    """No side simulation, random draw or estimator run inside ``summarize()``: every metric
+    and claim comes from the rows the blocks wrote."""
+    import radioloc.core.rng as rng_mod
+    from radioloc.estimators import ESTIMATORS
+
+    exp = registry()[exp_id]
+    try:
+        exp.check_available()
+    except DataUnavailable as exc:
+        pytest.skip(str(exc))
+    cfg = exp.config(False)
+    n = min(2, cfg.runs, cfg.block_size)
+    cfg = dataclasses.replace(cfg, runs=n)
+    table = exp.run_block(cfg, np.arange(n), block_generator(0, 0))
+    import sys
+    originals = {id(np.random.default_rng), id(rng_mod.stream), id(rng_mod.block_generator)}
+    for mod in [m for name, m in list(sys.modules.items())
+                if name.startswith("radioloc") and m is not None] + [np.random, rng_mod]:
+        for attr, value in list(vars(mod).items()):
+            if id(value) in originals:
+                monkeypatch.setattr(mod, attr, _forbid)
+    for cls in ESTIMATORS:
+        for name in ("run", "locate", "step", "init"):
+            if name in vars(cls):
+                monkeypatch.setattr(cls, name, _forbid)
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # tiny tables: empty means are expected
+        summary = exp.summarize(cfg, table, tmp_path)
+    assert summary.metrics
