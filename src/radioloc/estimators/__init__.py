@@ -4,21 +4,13 @@ Snapshot estimators locate from one epoch: ``Estimator(settings).locate(...) -> 
 Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 ``run(...) -> Track``. Models (motion, measurement) are constructor arguments.
 
-========================  ==========  =========================================
-class                     kind        paper
-========================  ==========  =========================================
-``Multilateration``       snapshot    ranges to anchors (toolkit baseline)
-``NetworkRLS``            recursive   000, distributed RLS
-``NetworkEKF``            recursive   000, sequential network EKF
-``RangeEKF``              recursive   any motion model, any range model (001/002)
-``P2PParticleFilter``     recursive   001, Algorithm 2
-``LocalML``, ``Ransac``   snapshot    001 baselines
-``ClosedFormTracker``     snapshot    002, closed-form BLUE
-``NewtonTracker``         snapshot    002, Newton baseline
-``GridFilter``            recursive   003, grid Bayes filter
-``MixtureLocalizer``      snapshot    004, eq. (2)
-``MixtureTracker``        recursive   004, Sect. 4
-========================  ==========  =========================================
+- ``Multilateration`` (snapshot): ranges to anchors, the toolkit baseline;
+- ``NetworkRLS``, ``NetworkEKF`` (recursive): paper 000, distributed RLS and sequential EKF;
+- ``RangeEKF`` (recursive): any motion model and range model (papers 001 and 002 baselines);
+- ``P2PParticleFilter`` (recursive), ``LocalML``, ``Ransac`` (snapshot): paper 001;
+- ``ClosedFormTracker``, ``NewtonTracker`` (snapshot): paper 002;
+- ``GridFilter`` (recursive): paper 003;
+- ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004.
 
 The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` (the one
 Kalman filter), :func:`solve_nlls` (the one nonlinear least-squares driver).
