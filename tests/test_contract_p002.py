@@ -1,14 +1,14 @@
 """Contract tests of the paper-002 estimators: ClosedFormTracker and NewtonTracker.
 
 Types and shapes, (x, y) order against the truth, batch equals one by one, translation
-equivariance, bad input raises the toolkit's errors, NaN ranges (an error naming the sample
-for the closed form, which needs every sample of its window; skipped by Newton).
+equivariance, bad input raises the toolkit's errors, NaN ranges skipped (the closed form
+drops the differences that involve the missing sample; Newton drops its residual).
 """
 
 import numpy as np
 import pytest
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate
 from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.nlls_newton import NewtonTracker
@@ -147,11 +147,48 @@ def test_translating_the_scene_translates_the_estimate():
 
 
 # ---- missing samples --------------------------------------------------------------------
-def test_nan_range_blue_raises_naming_the_sample():
-    sensor, r, _ = noisy_batch(3)
+@pytest.mark.parametrize("stopping", ["change", "criterion"])
+def test_nan_range_blue_is_skipped(stopping):
+    """A NaN drops its difference rows: finite estimate, other problems of the batch
+    unchanged, four fewer differences (three at the window's ends)."""
+    sensor, r, tracks = noisy_batch(3)
+    full = blue(stopping=stopping).locate(r, sensor, T)
     r = r.copy()
     r[1, 6] = np.nan
-    with pytest.raises(InputError, match=r"ranges: sample n = 6 is NaN"):
+    est = blue(stopping=stopping).locate(r, sensor, T)
+    assert np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.covariance))
+    np.testing.assert_allclose(est.position[[0, 2]], full.position[[0, 2]], rtol=1e-12)
+    np.testing.assert_array_equal(est.diagnostics["used_differences"], [N - 3, N - 7, N - 3])
+    assert np.linalg.norm(est.position[1] - tracks[1, -1, :2]) < 1.0
+
+
+@pytest.mark.parametrize("weighting", ["blue", "ols"])
+def test_nan_at_first_sample_equals_the_shorter_series(weighting):
+    sensor, r, _ = noisy_batch(4)
+    r_nan = r.copy()
+    r_nan[:, 0] = np.nan
+    est = blue(weighting=weighting).locate(r_nan, sensor, T)
+    short = blue(weighting=weighting).locate(r[:, 1:], sensor[1:], T)
+    np.testing.assert_allclose(est.diagnostics["state"], short.diagnostics["state"],
+                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(est.covariance, short.covariance, rtol=1e-9, atol=1e-15)
+
+
+def test_nan_at_last_sample_equals_the_shorter_series_for_a_fixed_k():
+    sensor, r, _ = noisy_batch(4)
+    r_nan = r.copy()
+    r_nan[:, -1] = np.nan
+    est = blue(reference_index=5).locate(r_nan, sensor, T)
+    short = blue(reference_index=5).locate(r[:, :-1], sensor[:-1], T)
+    np.testing.assert_allclose(est.diagnostics["state"], short.diagnostics["state"],
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_too_many_nans_leave_the_state_unidentified():
+    sensor, r, _ = noisy_batch(1)
+    r = r.copy()
+    r[0, 2:12] = np.nan
+    with pytest.raises(GeometryError, match="rank deficient"):
         blue().locate(r, sensor, T)
 
 
@@ -172,6 +209,8 @@ def test_bad_settings_raise_at_construction():
         ClosedFormTracker(accel_var=0.1, range_var=-0.1)
     with pytest.raises(ConfigError, match="weighting"):
         ClosedFormTracker(accel_var=0.1, weighting="wls")
+    with pytest.raises(ConfigError, match="stopping"):
+        ClosedFormTracker(accel_var=0.1, stopping="gls")
     with pytest.raises(ConfigError, match="tol"):
         ClosedFormTracker(accel_var=0.1, tol=0.0)
     with pytest.raises(ConfigError, match="max_iter"):
