@@ -1,5 +1,6 @@
 """Tests of the tethering simulation, its channel, the Herald loader and the p003 experiments."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,25 @@ def test_tether_without_noise_localizes_static_trackee():
     assert np.all(tr.error_m[np.arange(4), first] < 4.0)
 
 
+def test_error_in_the_odometry_frame_equals_the_initial_frame_without_odometry_noise():
+    """With exact odometry (and the robots kept off the outer walls) the tracker's current
+    odometry frame is its initial frame: both scorings agree; with drift they differ."""
+    P = TetherParams(channel=IndoorChannel(shadow_std_db=1.0, rayleigh=False, wall_db=0.0),
+                     odo_scale_std=0.0, odo_heading_std=0.0, explore_radius_m=3.0,
+                     roam_radius_m=2.0, start_range_m=(3.0, 5.0))
+    rng = np.random.default_rng(3)
+    model = fit_trapezoid_model(*calibration_pairs(P, 3000, rng), tau_min=0.5, sigma_min=0.5,
+                                window=2)
+    tracker = GridFilter(GridGeometry.centred(20, 20, 2.0), model, epsilon=1e-6, blur_m=0.3,
+                         location="peak")
+    tr = simulate_tether(P, tracker, 3, 60, rng, compass=True)
+    np.testing.assert_allclose(tr.error_odom_m, tr.error_m, atol=1e-9)
+    drift = simulate_tether(dataclasses.replace(P, odo_heading_std=0.2, odo_scale_std=0.1),
+                            tracker, 3, 60, rng, compass=True)
+    assert np.all(np.isfinite(drift.error_odom_m))
+    assert not np.allclose(drift.error_odom_m, drift.error_m)
+
+
 def test_logdistance_fit_recovers_parameters():
     rng = np.random.default_rng(2)
     d = rng.uniform(0.2, 10, 5000)
@@ -107,17 +127,24 @@ def test_experiment_smoke(tmp_path, monkeypatch):
 
     from radioloc.experiments.tether import TetherExperiment
     exp = TetherExperiment()
-    cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000)
+    cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000,
+                  ablations=("cells_1m",))
+    assert exp.config(False).cell_m == 2.0 and exp.config(False).grid_cells == 20
     df = exp.run_block(cfg, np.arange(2), block_generator(0, 0))
     runs = df[df["table"] == "runs"]
-    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 40
+    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 2 * 40
+    assert set(runs["variant"]) == {"main", "cells_1m"}
+    assert np.isfinite(runs["error_odom_m"]).all()
     assert set(df["table"]) == {"runs", "model", "fig3", "fig6"}
     # a block without run 0 holds no figure rows
     other = exp.run_block(cfg, np.arange(2, 4), block_generator(0, 1))
     assert set(other["table"]) == {"runs"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
-    assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s"} <= names
+    assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s",
+            "mean_error_m_following_compass_odomframe"} <= names
+    assert (tmp_path / "ablation.csv").is_file()
+    assert any("| cells_1m (1 m cells) |" in n for n in summary.notes)
     assert (tmp_path / "fig2_model.png").is_file() and (tmp_path / "fig6_snapshots.png").is_file()
 
 
