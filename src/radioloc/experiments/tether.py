@@ -242,13 +242,16 @@ class TetherExperiment(Experiment):
         Parameters
         ----------
         full : bool
-            Full size (200 runs of 400 s).
+            Full size (200 runs of 400 s, every ablation); quick: 16 runs of 300 s with
+            the ``cells_1m`` and ``perfect_odometry`` ablations only.
 
         Returns
         -------
         TetherConfig
         """
-        return TetherConfig(runs=200, block_size=50, steps=400) if full else TetherConfig()
+        if full:
+            return TetherConfig(runs=200, block_size=50, steps=400)
+        return TetherConfig(ablations=("cells_1m", "perfect_odometry"))
 
     def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
         """Simulate one block of runs without and with a compass (and the figure rows).
