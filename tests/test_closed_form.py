@@ -205,7 +205,7 @@ def test_bad_input_raises_toolkit_errors():
     kw = dict(accel_var=0.1, range_var=0.1)
     r = np.full(n, 5.0)
     with pytest.raises(InputError, match="ranges"):
-        closed_form(np.r_[r[:-1], np.nan], s, **kw)
+        closed_form(np.r_[r[:-1], np.inf], s, **kw)
     with pytest.raises(InputError, match="ranges"):
         closed_form(np.r_[r[:-1], -1.0], s, **kw)
     with pytest.raises(InputError, match="sensor_path"):

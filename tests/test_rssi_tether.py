@@ -1,5 +1,6 @@
 """Tests of the tethering simulation, its channel, the Herald loader and the p003 experiments."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,25 @@ def test_tether_without_noise_localizes_static_trackee():
     assert np.all(tr.error_m[np.arange(4), first] < 4.0)
 
 
+def test_error_in_the_odometry_frame_equals_the_initial_frame_without_odometry_noise():
+    """With exact odometry (and the robots kept off the outer walls) the tracker's current
+    odometry frame is its initial frame: both scorings agree; with drift they differ."""
+    P = TetherParams(channel=IndoorChannel(shadow_std_db=1.0, rayleigh=False, wall_db=0.0),
+                     odo_scale_std=0.0, odo_heading_std=0.0, explore_radius_m=3.0,
+                     roam_radius_m=2.0, start_range_m=(3.0, 5.0))
+    rng = np.random.default_rng(3)
+    model = fit_trapezoid_model(*calibration_pairs(P, 3000, rng), tau_min=0.5, sigma_min=0.5,
+                                window=2)
+    tracker = GridFilter(GridGeometry.centred(20, 20, 2.0), model, epsilon=1e-6, blur_m=0.3,
+                         location="peak")
+    tr = simulate_tether(P, tracker, 3, 60, rng, compass=True)
+    np.testing.assert_allclose(tr.error_odom_m, tr.error_m, atol=1e-9)
+    drift = simulate_tether(dataclasses.replace(P, odo_heading_std=0.2, odo_scale_std=0.1),
+                            tracker, 3, 60, rng, compass=True)
+    assert np.all(np.isfinite(drift.error_odom_m))
+    assert not np.allclose(drift.error_odom_m, drift.error_m)
+
+
 def test_logdistance_fit_recovers_parameters():
     rng = np.random.default_rng(2)
     d = rng.uniform(0.2, 10, 5000)
@@ -107,17 +127,24 @@ def test_experiment_smoke(tmp_path, monkeypatch):
 
     from radioloc.experiments.tether import TetherExperiment
     exp = TetherExperiment()
-    cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000)
+    cfg = replace(exp.config(False), runs=2, block_size=2, steps=40, calibration_pairs=3000,
+                  ablations=("cells_1m",))
+    assert exp.config(False).cell_m == 2.0 and exp.config(False).grid_cells == 20
     df = exp.run_block(cfg, np.arange(2), block_generator(0, 0))
     runs = df[df["table"] == "runs"]
-    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 40
+    assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 2 * 40
+    assert set(runs["variant"]) == {"main", "cells_1m"}
+    assert np.isfinite(runs["error_odom_m"]).all()
     assert set(df["table"]) == {"runs", "model", "fig3", "fig6"}
     # a block without run 0 holds no figure rows
     other = exp.run_block(cfg, np.arange(2, 4), block_generator(0, 1))
     assert set(other["table"]) == {"runs"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
-    assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s"} <= names
+    assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s",
+            "mean_error_m_following_compass_odomframe"} <= names
+    assert (tmp_path / "ablation.csv").is_file()
+    assert any("| cells_1m (1 m cells) |" in n for n in summary.notes)
     assert (tmp_path / "fig2_model.png").is_file() and (tmp_path / "fig6_snapshots.png").is_file()
 
 
@@ -158,3 +185,22 @@ def test_locate_grid_rssi_finds_static_node(tmp_path):
     assert np.hypot(out["x"].iloc[-1] - 7.0, out["y"].iloc[-1] - 12.0) < 1.0
     with pytest.raises(InputError, match="calibration"):
         run_method("grid-rssi", LocateRequest(meas, anchors))
+
+
+def test_tether_reproduction_reduced_size(tmp_path):
+    """8 runs of 200 s on the paper's 2 m cells: following errors in both frames stay in
+    their Monte Carlo band, and the no-compass peak claim holds."""
+    from radioloc.experiments.tether import TetherExperiment
+    exp = TetherExperiment()
+    cfg = dataclasses.replace(exp.config(False), runs=8, block_size=8, steps=200,
+                              calibration_pairs=5000, ablations=(), example_runs=2)
+    df = exp.run_block(cfg, np.arange(8), block_generator(5, 0))
+    summary = exp.summarize(cfg, df, tmp_path)
+    m = {x.name: x.value for x in summary.metrics}
+    claims = {c.claim: bool(c.holds) for c in summary.claims}
+    for name, (lo, hi) in {"mean_error_m_following_compass": (0.8, 5.0),
+                           "mean_error_m_following_compass_odomframe": (0.5, 4.5),
+                           "mean_error_m_following_nocompass": (1.5, 8.0),
+                           "peak_error_m_following_nocompass": (3.0, 20.0)}.items():
+        assert lo <= m[name] <= hi, (name, m[name])
+    assert [v for c, v in claims.items() if c.startswith("Without a compass the error peaks")] == [True]

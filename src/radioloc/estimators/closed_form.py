@@ -9,8 +9,15 @@ batched over problems:
 3b. evaluate ``Sigma~ = S Sigma(beta_m) S'`` at the current estimate;
 3c. BLUE/GLS ``beta_{m+1} = (A~' Sigma~^{-1} A~)^{-1} A~' Sigma~^{-1} S y``;
 3d. stop when ``|beta_{m+1} - beta_m| <= tol`` (section 5.2's ``|.|^2 <= 0.1`` is
-    ``tol = sqrt(0.1)``) or when the GLS criterion ``r' Sigma~^{-1} r`` stops decreasing
-    (the previous estimate is kept), or after ``max_iter``.
+    ``tol = sqrt(0.1)``) or after ``max_iter`` (the paper's rule, ``stopping="change"``);
+    ``stopping="criterion"`` also stops when the GLS criterion ``r' Sigma~^{-1} r`` stops
+    decreasing (the previous estimate is kept).
+
+A missing (NaN) range drops the difference rows that involve it: their rows of ``S A``
+and ``S y`` are zeroed and their rows and columns of ``S Sigma S'`` decoupled (unit
+diagonal), as a Kalman filter masks a missing measurement. The estimate is then the
+BLUE of the remaining differences; a NaN at the first sample gives exactly the estimate
+of the series without that sample.
 
 The state is ``beta = [x_k, y_k, vx_k, vy_k]`` (the paper orders it ``[Y_k, X_k, V_y, V_x]``);
 the model lives in :mod:`radioloc.models.single_sensor`.
@@ -36,6 +43,7 @@ from radioloc.models.single_sensor import (
 __all__ = ["ClosedFormTracker"]
 
 WEIGHTINGS = ("blue", "ols")
+STOPPING = ("change", "criterion")
 
 
 def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
@@ -56,6 +64,15 @@ def _gls(sa: np.ndarray, sy: np.ndarray, w: np.ndarray):
     crit = (np.einsum("...i,...i->...", sy, sol[..., 4])
             - np.einsum("...i,...i->...", beta, rhs[..., 0]))
     return beta, cov, crit
+
+
+def _mask_covariance(w: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Decouple the dropped difference rows: zero their rows and columns, unit diagonal."""
+    if np.all(keep):
+        return w
+    both = keep[..., :, None] & keep[..., None, :]
+    eye = np.eye(keep.shape[-1], dtype=bool)
+    return np.where(both, w, np.where(eye, 1.0, 0.0))
 
 
 def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
@@ -91,6 +108,10 @@ class ClosedFormTracker(SnapshotEstimator):
     tol : float
         Stopping rule ``|beta_{m+1} - beta_m| <= tol`` (Euclidean norm of the change of
         ``[x, y, vx, vy]``); section 5.2's ``|.|^2 <= 0.1`` is the default ``sqrt(0.1)``.
+    stopping : {"change", "criterion"}
+        ``"change"`` (default, the paper's step 3d): iterate until the change is below
+        ``tol`` or ``max_iter``. ``"criterion"``: also stop (keeping the previous estimate)
+        as soon as the GLS criterion ``r' Sigma~^{-1} r`` does not decrease.
     max_iter : int
         Maximum BLUE iterations after the OLS start.
     cond_limit : float
@@ -117,7 +138,7 @@ class ClosedFormTracker(SnapshotEstimator):
     def __init__(self, accel_var: float, range_var=0.0, *, reference_index: int | None = None,
                  weighting: str = "blue", accel_excess_kurtosis: float = 0.0,
                  range_excess_kurtosis: float = 0.0, tol: float = 0.1**0.5,
-                 max_iter: int = 20, cond_limit: float = 1e12,
+                 stopping: str = "change", max_iter: int = 20, cond_limit: float = 1e12,
                  printed_eq14: bool = False) -> None:
         self.accel_var = check_positive(accel_var, "accel_var", allow_zero=True)
         self.range_var = as_float_array(range_var, "range_var", nonnegative=True)
@@ -135,6 +156,10 @@ class ClosedFormTracker(SnapshotEstimator):
         self.accel_excess_kurtosis = float(accel_excess_kurtosis)
         self.range_excess_kurtosis = float(range_excess_kurtosis)
         self.tol = check_positive(tol, "tol")
+        if stopping not in STOPPING:
+            raise ConfigError(f"stopping: must be one of {', '.join(STOPPING)}, "
+                              f"got {stopping!r}")
+        self.stopping = stopping
         if int(max_iter) < 0 or int(max_iter) != max_iter:
             raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
         self.max_iter = int(max_iter)
@@ -149,7 +174,8 @@ class ClosedFormTracker(SnapshotEstimator):
         ----------
         ranges : array_like, shape (..., n)
             Measured ranges ``rhat_n`` (eq. (12)), n >= 7; leading axes are independent
-            problems. Every sample is needed: a NaN range raises ``InputError`` naming it.
+            problems. A NaN range is a missing sample: the difference rows that involve it
+            are dropped (at least 4 differences must remain).
         sensor_path : array_like, shape (n, 2) or (..., n, 2)
             Known sensor positions ``(a_n, b_n)``; must not be quadratic in n.
         sample_period_s : float, optional
@@ -168,18 +194,20 @@ class ClosedFormTracker(SnapshotEstimator):
             ``[x_k, y_k, vx_k, vy_k]``, ``state_covariance`` (..., 4, 4), ``trajectory``
             (..., n, 2) (the straight track ``p_k + (n-k) T v_k`` at every sample),
             ``ols_state`` (..., 4) (step 3a), ``iterations``, ``converged`` (the step rule
-            met), ``stalled`` (stopped because the GLS criterion no longer decreased).
+            met), ``stalled`` (``stopping="criterion"``: stopped because the GLS criterion
+            no longer decreased), ``used_differences`` (rows of ``S y`` kept).
 
         Raises
         ------
         InputError
-            Bad shapes, negative or NaN ranges, fewer than 7 samples, k out of range,
+            Bad shapes, negative or infinite ranges, fewer than 7 samples, k out of range,
             non-uniform ``time``.
         GeometryError
-            Sensor path quadratic in n, or ``S A`` numerically rank deficient, or a
-            singular noise covariance (zero motion and channel noise).
+            Sensor path quadratic in n, or ``S A`` numerically rank deficient (also when
+            missing samples leave fewer than 4 differences), or a singular noise
+            covariance (zero motion and channel noise).
         """
-        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index)
+        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True)
         n = r.shape[-1]
         T, t_k = resolve_sampling(n, k, sample_period_s, time)
         batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self.range_var.shape[:-1])
@@ -188,7 +216,10 @@ class ClosedFormTracker(SnapshotEstimator):
         model = SquaredRangeModel(n, k, T, self.accel_var, self.range_var,
                                   self.accel_excess_kurtosis, self.range_excess_kurtosis,
                                   self.printed_eq14)
-        sa, sy = self._differenced_system(r, s, k, model)          # steps 1-2
+        sa, sy, keep = self._differenced_system(r, s, k, model)    # steps 1-2
+
+        def cov_at(state):
+            return _mask_covariance(model.differenced_covariance(state, s), keep)
         col = np.linalg.norm(sa, axis=-2, keepdims=True)
         cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
         if np.any(~np.isfinite(cond) | (cond > self.cond_limit)):
@@ -200,15 +231,15 @@ class ClosedFormTracker(SnapshotEstimator):
         if covariance_state is not None:
             fixed = as_float_array(covariance_state, "covariance_state", min_ndim=1, last_dim=4)
             fixed = np.broadcast_to(fixed, batch + (4,))
-            beta, cov, _ = _gls(sa, sy, model.differenced_covariance(fixed, s))
+            beta, cov, _ = _gls(sa, sy, cov_at(fixed))
             return self._estimate(beta, cov, ols, n, T, k, t_k, np.ones(batch, dtype=int),
-                                  ones, ~ones)
+                                  ones, ~ones, keep)
         if self.weighting == "ols":
             at = np.swapaxes(sa, -1, -2)
             bread = np.linalg.inv(at @ sa)
-            cov = bread @ at @ model.differenced_covariance(ols, s) @ sa @ bread
+            cov = bread @ at @ cov_at(ols) @ sa @ bread
             return self._estimate(ols, cov, ols, n, T, k, t_k, np.zeros(batch, dtype=int),
-                                  ones, ~ones)
+                                  ones, ~ones, keep)
         beta = ols.copy()
         best_crit = np.full(batch, np.inf)
         cov = np.zeros(batch + (4, 4))
@@ -219,9 +250,9 @@ class ClosedFormTracker(SnapshotEstimator):
         for _ in range(self.max_iter):
             if not np.any(active):
                 break
-            w = model.differenced_covariance(beta, s)               # step 3b
+            w = cov_at(beta)                                        # step 3b
             new, new_cov, crit = _gls(sa, sy, w)                    # step 3c
-            improved = crit < best_crit
+            improved = (crit < best_crit) | (self.stopping == "change")
             take = active & improved
             stalled |= active & ~improved
             change = np.sqrt(np.sum((new - beta) ** 2, axis=-1))
@@ -233,20 +264,31 @@ class ClosedFormTracker(SnapshotEstimator):
             converged |= done
             active = take & ~done
         check_finite_output(beta, "ClosedFormTracker state")
-        return self._estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled)
+        return self._estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled,
+                              keep)
 
     # ---- helpers --------------------------------------------------------------------
     @staticmethod
     def _differenced_system(r, s, k, model):
-        """Steps 1-2: mean-removed ``y`` and its third difference; returns ``(S A, S y)``."""
-        y = r**2 - np.sum(s**2, axis=-1) - model.noise_mean()
+        """Steps 1-2: mean-removed ``y`` and its third difference.
+
+        Returns ``(S A, S y, keep)``; ``keep`` (..., n - 3) marks the difference rows
+        whose four samples are all present; the others are zeroed.
+        """
+        missing = np.isnan(r)
+        y = np.where(missing, 0.0, r**2 - np.sum(s**2, axis=-1) - model.noise_mean())
         sa = difference_rows(design_matrix(s, model.T, k))
         sy = difference_rows(y[..., None])[..., 0]
-        return np.broadcast_to(sa, sy.shape + (4,)), sy
+        m = missing.astype(float)[..., None]
+        keep = (m[..., :-3, 0] + m[..., 1:-2, 0] + m[..., 2:-1, 0] + m[..., 3:, 0]) == 0
+        sa = np.where(keep[..., None], np.broadcast_to(sa, sy.shape + (4,)), 0.0)
+        sy = np.where(keep, sy, 0.0)
+        return sa, sy, keep
 
     @staticmethod
-    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled) -> Estimate:
+    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled,
+                  keep) -> Estimate:
         diag = {"state": beta, "state_covariance": cov, "trajectory": trajectory(beta, n, T, k),
                 "ols_state": ols, "iterations": iterations, "converged": converged,
-                "stalled": stalled}
+                "stalled": stalled, "used_differences": np.sum(keep, axis=-1)}
         return Estimate(beta[..., :2], cov[..., :2, :2], t_k, diag)

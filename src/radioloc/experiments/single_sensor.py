@@ -1,6 +1,7 @@
 """Paper 002: closed-form single-sensor tracking (iterative BLUE) vs Newton, EKF, OLS and the CRBs.
 
-Fig. 1 RMSE of the current position versus the number of samples n = 10..60; Fig. 2 a
+Fig. 1 RMSE of the estimated trajectory (headline) and of the current position versus the
+number of samples n = 10..60 (uninformed starts primary, near-truth starts as variants); Fig. 2 a
 y = sin x trajectory, Newton against the closed form; Fig. 3 CPU time per track versus n
 (machine-dependent, in ``timings.csv``; no claim rests on it). Targets follow eq. (1)
 (synthetic) and, when the data folder is present, real pen-tip trajectories of the UCI
@@ -10,7 +11,9 @@ Character Trajectories set (the paper's UCI ASL hand trajectories are not availa
 method), ``"fig2"`` rows (the y = sin x example, drawn from the named stream ``"fig2"``) and
 ``"sensitivity"`` rows (the bound of eq. (23) versus the sensor path and k; deterministic).
 The last two are per-experiment rows, written once by the block holding run 0 and filed
-under ``run = 0``. ``summarize`` only reads the table.
+under ``run = 0``. ``"sensitivity_runs"`` rows (one per run, sensor turn ``param`` and n)
+hold the closed form's errors for slower and faster sensor paths. ``summarize`` only reads
+the table.
 """
 
 from __future__ import annotations
@@ -44,8 +47,15 @@ from radioloc.sim.single_sensor import (
 )
 
 METHODS = ("blue", "newton", "ekf", "ols")
-LABELS = {"blue": "closed form (iterative BLUE)", "newton": "Newton on NLLS",
-          "ekf": "EKF", "ols": "unweighted linear fit (MANOVA reading)"}
+LABELS = {"blue": "closed form (iterative BLUE)", "newton": "Newton on NLLS (OLS start)",
+          "ekf": "EKF (diffuse prior)", "ols": "unweighted linear fit (MANOVA reading)"}
+#: labelled variants: near-truth starts, a fixed start, the criterion-based stopping rule
+VARIANTS = {"newton_fixed": "Newton from a fixed start (scene centre, at rest)",
+            "newton_near_truth": "Newton from the truth + N(0, 1) (near-truth start)",
+            "ekf_near_truth": "EKF with a prior centred near the truth",
+            "blue_criterion_stop": "closed form, criterion-based stopping rule"}
+#: Newton variants and their start names
+NEWTONS = {"newton": "ols", "newton_fixed": "fixed", "newton_near_truth": "near_truth"}
 #: sensor turn per sample and reference indices of the sensitivity figure
 SENSITIVITY_STEPS = (0.05, 0.1, 0.2, 0.4, 0.8, 1.3, 2.0, 2.6)
 #: the fixed state [x, y, vx, vy] at k of the sensitivity figure
@@ -65,20 +75,26 @@ class SingleSensorConfig:
     reference_index*: k = n-1 (the current position is estimated).
     sensor_radius_m, sensor_step_rad*: the sensor circles the origin at this radius, turning
         ``sensor_step_rad`` per sample (a path that is not quadratic in n; see docs/p002.md
-        for how the step size changes the bound).
+        for how the step size changes the bound and the error).
     target_box_m*, target_speed_std*: initial target position uniform in the box
         [-b, b]^2, initial velocity N(0, std^2) per axis.
-    newton_start_std*: Newton starts from the true [x_k, y_k, vx_k, vy_k] plus N(0, std^2)
-        per component; the EKF prior at sample 0 is the true state plus N(0, std^2),
-        covariance std^2 I.
+    Starts (primary: uninformed): Newton starts from the OLS solution of step 3a (variants:
+        the fixed ``newton_fixed_start`` and, labelled near-truth, the true
+        ``[x_k, y_k, vx_k, vy_k]`` plus N(0, ``newton_start_std``^2)); the EKF prior at
+        sample 0 is diffuse, mean ``ekf_prior_mean``, std ``ekf_prior_std`` per component
+        (variant: the true state plus N(0, std^2), covariance std^2 I).
+    divergence_m*: a Newton run diverged when it did not meet the stopping rule or its
+        position error at k exceeds this (the sensor circle's radius).
     tol, max_iter: section 5.2's stopping rule |beta_{m+1} - beta_m|^2 <= tol for BLUE and
-        Newton (the trackers take the step norm, sqrt(tol)).
+        Newton (the trackers take the step norm, sqrt(tol)); the BLUE stops on this rule
+        alone (variant: also when the GLS criterion stops decreasing).
     use_uniform_moments*: if True the BLUE uses the exact uniform-noise kurtosis (-1.2);
         False (default) uses the Gaussian moments printed in eq. (11)-eq. (14).
     uci_stride, uci_scale*: real pen tracks take every 2nd 200 Hz sample, replayed at 10 Hz,
         positions (arbitrary units) times 0.025 (about 1 m extent); their accel_var is
         estimated from pooled second differences (``2 var(d2 x) / T^4``).
     fig2_samples: length of the y = sin x example of Fig. 2.
+    sensitivity_n: windows whose closed-form RMSE is measured versus the sensor's turn.
     """
 
     runs: int = 100
@@ -92,12 +108,17 @@ class SingleSensorConfig:
     target_box_m: float = 2.0
     target_speed_std: float = 1.0
     newton_start_std: float = 1.0
+    newton_fixed_start: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    ekf_prior_mean: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    ekf_prior_std: tuple[float, float, float, float] = (10.0, 10.0, 3.0, 3.0)
+    divergence_m: float = 5.0
     tol: float = 0.1
     max_iter: int = 20
     use_uniform_moments: bool = False
     uci_stride: int = 2
     uci_scale: float = 0.025
     fig2_samples: int = 60
+    sensitivity_n: tuple[int, ...] = (10, 60)
 
 
 def _trackers(config, accel_var):
@@ -106,16 +127,16 @@ def _trackers(config, accel_var):
     step_tol = float(np.sqrt(config.tol))
     common = dict(tol=step_tol, max_iter=config.max_iter)
     xi = config.range_var
+    moments = dict(accel_excess_kurtosis=kurt, range_excess_kurtosis=kurt)
     return {
-        "blue": ClosedFormTracker(accel_var, xi, accel_excess_kurtosis=kurt,
-                                  range_excess_kurtosis=kurt, **common),
+        "blue": ClosedFormTracker(accel_var, xi, **moments, **common),
+        "blue_criterion_stop": ClosedFormTracker(accel_var, xi, stopping="criterion",
+                                                 **moments, **common),
         "ols": ClosedFormTracker(accel_var, xi, weighting="ols", **common),
         "blue_uniform_moments": ClosedFormTracker(accel_var, xi, accel_excess_kurtosis=-1.2,
                                                   range_excess_kurtosis=-1.2, **common),
         "blue_printed_eq14": ClosedFormTracker(accel_var, xi, printed_eq14=True, **common),
-        "blue_k0": ClosedFormTracker(accel_var, xi, reference_index=0,
-                                     accel_excess_kurtosis=kurt, range_excess_kurtosis=kurt,
-                                     **common),
+        "blue_k0": ClosedFormTracker(accel_var, xi, reference_index=0, **moments, **common),
         "newton": NewtonTracker(**common),
         "ekf": RangeEKF(ConstantVelocity(accel_var), GaussianRange(float(np.sqrt(xi)))),
     }
@@ -125,13 +146,28 @@ def _rows(runs, source, n, method, pos_err2, **extra):
     base = {"table": "runs", "run": runs, "source": source, "n": n, "method": method,
             "pos_err2": pos_err2, "traj_err2": np.nan, "crb_diff_pos": np.nan,
             "crb_raw_pos": np.nan, "cpu_s_per_run": np.nan, "iterations": 0,
-            "newton_converged": True, "newton_stalled": False}
+            "newton_converged": True, "newton_stalled": False, "diverged": False,
+            "param": np.nan}
     base.update(extra)
     return pd.DataFrame(base)
 
 
+def _err2(position, truth):
+    return np.sum((position - truth) ** 2, axis=-1)
+
+
+def _traj_err2(trajectory, truth):
+    """Mean squared position error over the window's samples."""
+    return np.mean(np.sum((trajectory - truth) ** 2, axis=-1), axis=-1)
+
+
 def _methods_on(tracks, config, rng, accel_var, source, runs):
-    """All methods on tracks (R, N, 4) ``[x, y, vx, vy]`` for every n; tidy frames."""
+    """All methods on tracks (R, N, 4) ``[x, y, vx, vy]`` for every n; tidy frames.
+
+    Every method reports the error of p_k (k = n-1) and of its trajectory over the window:
+    the closed forms and Newton their fitted straight track, the EKF its Rauch-Tung-Striebel
+    smoothed track over the same n samples (the filtered and smoothed p_k coincide).
+    """
     T, xi = config.sample_period_s, config.range_var
     n_max = tracks.shape[1]
     sensor_all = circular_sensor_path(n_max, config.sensor_radius_m, config.sensor_step_rad)
@@ -139,55 +175,86 @@ def _methods_on(tracks, config, rng, accel_var, source, runs):
     start_noise = rng.normal(0.0, config.newton_start_std, size=(runs.size, 4))
     prior_noise = rng.normal(0.0, config.newton_start_std, size=(runs.size, 4))
     est = _trackers(config, accel_var)
-    # the EKF is causal: one pass over all samples gives the estimate at every n - 1
-    ekf_track = est["ekf"].run(meas[..., None], time=np.arange(n_max) * T,
-                               prior_mean=tracks[:, 0] + prior_noise,
-                               prior_cov=config.newton_start_std**2 * np.eye(4),
-                               anchor_path=sensor_all[:, None, :])
+    priors = {"ekf": (np.broadcast_to(np.asarray(config.ekf_prior_mean, float), (runs.size, 4)),
+                      np.diag(np.square(config.ekf_prior_std))),
+              "ekf_near_truth": (tracks[:, 0] + prior_noise,
+                                 config.newton_start_std**2 * np.eye(4))}
     frames = []
     for n in config.n_values:
         if n > n_max:
             continue
         r, s, k = meas[:, :n], sensor_all[:n], n - 1
         truth = tracks[:, k]
-        t0 = time.process_time()
-        cf = est["blue"].locate(r, s, T)
-        t_blue = time.process_time() - t0
-        t0 = time.process_time()
-        nt = est["newton"].locate(r, s, T, initial_state=truth + start_noise)
-        t_newton = time.process_time() - t0
-        ols = est["ols"].locate(r, s, T)
-        # other readings of eq. (11)-eq. (14): exact uniform moments; printed eq. (14) terms
-        for name in ("blue_uniform_moments", "blue_printed_eq14"):
-            alt = est[name].locate(r, s, T)
-            frames.append(_rows(runs, source, n, name,
-                                np.sum((alt.position - truth[:, :2]) ** 2, axis=-1)))
-        # variant: fixed reference k = 0 (the setting of Lemma 1: same beta, more samples)
-        fixed = est["blue_k0"].locate(r, s, T)
-        frames.append(_rows(runs, source, n, "blue_k0",
-                            np.sum((fixed.position - tracks[:, 0, :2]) ** 2, axis=-1),
-                            iterations=fixed.diagnostics["iterations"]))
+        traj_true = tracks[:, :n, :2]
         kw = dict(sample_period_s=T, accel_var=accel_var, range_var=xi, reference_index=k)
         crb_d = differenced_crb(truth, s, **kw)
         crb_r = raw_range_crb(truth, s, **kw)
-        position = {"blue": cf.position, "newton": nt.position, "ols": ols.position,
-                    "ekf": ekf_track.position[:, k]}
-        traj_true = tracks[:, :n, :2]
-        for m in METHODS:
-            extra = dict(crb_diff_pos=crb_d[:, 0, 0] + crb_d[:, 1, 1],
-                         crb_raw_pos=crb_r[:, 0, 0] + crb_r[:, 1, 1])
-            if m in ("blue", "newton"):
-                e = cf if m == "blue" else nt
-                extra.update(
-                    traj_err2=np.mean(np.sum((e.diagnostics["trajectory"] - traj_true) ** 2,
-                                             axis=-1), axis=-1),
-                    cpu_s_per_run=(t_blue if m == "blue" else t_newton) / runs.size,
-                    iterations=e.diagnostics["iterations"])
-            if m == "newton":
-                extra.update(newton_converged=nt.diagnostics["converged"],
-                             newton_stalled=nt.diagnostics["stalled"])
-            frames.append(_rows(runs, source, n, m,
-                                np.sum((position[m] - truth[:, :2]) ** 2, axis=-1), **extra))
+        bounds = dict(crb_diff_pos=crb_d[:, 0, 0] + crb_d[:, 1, 1],
+                      crb_raw_pos=crb_r[:, 0, 0] + crb_r[:, 1, 1])
+        t0 = time.process_time()
+        cf = est["blue"].locate(r, s, T)
+        t_blue = time.process_time() - t0
+        ols_state = cf.diagnostics["ols_state"]
+        starts = {"ols": ols_state, "near_truth": truth + start_noise,
+                  "fixed": np.broadcast_to(np.asarray(config.newton_fixed_start, float),
+                                           (runs.size, 4))}
+        for name in ("blue", "ols", "blue_criterion_stop", "blue_uniform_moments",
+                     "blue_printed_eq14"):
+            e = cf if name == "blue" else est[name].locate(r, s, T)
+            extra = dict(traj_err2=_traj_err2(e.diagnostics["trajectory"], traj_true),
+                         iterations=e.diagnostics["iterations"])
+            if name in ("blue", "ols"):
+                extra.update(bounds)
+            if name == "blue":
+                extra.update(cpu_s_per_run=t_blue / runs.size)
+            frames.append(_rows(runs, source, n, name, _err2(e.position, truth[:, :2]),
+                                **extra))
+        for name, start in NEWTONS.items():
+            t0 = time.process_time()
+            nt = est["newton"].locate(r, s, T, initial_state=starts[start])
+            t_newton = time.process_time() - t0
+            e2 = _err2(nt.position, truth[:, :2])
+            conv = nt.diagnostics["converged"]
+            extra = dict(traj_err2=_traj_err2(nt.diagnostics["trajectory"], traj_true),
+                         iterations=nt.diagnostics["iterations"], newton_converged=conv,
+                         newton_stalled=nt.diagnostics["stalled"],
+                         diverged=~conv | (np.sqrt(e2) > config.divergence_m))
+            if name == "newton":
+                extra.update(bounds, cpu_s_per_run=t_newton / runs.size)
+            frames.append(_rows(runs, source, n, name, e2, **extra))
+        for name, (mean, cov) in priors.items():
+            # a smoothed pass over the window: its last sample is the filtered p_k
+            tr = est["ekf"].run(r[..., None], time=np.arange(n) * T, prior_mean=mean,
+                                prior_cov=cov, anchor_path=s[:, None, :], smooth=True)
+            extra = dict(bounds) if name == "ekf" else {}
+            frames.append(_rows(runs, source, n, name, _err2(tr.position[:, k], truth[:, :2]),
+                                traj_err2=_traj_err2(tr.position, traj_true), **extra))
+        # variant: fixed reference k = 0 (the setting of Lemma 1: same beta, more samples)
+        fixed = est["blue_k0"].locate(r, s, T)
+        frames.append(_rows(runs, source, n, "blue_k0",
+                            _err2(fixed.position, tracks[:, 0, :2]),
+                            traj_err2=_traj_err2(fixed.diagnostics["trajectory"], traj_true),
+                            iterations=fixed.diagnostics["iterations"]))
+    return frames
+
+
+def _sensitivity_runs(tracks, config, rng, runs):
+    """Closed-form error versus the sensor's turn per sample (k = n-1), as table rows."""
+    T, xi = config.sample_period_s, config.range_var
+    blue = _trackers(config, config.accel_var)["blue"]
+    frames = []
+    for st in SENSITIVITY_STEPS:
+        for n in config.sensitivity_n:
+            if n > tracks.shape[1]:
+                continue
+            s = circular_sensor_path(n, config.sensor_radius_m, st)
+            r = noisy_ranges(tracks[:, :n, :2], s, xi, rng)
+            cf = blue.locate(r, s, T)
+            frame = _rows(runs, "synthetic", n, "blue", _err2(cf.position, tracks[:, n - 1, :2]),
+                          traj_err2=_traj_err2(cf.diagnostics["trajectory"], tracks[:, :n, :2]),
+                          param=st)
+            frame["table"] = "sensitivity_runs"
+            frames.append(frame)
     return frames
 
 
@@ -203,20 +270,19 @@ def _fig2_rows(config, rng) -> pd.DataFrame:
     """The y = sin x example of Fig. 2 as table rows.
 
     Growing windows of 10..N samples, each estimating its last position: the closed form,
-    Newton warm-started from its previous estimate moved on by one sample, and Newton
-    cold-started at the origin with zero velocity. ``rng`` draws the range noise, then the
-    noise of the first warm start.
+    Newton started from the first window's OLS solution and then warm-started from its
+    previous estimate moved on by one sample, and Newton cold-started at the origin with
+    zero velocity. ``rng`` draws the range noise.
     """
     T, N = config.sample_period_s, config.fig2_samples
     pos = sine_positions(N)
     sensor = circular_sensor_path(N, config.sensor_radius_m, config.sensor_step_rad)
     r = noisy_ranges(pos, sensor, config.range_var, rng)
-    state = states_from_positions(pos, T)
     accel_var = accel_var_from_positions(pos, T) + config.accel_var
     step_tol = float(np.sqrt(config.tol))
     blue = ClosedFormTracker(accel_var, config.range_var, tol=step_tol)
     newton = NewtonTracker(tol=step_tol, max_iter=config.max_iter)
-    start = state[9] + rng.normal(0.0, 0.3, 4)
+    start = blue.locate(r[:10], sensor[:10], T).diagnostics["ols_state"]
     rows = []
     for j in range(9, N):
         win = slice(0, j + 1)
@@ -280,6 +346,7 @@ class SingleSensorExperiment(Experiment):
         if uci is not None:
             pick = place_tracks(uci, runs.size, config.target_box_m, rng)
             frames += _methods_on(pick, config, rng, uci_var, "uci-pen", runs)
+        frames += _sensitivity_runs(tracks, config, rng, runs)
         if runs[0] == 0:        # per-experiment rows, written once (by the block of run 0)
             frames.append(_fig2_rows(config, stream(rng, "fig2")))
             frames.append(_sensitivity_rows(config))
@@ -297,26 +364,34 @@ class SingleSensorExperiment(Experiment):
             crb_d = np.sqrt(sub[sub.method == "blue"].groupby("n")["crb_diff_pos"].mean())
             crb_r = np.sqrt(sub[sub.method == "blue"].groupby("n")["crb_raw_pos"].mean())
             tag = "" if source == "synthetic" else "_uci"
-            n_top = max(rmse.index)
-            paper_note = "position at k = n-1, sqrt(mean |p_hat - p|^2)"
+            n_top, n_low = max(rmse.index), min(rmse.index)
+            for m in METHODS:
+                metrics.append(Metric(f"traj_rmse_{m}_n{n_top}{tag}", traj.loc[n_top, m], None,
+                                      "m", f"{LABELS[m]}: headline (Fig. 1), RMSE of the "
+                                      "estimated trajectory over the n samples"))
             for m in METHODS:
                 metrics.append(Metric(f"rmse_{m}_n{n_top}{tag}", rmse.loc[n_top, m], None, "m",
-                                      f"{LABELS[m]}: {paper_note}"))
+                                      f"{LABELS[m]}: current position p_k, k = n-1"))
             metrics.append(Metric(f"crb_rmse_n{n_top}{tag}", crb_d.loc[n_top], None, "m",
                                   "eq. (23), differenced model, sqrt(mean trace position block)"))
             metrics.append(Metric(f"crb_raw_rmse_n{n_top}{tag}", crb_r.loc[n_top], None, "m",
                                   "raw-range CRB (Gaussian approximation)"))
-            for m in ("blue", "newton"):
+            for m, what in VARIANTS.items():
                 metrics.append(Metric(f"traj_rmse_{m}_n{n_top}{tag}", traj.loc[n_top, m], None,
-                                      "m", "RMSE of the straight track over all n samples"))
+                                      "m", f"variant, {what}: trajectory RMSE"))
+                metrics.append(Metric(f"rmse_{m}_n{n_top}{tag}", rmse.loc[n_top, m], None, "m",
+                                      f"variant, {what}: p_k RMSE"))
+            for m in NEWTONS:
+                for n in (n_low, n_top):
+                    nt = sub[(sub.method == m) & (sub.n == n)]
+                    metrics.append(Metric(
+                        f"{m}_diverged_frac_n{n}{tag}", nt["diverged"].astype(bool).mean(),
+                        None, "", f"{VARIANTS.get(m, LABELS.get(m))}: runs not meeting the "
+                        f"stopping rule or ending > {config.divergence_m:g} m from p_k"))
             newton_top = sub[(sub.method == "newton") & (sub.n == n_top)]
             metrics.append(Metric(f"newton_converged_frac_n{n_top}{tag}",
                                   newton_top["newton_converged"].astype(bool).mean(), None, "",
-                                  "Newton runs meeting the stopping rule"))
-            metrics.append(Metric(f"newton_stalled_frac_n{n_top}{tag}",
-                                  newton_top["newton_stalled"].astype(bool).mean(), None, "",
-                                  "Newton runs stopped by a singular Hessian or a non-finite "
-                                  "iterate"))
+                                  "Newton (OLS start) runs meeting the stopping rule"))
             if "cpu_s_per_run" in sub:
                 cpu = g["cpu_s_per_run"].mean().unstack("method")
                 ratio = cpu.loc[n_top, "newton"] / cpu.loc[n_top, "blue"]
@@ -327,7 +402,6 @@ class SingleSensorExperiment(Experiment):
                 notes.append(f"({source}) CPU s per track (machine-dependent):\n"
                              + cpu[["blue", "newton"]].to_string())
                 self._fig3(cpu, source, out_dir)
-            best = rmse.loc[n_top, list(METHODS)].idxmin()
             for name, what in (("blue_uniform_moments", "BLUE with exact uniform-noise moments"),
                                ("blue_printed_eq14", "BLUE with eq. (14)'s printed off-diagonal "
                                                      "channel terms")):
@@ -335,15 +409,24 @@ class SingleSensorExperiment(Experiment):
                                       "m", f"reading: {what}"))
             metrics.append(Metric(f"rmse_blue_k0_n{n_top}{tag}", rmse.loc[n_top, "blue_k0"], None,
                                   "m", "variant: closed form estimating p_0 (fixed k = 0)"))
-            claims.append(Claim(f"({source}) the closed form has the lowest RMSE of the four "
-                                f"methods at n = {n_top} (best: {best})", best == "blue"))
-            claims.append(Claim(f"({source}) the closed-form RMSE decreases with n",
+            best_traj = traj.loc[n_top, list(METHODS)].idxmin()
+            best = rmse.loc[n_top, list(METHODS)].idxmin()
+            claims.append(Claim(f"({source}) the closed form has the lowest trajectory RMSE of "
+                                f"the four methods at n = {n_top} (best: {best_traj}; "
+                                "uninformed starts)", best_traj == "blue"))
+            claims.append(Claim(f"({source}) beside it, on p_k (k = n-1): the closed form has "
+                                f"the lowest RMSE of the four methods at n = {n_top} "
+                                f"(best: {best})", best == "blue"))
+            claims.append(Claim(f"({source}) the closed-form trajectory RMSE decreases with n",
+                                bool(np.all(np.diff(traj["blue"].to_numpy()) < 0))))
+            claims.append(Claim(f"({source}) the closed-form RMSE of p_k decreases with n",
                                 bool(np.all(np.diff(rmse["blue"].to_numpy()) < 0))))
             claims.append(Claim(f"({source}) variant, fixed k = 0 as in Lemma 1: the closed-form "
                                 "RMSE of p_0 decreases with n",
                                 bool(np.all(np.diff(rmse["blue_k0"].to_numpy()) < 0))))
-            notes.append(f"({source}) RMSE by n:\n" + rmse.round(4).to_string())
-            self._fig1(rmse, crb_d, crb_r, config, source, out_dir)
+            notes.append(f"({source}) trajectory RMSE by n:\n" + traj.round(4).to_string())
+            notes.append(f"({source}) p_k RMSE by n:\n" + rmse.round(4).to_string())
+            self._fig1(rmse, traj, crb_d, crb_r, config, source, out_dir)
         if "uci-pen" not in set(runs_rows["source"]):
             notes.append("real-data part skipped: folder uci-character-trajectories is absent "
                          f"under {data_root()} (set RADIOLOC_DATA); synthetic part only")
@@ -352,27 +435,37 @@ class SingleSensorExperiment(Experiment):
             claims.append(self._fig2(fig2, out_dir))
         sens = results[table == "sensitivity"]
         if len(sens):
-            m_extra, n_extra = self._sensitivity(sens, config, out_dir)
+            m_extra, n_extra = self._sensitivity(sens, results[table == "sensitivity_runs"],
+                                                 config, out_dir)
             metrics += m_extra
             notes += n_extra
         return Summary(metrics, claims, notes)
 
     # ---- figures ----------------------------------------------------------------------
-    def _fig1(self, rmse, crb_d, crb_r, config, source, out_dir):
-        fig, ax = figure()
+    def _fig1(self, rmse, traj, crb_d, crb_r, config, source, out_dir):
+        fig, (a1, a2) = figure(1, 2, width=11.0)
         colors = {"blue": COLORS["ours"], "newton": "C1", "ekf": "C2", "ols": "C4"}
         markers = {"blue": "o", "newton": "s", "ekf": "^", "ols": "v"}
         for m in METHODS:
-            ax.semilogy(rmse.index, rmse[m], marker=markers[m], color=colors[m], label=LABELS[m])
-        ax.semilogy(rmse.index, rmse["blue_k0"], "o--", mfc="none", color=COLORS["ours"],
+            a1.semilogy(traj.index, traj[m], marker=markers[m], color=colors[m], label=LABELS[m])
+            a2.semilogy(rmse.index, rmse[m], marker=markers[m], color=colors[m], label=LABELS[m])
+        a1.semilogy(traj.index, traj["newton_near_truth"], "s:", mfc="none", color="C1",
+                    label="variant: Newton, near-truth start")
+        a2.semilogy(rmse.index, rmse["ekf_near_truth"], "^:", mfc="none", color="C2",
+                    label="variant: EKF, near-truth prior")
+        a2.semilogy(rmse.index, rmse["blue_k0"], "o--", mfc="none", color=COLORS["ours"],
                     label="variant: closed form for p_0 (fixed k = 0)")
-        ax.semilogy(crb_d.index, crb_d, LINESTYLES["bound"], color=COLORS["bound"],
+        a2.semilogy(crb_d.index, crb_d, LINESTYLES["bound"], color=COLORS["bound"],
                     label="CRB eq. (23), differenced")
-        ax.semilogy(crb_r.index, crb_r, "--", color="k", label="CRB of raw ranges")
-        ax.set_xlabel("number of samples n")
-        ax.set_ylabel("position RMSE [m] (p_k, k = n-1 unless noted)")
-        ax.set_title(f"Fig. 1 ({source}): {config.runs} runs, 10 Hz, uniform noise")
-        ax.legend(fontsize=7)
+        a2.semilogy(crb_r.index, crb_r, "--", color="k", label="CRB of raw ranges")
+        a1.set_xlabel("number of samples n")
+        a1.set_ylabel("trajectory RMSE [m] (all n samples)")
+        a1.set_title(f"Fig. 1 ({source}): trajectory, {config.runs} runs")
+        a2.set_xlabel("number of samples n")
+        a2.set_ylabel("position RMSE of p_k [m] (k = n-1 unless noted)")
+        a2.set_title("beside it: current position p_k")
+        a1.legend(fontsize=7)
+        a2.legend(fontsize=6)
         save(fig, out_dir / f"fig1_rmse_vs_n_{source}.png")
 
     def _fig3(self, cpu, source, out_dir):
@@ -395,7 +488,7 @@ class SingleSensorExperiment(Experiment):
         fig, ax = figure()
         ax.plot(x_all, np.sin(x_all), "k-", label="true y = sin x")
         style = {"blue": ("o", 3, COLORS["ours"], "closed form"),
-                 "newton_warm": ("s", 3, "C1", "Newton (warm start)"),
+                 "newton_warm": ("s", 3, "C1", "Newton (OLS start, then warm)"),
                  "newton_cold": ("x", 4, "C3", "Newton (cold start at origin, v = 0)")}
         for m, (mk, ms, c, label) in style.items():
             ax.plot(by[m]["x_hat"], by[m]["y_hat"], mk, ms=ms, color=c, label=label)
@@ -414,8 +507,9 @@ class SingleSensorExperiment(Experiment):
                      f"{np.max(err['blue']):.3g} m",
                      bool(np.max(err["newton_cold"]) > 3 * np.max(err["blue"])))
 
-    def _sensitivity(self, sens, config, out_dir):
-        """Plot and report the sensitivity rows (eq. (23) versus sensor turn and k)."""
+    def _sensitivity(self, sens, sens_runs, config, out_dir):
+        """Plot and report the sensitivity rows (eq. (23) and the closed form's RMSE versus
+        the sensor's turn per sample; eq. (23) versus k)."""
         n = int(sens["n"].iloc[0])
         by_step = sens[sens.method == "step"].sort_values("param")
         by_k = sens[sens.method == "k"].sort_values("param")
@@ -424,28 +518,48 @@ class SingleSensorExperiment(Experiment):
         b_raw = np.sqrt(by_step["crb_raw_pos"].to_numpy())
         ks = by_k["param"].to_numpy().astype(int)
         b_k = np.sqrt(by_k["crb_diff_pos"].to_numpy())
+        emp = (np.sqrt(sens_runs.groupby(["n", "param"])[["pos_err2", "traj_err2"]].mean())
+               if len(sens_runs) else None)
         fig, (a1, a2) = figure(1, 2, width=9.0)
-        a1.loglog(steps, b_step, "o-", color=COLORS["ours"], label="CRB eq. (23)")
-        a1.loglog(steps, b_raw, "s:", color="k", label="raw-range CRB")
+        a1.loglog(steps, b_step, "o-", color=COLORS["bound"], label=f"CRB eq. (23), n = {n}")
+        a1.loglog(steps, b_raw, "s:", color="k", label=f"raw-range CRB, n = {n}")
+        metrics, notes = [], []
+        if emp is not None:
+            for (nn, sub), ls in zip(emp.groupby(level="n"), ("o-", "o--", "o-.")):
+                sub = sub.droplevel("n")
+                a1.loglog(sub.index, sub["pos_err2"], ls, color=COLORS["ours"],
+                          label=f"closed form p_k, n = {nn}")
+                a1.loglog(sub.index, sub["traj_err2"], ls, mfc="none", color="C1",
+                          label=f"closed form trajectory, n = {nn}")
+                metrics += [Metric(f"rmse_blue_n{nn}_step{st:g}".replace(".", "p"), v, None, "m",
+                                   "closed form p_k (k = n-1) for a sensor turning this many "
+                                   "rad per sample")
+                            for st, v in sub["pos_err2"].items()]
+                notes.append(f"closed-form p_k RMSE at n = {nn} vs sensor turn: "
+                             + ", ".join(f"{st:g} rad -> {v:.3g} m"
+                                         for st, v in sub["pos_err2"].items()))
+                notes.append(f"closed-form trajectory RMSE at n = {nn} vs sensor turn: "
+                             + ", ".join(f"{st:g} rad -> {v:.3g} m"
+                                         for st, v in sub["traj_err2"].items()))
         a1.set_xlabel("sensor turn per sample [rad]")
-        a1.set_ylabel("position bound [m]")
-        a1.set_title(f"sensor path speed (n = {n}, k = n-1)")
-        a1.legend(fontsize=8)
+        a1.set_ylabel("position error / bound [m]")
+        a1.set_title("sensor path speed (k = n-1)")
+        a1.legend(fontsize=7)
         a2.semilogy(ks, b_k, "o-", color=COLORS["ours"])
         a2.set_xlabel("reference index k")
         a2.set_ylabel("eq. (23) bound on p_k [m]")
         a2.set_title(f"reference index (n = {n})")
         save(fig, out_dir / "sensitivity_sensor_path_and_k.png")
-        metrics = [Metric(f"crb_rmse_n{n}_step{st:g}".replace(".", "p"), v, None, "m",
-                          "eq. (23) for a sensor turning this many rad per sample")
-                   for st, v in zip(steps, b_step)]
+        metrics += [Metric(f"crb_rmse_n{n}_step{st:g}".replace(".", "p"), v, None, "m",
+                           "eq. (23) for a sensor turning this many rad per sample")
+                    for st, v in zip(steps, b_step)]
         pick = [0, len(ks) // 2, len(ks) - 1]
         metrics += [Metric(f"crb_rmse_n{n}_k{ks[i]}", b_k[i], None, "m", "eq. (23) bound on p_k")
                     for i in pick]
-        notes = ["eq. (23) position bound vs sensor turn per sample: "
-                 + ", ".join(f"{st:g} rad -> {v:.3g} m" for st, v in zip(steps, b_step)),
-                 "raw-range bound vs turn: "
-                 + ", ".join(f"{st:g} rad -> {v:.3g} m" for st, v in zip(steps, b_raw)),
-                 "eq. (23) bound on p_k vs k: "
-                 + ", ".join(f"k={k}: {v:.3g} m" for k, v in zip(ks, b_k))]
+        notes += ["eq. (23) position bound vs sensor turn per sample: "
+                  + ", ".join(f"{st:g} rad -> {v:.3g} m" for st, v in zip(steps, b_step)),
+                  "raw-range bound vs turn: "
+                  + ", ".join(f"{st:g} rad -> {v:.3g} m" for st, v in zip(steps, b_raw)),
+                  "eq. (23) bound on p_k vs k: "
+                  + ", ".join(f"k={k}: {v:.3g} m" for k, v in zip(ks, b_k))]
         return metrics, notes

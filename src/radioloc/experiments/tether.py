@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from radioloc.core.errors import ConfigError
 from radioloc.core.rng import stream
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
@@ -41,14 +42,18 @@ class TetherConfig:
     steps: simulated steps of ``params.dt_s`` seconds per run.
     calibration_pairs: (RSSI, distance) pairs drawn from random placements for the model.
     tau_min_m, sigma_min_m, smooth_window: model fit (Sect. III-B/C); window in RSSI rows.
-    grid_cells, cell_m: the tracker's grid (square, centred on its local origin).
+    grid_extent_m, cell_m: the tracker's grid (square, ``grid_extent_m`` wide, centred on its
+        local origin); 2 m cells as in the paper's simulation (variant ``cells_1m``).
     epsilon: minimum cell probability (Algorithm 1). gamma_m: blur per step (Algorithm 4).
     example_runs: runs of the example simulation whose grids Fig. 6 shows.
     near_m: the claim "error stays near 1 m" means mean following error <= near_m.
     several_m: the claim "errors peak several metres" means median peak error >= several_m.
-    variant_packets: if set, also run a clearly labelled variant (metric suffix ``_avgN``) in
-        which each RSSI reading averages N independently faded packets (model refitted on
-        calibration pairs of that channel); a sensitivity check, not the paper's setting.
+    ablations: labelled variants run beside the main setting (metric suffix ``_<label>``),
+        each changing one thing: ``cells_1m`` (1 m cells), ``no_fading`` (no Rayleigh
+        fading), ``avg<N>`` (each reading averages ``ablation_packets`` faded packets),
+        ``narrow_rows`` (trapezoid ``tau`` and ``sigma`` times ``narrow_factor``),
+        ``perfect_odometry`` (no odometry noise on either robot). The RSSI model is refitted
+        on calibration pairs of each variant's channel. Not the paper's setting.
     """
 
     runs: int = 16
@@ -60,27 +65,70 @@ class TetherConfig:
     smooth_window: int = 2
     near_m: float = 1.5
     several_m: float = 3.0
-    grid_cells: int = 40
-    cell_m: float = 1.0
+    grid_extent_m: float = 40.0
+    cell_m: float = 2.0
     epsilon: float = 1e-6
     gamma_m: float = 0.3
     example_runs: int = 8
     params: TetherParams = field(default_factory=TetherParams)
-    variant_packets: int | None = None
+    ablations: tuple[str, ...] = ("cells_1m", "no_fading", "avg10", "narrow_rows",
+                                  "perfect_odometry")
+    ablation_packets: int = 10
+    narrow_factor: float = 0.5
 
-    def variants(self) -> dict[str, TetherParams]:
-        """The simulated settings.
+    @property
+    def grid_cells(self) -> int:
+        """Cells per side of the main grid."""
+        return int(round(self.grid_extent_m / self.cell_m))
+
+    def variants(self) -> dict[str, "Variant"]:
+        """The simulated settings: the main one and the ablations.
 
         Returns
         -------
-        dict of str to TetherParams
-            Label -> world parameters (``"main"`` is the paper's setting as we read it).
+        dict of str to Variant
+            Label -> world parameters, cell size and row scale (``"main"`` is the paper's
+            setting as we read it).
         """
-        out = {"main": self.params}
-        if self.variant_packets:
-            ch = replace(self.params.channel, packets=int(self.variant_packets))
-            out[f"avg{int(self.variant_packets)}"] = replace(self.params, channel=ch)
+        P = self.params
+        out = {"main": Variant(P, self.cell_m)}
+        for label in self.ablations:
+            if label == "cells_1m":
+                out[label] = Variant(P, 1.0)
+            elif label == "no_fading":
+                out[label] = Variant(replace(P, channel=replace(P.channel, rayleigh=False)),
+                                     self.cell_m)
+            elif label.startswith("avg"):
+                ch = replace(P.channel, packets=int(self.ablation_packets))
+                out[f"avg{int(self.ablation_packets)}"] = Variant(replace(P, channel=ch),
+                                                                  self.cell_m)
+            elif label == "narrow_rows":
+                out[label] = Variant(P, self.cell_m, self.narrow_factor)
+            elif label == "perfect_odometry":
+                out[label] = Variant(replace(P, odo_scale_std=0.0, odo_heading_std=0.0),
+                                     self.cell_m)
+            else:
+                raise ConfigError(f"ablations: unknown variant {label!r}")
         return out
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One simulated setting: world parameters, grid cell size and trapezoid row scale.
+
+    Parameters
+    ----------
+    params : TetherParams
+        World, robots and channel.
+    cell_m : float
+        Grid cell width, metres.
+    row_scale : float
+        Factor on the fitted trapezoids' ``tau`` and ``sigma`` (1: as fitted).
+    """
+
+    params: TetherParams
+    cell_m: float
+    row_scale: float = 1.0
 
 
 def _fit(config: TetherConfig, params: TetherParams, rng: np.random.Generator):
@@ -92,14 +140,23 @@ def _fit(config: TetherConfig, params: TetherParams, rng: np.random.Generator):
     return raw, model
 
 
-def _geometry(config: TetherConfig) -> GridGeometry:
-    return GridGeometry.centred(config.grid_cells, config.grid_cells, config.cell_m)
+def _geometry(config: TetherConfig, cell_m: float | None = None) -> GridGeometry:
+    cell = config.cell_m if cell_m is None else cell_m
+    n = int(round(config.grid_extent_m / cell))
+    return GridGeometry.centred(n, n, cell)
 
 
-def _tracker(config: TetherConfig, model) -> GridFilter:
+def _tracker(config: TetherConfig, model, cell_m: float | None = None) -> GridFilter:
     """The tracker of Algorithm 4: the grid filter with the paper's GetLocation."""
-    return GridFilter(_geometry(config), model, epsilon=config.epsilon, blur_m=config.gamma_m,
-                      location="peak")
+    return GridFilter(_geometry(config, cell_m), model, epsilon=config.epsilon,
+                      blur_m=config.gamma_m, location="peak")
+
+
+def _scaled(model, factor: float):
+    """The model with every trapezoid's ``tau`` and ``sigma`` times ``factor``."""
+    if factor == 1.0:
+        return model
+    return replace(model, tau=model.tau * factor, sigma=model.sigma * factor)
 
 
 def _table(results: pd.DataFrame, name: str) -> pd.DataFrame:
@@ -125,9 +182,45 @@ def _following(df: pd.DataFrame) -> pd.DataFrame:
     keys = ["run", "compass"]
     stats = df[df["localized"]].groupby(keys).agg(
         t_loc=("time_s", "min"), mean_err=("error_m", "mean"), peak_err=("error_m", "max"),
+        mean_err_odom=("error_odom_m", "mean"), peak_err_odom=("error_odom_m", "max"),
         mean_dist=("true_distance_m", "mean"))
     every = df[keys].drop_duplicates().set_index(keys)
     return every.join(stats).reset_index()
+
+
+#: what each ablation changes (see TetherConfig.ablations)
+ABLATION_LABELS = {"main": "2 m cells, one Rayleigh-faded packet per reading (paper's setting)",
+                   "cells_1m": "1 m cells", "no_fading": "no Rayleigh fading",
+                   "avg10": "readings average 10 faded packets",
+                   "narrow_rows": "trapezoid tau and sigma halved",
+                   "perfect_odometry": "no odometry noise"}
+
+
+def _ablation_row(per: pd.DataFrame) -> dict:
+    """One setting's summary numbers: name -> (value, unit)."""
+    wc, nc = per[per["compass"]], per[~per["compass"]]
+    return {
+        "mean_error_m_following_compass": (float(wc["mean_err"].mean()), "m"),
+        "mean_error_m_following_compass_odomframe": (float(wc["mean_err_odom"].mean()), "m"),
+        "mean_error_m_following_nocompass": (float(nc["mean_err"].mean()), "m"),
+        "mean_error_m_following_nocompass_odomframe": (float(nc["mean_err_odom"].mean()), "m"),
+        "peak_error_m_following_nocompass": (float(nc["peak_err"].median()), "m"),
+        "time_to_localize_s": (float(per["t_loc"].median()), "s"),
+        "fraction_localized": (float(per["t_loc"].notna().mean()), ""),
+    }
+
+
+def _ablation_markdown(table: pd.DataFrame) -> str:
+    """The ablation table as Markdown (the docs copy it)."""
+    head = ("| variant | compass, init [m] | compass, odom [m] | no compass, init [m] | "
+            "no compass, odom [m] | peak, no compass [m] | t_loc [s] | localized |")
+    lines = [head, "|" + "---|" * 8]
+    for label, r in table.iterrows():
+        v = [r[c][0] for c in table.columns]
+        lines.append(f"| {label} ({ABLATION_LABELS.get(label, label)}) | "
+                     + " | ".join(f"{x:.2f}" for x in v[:5])
+                     + f" | {v[5]:.0f} | {v[6]:.2f} |")
+    return "\n".join(lines)
 
 
 @register
@@ -149,13 +242,16 @@ class TetherExperiment(Experiment):
         Parameters
         ----------
         full : bool
-            Full size (200 runs of 400 s, with the packet-averaging variant).
+            Full size (200 runs of 400 s, every ablation); quick: 16 runs of 300 s with
+            the ``cells_1m`` and ``perfect_odometry`` ablations only.
 
         Returns
         -------
         TetherConfig
         """
-        return TetherConfig(runs=200, block_size=50, steps=400, variant_packets=10) if full else TetherConfig()
+        if full:
+            return TetherConfig(runs=200, block_size=50, steps=400)
+        return TetherConfig(ablations=("cells_1m", "perfect_odometry"))
 
     def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
         """Simulate one block of runs without and with a compass (and the figure rows).
@@ -178,9 +274,13 @@ class TetherExperiment(Experiment):
         """
         frames = []
         examples = bool(np.any(runs == 0))
+        # every setting (variant, compass) of the block replays the same worlds: paired
+        world_seed = int(rng.integers(2**62))
         main_model = None
-        for label, params in config.variants().items():
+        for label, var in config.variants().items():
+            params = var.params
             raw, model = _fit(config, params, stream(rng, "calibration"))
+            model = _scaled(model, var.row_scale)
             if label == "main":
                 main_model = model
             if examples:
@@ -190,12 +290,13 @@ class TetherExperiment(Experiment):
                     "raw_sigma": raw[2], "count": raw[3], "mu": model.mu, "tau": model.tau,
                     "sigma": model.sigma}))
             for compass in (False, True):
-                tr = simulate_tether(params, _tracker(config, model), runs.size, config.steps, rng,
-                                     compass=compass)
+                tr = simulate_tether(params, _tracker(config, model, var.cell_m), runs.size,
+                                     config.steps, stream(world_seed, "world"), compass=compass)
                 B, T = tr.error_m.shape
                 frames.append(pd.DataFrame({
                     "table": "runs", "variant": label, "run": np.repeat(runs, T), "compass": compass,
                     "time_s": tr.time_s.ravel(), "error_m": tr.error_m.ravel(),
+                    "error_odom_m": tr.error_odom_m.ravel(),
                     "true_distance_m": tr.true_distance_m.ravel(),
                     "uncertainty_m": tr.uncertainty_m.ravel(), "localized": tr.localized.ravel(),
                     "synced": tr.synced.ravel()}))
@@ -267,19 +368,17 @@ class TetherExperiment(Experiment):
         models = _table(results, "model")
         runs_all = _table(results, "runs")
         fig3_rows, fig6_rows = _table(results, "fig3"), _table(results, "fig6")
-        extra = []
-        for label in list(config.variants())[1:]:
+        extra, table_rows = [], []
+        for label in config.variants():
             sub = _following(runs_all[runs_all["variant"] == label])
-            extra += [
-                Metric(f"mean_error_m_following_compass_{label}", float(sub.loc[sub["compass"], "mean_err"].mean()),
-                       None, "m", f"VARIANT {label}: readings average {config.variant_packets} faded packets"),
-                Metric(f"mean_error_m_following_nocompass_{label}", float(sub.loc[~sub["compass"], "mean_err"].mean()),
-                       None, "m", f"VARIANT {label}"),
-                Metric(f"peak_error_m_following_nocompass_{label}", float(sub.loc[~sub["compass"], "peak_err"].median()),
-                       None, "m", f"VARIANT {label}"),
-                Metric(f"time_to_localize_s_{label}", float(sub["t_loc"].median()), None, "s", f"VARIANT {label}"),
-                Metric(f"fraction_localized_{label}", float(sub["t_loc"].notna().mean()), None, "", f"VARIANT {label}"),
-            ]
+            row = _ablation_row(sub)
+            table_rows.append({"variant": label, **row})
+            if label == "main":
+                continue
+            what = ABLATION_LABELS.get(label, label)
+            extra += [Metric(f"{name}_{label}", value, None, unit, f"VARIANT {label}: {what}")
+                      for name, (value, unit) in row.items()]
+        ablation = pd.DataFrame(table_rows).set_index("variant")
         results = runs_all[runs_all["variant"] == "main"]
         per = _following(results)
         nc, wc = per[~per["compass"]], per[per["compass"]]
@@ -294,6 +393,11 @@ class TetherExperiment(Experiment):
             Metric("mean_error_m_following_compass", m_wc, 1.0, "m",
                    "mean over runs of the mean error once localized (paper: 'typically within 1 m')"),
             Metric("mean_error_m_following_nocompass", m_nc, None, "m", "as above, no compass"),
+            Metric("mean_error_m_following_compass_odomframe", float(wc["mean_err_odom"].mean()),
+                   1.0, "m", "as the compass metric, scored in the tracker's current odometry "
+                   "frame (its own odometry drift not counted)"),
+            Metric("mean_error_m_following_nocompass_odomframe", float(nc["mean_err_odom"].mean()),
+                   None, "m", "as above, no compass"),
             Metric("peak_error_m_following_nocompass", pk_nc, 7.0, "m",
                    "median over runs of the largest error once localized (paper: peaks near 7 m)"),
             Metric("peak_error_m_following_compass", pk_wc, None, "m", "as above, with compass"),
@@ -312,13 +416,20 @@ class TetherExperiment(Experiment):
             Claim(f"Without a compass the error peaks several metres (median peak >= {config.several_m:g} m)",
                   bool(pk_nc >= config.several_m)),
             Claim("Synchronising the frames with a compass lowers the following error", bool(m_wc < m_nc)),
+            Claim(f"Scored in the tracker's current odometry frame, with a compass the error "
+                  f"stays near 1 m while following (mean <= {config.near_m:g} m)",
+                  bool(float(wc["mean_err_odom"].mean()) <= config.near_m)),
         ]
         self._fig_model(config, models[models["variant"] == "main"], out_dir)
         self._fig_donuts(config, fig3_rows, out_dir)
         self._fig_traces(results, per, out_dir)
         self._fig_snapshots(config, fig6_rows, out_dir)
         notes = [f"{len(per) // 2} runs per variant, {config.steps} steps of {config.params.dt_s:g} s; "
-                 f"grid {config.grid_cells}x{config.grid_cells} cells of {config.cell_m:g} m"]
+                 f"grid {config.grid_cells}x{config.grid_cells} cells of {config.cell_m:g} m",
+                 "ablations (following error: mean over runs of the per-run mean once localized; "
+                 "'init' = tracker's initial frame, 'odom' = its current odometry frame):\n"
+                 + _ablation_markdown(ablation)]
+        ablation.apply(lambda col: col.str[0]).to_csv(out_dir / "ablation.csv")
         return Summary(metrics, claims, notes)
 
     # ---- figures ---------------------------------------------------------------------

@@ -202,6 +202,10 @@ class TetherTrace:
         The tracker's estimates after each update.
     states : dict
         Step -> the tracker's state after that step's update, at ``record_steps``.
+    error_odom_m : ndarray, shape (B, T)
+        The same error scored in the tracker's current odometry frame (the trackee's true
+        position relative to the tracker's true pose, placed at its odometry pose): the
+        tracker's own odometry drift is not counted.
     """
 
     time_s: np.ndarray
@@ -214,6 +218,7 @@ class TetherTrace:
     tracker_xy: np.ndarray
     track: Track
     states: dict = field(default_factory=dict)
+    error_odom_m: np.ndarray | None = None
 
 
 def read_rssi(channel: IndoorChannel, a, b, walls, rng: np.random.Generator) -> np.ndarray:
@@ -330,7 +335,7 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
 
     wp_b = roam()
     comp = np.deg2rad(P.compass_std_deg)
-    out = {k: np.zeros((B, T)) for k in ("err", "dist", "unc", "loc", "syn")}
+    out = {k: np.zeros((B, T)) for k in ("err", "dist", "unc", "loc", "syn", "odom")}
     truth_xy, own_xy = np.zeros((B, T, 2)), np.zeros((B, T, 2))
     states, estimates = {}, []
     for t in range(T):
@@ -370,6 +375,8 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
         estimates.append(est)
         truth_local = _rot(-frame0_a, g_b - g0_a)
         out["err"][:, t] = np.linalg.norm(est.position - truth_local, axis=-1)
+        truth_odom = s_a + _rot(-th_a, g_b - g_a)
+        out["odom"][:, t] = np.linalg.norm(est.position - truth_odom, axis=-1)
         out["dist"][:, t] = np.linalg.norm(g_a - g_b, axis=-1)
         out["unc"][:, t] = _spread(est)
         out["loc"][:, t] = localized
@@ -380,4 +387,4 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
     time = (np.arange(T) + 1) * P.dt_s
     return TetherTrace(np.broadcast_to(time, (B, T)), out["err"], out["dist"], out["unc"],
                        out["loc"].astype(bool), out["syn"].astype(bool), truth_xy, own_xy,
-                       track_from_steps(estimates, time=time), states)
+                       track_from_steps(estimates, time=time), states, out["odom"])
