@@ -308,7 +308,7 @@ class HighwayExperiment(Experiment):
             claims.append(Claim("more vehicles (20 -> 24 -> 30) lower the PF error",
                                 bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
         self._figures(config, base, out_dir)
-        self._lag_figure(r, out_dir)
+        self._lag_figure(r, variants, out_dir)
         notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
                      f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps")
         if "x_true" in r:
@@ -317,8 +317,10 @@ class HighwayExperiment(Experiment):
         return Summary(metrics, claims, notes)
 
     @staticmethod
-    def _lag_figure(r: pd.DataFrame, out_dir: Path) -> None:
+    def _lag_figure(r: pd.DataFrame, variants: pd.DataFrame, out_dir: Path) -> None:
         g = r[(r.method == "pf") & (r.M == 26) & (r.N == 20) & np.isclose(r.alpha, 0.30)]
+        lay = variants[(variants.method == "pf") & np.isclose(variants.alpha, 0.30)
+                       & (variants.messages == "previous")]
         if g.empty:
             return
         fig, ax = figure()
@@ -328,9 +330,13 @@ class HighwayExperiment(Experiment):
         for v, gv in g.groupby("messages"):
             curve = gv.groupby("step").error_m.mean()
             ax.plot(curve.index, curve.to_numpy(), color=styles.get(v, COLORS["alt2"]), label=labels.get(v, v))
+        for v, gv in lay.groupby("layout"):
+            curve = gv.groupby("step").error_m.mean()
+            ax.plot(curve.index, curve.to_numpy(), "--", color=COLORS["baseline"],
+                    label=f"previous estimates, variant: {v} anchor layout")
         ax.set_xlabel("step (0.2 m per step)")
         ax.set_ylabel("PF mean error over vehicles and runs [m]")
-        ax.set_title("Cost of the neighbours' message lag, alpha = 30%, M = 26, N = 20")
+        ax.set_title("Message lag and anchor layout, alpha = 30%, M = 26, N = 20")
         ax.legend()
         save(fig, out_dir / "message_lag_error_vs_step.png")
 
