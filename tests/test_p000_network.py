@@ -450,3 +450,31 @@ def test_p000_robust_curves_median_and_kept_runs():
     assert rob["kept"]["rls"].tolist() == [True, True, True, False]
     np.testing.assert_allclose(rob["curves"]["rls_err_assisted_m"], [2.0, 4.0, 6.0])
     assert rob["per_run"]["ekf"].shape == (4, 3)
+
+
+# full-size (5000 runs, seed 0) reproduction, docs/p000.md
+P000_FULL = {("ekf", 900.0, "mean"): 11.2033, ("ekf", 10_000.0, "mean"): 13.758,
+             ("rls", 900.0, "median"): 175.3689, ("rls", 10_000.0, "median"): 282.3243}
+P000_FULL_VERDICTS = [False, True, False, True, False, False, True]
+
+
+def test_p000_reproduction_at_reduced_size_holds_the_full_numbers_and_verdicts(tmp_path):
+    """100 runs: the headline numbers lie within 3 Monte Carlo standard errors of the full
+    run's, and every claim has the full run's verdict."""
+    from dataclasses import replace
+
+    from radioloc.experiments.p000_montecarlo import P000MonteCarlo, robust_curves
+    exp = P000MonteCarlo()
+    cfg = replace(exp.config(False), runs=100, block_size=100)
+    frame = exp.run_block(cfg, np.arange(100), block_generator(0, 0))
+    s = exp.summarize(cfg, frame, tmp_path)
+    m = {x.name: x.value for x in s.metrics}
+    wt = {"assisted": 0.5, "unassisted": 0.5}
+    for (meth, rv, stat), full in P000_FULL.items():
+        rob = robust_curves(frame[frame.range_var_m2 == rv], wt, cfg.diverged_m)
+        fin = rob["per_run"][meth][rob["kept"][meth], -1]
+        se = fin.std(ddof=1) / np.sqrt(fin.size) * (1.2533 if stat == "median" else 1.0)
+        tag = f"var{rv:g}"
+        value = m[f"{meth}_final_error_m_{tag}" if stat == "mean" else f"{meth}_final_median_error_m_{tag}"]
+        assert abs(value - full) <= 3 * se, (meth, rv, stat, value, full, se)
+    assert [c.holds for c in s.claims] == P000_FULL_VERDICTS
