@@ -394,3 +394,87 @@ def test_ekf_is_equivariant_to_translations(seed, shift):
     b = ekf.iterate(ekf.init(prior + shift, var), rho)
     np.testing.assert_allclose(b.position, a.position + shift, atol=1e-6 * (1 + abs(shift)))
     np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-6, atol=1e-6)
+
+
+def test_p000_planted_diverged_run_is_counted_and_does_not_decide(tmp_path):
+    from dataclasses import replace
+
+    from radioloc.experiments.p000_montecarlo import P000MonteCarlo
+    exp = P000MonteCarlo()
+    cfg = replace(exp.config(False), runs=8, block_size=8, iterations=6)
+    frame = exp.run_block(cfg, np.arange(8), block_generator(0, 0))
+    clean = exp.summarize(cfg, frame[frame.run != 3], tmp_path / "clean")
+    planted = frame.copy()
+    # run 3 at 10,000 m^2 blows up exponentially in the RLS (as run 4707 of the full run)
+    hit = (planted.run == 3) & (planted.range_var_m2 == 10_000.0)
+    for c in ("assisted", "unassisted"):
+        planted.loc[hit, f"rls_err_{c}_m"] = 10.0 ** (planted.loc[hit, "iteration"] * 8.0)
+        planted.loc[hit, f"rls_sqerr_{c}_m2"] = 10.0 ** (planted.loc[hit, "iteration"] * 16.0)
+    planted.loc[hit & (planted.iteration == 6), "rls_err_unassisted_m"] = np.inf
+    s = exp.summarize(cfg, planted, tmp_path / "planted")
+    m = {x.name: x.value for x in s.metrics}
+    mc = {x.name: x.value for x in clean.metrics}
+    assert m["rls_diverged_runs_var10000"] == 1 and m["ekf_diverged_runs_var10000"] == 0
+    assert m["rls_diverged_runs_var900"] == 0
+    assert not np.isfinite(m["rls_final_error_m_all_runs_var10000"])
+    # the mean over the runs that did not diverge is the mean without the planted run
+    assert m["rls_final_error_m_var10000"] == pytest.approx(mc["rls_final_error_m_var10000"])
+    assert m["rls_steps_to_converge_var10000"] == mc["rls_steps_to_converge_var10000"]
+    assert np.isfinite(m["rls_final_median_error_m_var10000"])
+    # the EKF's numbers do not move (its own runs are all kept)
+    full = exp.summarize(cfg, frame, tmp_path / "full")
+    mf = {x.name: x.value for x in full.metrics}
+    assert m["ekf_final_error_m_var10000"] == pytest.approx(mf["ekf_final_error_m_var10000"])
+    assert m["rls_final_median_error_m_var900"] == pytest.approx(mf["rls_final_median_error_m_var900"])
+
+
+def test_p000_robust_curves_median_and_kept_runs():
+    import pandas as pd
+
+    from radioloc.experiments.p000_montecarlo import METHODS, robust_curves
+    it = np.arange(3)
+    rows = []
+    for r, scale in enumerate([1.0, 2.0, 3.0, np.nan]):
+        for i in it:
+            row = {"run": r, "iteration": i, "crb_assisted_m2": 1.0, "crb_unassisted_m2": 1.0}
+            for m in METHODS:
+                v = (scale if np.isfinite(scale) or i < 2 else np.nan) * (i + 1)
+                if not np.isfinite(scale) and i < 2:
+                    v = 1e9 * (i + 1)
+                for c in ("assisted", "unassisted"):
+                    row[f"{m}_err_{c}_m"] = v
+                    row[f"{m}_sqerr_{c}_m2"] = v * v
+                row[f"{m}_aligned_err_m"] = v
+            rows.append(row)
+    rob = robust_curves(pd.DataFrame(rows), {"assisted": 0.5, "unassisted": 0.5}, 1e4)
+    assert rob["kept"]["rls"].tolist() == [True, True, True, False]
+    np.testing.assert_allclose(rob["curves"]["rls_err_assisted_m"], [2.0, 4.0, 6.0])
+    assert rob["per_run"]["ekf"].shape == (4, 3)
+
+
+# full-size (5000 runs, seed 0) reproduction, docs/p000.md
+P000_FULL = {("ekf", 900.0, "mean"): 11.2033, ("ekf", 10_000.0, "mean"): 13.758,
+             ("rls", 900.0, "median"): 175.3689, ("rls", 10_000.0, "median"): 282.3243}
+P000_FULL_VERDICTS = [False, True, False, True, False, False, True]
+
+
+def test_p000_reproduction_at_reduced_size_holds_the_full_numbers_and_verdicts(tmp_path):
+    """100 runs: the headline numbers lie within 3 Monte Carlo standard errors of the full
+    run's, and every claim has the full run's verdict."""
+    from dataclasses import replace
+
+    from radioloc.experiments.p000_montecarlo import P000MonteCarlo, robust_curves
+    exp = P000MonteCarlo()
+    cfg = replace(exp.config(False), runs=100, block_size=100)
+    frame = exp.run_block(cfg, np.arange(100), block_generator(0, 0))
+    s = exp.summarize(cfg, frame, tmp_path)
+    m = {x.name: x.value for x in s.metrics}
+    wt = {"assisted": 0.5, "unassisted": 0.5}
+    for (meth, rv, stat), full in P000_FULL.items():
+        rob = robust_curves(frame[frame.range_var_m2 == rv], wt, cfg.diverged_m)
+        fin = rob["per_run"][meth][rob["kept"][meth], -1]
+        se = fin.std(ddof=1) / np.sqrt(fin.size) * (1.2533 if stat == "median" else 1.0)
+        tag = f"var{rv:g}"
+        value = m[f"{meth}_final_error_m_{tag}" if stat == "mean" else f"{meth}_final_median_error_m_{tag}"]
+        assert abs(value - full) <= 3 * se, (meth, rv, stat, value, full, se)
+    assert [c.holds for c in s.claims] == P000_FULL_VERDICTS

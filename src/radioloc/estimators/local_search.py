@@ -2,7 +2,9 @@
 
 Candidates are the pairwise intersections of the range circles (where two accurate
 ranges place the node) plus a coarse grid; the best candidate of an objective is then
-polished by two successively finer local grids. Batched over leading axes; the
+polished by two successively finer local grids. Given a search ``centre`` (e.g. a
+previous estimate), the coarse grid is centred there and intersections farther than the
+grid's half width from it are left out: a local search. Batched over leading axes; the
 objective maps candidate positions ``(..., C, 2)`` to scores ``(..., C)`` (larger is better).
 """
 
@@ -93,10 +95,13 @@ def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray)
 
 def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
            coarse_half_width_m: float, coarse_points: int = 21,
-           refine: tuple[tuple[float, int], ...] = ((0.5, 21), (0.05, 21))) -> np.ndarray:
+           refine: tuple[tuple[float, int], ...] = ((0.5, 21), (0.05, 21)),
+           centre: np.ndarray | None = None) -> np.ndarray:
     """Maximise ``objective`` over circle intersections and a coarse grid, then refine.
 
-    The coarse grid is centred on the mean of the valid centres (the origin where none).
+    The coarse grid is centred on the mean of the valid centres (the origin where none),
+    or on ``centre`` if given; with ``centre`` only the intersections within the grid's
+    square (half width ``coarse_half_width_m`` around ``centre``) are candidates.
 
     Parameters
     ----------
@@ -114,15 +119,23 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
         Points per axis of the coarse grid.
     refine : tuple of (half_width, points)
         Successive local grids around the best candidate.
+    centre : ndarray, shape (..., 2), optional
+        Centre of a local search (broadcast against the batch axes); default: a global
+        search around the centroid of the points heard.
 
     Returns
     -------
     ndarray, shape (..., 2)
         The best candidate found.
     """
-    w = valid.astype(float)
-    centroid = (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]
     pts, ok = circle_intersections(centres, radii, valid)
+    if centre is None:
+        w = valid.astype(float)
+        centroid = (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]
+    else:
+        centroid = np.broadcast_to(np.asarray(centre, dtype=float), pts.shape[:-2] + (2,))
+        near = np.all(np.abs(pts - centroid[..., None, :]) <= coarse_half_width_m, axis=-1)
+        ok = ok & near
     grid = centroid[..., None, :] + local_grid(coarse_half_width_m, coarse_points)
     cand = np.concatenate([pts, grid], axis=-2)
     cand_ok = np.concatenate([ok, np.ones(grid.shape[:-1], dtype=bool)], axis=-1)

@@ -58,6 +58,11 @@ class LocalML(SnapshotEstimator):
     points heard (the node is within ``radius_m`` of every one), polished by two finer
     local grids. A global search heuristic, not a certified optimum.
 
+    With ``search_radius_m`` set, the search is local instead: the coarse grid (half width
+    ``search_radius_m``) and the admissible circle intersections lie around a search
+    centre given to :meth:`locate` (e.g. the previous estimate moved by the INS), so a
+    distant mode of the likelihood cannot be chosen.
+
     Parameters
     ----------
     measurement : LosNlosRange
@@ -66,11 +71,15 @@ class LocalML(SnapshotEstimator):
         Half width of the coarse grid (the communication radius).
     coarse_points : int
         Points per axis of the coarse grid.
+    search_radius_m : float, optional
+        Half width of a local search around the centre passed to :meth:`locate`; default
+        None: the global search above.
     """
 
     name = "local-ml"
 
-    def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21) -> None:
+    def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21,
+                 search_radius_m: float | None = None) -> None:
         if not isinstance(measurement, LosNlosRange):
             raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
         self.measurement = measurement
@@ -78,8 +87,10 @@ class LocalML(SnapshotEstimator):
         if int(coarse_points) != coarse_points or coarse_points < 2:
             raise ConfigError(f"coarse_points: must be an integer >= 2, got {coarse_points!r}")
         self.coarse_points = int(coarse_points)
+        self.search_radius_m = (None if search_radius_m is None
+                                else check_positive(search_radius_m, "search_radius_m"))
 
-    def locate(self, ranges, centres) -> Estimate:
+    def locate(self, ranges, centres, search_centre=None) -> Estimate:
         """Maximum-likelihood positions for a batch of snapshots.
 
         Parameters
@@ -88,6 +99,9 @@ class LocalML(SnapshotEstimator):
             Measured ranges to the points; NaN = absent link.
         centres : array_like, shape (..., L, 2) (broadcast against ``ranges``)
             Positions of the points ranged to.
+        search_centre : array_like, shape (..., 2), optional
+            Centre of the local search; required when ``search_radius_m`` is set, ignored
+            (must be None) otherwise.
 
         Returns
         -------
@@ -97,12 +111,25 @@ class LocalML(SnapshotEstimator):
         """
         th, cen, valid = _packed(ranges, centres)
         model = self.measurement
+        half = self.radius_m
+        if self.search_radius_m is not None:
+            if search_centre is None:
+                raise InputError("search_centre: required by a local search (search_radius_m set)")
+            search_centre = as_float_array(search_centre, "search_centre", min_ndim=1, last_dim=2)
+            try:
+                search_centre = np.broadcast_to(search_centre, th.shape[:-1] + (2,))
+            except ValueError:
+                raise InputError(f"search_centre: shape {search_centre.shape} does not fit "
+                                 f"ranges {th.shape}") from None
+            half = self.search_radius_m
+        elif search_centre is not None:
+            raise InputError("search_centre: only a local search (search_radius_m set) takes one")
 
         def objective(x):
             e = _residuals(x, cen, th)
             lp = model.logpdf(e, 0.0)
             return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
-        x = search(objective, cen, th, valid, self.radius_m, self.coarse_points)
+        x = search(objective, cen, th, valid, half, self.coarse_points, centre=search_centre)
         return Estimate(x, None, None, {"log_likelihood": objective(x[..., None, :])[..., 0],
                                         "measurements_used": valid.sum(axis=-1)})
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.stats import trim_mean
 
 from radioloc.bounds.cooperative import network_crb_node_traces
 from radioloc.core.alignment import rigid_aligned_error
@@ -50,8 +51,12 @@ class P000Config:
     error, staying there.
     equal_tolerance: "nearly identical" final errors = within this fraction of each other.
     clearly_lower: "clearly lower" = at least this fraction lower.
-    diverged_m: a run whose final error (mean over its nodes) exceeds this has diverged;
-    the figures' axes stop at 20x the prior error, diverged means leave them (noted).
+    diverged_m: a run whose final error (mean over its nodes) is non-finite or exceeds
+    this has diverged (10 km, ten times the side of the area). Diverged runs are counted and
+    left out of the mean curves; medians and trimmed means use every run. A rule on the CRB
+    (e.g. 10x) is not used: the RLS as printed loses its frame and ends at a median 15x the
+    CRB without diverging (the count over 10x the CRB is reported as a metric).
+    trim_fraction: fraction cut from each end for the trimmed means.
     """
 
     runs: int = 200
@@ -68,6 +73,51 @@ class P000Config:
     equal_tolerance: float = 0.10
     clearly_lower: float = 0.10
     diverged_m: float = 10_000.0
+    trim_fraction: float = 0.05
+
+
+def robust_curves(rows: pd.DataFrame, wt: dict, diverged_m: float) -> dict:
+    """Per-run error curves and the runs that did not diverge, for one range variance.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        The results rows of one range variance (every run and iteration).
+    wt : dict
+        Weight of each node class in the mean over nodes (its share of the nodes).
+    diverged_m : float
+        A run diverged when its final error (mean over nodes) is non-finite or above this.
+
+    Returns
+    -------
+    dict
+        ``iterations`` (N + 1,), ``per_run`` {method: (R, N + 1) mean error over nodes},
+        ``kept`` {method: (R,) bool, runs that did not diverge}, ``curves`` (DataFrame
+        indexed by iteration: each method's columns averaged over its kept runs, the CRB
+        columns over all runs), ``crb_final`` (R,) the run's CRB RMSE at the last iteration
+        and ``prior_error`` (mean error at iteration 0 over all runs).
+    """
+    rows = rows.sort_values(["run", "iteration"])
+    iters = np.sort(rows["iteration"].unique())
+    runs = rows["run"].unique()
+    shape = (runs.size, iters.size)
+
+    def grid(col):
+        return rows[col].to_numpy(dtype=float).reshape(shape)
+    per_run, kept, parts = {}, {}, []
+    for m in METHODS:
+        e = sum(wt[c] * grid(f"{m}_err_{c}_m") for c in CLASSES)
+        per_run[m] = e
+        kept[m] = np.isfinite(e[:, -1]) & (e[:, -1] <= diverged_m)
+        cols = [c for c in rows.columns if c.startswith(f"{m}_")]
+        sub = rows[rows["run"].isin(runs[kept[m]])]
+        parts.append(sub.groupby("iteration")[cols].mean().reindex(iters))
+    crb_cols = [c for c in rows.columns if c.startswith("crb_")]
+    parts.append(rows.groupby("iteration")[crb_cols].mean())
+    crb_final = np.sqrt(sum(wt[c] * grid(f"crb_{c}_m2") for c in CLASSES))[:, -1]
+    prior = float(np.mean(per_run[METHODS[0]][:, 0]))
+    return {"iterations": iters, "per_run": per_run, "kept": kept,
+            "curves": pd.concat(parts, axis=1), "crb_final": crb_final, "prior_error": prior}
 
 
 @register
@@ -144,6 +194,14 @@ class P000MonteCarlo(Experiment):
     def summarize(self, config: P000Config, results: pd.DataFrame, out_dir: Path) -> Summary:
         """Error curves, convergence steps, claims and figures, from ``results`` only.
 
+        Statistics are robust to diverged runs: a run diverged (per method and range
+        variance) when its final error, mean over its nodes, is non-finite or above
+        ``config.diverged_m``. Diverged runs are counted; the curves, final errors and steps
+        to converge are computed over the runs that did not diverge (mean), and as medians
+        and trimmed means over all runs; every claim is judged on both the mean over the
+        runs that did not diverge and the median curve, and holds only if it holds on both.
+        The plain mean over all runs is kept as a metric (``*_all_runs_*``).
+
         Parameters
         ----------
         config : P000Config
@@ -158,88 +216,113 @@ class P000MonteCarlo(Experiment):
         """
         K, A = config.nodes, config.assisted
         wt = {"assisted": A / K, "unassisted": (K - A) / K}
-        curves = results.groupby(["range_var_m2", "iteration"]).mean(numeric_only=True)
-        last = results[results["iteration"] == results["iteration"].max()]
         metrics, claims, notes = [], [], []
-        final, steps, tags = {}, {}, {}
+        final, steps, tags, prior = {}, {}, {}, {}
+        med_final, med_steps = {}, {}
         for rv in config.range_var_m2:
             tag = f"var{rv:g}"
             tags[rv] = tag
-            cur = curves.loc[rv]
+            rob = robust_curves(results[results["range_var_m2"] == rv], wt, config.diverged_m)
+            cur, iters = rob["curves"], rob["iterations"]
+            crb_final = rob["crb_final"]
+            prior[rv] = rob["prior_error"]
             for m in METHODS:
-                mean = sum(wt[c] * cur[f"{m}_err_{c}_m"] for c in CLASSES)
-                rmse = np.sqrt(sum(wt[c] * cur[f"{m}_sqerr_{c}_m2"] for c in CLASSES))
-                final[m, rv] = float(mean.iloc[-1])
-                steps[m, rv] = first_step_within(mean.to_numpy(), config.converge_tolerance)
+                per_run = rob["per_run"][m]                             # (R, N + 1)
+                kept = rob["kept"][m]
+                fin = per_run[:, -1]
+                mean_kept = per_run[kept].mean(0) if kept.any() else np.full(len(iters), np.nan)
+                median = np.median(per_run, axis=0)
+                trimmed = trim_mean(per_run, config.trim_fraction, axis=0)
+                final[m, rv] = float(mean_kept[-1])
+                med_final[m, rv] = float(median[-1])
+                steps[m, rv] = first_step_within(mean_kept, config.converge_tolerance)
+                med_steps[m, rv] = first_step_within(median, config.converge_tolerance)
+                sq = sum(wt[c] * cur[f"{m}_sqerr_{c}_m2"] for c in CLASSES)
                 name = "rls_prior_weighted" if m == "rlsw" else m
                 what = LABELS[m]
                 metrics += [
                     Metric(f"{name}_final_error_m_{tag}", final[m, rv], None, "m",
                            f"{what}: mean position error at iteration {config.iterations}, "
-                           "all nodes and runs"),
-                    Metric(f"{name}_final_rmse_m_{tag}", float(rmse.iloc[-1]), None, "m",
-                           f"{what}: RMSE at the last iteration (compare with the CRB)"),
+                           "all nodes, runs that did not diverge"),
+                    Metric(f"{name}_final_error_m_all_runs_{tag}", float(np.mean(fin)), None, "m",
+                           f"{what}: mean final error over all runs, diverged ones included"),
+                    Metric(f"{name}_final_trimmed_mean_error_m_{tag}", float(trimmed[-1]), None,
+                           "m", f"{what}: {config.trim_fraction:.0%}-trimmed mean over runs "
+                           "of the final error"),
+                    Metric(f"{name}_final_median_error_m_{tag}", med_final[m, rv], None,
+                           "m", f"{what}: median over runs of the final error (mean over nodes)"),
+                    Metric(f"{name}_final_rmse_m_{tag}", float(np.sqrt(sq.iloc[-1])), None, "m",
+                           f"{what}: RMSE at the last iteration, runs that did not diverge "
+                           "(compare with the CRB)"),
                     Metric(f"{name}_steps_to_converge_{tag}", steps[m, rv], None, "iterations",
                            f"{what}: first iteration within {config.converge_tolerance:.0%} "
-                           "of the final mean error"),
+                           "of the final value, mean curve of the runs that did not diverge"),
+                    Metric(f"{name}_steps_to_converge_median_{tag}", med_steps[m, rv], None,
+                           "iterations", f"{what}: the same on the median curve over all runs"),
                     Metric(f"{name}_final_aligned_error_m_{tag}",
                            float(cur[f"{m}_aligned_err_m"].iloc[-1]), None, "m",
-                           f"{what}: mean error after the best rigid motion (shape only)"),
-                ]
-                per_run = sum(wt[c] * last.loc[last.range_var_m2 == rv, f"{m}_err_{c}_m"]
-                              for c in CLASSES)
-                metrics += [
-                    Metric(f"{name}_final_median_error_m_{tag}", float(per_run.median()), None,
-                           "m", f"{what}: median over runs of the final error (mean over nodes)"),
-                    Metric(f"{name}_diverged_fraction_{tag}",
-                           float(np.mean(per_run > config.diverged_m)), None, "",
-                           f"{what}: fraction of runs ending more than {config.diverged_m:g} m off"),
+                           f"{what}: mean error after the best rigid motion (shape only), "
+                           "runs that did not diverge"),
+                    Metric(f"{name}_diverged_runs_{tag}", int((~kept).sum()), None, "runs",
+                           f"{what}: runs whose final error is non-finite or above "
+                           f"{config.diverged_m:g} m (of {kept.size})"),
+                    Metric(f"{name}_diverged_fraction_{tag}", float(np.mean(~kept)), None, "",
+                           f"{what}: fraction of runs that diverged"),
+                    Metric(f"{name}_runs_over_10x_crb_{tag}", int(np.sum(~(fin <= 10 * crb_final))),
+                           None, "runs", f"{what}: runs ending more than 10x the run's CRB "
+                           "RMSE off (not a divergence criterion: the RLS as printed drifts)"),
                 ]
                 for c in CLASSES:
                     metrics.append(Metric(f"{name}_final_error_m_{c}_{tag}",
                                           float(cur[f"{m}_err_{c}_m"].iloc[-1]), None, "m",
-                                          f"{what}: {c} nodes"))
+                                          f"{what}: {c} nodes, runs that did not diverge"))
             crb = np.sqrt(sum(wt[c] * cur[f"crb_{c}_m2"] for c in CLASSES))
             metrics.append(Metric(f"crb_rmse_m_{tag}", float(crb.iloc[-1]), None, "m",
                                   "sqrt of the mean per-node trace of the Bayesian CRB after "
                                   f"{config.iterations} iterations"))
-            prior_err = float(sum(wt[c] * cur[f"rls_err_{c}_m"] for c in CLASSES).iloc[0])
-            metrics.append(Metric(f"prior_error_m_{tag}", prior_err, None, "m",
+            metrics.append(Metric(f"prior_error_m_{tag}", prior[rv], None, "m",
                                   "mean error of the priors (iteration 0)"))
+            medians = pd.DataFrame({m: np.median(rob["per_run"][m], axis=0) for m in METHODS},
+                                   index=iters)
             self._plot(config, cur, rv, out_dir / f"fig{1 if rv == config.range_var_m2[0] else 2}"
-                       f"_error_vs_iteration_{tag}.png", wt)
+                       f"_error_vs_iteration_{tag}.png", wt, medians)
             self._plot_classes(config, cur, rv, out_dir / f"error_by_class_{tag}.png")
 
         v1, v2 = config.range_var_m2[0], config.range_var_m2[-1]
         t1, t2 = tags[v1], tags[v2]
+        tol, low = config.equal_tolerance, config.clearly_lower
+
+        def both(test) -> bool:
+            """A claim holds on the mean of the runs that did not diverge and the median."""
+            return bool(test(final, steps) and test(med_final, med_steps))
+
+        def close(f, a, b, rv):
+            return abs(f[a, rv] - f[b, rv]) <= tol * min(f[a, rv], f[b, rv])
+        on = " (judged on the mean of the runs that did not diverge and on the median)"
         claims += [
-            Claim(f"({t1}) both RLS and EKF converge (final error below the prior error)",
-                  final["rls", v1] < self._prior(curves, v1, wt)
-                  and final["ekf", v1] < self._prior(curves, v1, wt)),
-            Claim(f"({t1}) EKF converges in fewer iterations than RLS",
-                  steps["ekf", v1] < steps["rls", v1]),
-            Claim(f"({t1}) final RLS and EKF errors are nearly identical "
-                  f"(within {config.equal_tolerance:.0%})",
-                  abs(final["rls", v1] - final["ekf", v1])
-                  <= config.equal_tolerance * min(final["rls", v1], final["ekf", v1])),
-            Claim(f"({t2}) EKF ends clearly lower than RLS (at least "
-                  f"{config.clearly_lower:.0%} lower)",
-                  final["ekf", v2] <= (1 - config.clearly_lower) * final["rls", v2]),
-            Claim(f"({t2}) EKF converges in fewer iterations than RLS",
-                  steps["ekf", v2] < steps["rls", v2]),
-            Claim(f"variant rls_prior_weighted ({t1}): final RLS and EKF errors within "
-                  f"{config.equal_tolerance:.0%}",
-                  abs(final["rlsw", v1] - final["ekf", v1])
-                  <= config.equal_tolerance * min(final["rlsw", v1], final["ekf", v1])),
-            Claim(f"variant rls_prior_weighted ({t2}): EKF ends clearly lower than RLS",
-                  final["ekf", v2] <= (1 - config.clearly_lower) * final["rlsw", v2]),
+            Claim(f"({t1}) both RLS and EKF converge (final error below the prior error)" + on,
+                  both(lambda f, s: f["rls", v1] < prior[v1] and f["ekf", v1] < prior[v1])),
+            Claim(f"({t1}) EKF converges in fewer iterations than RLS" + on,
+                  both(lambda f, s: s["ekf", v1] < s["rls", v1])),
+            Claim(f"({t1}) final RLS and EKF errors are nearly identical (within {tol:.0%})" + on,
+                  both(lambda f, s: close(f, "rls", "ekf", v1))),
+            Claim(f"({t2}) EKF ends clearly lower than RLS (at least {low:.0%} lower)" + on,
+                  both(lambda f, s: f["ekf", v2] <= (1 - low) * f["rls", v2])),
+            Claim(f"({t2}) EKF converges in fewer iterations than RLS" + on,
+                  both(lambda f, s: s["ekf", v2] < s["rls", v2])),
+            Claim(f"variant rls_prior_weighted ({t1}): final RLS and EKF errors within {tol:.0%}" + on,
+                  both(lambda f, s: close(f, "rlsw", "ekf", v1))),
+            Claim(f"variant rls_prior_weighted ({t2}): EKF ends clearly lower than RLS" + on,
+                  both(lambda f, s: f["ekf", v2] <= (1 - low) * f["rlsw", v2])),
         ]
+        for rv in config.range_var_m2:
+            notes.append(
+                f"({tags[rv]}) steps to converge, mean of the runs that did not diverge / median: "
+                + ", ".join(f"{m} {steps[m, rv]} / {med_steps[m, rv]}" for m in METHODS)
+                + "; final error (m): "
+                + ", ".join(f"{m} {final[m, rv]:.4g} / {med_final[m, rv]:.4g}" for m in METHODS))
         notes += self._prior_weight_notes(config)
         return Summary(metrics, claims, notes)
-
-    @staticmethod
-    def _prior(curves: pd.DataFrame, rv: float, wt: dict) -> float:
-        return float(sum(wt[c] * curves.loc[rv][f"rls_err_{c}_m"] for c in CLASSES).iloc[0])
 
     @staticmethod
     def _prior_weight_notes(config: P000Config) -> list[str]:
@@ -290,12 +373,14 @@ class P000MonteCarlo(Experiment):
             ln.set_label(ln.get_label() + " - leaves the axes (diverged runs)")
 
     def _plot(self, config: P000Config, cur: pd.DataFrame, rv: float, path: Path,
-              wt: dict) -> None:
+              wt: dict, medians: pd.DataFrame) -> None:
         it = cur.index.to_numpy()
         fig, (ax, leg) = figure(2, 1, height=5.2, gridspec_kw={"height_ratios": [5, 1]})
         for m in METHODS:
             ax.plot(it, self._curve(cur, f"{m}_err_", wt, "_m"), STYLE[m], color=COLOR[m],
-                    label=LABELS[m] + " (mean error)")
+                    label=LABELS[m] + " (mean error, runs that did not diverge)")
+            ax.plot(medians.index, medians[m], STYLE[m], color=COLOR[m], lw=0.8, alpha=0.6,
+                    label=LABELS[m] + " (median)")
         ax.plot(it, np.sqrt(self._curve(cur, "crb_", wt, "_m2")), LINESTYLES["bound"],
                 color=COLORS["bound"], lw=2, label="CRB (RMSE bound)")
         ax.set_yscale("log")

@@ -2,16 +2,29 @@
 
 N vehicles start at random points near the left end of a ``length x width`` road and move
 right by a constant ``speed_m`` per step with a smooth vertical curve
-``y = y0 + A sin(2 pi (x - x0) / period)``; M anchors are fixed; every vehicle ranges to
+``y = y0 + A sin(2 pi (x - x0) / period)``; a vehicle reaching an end of the road turns
+round there (its x is reflected at ``0`` and ``length``; the curve, a function of x, is
+retraced), so every vehicle stays on the road at every step and keeps moving at
+``speed_m`` per step (wrapping round to the other end would make its INS reading jump by a
+road length); M anchors are fixed; every vehicle ranges to
 every vehicle and anchor within ``radius_m`` through the LOS/NLOS mixture model, each
 directed link carrying its own sticky link-state chain; the INS reads each step's
 displacement with white Gaussian noise of std ``ins_std_m`` per axis.
 
 Anchor layouts (the paper does not give one; ``anchor_coverage`` compares them):
 
+* ``"staggered"`` (default): three rows at 1/6, 1/2 and 5/6 of the width; the M anchors
+  are shared ``M // 3`` per row, the remainder going to the outer rows (26 -> 9/8/9,
+  30 -> 10/10/10, 36 -> 12/12/12); the middle row is evenly spaced with a half spacing at
+  each end, the outer rows with 0.3 of their spacing at each end, so the rows are
+  staggered and the ends of the middle lanes are reached too. On the paper's road
+  (150 m x 30 m, vehicles' y in [1, 29] m) with R = 10 m every point a vehicle can occupy
+  is within R of an anchor for M = 26, 27, 28, 30, 33, 36 (farthest point 9.6 m from an
+  anchor at M = 26), tested;
 * ``"rows"``: two rows at 1/4 and 3/4 of the width, anchors evenly spaced and staggered;
 * ``"edges"``: two rows on the road edges (``y = 0`` and ``y = width``);
-* ``"centre"``: one row along the centre line;
+* ``"centre"``: one row along the centre line (the earlier default; vehicles in the outer
+  lanes, more than R from it, hear no anchor: a labelled variant);
 * ``"uniform"``: uniform at random (from a generator passed in).
 
 Arrays follow the estimator contract: batch axes ``(runs, vehicles)`` lead, time follows.
@@ -28,7 +41,9 @@ from radioloc.core.geometry import distances
 from radioloc.core.validation import check_positive
 from radioloc.models.los_nlos import LosNlosRange
 
-LAYOUTS = ("rows", "edges", "centre", "uniform")
+LAYOUTS = ("staggered", "rows", "edges", "centre", "uniform")
+STAGGERED_OUTER_INSET = 0.3
+"""End inset of the outer rows of the ``"staggered"`` layout, in units of their spacing."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +83,7 @@ class HighwayScenario:
     curve_period_m: float = 150.0
     radius_m: float = 10.0
     ins_std_m: float = 0.1
-    layout: str = "rows"
+    layout: str = "staggered"
 
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
@@ -85,7 +100,7 @@ def anchor_layout(layout: str, m: int, length_m: float, width_m: float,
 
     Parameters
     ----------
-    layout : {"rows", "edges", "centre", "uniform"}
+    layout : {"staggered", "rows", "edges", "centre", "uniform"}
         See the module docstring.
     m : int
         Number of anchors.
@@ -104,6 +119,8 @@ def anchor_layout(layout: str, m: int, length_m: float, width_m: float,
         raise ConfigError(f"layout: unknown {layout!r}; choose from {LAYOUTS}")
     i = np.arange(m)
     x = (i + 0.5) * length_m / max(m, 1)
+    if layout == "staggered":
+        return _staggered(m, length_m, width_m)
     if layout == "rows":
         y = np.where(i % 2 == 0, 0.25, 0.75) * width_m
     elif layout == "edges":
@@ -115,6 +132,40 @@ def anchor_layout(layout: str, m: int, length_m: float, width_m: float,
             raise InputError("rng: the 'uniform' anchor layout needs a generator")
         x, y = rng.uniform(0, length_m, m), rng.uniform(0, width_m, m)
     return np.stack([x, y], axis=-1)
+
+
+def _staggered(m: int, length_m: float, width_m: float) -> np.ndarray:
+    """Three staggered rows (see the module docstring): (m, 2)."""
+    base, extra = divmod(m, 3)
+    counts = (base + (extra >= 1), base, base + (extra >= 2))
+    out = []
+    for row, n in enumerate(counts):
+        if n == 0:
+            continue
+        f = 0.5 if row == 1 else STAGGERED_OUTER_INSET
+        spacing = length_m / (n - 1 + 2 * f)
+        x = (f + np.arange(n)) * spacing
+        out.append(np.stack([x, np.full(n, (2 * row + 1) * width_m / 6)], axis=-1))
+    return np.concatenate(out, axis=0) if out else np.zeros((0, 2))
+
+
+def reflect(x: np.ndarray, length_m: float) -> np.ndarray:
+    """Fold positions into ``[0, length_m]`` by reflection at both ends.
+
+    Parameters
+    ----------
+    x : ndarray
+        Unfolded positions (distance driven from the start, plus the start).
+    length_m : float
+        Road length.
+
+    Returns
+    -------
+    ndarray
+        Same shape, in ``[0, length_m]``: a vehicle reaching an end turns round.
+    """
+    r = np.mod(x, 2.0 * length_m)
+    return np.where(r <= length_m, r, 2.0 * length_m - r)
 
 
 @dataclass
@@ -178,13 +229,14 @@ def trajectories(sc: HighwayScenario, runs: int, rng: np.random.Generator) -> np
     Returns
     -------
     ndarray, shape (runs, N, steps + 1, 2)
+        x in ``[0, length_m]`` (reflected at the road ends, see :func:`reflect`).
     """
     n = sc.vehicles
     x0 = rng.uniform(0.0, sc.start_width_m, (runs, 1, n))
     amp = rng.uniform(-sc.curve_amplitude_m, sc.curve_amplitude_m, (runs, 1, n))
     margin = sc.curve_amplitude_m + 1.0
     y0 = rng.uniform(margin, sc.width_m - margin, (runs, 1, n))
-    x = x0 + sc.speed_m * np.arange(sc.steps + 1)[None, :, None]
+    x = reflect(x0 + sc.speed_m * np.arange(sc.steps + 1)[None, :, None], sc.length_m)
     y = y0 + amp * np.sin(2 * np.pi * (x - x0) / sc.curve_period_m)
     return np.moveaxis(np.stack([x, y], axis=-1), 1, 2)
 
@@ -247,8 +299,10 @@ def anchor_coverage(sc: HighwayScenario, runs: int, rng: np.random.Generator,
     Returns
     -------
     dict
-        ``anchors_in_range`` and ``vehicles_in_range`` (means over vehicle-steps) and
-        ``fraction_below_2_anchors``.
+        ``anchors_in_range`` and ``vehicles_in_range`` (means over vehicle-steps),
+        ``fraction_below_2_anchors``, ``fraction_no_anchor`` (vehicle-steps hearing no
+        anchor) and ``fraction_vehicles_never_anchored`` (vehicles that hear no anchor in
+        the whole run).
     """
     truth = trajectories(sc, runs, rng)[:, :, 1:]                        # (R, N, T, 2)
     if anchors is None:
@@ -258,4 +312,6 @@ def anchor_coverage(sc: HighwayScenario, runs: int, rng: np.random.Generator,
     dv = distances(cur[..., :, None, :], cur[..., None, :, :])
     nv = (dv < sc.radius_m).sum(-1) - 1
     return {"anchors_in_range": float(na.mean()), "vehicles_in_range": float(nv.mean()),
-            "fraction_below_2_anchors": float((na < 2).mean())}
+            "fraction_below_2_anchors": float((na < 2).mean()),
+            "fraction_no_anchor": float((na == 0).mean()),
+            "fraction_vehicles_never_anchored": float((na.max(-1) == 0).mean())}
