@@ -11,10 +11,11 @@ The update is the toolkit's one Kalman update
 (:func:`radioloc.estimators.kalman.kalman_update`): the Joseph form
 ``(I - L H^T) S (I - L H^T)^T + L R L^T``, algebraically eq. (21) but symmetric and
 positive semi-definite in floating point, symmetrised after each update. :class:`NetworkEKF`
-runs the same maths in a compiled kernel (:func:`_packets`, eight runs per SIMD vector)
-that uses the structure of a master's Jacobian (row ``p`` has nonzeros only in the blocks of node ``p`` and of the master
-``k``): ``A = Sigma H`` costs two 2-column products per row instead of a dense product, the
-``K x K`` innovation covariance is solved by Cholesky, and the Joseph form is evaluated as
+runs the same maths in a compiled kernel (:func:`_packets`, groups of eight runs, the run
+the innermost axis) that uses the structure of a master's Jacobian (row ``p`` has nonzeros
+only in the blocks of node ``p`` and of the master ``k``): ``A = Sigma H^T`` costs two
+2-column products per row instead of a dense product, the ``K x K`` innovation covariance
+is solved by Cholesky, and the Joseph form is evaluated as
 ``Sigma + (L S - A) L^T - L A^T`` (the same expression expanded); results equal
 ``kalman_update``'s to rounding (``tests/test_bench_network.py`` checks 1e-9).
 
