@@ -76,6 +76,18 @@ def yvv_coefficients(sigma_cells) -> np.ndarray:
         ``(B, b1 / b0, b2 / b0, b3 / b0)`` per run.
     """
     s = np.asarray(sigma_cells, dtype=float).reshape(-1)
+    key = s.tobytes()
+    if key not in _COEF_CACHE:
+        if len(_COEF_CACHE) > 256:
+            _COEF_CACHE.clear()
+        _COEF_CACHE[key] = _solve_coefficients(s)
+    return _COEF_CACHE[key].copy()
+
+
+_COEF_CACHE: dict[bytes, np.ndarray] = {}
+
+
+def _solve_coefficients(s: np.ndarray) -> np.ndarray:
     q0 = np.where(s >= 2.5, 0.98711 * s - 0.96330,
                   3.97156 - 4.14554 * np.sqrt(np.maximum(1.0 - 0.26891 * s, 0.0)))
     # the published q gives a response wider than sigma (about 10 %); solve for the q whose
