@@ -27,8 +27,11 @@ import numpy as np
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import as_float_array, check_positive, check_probability
+from radioloc.estimators import grid_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.models.rssi_trapezoid import TrapezoidModel
+from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
+
+_BLURS = ("fft", "recursive")
 
 __all__ = ["GridGeometry", "GridState", "GridFilter", "cell_distances", "probability_update",
            "floor_normalise", "get_location", "get_uncertainty", "grid_moments", "blur_grid",
@@ -189,9 +192,18 @@ def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: "Trapezoi
     check_probability(epsilon, "epsilon")
     pos = _check_batch(tracker_xy, "tracker_xy", p.shape[0], (2,))
     r = _check_batch(rssi, "rssi", p.shape[0])
+    return _update(p, geom, pos, r, model, epsilon)
+
+
+def _update(p, geom, pos, r, model, epsilon, prior_excess=None) -> np.ndarray:
+    """Algorithm 1 by the fused kernels (``prior_excess``: ``p`` is an unfloored blur)."""
+    if isinstance(model, TrapezoidModel):
+        # the trapezoid is computed inside the fused kernel (one pass, no distance grid)
+        i = as_rssi(r)
+        return _k.trapezoid_update(p, geom.x, geom.y, pos, model.mu[i], model.tau[i],
+                                   model.sigma[i], epsilon, prior_excess)
     lik = model.likelihood(cell_distances(geom, pos), r[:, None, None])
-    post = np.maximum(p * lik, epsilon)
-    return post / post.sum(axis=(1, 2), keepdims=True)
+    return _k.weighted_update(p, lik, epsilon, prior_excess)
 
 
 def floor_normalise(p: np.ndarray, epsilon: float) -> np.ndarray:
@@ -216,11 +228,7 @@ def floor_normalise(p: np.ndarray, epsilon: float) -> np.ndarray:
     k = p.shape[1] * p.shape[2]
     if epsilon * k > 1:
         raise InputError(f"epsilon: {epsilon} x {k} cells exceeds 1")
-    excess = np.maximum(p - epsilon, 0.0)
-    total = excess.sum(axis=(1, 2), keepdims=True)
-    safe = np.where(total > 0, total, 1.0)
-    share = np.where(total > 0, excess / safe, 1.0 / k)
-    return epsilon + (1.0 - k * epsilon) * share
+    return _k.floor_normalise_into(np.asarray(p, dtype=float), epsilon)
 
 
 def get_location(p, geom: GridGeometry, *, include_peak: bool = False) -> np.ndarray:
@@ -289,7 +297,8 @@ def get_uncertainty(p, geom: GridGeometry) -> np.ndarray:
     return np.sqrt(np.einsum("bhw,bw->b", p, dx2) + np.einsum("bhw,bh->b", p, dy2))
 
 
-def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarray:
+def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0, *,
+              method: str = "fft") -> np.ndarray:
     """BlurGrid: circular Gaussian blur with standard deviation ``radius_m`` per run.
 
     The blur is applied in the Fourier domain on a grid zero-padded by ``ceil(4 radius /
@@ -298,6 +307,13 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarr
     radius only, so a run's result does not depend on the rest of the batch. Mass blurred
     beyond the border is lost and the grid renormalised by :func:`floor_normalise`.
     The paper calls the argument a radius; we use it as the Gaussian's standard deviation.
+
+    ``method="recursive"`` blurs the runs whose standard deviation is at least
+    ``grid_kernels.RECURSIVE_MIN_SIGMA`` cells with the separable recursive Gaussian of
+    Young & van Vliet (a third-order recursion per direction, cost independent of the
+    radius; zero outside the grid as above) and the others with the FFT. It is an
+    approximation: its impulse response has the exact variance but departs from the
+    Gaussian by up to about 10 % of the peak value (``tests/test_grid_kernels.py``).
 
     Parameters
     ----------
@@ -309,6 +325,8 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarr
         Blur radius in metres (0 leaves the grid unchanged up to the floor).
     epsilon : float
         Minimum cell probability after renormalisation.
+    method : {"fft", "recursive"}
+        Exact Gaussian by FFT (default), or the recursive approximation for wide blurs.
 
     Returns
     -------
@@ -316,9 +334,29 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarr
         Blurred grids (a new array).
     """
     p = _check_grid(p, geom)
+    if method not in _BLURS:
+        raise InputError(f"method: expected one of {_BLURS}, got {method!r}")
     B, h, w = p.shape
     rad = np.broadcast_to(as_float_array(radius_m, "radius_m", nonnegative=True), (B,))
     s = rad / geom.cell_m                                            # std in cells
+    if epsilon * h * w > 1:
+        raise InputError(f"epsilon: {epsilon} x {h * w} cells exceeds 1")
+    raw, excess = _blur_raw(p, s, float(epsilon), method)
+    return _k.floor_normalise_into(raw, epsilon, excess, out=raw)
+
+
+def _blur_raw(p: np.ndarray, s: np.ndarray, epsilon: float, method: str
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The blur of :func:`blur_grid` before the floor: ``(grids, sum (grids - eps)_+)``."""
+    B, h, w = p.shape
+    if method == "recursive":
+        wide = s >= _k.RECURSIVE_MIN_SIGMA
+        if wide.all():
+            return _k.recursive_gaussian(p, s, epsilon)
+        if wide.any():
+            out, excess = _blur_raw(p, s * ~wide, epsilon, "fft")
+            out[wide], excess[wide] = _k.recursive_gaussian(p[wide], s[wide], epsilon)
+            return out, excess
     # each run's padding depends on its own radius only (so a run's result does not depend
     # on the other runs of the batch); one batched FFT per distinct padding
     pads = np.minimum(np.ceil(4.0 * s).astype(np.int64), max(h, w))
@@ -331,7 +369,10 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0) -> np.ndarr
         kernel = np.exp(-2.0 * np.pi**2 * s[sel, None, None] ** 2 * (fx**2 + fy**2)[None])
         spec = np.fft.rfft2(p[sel], s=(H, W), axes=(1, 2))
         out[sel] = np.fft.irfft2(spec * kernel, s=(H, W), axes=(1, 2))[:, :h, :w]
-    return floor_normalise(np.maximum(out, 0.0), epsilon)
+    np.maximum(out, 0.0, out=out)
+    rows = np.empty((B, h))
+    _k._excess_rows(out, epsilon, rows)
+    return out, rows.sum(axis=1)
 
 
 def shift_grid(p, geom: GridGeometry, shift_m, epsilon: float = 0.0) -> np.ndarray:
@@ -483,6 +524,10 @@ class GridFilter(RecursiveEstimator):
         What :meth:`estimate` reports as the position: the grid mean (the posterior mean,
         default), or GetLocation (Algorithm 2, the paper's: peak cell plus an
         interpolated offset).
+    blur : {"fft", "recursive"}
+        How BlurGrid blurs (:func:`blur_grid`'s ``method``): the exact Gaussian by FFT
+        (default; the paper-003 experiments use it), or the recursive approximation, whose
+        cost does not grow with the radius (wide blurs on large grids).
 
     Raises
     ------
@@ -493,7 +538,8 @@ class GridFilter(RecursiveEstimator):
     name = "grid"
 
     def __init__(self, geometry: GridGeometry, model: Any, *, epsilon: float = 1e-6,
-                 blur_m: float = 0.0, motion: Any = None, location: str = "mean") -> None:
+                 blur_m: float = 0.0, motion: Any = None, location: str = "mean",
+                 blur: str = "fft") -> None:
         if not isinstance(geometry, GridGeometry):
             raise ConfigError(f"geometry: expected a GridGeometry, got {type(geometry).__name__}")
         if not callable(getattr(model, "likelihood", None)):
@@ -501,22 +547,25 @@ class GridFilter(RecursiveEstimator):
         eps = check_probability(epsilon, "epsilon")
         if eps * geometry.k > 1:
             raise ConfigError(f"epsilon: {eps} x {geometry.k} cells exceeds 1")
-        blur = check_positive(blur_m, "blur_m", allow_zero=True)
+        blur_v = check_positive(blur_m, "blur_m", allow_zero=True)
         if motion is not None:
             if not callable(getattr(motion, "Q", None)) or getattr(motion, "state_dim", None) != 2 \
                     or getattr(motion, "dim", None) != 2:
                 raise ConfigError("motion: the grid holds 2-D positions only; expected a "
                                   f"position-only 2-D model such as RandomWalk, got {motion!r}")
-            if blur > 0:
+            if blur_v > 0:
                 raise ConfigError("blur_m: give either blur_m or a motion model, not both")
         if location not in _LOCATIONS:
             raise ConfigError(f"location: expected one of {_LOCATIONS}, got {location!r}")
+        if blur not in _BLURS:
+            raise ConfigError(f"blur: expected one of {_BLURS}, got {blur!r}")
         self.geometry = geometry
         self.model = model
         self.epsilon = eps
-        self.blur_m = blur
+        self.blur_m = blur_v
         self.motion = motion
         self.location = location
+        self.blur = blur
 
     # ---- the contract -------------------------------------------------------------
     def init(self, batch: int | None = None, *, prior=None, time: float = 0.0) -> GridState:
@@ -602,16 +651,21 @@ class GridFilter(RecursiveEstimator):
             moved = np.any(shift != 0.0, axis=-1)
             if moved.any():
                 p = np.where(moved[:, None, None], shift_grid(p, geom, shift, self.epsilon), p)
+        radius = self._radius(B, dt, extra_blur_m)
+        blur = radius > 0
+        if blur.any():
+            p = np.where(blur[:, None, None], blur_grid(p, geom, radius, self.epsilon,
+                                                             method=self.blur), p)
+        return GridState(p, state.time + dt)
+
+    def _radius(self, B: int, dt: float, extra_blur_m) -> np.ndarray:
         radius = np.full(B, self.blur_radius(dt))
         if extra_blur_m is not None:
             extra = as_float_array(extra_blur_m, "extra_blur_m", nonnegative=True)
             if extra.shape not in ((), (B,)):
                 raise InputError(f"extra_blur_m: expected shape ({B},), got {extra.shape}")
             radius = extra + radius
-        blur = radius > 0
-        if blur.any():
-            p = np.where(blur[:, None, None], blur_grid(p, geom, radius, self.epsilon), p)
-        return GridState(p, state.time + dt)
+        return radius
 
     def update(self, state: GridState, tracker_xy, rssi) -> GridState:
         """Measurement update: ProbabilityUpdate (Algorithm 1) of every run with a reading.
@@ -680,6 +734,21 @@ class GridFilter(RecursiveEstimator):
         GridState
             The new state at ``time + dt``.
         """
+        if shift_m is None:
+            # every run blurred and updated: the floor of the blur is applied inside the
+            # update kernel (the same numbers as predict then update, one pass less)
+            state = self._check_state(state)
+            dt = check_positive(dt, "dt", allow_zero=True)
+            B = state.batch
+            radius = self._radius(B, dt, extra_blur_m)
+            r = as_float_array(rssi, "rssi", allow_nan=True)
+            xy = as_float_array(tracker_xy, "tracker_xy", allow_nan=True)
+            if (r.shape == (B,) and xy.shape == (B, 2) and np.all(radius > 0)
+                    and np.all(np.isfinite(r)) and np.all(np.isfinite(xy))):
+                raw, excess = _blur_raw(state.p, radius / self.geometry.cell_m, self.epsilon,
+                                        self.blur)
+                post = _update(raw, self.geometry, xy, r, self.model, self.epsilon, excess)
+                return GridState(post, state.time + dt)
         pred = self.predict(state, dt=dt, shift_m=shift_m, extra_blur_m=extra_blur_m)
         return self.update(pred, tracker_xy, rssi)
 
