@@ -297,17 +297,12 @@ def test_cli_errors_are_one_line(test_root, tmp_path):
 
 
 def test_locate_reads_and_writes_parquet(test_root, tmp_path):
-    """`radioloc locate` on an exported Parquet log gives what it gives on the CSV log
-    (needs the Parquet branch of radioloc.io.logs)."""
+    """`radioloc locate` on an exported Parquet log gives what it gives on the CSV log."""
     pytest.importorskip("pyarrow")
     from radioloc.cli import app
-    from radioloc.core.errors import InputError
 
     paths = ds.export("hanyang", tmp_path / "pq", fmt="parquet", tag_height_m=1.1)
-    try:
-        read_anchors(paths["anchors"])
-    except InputError as exc:
-        pytest.skip(f"radioloc.io.logs does not read Parquet yet ({exc})")
+    assert list(read_anchors(paths["anchors"]).columns)[:3] == ["id", "x", "y"]
     ds.export("hanyang", tmp_path / "csv", tag_height_m=1.1)
     for kind, ext in (("csv", "csv"), ("pq", "parquet")):
         res = runner.invoke(app, ["locate", str(tmp_path / kind / f"measurements.{ext}"),

@@ -60,6 +60,17 @@ def _line(frame: pd.DataFrame, i: int) -> int:
     return int(lines[i]) if lines is not None and i < len(lines) else i + 2
 
 
+def _open_table(path: Path):
+    """A text stream of the table: the CSV file itself, or a Parquet file's cells as CSV."""
+    if path.suffix.lower() == ".parquet":
+        import io
+
+        from radioloc.io.datasets import read_table_text
+
+        return io.StringIO(read_table_text(path).to_csv(index=False))
+    return open(path, newline="", encoding="utf-8-sig")
+
+
 def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
     """Read a CSV as text cells with lower-case, stripped, unique column names.
 
@@ -77,7 +88,7 @@ def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
     lines: list[int] = []
     line = 0
     try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
+        with _open_table(path) as fh:
             reader = csv.reader(fh, skipinitialspace=True)
             while True:
                 line = reader.line_num + 1
@@ -335,7 +346,8 @@ def check_output_path(path: Path | str | None) -> None:
 
 
 def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
-    """Write ``time, node, x, y[, ...]`` estimates as CSV (stdout if ``path`` is None or '-').
+    """Write ``time, node, x, y[, ...]`` estimates as CSV, or Parquet for a ``*.parquet``
+    path (stdout, as CSV, if ``path`` is None or '-').
 
     Parameters
     ----------
@@ -361,5 +373,10 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     """
     if path is None or str(path) == "-":
         frame.to_csv(sys.stdout, index=False)
+    elif Path(path).suffix.lower() == ".parquet":
+        from radioloc.io.datasets import _need_pyarrow
+
+        _need_pyarrow()
+        atomic_write_with(path, lambda f: frame.to_parquet(f, index=False), binary=True)
     else:
         atomic_write_with(path, lambda f: frame.to_csv(f, index=False))
