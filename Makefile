@@ -48,6 +48,7 @@ full: $(STAMP)
 
 bench: $(STAMP_DEV)
 	for f in benchmarks/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
+	$(BIN)/python benchmarks/collect.py
 
 clean:
 	rm -rf $(VENV) out out-full site .pytest_cache
