@@ -70,8 +70,10 @@ def test_ekf_track_follows_the_tag_and_smoothing_helps(log):
     res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.1", out="ekf.csv")
     assert res.exit_code == 0, res.output
     filtered = rmse(log, "ekf.csv")
-    res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.1", "smooth=1",
-                 out="ekf_s.csv")
+    args = ["locate", str(log / "measurements.csv"), "--anchors", str(log / "anchors.csv"),
+            "--method", "ekf-track", "--smooth", "-o", f"tag_height_m={HEIGHT}",
+            "-o", "range_std_m=0.1", "--out", str(log / "ekf_s.csv")]
+    res = runner.invoke(app, args)                 # --smooth is -o smooth=1
     assert res.exit_code == 0, res.output
     smoothed = rmse(log, "ekf_s.csv")
     assert filtered < 0.3
