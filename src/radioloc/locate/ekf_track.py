@@ -5,6 +5,9 @@ Ranges are processed as they arrive: the rows of a node that share one time stam
 update, whatever anchors they reach (one anchor at a time is fine); a time with no range to
 a known anchor is not a step. Ranges to peers that are not anchors are not used.
 
+A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
+model alone cannot bridge it; one update from a prior metres wide linearises badly).
+
 The start: the node is assumed to stay within ``prior_std_m`` of one place during its first
 ``init_s`` seconds; the median range to each anchor over that window is fitted by a coarse
 then fine grid search over the horizontal plane (at the tag height, or at the anchors' mean
@@ -198,7 +201,28 @@ OPTIONS = {
                           min=0, min_exclusive=True, max=1e6),
     "init_s": Option("seconds of ranges whose medians fix the start position (default 2)",
                      float, min=0, max=1e6),
+    "max_gap_s": Option("a gap longer than this between a node's ranges restarts its track "
+                        "from a new start fix (default 5 s)", float, min=0, min_exclusive=True,
+                        max=1e9),
 }
+
+
+def segments(times: np.ndarray, max_gap_s: float) -> list[slice]:
+    """Slices of ``times`` split where consecutive times are more than ``max_gap_s`` apart.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+        Sorted times.
+    max_gap_s : float
+
+    Returns
+    -------
+    list of slice
+    """
+    cuts = np.flatnonzero(np.diff(times) > max_gap_s) + 1
+    edges = np.concatenate([[0], cuts, [times.size]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
@@ -212,7 +236,7 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
     Returns
     -------
     dict
-        ``motion, q, height, dim, bias, smooth, prior_std, init_s``.
+        ``motion, q, height, dim, bias, smooth, prior_std, init_s, max_gap_s``.
     """
     kind = request.option("motion", "cv", str)
     height = request.option("tag_height_m")
@@ -223,7 +247,8 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "height": height, "dim": dim, "bias": request.option("range_bias_m", 0.0),
             "smooth": bool(request.option("smooth", False, bool)),
             "prior_std": request.option("prior_std_m", 2.0),
-            "init_s": request.option("init_s", 2.0)}
+            "init_s": request.option("init_s", 2.0),
+            "max_gap_s": request.option("max_gap_s", 5.0)}
 
 
 def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, smooth: bool):
@@ -303,9 +328,11 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     std = request.option("range_std_m", 0.15)
     tables = []
     for node, times, R in per_node:
-        try:
-            track = run_ekf(times, R, anchors, s, std, gate, s["smooth"])
-        except GeometryError as exc:
-            raise GeometryError(f"method ekf-track: node {node!r}: {exc}") from None
-        tables.append(track_table(node, times, track))
+        for seg in segments(times, s["max_gap_s"]):
+            try:
+                track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
+            except GeometryError as exc:
+                raise GeometryError(f"method ekf-track: node {node!r} from time "
+                                    f"{times[seg][0]:g}: {exc}") from None
+            tables.append(track_table(node, times[seg], track))
     return pd.concat(tables, ignore_index=True)

@@ -17,7 +17,8 @@ against a first pass of ``ekf-track`` with the RTS smoother (same motion options
 residuals are smaller than the true errors where the smoother bends towards the ranges, so
 the fitted spread is a lower estimate.
 
-The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``.
+The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``; a gap longer
+than ``max_gap_s`` starts a new track (and a new EM fit), as in ``ekf-track``.
 
 Smoother (``-o smooth=1``): fixed-lag. The estimate at step ``k`` is the mean, over the
 particles of step ``k + lag``, of their ancestors at step ``k`` (followed back through the
@@ -41,6 +42,7 @@ from radioloc.locate.ekf_track import (
     motion_model,
     range_rows,
     run_ekf,
+    segments,
     start_position,
     track_table,
     tracker_settings,
@@ -63,7 +65,8 @@ OPTIONS.update({
 })
 
 
-def fit_model(times, R, anchors, s: dict) -> tuple[LosNlosRange, float, dict]:
+def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
+              ) -> tuple[LosNlosRange, float, dict]:
     """LOS/NLOS model and range bias fitted by EM on residuals to a smoothed EKF track.
 
     Parameters
@@ -73,6 +76,8 @@ def fit_model(times, R, anchors, s: dict) -> tuple[LosNlosRange, float, dict]:
     anchors : ndarray, shape (M, 2|3)
     s : dict
         From :func:`radioloc.locate.ekf_track.tracker_settings`.
+    parts : list of slice, optional
+        Segments tracked separately (default: one).
 
     Returns
     -------
@@ -81,9 +86,12 @@ def fit_model(times, R, anchors, s: dict) -> tuple[LosNlosRange, float, dict]:
     info : dict
         ``samples`` used.
     """
-    track = run_ekf(times, R, anchors, dict(s, bias=0.0), 0.15, 16.0, smooth=True)
-    pred = _predicted(track.position[:, :2], anchors, s["height"])
-    e = (R - pred)[np.isfinite(R)]
+    errors = []
+    for seg in parts or [slice(None)]:
+        track = run_ekf(times[seg], R[seg], anchors, dict(s, bias=0.0), 0.15, 16.0, smooth=True)
+        pred = _predicted(track.position[:, :2], anchors, s["height"])
+        errors.append((R[seg] - pred)[np.isfinite(R[seg])])
+    e = np.concatenate(errors)
     fit = fit_los_nlos(e, fit_bias=True)
     return fit.model, fit.bias_m, {"samples": int(e.size)}
 
@@ -155,38 +163,45 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     lag = request.option("lag", 20, int)
     tables = []
     for node, times, R in per_node:
+        parts = segments(times, s["max_gap_s"])
         try:
             if any(g is None for g in given):
-                model, bias, _ = fit_model(times, R, anchors, s)
+                model, bias, _ = fit_model(times, R, anchors, s, parts)
                 if "range_bias_m" in request.parsed:
                     bias = s["bias"]
             else:
                 model, bias = LosNlosRange(*given), s["bias"]
-            xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
+            for seg in parts:
+                track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng)
+                tables.append(track_table(node, times[seg], track))
         except GeometryError as exc:
             raise GeometryError(f"method pf: node {node!r}: {exc}") from None
-        r = R - bias
-        if anchors.shape[1] == 3:
-            dz = s["height"] - anchors[:, 2]
-            r = np.where(np.isfinite(r), np.sqrt(np.maximum(r * r - dz * dz, 0.0)), np.nan)
-        motion = motion_model(s["motion"], s["q"], 2)
-        init_std = np.full(motion.state_dim, 3.0)
-        init_std[:2] = s["prior_std"]
-        pf = P2PParticleFilter(motion, model, particles=particles, init_std=init_std)
-        rows = np.concatenate([np.full((len(times), 1), np.nan), r], axis=1)[None]  # (1, T, 1+M)
-        nodes = np.concatenate([np.zeros((1, 2)), anchors[:, :2]], axis=0)          # (1+M, 2)
-        dts = np.diff(times, prepend=times[0])
-        state = pf.init(xy0[None], rng, time=times[0])
-        means, covs, history, ancestors = [], [], [], []
-        for k in range(len(times)):
-            state = pf.step(state, rows[:, k], nodes, rng, dt=dts[k])
-            means.append(state.mean[0])
-            covs.append(state.covariance[0])
-            history.append(state.particles[0])
-            ancestors.append(state.ancestors[0])
-        mean, cov = np.stack(means), np.stack(covs)
-        if s["smooth"]:
-            mean, cov = fixed_lag(history, ancestors, lag)
-        track = Track(mean[:, :2], cov[:, :2, :2], times)
-        tables.append(track_table(node, times, track))
     return pd.concat(tables, ignore_index=True)
+
+
+def _filter(times, R, anchors, s, model, bias, particles, lag, rng) -> Track:
+    """One node's particle-filter track over one segment (see the module docstring)."""
+    xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
+    r = R - bias
+    if anchors.shape[1] == 3:
+        dz = s["height"] - anchors[:, 2]
+        r = np.where(np.isfinite(r), np.sqrt(np.maximum(r * r - dz * dz, 0.0)), np.nan)
+    motion = motion_model(s["motion"], s["q"], 2)
+    init_std = np.full(motion.state_dim, 3.0)
+    init_std[:2] = s["prior_std"]
+    pf = P2PParticleFilter(motion, model, particles=particles, init_std=init_std)
+    rows = np.concatenate([np.full((len(times), 1), np.nan), r], axis=1)[None]  # (1, T, 1+M)
+    nodes = np.concatenate([np.zeros((1, 2)), anchors[:, :2]], axis=0)          # (1+M, 2)
+    dts = np.diff(times, prepend=times[0])
+    state = pf.init(xy0[None], rng, time=times[0])
+    means, covs, history, ancestors = [], [], [], []
+    for k in range(len(times)):
+        state = pf.step(state, rows[:, k], nodes, rng, dt=dts[k])
+        means.append(state.mean[0])
+        covs.append(state.covariance[0])
+        history.append(state.particles[0])
+        ancestors.append(state.ancestors[0])
+    mean, cov = np.stack(means), np.stack(covs)
+    if s["smooth"]:
+        mean, cov = fixed_lag(history, ancestors, lag)
+    return Track(mean[:, :2], cov[:, :2, :2], times)
