@@ -117,7 +117,8 @@ def test_pf_follows_the_tag_with_em_fitted_parameters_and_fixed_lag(log):
     ("ekf-track", "bogus=1", "bogus"),
     ("pf", "particles=2.5", "particles"),
     ("pf", "alpha=1.5", "alpha"),
-    ("pf", "gate=9", "gate"),                      # not a pf option
+    ("pf", "lag=0", "lag"),
+    ("pf", "range_std_m=0.1", "range_std_m"),     # not a pf option
 ])
 def test_options_are_validated(log, method, opt, message):
     res = locate(log, method, f"tag_height_m={HEIGHT}", opt)

@@ -17,6 +17,12 @@ against a first pass of ``ekf-track`` with the RTS smoother (same motion options
 residuals are smaller than the true errors where the smoother bends towards the ranges, so
 the fitted spread is a lower estimate.
 
+Outliers: a range whose squared residual to the range predicted from the filter's
+predicted mean exceeds ``gate`` times its variance (the particle spread along the line of
+sight plus the mixture's variance) is skipped, causally; after 10 steps with every range
+skipped the next is taken. Ranges much too short (metres) occur in real logs and have no
+component in the LOS/NLOS mixture.
+
 The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``; a gap longer
 than ``max_gap_s`` starts a new track (and a new EM fit), as in ``ekf-track``.
 
@@ -49,6 +55,12 @@ from radioloc.locate.ekf_track import (
 )
 from radioloc.models.los_nlos import LosNlosRange
 
+#: Residuals further than this many robust standard deviations from their median are left
+#: out of the EM fit.
+TRIM = 20.0
+#: Steps whose every range was gated after which the next step is taken ungated.
+GATE_PATIENCE = 10
+
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tag_height_m",
                                        "prior_std_m", "init_s")}
 OPTIONS.update({
@@ -79,6 +91,10 @@ def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
     parts : list of slice, optional
         Segments tracked separately (default: one).
 
+    Residuals more than ``TRIM`` robust standard deviations (1.4826 MAD) from their median
+    are left out: the mixture has no component for ranges much too short, and one such
+    range would inflate ``s_LOS``; the causal gate of the filter handles them.
+
     Returns
     -------
     model : LosNlosRange
@@ -92,8 +108,12 @@ def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
         pred = _predicted(track.position[:, :2], anchors, s["height"])
         errors.append((R[seg] - pred)[np.isfinite(R[seg])])
     e = np.concatenate(errors)
-    fit = fit_los_nlos(e, fit_bias=True)
-    return fit.model, fit.bias_m, {"samples": int(e.size)}
+    med = float(np.median(e))
+    mad = max(1.4826 * float(np.median(np.abs(e - med))), 1e-3)
+    keep = np.abs(e - med) <= TRIM * mad          # gross outliers: the gate's job, not EM's
+    fit = fit_los_nlos(e[keep], fit_bias=True, alpha0=0.9, los_std0=mad,
+                       nlos_mean0=max(5 * mad, 0.1))
+    return fit.model, fit.bias_m, {"samples": int(keep.sum()), "trimmed": int((~keep).sum())}
 
 
 def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
@@ -161,6 +181,7 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     particles = request.option("particles", 900, int)
     lag = request.option("lag", 20, int)
+    gate = request.option("gate", 16.0) or None
     tables = []
     for node, times, R in per_node:
         parts = segments(times, s["max_gap_s"])
@@ -172,14 +193,15 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
             else:
                 model, bias = LosNlosRange(*given), s["bias"]
             for seg in parts:
-                track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng)
+                track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng,
+                                gate)
                 tables.append(track_table(node, times[seg], track))
         except GeometryError as exc:
             raise GeometryError(f"method pf: node {node!r}: {exc}") from None
     return pd.concat(tables, ignore_index=True)
 
 
-def _filter(times, R, anchors, s, model, bias, particles, lag, rng) -> Track:
+def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate) -> Track:
     """One node's particle-filter track over one segment (see the module docstring)."""
     xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
     r = R - bias
@@ -195,8 +217,24 @@ def _filter(times, R, anchors, s, model, bias, particles, lag, rng) -> Track:
     dts = np.diff(times, prepend=times[0])
     state = pf.init(xy0[None], rng, time=times[0])
     means, covs, history, ancestors = [], [], [], []
+    bias_m, var_m2 = model.moments()
+    streak = 0
     for k in range(len(times)):
-        state = pf.step(state, rows[:, k], nodes, rng, dt=dts[k])
+        row = rows[:, k]
+        if gate and streak < GATE_PATIENCE and np.isfinite(row).any():
+            # causal gate: residual to the range from the predicted mean, over its variance
+            pred = motion.predict(state.mean, dts[k])[..., :2]                      # (1, 2)
+            diff = pred[:, None, :] - nodes[None]                                   # (1, J, 2)
+            d = np.sqrt(np.sum(diff ** 2, axis=-1))
+            u = diff / np.maximum(d, 1e-9)[..., None]
+            P = state.covariance[0, :2, :2]
+            spread = np.einsum("...i,ij,...j->...", u, P, u) + var_m2
+            out = np.isfinite(row) & ((row - d - bias_m) ** 2 > gate * spread)
+            streak = streak + 1 if out.sum() == np.isfinite(row).sum() else 0
+            row = np.where(out, np.nan, row)
+        else:
+            streak = 0
+        state = pf.step(state, row, nodes, rng, dt=dts[k])
         means.append(state.mean[0])
         covs.append(state.covariance[0])
         history.append(state.particles[0])
