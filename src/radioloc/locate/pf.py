@@ -72,6 +72,8 @@ OPTIONS.update({
     "particles": Option("particles per node (default 900)", int, min=1, max=10**6),
     "smooth": Option("1: fixed-lag smoothed track (offline; uses `lag` later steps)", bool),
     "lag": Option("steps of the fixed-lag smoother (default 20)", int, min=1, max=10**6),
+    "min_los_std_m": Option("floor of the EM-fitted s_LOS, m (default 0.15; see the module "
+                            "docstring)", float, min=0, min_exclusive=True, max=1e6),
     "seed": Option("seed of the particle draws (default: fresh entropy)", int, min=0,
                    max=2**63 - 1),
 })
@@ -188,6 +190,9 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
         try:
             if any(g is None for g in given):
                 model, bias, _ = fit_model(times, R, anchors, s, parts)
+                floor = request.option("min_los_std_m", 0.15)
+                if model.los_std_m < floor:
+                    model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
                 if "range_bias_m" in request.parsed:
                     bias = s["bias"]
             else:
