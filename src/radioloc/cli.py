@@ -206,6 +206,7 @@ def locate(
     priors: Annotated[Optional[Path], typer.Option(help="Priors CSV for methods that use one (see `radioloc methods`).")] = None,
     calibration: Annotated[Optional[Path], typer.Option(help="Calibration file for methods that use one.")] = None,
     option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Method option key=value (repeatable).")] = None,
+    smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -224,6 +225,10 @@ def locate(
         if k.strip() in opts:
             raise RadiolocError(f"--option {k.strip()!r} given twice")
         opts[k.strip()] = v.strip()
+    if smooth:
+        if opts.get("smooth", "1").lower() in ("0", "false", "no", "off"):
+            raise RadiolocError("--smooth contradicts -o smooth=0")
+        opts["smooth"] = "1"
     with numeric_errors_raise():
         anchor_table = read_anchors(anchors) if anchors is not None else None
         meas = read_measurements(measurements, anchors=anchor_table)

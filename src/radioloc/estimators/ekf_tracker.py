@@ -47,6 +47,19 @@ class RangeEKF(RecursiveEstimator):
     height_m : float, optional
         Known node height for 2-D tracking with 3-D anchors (see
         :func:`radioloc.models.ranging.range_geometry`).
+    range_bias_m : float
+        Constant offset of every measured range (e.g. an antenna delay), added to the
+        measurement model's own mean error: the filter expects ``d + bias``.
+    gate : float, optional
+        Innovation gate: a range whose squared innovation over its predicted variance
+        ``nu_m^2 / S_mm`` (``S = H P H' + R`` before the update) exceeds ``gate`` is
+        treated as absent (an outlier), and counted in ``diagnostics['gated']``. E.g.
+        ``gate=9`` drops ranges more than three predicted standard deviations off.
+        Default: no gating.
+    gate_patience : int
+        In :meth:`run`, after this many consecutive steps in which every range was gated,
+        the next step's ranges are taken ungated, so that a filter that has lost the node
+        finds it again instead of coasting away on its motion model.
 
     Examples
     --------
@@ -64,7 +77,9 @@ class RangeEKF(RecursiveEstimator):
 
     name = "ekf-track"
 
-    def __init__(self, motion, measurement, anchors=None, height_m: float | None = None) -> None:
+    def __init__(self, motion, measurement, anchors=None, height_m: float | None = None,
+                 range_bias_m: float = 0.0, gate: float | None = None,
+                 gate_patience: int = 10) -> None:
         for attr in ("F", "Q", "dim", "state_dim"):
             if not hasattr(motion, attr):
                 raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}; "
@@ -78,10 +93,19 @@ class RangeEKF(RecursiveEstimator):
         if height_m is not None and not np.isfinite(height_m):
             raise ConfigError(f"height_m: must be finite, got {height_m}")
         self.height_m = None if height_m is None else float(height_m)
+        if not np.isfinite(range_bias_m):
+            raise ConfigError(f"range_bias_m: must be finite, got {range_bias_m}")
+        if gate is not None and not (np.isfinite(gate) and gate > 0):
+            raise ConfigError(f"gate: must be a finite number > 0, got {gate}")
+        self.range_bias_m = float(range_bias_m)
+        self.gate = None if gate is None else float(gate)
+        if int(gate_patience) != gate_patience or gate_patience < 1:
+            raise ConfigError(f"gate_patience: must be an integer >= 1, got {gate_patience!r}")
+        self.gate_patience = int(gate_patience)
         bias, var = measurement.moments()
         if not var > 0:
             raise ConfigError(f"measurement: range error variance must be > 0, got {var}")
-        self._bias, self._var = float(bias), float(var)
+        self._bias, self._var = float(bias) + self.range_bias_m, float(var)
 
     # ---- contract -------------------------------------------------------------------
     def init(self, prior_mean, prior_cov, time: float | np.ndarray = 0.0) -> GaussianState:
@@ -139,7 +163,7 @@ class RangeEKF(RecursiveEstimator):
                                    self.motion.Q(dt_arr), u)
         return GaussianState(mean, cov, state.time + dt_arr)
 
-    def update(self, state: GaussianState, ranges, anchors=None,
+    def update(self, state: GaussianState, ranges, anchors=None, ungated=None,
                ) -> tuple[GaussianState, dict[str, np.ndarray]]:
         """Update with one row of ranges (NaN = absent, skipped).
 
@@ -151,13 +175,16 @@ class RangeEKF(RecursiveEstimator):
             Measured ranges, metres.
         anchors : ndarray, shape (M, D) or (..., M, D), optional
             Points ranged to (default: the constructor's).
+        ungated : ndarray of bool, shape (...), optional
+            Problems whose ranges bypass the innovation gate at this step.
 
         Returns
         -------
         state : GaussianState
         info : dict
             ``innovation`` (..., M) (NaN where absent), ``innovation_covariance``
-            (..., M, M), ``nis`` (...), ``measurements_used`` (...).
+            (..., M, M), ``nis`` (...), ``measurements_used`` (...), ``gated`` (...):
+            ranges dropped by the innovation gate.
         """
         a = self._anchors(anchors)
         r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
@@ -172,11 +199,20 @@ class RangeEKF(RecursiveEstimator):
         H = np.zeros(J.shape[:-1] + (n,))
         H[..., :D] = J
         nu = r - (h + self._bias)
+        gated = np.zeros(nu.shape[:-1], dtype=np.int64)
+        if self.gate is not None:
+            # predicted variance of each range alone: H_m P H_m' + R_mm
+            s_mm = np.einsum("...mi,...ij,...mj->...m", H, state.covariance, H) + self._var
+            out = np.isfinite(nu) & (nu * nu > self.gate * s_mm)
+            if ungated is not None:
+                out &= ~np.asarray(ungated, dtype=bool)[..., None]
+            nu = np.where(out, np.nan, nu)
+            gated = out.sum(axis=-1)
         mean, cov, S, used = kalman_update(state.mean, state.covariance, nu, H,
                                            R_diag=np.full(nu.shape, self._var))
         info = {"innovation": np.where(used, nu, np.nan), "innovation_covariance": S,
                 "nis": normalised_innovation_squared(nu, S, used),
-                "measurements_used": used.sum(axis=-1)}
+                "measurements_used": used.sum(axis=-1), "gated": gated}
         return GaussianState(check_finite_output(mean, "EKF state"), cov, state.time), info
 
     def step(self, state: GaussianState, ranges, dt=0.0, anchors=None, control=None
@@ -245,7 +281,7 @@ class RangeEKF(RecursiveEstimator):
         Track
             ``position`` (..., T, D), ``covariance`` (..., T, D, D); diagnostics
             ``state``, ``state_covariance``, ``innovation``, ``innovation_covariance``,
-            ``nis``, ``measurements_used`` (per step).
+            ``nis``, ``measurements_used``, ``gated`` (per step).
         """
         r = as_float_array(ranges, "ranges", min_ndim=2, allow_nan=True)
         T = r.shape[-2]
@@ -266,9 +302,14 @@ class RangeEKF(RecursiveEstimator):
         u = None if controls is None else as_float_array(controls, "controls", min_ndim=2)
         state = self.init(prior_mean, prior_cov, t[..., 0])
         estimates, infos, states = [], [], []
+        streak = np.zeros(state.mean.shape[:-1], dtype=np.int64)   # steps fully gated in a row
         for k in range(T):
             pred = self.predict(state, dts[..., k], None if u is None else u[..., k, :])
-            state, info = self.update(pred, r[..., k, :], a[..., k, :, :] if moving else a)
+            state, info = self.update(pred, r[..., k, :], a[..., k, :, :] if moving else a,
+                                      ungated=streak >= self.gate_patience)
+            heard = np.isfinite(r[..., k, :]).sum(axis=-1)
+            streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
+                              np.where(heard > 0, 0, streak))
             states.append((pred, state))
             estimates.append(self.estimate(state))
             infos.append(info)

@@ -82,6 +82,10 @@ class ParticleState:
         Resets so far.
     time : float or ndarray
         Time of the state.
+    ancestors : ndarray of int64, shape (..., N, K), optional
+        Index, in the previous step's particle set, of the ancestor of each particle (the
+        resampling indices of the last step; None before the first step). Following them
+        back gives each particle's history, for a fixed-lag smoother.
     """
 
     particles: np.ndarray
@@ -94,6 +98,7 @@ class ParticleState:
     reset: np.ndarray
     resets: np.ndarray
     time: float | np.ndarray = 0.0
+    ancestors: np.ndarray | None = None
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -436,7 +441,8 @@ class P2PParticleFilter(RecursiveEstimator):
         return ParticleState(particles=particles, log_phi=log_phi,
                              links=np.where(valid, links, -1), mean=mean, covariance=cov,
                              ess=ess, los_detected=los_detected, reset=reset,
-                             resets=state.resets + reset, time=state.time + dt)
+                             resets=state.resets + reset, time=state.time + dt,
+                             ancestors=idx)
 
     def estimate(self, state: ParticleState) -> Estimate:
         """The weighted particle mean and covariance of the last step.

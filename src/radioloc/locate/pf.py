@@ -1,0 +1,250 @@
+"""``radioloc locate --method pf``: track each node from its ranges to anchors with the
+LOS/NLOS particle filter of paper 001 (:class:`radioloc.estimators.p2p_particle.P2PParticleFilter`),
+no inertial readings: the motion is a constant velocity (white acceleration) or a random
+walk.
+
+Ranges are processed as they arrive (rows of one node with the same time stamp are one
+step, see :mod:`radioloc.locate.ekf_track`); ranges to peers that are not anchors are not
+used. The filter tracks 2-D positions: with 3-D anchors give the node height
+(``-o tag_height_m=H``); each range is then projected to the horizontal plane,
+``sqrt(max(r^2 - (H - z_a)^2, 0))``, after removing the range bias.
+
+LOS/NLOS parameters: those given as options are used; when any of ``los_std_m``,
+``nlos_mean_m``, ``alpha`` is missing, all of them and the range bias are fitted by EM
+(:func:`radioloc.estimators.los_nlos_em.fit_los_nlos`) on the user's own log. EM needs range
+errors, and a user has no true distances: the errors are the residuals of the ranges
+against a first pass of ``ekf-track`` with the RTS smoother (same motion options). These
+residuals are smaller than the true errors where the smoother bends towards the ranges, so
+the fitted spread is a lower estimate.
+
+Outliers: a range whose squared residual to the range predicted from the filter's
+predicted mean exceeds ``gate`` times its variance (the particle spread along the line of
+sight plus the mixture's variance) is skipped, causally; after 10 steps with every range
+skipped the next is taken. Ranges much too short (metres) occur in real logs and have no
+component in the LOS/NLOS mixture.
+
+The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``; a gap longer
+than ``max_gap_s`` starts a new track (and a new EM fit), as in ``ekf-track``.
+
+Smoother (``-o smooth=1``): fixed-lag. The estimate at step ``k`` is the mean, over the
+particles of step ``k + lag``, of their ancestors at step ``k`` (followed back through the
+resampling indices), so it uses ``lag`` later steps; the last ``lag`` steps use what there
+is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.results import Track
+from radioloc.estimators.los_nlos_em import fit_los_nlos
+from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.ekf_track import (
+    OPTIONS as EKF_OPTIONS,
+    _predicted,
+    motion_model,
+    range_rows,
+    run_ekf,
+    segments,
+    start_position,
+    track_table,
+    tracker_settings,
+)
+from radioloc.models.los_nlos import LosNlosRange
+
+#: Residuals further than this many robust standard deviations from their median are left
+#: out of the EM fit.
+TRIM = 20.0
+#: Steps whose every range was gated after which the next step is taken ungated.
+GATE_PATIENCE = 10
+
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tag_height_m",
+                                       "prior_std_m", "init_s")}
+OPTIONS.update({
+    "los_std_m": Option("s_LOS, standard deviation of every range's Gaussian error, m "
+                        "(default: EM on the log)", float, min=0, min_exclusive=True, max=1e6),
+    "nlos_mean_m": Option("s_NLOS, mean NLOS excess range, m (default: EM on the log)", float,
+                          min=0, min_exclusive=True, max=1e6),
+    "alpha": Option("LOS fraction (default: EM on the log)", float, min=0, max=1),
+    "particles": Option("particles per node (default 900)", int, min=1, max=10**6),
+    "smooth": Option("1: fixed-lag smoothed track (offline; uses `lag` later steps)", bool),
+    "lag": Option("steps of the fixed-lag smoother (default 20)", int, min=1, max=10**6),
+    "min_los_std_m": Option("floor of the EM-fitted s_LOS, m (default 0.15; see the module "
+                            "docstring)", float, min=0, min_exclusive=True, max=1e6),
+    "seed": Option("seed of the particle draws (default: fresh entropy)", int, min=0,
+                   max=2**63 - 1),
+})
+
+
+def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
+              ) -> tuple[LosNlosRange, float, dict]:
+    """LOS/NLOS model and range bias fitted by EM on residuals to a smoothed EKF track.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    R : ndarray, shape (T, M)
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`radioloc.locate.ekf_track.tracker_settings`.
+    parts : list of slice, optional
+        Segments tracked separately (default: one).
+
+    Residuals more than ``TRIM`` robust standard deviations (1.4826 MAD) from their median
+    are left out: the mixture has no component for ranges much too short, and one such
+    range would inflate ``s_LOS``; the causal gate of the filter handles them.
+
+    Returns
+    -------
+    model : LosNlosRange
+    bias_m : float
+    info : dict
+        ``samples`` used.
+    """
+    errors = []
+    for seg in parts or [slice(None)]:
+        track = run_ekf(times[seg], R[seg], anchors, dict(s, bias=0.0), 0.15, 16.0, smooth=True)
+        pred = _predicted(track.position[:, :2], anchors, s["height"])
+        errors.append((R[seg] - pred)[np.isfinite(R[seg])])
+    e = np.concatenate(errors)
+    med = float(np.median(e))
+    mad = max(1.4826 * float(np.median(np.abs(e - med))), 1e-3)
+    keep = np.abs(e - med) <= TRIM * mad          # gross outliers: the gate's job, not EM's
+    fit = fit_los_nlos(e[keep], fit_bias=True, alpha0=0.9, los_std0=mad,
+                       nlos_mean0=max(5 * mad, 0.1))
+    return fit.model, fit.bias_m, {"samples": int(keep.sum()), "trimmed": int((~keep).sum())}
+
+
+def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Fixed-lag smoothed positions from particle sets and their ancestor indices.
+
+    Parameters
+    ----------
+    history : list of ndarray, shape (K, n)
+        Equally weighted (resampled) particles after each step.
+    ancestors : list of ndarray of int, shape (K,)
+        Resampling indices of each step: particle ``j`` of step ``s`` descends from particle
+        ``ancestors[s][j]`` of step ``s - 1``.
+    lag : int
+        Later steps used.
+
+    Returns
+    -------
+    mean : ndarray, shape (T, n)
+        Mean over the particles of step ``min(k + lag, T - 1)`` of their ancestors at step
+        ``k``.
+    covariance : ndarray, shape (T, n, n)
+        Their covariance.
+    """
+    T = len(history)
+    out = np.empty((T, history[0].shape[-1]))
+    cov = np.empty((T, history[0].shape[-1], history[0].shape[-1]))
+    for k in range(T):
+        end = min(k + lag, T - 1)
+        j = np.arange(history[end].shape[0])
+        for s_ in range(end, k, -1):
+            j = ancestors[s_][j]
+        pts = history[k][j]
+        out[k] = pts.mean(axis=0)
+        dev = pts - out[k]
+        cov[k] = dev.T @ dev / len(j)
+    return out, cov
+
+
+@locate_method("pf", "LOS/NLOS particle filter (paper 001) tracking each node from its ranges "
+                     "to anchors as they arrive, no INS (parameters fitted by EM on the log "
+                     "unless given; fixed-lag smoother with -o smooth=1)",
+               options=OPTIONS, kinds=("range",), inputs=("anchors",))
+def locate_pf(request: LocateRequest) -> pd.DataFrame:
+    """Track every node with a :class:`P2PParticleFilter` over its range rows.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Measurements (range rows), anchors, ``-o`` options (see :data:`OPTIONS`).
+
+    Returns
+    -------
+    DataFrame
+        ``time, node, x, y, uncertainty_m``: one row per time stamp at which the node has a
+        range to an anchor.
+    """
+    anchors, per_node = range_rows(request, "pf")
+    s = tracker_settings(request, anchors)
+    if s["dim"] != 2:
+        raise InputError("method pf: tracks 2-D positions; with 3-D anchors give the node "
+                         "height (-o tag_height_m=H)")
+    given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
+    seed = request.option("seed", None, int)
+    rng = np.random.default_rng(seed)
+    particles = request.option("particles", 900, int)
+    lag = request.option("lag", 20, int)
+    gate = request.option("gate", 16.0) or None
+    tables = []
+    for node, times, R in per_node:
+        parts = segments(times, s["max_gap_s"])
+        try:
+            if any(g is None for g in given):
+                model, bias, _ = fit_model(times, R, anchors, s, parts)
+                floor = request.option("min_los_std_m", 0.15)
+                if model.los_std_m < floor:
+                    model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
+                if "range_bias_m" in request.parsed:
+                    bias = s["bias"]
+            else:
+                model, bias = LosNlosRange(*given), s["bias"]
+            for seg in parts:
+                track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng,
+                                gate)
+                tables.append(track_table(node, times[seg], track))
+        except GeometryError as exc:
+            raise GeometryError(f"method pf: node {node!r}: {exc}") from None
+    return pd.concat(tables, ignore_index=True)
+
+
+def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate) -> Track:
+    """One node's particle-filter track over one segment (see the module docstring)."""
+    xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
+    r = R - bias
+    if anchors.shape[1] == 3:
+        dz = s["height"] - anchors[:, 2]
+        r = np.where(np.isfinite(r), np.sqrt(np.maximum(r * r - dz * dz, 0.0)), np.nan)
+    motion = motion_model(s["motion"], s["q"], 2)
+    init_std = np.full(motion.state_dim, 3.0)
+    init_std[:2] = s["prior_std"]
+    pf = P2PParticleFilter(motion, model, particles=particles, init_std=init_std)
+    rows = np.concatenate([np.full((len(times), 1), np.nan), r], axis=1)[None]  # (1, T, 1+M)
+    nodes = np.concatenate([np.zeros((1, 2)), anchors[:, :2]], axis=0)          # (1+M, 2)
+    dts = np.diff(times, prepend=times[0])
+    state = pf.init(xy0[None], rng, time=times[0])
+    means, covs, history, ancestors = [], [], [], []
+    bias_m, var_m2 = model.moments()
+    streak = 0
+    for k in range(len(times)):
+        row = rows[:, k]
+        if gate and streak < GATE_PATIENCE and np.isfinite(row).any():
+            # causal gate: residual to the range from the predicted mean, over its variance
+            pred = motion.predict(state.mean, dts[k])[..., :2]                      # (1, 2)
+            diff = pred[:, None, :] - nodes[None]                                   # (1, J, 2)
+            d = np.sqrt(np.sum(diff ** 2, axis=-1))
+            u = diff / np.maximum(d, 1e-9)[..., None]
+            P = state.covariance[0, :2, :2]
+            spread = np.einsum("...i,ij,...j->...", u, P, u) + var_m2
+            out = np.isfinite(row) & ((row - d - bias_m) ** 2 > gate * spread)
+            streak = streak + 1 if out.sum() == np.isfinite(row).sum() else 0
+            row = np.where(out, np.nan, row)
+        else:
+            streak = 0
+        state = pf.step(state, row, nodes, rng, dt=dts[k])
+        means.append(state.mean[0])
+        covs.append(state.covariance[0])
+        history.append(state.particles[0])
+        ancestors.append(state.ancestors[0])
+    mean, cov = np.stack(means), np.stack(covs)
+    if s["smooth"]:
+        mean, cov = fixed_lag(history, ancestors, lag)
+    return Track(mean[:, :2], cov[:, :2, :2], times)

@@ -1,0 +1,198 @@
+"""`radioloc locate --method ekf-track | pf`: tracking a node from its ranges alone."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from radioloc.cli import app
+from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.locate.ekf_track import WhiteAccelerationCV
+from radioloc.locate.pf import fixed_lag
+from radioloc.models.ranging import GaussianRange
+
+runner = CliRunner()
+HEIGHT = 1.2
+ANCHORS = pd.DataFrame({"id": ["A", "B", "C", "D"], "x": [0.0, 20.0, 20.0, 0.0],
+                        "y": [0.0, 0.0, 15.0, 15.0], "z": [2.5, 0.5, 2.0, 0.8]})
+
+
+def truth(t: np.ndarray) -> np.ndarray:
+    """A tag walking a loop inside the anchor box, about 1 m/s."""
+    return np.stack([10 + 6 * np.cos(t / 6), 7.5 + 4 * np.sin(t / 6)], axis=-1)
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory) -> Path:
+    """Asynchronous rows (one anchor per time stamp, jittered), rows lost at random, one
+    anchor silent for 10 s, one outlier range; 3-D anchors, tag at a known height."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.03, 0.07, 1200))                  # ~20 Hz, uneven, 60 s
+    peer = np.arange(t.size) % 4
+    keep = rng.random(t.size) > 0.15
+    keep &= ~((peer == 2) & (t > 20) & (t < 30))
+    xy = truth(t)
+    a = ANCHORS[["x", "y", "z"]].to_numpy()[peer]
+    d = np.sqrt(np.sum((xy - a[:, :2]) ** 2, axis=1) + (HEIGHT - a[:, 2]) ** 2)
+    r = d + 0.1 * rng.standard_normal(t.size)
+    r[600] += 15.0                                                # one gross outlier
+    rows = pd.DataFrame({"time": t, "node": "tag", "peer": ANCHORS["id"].to_numpy()[peer],
+                         "kind": "range", "value": r})[keep]
+    folder = tmp_path_factory.mktemp("trackers")
+    rows.to_csv(folder / "measurements.csv", index=False)
+    ANCHORS.to_csv(folder / "anchors.csv", index=False)
+    return folder
+
+
+def locate(folder: Path, method: str, *opts: str, out: str = "est.csv"):
+    args = ["locate", str(folder / "measurements.csv"), "--anchors", str(folder / "anchors.csv"),
+            "--method", method, "--out", str(folder / out)]
+    for o in opts:
+        args += ["-o", o]
+    return runner.invoke(app, args)
+
+
+def rmse(folder: Path, out: str) -> float:
+    est = pd.read_csv(folder / out)
+    assert {"time", "node", "x", "y", "uncertainty_m"} <= set(est.columns)
+    assert np.all(np.isfinite(est[["x", "y", "uncertainty_m"]].to_numpy()))
+    late = est[est.time > 5]                       # after the start transient
+    err = late[["x", "y"]].to_numpy() - truth(late.time.to_numpy())
+    return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+
+
+def test_ekf_track_follows_the_tag_and_smoothing_helps(log):
+    res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.1", out="ekf.csv")
+    assert res.exit_code == 0, res.output
+    filtered = rmse(log, "ekf.csv")
+    args = ["locate", str(log / "measurements.csv"), "--anchors", str(log / "anchors.csv"),
+            "--method", "ekf-track", "--smooth", "-o", f"tag_height_m={HEIGHT}",
+            "-o", "range_std_m=0.1", "--out", str(log / "ekf_s.csv")]
+    res = runner.invoke(app, args)                 # --smooth is -o smooth=1
+    assert res.exit_code == 0, res.output
+    smoothed = rmse(log, "ekf_s.csv")
+    assert filtered < 0.3
+    assert smoothed < filtered
+    # one row per time stamp with a range
+    assert len(pd.read_csv(log / "ekf.csv")) == len(pd.read_csv(log / "measurements.csv"))
+
+
+def test_ekf_track_random_walk_and_3d(log):
+    res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "motion=rw", "q=1", out="rw.csv")
+    assert res.exit_code == 0, res.output
+    assert rmse(log, "rw.csv") < 0.5
+    res = locate(log, "ekf-track", out="3d.csv")           # 3-D anchors, no height: 3-D track
+    assert res.exit_code == 0, res.output
+    est = pd.read_csv(log / "3d.csv")
+    assert "z" in est.columns
+    assert rmse(log, "3d.csv") < 1.0
+
+
+def test_pf_follows_the_tag_with_em_fitted_parameters_and_fixed_lag(log):
+    opts = (f"tag_height_m={HEIGHT}", "particles=300", "seed=3")
+    res = locate(log, "pf", *opts, out="pf.csv")
+    assert res.exit_code == 0, res.output
+    filtered = rmse(log, "pf.csv")
+    res = locate(log, "pf", *opts, "smooth=1", "lag=20", out="pf_s.csv")
+    assert res.exit_code == 0, res.output
+    smoothed = rmse(log, "pf_s.csv")
+    assert filtered < 0.5
+    assert smoothed < filtered
+    # given parameters: no EM
+    res = locate(log, "pf", *opts, "los_std_m=0.1", "nlos_mean_m=1", "alpha=0.9", out="pf_g.csv")
+    assert res.exit_code == 0, res.output
+    assert rmse(log, "pf_g.csv") < 0.5
+
+
+@pytest.mark.parametrize("method, opt, message", [
+    ("ekf-track", "motion=ca", "motion"),
+    ("ekf-track", "q=-1", "q"),
+    ("ekf-track", "range_std_m=0", "range_std_m"),
+    ("ekf-track", "smooth=maybe", "smooth"),
+    ("ekf-track", "bogus=1", "bogus"),
+    ("pf", "particles=2.5", "particles"),
+    ("pf", "alpha=1.5", "alpha"),
+    ("pf", "lag=0", "lag"),
+    ("pf", "range_std_m=0.1", "range_std_m"),     # not a pf option
+])
+def test_options_are_validated(log, method, opt, message):
+    res = locate(log, method, f"tag_height_m={HEIGHT}", opt)
+    assert res.exit_code != 0
+    assert message in str(res.output) + str(res.exception)
+
+
+def test_pf_needs_the_height_with_3d_anchors_and_height_needs_3d_anchors(log, tmp_path):
+    res = locate(log, "pf", "particles=50")
+    assert res.exit_code != 0
+    assert "tag_height_m" in str(res.output) + str(res.exception)
+    ANCHORS[["id", "x", "y"]].to_csv(tmp_path / "anchors.csv", index=False)
+    (tmp_path / "measurements.csv").write_text((log / "measurements.csv").read_text())
+    res = locate(tmp_path, "ekf-track", "tag_height_m=1")
+    assert res.exit_code != 0
+    assert "z column" in str(res.output) + str(res.exception)
+
+
+def test_gate_drops_an_outlier_and_patience_recovers():
+    anchors = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    p = np.array([3.0, 4.0])
+    d = np.linalg.norm(p - anchors, axis=1)
+    R = np.tile(d, (40, 1))
+    R[10, 0] += 20.0
+    ekf = RangeEKF(WhiteAccelerationCV(0.1), GaussianRange(0.1), anchors=anchors, gate=16)
+    tr = ekf.run(R, np.arange(40.0) * 0.1, prior_mean=[3, 4, 0, 0], prior_cov=np.eye(4))
+    assert tr.diagnostics["gated"][10] == 1
+    assert np.allclose(tr.position[-1], p, atol=1e-2)
+    # a start far off: everything is gated at first, then taken again after the patience
+    tr = ekf.run(R, np.arange(40.0) * 0.1, prior_mean=[30, 30, 0, 0],
+                 prior_cov=0.01 * np.eye(4))
+    gated = tr.diagnostics["gated"]
+    assert np.all(gated[:10] == 3)
+    assert gated[10] == 0                          # after 10 fully gated steps: taken
+    assert np.linalg.norm(tr.position[10] - p) < np.linalg.norm(tr.position[9] - p)
+
+
+def test_white_acceleration_noise_does_not_depend_on_the_split():
+    m = WhiteAccelerationCV(0.7)
+    one = m.Q(np.array(1.0))
+    F = m.F(np.array(0.5))
+    two = F @ m.Q(np.array(0.5)) @ F.T + m.Q(np.array(0.5))
+    assert np.allclose(one, two)
+
+
+def test_fixed_lag_follows_ancestry():
+    history = [np.array([[0.0], [1.0]]), np.array([[2.0], [3.0]]), np.array([[4.0], [5.0]])]
+    ancestors = [np.array([0, 1]), np.array([1, 1]), np.array([0, 0])]
+    mean, cov = fixed_lag(history, ancestors, lag=2)
+    # step 0 at lag 2: particles of step 2 descend from 0 of step 1, which descends from 1
+    assert mean[0, 0] == 1.0 and cov[0, 0, 0] == 0.0
+    assert mean[1, 0] == 2.0
+    assert mean[2, 0] == 4.5
+
+
+HANYANG = Path(os.environ.get("RADIOLOC_DATA", "/work/shared/data")) / "hanyang-uwb-outdoor"
+
+
+@pytest.mark.skipif(not (HANYANG / "Dynamic_measurements").exists(), reason="Hanyang absent")
+def test_hanyang_los_a_1_ekf_track(tmp_path, monkeypatch):
+    monkeypatch.setenv("RADIOLOC_DATA", str(HANYANG.parent))
+    res = runner.invoke(app, ["datasets", "export", "hanyang", "--run", "LOS/A/1",
+                              "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    ref = pd.read_csv(tmp_path / "reference.csv")
+    scores = []
+    for opts in (["tag_height_m=1.0"], ["tag_height_m=1.0", "smooth=1"]):
+        res = locate(tmp_path, "ekf-track", *opts)
+        assert res.exit_code == 0, res.output
+        est = pd.read_csv(tmp_path / "est.csv")
+        est = est[(est.time >= ref.time.min()) & (est.time <= ref.time.max())]
+        dx = est.x - np.interp(est.time, ref.time, ref.x)
+        dy = est.y - np.interp(est.time, ref.time, ref.y)
+        scores.append(float(np.sqrt(np.mean(dx ** 2 + dy ** 2))))
+    # measured (docs/real-logs.md): 0.87 m filtered, 0.72 m smoothed
+    assert scores[0] < 0.95
+    assert scores[1] < 0.80
