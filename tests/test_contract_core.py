@@ -20,6 +20,7 @@ from radioloc.models.motion import (
     InputDriven,
     RandomWalk,
     UniformDisk,
+    WhiteAccelerationCV,
 )
 from radioloc.models.ranging import GaussianRange, range_geometry
 
@@ -106,6 +107,7 @@ def test_predict_matches_definition():
 
 # ---- motion models ----------------------------------------------------------------------
 @pytest.mark.parametrize("model", [RandomWalk(0.3), ConstantVelocity(0.5), ConstantAcceleration(0.2),
+                                   WhiteAccelerationCV(0.4),
                                    ConstantVelocity(0.5, dim=3), InputDriven(0.1)])
 def test_motion_models_shapes_and_psd(model):
     dt = np.array([0.0, 0.1, 1.0, 2.5])
@@ -116,7 +118,8 @@ def test_motion_models_shapes_and_psd(model):
     np.testing.assert_allclose(Q, np.swapaxes(Q, -1, -2))
 
 
-@pytest.mark.parametrize("model", [ConstantVelocity(0.5), ConstantAcceleration(0.2), RandomWalk(1.0)])
+@pytest.mark.parametrize("model", [ConstantVelocity(0.5), ConstantAcceleration(0.2), RandomWalk(1.0),
+                                   WhiteAccelerationCV(0.3)])
 @given(a=st.floats(0.0, 3.0), b=st.floats(0.0, 3.0))
 @settings(max_examples=25, deadline=None)
 def test_transition_composes(model, a, b):
@@ -328,3 +331,14 @@ def test_rss_models_logpdf_and_sample_agree():
     mid = 0.5 * (edges[1:] + edges[:-1])
     np.testing.assert_allclose(hist, trap.density(np.maximum(mid, 0), 50), atol=0.05)
     assert trap.logpdf(trap.upper[50] + 1.0, 50) == -np.inf
+
+
+@given(a=st.floats(0.01, 3.0), b=st.floats(0.01, 3.0))
+@settings(max_examples=25, deadline=None)
+def test_white_acceleration_noise_does_not_depend_on_the_split(a, b):
+    """Two predictions over a and b equal one over a + b (Q composes), which the
+    piecewise-constant acceleration of ConstantVelocity does not."""
+    m = WhiteAccelerationCV(0.7)
+    F_b = m.F(b)
+    two = F_b @ m.Q(a) @ F_b.T + m.Q(b)
+    np.testing.assert_allclose(two, m.Q(a + b), atol=1e-9)

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from radioloc.cli import app
 from radioloc.estimators.ekf_tracker import RangeEKF
-from radioloc.locate.ekf_track import WhiteAccelerationCV
+from radioloc.models.motion import WhiteAccelerationCV
 from radioloc.locate.pf import fixed_lag
 from radioloc.models.ranging import GaussianRange
 

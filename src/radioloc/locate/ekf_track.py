@@ -29,40 +29,11 @@ import pandas as pd
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.ekf_tracker import RangeEKF
 from radioloc.locate.base import LocateRequest, Option, locate_method
-from radioloc.models.motion import ConstantVelocity, RandomWalk
+from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import GaussianRange
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
-
-
-class WhiteAccelerationCV(ConstantVelocity):
-    """Constant velocity driven by continuous white acceleration (for uneven intervals).
-
-    Per axis ``Q(dt) = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``: the process noise of an interval
-    is the same however it is split into steps, which asynchronous range rows need (the
-    piecewise-constant acceleration of :class:`ConstantVelocity` gives a noise that shrinks
-    when the same interval is cut into more steps).
-
-    Parameters
-    ----------
-    q : float
-        Spectral density of the acceleration, m^2/s^3 per axis (>= 0).
-    dim : int
-        Position coordinates D.
-    """
-
-    def __init__(self, q: float, dim: int = 2) -> None:
-        super().__init__(q, dim)
-        self.q = self.accel_var
-
-    def _axis_Q(self, dt):
-        q = self.q
-        return q * np.stack([np.stack([dt**3 / 3, dt**2 / 2], -1),
-                             np.stack([dt**2 / 2, dt], -1)], -2)
-
-    def __repr__(self) -> str:
-        return f"WhiteAccelerationCV(q={self.q}, dim={self.dim})"
 
 
 def motion_model(kind: str, q: float, dim: int):

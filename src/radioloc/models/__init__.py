@@ -11,6 +11,7 @@ from radioloc.models.motion import (
     InputDriven,
     RandomWalk,
     UniformDisk,
+    WhiteAccelerationCV,
 )
 from radioloc.models.ranging import GaussianRange, range_geometry
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
@@ -18,7 +19,7 @@ from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_t
 from radioloc.models.single_sensor import SquaredRangeModel
 
 __all__ = [
-    "RandomWalk", "ConstantVelocity", "ConstantAcceleration", "InputDriven", "UniformDisk",
+    "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "InputDriven", "UniformDisk",
     "GaussianRange", "range_geometry", "LosNlosRange", "StickyLinkChain",
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",

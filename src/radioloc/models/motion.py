@@ -24,7 +24,8 @@ from radioloc.core.validation import as_float_array, check_positive
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
-__all__ = ["MotionModel", "RandomWalk", "ConstantVelocity", "ConstantAcceleration",
+__all__ = ["MotionModel", "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV",
+           "ConstantAcceleration",
            "InputDriven", "UniformDisk", "gaussian_logpdf_mv"]
 
 
@@ -266,6 +267,40 @@ class ConstantVelocity(MotionModel):
     def __repr__(self) -> str:
         return (f"ConstantVelocity(accel_var={self.accel_var}, dim={self.dim}, "
                 f"distribution={self.distribution!r})")
+
+
+class WhiteAccelerationCV(MotionModel):
+    """Constant velocity driven by continuous white acceleration (for uneven intervals).
+
+    Per axis ``F = [[1, dt], [0, 1]]`` and ``Q(dt) = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``: the
+    process noise of an interval is the same however the interval is split into steps,
+    which asynchronous range rows need. (:class:`ConstantVelocity` holds one random
+    acceleration over each interval, paper 002's model: its noise shrinks when the same
+    interval is cut into more steps.)
+
+    Parameters
+    ----------
+    q : float
+        Spectral density of the acceleration, m^2/s^3 per axis (>= 0).
+    dim : int
+        Position coordinates D.
+    """
+
+    def __init__(self, q: float, dim: int = 2) -> None:
+        self.q = check_positive(q, "q", allow_zero=True)
+        self.dim = _check_dim(dim)
+        self.state_dim = 2 * self.dim
+
+    def _axis_F(self, dt):
+        one, zero = np.ones_like(dt), np.zeros_like(dt)
+        return np.stack([np.stack([one, dt], -1), np.stack([zero, one], -1)], -2)
+
+    def _axis_Q(self, dt):
+        return self.q * np.stack([np.stack([dt**3 / 3, dt**2 / 2], -1),
+                                  np.stack([dt**2 / 2, dt], -1)], -2)
+
+    def __repr__(self) -> str:
+        return f"WhiteAccelerationCV(q={self.q}, dim={self.dim})"
 
 
 class ConstantAcceleration(MotionModel):
