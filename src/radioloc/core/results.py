@@ -49,6 +49,7 @@ DIAGNOSTICS: dict[str, str] = {
     "inliers": "int: measurements a robust estimator kept",
     "trajectory": "the whole estimated trajectory of a snapshot track fit, (..., n, D)",
     "ols_state": "the ordinary least-squares state a closed-form fit starts from",
+    "gated": "int: measurements the innovation gate refused at each step",
     "used_differences": "int: difference rows a closed-form fit used (rows of missing samples dropped)",
 }
 
