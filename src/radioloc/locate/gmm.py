@@ -22,7 +22,7 @@ import pandas as pd
 
 from radioloc.core.errors import InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
-from radioloc.io.logs import LIMITS
+from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.models.mixture_calibration import em_calibration
 from radioloc.models.motion import UniformDisk
@@ -78,7 +78,7 @@ def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     if out.any():
         i, j = (int(k) for k in np.argwhere(out)[0])
         hint = (" (+100 is the 'not detected' sentinel of WiFi sets: leave such cells empty)"
-                if rss[i, j] == 100 else "")
+                if rss[i, j] == RSS_NOT_DETECTED_DBM else "")
         raise InputError(f"{path}: line {i + 2}, column {ids[j]}: RSS {rss[i, j]:g} dBm outside "
                          f"[{LIMITS['rss_min_dbm']:g}, {LIMITS['rss_max_dbm']:g}]{hint}")
     return pos, rss, ids
