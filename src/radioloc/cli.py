@@ -141,6 +141,19 @@ err_console = Console(stderr=True)
 app.add_typer(datasets_app, name="datasets")
 
 
+def _parse_options(items: list[str] | None) -> dict[str, str]:
+    """``-o key=value`` items as a dict; :class:`RadiolocError` on a malformed or repeated key."""
+    opts: dict[str, str] = {}
+    for item in items or []:
+        k, sep, v = item.partition("=")
+        if not sep or not k.strip():
+            raise RadiolocError(f"--option {item!r}: expected key=value")
+        if k.strip() in opts:
+            raise RadiolocError(f"--option {k.strip()!r} given twice")
+        opts[k.strip()] = v.strip()
+    return opts
+
+
 def _fail(exc: Exception) -> None:
     """Report ``exc`` as ``error: ...`` and exit 2 (kept for sub-commands that call it)."""
     _echo_err(f"error: {_one_line(exc)}")
@@ -168,6 +181,7 @@ def reproduce(
     out: Annotated[Path, typer.Option(help="Output folder; each experiment writes OUT/<id>/.")] = Path("out"),
     workers: Annotated[int, typer.Option(help="Local worker processes (1 = in this process).")] = 1,
     scheduler: Annotated[Optional[str], typer.Option(help="Dask scheduler address (tcp://host:port) to run the blocks on a cluster.")] = None,
+    option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Config field key=value (repeatable; one experiment only; see `radioloc config ID`).")] = None,
 ) -> None:
     """Run an experiment (or all) and print our numbers beside the paper's.
 
@@ -183,11 +197,14 @@ def reproduce(
     from radioloc.core.atomic import check_folder_path
 
     check_folder_path(out)
+    opts = _parse_options(option)
+    if opts and experiment == "all":
+        raise RadiolocError("-o sets one experiment's config fields: name the experiment, not 'all'")
     ids = list(registry()) if experiment == "all" else [get_experiment(experiment).id]
     for eid in ids:
         try:
             outcome = run_experiment(eid, full=full, runs=runs, seed=seed, out=out,
-                                     workers=workers, scheduler=scheduler)
+                                     workers=workers, scheduler=scheduler, options=opts)
             print_record(outcome.record, console)
         except DataUnavailable as exc:
             print_record(write_skipped(get_experiment(eid), str(exc), full=full, seed=seed,
@@ -195,6 +212,24 @@ def reproduce(
     if experiment == "all":
         index = write_index(out, {k: v.description for k, v in registry().items()})
         console.print(f"report: {index}")
+
+
+@app.command("config")
+def show_config(
+    experiment: Annotated[str, typer.Argument(help="Experiment id (see `radioloc list`).")],
+) -> None:
+    """Show an experiment's config fields at the quick and the full size (set with -o)."""
+    import dataclasses
+
+    from radioloc.experiments.base import get_experiment
+
+    exp = get_experiment(experiment)
+    quick, full = exp.config(False), exp.config(True)
+    table = Table("field", "quick", "full", title=f"{exp.id} config (reproduce {exp.id} -o field=value)",
+                  title_justify="left")
+    for f in dataclasses.fields(quick):
+        table.add_row(f.name, repr(getattr(quick, f.name)), repr(getattr(full, f.name)))
+    console.print(table)
 
 
 @app.command()
@@ -217,14 +252,7 @@ def locate(
     from radioloc.locate.base import LocateRequest, run_method
 
     check_output_path(out)
-    opts: dict[str, str] = {}
-    for item in option or []:
-        k, sep, v = item.partition("=")
-        if not sep or not k.strip():
-            raise RadiolocError(f"--option {item!r}: expected key=value")
-        if k.strip() in opts:
-            raise RadiolocError(f"--option {k.strip()!r} given twice")
-        opts[k.strip()] = v.strip()
+    opts = _parse_options(option)
     if smooth:
         if opts.get("smooth", "1").lower() in ("0", "false", "no", "off"):
             raise RadiolocError("--smooth contradicts -o smooth=0")

@@ -134,6 +134,102 @@ class Experiment:
             raise ConfigError(f"--runs: must be >= 1, got {runs}")
         return dataclasses.replace(config, runs=int(runs))
 
+    def with_options(self, config: Any, options: dict[str, str] | None) -> Any:
+        """A copy of ``config`` with fields overridden from text (``reproduce -o key=value``).
+
+        Parameters
+        ----------
+        config : dataclass
+            The experiment's configuration at the chosen size.
+        options : dict of str to str, optional
+            Field name to its new value as text. The text is read as the field's current
+            type: bool (``1/0/true/false/yes/no/on/off``), int, float, str, or a tuple
+            of numbers or words separated by commas.
+
+        Returns
+        -------
+        dataclass
+            The new configuration; unchanged when ``options`` is empty.
+
+        Raises
+        ------
+        ConfigError
+            An unknown field (the message lists the known ones), a value that does not
+            read as the field's type, ``runs`` (use ``--runs``), a nested field, or a
+            number whose sign leaves the default's class (a positive default must stay
+            positive, a non-negative one non-negative).
+        """
+        if not options:
+            return config
+        fields = {f.name: f for f in dataclasses.fields(config)}
+        changes: dict[str, Any] = {}
+        for key, text in options.items():
+            if key not in fields:
+                raise ConfigError(f"-o {key}: {self.id} has no such option; known: "
+                                  f"{', '.join(sorted(k for k in fields if k != 'runs'))}")
+            if key == "runs":
+                raise ConfigError("-o runs: use --runs")
+            value = _read_as(f"-o {key}", text, getattr(config, key))
+            _check_sign(f"-o {key}", value, getattr(config, key))
+            changes[key] = value
+        return dataclasses.replace(config, **changes)
+
+
+_TRUE = {"1", "true", "yes", "on"}
+_FALSE = {"0", "false", "no", "off"}
+
+
+def _check_sign(field_name: str, value: Any, current: Any) -> None:
+    """Refuse ``value`` when it leaves the sign class of the default ``current``."""
+    pairs = (zip(value, current) if isinstance(value, tuple) and isinstance(current, tuple)
+             and len(current) else [(value, current)])
+    ref = [c for _, c in pairs] if isinstance(value, tuple) else [current]
+    vals = list(value) if isinstance(value, tuple) else [value]
+    numeric = [c for c in ref if isinstance(c, (int, float, np.integer, np.floating))
+               and not isinstance(c, bool)]
+    if not numeric or len(numeric) != len(ref):
+        return
+    if min(numeric) > 0 and min(vals) <= 0:
+        raise ConfigError(f"{field_name}: must be > 0, got {value!r}")
+    if min(numeric) >= 0 and min(vals) < 0:
+        raise ConfigError(f"{field_name}: must be >= 0, got {value!r}")
+
+
+def _read_as(field_name: str, text: str, current: Any) -> Any:
+    """``text`` read as the type of ``current`` (the field's value at the chosen size)."""
+    t = text.strip()
+    try:
+        if isinstance(current, bool):
+            if t.lower() in _TRUE | _FALSE:
+                return t.lower() in _TRUE
+            raise ValueError("expected one of 1/0/true/false/yes/no/on/off")
+        if isinstance(current, (int, np.integer)):
+            return int(t)
+        if isinstance(current, (float, np.floating)):
+            value = float(t)
+            if not np.isfinite(value):
+                raise ValueError("expected a finite number")
+            return value
+        if isinstance(current, str) or current is None:
+            return t
+        if isinstance(current, tuple):
+            items = [s.strip() for s in t.split(",") if s.strip()]
+            if not items:
+                raise ValueError("expected comma-separated values")
+            kinds = {type(v) for v in current}
+            if current and kinds <= {int, np.int64}:
+                return tuple(int(s) for s in items)
+            if current and kinds <= {int, float, np.int64, np.float64}:
+                values = tuple(float(s) for s in items)
+                if not all(np.isfinite(values)):
+                    raise ValueError("expected finite numbers")
+                return values
+            return tuple(items)
+    except ValueError as exc:
+        raise ConfigError(f"{field_name}={text!r}: {exc}") from None
+    raise ConfigError(f"{field_name}: a {type(current).__name__} field cannot be set from "
+                      "the command line")
+
 
 def data_root(folder: str | None = None) -> Path:
     """Root folder of the real data sets.

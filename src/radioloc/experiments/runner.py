@@ -130,15 +130,17 @@ def _jsonable(value: Any) -> Any:
 
 def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, seed: int = 0,
                    out: Path | str = "out", workers: int = 1, scheduler: str | None = None,
-                   progress: bool = True) -> RunOutcome:
+                   progress: bool = True, options: dict[str, str] | None = None) -> RunOutcome:
     """Run an experiment end to end and write ``out/<id>/{results.csv,summary.json,*.png}``.
 
     Raises :class:`~radioloc.core.errors.DataUnavailable` (before any work) when the
-    experiment needs a data set that is absent.
+    experiment needs a data set that is absent. ``options`` overrides config fields by name
+    (text read as each field's type, see :meth:`Experiment.with_options`); the config used
+    is recorded in ``summary.json``.
     """
     exp = get_experiment(exp_id)
     exp.check_available()
-    config = exp.with_runs(exp.config(full), runs)
+    config = exp.with_options(exp.with_runs(exp.config(full), runs), options)
     out_dir = Path(out) / exp.id
     with staged_folder(out_dir) as stage:
         t0 = time.perf_counter()

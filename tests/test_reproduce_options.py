@@ -1,0 +1,67 @@
+"""`reproduce -o key=value`: config fields overridden by name, read as the field's type."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from radioloc.cli import app
+from radioloc.core.errors import ConfigError
+from radioloc.experiments.base import get_experiment
+
+EXP = "p000-montecarlo"
+
+
+def _config():
+    exp = get_experiment(EXP)
+    return exp, exp.config(False)
+
+
+def test_fields_read_as_their_types():
+    exp, cfg = _config()
+    new = exp.with_options(cfg, {"iterations": "7", "side_m": "250.5",
+                                 "range_var_m2": "1, 4", "forgetting": "0.9"})
+    assert new.iterations == 7 and isinstance(new.iterations, int)
+    assert new.side_m == 250.5
+    assert new.range_var_m2 == (1.0, 4.0)
+    assert new.forgetting == 0.9
+    assert exp.with_options(cfg, None) is cfg
+
+
+@pytest.mark.parametrize("opts, words", [
+    ({"bogus": "1"}, ["bogus", "known", "iterations"]),
+    ({"runs": "3"}, ["--runs"]),
+    ({"iterations": "many"}, ["iterations", "many"]),
+    ({"iterations": "0"}, ["iterations", "> 0"]),
+    ({"side_m": "inf"}, ["side_m", "finite"]),
+    ({"range_var_m2": "1, -4"}, ["range_var_m2", "> 0"]),
+])
+def test_bad_options_name_the_field(opts, words):
+    exp, cfg = _config()
+    with pytest.raises(ConfigError) as err:
+        exp.with_options(cfg, opts)
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_cli_records_the_override(tmp_path):
+    res = CliRunner().invoke(app, ["reproduce", EXP, "--runs", "20", "-o", "iterations=5",
+                                   "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / EXP / "summary.json").read_text())
+    assert summary["config"]["iterations"] == 5
+
+
+def test_cli_refuses_options_for_all_and_unknown_keys(tmp_path):
+    res = CliRunner().invoke(app, ["reproduce", "all", "-o", "iterations=5", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "name the experiment" in res.output
+    res = CliRunner().invoke(app, ["reproduce", EXP, "-o", "iteration=5", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "no such option" in res.output
+    assert not (tmp_path / EXP).exists()
+
+
+def test_config_command_lists_fields():
+    res = CliRunner().invoke(app, ["config", EXP])
+    assert res.exit_code == 0 and "iterations" in res.output
