@@ -46,7 +46,10 @@ docs: $(STAMP_DOCS)
 full: $(STAMP)
 	$(BIN)/radioloc reproduce all --full --workers 2 --out out-full
 
+# `particles` (a benchmark peer) pins numpy<2 in its metadata although it runs on numpy 2;
+# it is installed without its dependencies so that pip keeps the project's numpy.
 bench: $(STAMP_DEV)
+	$(BIN)/python -c "import particles" 2>/dev/null || $(BIN)/python -m pip install -q --no-deps particles
 	for f in benchmarks/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 	$(BIN)/python benchmarks/collect.py
 
