@@ -78,16 +78,53 @@ def _normal(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np
     return JtWJ, JtWr
 
 
+def _adjugate(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Adjugate and determinant of a batch of 2 x 2 or 3 x 3 matrices (closed form)."""
+    if A.shape[-1] == 2:
+        a, b, c, d = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
+        adj = np.stack([np.stack([d, -b], -1), np.stack([-c, a], -1)], -2)
+        return adj, a * d - b * c
+    cof = np.empty_like(A)
+    for i in range(3):
+        for j in range(3):
+            r = [k for k in range(3) if k != i]
+            c = [k for k in range(3) if k != j]
+            minor = (A[..., r[0], c[0]] * A[..., r[1], c[1]]
+                     - A[..., r[0], c[1]] * A[..., r[1], c[0]])
+            cof[..., i, j] = (-1) ** (i + j) * minor
+    det = np.einsum("...j,...j->...", A[..., 0, :], cof[..., 0, :])
+    return np.swapaxes(cof, -1, -2), det
+
+
 def _solve(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched solve; rows whose system is singular or non-finite get ``ok = False``."""
+    """Batched solve; rows whose system is singular or non-finite get ``ok = False``.
+
+    A system is refused when its 1-norm condition number ``||A|| ||A^-1||`` reaches 1e14
+    (within a factor n of the 2-norm one). For n <= 3 the inverse is the closed-form
+    adjugate over the determinant, and a system is also refused when its determinant is
+    below 1e-14 of the product of its column norms (Hadamard's bound): for a rank-deficient
+    matrix the adjugate and the determinant are both rounding noise, so their ratio says
+    nothing. Larger systems use LU (``det`` and ``inv``).
+    """
     n = A.shape[-1]
     finite = np.all(np.isfinite(A), axis=(-2, -1)) & np.all(np.isfinite(b), axis=-1)
+    A = np.where(finite[..., None, None], A, np.eye(n))
+    norm = np.abs(A).sum(axis=-2).max(axis=-1)
     with np.errstate(all="ignore"):
-        cond = np.linalg.cond(np.where(finite[..., None, None], A, np.eye(n)))
-    ok = finite & np.isfinite(cond) & (cond < 1e14)
-    safe = np.where(ok[..., None, None], A, np.eye(n))
-    with np.errstate(all="ignore"):
-        s = np.linalg.solve(safe, np.where(ok[..., None], b, 0.0)[..., None])[..., 0]
+        if n <= 3:
+            adj, det = _adjugate(A) if n > 1 else (np.ones_like(A), A[..., 0, 0])
+            inv = adj / det[..., None, None]
+        else:
+            det = np.linalg.det(A)
+            safe = np.where((det != 0)[..., None, None], A, np.eye(n))
+            inv = np.linalg.inv(safe)
+        cond = norm * np.abs(inv).sum(axis=-2).max(axis=-1)
+        ok = finite & (det != 0) & np.isfinite(cond) & (cond < 1e14)
+        if n <= 3:
+            hadamard = np.prod(np.sqrt(np.sum(A**2, axis=-2)), axis=-1)
+            ok &= np.abs(det) > 1e-14 * hadamard
+        s = np.einsum("...ij,...j->...i", np.where(ok[..., None, None], inv, 0.0),
+                      np.where(ok[..., None], b, 0.0))
     return np.where(ok[..., None], s, 0.0), ok
 
 
