@@ -196,3 +196,74 @@ def test_hanyang_los_a_1_ekf_track(tmp_path, monkeypatch):
     # measured (docs/real-logs.md): 0.87 m filtered, 0.72 m smoothed
     assert scores[0] < 0.95
     assert scores[1] < 0.80
+
+
+def test_backward_simulation_matches_the_rts_smoother_on_a_linear_gaussian_model():
+    """1-D random walk, Gaussian position readings: a bootstrap filter's particle sets,
+    smoothed by backward simulation, give the Kalman (RTS) smoother's means within the
+    Monte Carlo error."""
+    from radioloc.estimators.pf_smoother import backward_simulation
+    from radioloc.models.motion import RandomWalk
+
+    rng = np.random.default_rng(11)
+    T, K, q, r_var = 25, 4000, 0.5, 0.3
+    t = np.arange(T, dtype=float)
+    x = np.cumsum(rng.normal(0, np.sqrt(q), T))
+    y = x + rng.normal(0, np.sqrt(r_var), T)
+    y[10:15] = np.nan                                   # readings missing: smoothing bridges
+    # exact Kalman filter + RTS smoother, prior N(0, 1) at step 0 before its reading
+    m_f, P_f, m_p, P_p = np.empty(T), np.empty(T), np.empty(T), np.empty(T)
+    m, P = 0.0, 1.0
+    for k in range(T):
+        if k:
+            m, P = m, P + q
+        m_p[k], P_p[k] = m, P
+        if np.isfinite(y[k]):
+            g = P / (P + r_var)
+            m, P = m + g * (y[k] - m), (1 - g) * P
+        m_f[k], P_f[k] = m, P
+    m_s = m_f.copy()
+    for k in range(T - 2, -1, -1):
+        m_s[k] = m_f[k] + P_f[k] / P_p[k + 1] * (m_s[k + 1] - m_p[k + 1])
+    # bootstrap particle filter with the same model
+    parts = rng.normal(0, 1, K)
+    history = []
+    for k in range(T):
+        if k:
+            parts = parts + rng.normal(0, np.sqrt(q), K)
+        if np.isfinite(y[k]):
+            w = np.exp(-0.5 * (y[k] - parts) ** 2 / r_var)
+            parts = parts[rng.choice(K, K, p=w / w.sum())]
+        history.append(parts[:, None].copy())
+    mean, cov = backward_simulation(history, t, RandomWalk(q, 1), 400, rng)
+    assert mean.shape == (T, 1) and cov.shape == (T, 1, 1)
+    # Monte Carlo error of 400 draws of a posterior with sd ~0.5: ~0.03; allow 5 of them
+    np.testing.assert_allclose(mean[:, 0], m_s, atol=0.15)
+    # and in the gap the smoothed estimate is closer to the truth than the filtered one
+    gap = slice(10, 15)
+    assert np.mean((mean[gap, 0] - x[gap]) ** 2) < np.mean((m_f[gap] - x[gap]) ** 2)
+
+
+def test_backward_simulation_rejects_bad_input():
+    from radioloc.core.errors import ConfigError, InputError
+    from radioloc.estimators.pf_smoother import backward_simulation
+    from radioloc.models.motion import RandomWalk
+
+    h = [np.zeros((5, 1)), np.zeros((5, 1))]
+    rng = np.random.default_rng(0)
+    with pytest.raises(ConfigError, match="trajectories"):
+        backward_simulation(h, [0.0, 1.0], RandomWalk(1.0, 1), 0, rng)
+    with pytest.raises(InputError, match="increasing"):
+        backward_simulation(h, [1.0, 1.0], RandomWalk(1.0, 1), 3, rng)
+    with pytest.raises(InputError, match=r"history\[1\]"):
+        backward_simulation([h[0], np.zeros((5, 2))], [0.0, 1.0], RandomWalk(1.0, 1), 3, rng)
+
+
+def test_pf_backward_smoother_from_the_cli(log):
+    opts = (f"tag_height_m={HEIGHT}", "particles=300", "seed=3")
+    res = locate(log, "pf", *opts, out="pf_f.csv")
+    assert res.exit_code == 0, res.output
+    res = locate(log, "pf", *opts, "smooth=1", "smoother=backward", "trajectories=50",
+                 out="pf_b.csv")
+    assert res.exit_code == 0, res.output
+    assert rmse(log, "pf_b.csv") < rmse(log, "pf_f.csv")

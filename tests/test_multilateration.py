@@ -157,3 +157,59 @@ def test_flag_mode_marks_degenerate_problems_instead_of_raising():
     np.testing.assert_allclose(fit.position[0], [6.0, 8.0], atol=1e-8)
     assert np.isfinite(fit.covariance[0]).all() and np.isnan(fit.covariance[1]).all()
     assert not fit.converged[1]
+
+
+def _count_solved_problems(monkeypatch):
+    """Wrap the NLLS driver of multilateration; returns the list of batch sizes solved."""
+    import radioloc.estimators.multilateration as mod
+    sizes = []
+    real = mod.solve_nlls
+
+    def counting(residuals, x0, **kw):
+        sizes.append(int(np.prod(np.shape(x0)[:-1])))
+        return real(residuals, x0, **kw)
+    monkeypatch.setattr(mod, "solve_nlls", counting)
+    return sizes
+
+
+def test_a_well_posed_batch_is_solved_once(monkeypatch):
+    sizes = _count_solved_problems(monkeypatch)
+    rng = np.random.default_rng(5)
+    truth = rng.uniform(5, 95, (200, 2))
+    r = distances(truth[:, None], SQUARE) + rng.normal(0, 0.5, (200, 4))
+    fit = Multilateration().locate(r, SQUARE)
+    assert sizes == [200]                       # no second solve for the mirror check
+    assert not fit.diagnostics["ambiguous"].any()
+
+
+def test_only_the_near_ties_are_solved_again_and_flagged_ambiguous(monkeypatch):
+    sizes = _count_solved_problems(monkeypatch)
+    good = np.broadcast_to(SQUARE, (5, 4, 2))
+    line = np.array([[0.0, 0.0], [5.0, 0.02], [10.0, -0.01], [15.0, 0.0]])
+    a = np.concatenate([good, line[None]])
+    truth = np.array([7.0, 20.0])
+    r = np.linalg.norm(a - truth, axis=-1) + np.array([0.05, -0.03, 0.02, -0.04])
+    fit = Multilateration(range_std_m=0.05, on_degenerate="flag").locate(r, a)
+    assert sizes == [6, 1]                      # the nearly collinear problem only
+    np.testing.assert_array_equal(fit.diagnostics["ambiguous"], [0, 0, 0, 0, 0, 1])
+    np.testing.assert_array_equal(fit.diagnostics["degenerate"], [0, 0, 0, 0, 0, 1])
+    # the ambiguous fix lies on one side, its mirror on the other: both near |y| = 20
+    assert abs(abs(fit.position[5, 1]) - 20.0) < 1.0
+
+
+def test_nearly_coplanar_3d_anchors_are_called_coplanar_not_collinear():
+    a = np.array([[0, 0, 0], [10, 0, 0.02], [0, 10, -0.01], [10, 10, 0.0], [5, 5, 0.01]])
+    truth = np.array([3.0, 4.0, 6.0])
+    r = np.linalg.norm(a - truth, axis=-1) + np.array([0.03, -0.02, 0.01, -0.03, 0.02])
+    with pytest.raises(GeometryError, match="ambiguous fix") as err:
+        Multilateration(range_std_m=0.05).locate(r, a)
+    assert "coplanar" in str(err.value) and "collinear" not in str(err.value)
+
+
+def test_the_solution_stuck_in_the_worse_basin_is_solved_again(monkeypatch):
+    sizes = _count_solved_problems(monkeypatch)
+    a = np.array([[-10, 99], [-5.299, -20.834], [-5.299, -5.299]])
+    truth = np.array([-5.299, -94.364])
+    fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a)
+    np.testing.assert_allclose(fit.position, truth, atol=1e-6)
+    assert sizes == [1, 1]

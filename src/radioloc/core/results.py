@@ -40,6 +40,7 @@ DIAGNOSTICS: dict[str, str] = {
     "resets": "int: particle-filter resets (degeneracy recoveries)",
     "los_detected": "bool per link: the filter's line-of-sight decision",
     "degenerate": "bool: the geometry does not fix the position (flagged, not raised)",
+    "ambiguous": "bool: a mirror solution fits the measurements as well (flagged, not raised)",
     "uncertainty_m": "an estimator's own spread measure (m), e.g. the grid filter's",
     "grid_mean": "the grid filter's posterior mean when it reports the peak",
     "mixture_weights": "posterior mixture weights (mixture estimators)",

@@ -79,6 +79,18 @@ def _flat_anchors(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, st
                   "them fit the ranges equally")
 
 
+def _range_residuals(r: np.ndarray, a: np.ndarray):
+    """Residual function ``pos -> (r - ||pos - a||, d||pos - a|| / dpos)`` of
+    :func:`radioloc.estimators.nlls.solve_nlls` for ranges ``(..., M)`` to anchors
+    ``(..., M, D)``."""
+    def residuals(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        diff = pos[..., None, :] - a
+        dist = np.sqrt(np.sum(diff**2, axis=-1))
+        J = diff / np.maximum(dist, 1e-12)[..., None]     # d||x - a_i|| / dx
+        return r - dist, J
+    return residuals
+
+
 class Multilateration(SnapshotEstimator):
     """Batched multilateration to anchors by nonlinear least squares.
 
@@ -131,39 +143,69 @@ class Multilateration(SnapshotEstimator):
         self.max_iter = int(max_iter)
         self.tol_m = float(tol_m)
 
-    def _resolve_mirror(self, fit, residuals, anchors, used, w, n_used):
-        """Solve again from the mirror image of each solution across the anchors' best-fit
-        line (2-D) or plane (3-D). Keep the better fit; where both fit the ranges within
-        the noise and lie apart, the fix is ambiguous (returned as a mask with a function
-        that words the reason for one problem)."""
-        d = anchors.shape[-1]
-        centroid, sv, vt = _anchor_frame(anchors, used)
+    def _resolve_mirror(self, fit, r, a, used, w, n_used):
+        """The mirror check with one solve for the well-posed problems.
+
+        Each solution is reflected across the anchors' best-fit line (2-D) or plane (3-D)
+        and the cost of the reflected point is evaluated (one residual evaluation). Only
+        where the reflection fits the ranges within ``4 s^2`` of the solution or better
+        (nearly collinear / coplanar anchors, or a solution stuck in the worse of two
+        basins), and lies more than ``10 s`` from the solution, is the problem solved again
+        from the reflection, on that subset only. Of
+        the two the better fit is kept; where both fit within ``4 s^2`` and lie more than
+        ``10 s`` apart the fix is ambiguous. A reflection that fits worse than that is not
+        refined: for anchors far from a line or plane the mirror basin is not a near tie.
+
+        Returns the (possibly switched) fit, the ambiguous mask, a function wording the
+        reason for one problem, and the number of problems solved twice.
+        """
+        d = a.shape[-1]
+        centroid, sv, vt = _anchor_frame(a, used)
         normal = vt[..., d - 1, :]                              # least-spread direction
         offset = np.einsum("...d,...d->...", fit.x - centroid, normal)
-        mirror_start = fit.x - 2.0 * offset[..., None] * normal
-        alt = solve_nlls(residuals, mirror_start, weights=w, method=self.method,
-                         max_iter=self.max_iter, tol=self.tol_m)
-        better = alt.cost < fit.cost * (1 - 1e-9) - 1e-300
+        mirror = fit.x - 2.0 * offset[..., None] * normal
+        res_m, _ = _range_residuals(r, a)(mirror)
+        c_mirror = np.sum(w * res_m ** 2, axis=-1)
         dof = np.maximum(n_used - d, 1)
         scale = np.maximum(sv[..., 0], 1.0)
-        if self.range_std_m is not None:
-            s2 = np.full(fit.cost.shape, self.range_std_m**2)
-        else:
-            s2 = np.minimum(fit.cost, alt.cost) / dof
-        s2 = np.maximum(s2, (1e-9 * scale) ** 2)
+
+        def noise_var(other_cost):
+            if self.range_std_m is not None:
+                s2 = np.full(fit.cost.shape, self.range_std_m ** 2)
+            else:
+                s2 = np.minimum(fit.cost, other_cost) / dof
+            return np.maximum(s2, (1e-9 * scale) ** 2)
+
+        s2_m = noise_var(c_mirror)
+        far = 2.0 * np.abs(offset) > 10.0 * np.sqrt(s2_m) + 1e-6 * scale
+        maybe = far & np.isfinite(c_mirror) & (c_mirror <= fit.cost + 4.0 * s2_m)
+        alt = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
+        alt.x = np.array(mirror, copy=True)
+        alt.cost = np.array(c_mirror, copy=True)
+        alt.converged = np.zeros(fit.cost.shape, dtype=bool)
+        if np.any(maybe):
+            sub = solve_nlls(_range_residuals(r[maybe], a[maybe]), mirror[maybe],
+                             weights=w[maybe], method=self.method, max_iter=self.max_iter,
+                             tol=self.tol_m)
+            for k, v in vars(sub).items():
+                getattr(alt, k)[maybe] = v
+        better = maybe & (alt.cost < fit.cost * (1 - 1e-9) - 1e-300)
+        s2 = noise_var(alt.cost)
         apart = np.linalg.norm(alt.x - fit.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
-        ambiguous = apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
+        ambiguous = maybe & apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
+        first, second = fit, alt
+        shape = "collinear" if d == 2 else "coplanar"
 
         def detail(idx):
-            p, q = fit.x[idx], alt.x[idx]
+            p, q = first.x[idx], second.x[idx]
             return (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
                     f"{np.array2string(q, precision=3)} fit the ranges equally well "
-                    "(anchors nearly collinear or coplanar seen from the node)")
+                    f"(anchors nearly {shape} seen from the node)")
         if np.any(better):
-            def pick(a, b):
-                return np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)), b, a)
-            fit = type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
-        return fit, ambiguous, detail
+            def pick(x, y):
+                return np.where(better.reshape(better.shape + (1,) * (x.ndim - better.ndim)), y, x)
+            fit = type(fit)(**{k: pick(getattr(first, k), getattr(second, k)) for k in vars(first)})
+        return fit, ambiguous, detail, int(np.sum(maybe))
 
     def locate(self, ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray | None = None,
                initial: np.ndarray | None = None) -> Estimate:
@@ -185,8 +227,11 @@ class Multilateration(SnapshotEstimator):
         Estimate
             ``position`` ``(..., D)``; ``covariance`` ``s^2 (J^T W J)^-1`` at the solution,
             with ``s`` the configured ``range_std_m`` or the residual estimate;
-            ``diagnostics`` ``converged``, ``stalled``, ``iterations``, ``residual_rms_m``
-            (each ``(...)``).
+            ``diagnostics`` ``converged``, ``stalled``, ``iterations``, ``residual_rms_m``,
+            ``degenerate`` (the geometry does not fix the position: flat anchors, an
+            ambiguous fix or a singular information matrix) and ``ambiguous`` (a mirror
+            solution across the anchors' line or plane fits the ranges as well; with
+            ``on_degenerate="flag"``), each ``(...)``.
 
         Raises
         ------
@@ -239,25 +284,19 @@ class Multilateration(SnapshotEstimator):
                 raise InputError(f"initial: shape {x0.shape} does not broadcast to "
                                  f"{batch + (d,)}") from None
 
-        def residuals(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            diff = pos[..., None, :] - a
-            dist = np.sqrt(np.sum(diff**2, axis=-1))
-            J = diff / np.maximum(dist, 1e-12)[..., None]     # d||x - a_i|| / dx
-            return r - dist, J
-
         flat, flat_detail = _flat_anchors(a, used)
         self._degenerate(flat, flat_detail)
-        fit = solve_nlls(residuals, x0, weights=w, method=self.method, max_iter=self.max_iter,
-                         tol=self.tol_m)
-        fit, ambiguous, amb_detail = self._resolve_mirror(fit, residuals, a, used, w, n_used)
+        fit = solve_nlls(_range_residuals(r, a), x0, weights=w, method=self.method,
+                         max_iter=self.max_iter, tol=self.tol_m)
+        fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used)
         self._degenerate(ambiguous & ~flat, amb_detail)
         JtWJ = fit.normal_matrix
         with np.errstate(all="ignore"):
             cond = np.linalg.cond(JtWJ)
         singular = ~np.isfinite(cond) | (cond > _COND_LIMIT)
         self._degenerate(singular & ~flat & ~ambiguous,
-                         "anchors are collinear or the position coincides with an anchor; "
-                         "the geometry does not fix the position")
+                         f"anchors are {'collinear' if d == 2 else 'coplanar'} or the position "
+                         "coincides with an anchor; the geometry does not fix the position")
         degenerate = flat | ambiguous | singular
         JtWJ = np.where(degenerate[..., None, None], np.eye(d), JtWJ)
         dof = n_used - d                                  # >= 1: D + 1 ranges are required
@@ -271,7 +310,8 @@ class Multilateration(SnapshotEstimator):
         rms = np.sqrt(fit.cost / np.maximum(wsum, 1e-300))
         return Estimate(fit.x, cov, None, {
             "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
-            "iterations": fit.iterations, "residual_rms_m": rms, "degenerate": degenerate})
+            "iterations": fit.iterations, "residual_rms_m": rms, "degenerate": degenerate,
+            "ambiguous": ambiguous & ~flat})
 
     def _degenerate(self, mask: np.ndarray, detail: str) -> None:
         """Raise for the first masked problem when ``on_degenerate="raise"``."""

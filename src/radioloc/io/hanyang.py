@@ -77,6 +77,11 @@ class DynamicRun:
     estimates: dict
     published: dict
 
+    @property
+    def trajectory(self) -> str:
+        """The trajectory letter (``"A"`` or ``"B"``) from the run name."""
+        return self.name.split("_")[1]
+
 
 def dynamic_runs(root: Path | str) -> list[Path]:
     """Folders of the dynamic runs present, sorted.
@@ -218,3 +223,142 @@ def horizontal_ranges(ranges_m: np.ndarray, anchors: np.ndarray, tag_z: np.ndarr
     dz = np.asarray(tag_z, dtype=float)[:, None] + TAG_HEIGHT_OFFSET_M - np.asarray(anchors)[None, :, 2]
     corr = np.asarray(ranges_m, dtype=float) - bias_m
     return np.sqrt(np.maximum(corr**2 - dz**2, 0.0))
+
+
+#: Scoring windows of the data set's authors, per trajectory: the reference rows from the
+#: first one meeting ``start`` to the first later one meeting ``end`` (x, y in metres, the
+#: trajectory's local frame). Trajectory A is scored on its return leg only, from the far
+#: end (x > 49.3 m) back to x <= 12 m on the y > 3.4 m side.
+AUTHORS_WINDOWS = {
+    "A": (lambda x, y: (x > 49.3) & (y > -5.0), lambda x, y: (x <= 12.0) & (y > 3.4)),
+    "B": (lambda x, y: (x < 8.6) & (y < -7.0), lambda x, y: (x > 8.6) & (y < -7.0)),
+}
+#: Reference rows with ``|z|`` at or above this (trajectory frame, m) are left out of the
+#: authors' scoring.
+AUTHORS_MAX_ABS_Z_M = 0.5
+
+
+def authors_window(reference: pd.DataFrame, trajectory: str) -> tuple[float, float]:
+    """Start and end time of the part of a run the data set's authors score.
+
+    Parameters
+    ----------
+    reference : DataFrame
+        ``time_s, x, y`` of the RTK reference (``DynamicRun.reference``), in time order.
+    trajectory : {"A", "B"}
+        Which trajectory the run follows (see :data:`AUTHORS_WINDOWS`).
+
+    Returns
+    -------
+    start_s, end_s : float
+        Times of the first reference row meeting the start condition and of the first
+        later row meeting the end condition.
+
+    Raises
+    ------
+    InputError
+        Unknown trajectory, or the reference never meets a condition.
+    """
+    if trajectory not in AUTHORS_WINDOWS:
+        raise InputError(f"trajectory: expected one of {', '.join(AUTHORS_WINDOWS)}, "
+                         f"got {trajectory!r}")
+    start, end = AUTHORS_WINDOWS[trajectory]
+    x, y = reference["x"].to_numpy(float), reference["y"].to_numpy(float)
+    t = reference["time_s"].to_numpy(float)
+    first = np.flatnonzero(start(x, y))
+    if first.size == 0:
+        raise InputError(f"reference: never meets the start of the authors' window of "
+                         f"trajectory {trajectory}")
+    later = np.flatnonzero(end(x, y) & (np.arange(t.size) >= first[0]))
+    if later.size == 0:
+        raise InputError(f"reference: never meets the end of the authors' window of "
+                         f"trajectory {trajectory}")
+    return float(t[first[0]]), float(t[later[0]])
+
+
+def authors_rmse(reference: pd.DataFrame, estimate: pd.DataFrame, trajectory: str,
+                 z_offset_m: float = TAG_HEIGHT_OFFSET_M) -> dict:
+    """RMSE of an estimated track as the data set's authors compute ``RMSD_results.txt``.
+
+    Read from ``Technical_validation/localization_error_analysis.py`` of the data set's
+    repository and checked against every ``RMSD_results.txt`` (LS and ESKF, 2-D and 3-D,
+    eight runs: equal to the printed digits). The steps:
+
+    1. Window: only the times between :func:`authors_window` start and end count (on
+       trajectory A the return leg from the far end, about the last 40 % of a run).
+    2. Reference rows inside the window with ``|z| >= 0.5 m`` are dropped.
+    3. Every estimate inside the window is compared with the remaining reference linearly
+       interpolated to the estimate's time (held at the first / last row outside them).
+    4. RMSE = ``sqrt(mean(dx^2 + dy^2))`` over the estimates (2-D); 3-D adds
+       ``(z_ref + z_offset_m - z)^2``. Each estimate row weighs the same, so a method that
+       outputs more rows per second weighs the same time span more finely, not more.
+
+    Parameters
+    ----------
+    reference : DataFrame
+        ``time_s, x, y, z`` of the RTK reference, trajectory frame (``DynamicRun.reference``).
+    estimate : DataFrame
+        ``time_s, x, y`` and optionally ``z`` of the track to score, same clock.
+    trajectory : {"A", "B"}
+    z_offset_m : float
+        Tag height above the reference ``z`` (the authors' 1 m).
+
+    Returns
+    -------
+    dict
+        ``rmse_2d`` and ``rmse_3d`` (NaN without a ``z`` column) in metres, ``samples``
+        (estimates scored), ``start_s`` and ``end_s`` (the window).
+
+    Raises
+    ------
+    InputError
+        No estimate inside the window, or no reference row left in it.
+    """
+    t0, t1 = authors_window(reference, trajectory)
+    rt = reference["time_s"].to_numpy(float)
+    keep = (rt >= t0) & (rt <= t1) & (np.abs(reference["z"].to_numpy(float)) < AUTHORS_MAX_ABS_Z_M)
+    if not keep.any():
+        raise InputError("reference: no row inside the authors' window with |z| < 0.5 m")
+    ref = reference[keep]
+    te = estimate["time_s"].to_numpy(float)
+    inside = (te >= t0) & (te <= t1)
+    if not inside.any():
+        raise InputError(f"estimate: no row between {t0:.3f} s and {t1:.3f} s (the authors' "
+                         "window)")
+    est = estimate[inside]
+    te = te[inside]
+    at = {c: np.interp(te, ref["time_s"].to_numpy(float), ref[c].to_numpy(float)) for c in "xyz"}
+    d2 = (at["x"] - est["x"].to_numpy(float)) ** 2 + (at["y"] - est["y"].to_numpy(float)) ** 2
+    rmse_3d = np.nan
+    if "z" in est.columns:
+        dz = at["z"] + z_offset_m - est["z"].to_numpy(float)
+        rmse_3d = float(np.sqrt(np.mean(d2 + dz ** 2)))
+    return {"rmse_2d": float(np.sqrt(np.mean(d2))), "rmse_3d": rmse_3d, "samples": int(te.size),
+            "start_s": t0, "end_s": t1}
+
+
+def measurement_rows(run: DynamicRun) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A run's ranges as they arrive, in the ``radioloc locate`` measurements schema.
+
+    No resampling: one row per range of the anchor files, at its own time stamp (the
+    anchors answer one at a time, so most time stamps hold one anchor). The node is
+    ``"tag"``, anchors are named ``A<id>``.
+
+    Parameters
+    ----------
+    run : DynamicRun
+        From :func:`load_dynamic`.
+
+    Returns
+    -------
+    measurements : DataFrame
+        ``time, node, peer, kind, value`` sorted by time (seconds from the run start).
+    anchors : DataFrame
+        ``id, x, y, z`` (3-D; track in 2-D with ``-o tag_height_m=H``).
+    """
+    r = run.ranges.sort_values(["time_s", "anchor"], kind="stable")
+    meas = pd.DataFrame({"time": r["time_s"].to_numpy(float), "node": "tag",
+                         "peer": [f"A{a}" for a in r["anchor"]], "kind": "range",
+                         "value": r["range_m"].to_numpy(float)})
+    anchors = run.anchors.assign(id=[f"A{a}" for a in run.anchors["id"]])[["id", "x", "y", "z"]]
+    return meas.reset_index(drop=True), anchors.reset_index(drop=True)

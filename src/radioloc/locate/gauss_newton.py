@@ -90,13 +90,16 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         out[c] = fit.position[:, k]
     out["uncertainty_m"] = fit.uncertainty_m
     bad = np.asarray(fit.diagnostics["degenerate"])
+    mirror = np.asarray(fit.diagnostics["ambiguous"])
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         if bad.all():
             raise GeometryError(f"method gn: no epoch has a geometry that fixes the position "
-                                f"(first: node {epochs['node'][i]!r} at time {epochs['time'][i]:g})")
+                                f"({int(mirror.sum())} ambiguous mirror fixes; first: node "
+                                f"{epochs['node'][i]!r} at time {epochs['time'][i]:g})")
         warnings.warn(f"method gn: {int(bad.sum())} of {bad.size} epochs left out: their geometry "
-                      f"does not fix the position (first: node {epochs['node'][i]!r} at time "
-                      f"{epochs['time'][i]:g})", stacklevel=2)
+                      f"does not fix the position ({int(mirror.sum())} of them ambiguous: a "
+                      "mirror fix fits the ranges as well; first: node "
+                      f"{epochs['node'][i]!r} at time {epochs['time'][i]:g})", stacklevel=2)
         out = out[~bad].reset_index(drop=True)
     return out

@@ -26,10 +26,11 @@ component in the LOS/NLOS mixture.
 The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``; a gap longer
 than ``max_gap_s`` starts a new track (and a new EM fit), as in ``ekf-track``.
 
-Smoother (``-o smooth=1``): fixed-lag. The estimate at step ``k`` is the mean, over the
-particles of step ``k + lag``, of their ancestors at step ``k`` (followed back through the
-resampling indices), so it uses ``lag`` later steps; the last ``lag`` steps use what there
-is.
+Smoother (``-o smooth=1``): fixed-lag by default. The estimate at step ``k`` is the mean,
+over the particles of step ``k + lag``, of their ancestors at step ``k`` (followed back
+through the resampling indices), so it uses ``lag`` later steps; the last ``lag`` steps use
+what there is. ``-o smoother=backward``: backward simulation over the whole segment
+(:func:`radioloc.estimators.pf_smoother.backward_simulation`, ``trajectories`` draws).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
@@ -70,8 +72,13 @@ OPTIONS.update({
                           min=0, min_exclusive=True, max=1e6),
     "alpha": Option("LOS fraction (default: EM on the log)", float, min=0, max=1),
     "particles": Option("particles per node (default 900)", int, min=1, max=10**6),
-    "smooth": Option("1: fixed-lag smoothed track (offline; uses `lag` later steps)", bool),
+    "smooth": Option("1: smoothed track (offline; see `smoother`)", bool),
+    "smoother": Option("with smooth=1: 'fixed-lag' (default; ancestors over `lag` later "
+                       "steps) or 'backward' (backward simulation over the whole log)", str,
+                       choices=("fixed-lag", "backward")),
     "lag": Option("steps of the fixed-lag smoother (default 20)", int, min=1, max=10**6),
+    "trajectories": Option("backward trajectories of smoother=backward (default 100)", int,
+                           min=1, max=10**5),
     "min_los_std_m": Option("floor of the EM-fitted s_LOS, m (default 0.15; see the module "
                             "docstring)", float, min=0, min_exclusive=True, max=1e6),
     "seed": Option("seed of the particle draws (default: fresh entropy)", int, min=0,
@@ -183,6 +190,8 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     particles = request.option("particles", 900, int)
     lag = request.option("lag", 20, int)
+    smoother = (request.option("smoother", "fixed-lag", str),
+                request.option("trajectories", 100, int))
     gate = request.option("gate", 16.0) or None
     tables = []
     for node, times, R in per_node:
@@ -199,14 +208,15 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
                 model, bias = LosNlosRange(*given), s["bias"]
             for seg in parts:
                 track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng,
-                                gate)
+                                gate, smoother)
                 tables.append(track_table(node, times[seg], track))
         except GeometryError as exc:
             raise GeometryError(f"method pf: node {node!r}: {exc}") from None
     return pd.concat(tables, ignore_index=True)
 
 
-def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate) -> Track:
+def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate,
+            smoother=("fixed-lag", 100)) -> Track:
     """One node's particle-filter track over one segment (see the module docstring)."""
     xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
     r = R - bias
@@ -242,9 +252,12 @@ def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate) -> Tra
         state = pf.step(state, row, nodes, rng, dt=dts[k])
         means.append(state.mean[0])
         covs.append(state.covariance[0])
-        history.append(state.particles[0])
-        ancestors.append(state.ancestors[0])
+        if s["smooth"]:
+            history.append(state.particles[0])
+            ancestors.append(state.ancestors[0])
     mean, cov = np.stack(means), np.stack(covs)
-    if s["smooth"]:
+    if s["smooth"] and smoother[0] == "backward":
+        mean, cov = backward_simulation(history, times, motion, smoother[1], rng)
+    elif s["smooth"]:
         mean, cov = fixed_lag(history, ancestors, lag)
     return Track(mean[:, :2], cov[:, :2, :2], times)
