@@ -210,6 +210,11 @@ def test_the_solution_stuck_in_the_worse_basin_is_solved_again(monkeypatch):
     sizes = _count_solved_problems(monkeypatch)
     a = np.array([[-10, 99], [-5.299, -20.834], [-5.299, -5.299]])
     truth = np.array([-5.299, -94.364])
-    fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a)
+    # started in the mirror basin (the truth reflected across the anchors' principal line,
+    # plus 1 m), the first solve ends in the worse local minimum; the check solves again
+    c = a.mean(axis=0)
+    normal = np.linalg.svd(a - c)[2][1]
+    start = truth - 2.0 * ((truth - c) @ normal) * normal + 1.0
+    fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a, initial=start)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
     assert sizes == [1, 1]

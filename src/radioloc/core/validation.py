@@ -7,11 +7,27 @@ instead of letting a NaN or a shape mismatch travel into the numerics.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
+
+#: Largest magnitude accepted in an array argument or a scalar setting (SI units: 1e30 m is
+#: 1e14 light years). Squares and products of such values stay far from float64 overflow,
+#: so an overflow inside an estimator is impossible by construction, not a RuntimeWarning.
+MAGNITUDE_LIMIT = 1e30
+#: Smallest magnitude accepted for a positive scalar setting (a standard deviation of
+#: 1e-300 would overflow its inverse square).
+POSITIVE_FLOOR = 1e-30
+#: Bounds of integer settings: iteration counts, particles per node, mixture components.
+#: Beyond them a call would run for hours or exhaust memory; the error names the limit.
+MAX_ITERATIONS = 1_000_000
+MAX_PARTICLES = 10_000_000
+MAX_COMPONENTS = 100_000
+#: Default bound on the memory one call may allocate; the environment variable
+#: ``RADIOLOC_MEMORY_LIMIT_GB`` overrides it.
+MEMORY_LIMIT_GB = 4.0
 
 
 def _first_bad_index(mask: np.ndarray) -> tuple[int, ...]:
@@ -27,6 +43,7 @@ def as_float_array(
     last_dim: int | Sequence[int] | None = None,
     allow_nan: bool = False,
     nonnegative: bool = False,
+    max_abs: float | None = MAGNITUDE_LIMIT,
 ) -> np.ndarray:
     """Convert ``value`` to a float64 array and check it.
 
@@ -44,6 +61,13 @@ def as_float_array(
         Whether NaN entries are allowed (e.g. a mask of missing measurements).
     nonnegative : bool
         Whether every finite entry must be >= 0 (ranges, variances).
+    max_abs : float or None
+        Largest magnitude accepted (default :data:`MAGNITUDE_LIMIT`); None: no bound.
+
+    Returns
+    -------
+    ndarray
+        The float64 array.
 
     Raises
     ------
@@ -51,9 +75,12 @@ def as_float_array(
         Naming ``name`` and, for bad entries, the first offending index.
     """
     try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{name}: expected numbers, got {type(value).__name__} ({exc})") from None
+        with np.errstate(over="ignore", invalid="ignore"):
+            arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"{name}: expected numbers, got {type(value).__name__} "
+                         f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+                         ) from None
     if ndim is not None and arr.ndim != ndim:
         raise InputError(f"{name}: expected {ndim} dimensions, got shape {arr.shape}")
     if min_ndim is not None and arr.ndim < min_ndim:
@@ -73,6 +100,13 @@ def as_float_array(
     if nonnegative and np.any(arr < 0):
         idx = _first_bad_index(arr < 0)
         raise InputError(f"{name}: negative value {arr[idx]} at index {idx}")
+    if max_abs is not None:
+        with np.errstate(invalid="ignore"):
+            big = np.isfinite(arr) & (np.abs(arr) > max_abs)
+        if np.any(big):
+            idx = _first_bad_index(big)
+            raise InputError(f"{name}: magnitude {arr[idx]:g} at index {idx} is beyond the "
+                             f"supported limit of {max_abs:g}")
     return arr
 
 
@@ -81,24 +115,168 @@ def as_positions(value: object, name: str, *, dims: Sequence[int] = (2, 3)) -> n
     return as_float_array(value, name, min_ndim=1, last_dim=tuple(dims))
 
 
-def check_positive(value: float, name: str, *, allow_zero: bool = False) -> float:
-    """A scalar parameter that must be positive (or non-negative)."""
+def _scalar(value: object, name: str) -> float:
+    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
+        raise ConfigError(f"{name}: expected a number, got {value!r}")
     try:
-        v = float(value)
-    except (TypeError, ValueError):
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
         raise ConfigError(f"{name}: expected a number, got {value!r}") from None
+
+
+def check_positive(value: float, name: str, *, allow_zero: bool = False) -> float:
+    """A scalar parameter that must be positive (or non-negative).
+
+    Parameters
+    ----------
+    value : float
+        The setting.
+    name : str
+        Its name, for the message.
+    allow_zero : bool
+        Accept 0.
+
+    Returns
+    -------
+    float
+        The value; a non-zero value lies in ``[POSITIVE_FLOOR, MAGNITUDE_LIMIT]``.
+
+    Raises
+    ------
+    ConfigError
+        Not a number (text, None, a bool), not finite, negative, zero when not allowed,
+        or a magnitude outside the supported range.
+    """
+    v = _scalar(value, name)
     if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
         raise ConfigError(f"{name}: must be finite and {bound}, got {value!r}")
+    if v != 0 and not (POSITIVE_FLOOR <= v <= MAGNITUDE_LIMIT):
+        raise ConfigError(f"{name}: {v:g} is outside the supported range "
+                          f"[{POSITIVE_FLOOR:g}, {MAGNITUDE_LIMIT:g}]")
     return v
 
 
-def check_probability(value: float, name: str) -> float:
-    """A scalar in [0, 1]."""
+def check_real(value: float, name: str) -> float:
+    """A finite scalar parameter of either sign, within :data:`MAGNITUDE_LIMIT`.
+
+    Parameters
+    ----------
+    value : float
+        The setting.
+    name : str
+        Its name, for the message.
+
+    Returns
+    -------
+    float
+        The value.
+
+    Raises
+    ------
+    ConfigError
+        Not a number, not finite, or beyond the magnitude limit.
+    """
+    v = _scalar(value, name)
+    if not np.isfinite(v):
+        raise ConfigError(f"{name}: must be finite, got {value!r}")
+    if abs(v) > MAGNITUDE_LIMIT:
+        raise ConfigError(f"{name}: {v:g} is beyond the supported limit of {MAGNITUDE_LIMIT:g}")
+    return v
+
+
+def check_int(value: object, name: str, *, minimum: int = 1, maximum: int | None = None) -> int:
+    """An integer setting (a count, an iteration bound) in ``[minimum, maximum]``.
+
+    Parameters
+    ----------
+    value : int
+        The setting (an integral float such as ``3.0`` is accepted; a bool is not).
+    name : str
+        Its name, for the message.
+    minimum, maximum : int
+        Bounds (``maximum`` None: none).
+
+    Returns
+    -------
+    int
+        The value.
+
+    Raises
+    ------
+    ConfigError
+        Not an integer, or out of bounds (the message says which limit).
+    """
+    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
+        raise ConfigError(f"{name}: expected an integer, got {value!r}")
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name}: expected a number, got {value!r}") from None
+        ok = np.isfinite(v) and v == int(v)
+    except (TypeError, ValueError, OverflowError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"{name}: expected an integer, got {value!r}")
+    n = int(value) if isinstance(value, (int, np.integer)) else int(v)
+    if n < minimum:
+        raise ConfigError(f"{name}: must be >= {minimum}, got {n}")
+    if maximum is not None and n > maximum:
+        raise ConfigError(f"{name}: {n} is beyond the supported limit of {maximum}")
+    return n
+
+
+def memory_limit_bytes() -> float:
+    """The memory one call may allocate: ``RADIOLOC_MEMORY_LIMIT_GB`` or
+    :data:`MEMORY_LIMIT_GB` gigabytes.
+
+    Returns
+    -------
+    float
+        Bytes.
+    """
+    import os
+
+    text = os.environ.get("RADIOLOC_MEMORY_LIMIT_GB", "")
+    try:
+        gb = float(text) if text.strip() else MEMORY_LIMIT_GB
+    except ValueError:
+        gb = MEMORY_LIMIT_GB
+    if not np.isfinite(gb) or gb <= 0:
+        gb = MEMORY_LIMIT_GB
+    return gb * 2**30
+
+
+def check_memory(n_bytes: float, name: str, what: str = "") -> None:
+    """Refuse, before allocating, work whose arrays would need more than the memory limit.
+
+    Parameters
+    ----------
+    n_bytes : float
+        Estimated bytes of the largest arrays the call builds.
+    name : str
+        The setting or argument that sets the size (named in the message).
+    what : str
+        What is allocated, e.g. ``"4 x 10^9 particle states"``.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ConfigError
+        ``n_bytes`` exceeds :func:`memory_limit_bytes`.
+    """
+    limit = memory_limit_bytes()
+    if not np.isfinite(n_bytes) or n_bytes > limit:
+        need = f"{n_bytes / 2**30:.3g} GiB" if np.isfinite(n_bytes) else "unbounded memory"
+        raise ConfigError(f"{name}: needs about {need}{' for ' + what if what else ''}, beyond "
+                          f"the memory limit of {limit / 2**30:.3g} GiB "
+                          "(RADIOLOC_MEMORY_LIMIT_GB)")
+
+
+def check_probability(value: float, name: str) -> float:
+    """A scalar in [0, 1] (not a bool, text or None)."""
+    v = _scalar(value, name)
     if not (0.0 <= v <= 1.0):
         raise ConfigError(f"{name}: must lie in [0, 1], got {value!r}")
     return v
@@ -113,3 +291,59 @@ def check_finite_output(arr: np.ndarray, name: str) -> np.ndarray:
             "check the inputs for degenerate geometry or zero noise variances"
         )
     return arr
+
+
+def ambiguous_fixes(position: np.ndarray, centres: np.ndarray, ranges: np.ndarray,
+                    used: np.ndarray, tol_m: float) -> tuple[np.ndarray, Callable]:
+    """Where a 2-D fix from ranges to points is not unique: the used points are coincident
+    or collinear, or the mirror image of the fix across their best-fit line fits the ranges
+    as well (within ``tol_m``) while lying apart from it.
+
+    Parameters
+    ----------
+    position : ndarray, shape (..., 2)
+        The fixes.
+    centres : ndarray, shape (..., L, 2)
+        The points ranged to.
+    ranges : ndarray, shape (..., L)
+        The ranges (entries not ``used`` are ignored).
+    used : ndarray of bool, shape (..., L)
+        Which ranges the fix used.
+    tol_m : float
+        Range residual (RMS, metres) under which two fits count as equally good.
+
+    Returns
+    -------
+    mask : ndarray of bool, shape (...)
+        True where the fix is ambiguous.
+    reason : callable
+        ``reason(index)`` words it for one problem.
+    """
+    w = used.astype(float)
+    n = w.sum(-1)
+    centroid = np.einsum("...l,...ld->...d", w, centres) / np.maximum(n, 1)[..., None]
+    centred = np.where(used[..., None], centres - centroid[..., None, :], 0.0)
+    _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    coincident = sv[..., 0] <= 1e-12 * np.maximum(np.abs(centroid).max(-1), 1.0)
+    flat = coincident | (sv[..., 1] <= 1e-9 * np.maximum(sv[..., 0], 1e-300)) | (n < 3)
+    normal = vt[..., 1, :]
+    offset = np.einsum("...d,...d->...", position - centroid, normal)
+    mirror = position - 2.0 * offset[..., None] * normal
+
+    def rms(x):
+        d = np.linalg.norm(x[..., None, :] - centres, axis=-1)
+        return np.sqrt(np.sum(np.where(used, (ranges - d) ** 2, 0.0), -1) / np.maximum(n, 1))
+    apart = np.abs(2.0 * offset) > 10.0 * tol_m
+    same_fit = rms(mirror) <= rms(position) + tol_m
+    mask = flat | (apart & same_fit)
+
+    def reason(index):
+        if coincident[index]:
+            return "the points ranged to coincide: any direction fits the ranges"
+        if flat[index]:
+            return ("the points ranged to are collinear (or fewer than 3): the fix and its "
+                    "mirror image across their line fit the ranges equally")
+        return (f"ambiguous fix: {np.array2string(position[index], precision=3)} and its "
+                f"mirror {np.array2string(mirror[index], precision=3)} fit the ranges "
+                "equally well (points nearly collinear seen from the node)")
+    return mask, reason

@@ -29,7 +29,8 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.results import Estimate
-from radioloc.core.validation import as_float_array, check_finite_output, check_positive
+from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_finite_output,
+                                      check_int, check_positive)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.models.single_sensor import (
     SquaredRangeModel,
@@ -160,9 +161,7 @@ class ClosedFormTracker(SnapshotEstimator):
             raise ConfigError(f"stopping: must be one of {', '.join(STOPPING)}, "
                               f"got {stopping!r}")
         self.stopping = stopping
-        if int(max_iter) < 0 or int(max_iter) != max_iter:
-            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
-        self.max_iter = int(max_iter)
+        self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
         self.cond_limit = check_positive(cond_limit, "cond_limit")
         self.printed_eq14 = bool(printed_eq14)
 

@@ -129,6 +129,10 @@ class RangeEKF(RecursiveEstimator):
         cov = as_float_array(prior_cov, "prior_cov", min_ndim=2, last_dim=n)
         if cov.shape[-2] != n:
             raise InputError(f"prior_cov: expected (..., {n}, {n}), got {cov.shape}")
+        asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
+            np.swapaxes(cov, -1, -2))) + 1e-300
+        if np.any(asym):
+            raise InputError(f"prior_cov: not symmetric (entry {tuple(int(i) for i in np.argwhere(asym)[0])})")
         try:
             np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array
+from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.models.mixture import (DiagMixture, convolve, pad_components, product, reduce,
                                      select, uniform_ball)
@@ -58,9 +58,10 @@ def _check_models(models: object) -> DiagMixture:
 
 
 def _check_max_components(k: object) -> int:
-    if isinstance(k, bool) or int(k) != k or int(k) < 1:
-        raise InputError(f"max_components: must be an integer >= 1, got {k!r}")
-    return int(k)
+    try:
+        return check_int(k, "max_components", minimum=1, maximum=MAX_COMPONENTS)
+    except RadiolocError as exc:          # this module's settings errors are InputErrors
+        raise InputError(str(exc)) from None
 
 
 def _with_mixture(mix: DiagMixture, k: int) -> dict[str, np.ndarray]:
@@ -162,6 +163,9 @@ class MixtureLocalizer(SnapshotEstimator):
         except ValueError:
             raise InputError(f"rss: batch shape {rss.shape[:-1]} does not broadcast with the "
                              f"models' {models.batch_shape[:-1]}") from None
+        k = min(float(self.max_components), float(models.n_components) ** self.n_stations)
+        check_memory(32.0 * np.prod(shape, dtype=float) * k * k * (2 * models.dim - 1),
+                     "max_components", "the products of the position mixtures")
         cond = models.condition(models.dim - 1, np.where(got, rss, 0.0), valid=got)
         post = None
         have = None

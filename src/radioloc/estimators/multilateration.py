@@ -14,7 +14,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.nlls import solve_nlls
 
@@ -108,8 +108,8 @@ class Multilateration(SnapshotEstimator):
         A problem converges when its accepted step is no longer than this (m).
     on_degenerate : {"raise", "flag"}
         What a problem whose geometry does not fix the position does (collinear or
-        coplanar anchors, an ambiguous mirror fix, a singular information matrix):
-        ``"raise"`` a :class:`GeometryError` naming the first such problem, or ``"flag"``
+        coplanar anchors, an ambiguous mirror fix, a singular information matrix, no
+        converged fix): ``"raise"`` a :class:`GeometryError` naming the first such problem, or ``"flag"``
         it in ``diagnostics["degenerate"]`` (its covariance is then NaN, and the caller
         must drop or report it).
 
@@ -134,16 +134,12 @@ class Multilateration(SnapshotEstimator):
                 range_std_m = check_positive(range_std_m, "range_std_m")
             except InputError as exc:
                 raise ConfigError(str(exc)) from None
-        if int(max_iter) != max_iter or max_iter < 1:
-            raise ConfigError(f"max_iter: must be a positive integer, got {max_iter!r}")
-        if not (np.isfinite(tol_m) and tol_m >= 0):
-            raise ConfigError(f"tol_m: must be finite and >= 0, got {tol_m!r}")
         self.method = method
         self.range_std_m = None if range_std_m is None else float(range_std_m)
-        self.max_iter = int(max_iter)
-        self.tol_m = float(tol_m)
+        self.max_iter = check_int(max_iter, "max_iter", minimum=1, maximum=MAX_ITERATIONS)
+        self.tol_m = check_positive(tol_m, "tol_m", allow_zero=True)
 
-    def _resolve_mirror(self, fit, r, a, used, w, n_used):
+    def _resolve_mirror(self, fit, r, a, used, w, n_used, origin):
         """The mirror check with one solve for the well-posed problems.
 
         Each solution is reflected across the anchors' best-fit line (2-D) or plane (3-D)
@@ -197,7 +193,7 @@ class Multilateration(SnapshotEstimator):
         shape = "collinear" if d == 2 else "coplanar"
 
         def detail(idx):
-            p, q = first.x[idx], second.x[idx]
+            p, q = first.x[idx] + origin[idx], second.x[idx] + origin[idx]
             return (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
                     f"{np.array2string(q, precision=3)} fit the ranges equally well "
                     f"(anchors nearly {shape} seen from the node)")
@@ -259,7 +255,10 @@ class Multilateration(SnapshotEstimator):
             raise InputError(f"weights: shape {w.shape} does not broadcast to "
                              f"{batch + r.shape[-1:]}") from None
         r = np.broadcast_to(r, w.shape)
-        a = np.broadcast_to(a, batch + a.shape[-2:])
+        # solve in a frame centred on the anchors (the closed-form start squares the
+        # coordinates: far from the origin it would lose every digit); shifted back below
+        origin = np.broadcast_to(a, batch + a.shape[-2:]).mean(axis=-2)
+        a = np.broadcast_to(a, batch + a.shape[-2:]) - origin[..., None, :]
         w = np.where(np.isnan(r), 0.0, w)                 # NaN = missing range
         used = w > 0
         bad = used & ~(np.isfinite(r) & (r >= 0))
@@ -279,7 +278,7 @@ class Multilateration(SnapshotEstimator):
         else:
             x0 = as_float_array(initial, "initial", last_dim=d)
             try:
-                x0 = np.broadcast_to(x0, batch + (d,)).copy()
+                x0 = np.broadcast_to(x0, batch + (d,)) - origin
             except ValueError:
                 raise InputError(f"initial: shape {x0.shape} does not broadcast to "
                                  f"{batch + (d,)}") from None
@@ -288,7 +287,8 @@ class Multilateration(SnapshotEstimator):
         self._degenerate(flat, flat_detail)
         fit = solve_nlls(_range_residuals(r, a), x0, weights=w, method=self.method,
                          max_iter=self.max_iter, tol=self.tol_m)
-        fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used)
+        fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used,
+                                                             origin)
         self._degenerate(ambiguous & ~flat, amb_detail)
         JtWJ = fit.normal_matrix
         with np.errstate(all="ignore"):
@@ -297,7 +297,12 @@ class Multilateration(SnapshotEstimator):
         self._degenerate(singular & ~flat & ~ambiguous,
                          f"anchors are {'collinear' if d == 2 else 'coplanar'} or the position "
                          "coincides with an anchor; the geometry does not fix the position")
-        degenerate = flat | ambiguous | singular
+        stuck = ~fit.converged & ~flat & ~ambiguous & ~singular
+        self._degenerate(stuck, lambda idx: (
+            f"no converged fix after {int(fit.iterations[idx])} iterations (residual rms "
+            f"{float(np.sqrt(fit.cost[idx] / max(float(np.sum(w[idx])), 1e-300))):.3g} m): the "
+            "anchors do not fix the position from this start"))
+        degenerate = flat | ambiguous | singular | stuck
         JtWJ = np.where(degenerate[..., None, None], np.eye(d), JtWJ)
         dof = n_used - d                                  # >= 1: D + 1 ranges are required
         wsum = np.sum(w, axis=-1)
@@ -308,7 +313,7 @@ class Multilateration(SnapshotEstimator):
         cov = s2[..., None, None] * np.linalg.inv(JtWJ)
         cov = np.where(degenerate[..., None, None], np.nan, cov)
         rms = np.sqrt(fit.cost / np.maximum(wsum, 1e-300))
-        return Estimate(fit.x, cov, None, {
+        return Estimate(fit.x + origin, cov, None, {
             "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
             "iterations": fit.iterations, "residual_rms_m": rms, "degenerate": degenerate,
             "ambiguous": ambiguous & ~flat})

@@ -16,7 +16,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError
 from radioloc.core.results import Estimate
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.nlls import solve_nlls
 from radioloc.models.single_sensor import (
@@ -112,9 +112,7 @@ class NewtonTracker(SnapshotEstimator):
             raise ConfigError(f"reference_index: must be an int or None, got {reference_index!r}")
         self.reference_index = None if reference_index is None else int(reference_index)
         self.tol = check_positive(tol, "tol")
-        if int(max_iter) < 0 or int(max_iter) != max_iter:
-            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
-        self.max_iter = int(max_iter)
+        self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
         if step_control not in ("none", "halving"):
             raise ConfigError(f"step_control: must be 'none' or 'halving', got {step_control!r}")
         self.step_control = step_control

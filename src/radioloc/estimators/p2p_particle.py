@@ -39,7 +39,8 @@ from scipy.special import logsumexp
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.links import gather_packed, pack_mask, scatter_packed
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array, check_positive, check_probability
+from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
+                                      check_probability)
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.pf_kernels import finish_step, link_update
 from radioloc.estimators.resampling import get_scheme
@@ -277,8 +278,7 @@ class P2PParticleFilter(RecursiveEstimator):
             raise ConfigError(f"motion: the filter tracks 2-D positions, got dim={motion.dim}")
         if not isinstance(measurement, LosNlosRange):
             raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
-        if int(particles) != particles or int(particles) < 1:
-            raise ConfigError(f"particles: must be an integer >= 1, got {particles!r}")
+        particles = check_int(particles, "particles", minimum=1, maximum=MAX_PARTICLES)
         get_scheme(resampling)
         std = np.asarray(init_std, dtype=float)
         if std.ndim > 1 or (std.ndim == 1 and std.shape[0] != motion.state_dim):

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import distances
 from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Estimate
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
+                                      check_positive)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.local_search import search
 from radioloc.estimators.nlls import solve_nlls
@@ -28,6 +29,22 @@ __all__ = ["LocalML", "Ransac"]
 def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """``theta - ||x_c - centre||`` for candidates ``x (..., C, 2)``: ``(..., C, L)``."""
     return ranges[..., None, :] - distances(x[..., :, None, :], centres[..., None, :, :])
+
+
+def _check_on_degenerate(value: str) -> str:
+    if value not in ("flag", "raise"):
+        raise ConfigError(f"on_degenerate: must be 'flag' or 'raise', got {value!r}")
+    return value
+
+
+def _degenerate(x, centres, ranges, used, tol_m, action) -> np.ndarray:
+    """Ambiguous fixes (:func:`ambiguous_fixes`): flagged, or raised for the first one."""
+    mask, reason = ambiguous_fixes(x, centres, ranges, used, tol_m)
+    if action == "raise" and np.any(mask):
+        idx = tuple(int(i) for i in np.argwhere(mask)[0])
+        text = reason(idx)
+        raise GeometryError(f"centres: problem {idx}: {text}", index=idx, detail=text)
+    return mask
 
 
 def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -74,19 +91,24 @@ class LocalML(SnapshotEstimator):
     search_radius_m : float, optional
         Half width of a local search around the centre passed to :meth:`locate`; default
         None: the global search above.
+    on_degenerate : {"flag", "raise"}
+        A global search whose points heard are coincident or collinear, or whose fix has a
+        mirror image that fits the ranges as well (:func:`radioloc.core.validation.ambiguous_fixes`,
+        within ``3 los_std_m``), is ``"flag"``-ged in ``diagnostics["degenerate"]``
+        (default: the highway geometry of paper 001 is nearly collinear by nature) or
+        ``"raise"``-s a :class:`GeometryError` naming the first such problem.
     """
 
     name = "local-ml"
 
     def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21,
-                 search_radius_m: float | None = None) -> None:
+                 search_radius_m: float | None = None, on_degenerate: str = "flag") -> None:
+        self.on_degenerate = _check_on_degenerate(on_degenerate)
         if not isinstance(measurement, LosNlosRange):
             raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
         self.measurement = measurement
         self.radius_m = check_positive(radius_m, "radius_m")
-        if int(coarse_points) != coarse_points or coarse_points < 2:
-            raise ConfigError(f"coarse_points: must be an integer >= 2, got {coarse_points!r}")
-        self.coarse_points = int(coarse_points)
+        self.coarse_points = check_int(coarse_points, "coarse_points", minimum=2, maximum=4096)
         self.search_radius_m = (None if search_radius_m is None
                                 else check_positive(search_radius_m, "search_radius_m"))
 
@@ -130,8 +152,12 @@ class LocalML(SnapshotEstimator):
             lp = model.logpdf(e, 0.0)
             return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
         x = search(objective, cen, th, valid, half, self.coarse_points, centre=search_centre)
-        return Estimate(x, None, None, {"log_likelihood": objective(x[..., None, :])[..., 0],
-                                        "measurements_used": valid.sum(axis=-1)})
+        diag = {"log_likelihood": objective(x[..., None, :])[..., 0],
+                "measurements_used": valid.sum(axis=-1)}
+        if self.search_radius_m is None:
+            diag["degenerate"] = _degenerate(x, cen, th, valid, 3.0 * model.los_std_m,
+                                             self.on_degenerate)
+        return Estimate(x, None, None, diag)
 
 
 class Ransac(SnapshotEstimator):
@@ -152,16 +178,19 @@ class Ransac(SnapshotEstimator):
         Half width of the coarse grid of hypotheses.
     max_iter : int
         Gauss-Newton iterations of the refit.
+    on_degenerate : {"flag", "raise"}
+        As for :class:`LocalML` (tolerance ``threshold_m``; the refit's inliers are the
+        ranges checked).
     """
 
     name = "ransac"
 
-    def __init__(self, threshold_m: float, radius_m: float, max_iter: int = 50) -> None:
+    def __init__(self, threshold_m: float, radius_m: float, max_iter: int = 50,
+                 on_degenerate: str = "flag") -> None:
+        self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.threshold_m = check_positive(threshold_m, "threshold_m")
         self.radius_m = check_positive(radius_m, "radius_m")
-        if int(max_iter) != max_iter or max_iter < 0:
-            raise ConfigError(f"max_iter: must be an integer >= 0, got {max_iter!r}")
-        self.max_iter = int(max_iter)
+        self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
 
     def locate(self, ranges, centres) -> Estimate:
         """RANSAC positions for a batch of snapshots.
@@ -199,7 +228,8 @@ class Ransac(SnapshotEstimator):
                          max_iter=self.max_iter)
         n_in = inliers.sum(axis=-1)
         rms = np.sqrt(fit.cost / np.maximum(n_in, 1))
+        degenerate = _degenerate(fit.x, cen, th, inliers, thr, self.on_degenerate)
         return Estimate(fit.x, None, None, {"converged": fit.converged, "stalled": fit.stalled,
                                             "iterations": fit.iterations, "inliers": n_in,
-                                            "residual_rms_m": rms,
+                                            "residual_rms_m": rms, "degenerate": degenerate,
                                             "measurements_used": valid.sum(axis=-1)})

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import as_float_array
+from radioloc.core.validation import as_float_array, check_positive, check_real
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,12 @@ class LogDistanceGaussian:
     n: float
     s: float
     d_ref_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_real(self.a, "a")
+        check_real(self.n, "n")
+        check_positive(self.s, "s")
+        check_positive(self.d_ref_m, "d_ref_m")
 
     @classmethod
     def fit(cls, rssi, dist, d_ref_m: float = 0.1) -> "LogDistanceGaussian":
