@@ -105,6 +105,24 @@ def test_recursive_gaussian_equals_the_plain_recursions():
         np.testing.assert_allclose(excess[b], np.maximum(ref - 0.01, 0).sum(), rtol=1e-10)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_recursive_gaussian_float32_storage_error_is_four_roundings(seed):
+    rng = np.random.default_rng(seed)
+    p = rng.random((2, 41, 57)) ** 6
+    s = np.array([2.0, 9.5])
+    ref, ref_excess = gk.recursive_gaussian(p, s, 1e-6)
+    got, excess = gk.recursive_gaussian(p, s, 1e-6, np.float32)
+    assert got.dtype == np.float32
+    # four stores rounded to float32 (2**-24 each), through positive averaging kernels
+    scale = ref.max(axis=(1, 2), keepdims=True)
+    assert np.all(np.abs(got - ref) <= 4 * 2.0**-24 * np.abs(ref) + 1e-12 * scale)
+    np.testing.assert_allclose(excess, np.maximum(got.astype(float) - 1e-6, 0).sum(axis=(1, 2)),
+                               rtol=1e-12)
+    np.testing.assert_allclose(excess, ref_excess, rtol=1e-6)
+    with pytest.raises(ValueError, match="dtype"):
+        gk.recursive_gaussian(p, s, 1e-6, np.float16)
+
+
 @pytest.mark.parametrize("s", [2.0, 5.0, 15.0])
 def test_recursive_impulse_response_has_the_gaussian_variance(s):
     n = 201

@@ -25,7 +25,10 @@ the model lives in :mod:`radioloc.models.single_sensor`.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit, prange
 
 from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.results import Estimate
@@ -35,6 +38,7 @@ from radioloc.estimators.base import SnapshotEstimator
 from radioloc.models.single_sensor import (
     SquaredRangeModel,
     design_matrix,
+    difference_both,
     difference_rows,
     resolve_sampling,
     trajectory,
@@ -80,6 +84,217 @@ def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
     """Step 3a, batched: ``(A~' A~)^{-1} A~' S y``."""
     at = np.swapaxes(sa, -1, -2)
     return np.linalg.solve(at @ sa, (at @ sy[..., None]))[..., 0]
+
+
+# ---- compiled iterative BLUE ---------------------------------------------------------
+# One track at a time per thread (prange over tracks); the same maths as _gls, with
+# S Sigma S' built from its parts and factorised by Cholesky instead of LU:
+#   Sigma_ij = 4 c_ij (d_i . d_j) + 2 c2_ij + delta_ij e_i (+ the printed eq. (14) terms),
+#   d_i = p_k + t_i v_k - s_i, e_i = 4 xi_i (|d_i|^2 + 2 c_ii) + (2 + kappa) xi_i^2,
+# with S (2 c2) S' computed once per call. tests/test_closed_form_kernels.py compares it
+# with the NumPy path on random inputs.
+_FM = {"contract"}
+_S0, _S1, _S2, _S3 = 1.0, -3.0, 3.0, -1.0          # a row of S, eq. (10)
+
+
+@njit(cache=True)
+def _spd_inverse4(G, out):
+    """``out = inv(G[:4, :4])`` for a symmetric positive definite block (Cholesky); False
+    if it is not positive definite."""
+    L = np.zeros((4, 4))
+    for i in range(4):
+        for j in range(i + 1):
+            v = G[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            if i == j:
+                if not v > 0.0:
+                    return False
+                L[i, i] = math.sqrt(v)
+            else:
+                L[i, j] = v / L[j, j]
+    Li = np.zeros((4, 4))                               # L^{-1}
+    for i in range(4):
+        Li[i, i] = 1.0 / L[i, i]
+        for j in range(i):
+            v = 0.0
+            for k in range(j, i):
+                v -= L[i, k] * Li[k, j]
+            Li[i, j] = v / L[i, i]
+    for i in range(4):                                  # L^{-T} L^{-1}
+        for j in range(4):
+            v = 0.0
+            for k in range(max(i, j), 4):
+                v += Li[k, i] * Li[k, j]
+            out[i, j] = v
+    return True
+
+
+@njit(cache=True, fastmath=_FM)
+def _gls_one(b, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
+             dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, out_beta, out_cov):
+    """Steps 1-2 and one GLS step (3b-3c; OLS, step 3a, with ``ols_only``) of track ``b``.
+    Returns the criterion, or NaN when a matrix is not positive definite."""
+    n = r.shape[1]
+    m = n - 3
+    sb = b if s.shape[0] > 1 else 0
+    xb = b if xi.shape[0] > 1 else 0
+    bx, by, bvx, bvy = beta[b, 0], beta[b, 1], beta[b, 2], beta[b, 3]
+    for i in range(n):
+        ai = s[sb, i, 0]
+        bi = s[sb, i, 1]
+        dx[i] = bx + tv[i] * bvx - ai
+        dy[i] = by + tv[i] * bvy - bi
+        x = xi[xb, i]
+        ex[i] = 4.0 * x * (dx[i] * dx[i] + dy[i] * dy[i] + 2.0 * c[i, i]) + (2.0 + kap) * x * x
+        if printed:
+            ex[i] += 4.0 * x * var[i]
+        y[i] = r[b, i] * r[b, i] - ai * ai - bi * bi - mean[xb, i]          # step 1
+        am[i, 0] = -2.0 * ai
+        am[i, 1] = -2.0 * bi
+        am[i, 2] = -2.0 * tv[i] * ai
+        am[i, 3] = -2.0 * tv[i] * bi
+    for row in range(m):                                                    # step 2
+        ok = not (math.isnan(y[row]) or math.isnan(y[row + 1]) or math.isnan(y[row + 2])
+                  or math.isnan(y[row + 3]))
+        keep[row] = ok
+        for q in range(4):
+            Z[q, row] = (_S0 * am[row, q] + _S1 * am[row + 1, q] + _S2 * am[row + 2, q]
+                         + _S3 * am[row + 3, q]) if ok else 0.0
+        Z[4, row] = (_S0 * y[row] + _S1 * y[row + 1] + _S2 * y[row + 2]
+                     + _S3 * y[row + 3]) if ok else 0.0
+    if ols_only:
+        for p in range(5):
+            for q in range(p + 1):
+                acc = 0.0
+                for k in range(m):
+                    acc += Z[p, k] * Z[q, k]
+                G[p, q] = acc
+                G[q, p] = acc
+    else:
+        if printed:
+            for row in range(m):
+                sv[row] = _S0 * var[row] + _S1 * var[row + 1] + _S2 * var[row + 2] + _S3 * var[row + 3]
+                sx[row] = (_S0 * xi[xb, row] + _S1 * xi[xb, row + 1] + _S2 * xi[xb, row + 2]
+                           + _S3 * xi[xb, row + 3])
+        # M = [W | Z'], W = S Sigma S' as its upper triangle, row by row (step 3b)
+        for row in range(m):
+            # row ``row`` of U = S Sigma, columns row..n-1 (all the upper triangle needs)
+            ax0, ax1 = _S0 * dx[row], _S1 * dx[row + 1]
+            ax2, ax3 = _S2 * dx[row + 2], _S3 * dx[row + 3]
+            ay0, ay1 = _S0 * dy[row], _S1 * dy[row + 1]
+            ay2, ay3 = _S2 * dy[row + 2], _S3 * dy[row + 3]
+            c0, c1, c2, c3 = c[row, row:], c[row + 1, row:], c[row + 2, row:], c[row + 3, row:]
+            ux, uy, uo = dx[row:], dy[row:], ur[row:]
+            for i in range(n - row):               # loops from 0: no wrap-around checks
+                px = ax0 * c0[i] + ax1 * c1[i] + ax2 * c2[i] + ax3 * c3[i]
+                py = ay0 * c0[i] + ay1 * c1[i] + ay2 * c2[i] + ay3 * c3[i]
+                uo[i] = 4.0 * (ux[i] * px + uy[i] * py)
+            ur[row] += _S0 * ex[row]
+            ur[row + 1] += _S1 * ex[row + 1]
+            ur[row + 2] += _S2 * ex[row + 2]
+            ur[row + 3] += _S3 * ex[row + 3]
+            mo, so = M[row, row:m], sks[row, row:]
+            u0, u1, u2, u3 = ur[row:], ur[row + 1:], ur[row + 2:], ur[row + 3:]
+            for col in range(m - row):
+                mo[col] = so[col] + _S0 * u0[col] + _S1 * u1[col] + _S2 * u2[col] + _S3 * u3[col]
+            if printed:
+                for col in range(m - row):
+                    mo[col] -= 2.0 * (sv[row] * sx[row + col] + sx[row] * sv[row + col])
+            for q in range(5):
+                M[row, m + q] = Z[q, row]
+        for row in range(m):                        # a dropped row: unit diagonal, decoupled
+            if not keep[row]:
+                for col in range(row + 1, m):
+                    M[row, col] = 0.0
+                M[row, row] = 1.0
+                for r2 in range(row):
+                    M[r2, row] = 0.0
+        # Cholesky of the augmented matrix, right-looking on the upper triangle, two rows
+        # at a time (rank-2 updates of contiguous rows): row k becomes [L' | L^{-1} Z'] row k
+        k = 0
+        while k < m:
+            mk = M[k]
+            d = mk[k]
+            if not d > 0.0:
+                return np.nan
+            d = math.sqrt(d)
+            mk[k] = d
+            inv = 1.0 / d
+            tk = mk[k + 1:]
+            for j in range(tk.size):
+                tk[j] *= inv
+            if k + 1 == m:
+                break
+            m1 = M[k + 1]
+            f = mk[k + 1]
+            t1 = m1[k + 1:]
+            tj = mk[k + 1:]
+            for j in range(t1.size):
+                t1[j] -= f * tj[j]
+            d = m1[k + 1]
+            if not d > 0.0:
+                return np.nan
+            d = math.sqrt(d)
+            m1[k + 1] = d
+            inv = 1.0 / d
+            t1 = m1[k + 2:]
+            for j in range(t1.size):
+                t1[j] *= inv
+            for i in range(k + 2, m):
+                f0 = mk[i]
+                f1 = m1[i]
+                ti = M[i, i:]
+                t0 = mk[i:]
+                t1 = m1[i:]
+                for j in range(ti.size):
+                    ti[j] -= f0 * t0[j] + f1 * t1[j]
+            k += 2
+        for p in range(5):
+            for q in range(p + 1):
+                acc = 0.0
+                for k in range(m):
+                    acc += M[k, m + p] * M[k, m + q]
+                G[p, q] = acc
+                G[q, p] = acc
+    # step 3c: beta = (A~' W^-1 A~)^-1 A~' W^-1 S y; criterion r' W^-1 r
+    if not _spd_inverse4(G, out_cov):
+        return np.nan
+    crit = G[4, 4]
+    for p in range(4):
+        v = out_cov[p, 0] * G[0, 4] + out_cov[p, 1] * G[1, 4] + out_cov[p, 2] * G[2, 4] \
+            + out_cov[p, 3] * G[3, 4]
+        out_beta[p] = v
+        crit -= v * G[p, 4]
+    return crit
+
+
+@njit(parallel=True, cache=True)
+def _gls_tracks(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
+                out_beta, out_cov, out_crit):
+    """:func:`_gls_one` for the tracks ``idx`` (outputs indexed like ``idx``), in parallel
+    over chunks of tracks that share one workspace."""
+    A = idx.size
+    n = r.shape[1]
+    m = n - 3
+    nch = min(A, 64)
+    for ch in prange(nch):
+        dx = np.empty(n)
+        dy = np.empty(n)
+        ex = np.empty(n)
+        y = np.empty(n)
+        am = np.empty((n, 4))
+        keep = np.empty(m, np.bool_)
+        Z = np.empty((5, m))
+        M = np.empty((m, m + 5))
+        ur = np.empty(n)
+        sv = np.empty(m)
+        sx = np.empty(m)
+        G = np.empty((5, 5))
+        for a in range(ch * A // nch, (ch + 1) * A // nch):
+            out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
+                                   ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
+                                   out_beta[a], out_cov[a])
 
 
 class ClosedFormTracker(SnapshotEstimator):
@@ -215,16 +430,13 @@ class ClosedFormTracker(SnapshotEstimator):
         model = SquaredRangeModel(n, k, T, self.accel_var, self.range_var,
                                   self.accel_excess_kurtosis, self.range_excess_kurtosis,
                                   self.printed_eq14)
+        if self.weighting == "blue" and covariance_state is None:
+            return self._locate_compiled(r, s, k, T, t_k, model, batch)
         sa, sy, keep = self._differenced_system(r, s, k, model)    # steps 1-2
 
         def cov_at(state):
             return _mask_covariance(model.differenced_covariance(state, s), keep)
-        col = np.linalg.norm(sa, axis=-2, keepdims=True)
-        cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
-        if np.any(~np.isfinite(cond) | (cond > self.cond_limit)):
-            raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
-                                f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "
-                                "does not separate [x_k, y_k, vx_k, vy_k]")
+        self._check_condition(sa)
         ols = _ols(sa, sy)                                          # step 3a
         ones = np.ones(batch, dtype=bool)
         if covariance_state is not None:
@@ -267,6 +479,89 @@ class ClosedFormTracker(SnapshotEstimator):
                               keep)
 
     # ---- helpers --------------------------------------------------------------------
+    def _check_condition(self, sa: np.ndarray) -> None:
+        """GeometryError when ``S A`` (column-scaled) is numerically rank deficient."""
+        col = np.linalg.norm(sa, axis=-2, keepdims=True)
+        cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
+        if np.any(~np.isfinite(cond) | (cond > self.cond_limit)):
+            raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
+                                f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "
+                                "does not separate [x_k, y_k, vx_k, vy_k]")
+
+    def _locate_compiled(self, r, s, k, T, t_k, model, batch) -> Estimate:
+        """Steps 1-3d by the compiled kernel (:func:`_gls_tracks`): the same estimate as
+        the NumPy path (``_differenced_system`` and ``_gls``) up to rounding."""
+        n = r.shape[-1]
+        B = int(np.prod(batch, dtype=np.int64))
+        rr = np.ascontiguousarray(r.reshape(B, n), dtype=float)
+        shared = s.ndim == 2 or all(st == 0 for st in s.strides[:-2])
+        ss = np.ascontiguousarray((s[(0,) * (s.ndim - 2)] if shared else s)
+                                  .reshape(-1, n, 2), dtype=float)
+        xi = np.broadcast_to(model.xi, model.xi.shape[:-1] + (n,)) if model.xi.ndim else \
+            np.full(n, float(model.xi))
+        xi = np.ascontiguousarray(np.broadcast_to(xi, batch + (n,)).reshape(B, n)
+                                  if xi.ndim > 1 else xi[None], dtype=float)
+        var = np.ascontiguousarray(np.diag(model.c))
+        mean = 2.0 * var + xi                                       # E[e_n], step 1
+        sks = np.ascontiguousarray(difference_both(2.0 * model.c_sq))
+        tv = (np.arange(n) - k) * T
+        missing = np.isnan(rr)
+        m = missing.astype(np.int8)
+        keep = (m[:, :-3] + m[:, 1:-2] + m[:, 2:-1] + m[:, 3:]) == 0
+        # the rank check of S A: once for a shared sensor path and no missing sample,
+        # else on the tracks whose S A differs
+        odd = ~keep.all(axis=1) if ss.shape[0] == 1 else np.ones(B, dtype=bool)
+        if not odd.all():
+            self._check_condition(difference_rows(design_matrix(ss[0], T, k)))
+        if odd.any():
+            sa = np.where(keep[odd][..., None],
+                          difference_rows(design_matrix(ss if ss.shape[0] == 1 else ss[odd], T, k)),
+                          0.0)
+            self._check_condition(sa)
+        consts = (model.c, sks, tv, self.range_excess_kurtosis, self.printed_eq14, var)
+
+        def gls(idx, state, ols_only):
+            out_b = np.empty((idx.size, 4))
+            out_c = np.empty((idx.size, 4, 4))
+            crit = np.empty(idx.size)
+            _gls_tracks(idx, rr, ss, xi, mean, state, *consts, ols_only, out_b, out_c, crit)
+            if np.any(np.isnan(crit)):
+                raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
+                                    "and channel noise variances cannot both be zero for the "
+                                    "BLUE")
+            return out_b, out_c, crit
+
+        ols = gls(np.arange(B), np.zeros((B, 4)), True)[0]         # step 3a
+        beta = ols.copy()
+        best_crit = np.full(B, np.inf)
+        cov = np.zeros((B, 4, 4))
+        active = np.ones(B, dtype=bool)
+        converged = np.zeros(B, dtype=bool)
+        stalled = np.zeros(B, dtype=bool)
+        iterations = np.zeros(B, dtype=int)
+        for _ in range(self.max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            new, new_cov, crit = gls(idx, beta, False)              # steps 3b-3c
+            improved = (crit < best_crit[idx]) | (self.stopping == "change")
+            take = idx[improved]
+            stalled[idx[~improved]] = True
+            change = np.sqrt(np.sum((new - beta[idx]) ** 2, axis=-1))
+            beta[take] = new[improved]
+            cov[take] = new_cov[improved]
+            best_crit[take] = crit[improved]
+            iterations[take] += 1
+            done = improved & (change <= self.tol)                  # step 3d
+            converged[idx[done]] = True
+            active[:] = False
+            active[idx[improved & ~done]] = True
+        check_finite_output(beta, "ClosedFormTracker state")
+        shape = lambda a, tail: a.reshape(batch + tail)             # noqa: E731
+        return self._estimate(shape(beta, (4,)), shape(cov, (4, 4)), shape(ols, (4,)), n, T, k,
+                              t_k, shape(iterations, ()), shape(converged, ()),
+                              shape(stalled, ()), shape(keep, (n - 3,)))
+
     @staticmethod
     def _differenced_system(r, s, k, model):
         """Steps 1-2: mean-removed ``y`` and its third difference.

@@ -313,7 +313,9 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0, *,
     Young & van Vliet (a third-order recursion per direction, cost independent of the
     radius; zero outside the grid as above) and the others with the FFT. It is an
     approximation: its impulse response has the exact variance but departs from the
-    Gaussian by up to about 10 % of the peak value (``tests/test_grid_kernels.py``).
+    Gaussian by up to about 10 % of the peak value (``tests/test_grid_kernels.py``). Its
+    intermediate grids are stored in float32 (the recursions run in float64): a relative
+    error below ``4 * 2**-24`` per cell, five orders of magnitude under the approximation's.
 
     Parameters
     ----------
@@ -342,7 +344,8 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0, *,
     if epsilon * h * w > 1:
         raise InputError(f"epsilon: {epsilon} x {h * w} cells exceeds 1")
     raw, excess = _blur_raw(p, s, float(epsilon), method)
-    return _k.floor_normalise_into(raw, epsilon, excess, out=raw)
+    return _k.floor_normalise_into(raw, epsilon, excess,
+                                   out=raw if raw.dtype == np.float64 else None)
 
 
 def _blur_raw(p: np.ndarray, s: np.ndarray, epsilon: float, method: str
@@ -352,10 +355,11 @@ def _blur_raw(p: np.ndarray, s: np.ndarray, epsilon: float, method: str
     if method == "recursive":
         wide = s >= _k.RECURSIVE_MIN_SIGMA
         if wide.all():
-            return _k.recursive_gaussian(p, s, epsilon)
+            return _k.recursive_gaussian(p, s, epsilon, np.float32)
         if wide.any():
             out, excess = _blur_raw(p, s * ~wide, epsilon, "fft")
-            out[wide], excess[wide] = _k.recursive_gaussian(p[wide], s[wide], epsilon)
+            out[wide], excess[wide] = _k.recursive_gaussian(p[wide], s[wide], epsilon,
+                                                            np.float32)
             return out, excess
     # each run's padding depends on its own radius only (so a run's result does not depend
     # on the other runs of the batch); one batched FFT per distinct padding
