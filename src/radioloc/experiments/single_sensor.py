@@ -161,6 +161,25 @@ def _traj_err2(trajectory, truth):
     return np.mean(np.sum((trajectory - truth) ** 2, axis=-1), axis=-1)
 
 
+def _rmse_se(err2) -> float:
+    """Monte Carlo standard error of ``sqrt(mean(err2))`` over runs (delta method).
+
+    Parameters
+    ----------
+    err2 : array_like
+        Squared errors, one per run.
+
+    Returns
+    -------
+    float
+        ``std(err2) / sqrt(N) / (2 sqrt(mean(err2)))``.
+    """
+    e = np.asarray(err2, float)
+    if e.size < 2:
+        return float("nan")
+    return float(e.std(ddof=1) / np.sqrt(e.size) / (2.0 * np.sqrt(e.mean())))
+
+
 def _methods_on(tracks, config, rng, accel_var, source, runs):
     """All methods on tracks (R, N, 4) ``[x, y, vx, vy]`` for every n; tidy frames.
 
@@ -372,6 +391,13 @@ class SingleSensorExperiment(Experiment):
             for m in METHODS:
                 metrics.append(Metric(f"rmse_{m}_n{n_top}{tag}", rmse.loc[n_top, m], None, "m",
                                       f"{LABELS[m]}: current position p_k, k = n-1"))
+            top = sub[sub.n == n_top]
+            for m in METHODS:
+                for col, name in (("traj_err2", "traj_rmse"), ("pos_err2", "rmse")):
+                    metrics.append(Metric(f"{name}_{m}_n{n_top}{tag}_se",
+                                          _rmse_se(top.loc[top.method == m, col]), None, "m",
+                                          "Monte Carlo standard error of the RMSE over runs "
+                                          "(delta method: s.e. of the mean square / 2 RMSE)"))
             metrics.append(Metric(f"crb_rmse_n{n_top}{tag}", crb_d.loc[n_top], None, "m",
                                   "eq. (23), differenced model, sqrt(mean trace position block)"))
             metrics.append(Metric(f"crb_raw_rmse_n{n_top}{tag}", crb_r.loc[n_top], None, "m",
