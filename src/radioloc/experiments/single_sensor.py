@@ -129,7 +129,7 @@ def _trackers(config, accel_var):
     xi = config.range_var
     moments = dict(accel_excess_kurtosis=kurt, range_excess_kurtosis=kurt)
     return {
-        "blue": ClosedFormTracker(accel_var, xi, weighting="ols", **common),
+        "blue": ClosedFormTracker(accel_var, xi, **moments, **common),
         "blue_criterion_stop": ClosedFormTracker(accel_var, xi, stopping="criterion",
                                                  **moments, **common),
         "ols": ClosedFormTracker(accel_var, xi, weighting="ols", **common),
