@@ -59,6 +59,9 @@ class TetherConfig:
     team_trackers: trackers of the team experiment (0: none): that many trackers follow
         the same trackee, each alone and then sharing its readings with the others
         (``simulate_tether(trackers=..., share_readings=...)``), on the same worlds.
+    team_ablations: labelled variants of the team run (metric suffix ``_<label>``):
+        ``perfect_odometry`` (no odometry noise: a team-mate's reading lands exactly where
+        it was taken).
     """
 
     runs: int = 16
@@ -81,6 +84,7 @@ class TetherConfig:
     ablation_packets: int = 10
     narrow_factor: float = 0.5
     team_trackers: int = 2
+    team_ablations: tuple[str, ...] = ("perfect_odometry",)
 
     @property
     def grid_cells(self) -> int:
@@ -278,7 +282,7 @@ class TetherExperiment(Experiment):
         full : bool
             Full size (200 runs of 400 s, every ablation); quick: 16 runs of 300 s with
             the ``cells_1m``, ``perfect_odometry`` and ``no_odometry_sharing`` ablations
-            only. Both run the two-tracker team.
+            only. Both run the two-tracker team; full also its ``perfect_odometry`` variant.
 
         Returns
         -------
@@ -286,7 +290,8 @@ class TetherExperiment(Experiment):
         """
         if full:
             return TetherConfig(runs=200, block_size=50, steps=400)
-        return TetherConfig(ablations=("cells_1m", "perfect_odometry", "no_odometry_sharing"))
+        return TetherConfig(ablations=("cells_1m", "perfect_odometry", "no_odometry_sharing"),
+                            team_ablations=())
 
     def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
         """Simulate one block of runs without and with a compass (and the figure rows).
@@ -336,15 +341,19 @@ class TetherExperiment(Experiment):
                     "uncertainty_m": tr.uncertainty_m.ravel(), "localized": tr.localized.ravel(),
                     "synced": tr.synced.ravel()}))
         M = int(config.team_trackers)
-        if M > 1:
-            for share in (False, True):
-                for compass in (False, True):
-                    tr = simulate_tether(config.params, _tracker(config, main_model),
+        team_params = {"main": config.params}
+        for label in config.team_ablations:
+            if label != "perfect_odometry":
+                raise ConfigError(f"team_ablations: unknown variant {label!r}")
+            team_params[label] = replace(config.params, odo_scale_std=0.0, odo_heading_std=0.0)
+        for label, params in (team_params.items() if M > 1 else ()):
+            for share, compass in ((False, False), (False, True), (True, False), (True, True)):
+                    tr = simulate_tether(params, _tracker(config, main_model),
                                          runs.size, config.steps, stream(world_seed, "team-world"),
                                          compass=compass, trackers=M, share_readings=share)
                     T = tr.error_m.shape[1]
                     frames.append(pd.DataFrame({
-                        "table": "team", "variant": "team", "run": np.repeat(runs, M * T),
+                        "table": "team", "variant": label, "run": np.repeat(runs, M * T),
                         "tracker": np.tile(np.repeat(np.arange(M), T), runs.size),
                         "share": share, "compass": compass,
                         "time_s": tr.time_s.ravel(), "error_m": tr.error_m.ravel(),
@@ -548,6 +557,23 @@ class TetherExperiment(Experiment):
                 "Inter-robot sharing as in the paper (the trackee sends its odometry) lowers "
                 "the following error with a compass (paired gain > 2 standard errors, initial "
                 f"frame: {g:.2f} +- {gse:.2f} m)", bool(g > 2 * gse)))
+        for tlabel in (list(dict.fromkeys(team["variant"])) if len(team) else []):
+            tsub = "" if tlabel == "main" else f"_{tlabel}"
+            tteam = team[team["variant"] == tlabel]
+            m_, c_, n_ = TetherExperiment._team(config, tteam, tsub, bars if tlabel == "main" else [])
+            metrics += m_
+            claims += c_ if tlabel == "main" else []
+            notes += n_ if tlabel == "main" else []
+        TetherExperiment._fig_sharing(bars, team[team["variant"] == "main"] if len(team) else team,
+                                      config, out_dir)
+        return metrics, claims, notes
+
+    @staticmethod
+    def _team(config: TetherConfig, team: pd.DataFrame, tsub: str, bars: list):
+        """Metrics, claims and notes of one team setting (``tsub``: metric suffix)."""
+        metrics, claims, notes = [], [], []
+        frames = (("", "mean_err", "initial frame"), ("_odomframe", "mean_err_odom",
+                                                      "current odometry frame"))
         if len(team):
             M = int(team["tracker"].max()) + 1
             keys = ["run", "tracker", "compass", "share"]
@@ -570,28 +596,28 @@ class TetherExperiment(Experiment):
                             if stage == "following":
                                 bars.append((f"{M} trackers, {how}", cname, suffix, m, se))
                             metrics += [
-                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}", m,
+                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}{tsub}", m,
                                        None, "m", f"{M} trackers, {how}, {fname}: mean over "
                                        f"runs of {what}"),
-                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}_se",
+                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}{tsub}_se",
                                        se, None, "m", "its Monte Carlo standard error")]
                         g, gse, n = _paired(alone, shared)
                         metrics += [
-                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}", g, None, "m",
+                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}{tsub}", g, None, "m",
                                    f"{fname}, {what}: mean over {n} runs of (alone - sharing), "
                                    "same worlds; > 0 = sharing helps"),
-                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}_se", gse, None,
+                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}{tsub}_se", gse, None,
                                    "m", "its Monte Carlo standard error")]
             for lab, share in (("alone", False), ("shared", True)):
                 t = per_team[per_team["share"] == share]
                 tl = t.groupby("run")["t_loc"].min()       # first tracker of the team
                 m, se = _mean_se(tl)
                 metrics += [
-                    Metric(f"team_time_to_localize_s_{lab}", m, None, "s",
+                    Metric(f"team_time_to_localize_s_{lab}{tsub}", m, None, "s",
                            "mean over runs of the first time a tracker of the team is localized"),
-                    Metric(f"team_time_to_localize_s_{lab}_se", se, None, "s",
+                    Metric(f"team_time_to_localize_s_{lab}{tsub}_se", se, None, "s",
                            "its Monte Carlo standard error"),
-                    Metric(f"team_fraction_localized_{lab}", float(t["t_loc"].notna().mean()),
+                    Metric(f"team_fraction_localized_{lab}{tsub}", float(t["t_loc"].notna().mean()),
                            None, "", "trackers localized within the run")]
             g, gse, _ = _paired(_per_run(per_team, "mean_err", compass=True, share=False),
                                 _per_run(per_team, "mean_err", compass=True, share=True))
@@ -602,7 +628,6 @@ class TetherExperiment(Experiment):
             notes.append(f"team: {M} trackers per run, start within {config.params.team_start_m:g} m "
                          "of each other (known relative poses); 'alone' and 'sharing' replay the "
                          "same worlds (stream 'team-world')")
-        TetherExperiment._fig_sharing(bars, team, config, out_dir)
         return metrics, claims, notes
 
     @staticmethod
