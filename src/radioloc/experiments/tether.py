@@ -52,8 +52,16 @@ class TetherConfig:
         each changing one thing: ``cells_1m`` (1 m cells), ``no_fading`` (no Rayleigh
         fading), ``avg<N>`` (each reading averages ``ablation_packets`` faded packets),
         ``narrow_rows`` (trapezoid ``tau`` and ``sigma`` times ``narrow_factor``),
-        ``perfect_odometry`` (no odometry noise on either robot). The RSSI model is refitted
-        on calibration pairs of each variant's channel. Not the paper's setting.
+        ``perfect_odometry`` (no odometry noise on either robot), ``no_odometry_sharing``
+        (the trackee does not send its odometry: the paper's inter-robot sharing removed;
+        the tracker blurs by the trackee's top speed every step). The RSSI model is
+        refitted on calibration pairs of each variant's channel. Not the paper's setting.
+    team_trackers: trackers of the team experiment (0: none): that many trackers follow
+        the same trackee, each alone and then sharing its readings with the others
+        (``simulate_tether(trackers=..., share_readings=...)``), on the same worlds.
+    team_ablations: labelled variants of the team run (metric suffix ``_<label>``):
+        ``perfect_odometry`` (no odometry noise: a team-mate's reading lands exactly where
+        it was taken).
     """
 
     runs: int = 16
@@ -72,9 +80,11 @@ class TetherConfig:
     example_runs: int = 8
     params: TetherParams = field(default_factory=TetherParams)
     ablations: tuple[str, ...] = ("cells_1m", "no_fading", "avg10", "narrow_rows",
-                                  "perfect_odometry")
+                                  "perfect_odometry", "no_odometry_sharing")
     ablation_packets: int = 10
     narrow_factor: float = 0.5
+    team_trackers: int = 2
+    team_ablations: tuple[str, ...] = ("perfect_odometry",)
 
     @property
     def grid_cells(self) -> int:
@@ -107,6 +117,8 @@ class TetherConfig:
             elif label == "perfect_odometry":
                 out[label] = Variant(replace(P, odo_scale_std=0.0, odo_heading_std=0.0),
                                      self.cell_m)
+            elif label == "no_odometry_sharing":
+                out[label] = Variant(replace(P, share_odometry=False), self.cell_m)
             else:
                 raise ConfigError(f"ablations: unknown variant {label!r}")
         return out
@@ -162,7 +174,7 @@ def _scaled(model, factor: float):
 def _table(results: pd.DataFrame, name: str) -> pd.DataFrame:
     """The rows of one table, without the columns of the others."""
     sub = results[results["table"] == name].dropna(axis=1, how="all")
-    for col in ("compass", "localized", "synced"):
+    for col in ("compass", "localized", "synced", "share"):
         if col in sub.columns:
             sub = sub.assign(**{col: sub[col].astype(bool)})
     return sub
@@ -174,12 +186,12 @@ def _cells(geom: GridGeometry, **grids: np.ndarray) -> dict:
     return {"x": X.ravel(), "y": Y.ravel(), **{k: np.asarray(v).ravel() for k, v in grids.items()}}
 
 
-def _following(df: pd.DataFrame) -> pd.DataFrame:
-    """Per (run, compass): localization time and error statistics once localized.
+def _following(df: pd.DataFrame, keys=("run", "compass")) -> pd.DataFrame:
+    """Per (run, compass) (or ``keys``): localization time and error statistics once localized.
 
     ``localized`` never reverts within a run, so the following stage is its True rows.
     """
-    keys = ["run", "compass"]
+    keys = list(keys)
     stats = df[df["localized"]].groupby(keys).agg(
         t_loc=("time_s", "min"), mean_err=("error_m", "mean"), peak_err=("error_m", "max"),
         mean_err_odom=("error_odom_m", "mean"), peak_err_odom=("error_odom_m", "max"),
@@ -188,12 +200,38 @@ def _following(df: pd.DataFrame) -> pd.DataFrame:
     return every.join(stats).reset_index()
 
 
+def _mean_se(x) -> tuple[float, float]:
+    """Mean and its Monte Carlo standard error over the finite values of ``x``."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return np.nan, np.nan
+    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(x.size)) if x.size > 1 else np.nan
+
+
+def _per_run(per: pd.DataFrame, column: str, **where) -> pd.Series:
+    """``column`` of the per-(run, ...) table, averaged over the rows of each run that
+    match ``where`` (e.g. the trackers of a team); NaN where a run has none."""
+    sel = np.ones(len(per), bool)
+    for k, v in where.items():
+        sel &= (per[k] == v).to_numpy()
+    return per[sel].groupby("run")[column].mean()
+
+
+def _paired(a: pd.Series, b: pd.Series) -> tuple[float, float, int]:
+    """Mean and standard error of ``a - b`` over the runs where both are finite."""
+    d = (a - b).dropna()
+    m, se = _mean_se(d)
+    return m, se, int(d.size)
+
+
 #: what each ablation changes (see TetherConfig.ablations)
 ABLATION_LABELS = {"main": "2 m cells, one Rayleigh-faded packet per reading (paper's setting)",
                    "cells_1m": "1 m cells", "no_fading": "no Rayleigh fading",
                    "avg10": "readings average 10 faded packets",
                    "narrow_rows": "trapezoid tau and sigma halved",
-                   "perfect_odometry": "no odometry noise"}
+                   "perfect_odometry": "no odometry noise",
+                   "no_odometry_sharing": "trackee's odometry not shared"}
 
 
 def _ablation_row(per: pd.DataFrame) -> dict:
@@ -243,7 +281,8 @@ class TetherExperiment(Experiment):
         ----------
         full : bool
             Full size (200 runs of 400 s, every ablation); quick: 16 runs of 300 s with
-            the ``cells_1m`` and ``perfect_odometry`` ablations only.
+            the ``cells_1m``, ``perfect_odometry`` and ``no_odometry_sharing`` ablations
+            only. Both run the two-tracker team; full also its ``perfect_odometry`` variant.
 
         Returns
         -------
@@ -251,7 +290,8 @@ class TetherExperiment(Experiment):
         """
         if full:
             return TetherConfig(runs=200, block_size=50, steps=400)
-        return TetherConfig(ablations=("cells_1m", "perfect_odometry"))
+        return TetherConfig(ablations=("cells_1m", "perfect_odometry", "no_odometry_sharing"),
+                            team_ablations=())
 
     def run_block(self, config: TetherConfig, runs: np.ndarray, rng: np.random.Generator) -> pd.DataFrame:
         """Simulate one block of runs without and with a compass (and the figure rows).
@@ -300,6 +340,27 @@ class TetherExperiment(Experiment):
                     "true_distance_m": tr.true_distance_m.ravel(),
                     "uncertainty_m": tr.uncertainty_m.ravel(), "localized": tr.localized.ravel(),
                     "synced": tr.synced.ravel()}))
+        M = int(config.team_trackers)
+        team_params = {"main": config.params}
+        for label in config.team_ablations:
+            if label != "perfect_odometry":
+                raise ConfigError(f"team_ablations: unknown variant {label!r}")
+            team_params[label] = replace(config.params, odo_scale_std=0.0, odo_heading_std=0.0)
+        for label, params in (team_params.items() if M > 1 else ()):
+            for share, compass in ((False, False), (False, True), (True, False), (True, True)):
+                    tr = simulate_tether(params, _tracker(config, main_model),
+                                         runs.size, config.steps, stream(world_seed, "team-world"),
+                                         compass=compass, trackers=M, share_readings=share)
+                    T = tr.error_m.shape[1]
+                    frames.append(pd.DataFrame({
+                        "table": "team", "variant": label, "run": np.repeat(runs, M * T),
+                        "tracker": np.tile(np.repeat(np.arange(M), T), runs.size),
+                        "share": share, "compass": compass,
+                        "time_s": tr.time_s.ravel(), "error_m": tr.error_m.ravel(),
+                        "error_odom_m": tr.error_odom_m.ravel(),
+                        "true_distance_m": tr.true_distance_m.ravel(),
+                        "uncertainty_m": tr.uncertainty_m.ravel(),
+                        "localized": tr.localized.ravel(), "synced": tr.synced.ravel()}))
         if examples:
             frames.append(self._fig3_rows(config, main_model, stream(rng, "fig3-readings"), int(runs[0])))
             frames.append(self._fig6_rows(config, main_model, stream(rng, "fig6-example"), int(runs[0])))
@@ -365,6 +426,7 @@ class TetherExperiment(Experiment):
         -------
         Summary
         """
+        results_in = results
         models = _table(results, "model")
         runs_all = _table(results, "runs")
         fig3_rows, fig6_rows = _table(results, "fig3"), _table(results, "fig6")
@@ -409,7 +471,17 @@ class TetherExperiment(Experiment):
             Metric("fraction_synced_compass", float(results[results["compass"]].groupby("run")["synced"].last().mean()),
                    None, "", "compass runs whose frames were synchronised by the end"),
         ]
+        # Monte Carlo standard errors of the headline means (over runs)
+        for name, sub, col in (("mean_error_m_following_compass", wc, "mean_err"),
+                               ("mean_error_m_following_compass_odomframe", wc, "mean_err_odom"),
+                               ("mean_error_m_following_nocompass", nc, "mean_err"),
+                               ("mean_error_m_following_nocompass_odomframe", nc, "mean_err_odom")):
+            metrics.append(Metric(f"{name}_se", _mean_se(sub[col])[1], None, "m",
+                                  "Monte Carlo standard error of the mean over runs"))
         metrics += extra
+        share_metrics, share_claims, share_notes = self._sharing(
+            config, runs_all, _table(results_in, "team"), out_dir)
+        metrics += share_metrics
         claims = [
             Claim(f"With a compass the error stays near 1 m while following (mean <= {config.near_m:g} m)",
                   bool(m_wc <= config.near_m)),
@@ -420,6 +492,7 @@ class TetherExperiment(Experiment):
                   f"stays near 1 m while following (mean <= {config.near_m:g} m)",
                   bool(float(wc["mean_err_odom"].mean()) <= config.near_m)),
         ]
+        claims += share_claims
         self._fig_model(config, models[models["variant"] == "main"], out_dir)
         self._fig_donuts(config, fig3_rows, out_dir)
         self._fig_traces(results, per, out_dir)
@@ -429,8 +502,166 @@ class TetherExperiment(Experiment):
                  "ablations (following error: mean over runs of the per-run mean once localized; "
                  "'init' = tracker's initial frame, 'odom' = its current odometry frame):\n"
                  + _ablation_markdown(ablation)]
+        notes += share_notes
         ablation.apply(lambda col: col.str[0]).to_csv(out_dir / "ablation.csv")
         return Summary(metrics, claims, notes)
+
+    # ---- inter-robot sharing -----------------------------------------------------------
+    @staticmethod
+    def _sharing(config: TetherConfig, runs_all: pd.DataFrame, team: pd.DataFrame,
+                 out_dir: Path) -> tuple[list, list, list]:
+        """What sharing gains: the trackee's odometry (paper) and a team's readings (ours).
+
+        Parameters
+        ----------
+        config : TetherConfig
+            Settings.
+        runs_all : pandas.DataFrame
+            The ``runs`` rows of every variant.
+        team : pandas.DataFrame
+            The ``team`` rows (empty without a team).
+        out_dir : pathlib.Path
+            Where ``fig_sharing.png`` goes.
+
+        Returns
+        -------
+        metrics, claims, notes : list
+            Metrics (with their standard errors), claims and notes.
+        """
+        metrics, claims, notes, bars = [], [], [], []
+        frames = (("", "mean_err", "initial frame"), ("_odomframe", "mean_err_odom",
+                                                      "current odometry frame"))
+        per_main = _following(runs_all[runs_all["variant"] == "main"])
+        for comp, cname in ((True, "compass"), (False, "nocompass")):
+            for suffix, col, fname in frames:
+                m, se = _mean_se(_per_run(per_main, col, compass=comp))
+                bars.append(("one tracker, odometry shared", cname, suffix, m, se))
+        if "no_odometry_sharing" in set(runs_all["variant"]):
+            per_no = _following(runs_all[runs_all["variant"] == "no_odometry_sharing"])
+            for comp, cname in ((True, "compass"), (False, "nocompass")):
+                for suffix, col, fname in frames:
+                    m, se = _mean_se(_per_run(per_no, col, compass=comp))
+                    bars.append(("one tracker, odometry not shared", cname, suffix, m, se))
+                    g, gse, n = _paired(_per_run(per_no, col, compass=comp),
+                                        _per_run(per_main, col, compass=comp))
+                    metrics += [
+                        Metric(f"odometry_sharing_gain_m_{cname}{suffix}", g, None, "m",
+                               f"{cname.replace('nocompass', 'no compass')}, {fname}: mean over "
+                               f"{n} runs localized in both of (error without - with the "
+                               "trackee's shared odometry), paired worlds; > 0 = sharing helps"),
+                        Metric(f"odometry_sharing_gain_m_{cname}{suffix}_se", gse, None, "m",
+                               "its Monte Carlo standard error")]
+            g, gse, _ = _paired(_per_run(per_no, "mean_err", compass=True),
+                                _per_run(per_main, "mean_err", compass=True))
+            claims.append(Claim(
+                "Inter-robot sharing as in the paper (the trackee sends its odometry) lowers "
+                "the following error with a compass (paired gain > 2 standard errors, initial "
+                f"frame: {g:.2f} +- {gse:.2f} m)", bool(g > 2 * gse)))
+        for tlabel in (list(dict.fromkeys(team["variant"])) if len(team) else []):
+            tsub = "" if tlabel == "main" else f"_{tlabel}"
+            tteam = team[team["variant"] == tlabel]
+            m_, c_, n_ = TetherExperiment._team(config, tteam, tsub, bars if tlabel == "main" else [])
+            metrics += m_
+            claims += c_ if tlabel == "main" else []
+            notes += n_ if tlabel == "main" else []
+        TetherExperiment._fig_sharing(bars, team[team["variant"] == "main"] if len(team) else team,
+                                      config, out_dir)
+        return metrics, claims, notes
+
+    @staticmethod
+    def _team(config: TetherConfig, team: pd.DataFrame, tsub: str, bars: list):
+        """Metrics, claims and notes of one team setting (``tsub``: metric suffix)."""
+        metrics, claims, notes = [], [], []
+        frames = (("", "mean_err", "initial frame"), ("_odomframe", "mean_err_odom",
+                                                      "current odometry frame"))
+        if len(team):
+            M = int(team["tracker"].max()) + 1
+            keys = ["run", "tracker", "compass", "share"]
+            per_team = _following(team, keys=keys)
+            half = config.steps * config.params.dt_s / 2
+            late = (team[team["time_s"] > half].groupby(keys)[["error_m", "error_odom_m"]].mean()
+                    .rename(columns={"error_m": "mean_err", "error_odom_m": "mean_err_odom"})
+                    .reset_index())
+            for stage, per, what in (
+                    ("following", per_team, "the trackers' mean error once localized"),
+                    ("second_half", late, f"the trackers' mean error after t = {half:g} s "
+                                          "(localized or not)")):
+                for comp, cname in ((True, "compass"), (False, "nocompass")):
+                    for suffix, col, fname in frames:
+                        alone = _per_run(per, col, compass=comp, share=False)
+                        shared = _per_run(per, col, compass=comp, share=True)
+                        for lab, series in (("alone", alone), ("shared", shared)):
+                            m, se = _mean_se(series)
+                            how = "each alone" if lab == "alone" else "sharing their readings"
+                            if stage == "following":
+                                bars.append((f"{M} trackers, {how}", cname, suffix, m, se))
+                            metrics += [
+                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}{tsub}", m,
+                                       None, "m", f"{M} trackers, {how}, {fname}: mean over "
+                                       f"runs of {what}"),
+                                Metric(f"team_mean_error_m_{stage}_{cname}{suffix}_{lab}{tsub}_se",
+                                       se, None, "m", "its Monte Carlo standard error")]
+                        g, gse, n = _paired(alone, shared)
+                        metrics += [
+                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}{tsub}", g, None, "m",
+                                   f"{fname}, {what}: mean over {n} runs of (alone - sharing), "
+                                   "same worlds; > 0 = sharing helps"),
+                            Metric(f"team_sharing_gain_m_{stage}_{cname}{suffix}{tsub}_se", gse, None,
+                                   "m", "its Monte Carlo standard error")]
+            for lab, share in (("alone", False), ("shared", True)):
+                t = per_team[per_team["share"] == share]
+                tl = t.groupby("run")["t_loc"].min()       # first tracker of the team
+                m, se = _mean_se(tl)
+                metrics += [
+                    Metric(f"team_time_to_localize_s_{lab}{tsub}", m, None, "s",
+                           "mean over runs of the first time a tracker of the team is localized"),
+                    Metric(f"team_time_to_localize_s_{lab}{tsub}_se", se, None, "s",
+                           "its Monte Carlo standard error"),
+                    Metric(f"team_fraction_localized_{lab}{tsub}", float(t["t_loc"].notna().mean()),
+                           None, "", "trackers localized within the run")]
+            g, gse, _ = _paired(_per_run(per_team, "mean_err", compass=True, share=False),
+                                _per_run(per_team, "mean_err", compass=True, share=True))
+            claims.append(Claim(
+                f"(ours, beyond the paper) {M} trackers sharing their readings follow with a "
+                "lower error than each alone, with a compass (paired gain > 2 standard errors, "
+                f"initial frame: {g:.2f} +- {gse:.2f} m)", bool(g > 2 * gse)))
+            notes.append(f"team: {M} trackers per run, start within {config.params.team_start_m:g} m "
+                         "of each other (known relative poses); 'alone' and 'sharing' replay the "
+                         "same worlds (stream 'team-world')")
+        return metrics, claims, notes
+
+    @staticmethod
+    def _fig_sharing(bars, team, config, out_dir):
+        labels = list(dict.fromkeys(b[0] for b in bars))
+        fig, axes = figure(1, 3 if len(team) else 2, width=15 if len(team) else 10, height=4.6)
+        colors = ["C0", "C7", "C1", "C2"]
+        for ax, (cname, title) in zip(axes, (("compass", "with compass"),
+                                             ("nocompass", "without compass"))):
+            xs = np.arange(2)
+            wdt = 0.8 / max(len(labels), 1)
+            for i, lab in enumerate(labels):
+                vals = [next((b[3], b[4]) for b in bars if b[0] == lab and b[1] == cname
+                             and b[2] == suf) for suf in ("", "_odomframe")]
+                ax.bar(xs + (i - (len(labels) - 1) / 2) * wdt, [v[0] for v in vals], wdt,
+                       yerr=[2 * v[1] if np.isfinite(v[1]) else 0 for v in vals],
+                       color=colors[i % len(colors)], capsize=3, label=lab)
+            ax.set_xticks(xs, ["initial frame", "current odometry frame"])
+            ax.set_ylabel("mean following error [m] (+- 2 s.e.)")
+            ax.set_title(f"following error, {title}")
+        axes[0].legend(fontsize=7, loc="upper right")
+        if len(team):
+            ax = axes[2]
+            for (share, comp), g in team.groupby(["share", "compass"]):
+                med = g.groupby("time_s")["error_m"].median()
+                ax.plot(med.index, med.values, color="C2" if share else "C1",
+                        ls="-" if comp else "--",
+                        label=f"{'sharing' if share else 'alone'}, {'compass' if comp else 'no compass'}")
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("median error over trackers and runs [m]")
+            ax.set_title("team of trackers: error vs time (initial frame)")
+            ax.legend(fontsize=7)
+        fig.suptitle("Inter-robot sharing: the trackee's odometry (paper) and a team's readings (ours)")
+        save(fig, out_dir / "fig_sharing.png")
 
     # ---- figures ---------------------------------------------------------------------
     @staticmethod

@@ -22,6 +22,20 @@ The radio: the channel gives the received power in dBm; the tracker's radio repo
 the paper's 0..100 RSSI scale (:func:`read_rssi`, the sensor quantiser
 :func:`radioloc.models.rssi_trapezoid.dbm_to_rssi100`).
 
+Inter-robot information sharing. The paper's (Sect. IV, Algorithm 4's ReceiveTrackeePose):
+the trackee sends its odometry pose every step, which sets the blur before the frames are
+synchronised and the shift after; ``TetherParams.share_odometry = False`` is the world
+without it (the tracker knows only the trackee's top speed and blurs by
+``speed_trackee dt`` every step). Beyond the paper (its conclusion names more than two nodes
+as future work): ``trackers = M > 1`` robots track the same trackee as a team. They start
+in a known formation (tracker ``j`` uniform within ``team_start_m`` of tracker 0, random
+heading; the relative initial poses are known to the team) and, with ``share_readings``,
+each tracker also applies every team-mate's RSSI reading of the step (ProbabilityUpdate
+centred on the team-mate's odometry position carried into its own frame through the known
+initial poses): the team-mates' likelihood grids multiplied into its own, each reading
+counted once. Sharing whole posteriors instead would multiply in the same readings again
+at every step. The trackee starts moving once any tracker has localized it.
+
 Choices the paper leaves open (all in :class:`TetherParams`): the channel, robot speeds,
 odometry noise model, the exploration pattern (random waypoints around the tracker's origin),
 the trackee's motion (random waypoints on the floor), the tracker's stand-off distance, and
@@ -37,6 +51,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from radioloc.channel.indoor_rss import IndoorChannel, office_walls
+from radioloc.core.errors import ConfigError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.models.rssi_trapezoid import dbm_to_rssi100
 
@@ -155,6 +170,12 @@ class TetherParams:
         Frames are synchronised once the tracker is this close to the estimate, metres.
     channel : IndoorChannel
         The radio channel.
+    share_odometry : bool
+        The trackee sends its odometry pose every step (the paper's inter-robot sharing);
+        False: the tracker blurs by ``speed_trackee * dt_s`` every step and never shifts.
+    team_start_m : float
+        With several trackers: tracker ``j >= 1`` starts uniformly within this distance of
+        tracker 0 (known relative initial poses), metres.
     """
 
     dt_s: float = 1.0
@@ -172,6 +193,8 @@ class TetherParams:
     v_m: float = 3.0
     delta_m: float = 2.0
     channel: IndoorChannel = field(default_factory=IndoorChannel)
+    share_odometry: bool = True
+    team_start_m: float = 4.0
 
     def walls(self) -> np.ndarray:
         """The floor's wall segments.
@@ -249,8 +272,9 @@ def _spread(est: Estimate) -> np.ndarray:
 
 
 def _rot(theta: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (..., 2) by angles ``theta`` (...)."""
     c, s = np.cos(theta), np.sin(theta)
-    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=-1)
+    return np.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]], axis=-1)
 
 
 def _step_toward(pos, target, speed, stop):
@@ -288,7 +312,8 @@ def calibration_pairs(params: TetherParams, n: int, rng: np.random.Generator):
 
 def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: int,
                     rng: np.random.Generator, *, compass: bool,
-                    record_steps: tuple[int, ...] = ()) -> TetherTrace:
+                    record_steps: tuple[int, ...] = (), trackers: int = 1,
+                    share_readings: bool = False) -> TetherTrace:
     """Run Algorithm 4 for ``batch`` independent runs for ``steps`` steps.
 
     Parameters
@@ -296,7 +321,8 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
     params : TetherParams
         World, robots and behaviour.
     tracker : Tracker
-        The tracker's estimator (e.g. the grid filter ``GridFilter``).
+        The tracker's estimator (e.g. the grid filter ``GridFilter``); with ``trackers = M``
+        it holds ``batch * M`` states, one per tracker of each run.
     batch, steps : int
         Runs B and steps T.
     rng : numpy.random.Generator
@@ -305,42 +331,69 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
         Whether the robots have a compass (frames can be synchronised).
     record_steps : tuple of int
         Steps whose tracker state is kept in :attr:`TetherTrace.states`.
+    trackers : int
+        Robots M tracking the same trackee (1: the paper's two-node problem). With one
+        tracker the draws are those of the single-tracker world.
+    share_readings : bool
+        With ``M > 1``: each tracker also applies its team-mates' readings of the step
+        (see the module docstring); False: each tracks alone.
 
     Returns
     -------
     TetherTrace
+        With ``M > 1`` every per-run array has ``B * M`` rows: tracker ``i`` of run ``b``
+        at row ``b * M + i``, each scored in its own frames.
     """
-    B, T, P = int(batch), int(steps), params
+    B, T, P, M = int(batch), int(steps), params, int(trackers)
+    if M < 1:
+        raise ConfigError(f"trackers: expected at least 1, got {trackers!r}")
     walls = P.walls()
     lo, hi = 0.5, P.floor_m - 0.5
-    # global initial poses: frame origins and headings
+    # global initial poses: frame origins and headings (tracker 0 first)
     g_a = rng.uniform(lo + 5, hi - 5, (B, 2))
     ang = rng.uniform(0, 2 * np.pi, B)
     g_b = np.clip(g_a + rng.uniform(*P.start_range_m, B)[:, None]
                   * np.stack([np.cos(ang), np.sin(ang)], -1), lo, hi)
     th_a = rng.uniform(-np.pi, np.pi, B)        # heading of each local frame in the global one
     th_b = rng.uniform(-np.pi, np.pi, B)
+    g_a, th_a = g_a[:, None], th_a[:, None]     # (B, M, 2), (B, M)
+    if M > 1:                                   # team-mates: a known start formation
+        rad = P.team_start_m * np.sqrt(rng.uniform(0, 1, (B, M - 1)))
+        phi = rng.uniform(0, 2 * np.pi, (B, M - 1))
+        mates = g_a + rad[..., None] * np.stack([np.cos(phi), np.sin(phi)], -1)
+        g_a = np.concatenate([g_a, np.clip(mates, lo + 1, hi - 1)], axis=1)
+        th_a = np.concatenate([th_a, rng.uniform(-np.pi, np.pi, (B, M - 1))], axis=1)
     g0_a = g_a.copy()
     frame0_a = th_a.copy()
-    s_a = np.zeros((B, 2))                      # tracker odometry (local frame)
+    s_a = np.zeros((B, M, 2))                   # tracker odometry (each its local frame)
     s_b = np.zeros((B, 2))                      # trackee odometry (its local frame)
-    state = tracker.init(B)
-    synced = np.zeros(B, bool)
-    localized = np.zeros(B, bool)
-    wp_a = rng.uniform(-P.explore_radius_m, P.explore_radius_m, (B, 2))
+    state = tracker.init(B * M)
+    synced = np.zeros((B, M), bool)
+    localized = np.zeros((B, M), bool)
+    wp_a = rng.uniform(-P.explore_radius_m, P.explore_radius_m, (B, M, 2))
     home_b = g_b.copy()
 
     def roam():
         return np.clip(home_b + rng.uniform(-P.roam_radius_m, P.roam_radius_m, (B, 2)), lo, hi)
 
+    def flat(x):
+        return x.reshape(B * M, *x.shape[2:])
+
+    def mate_in_own_frame(x, o):
+        """Team-mate ``(i + o) % M``'s odometry position in tracker ``i``'s frame."""
+        j = (np.arange(M) + o) % M
+        return (_rot(-frame0_a, g0_a[:, j] - g0_a)
+                + _rot(frame0_a[:, j] - frame0_a, x[:, j]))
+
     wp_b = roam()
     comp = np.deg2rad(P.compass_std_deg)
-    out = {k: np.zeros((B, T)) for k in ("err", "dist", "unc", "loc", "syn", "odom")}
-    truth_xy, own_xy = np.zeros((B, T, 2)), np.zeros((B, T, 2))
+    out = {k: np.zeros((B, M, T)) for k in ("err", "dist", "unc", "loc", "syn", "odom")}
+    truth_xy, own_xy = np.zeros((B, M, T, 2)), np.zeros((B, M, T, 2))
     states, estimates = {}, []
     for t in range(T):
         # 1. trackee motion (stationary until localized) and its odometry report
-        step_b = np.where(localized[:, None], _step_toward(g_b, wp_b, P.speed_trackee * P.dt_s, 0.0), 0.0)
+        moving = localized.any(axis=1)
+        step_b = np.where(moving[:, None], _step_toward(g_b, wp_b, P.speed_trackee * P.dt_s, 0.0), 0.0)
         new_wp = np.linalg.norm(g_b + step_b - wp_b, axis=-1) < 0.2
         wp_b = np.where(new_wp[:, None], roam(), wp_b)
         g_b = np.clip(g_b + step_b, lo, hi)
@@ -349,42 +402,54 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
         th_b = th_b + rng.normal(0, P.odo_heading_std, B) * np.sqrt(length)
         s_b_prev, s_b = s_b, s_b + odo_b
         # 2. prediction: a known shift once the frames are synchronised, else a wider blur
-        d_b = s_b - s_b_prev
-        rel = (th_b + rng.normal(0, comp, B)) - (th_a + rng.normal(0, comp, B))
-        state = tracker.predict(state, dt=P.dt_s, shift_m=np.where(synced[:, None], _rot(rel, d_b), 0.0),
-                                extra_blur_m=np.where(synced, 0.0, np.linalg.norm(d_b, axis=-1)))
+        d_b = (s_b - s_b_prev)[:, None]
+        rel = (th_b + rng.normal(0, comp, B))[:, None] - (th_a + rng.normal(0, comp, (B, M)))
+        if P.share_odometry:
+            shift = np.where(synced[..., None], _rot(rel, d_b), 0.0)
+            blur = np.where(synced, 0.0, np.linalg.norm(d_b, axis=-1))
+        else:                                   # no report: the trackee's top speed
+            shift = np.zeros((B, M, 2))
+            blur = np.full((B, M), P.speed_trackee * P.dt_s)
+        state = tracker.predict(state, dt=P.dt_s, shift_m=flat(shift), extra_blur_m=flat(blur))
         # 3. behaviour on the predicted belief
         belief = tracker.estimate(state)
-        loc, unc = belief.position, _spread(belief)
-        good = unc < P.v_m
+        loc = belief.position.reshape(B, M, 2)
+        good = _spread(belief).reshape(B, M) < P.v_m
         localized |= good
         reached = np.linalg.norm(s_a - wp_a, axis=-1) < 0.3
-        wp_a = np.where(reached[:, None], rng.uniform(-P.explore_radius_m, P.explore_radius_m, (B, 2)), wp_a)
-        target = np.where(good[:, None], loc, wp_a)
-        u = _step_toward(s_a, target, P.speed_tracker * P.dt_s, np.where(good, P.standoff_m, 0.0)[:, None])
+        wp_a = np.where(reached[..., None],
+                        rng.uniform(-P.explore_radius_m, P.explore_radius_m, (B, M, 2)), wp_a)
+        target = np.where(good[..., None], loc, wp_a)
+        u = _step_toward(s_a, target, P.speed_tracker * P.dt_s, np.where(good, P.standoff_m, 0.0)[..., None])
         if compass:
             synced |= good & (np.linalg.norm(s_a - loc, axis=-1) < P.delta_m)
         s_a = s_a + u
         ulen = np.linalg.norm(u, axis=-1)
-        g_a = np.clip(g_a + _rot(th_a, u) * (1 + rng.normal(0, P.odo_scale_std, B))[:, None], lo, hi)
-        th_a = th_a + rng.normal(0, P.odo_heading_std, B) * np.sqrt(ulen)
-        # 4. measurement update
-        rssi = read_rssi(P.channel, g_a, g_b, walls, rng)
-        state = tracker.update(state, s_a, rssi)
+        g_a = np.clip(g_a + _rot(th_a, u) * (1 + rng.normal(0, P.odo_scale_std, (B, M)))[..., None], lo, hi)
+        th_a = th_a + rng.normal(0, P.odo_heading_std, (B, M)) * np.sqrt(ulen)
+        # 4. measurement update (own reading, then the team-mates' when shared)
+        rssi = read_rssi(P.channel, g_a, g_b[:, None], walls, rng)
+        state = tracker.update(state, flat(s_a), flat(rssi))
+        if share_readings:
+            for o in range(1, M):
+                j = (np.arange(M) + o) % M
+                state = tracker.update(state, flat(mate_in_own_frame(s_a, o)), flat(rssi[:, j]))
         est = tracker.estimate(state)
         estimates.append(est)
-        truth_local = _rot(-frame0_a, g_b - g0_a)
-        out["err"][:, t] = np.linalg.norm(est.position - truth_local, axis=-1)
-        truth_odom = s_a + _rot(-th_a, g_b - g_a)
-        out["odom"][:, t] = np.linalg.norm(est.position - truth_odom, axis=-1)
-        out["dist"][:, t] = np.linalg.norm(g_a - g_b, axis=-1)
-        out["unc"][:, t] = _spread(est)
-        out["loc"][:, t] = localized
-        out["syn"][:, t] = synced
-        truth_xy[:, t], own_xy[:, t] = truth_local, s_a
+        pos = est.position.reshape(B, M, 2)
+        truth_local = _rot(-frame0_a, g_b[:, None] - g0_a)
+        out["err"][..., t] = np.linalg.norm(pos - truth_local, axis=-1)
+        truth_odom = s_a + _rot(-th_a, g_b[:, None] - g_a)
+        out["odom"][..., t] = np.linalg.norm(pos - truth_odom, axis=-1)
+        out["dist"][..., t] = np.linalg.norm(g_a - g_b[:, None], axis=-1)
+        out["unc"][..., t] = _spread(est).reshape(B, M)
+        out["loc"][..., t] = localized
+        out["syn"][..., t] = synced
+        truth_xy[:, :, t], own_xy[:, :, t] = truth_local, s_a
         if t in record_steps:
             states[t] = state
     time = (np.arange(T) + 1) * P.dt_s
-    return TetherTrace(np.broadcast_to(time, (B, T)), out["err"], out["dist"], out["unc"],
-                       out["loc"].astype(bool), out["syn"].astype(bool), truth_xy, own_xy,
-                       track_from_steps(estimates, time=time), states, out["odom"])
+    o = {k: flat(v) for k, v in out.items()}
+    return TetherTrace(np.broadcast_to(time, (B * M, T)), o["err"], o["dist"], o["unc"],
+                       o["loc"].astype(bool), o["syn"].astype(bool), flat(truth_xy), flat(own_xy),
+                       track_from_steps(estimates, time=time), states, o["odom"])
