@@ -11,6 +11,9 @@
   (product of the prediction with the measurement density of eq. (2)), reduction, and the
   mixture mean and covariance as the per-step estimate. ``v_max = 0`` skips the prediction
   (the static user of Sect. 5). A step where no base station is received is a prediction.
+  With a :class:`~radioloc.models.motion.BoundedSpeedCV` motion the state is (position,
+  velocity) and each component is predicted at constant velocity (ours, not the paper's).
+  ``reduction="progressive"`` re-approximates by the Progressive Bayes ISD homotopy.
 
 Both return the posterior mixture with the estimate: diagnostics ``mixture_weights``
 ``(..., K)``, ``mixture_means`` and ``mixture_variances`` ``(..., K, D)`` (unused slots have
@@ -28,9 +31,10 @@ from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
-from radioloc.models.mixture import (DiagMixture, convolve, pad_components, product, reduce,
+from radioloc.models.mixture import (DiagMixture, check_reduction, convolve, linear_predict,
+                                     outer, pad_components, product, product_on, reduce,
                                      select, uniform_ball)
-from radioloc.models.motion import UniformDisk
+from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 
 __all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture"]
 
@@ -104,18 +108,23 @@ class MixtureLocalizer(SnapshotEstimator):
         coordinates ``(x[, y])`` then the signal strength ``m`` (eq. (1)).
     max_components : int
         Bound on the components of every position density (after each product).
+    reduction : str
+        ``"runnalls"`` (West/Runnalls greedy merging) or ``"progressive"`` (the Progressive
+        Bayes ISD homotopy, :func:`radioloc.models.mixture.reduce`).
 
     Raises
     ------
     InputError
-        Naming ``models`` or ``max_components`` when they are not valid.
+        Naming ``models``, ``max_components`` or ``reduction`` when they are not valid.
     """
 
     name = "mixture"
 
-    def __init__(self, models: DiagMixture, max_components: int = 16) -> None:
+    def __init__(self, models: DiagMixture, max_components: int = 16,
+                 reduction: str = "runnalls") -> None:
         self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
+        self.reduction = check_reduction(reduction)
 
     @property
     def n_stations(self) -> int:
@@ -174,12 +183,12 @@ class MixtureLocalizer(SnapshotEstimator):
                 np.broadcast_to(cond.weights[..., k, :], shape + cond.weights.shape[-1:]),
                 np.broadcast_to(cond.means[..., k, :, :], shape + cond.means.shape[-2:]),
                 np.broadcast_to(cond.variances[..., k, :, :], shape + cond.variances.shape[-2:]))
-            ck = reduce(ck, self.max_components)
+            ck = reduce(ck, self.max_components, self.reduction)
             gk = np.broadcast_to(got[..., k], shape)
             if post is None:
                 post, have = ck, gk
                 continue
-            both = reduce(product(post, ck), self.max_components)
+            both = reduce(product(post, ck), self.max_components, self.reduction)
             post = select(gk & have, both, select(gk, ck, post))
             have = have | gk
         return post, have
@@ -244,7 +253,9 @@ class MixtureState:
     Attributes
     ----------
     mixture : DiagMixture
-        Current position density, batch shape ``(...)``.
+        Current density of the tracker's state, batch shape ``(...)``: the position, or
+        (with a :class:`~radioloc.models.motion.BoundedSpeedCV` motion) the position then
+        the velocity.
     informed : ndarray of bool, shape (...)
         False until a first base station is received (and no prior was given): the
         density is then the calibration area (flat prior), replaced at the first
@@ -269,39 +280,66 @@ class MixtureTracker(RecursiveEstimator):
     models : DiagMixture
         Per-base-station calibration models, batch shape ``(..., S)``, dimension ``D + 1``
         (as for :class:`MixtureLocalizer`).
-    motion : UniformDisk
-        Motion model: the next position is uniform in the disk of radius ``v_max * dt``
-        (paper: ``v_max`` = 1.5 m/s); ``v_max = 0`` is a static user (no prediction).
+    motion : UniformDisk or BoundedSpeedCV
+        ``UniformDisk`` (the paper's model): the next position is uniform in the disk of
+        radius ``v_max * dt`` (paper: ``v_max`` = 1.5 m/s); ``v_max = 0`` is a static user
+        (no prediction); the state is the position. ``BoundedSpeedCV`` (ours, a velocity
+        that persists): the state is (position, velocity), each component predicted by the
+        constant-velocity transition with white acceleration (kept axis-aligned:
+        :func:`radioloc.models.mixture.linear_predict`); before the first measurement the
+        velocity is uniform in the ball of radius ``v_max`` (:func:`uniform_ball`).
     max_components : int
         Bound on the components of every density.
+    reduction : str
+        ``"runnalls"`` (West/Runnalls greedy merging, default) or ``"progressive"`` (the
+        Progressive Bayes ISD homotopy of the paper's reference [3]) for every
+        re-approximation: the measurement density of eq. (2), the filter step and the
+        prediction.
 
     Raises
     ------
     InputError
-        Naming ``models``, ``motion`` or ``max_components`` when they are not valid.
+        Naming ``models``, ``motion``, ``max_components`` or ``reduction`` when they are
+        not valid.
     """
 
     name = "mixture-tracker"
 
-    def __init__(self, models: DiagMixture, motion: UniformDisk,
-                 max_components: int = 16) -> None:
+    def __init__(self, models: DiagMixture, motion: UniformDisk | BoundedSpeedCV,
+                 max_components: int = 16, reduction: str = "runnalls") -> None:
         self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
-        if not isinstance(motion, UniformDisk):
-            raise InputError(f"motion: expected radioloc.models.motion.UniformDisk, got "
-                             f"{type(motion).__name__}")
+        self.reduction = check_reduction(reduction)
+        if not isinstance(motion, (UniformDisk, BoundedSpeedCV)):
+            raise InputError(f"motion: expected radioloc.models.motion.UniformDisk or "
+                             f"BoundedSpeedCV, got {type(motion).__name__}")
         if motion.dim != self.models.dim - 1:
             raise InputError(f"motion: dim {motion.dim} differs from the models' position "
                              f"dimension {self.models.dim - 1}")
-        if motion.dim > 2 and motion.v_max_m_per_s > 0:
+        if motion.dim > 2 and (isinstance(motion, BoundedSpeedCV) or motion.v_max_m_per_s > 0):
             raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
         self.motion = motion
-        self._localizer = MixtureLocalizer(models, max_components)
+        self.velocity = isinstance(motion, BoundedSpeedCV)
+        self._localizer = MixtureLocalizer(models, max_components, reduction)
 
     @property
     def dim(self) -> int:
         """Position coordinates D."""
         return self.models.dim - 1
+
+    @property
+    def state_dim(self) -> int:
+        """Coordinates of the tracked state: D, or 2 D with velocity."""
+        return 2 * self.dim if self.velocity else self.dim
+
+    def _reduce(self, mix: DiagMixture) -> DiagMixture:
+        return reduce(mix, self.max_components, self.reduction)
+
+    def _with_velocity(self, pos: DiagMixture) -> DiagMixture:
+        """A position density extended by the velocity prior (uniform in the ball v_max)."""
+        if not self.velocity:
+            return pos
+        return self._reduce(outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim)))
 
     def calibration_area(self) -> DiagMixture:
         """The flat-prior stand-in: the position marginal of all station models pooled.
@@ -318,7 +356,7 @@ class MixtureTracker(RecursiveEstimator):
         pooled = DiagMixture(w.reshape(lead + (s * k,)),
                              marg.means.reshape(lead + (s * k, self.dim)),
                              marg.variances.reshape(lead + (s * k, self.dim)))
-        return reduce(pooled, self.max_components)
+        return self._reduce(pooled)
 
     def init(self, prior: DiagMixture | None = None, batch_shape: tuple[int, ...] | None = None,
              time: float = 0.0) -> MixtureState:
@@ -327,9 +365,11 @@ class MixtureTracker(RecursiveEstimator):
         Parameters
         ----------
         prior : DiagMixture, optional
-            Prior position density (dimension D). Default: none (a flat prior: the first
-            step with a received station starts from its measurement density alone; until
-            then the estimate is the calibration area).
+            Prior density of the position (dimension D; with velocity it is extended by
+            the velocity prior) or of the whole state (dimension :attr:`state_dim`).
+            Default: none (a flat prior: the first step with a received station starts
+            from its measurement density alone; until then the estimate is the
+            calibration area).
         batch_shape : tuple of int, optional
             Batch axes of the runs (default: the models' leading axes, or the prior's).
         time : float
@@ -341,12 +381,14 @@ class MixtureTracker(RecursiveEstimator):
             The initial state.
         """
         if prior is None:
-            mix = self.calibration_area()
+            mix = self._with_velocity(self.calibration_area())
             informed = False
         else:
-            if not isinstance(prior, DiagMixture) or prior.dim != self.dim:
-                raise InputError(f"prior: expected a DiagMixture of dimension {self.dim}")
-            mix = reduce(prior, self.max_components)
+            if not isinstance(prior, DiagMixture) or prior.dim not in (self.dim, self.state_dim):
+                raise InputError(f"prior: expected a DiagMixture of dimension {self.dim}"
+                                 + (f" or {self.state_dim}" if self.velocity else ""))
+            mix = self._reduce(prior) if prior.dim == self.state_dim else \
+                self._with_velocity(self._reduce(prior))
             informed = True
         shape = mix.batch_shape if batch_shape is None else tuple(batch_shape)
         try:
@@ -360,10 +402,14 @@ class MixtureTracker(RecursiveEstimator):
         return MixtureState(mix, np.full(shape, informed), np.zeros(shape, int), float(time))
 
     def _predict(self, mix: DiagMixture, dt: float) -> DiagMixture:
+        if self.velocity:
+            if dt <= 0:
+                return mix
+            return linear_predict(mix, self.motion.F(dt), self.motion.Q(dt))
         r = float(self.motion.radius(dt))
         if r <= 0:
             return mix
-        return reduce(convolve(mix, uniform_ball(r, self.dim)), self.max_components)
+        return self._reduce(convolve(mix, uniform_ball(r, self.dim)))
 
     def _update(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
                 used: np.ndarray, dt: float) -> MixtureState:
@@ -372,9 +418,14 @@ class MixtureTracker(RecursiveEstimator):
         prior = state.mixture
         if np.any(informed):
             prior = select(informed, self._predict(prior, dt), prior)
-        filtered = reduce(product(prior, meas), self.max_components)
-        post = select(received & informed, filtered, select(received, meas, prior))
-        return MixtureState(reduce(post, self.max_components), informed | received,
+        if self.velocity:
+            filtered = self._reduce(product_on(prior, meas, list(range(self.dim))))
+            first = self._with_velocity(meas)
+        else:
+            filtered = self._reduce(product(prior, meas))
+            first = meas
+        post = select(received & informed, filtered, select(received, first, prior))
+        return MixtureState(self._reduce(post), informed | received,
                             np.broadcast_to(used, meas.batch_shape), state.time + dt)
 
     def _check_dt(self, dt: object) -> float:
@@ -408,7 +459,7 @@ class MixtureTracker(RecursiveEstimator):
         return self._update(state, meas, received, used, dt)
 
     def estimate(self, state: MixtureState) -> Estimate:
-        """Mixture mean and covariance of a state.
+        """Mixture mean and covariance of the position of a state.
 
         Parameters
         ----------
@@ -419,10 +470,11 @@ class MixtureTracker(RecursiveEstimator):
         -------
         Estimate
             ``position`` ``(..., D)``, ``covariance`` ``(..., D, D)``, ``time``;
-            diagnostics ``measurements_used`` and the posterior mixture (padded to
-            ``max_components`` slots; :func:`posterior_mixture`).
+            diagnostics ``measurements_used`` and the posterior mixture of the state
+            (dimension :attr:`state_dim`, padded to ``max_components`` slots;
+            :func:`posterior_mixture`).
         """
-        mean, cov = state.mixture.moments()
+        mean, cov = state.mixture.marginal(list(range(self.dim))).moments()
         return Estimate(mean, cov, state.time, {
             "measurements_used": np.asarray(state.used),
             **_with_mixture(state.mixture, self.max_components)})
@@ -438,7 +490,7 @@ class MixtureTracker(RecursiveEstimator):
         time : array_like, shape (T,)
             Step times in seconds, non-decreasing (the first step is not predicted).
         prior : DiagMixture, optional
-            Prior position density (see :meth:`init`).
+            Prior density (see :meth:`init`).
 
         Returns
         -------

@@ -16,6 +16,7 @@ posterior's uncertainty is calibrated (NEES = mean of (error / std)^2, 1 if cali
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,9 +27,10 @@ from radioloc.core.rng import stream
 from radioloc.estimators.mixture_localization import (MixtureLocalizer, MixtureTracker,
                                                       posterior_mixture)
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
-from radioloc.models.mixture import DiagMixture, product
+from radioloc.models.mixture import DiagMixture, product, reduce
 from radioloc.models.mixture_calibration import progressive_calibration
-from radioloc.models.motion import UniformDisk
+from radioloc.models.motion import BoundedSpeedCV, UniformDisk
+from radioloc.models.progressive_bayes import inner, isd
 from radioloc.report.style import COLORS, figure, save
 from radioloc.sim.corridor import Corridor, walk_positions
 
@@ -54,6 +56,14 @@ class CorridorConfig:
     pause_at_m, pause_s: the pausing walker walks to pause_at_m, stands pause_s seconds,
         then walks on to walk_end_m (same speed).
     figure_x_m: position of the expected-signal-strength section of Fig. 6.
+    reduction: every re-approximation of the paper's pipeline (product of eq. (2), filter
+        step, prediction): "progressive" = Progressive Bayes ISD homotopy (the paper's
+        reference [3]); alt_reduction ("runnalls", West/Runnalls merging) is run beside it
+        on the static user and the walk.
+    cv_q, cv_components: the constant-velocity variant of the tracker (ours): white
+        acceleration spectral density (m^2/s^3) and components of the (position, velocity)
+        mixture; it uses alt_reduction (the progressive homotopy on 16 two-dimensional
+        components is too slow for the Monte Carlo runs).
 
     The figures' example (one calibration at the first noise level, one static user with
     the door open) is drawn from the named stream ``"figure-example"`` of the experiment
@@ -80,6 +90,10 @@ class CorridorConfig:
     pause_at_m: float = 30.0
     pause_s: float = 15.0
     figure_x_m: float = 50.0
+    reduction: str = "progressive"
+    alt_reduction: str = "runnalls"
+    cv_q: float = 0.1
+    cv_components: int = 16
 
 
 #: grids of the figure rows
@@ -133,6 +147,7 @@ def _rows(run: int, fig: str, series: str, x, value, m=np.nan) -> pd.DataFrame:
 class CorridorExperiment(Experiment):
     id = "p004-corridor"
     paper = "004"
+    timing_columns = ("cpu_s_static_progressive", "cpu_s_static_runnalls")
     description = ("Gaussian-mixture RSS models in a 60 m corridor with a door: static "
                    "localization updates (Fig. 10) and tracking")
 
@@ -174,42 +189,62 @@ class CorridorExperiment(Experiment):
         n = runs.size
         walks = {"tracking": _walk(config), "pause": _pause_walk(config)}
         frames, later = [], []
+        red, alt = config.reduction, config.alt_reduction
+        k = config.position_components
+
+        def rows(label, noise, x_true, res, steps=None):
+            pos, var = res.position[..., 0], res.covariance[..., 0, 0]
+            if pos.ndim == 1:
+                pos, var = pos[:, None], var[:, None]
+            steps = range(pos.shape[1]) if steps is None else steps
+            xt = np.broadcast_to(np.asarray(x_true, float), (pos.shape[1],))
+            for t in steps:
+                frames.append(pd.DataFrame({
+                    "run": runs, "table": "runs", "noise_db": noise, "scenario": label,
+                    "step": t + 1, "x_true": xt[t], "x_est": pos[:, t],
+                    "std_m": np.sqrt(var[:, t])}))
+
         for noise in config.noise_db:
             models = _calibrate(config, corridor, noise, n, rng)              # batch (R, 2)
             door = rng.random(n) < 0.5
-            static = MixtureTracker(models, UniformDisk(0.0, dim=1), config.position_components)
-            moving = MixtureTracker(models, UniformDisk(config.v_max, dim=1),
-                                    config.position_components)
+            static = MixtureTracker(models, UniformDisk(0.0, dim=1), k, red)
+            moving = MixtureTracker(models, UniformDisk(config.v_max, dim=1), k, red)
             # static user: (R, updates, 2) measurements, the door fixed per run
             rss = corridor.sample_rss(np.full((config.updates, n), config.user_m),
                                       door, noise, rng).transpose(1, 0, 2)
-            res = static.run(rss, config.dt_s * np.arange(config.updates))
-            for t in range(config.updates):
-                frames.append(pd.DataFrame({
-                    "run": runs, "table": "runs", "noise_db": noise, "scenario": "static",
-                    "step": t + 1, "x_true": config.user_m, "x_est": res.position[:, t, 0],
-                    "std_m": np.sqrt(res.covariance[:, t, 0, 0])}))
+            times = config.dt_s * np.arange(config.updates)
+            t0 = time.process_time()
+            res = static.run(rss, times)
+            cpu_red = time.process_time() - t0
+            rows("static", noise, config.user_m, res)
+            t0 = time.process_time()
+            res_alt = MixtureTracker(models, UniformDisk(0.0, dim=1), k, alt).run(rss, times)
+            cpu_alt = time.process_time() - t0
+            rows(f"static_{alt}", noise, config.user_m, res_alt)
             # Fig. 9 over the runs: each station alone at the first update
-            for k in range(2):
+            for s in range(2):
                 alone = rss[:, 0, :].copy()
-                alone[:, 1 - k] = np.nan
-                est = MixtureLocalizer(models, config.position_components).locate(alone)
-                frames.append(pd.DataFrame({
-                    "run": runs, "table": "runs", "noise_db": noise,
-                    "scenario": f"static_station{k + 1}", "step": 1, "x_true": config.user_m,
-                    "x_est": est.position[:, 0], "std_m": np.sqrt(est.covariance[:, 0, 0])}))
+                alone[:, 1 - s] = np.nan
+                est = MixtureLocalizer(models, k, red).locate(alone)
+                rows(f"static_station{s + 1}", noise, config.user_m, est, [0])
+            # distance to the exact product of eq. (2) at the first update, both reductions
+            cond = models.condition(1, rss[:, 0, :], valid=np.ones((n, 2), bool))
+            exact = product(cond[:, 0], cond[:, 1])
+            approx = {m: reduce(exact, k, m) for m in (red, alt)}
+            ref = inner(exact.weights, exact.means, exact.variances, exact.weights, exact.means,
+                        exact.variances)                                # int exact^2 dx
+            frames.append(pd.DataFrame({
+                "run": runs, "table": "isd", "noise_db": noise,
+                "components_exact": exact.n_components, "components": k,
+                **{f"isd_{m}": isd(approx[m], exact) / ref for m in (red, alt)},
+                **{f"mean_{m}": approx[m].moments()[0][:, 0] for m in (red, alt)},
+                "mean_exact": exact.moments()[0][:, 0],
+                f"cpu_s_static_{red}": cpu_red / n, f"cpu_s_static_{alt}": cpu_alt / n}))
             later.append((noise, models, door, moving))
-            for walk in (walks["tracking"],):
-                rss = corridor.sample_rss(np.broadcast_to(walk[:, None], (walk.size, n)),
-                                          door, noise, rng).transpose(1, 0, 2)
-                res = moving.run(rss, config.dt_s * np.arange(walk.size))
-                one = MixtureLocalizer(models[:, None], config.position_components).locate(rss)
-                for t in range(walk.size):
-                    for label, e in (("tracking", res), ("walk_oneshot", one)):
-                        frames.append(pd.DataFrame({
-                            "run": runs, "table": "runs", "noise_db": noise, "scenario": label,
-                            "step": t + 1, "x_true": walk[t], "x_est": e.position[:, t, 0],
-                            "std_m": np.sqrt(e.covariance[:, t, 0, 0])}))
+            walk = walks["tracking"]
+            rss = corridor.sample_rss(np.broadcast_to(walk[:, None], (walk.size, n)),
+                                      door, noise, rng).transpose(1, 0, 2)
+            self._walk_rows(config, models, rss, walk, noise, "", rows)
             # Fig. 6 over the runs: modes of station 1's D(m | x) past the door
             dens = models[:, 0].condition(0, config.figure_x_m).pdf(_M_GRID[:, None])
             frames.append(pd.DataFrame({"run": runs, "table": "fig6_runs", "noise_db": noise,
@@ -219,17 +254,27 @@ class CorridorExperiment(Experiment):
         for noise, models, door, moving in later:
             rss = corridor.sample_rss(np.broadcast_to(walk[:, None], (walk.size, n)),
                                       door, noise, rng).transpose(1, 0, 2)
-            res = moving.run(rss, config.dt_s * np.arange(walk.size))
-            one = MixtureLocalizer(models[:, None], config.position_components).locate(rss)
-            for t in range(walk.size):
-                for label, e in (("pause_tracking", res), ("pause_oneshot", one)):
-                    frames.append(pd.DataFrame({
-                        "run": runs, "table": "runs", "noise_db": noise, "scenario": label,
-                        "step": t + 1, "x_true": walk[t], "x_est": e.position[:, t, 0],
-                        "std_m": np.sqrt(e.covariance[:, t, 0, 0])}))
+            self._walk_rows(config, models, rss, walk, noise, "pause_", rows)
         if runs[0] == 0:
             frames.append(self._figure_rows(config, corridor, rng, int(runs[0])))
         return pd.concat(frames, ignore_index=True)
+
+    @staticmethod
+    def _walk_rows(config: CorridorConfig, models: DiagMixture, rss: np.ndarray,
+                   walk: np.ndarray, noise: float, prefix: str, rows) -> None:
+        """The walking user: disk tracker (both reductions), constant-velocity tracker and
+        one-shot localization of every step."""
+        red, alt, k = config.reduction, config.alt_reduction, config.position_components
+        times = config.dt_s * np.arange(walk.size)
+        disk = UniformDisk(config.v_max, dim=1)
+        tracking = "tracking" if not prefix else f"{prefix}tracking"
+        rows(tracking, noise, walk, MixtureTracker(models, disk, k, red).run(rss, times))
+        rows(f"{tracking}_{alt}", noise, walk, MixtureTracker(models, disk, k, alt).run(rss, times))
+        cv = BoundedSpeedCV(config.cv_q, config.v_max, dim=1)
+        rows(f"{tracking}_cv", noise, walk,
+             MixtureTracker(models, cv, config.cv_components, alt).run(rss, times))
+        one = MixtureLocalizer(models[:, None], k, red).locate(rss)
+        rows("walk_oneshot" if not prefix else f"{prefix}oneshot", noise, walk, one)
 
     @staticmethod
     def _figure_rows(config: CorridorConfig, corridor: Corridor, rng: np.random.Generator,
@@ -261,7 +306,8 @@ class CorridorExperiment(Experiment):
             rows.append(_rows(run, "fig9", series, _X_GRID, mix.pdf(_X_GRID[:, None])))
             rows.append(_rows(run, "fig9_std", series, np.nan,
                               np.sqrt(mix.moments()[1][0, 0])))
-        static = MixtureTracker(models, UniformDisk(0.0, dim=1), config.position_components)
+        static = MixtureTracker(models, UniformDisk(0.0, dim=1), config.position_components,
+                                config.reduction)
         trk = static.run(rss, config.dt_s * np.arange(config.updates))        # Fig. 10
         for k in (1, 2, config.updates):
             post = posterior_mixture(trk.at(k - 1))
@@ -380,11 +426,81 @@ class CorridorExperiment(Experiment):
                     f"Calibration in both door states gives a bimodal D(m | x) past the door "
                     f"(Fig. 6), over runs: in most runs ({bimodal_frac:.0%}; {noise:g} dB)",
                     bool(bimodal_frac > 0.5)))
+        metrics += self._variant_metrics(config, results, claims, notes)
         notes.append("metric names without suffix are at 2 dB noise; '_noise10db' at 10 dB")
         notes.append("the disk motion model has zero mean: a user walking at a constant speed "
                      "close to v_max is followed with a lag (tracking_mean_lag_m)")
         claims += self._figures(config, results[results["table"] == "figure"], trk, out_dir, notes)
         return Summary(metrics, claims, notes)
+
+    @staticmethod
+    def _variant_metrics(config: CorridorConfig, results: pd.DataFrame, claims: list,
+                         notes: list) -> list:
+        """Reduction comparison (ISD to the exact product, error, time) and the
+        constant-velocity tracker, per noise level."""
+        red, alt = config.reduction, config.alt_reduction
+        runs = results[results["table"] == "runs"]
+        isd_rows = results[results["table"] == "isd"]
+        out = []
+
+        def rmse(df):
+            return float(np.sqrt(np.mean((df["x_est"] - df["x_true"]) ** 2)))
+
+        for noise in config.noise_db:
+            tag = "" if noise == config.noise_db[0] else f"_noise{noise:g}db"
+            r = runs[runs["noise_db"] == noise]
+            sc = {name: g for name, g in r.groupby("scenario")}
+            i = isd_rows[isd_rows["noise_db"] == noise]
+            n_exact = int(i["components_exact"].max()) if len(i) else 0
+            for m in (red, alt):
+                out.append(Metric(f"isd_{m}{tag}", float(np.mean(i[f"isd_{m}"])), None, "",
+                                  f"mean over runs of ISD({m} reduction to "
+                                  f"{config.position_components}, exact eq. (2) product of "
+                                  f"{n_exact} components) / int exact^2, first static update"))
+            ratio = i[f"isd_{red}"] / i[f"isd_{alt}"]
+            frac_le = float(np.mean(i[f"isd_{red}"] <= i[f"isd_{alt}"] * (1 + 1e-9)))
+            out += [Metric(f"isd_ratio_median{tag}", float(np.median(ratio)), None, "",
+                           f"median over runs of ISD({red}) / ISD({alt})"),
+                    Metric(f"isd_{red}_le_{alt}_fraction{tag}", frac_le, None, "",
+                           f"runs whose {red} ISD is <= the {alt} ISD")]
+            claims.append(Claim(
+                f"Progressive Bayes reduction ({config.position_components} components) is never "
+                f"farther from the exact eq. (2) product than West/Runnalls in ISD ({noise:g} dB; "
+                f"median ratio {float(np.median(ratio)):.3f})", bool(frac_le == 1.0)))
+            last = {m: sc[name][sc[name]["step"] == config.updates]
+                    for m, name in ((red, "static"), (alt, f"static_{alt}"))}
+            e_rm, e_nees, e_cov = _calibration(last[alt]["x_est"] - last[alt]["x_true"],
+                                               last[alt]["std_m"])
+            out += [Metric(f"rmse_m_after_{config.updates}_{alt}{tag}", e_rm, None, "m",
+                           f"static user, {alt} reduction (labelled alternative)"),
+                    Metric(f"nees_after_{config.updates}_{alt}{tag}", e_nees, 1.0, "",
+                           f"static user, {alt} reduction"),
+                    Metric(f"coverage_2sigma_after_{config.updates}_{alt}{tag}", e_cov, 0.95, "",
+                           f"static user, {alt} reduction")]
+            for prefix, walkname in (("", "walk"), ("pause_", "pausing walk")):
+                trk = "tracking" if not prefix else "pause_tracking"
+                one = sc["walk_oneshot" if not prefix else "pause_oneshot"]
+                cv = sc[f"{trk}_cv"]
+                _, nees_cv, cov_cv = _calibration(cv["x_est"] - cv["x_true"], cv["std_m"])
+                out += [Metric(f"{trk}_rmse_m_{alt}{tag}", rmse(sc[f"{trk}_{alt}"]), None, "m",
+                               f"{walkname}, disk model, {alt} reduction"),
+                        Metric(f"{trk}_cv_rmse_m{tag}", rmse(cv), None, "m",
+                               f"{walkname}, constant-velocity (position, velocity) mixture "
+                               f"(ours), q = {config.cv_q:g} m^2/s^3, {alt} reduction"),
+                        Metric(f"{trk}_cv_nees{tag}", nees_cv, 1.0, "",
+                               f"{walkname}, constant-velocity tracker: mean (error / std)^2"),
+                        Metric(f"{trk}_cv_coverage_2sigma{tag}", cov_cv, 0.95, "",
+                               f"{walkname}, constant-velocity tracker: |error| <= 2 std")]
+                claims.append(Claim(
+                    f"Variant (ours, not the paper's): a constant-velocity mixture tracker is "
+                    f"more accurate than one-shot positioning on the {walkname} ({noise:g} dB)",
+                    bool(rmse(cv) < rmse(one))))
+            if f"cpu_s_static_{red}" in i.columns:
+                notes.append(
+                    f"CPU per run, static user ({config.updates} updates, {noise:g} dB): "
+                    f"{red} {i[f'cpu_s_static_{red}'].mean():.3f} s, "
+                    f"{alt} {i[f'cpu_s_static_{alt}'].mean():.3f} s (timings.csv; no claim)")
+        return out
 
     # ---- figures (plots of the "figure" rows; no computation beyond reading them) -----------
     def _figures(self, config: CorridorConfig, figs: pd.DataFrame, trk: pd.DataFrame,

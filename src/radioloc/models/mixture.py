@@ -10,7 +10,8 @@ run, a base station, a measurement row). All operations act on the whole batch a
 - :func:`product` of two mixtures (the product of eq. (2), renormalised);
 - :func:`convolve` (density of a sum of independent variables, the prediction step);
 - :func:`reduce` to a bounded number of components by West's greedy rule with Runnalls'
-  merge cost, merging by moment matching;
+  merge cost, merging by moment matching (``method="runnalls"``), or by the Progressive
+  Bayes ISD homotopy of :mod:`radioloc.models.progressive_bayes` (``method="progressive"``);
 - :func:`pad_components` and :func:`select` to combine batches of mixtures with different
   component counts.
 
@@ -274,6 +275,93 @@ def product(a: DiagMixture, b: DiagMixture) -> DiagMixture:
     return DiagMixture(_normalized_exp(logw), mean, var)
 
 
+def product_on(a: DiagMixture, b: DiagMixture, dims) -> DiagMixture:
+    """Normalised product ``c a(x) b(x[dims])`` where ``b`` depends on some coordinates only
+    (a position likelihood times a (position, velocity) density).
+
+    On the coordinates ``dims`` the component pairs combine as in :func:`product`; the
+    other coordinates keep ``a``'s means and variances (``b`` is flat along them).
+
+    Parameters
+    ----------
+    a : DiagMixture
+        Batch of dimension ``D``.
+    b : DiagMixture
+        Batch of dimension ``len(dims)`` (batch axes broadcast).
+    dims : sequence of int
+        The coordinates of ``a`` that ``b`` is a density of.
+
+    Returns
+    -------
+    DiagMixture
+        ``K_a K_b`` components per mixture, dimension ``D``.
+    """
+    dims = [int(i) for i in np.atleast_1d(dims)]
+    if len(dims) != b.dim or any(i < 0 or i >= a.dim for i in dims):
+        raise InputError(f"dims: {dims} do not match dimensions {a.dim} and {b.dim}")
+    part = product(a.marginal(dims), b)
+    shape = part.batch_shape
+    k = part.n_components
+    mean = np.repeat(np.broadcast_to(a.means, shape + a.means.shape[-2:]), b.n_components, -2)
+    var = np.repeat(np.broadcast_to(a.variances, shape + a.variances.shape[-2:]),
+                    b.n_components, -2)
+    mean, var = mean.copy(), var.copy()
+    mean[..., dims] = part.means
+    var[..., dims] = part.variances
+    assert mean.shape[-2] == k
+    return DiagMixture(part.weights, mean, var)
+
+
+def outer(a: DiagMixture, b: DiagMixture) -> DiagMixture:
+    """Joint density of independent variables: ``a`` on the first coordinates, ``b`` on the
+    next ones.
+
+    Parameters
+    ----------
+    a, b : DiagMixture
+        Batches (batch axes broadcast).
+
+    Returns
+    -------
+    DiagMixture
+        ``K_a K_b`` components, dimension ``D_a + D_b``.
+    """
+    w = a.weights[..., :, None] * b.weights[..., None, :]
+    shape = w.shape[:-2]
+    ka, kb = a.n_components, b.n_components
+    ma = np.broadcast_to(a.means[..., :, None, :], shape + (ka, kb, a.dim))
+    mb = np.broadcast_to(b.means[..., None, :, :], shape + (ka, kb, b.dim))
+    va = np.broadcast_to(a.variances[..., :, None, :], shape + (ka, kb, a.dim))
+    vb = np.broadcast_to(b.variances[..., None, :, :], shape + (ka, kb, b.dim))
+    d = a.dim + b.dim
+    return DiagMixture(w.reshape(shape + (ka * kb,)),
+                       np.concatenate([ma, mb], -1).reshape(shape + (ka * kb, d)),
+                       np.concatenate([va, vb], -1).reshape(shape + (ka * kb, d)))
+
+
+def linear_predict(mix: DiagMixture, F, Q) -> DiagMixture:
+    """Each component through a linear-Gaussian transition ``x' = F x + w``, ``w ~ N(0, Q)``,
+    kept axis-aligned: mean ``F mu``, variances ``diag(F diag(v) F^T + Q)`` (the
+    cross-covariances the transition creates are dropped, as in the merge of :func:`reduce`).
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        Batch of dimension ``n``.
+    F, Q : array_like, shape (n, n)
+        Transition matrix and process-noise covariance.
+
+    Returns
+    -------
+    DiagMixture
+        Same weights.
+    """
+    F, Q = np.asarray(F, float), np.asarray(Q, float)
+    mean = mix.means @ F.T
+    var = mix.variances @ (F.T ** 2) + np.diagonal(Q)
+    return DiagMixture(mix.weights, mean, var)
+
+
 def convolve(a: DiagMixture, b: DiagMixture) -> DiagMixture:
     """Density of the sum of independent variables with densities ``a`` and ``b``
     (the prediction integral of Sect. 4 with a mixture transition density).
@@ -370,10 +458,43 @@ def compact(mix: DiagMixture) -> DiagMixture:
                        np.take_along_axis(mix.variances, order[..., None], -2))
 
 
-def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
+#: reduction methods of :func:`reduce`
+REDUCTIONS = ("runnalls", "progressive")
+
+
+def check_reduction(method: object) -> str:
+    """Validate a reduction method name.
+
+    Parameters
+    ----------
+    method : str
+        ``"runnalls"`` or ``"progressive"``.
+
+    Returns
+    -------
+    str
+        The name.
+
+    Raises
+    ------
+    InputError
+        Naming ``reduction`` when it is not one of :data:`REDUCTIONS`.
+    """
+    if not isinstance(method, str) or method not in REDUCTIONS:
+        raise InputError(f"reduction: must be one of {', '.join(REDUCTIONS)}, got {method!r}")
+    return method
+
+
+def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> DiagMixture:
     """Reduce every mixture of the batch to at most ``max_components`` components.
 
-    West's (1993) greedy rule: while a mixture has too many components, its lowest-weight
+    ``method="progressive"``: the Progressive Bayes re-approximation of the paper's
+    reference [3] (:func:`radioloc.models.progressive_bayes.progressive_reduce`), a homotopy
+    on the integral squared distance started from the West/Runnalls result below (its ISD to
+    ``mix`` is never larger than West/Runnalls'; mass is kept, the mean and variances are
+    not preserved exactly).
+
+    ``method="runnalls"`` (default): West's (1993) greedy rule: while a mixture has too many components, its lowest-weight
     component is merged (:func:`merge_moments`) into the component for which Runnalls'
     cost :func:`runnalls_cost` of the merge is smallest. Each merge preserves the mass, the
     mean and the per-axis variances of the pair, so the whole reduction preserves the mass,
@@ -391,6 +512,9 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
         A batch of mixtures.
     max_components : int
         The bound, >= 1.
+    method : str
+        ``"runnalls"`` (West/Runnalls greedy merging) or ``"progressive"`` (Progressive
+        Bayes ISD homotopy started from it).
 
     Returns
     -------
@@ -399,6 +523,10 @@ def reduce(mix: DiagMixture, max_components: int) -> DiagMixture:
     """
     if int(max_components) < 1:
         raise InputError(f"max_components: must be >= 1, got {max_components}")
+    if check_reduction(method) == "progressive":
+        from radioloc.models.progressive_bayes import progressive_reduce
+
+        return progressive_reduce(mix, int(max_components))
     mix = compact(mix)
     if mix.n_components <= max_components:
         return mix

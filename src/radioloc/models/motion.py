@@ -26,7 +26,7 @@ _LOG_2PI = float(np.log(2.0 * np.pi))
 
 __all__ = ["MotionModel", "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV",
            "ConstantAcceleration",
-           "InputDriven", "UniformDisk", "gaussian_logpdf_mv"]
+           "InputDriven", "UniformDisk", "BoundedSpeedCV", "gaussian_logpdf_mv"]
 
 
 def _check_dim(dim: int) -> int:
@@ -526,3 +526,30 @@ class UniformDisk:
 
     def __repr__(self) -> str:
         return f"UniformDisk(v_max_m_per_s={self.v_max_m_per_s}, dim={self.dim})"
+
+
+class BoundedSpeedCV(WhiteAccelerationCV):
+    """Constant velocity driven by white acceleration, with the initial velocity uniform in
+    the ball of radius ``v_max`` (a walking person: paper 004's speed bound, Sect. 4, given
+    a velocity that persists between steps).
+
+    ``F`` and ``Q`` are those of :class:`WhiteAccelerationCV`; ``v_max`` only sets the
+    velocity prior of a tracker that has no other knowledge of the velocity.
+
+    Parameters
+    ----------
+    q : float
+        Spectral density of the acceleration, m^2/s^3 per axis (>= 0).
+    v_max_m_per_s : float
+        Maximum initial speed, m/s (> 0).
+    dim : int
+        Position coordinates D.
+    """
+
+    def __init__(self, q: float, v_max_m_per_s: float, dim: int = 2) -> None:
+        super().__init__(q, dim)
+        self.v_max_m_per_s = check_positive(v_max_m_per_s, "v_max_m_per_s")
+
+    def __repr__(self) -> str:
+        return (f"BoundedSpeedCV(q={self.q}, v_max_m_per_s={self.v_max_m_per_s}, "
+                f"dim={self.dim})")
