@@ -29,7 +29,7 @@ $(STAMP_DOCS): pyproject.toml | $(BIN)/python
 browser:
 	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then :; \
 	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install chromium to run the report's browser test"; \
-	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
+	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
 	    --no-install-recommends chromium fonts-dejavu-core \
 	  || echo "chromium could not be installed: the report's browser test will be skipped"; fi
