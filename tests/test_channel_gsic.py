@@ -110,9 +110,9 @@ def test_network_ranges_reports_unreachable_pair(tmp_path):
     r = network_ranges(scene, pos, 4, rng, trace=TraceConfig(max_order=2), cdma=CFG,
                        cache_dir=tmp_path)
     assert r.n_paths[0, 2] == 0 and r.n_paths[1, 2] == 0 and r.los[0, 1]
-    assert r.gsic_m.shape == (4, 3, 3)
-    assert np.isnan(r.gsic_m[:, :, 2]).mean() > 0.8 and np.isnan(r.gsic_m[:, 2, :]).mean() > 0.8
-    np.testing.assert_array_less(np.abs(r.gsic_m[:, 0, 1] - 300.0), 0.25 * CFG.chip_s * C_LIGHT / 2 + 1.0)
+    assert r.sic_m.shape == (4, 3, 3)
+    assert np.isnan(r.sic_m[:, :, 2]).mean() > 0.8 and np.isnan(r.sic_m[:, 2, :]).mean() > 0.8
+    np.testing.assert_array_less(np.abs(r.sic_m[:, 0, 1] - 300.0), 0.25 * CFG.chip_s * C_LIGHT / 2 + 1.0)
 
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
@@ -163,3 +163,22 @@ def test_old_names_are_aliases_and_engine_checked():
     y = np.zeros((1, CFG.n_samples), complex)
     with pytest.raises(ConfigError, match="engine"):
         omp_sic_toa(y, np.zeros((1, 1), int), CODES, CFG, engine="fortran")
+
+
+def test_responders_detect_the_rts_with_the_same_detector(tmp_path):
+    # LOS pair at high SNR: the detected RTS is within half a delay cell of the first path;
+    # the ideal variant has no RTS error
+    scene = Scene.from_polygons([box(-60, 50, 60, 60)])
+    pos = np.array([[-150.0, 0.0], [150.0, 0.0]])
+    common = dict(trace=TraceConfig(max_order=1), cache_dir=tmp_path)
+    det = network_ranges(scene, pos, 6, np.random.default_rng(2), cdma=CFG, **common)
+    ideal = network_ranges(scene, pos, 6, np.random.default_rng(2),
+                           cdma=CDMAConfig(turnaround_jitter_s=0.0, rts_sync="ideal"), **common)
+    off = ~np.eye(2, dtype=bool)
+    assert np.all(np.abs(det.rts_error_m[:, off]) <= 0.5 * CFG.sample_s * C_LIGHT + 1e-6)
+    assert np.any(det.rts_error_m[:, off] != 0)
+    assert np.all(ideal.rts_error_m[:, off] == 0)
+    for r in (det, ideal):
+        np.testing.assert_array_less(np.abs(r.sic_m[:, off] - 300.0), 0.5 * CFG.sample_s * C_LIGHT + 1.0)
+    with pytest.raises(ConfigError, match="rts_sync"):
+        CDMAConfig(rts_sync="perfect")
