@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 STAMP_DEV := $(VENV)/.installed-dev
 STAMP_DOCS := $(VENV)/.installed-docs
 
-.PHONY: demo test full bench docs browser clean
+.PHONY: demo test full bench docs browser rt clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -34,10 +34,22 @@ browser:
 	    --no-install-recommends chromium fonts-dejavu-core \
 	  || echo "chromium could not be installed: the report's browser test will be skipped"; fi
 
+# Sionna RT (the optional 3-D channel provider, extra `rt`) and Debian's LLVM library for its
+# CPU back end. Installed when possible (apt-get as root or with sudo); otherwise the Sionna
+# test is skipped and says why.
+rt: $(STAMP_DEV)
+	@$(BIN)/python -m pip install -q -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
+	@if ls /usr/lib/*/libLLVM-1*.so /usr/lib/llvm-1*/lib/libLLVM*.so >/dev/null 2>&1; then :; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install libLLVM (e.g. libllvm19) to run the Sionna RT test"; \
+	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
+	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
+	    --no-install-recommends libllvm19 \
+	  || echo "libllvm19 could not be installed: the Sionna RT test will be skipped"; fi
+
 demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
-test: $(STAMP_DEV) browser
+test: $(STAMP_DEV) browser rt
 	$(BIN)/python -m pytest -n 2
 
 docs: $(STAMP_DOCS)

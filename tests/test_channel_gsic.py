@@ -1,11 +1,12 @@
-"""Gold codes, ACK synthesis, GSIC vs matched filter, network ranging with a missing link."""
+"""Gold codes, ACK synthesis, OMP-SIC vs matched filter (compiled kernels against the NumPy
+reference), network ranging with a missing link."""
 
 import numpy as np
 import pytest
 from shapely.geometry import box
 
 from radioloc.channel.cdma import CDMAConfig, gold_codes, received_acks
-from radioloc.channel.gsic import GSICConfig, gsic_toa, matched_filter_toa
+from radioloc.channel.gsic import GSICConfig, OMPSICConfig, gsic_toa, matched_filter_toa, omp_sic_toa
 from radioloc.channel.ranging import network_ranges
 from radioloc.channel.raytrace import C_LIGHT, TraceConfig
 from radioloc.channel.scene import Scene
@@ -109,9 +110,9 @@ def test_network_ranges_reports_unreachable_pair(tmp_path):
     r = network_ranges(scene, pos, 4, rng, trace=TraceConfig(max_order=2), cdma=CFG,
                        cache_dir=tmp_path)
     assert r.n_paths[0, 2] == 0 and r.n_paths[1, 2] == 0 and r.los[0, 1]
-    assert r.gsic_m.shape == (4, 3, 3)
-    assert np.isnan(r.gsic_m[:, :, 2]).mean() > 0.8 and np.isnan(r.gsic_m[:, 2, :]).mean() > 0.8
-    np.testing.assert_array_less(np.abs(r.gsic_m[:, 0, 1] - 300.0), 0.25 * CFG.chip_s * C_LIGHT / 2 + 1.0)
+    assert r.sic_m.shape == (4, 3, 3)
+    assert np.isnan(r.sic_m[:, :, 2]).mean() > 0.8 and np.isnan(r.sic_m[:, 2, :]).mean() > 0.8
+    np.testing.assert_array_less(np.abs(r.sic_m[:, 0, 1] - 300.0), 0.25 * CFG.chip_s * C_LIGHT / 2 + 1.0)
 
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
@@ -128,3 +129,56 @@ def test_single_user_high_snr_delay_within_half_cell(tau, code):
         r = est(y, np.array([[code]]), CODES, CFG)
         assert r.detected[0, 0]
         assert abs(r.toa_s[0, 0] - tau) <= 0.5 * CFG.sample_s + 1e-12
+
+
+@pytest.mark.parametrize("cfg, noise_var", [
+    (OMPSICConfig(), None),
+    (OMPSICConfig(), "true"),
+    (OMPSICConfig(joint_refit=False, iterations=2), None),
+    (OMPSICConfig(iterations=1, max_taps=4), None),
+    (OMPSICConfig(early_relative=0.05, first_sweep_taps=2), None),
+])
+def test_compiled_kernels_equal_numpy_reference_on_random_ack_sets(cfg, noise_var):
+    rng = np.random.default_rng(11)
+    B, U, P = 24, 5, 3
+    s = np.sqrt(CFG.noise_var / CFG.tx_power_w)
+    d = rng.uniform(0.2e-6, 14e-6, (B, U, P))
+    g = s * 10 ** rng.uniform(-0.5, 3, (B, U, P)) * np.exp(2j * np.pi * rng.random((B, U, P)))
+    g[rng.random((B, U, P)) < 0.2] = 0.0                              # some absent paths
+    ci = np.stack([rng.choice(40, U, replace=False) for _ in range(B)])
+    y = received_acks(d, g, ci, CFG, rng, CODES)
+    nv = CFG.noise_var if noise_var == "true" else None
+    for fast, ref in ((omp_sic_toa(y, ci, CODES, CFG, cfg, nv),
+                       omp_sic_toa(y, ci, CODES, CFG, cfg, nv, engine="numpy")),
+                      (matched_filter_toa(y, ci, CODES, CFG, cfg),
+                       matched_filter_toa(y, ci, CODES, CFG, cfg, engine="numpy"))):
+        np.testing.assert_array_equal(fast.taps != 0, ref.taps != 0)      # same detections
+        np.testing.assert_allclose(fast.taps, ref.taps, rtol=1e-8, atol=1e-9 * np.abs(ref.taps).max())
+        np.testing.assert_array_equal(fast.toa_s, ref.toa_s)
+        assert ref.detected.mean() > 0.5
+
+
+def test_old_names_are_aliases_and_engine_checked():
+    assert gsic_toa is omp_sic_toa and GSICConfig is OMPSICConfig
+    y = np.zeros((1, CFG.n_samples), complex)
+    with pytest.raises(ConfigError, match="engine"):
+        omp_sic_toa(y, np.zeros((1, 1), int), CODES, CFG, engine="fortran")
+
+
+def test_responders_detect_the_rts_with_the_same_detector(tmp_path):
+    # LOS pair at high SNR: the detected RTS is within half a delay cell of the first path;
+    # the ideal variant has no RTS error
+    scene = Scene.from_polygons([box(-60, 50, 60, 60)])
+    pos = np.array([[-150.0, 0.0], [150.0, 0.0]])
+    common = dict(trace=TraceConfig(max_order=1), cache_dir=tmp_path)
+    det = network_ranges(scene, pos, 6, np.random.default_rng(2), cdma=CFG, **common)
+    ideal = network_ranges(scene, pos, 6, np.random.default_rng(2),
+                           cdma=CDMAConfig(turnaround_jitter_s=0.0, rts_sync="ideal"), **common)
+    off = ~np.eye(2, dtype=bool)
+    assert np.all(np.abs(det.rts_error_m[:, off]) <= 0.5 * CFG.sample_s * C_LIGHT + 1e-6)
+    assert np.any(det.rts_error_m[:, off] != 0)
+    assert np.all(ideal.rts_error_m[:, off] == 0)
+    for r in (det, ideal):
+        np.testing.assert_array_less(np.abs(r.sic_m[:, off] - 300.0), 0.5 * CFG.sample_s * C_LIGHT + 1.0)
+    with pytest.raises(ConfigError, match="rts_sync"):
+        CDMAConfig(rts_sync="perfect")

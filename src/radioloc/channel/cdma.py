@@ -109,8 +109,13 @@ class CDMAConfig:
     noise_figure_db, temperature_k: receiver noise density N0 = k T F; per complex sample
         the noise variance is N0 x sample rate.
     turnaround_s: known delay between RTS reception and ACK transmission.
-    turnaround_jitter_s: standard deviation of the responder's timing error (its RTS
-        synchronisation and clock), Gaussian.
+    turnaround_jitter_s: standard deviation of the responder's clock error over the
+        turnaround, Gaussian (its RTS synchronisation error comes from ``rts_sync``).
+    rts_sync: how a responder times its ACK: ``"detected"`` (default): it detects the RTS
+        (the master's code over the same channel, with receiver noise) with the same OMP-SIC
+        detector as the master and answers a turnaround after its estimated first arrival;
+        a responder that detects nothing does not answer. ``"ideal"`` (labelled variant):
+        it answers a turnaround after the true first path.
     window_s: search window for ACK arrivals after the turnaround (round-trip times).
     random_path_phases: draw every path's phase uniformly in each ACK set (small-scale
         fading); otherwise the ray tracer's phases plus one random phase per ACK.
@@ -126,8 +131,11 @@ class CDMAConfig:
     turnaround_jitter_s: float = 5e-9
     window_s: float = 16e-6
     random_path_phases: bool = True
+    rts_sync: str = "detected"
 
     def __post_init__(self):
+        if self.rts_sync not in ("detected", "ideal"):
+            raise ConfigError(f"rts_sync: expected 'detected' or 'ideal', got {self.rts_sync!r}")
         check_positive(self.chip_s, "chip_s")
         if int(self.samples_per_chip) != self.samples_per_chip or self.samples_per_chip < 1:
             raise ConfigError(f"samples_per_chip: expected a positive integer, got {self.samples_per_chip}")

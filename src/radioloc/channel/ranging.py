@@ -1,12 +1,18 @@
-"""Ranges of a whole network from ray-traced channels, RTS/ACK hand-shakes and GSIC.
+"""Ranges of a whole network from ray-traced channels, RTS/ACK hand-shakes and OMP-SIC.
 
 Every node in turn is the master; the other ``K - 1`` nodes answer its RTS at once. The
-channels of the ``K (K - 1) / 2`` links are traced once (cached) and are reciprocal. For
-each ACK set the responder ``j`` of master ``k`` starts its ACK ``turnaround_s`` plus a
-Gaussian jitter after the first path of the RTS reaches it, so its ACK reaches the master
-at ``tau_first(k, j) + jitter + tau_p(j, k)`` after the turnaround; the master's round-trip
-estimate is the first arrival ``t``, its range ``c t / 2``. A responder with no path to
-the master never hears the RTS and sends nothing.
+channels of the ``K (K - 1) / 2`` links are traced once (cached) and are reciprocal.
+
+RTS: the master ``k`` sends its Gold code ``k``; each responder ``j`` receives it over the
+link's paths (own random path phases) plus receiver noise and detects its first arrival
+``t_rts(k, j)`` with the same OMP-SIC detector the master uses for the ACKs (one user). A
+responder that detects nothing sends no ACK. With ``CDMAConfig.rts_sync == "ideal"`` (a
+labelled variant) the responder knows the true first arrival ``tau_first(k, j)`` instead.
+
+ACK: responder ``j`` starts its ACK ``turnaround_s`` plus a Gaussian clock jitter after
+``t_rts(k, j)``, so its paths reach the master at ``t_rts(k, j) + jitter + tau_p(j, k)``
+after the turnaround; the master's round-trip estimate is the first arrival ``t`` of the
+user in the ACK set, its range ``c t / 2``.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from radioloc.channel.cdma import CDMAConfig, gold_codes, received_acks
-from radioloc.channel.gsic import GSICConfig, gsic_toa, matched_filter_toa
+from radioloc.channel.gsic import OMPSICConfig, matched_filter_toa, omp_sic_toa
 from radioloc.channel.raytrace import C_LIGHT, LinkChannels, TraceConfig, trace_links_cached
 from radioloc.channel.scene import Scene
 from radioloc.core.errors import InputError
@@ -28,19 +34,24 @@ from radioloc.core.validation import as_positions
 class NetworkRanges:
     """Ranges measured in ``S`` hand-shake rounds of ``K`` nodes.
 
-    gsic_m, matched_filter_m: (S, K, K) range measured at master ``k`` (axis 1) to node ``i``
-        (axis 2) in round ``s``; NaN on the diagonal and where nothing was detected.
+    sic_m, matched_filter_m: (S, K, K) range measured at master ``k`` (axis 1) to node ``i``
+        (axis 2) in round ``s`` by OMP-SIC and by the matched filter; NaN on the diagonal and
+        where nothing was detected.
     true_m: (K, K) distances. los: (K, K) line of sight. n_paths: (K, K) traced paths.
     first_path_m: (K, K) length of the earliest traced path (NaN without a path): the range
         a perfect first-arrival detector would report, NLOS excess included.
+    rts_error_m: (S, K, K) the responder ``i``'s RTS first-arrival error towards master
+        ``k``, as a length (``c (t_rts - tau_first)``); NaN where the responder did not
+        detect the RTS (it then sends no ACK); 0 with ideal synchronisation.
     """
 
-    gsic_m: np.ndarray
+    sic_m: np.ndarray
     matched_filter_m: np.ndarray
     true_m: np.ndarray
     los: np.ndarray
     n_paths: np.ndarray
     first_path_m: np.ndarray
+    rts_error_m: np.ndarray
 
 
 def link_index(K: int) -> np.ndarray:
@@ -88,9 +99,12 @@ def trace_network(scene: Scene, positions: np.ndarray, config: TraceConfig | Non
 
 def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.random.Generator,
                    *, trace: TraceConfig | None = None, cdma: CDMAConfig | None = None,
-                   gsic: GSICConfig | None = None, cache_dir: Path | str | None = None,
+                   sic: OMPSICConfig | None = None, cache_dir: Path | str | None = None,
                    channels: LinkChannels | None = None) -> NetworkRanges:
-    """Simulate ``rounds`` ACK sets at every master and estimate ranges (GSIC and matched filter).
+    """Simulate ``rounds`` RTS/ACK hand-shakes at every master and estimate ranges.
+
+    The ACK sets go through OMP-SIC and through the matched filter (both with the same
+    RTS detections and ACK windows).
 
     Parameters
     ----------
@@ -100,8 +114,10 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
     rounds : int
         ACK sets per master (paper: 28).
     rng : numpy Generator
-        Jitter, path phases and noise.
-    trace, cdma, gsic : configs, optional
+        Jitter, path phases and noise (RTS and ACK).
+    trace : TraceConfig or SionnaConfig, optional
+        Channel provider and settings (used when ``channels`` is not given).
+    cdma, sic : configs, optional
     cache_dir : path, optional
         Ray-tracing cache (default :func:`radioloc.channel.raytrace.default_cache_dir`).
     channels : LinkChannels, optional
@@ -132,9 +148,24 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
     gains = ch.gains[links]
     S = int(rounds)
     shape = (S, K, K - 1)
+    P = delays.shape[-1]
+    if cdma.rts_sync == "ideal":
+        t_rts = np.broadcast_to(first, shape).copy()
+    else:
+        # the RTS of master k (code k) at every responder: one single-user window each
+        if cdma.random_path_phases:
+            g_rts = np.abs(gains)[None] * np.exp(2j * np.pi * rng.uniform(size=(S,) + gains.shape))
+        else:
+            g_rts = gains[None] * np.exp(2j * np.pi * rng.uniform(size=shape))[..., None]
+        d_rts = np.broadcast_to(delays[None], g_rts.shape)
+        g_rts = np.where(np.isfinite(d_rts), g_rts, 0.0)
+        rts_code = np.broadcast_to(np.arange(K)[None, :, None], shape).reshape(-1, 1)
+        y_rts = received_acks(d_rts.reshape(-1, 1, P), g_rts.reshape(-1, 1, P), rts_code, cdma,
+                              rng, codes)
+        t_rts = omp_sic_toa(y_rts, rts_code, codes, cdma, sic).toa_s.reshape(shape)
     jitter = rng.normal(0.0, cdma.turnaround_jitter_s, size=shape) if cdma.turnaround_jitter_s > 0 \
         else np.zeros(shape)
-    arr = first[None, :, :, None] + jitter[..., None] + delays[None]              # (S, K, K-1, P)
+    arr = t_rts[..., None] + jitter[..., None] + delays[None]                     # (S, K, K-1, P)
     if cdma.random_path_phases:
         phase = rng.uniform(0, 2 * np.pi, size=arr.shape)
         g = np.abs(gains)[None] * np.exp(1j * phase)
@@ -146,11 +177,13 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
     code_idx = np.broadcast_to(resp, (S, K, K - 1)).reshape(B, K - 1)
     y = received_acks(arr.reshape(B, K - 1, -1), g.reshape(B, K - 1, -1), code_idx, cdma, rng, codes)
     out = []
-    for est in (gsic_toa, matched_filter_toa):
-        toa = est(y, code_idx, codes, cdma, gsic).toa_s.reshape(S, K, K - 1)
+    for est in (omp_sic_toa, matched_filter_toa):
+        toa = est(y, code_idx, codes, cdma, sic).toa_s.reshape(S, K, K - 1)
         r = np.full((S, K, K), np.nan)
         r[:, np.arange(K)[:, None], resp] = 0.5 * C_LIGHT * toa
         out.append(r)
+    rts_err = np.full((S, K, K), np.nan)
+    rts_err[:, np.arange(K)[:, None], resp] = C_LIGHT * (t_rts - first[None])
     true = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
     los = np.zeros((K, K), bool)
     npaths = np.zeros((K, K), int)
@@ -159,4 +192,4 @@ def network_ranges(scene: Scene, positions: np.ndarray, rounds: int, rng: np.ran
     npaths[i, j] = npaths[j, i] = ch.n_paths
     first_m = np.full((K, K), np.nan)
     first_m[i, j] = first_m[j, i] = ch.first_delay() * C_LIGHT
-    return NetworkRanges(out[0], out[1], true, los, npaths, first_m)
+    return NetworkRanges(out[0], out[1], true, los, npaths, first_m, rts_err)

@@ -376,16 +376,20 @@ def default_cache_dir() -> Path:
 
 
 def trace_links_cached(scene: Scene, tx: np.ndarray, rx: np.ndarray,
-                       config: TraceConfig | None = None,
-                       cache_dir: Path | str | None = None) -> LinkChannels:
-    """:func:`trace_links` with an ``.npz`` cache keyed by scene, end points and config.
+                       config=None, cache_dir: Path | str | None = None) -> LinkChannels:
+    """Trace links with an ``.npz`` cache keyed by provider, scene, end points and config.
+
+    The configuration's type selects the channel provider: :class:`TraceConfig` (or
+    ``None``) the 2-D tracer :func:`trace_links`, a
+    :class:`radioloc.channel.sionna_rt.SionnaConfig` Sionna RT
+    (:func:`radioloc.channel.sionna_rt.trace_links_sionna`).
 
     Parameters
     ----------
     scene : Scene
     tx, rx : ndarray, shape (L, 2)
         End points of the links, metres.
-    config : TraceConfig, optional
+    config : TraceConfig or SionnaConfig, optional
         Default ``TraceConfig()``.
     cache_dir : Path or str, optional
         ``None`` uses :func:`default_cache_dir`.
@@ -397,7 +401,15 @@ def trace_links_cached(scene: Scene, tx: np.ndarray, rx: np.ndarray,
     cfg = config or TraceConfig()
     tx = as_positions(tx, "tx", dims=(2,)).reshape(-1, 2)
     rx = as_positions(rx, "rx", dims=(2,)).reshape(-1, 2)
+    if isinstance(cfg, TraceConfig):
+        tracer = trace_links
+    else:
+        from radioloc.channel.sionna_rt import SionnaConfig, trace_links_sionna
+        if not isinstance(cfg, SionnaConfig):
+            raise ConfigError(f"config: expected a TraceConfig or SionnaConfig, got {type(cfg).__name__}")
+        tracer = trace_links_sionna
     h = hashlib.sha256()
+    h.update(type(cfg).__name__.encode())
     h.update(scene.digest().encode())
     h.update(np.round(tx, 6).tobytes() + np.round(rx, 6).tobytes())
     h.update(repr(sorted(asdict(cfg).items())).encode())
@@ -409,7 +421,7 @@ def trace_links_cached(scene: Scene, tx: np.ndarray, rx: np.ndarray,
                 return LinkChannels(z["delays"], z["gains"], z["kind"], z["n_paths"], z["los"])
         except (OSError, KeyError, ValueError):
             pass  # unreadable cache entry: trace again and overwrite
-    ch = trace_links(scene, tx, rx, cfg)
+    ch = tracer(scene, tx, rx, cfg)
     folder.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **asdict(ch))

@@ -1,20 +1,29 @@
 """Paper 000, complete radiolocation simulation (Figs. 3, 4): urban multipath, DS-CDMA
-RTS/ACK ranging with GSIC, then the distributed RLS and EKF.
+RTS/ACK ranging, then the distributed RLS and EKF.
 
 Six nodes stand on the streets of a synthetic city; their 15 links are ray traced once
-(cached). Every node is master in turn and collects ``rounds`` ACK sets (paper: 28); GSIC
-and the single-user matched filter turn each ACK set into ranges (the scenario lives in
-:mod:`radioloc.sim.urban`). The GSIC ranges then feed the RLS (eq. (1)-eq. (12)) and the EKF
-(eq. (13)-eq. (25)) in a random order of the ACK sets, from random priors (3 GPS-assisted
-nodes with prior variance 100 m^2 per axis, 3 unassisted with 10,000 m^2), ``runs`` times
-(paper: 5000).
+(cached) by the configured channel provider: the home-made 2-D tracer (``provider =
+"raytrace2d"``, the default: opaque buildings, reflections, corner diffraction) or Sionna
+RT (``provider = "sionna"``, extra ``radioloc[rt]``: 3-D, with transmission through walls).
+Every node is master in turn and collects ``rounds`` ACK sets (paper: 28); the responders
+time their ACKs on their own detection of the RTS; an OMP-based successive interference
+canceller (OMP-SIC, in the spirit of the paper's GSIC) and the single-user matched filter
+turn each ACK set into ranges (the scenario lives in :mod:`radioloc.sim.urban`). The OMP-SIC
+ranges then feed the RLS (eq. (1)-eq. (12)) and the EKF (eq. (13)-eq. (25)) in a random
+order of the ACK sets, from random priors (3 GPS-assisted nodes with prior variance 100 m^2
+per axis, 3 unassisted with 10,000 m^2), ``runs`` times (paper: 5000).
 
-The city, the node placement and the hand-shake noise come from the ``"scene"``,
-``"placement"`` and ``"channel"`` streams of the experiment seed: ``--seed`` changes the
-whole scenario, and every block of runs sees the same one. The block holding run 0 also
-writes the scenario (ranges, node positions, buildings, the run-0 traces) as rows of the
-results table (column ``table``), from which :meth:`UrbanRadiolocation.summarize` draws
-its range metrics and figures.
+The paper has one node placement; here ``scenarios`` placements in the same city share the
+runs (run ``r`` uses placement ``r mod scenarios``), so that the final error can be set
+against each node's share of NLOS links and its first-path excess. Node positions are
+random street points: no placement is rejected for lacking a traced path on a link.
+
+The city, the placements and the hand-shake noise come from the ``"scene"``,
+``"placement/<i>"`` and ``"channel/<i>"`` streams of the experiment seed: ``--seed``
+changes the whole scenario, and every block of runs sees the same one. The block holding
+run 0 also writes the scenarios (ranges, node positions, buildings, the run-0 traces) as
+rows of the results table (column ``table``), from which
+:meth:`UrbanRadiolocation.summarize` draws its range metrics and figures.
 """
 
 from __future__ import annotations
@@ -26,8 +35,10 @@ import numpy as np
 import pandas as pd
 
 from radioloc.channel.cdma import CDMAConfig
-from radioloc.channel.gsic import GSICConfig
+from radioloc.channel.gsic import OMPSICConfig
 from radioloc.channel.raytrace import TraceConfig
+from radioloc.channel.sionna_rt import SionnaConfig
+from radioloc.core.errors import ConfigError
 from radioloc.core.rng import experiment_seed
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.rls import NetworkRLS
@@ -39,6 +50,7 @@ from radioloc.sim.urban import (UrbanNetwork, ack_set_ranges, building_table, ra
 
 ESTIMATORS = ("rls", "ekf")
 GROUPS = ("assisted", "unassisted")
+PROVIDERS = ("raytrace2d", "sionna")
 
 
 @dataclass(frozen=True)
@@ -49,14 +61,20 @@ class UrbanConfig:
     rounds: ACK sets collected by every master (paper: 28).
     city_size_m: side of the synthetic city (*) (paper: an urban ray-tracing scene [15]),
         drawn from the ``"scene"`` stream of the seed.
-    placement_half_width_m, candidates: node placement (*): ``candidates`` street points in
-        the central square (``"placement"`` stream) are traced pairwise (order 1) and a
-        random 6-node set in which every link has a traced path is kept.
+    placement_half_width_m: node placement (*): ``K`` random street points in the central
+        square (``"placement/<i>"`` stream), 3 m or more from any building.
+    scenarios: node placements sharing the runs (*) (the paper has one).
+    require_paths, candidates: labelled variant (*): keep only placements in which every
+        link has a traced path (2-D tracer, order 1), searched among ``candidates`` points
+        (the previous default; it selects easy geometries).
+    provider: channel provider, ``"raytrace2d"`` (the 2-D tracer, settings ``trace``) or
+        ``"sionna"`` (Sionna RT, settings ``sionna``; needs ``radioloc[rt]``).
     assisted: how many nodes have GPS priors (the first ones); prior variances per axis.
     range_var_m2: range variance the EKF assumes (*): 900 m^2, one chip (the paper's note).
     The hand-shake noise, jitter and path phases come from the ``"channel"`` stream (ranges
     are simulated once per seed and configuration, like the paper's 28 recorded ACK sets).
-    trace, cdma, gsic: physical-layer settings (*), see their docstrings.
+    trace, sionna, cdma, sic: channel, physical-layer and detector settings (*), see their
+        docstrings (``cdma.rts_sync``: the responders detect the RTS, or ``"ideal"``).
     cache_dir: ray-tracing cache (None: ~/.cache/radioloc/channels or $RADIOLOC_CACHE).
     """
 
@@ -70,40 +88,60 @@ class UrbanConfig:
     range_var_m2: float = 900.0
     city_size_m: float = 1000.0
     placement_half_width_m: float = 300.0
+    scenarios: int = 4
+    require_paths: bool = False
     candidates: int = 24
+    provider: str = "raytrace2d"
     trace: TraceConfig = field(default_factory=TraceConfig)
+    sionna: SionnaConfig = field(default_factory=SionnaConfig)
     cdma: CDMAConfig = field(default_factory=CDMAConfig)
-    gsic: GSICConfig = field(default_factory=GSICConfig)
+    sic: OMPSICConfig = field(default_factory=OMPSICConfig)
     cache_dir: str | None = None
 
+    def __post_init__(self):
+        if self.provider not in PROVIDERS:
+            raise ConfigError(f"provider: expected one of {PROVIDERS}, got {self.provider!r}")
+        if int(self.scenarios) != self.scenarios or self.scenarios < 1:
+            raise ConfigError(f"scenarios: expected a positive integer, got {self.scenarios!r}")
+        if self.candidates < self.K:
+            raise ConfigError(f"candidates: need at least K = {self.K}, got {self.candidates}")
 
-def simulate(config: UrbanConfig, seed: int) -> UrbanNetwork:
-    """The urban network of a configuration and experiment seed (cached).
+    @property
+    def channel(self) -> TraceConfig | SionnaConfig:
+        """The settings of the selected channel provider."""
+        return self.sionna if self.provider == "sionna" else self.trace
+
+
+def simulate(config: UrbanConfig, seed: int, scenario: int = 0) -> UrbanNetwork:
+    """One urban network (placement ``scenario``) of a configuration and seed (cached).
 
     Parameters
     ----------
     config : UrbanConfig
     seed : int
         Experiment seed.
+    scenario : int
+        Placement index, ``0 .. config.scenarios - 1``.
 
     Returns
     -------
     UrbanNetwork
     """
-    return simulate_urban_network(seed, nodes=config.K, rounds=config.rounds,
-                                  city_size_m=config.city_size_m,
+    return simulate_urban_network(seed, scenario=int(scenario), nodes=config.K,
+                                  rounds=config.rounds, city_size_m=config.city_size_m,
                                   half_width_m=config.placement_half_width_m,
-                                  candidates=config.candidates, trace=config.trace,
-                                  cdma=config.cdma, gsic=config.gsic, cache_dir=config.cache_dir)
+                                  candidates=config.candidates, trace=config.channel,
+                                  cdma=config.cdma, sic=config.sic, cache_dir=config.cache_dir,
+                                  require_paths=config.require_paths)
 
 
 @register
 class UrbanRadiolocation(Experiment):
-    """``p000-urban``: ray-traced urban channels, GSIC ranging, RLS and EKF (Figs. 3-4)."""
+    """``p000-urban``: ray-traced urban channels, OMP-SIC ranging, RLS and EKF (Figs. 3-4)."""
 
     id = "p000-urban"
     paper = "000"
-    description = "Ray-traced urban channels, DS-CDMA GSIC ranging, distributed RLS/EKF (Figs. 3-4)"
+    description = "Ray-traced urban channels, DS-CDMA OMP-SIC ranging, distributed RLS/EKF (Figs. 3-4)"
 
     def config(self, full: bool) -> UrbanConfig:
         """The quick (200 runs) or full (5000 runs, the paper's) configuration.
@@ -135,41 +173,55 @@ class UrbanRadiolocation(Experiment):
         Returns
         -------
         DataFrame
-            ``table == "runs"``: mean error per (run, estimator, step, group); the block
-            of run 0 adds ``"trace"`` (run 0, every node), ``"ranges"``, ``"nodes"`` and
-            ``"buildings"`` rows.
+            ``table == "runs"``: mean error per (run, estimator, step, group);
+            ``"final"``: final error per (run, estimator, node); the block of run 0 adds
+            ``"trace"`` (run 0, every node), and per scenario ``"ranges"`` and ``"nodes"``,
+            and the ``"buildings"`` rows.
         """
-        net = simulate(config, experiment_seed(rng))
-        truth, r = net.positions, net.ranges
+        seed = experiment_seed(rng)
         R, K, S = runs.size, config.K, config.rounds
+        scen = runs % config.scenarios
+        nets = {int(i): simulate(config, seed, int(i)) for i in np.unique(scen)}
+        truth = np.stack([nets[int(i)].positions for i in scen])                # (R, K, 2)
+        ranges = np.stack([nets[int(i)].ranges.sic_m for i in scen])            # (R, S, K, K)
         prior_var = prior_variances(R, K, config.assisted, config.prior_var_assisted_m2,
                                     config.prior_var_unassisted_m2)
-        prior = truth[None] + rng.standard_normal((R, K, 2)) * np.sqrt(prior_var)
+        prior = truth + rng.standard_normal((R, K, 2)) * np.sqrt(prior_var)
         order = np.argsort(rng.random((R, K, S)), axis=-1)          # ACK-set order per master
-        rho = ack_set_ranges(r.gsic_m, order)                       # (R, S, K, K), NaN = missing
+        rho = ack_set_ranges(ranges, order)                         # (R, S, K, K), NaN = missing
         estimators = {"rls": NetworkRLS(), "ekf": NetworkEKF(range_var_m2=config.range_var_m2)}
         assisted = np.arange(K) < config.assisted
         rows = []
         for name, est in estimators.items():
             track = est.run(rho, prior, prior_var)
             pos = np.concatenate([prior[:, :, None], track.position], axis=2)  # (R, K, S+1, 2)
-            err = np.linalg.norm(pos - truth[None, :, None], axis=-1)          # (R, K, S+1)
+            err = np.linalg.norm(pos - truth[:, :, None], axis=-1)             # (R, K, S+1)
             for grp, sel in zip(GROUPS, (assisted, ~assisted)):
                 rows.append(pd.DataFrame({
                     "table": "runs", "run": np.repeat(runs, S + 1), "estimator": name,
+                    "scenario": np.repeat(scen, S + 1),
                     "step": np.tile(np.arange(S + 1), R), "group": grp,
                     "error_m": err[:, sel].mean(axis=1).ravel()}))
+            rows.append(pd.DataFrame({                                         # final, per node
+                "table": "final", "run": np.repeat(runs, K), "estimator": name,
+                "scenario": np.repeat(scen, K), "node": np.tile(np.arange(K), R),
+                "group": np.where(np.tile(assisted, R), "assisted", "unassisted"),
+                "error_m": err[:, :, -1].ravel()}))
             if runs[0] == 0:                                                   # Fig. 3 trace
                 rows.append(pd.DataFrame({
-                    "table": "trace", "run": 0, "estimator": name,
+                    "table": "trace", "run": 0, "estimator": name, "scenario": int(scen[0]),
                     "step": np.tile(np.arange(S + 1), K), "node": np.repeat(np.arange(K), S + 1),
                     "error_m": err[0].ravel(), "x": pos[0, ..., 0].ravel(),
                     "y": pos[0, ..., 1].ravel()}))
         if runs[0] == 0:
-            rows += [range_table(r).assign(table="ranges", run=0),
-                     pd.DataFrame({"table": "nodes", "run": 0, "node": np.arange(K),
-                                   "x": truth[:, 0], "y": truth[:, 1], "assisted": assisted}),
-                     building_table(net.scene).assign(table="buildings", run=0)]
+            for i in range(config.scenarios):
+                net = simulate(config, seed, i)
+                p = net.positions
+                rows += [range_table(net.ranges).assign(table="ranges", run=0, scenario=i),
+                         pd.DataFrame({"table": "nodes", "run": 0, "scenario": i,
+                                       "node": np.arange(K), "x": p[:, 0], "y": p[:, 1],
+                                       "assisted": assisted})]
+            rows.append(building_table(nets[int(scen[0])].scene).assign(table="buildings", run=0))
         return pd.concat(rows, ignore_index=True)
 
     def summarize(self, config: UrbanConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
@@ -193,11 +245,13 @@ class UrbanRadiolocation(Experiment):
         fin = {(e, g): float(curve[(e, g, last)]) for e in ESTIMATORS for g in GROUPS}
         re = results[results["table"] == "ranges"].copy()
         re["los"] = re["los"].astype(str).isin(["True", "1", "1.0"])    # also after a CSV trip
-        nodes = results[results["table"] == "nodes"].sort_values("node")
-        truth = nodes[["x", "y"]].to_numpy(float)
-        g = re[re["detector"] == "gsic"]
+        re["scenario"] = re["scenario"].astype(int)
+        nodes = results[results["table"] == "nodes"].copy()
+        nodes["scenario"] = nodes["scenario"].astype(int)
+        g = re[re["detector"] == "omp_sic"]
         m = re[re["detector"] == "matched_filter"]
-        links = g[(g["round"] == 0) & (g["master"] < g["node"])].sort_values(["master", "node"])
+        links = g[(g["round"] == 0) & (g["master"] < g["node"])].sort_values(["scenario", "master", "node"])
+        n_links = len(links)
 
         def rmse(d):
             e = d["error_m"].dropna()
@@ -207,6 +261,8 @@ class UrbanRadiolocation(Experiment):
             e = d[d["los"] == los]["error_m"].dropna().abs()
             return float(e.median()) if len(e) else float("nan")
 
+        excess_links = (links["first_path_m"] - links["true_m"])[~links["los"]]
+        no_path = float((links["n_paths"] == 0).mean())
         metrics = [
             Metric("rls_final_error_unassisted_m", fin[("rls", "unassisted")], 20.0, "m",
                    f"mean error of unassisted nodes after {last} packets, RLS"),
@@ -214,32 +270,54 @@ class UrbanRadiolocation(Experiment):
                    f"mean error of unassisted nodes after {last} packets, EKF"),
             Metric("rls_final_error_assisted_m", fin[("rls", "assisted")], None, "m", "GPS-assisted nodes, RLS"),
             Metric("ekf_final_error_assisted_m", fin[("ekf", "assisted")], None, "m", "GPS-assisted nodes, EKF"),
-            Metric("range_error_median_los_m", med(g, True), None, "m", "GSIC, median |error|, LOS links"),
-            Metric("range_error_median_nlos_m", med(g, False), None, "m", "GSIC, median |error|, NLOS links"),
+            Metric("range_error_median_los_m", med(g, True), None, "m", "OMP-SIC, median |error|, LOS links"),
+            Metric("range_error_median_nlos_m", med(g, False), None, "m", "OMP-SIC, median |error|, NLOS links"),
             Metric("mf_range_error_median_los_m", med(m, True), None, "m", "matched filter, LOS links"),
             Metric("mf_range_error_median_nlos_m", med(m, False), None, "m", "matched filter, NLOS links"),
-            Metric("gsic_range_rmse_m", rmse(g), None, "m", "GSIC, detected ranges"),
+            Metric("sic_range_rmse_m", rmse(g), None, "m", "OMP-SIC, detected ranges"),
             Metric("matched_filter_range_rmse_m", rmse(m), None, "m", "matched filter, detected ranges"),
-            Metric("gsic_detection_rate", float(g["range_m"].notna().mean()), None, "", "ranges detected"),
+            Metric("sic_detection_rate", float(g["range_m"].notna().mean()), None, "", "ranges detected"),
             Metric("matched_filter_detection_rate", float(m["range_m"].notna().mean()), None, "", "ranges detected"),
             Metric("los_links", float(links["los"].sum()), None, "",
-                   f"of {config.K * (config.K - 1) // 2} links"),
+                   f"of {n_links} links ({config.scenarios} placements x {config.K * (config.K - 1) // 2})"),
+            Metric("nlos_link_share", float((~links["los"]).mean()), None, "",
+                   f"{config.provider}: links without a clear direct path"),
+            Metric("no_path_link_share", no_path, None, "", f"{config.provider}: links with no traced path"),
+            Metric("first_path_excess_median_nlos_m",
+                   float(excess_links.median()) if excess_links.notna().any() else float("nan"), None, "m",
+                   f"{config.provider}: earliest path length minus distance, NLOS links with a path"),
         ]
-        excess = (g["first_path_m"] - g["true_m"])[~g["los"]]
         toa_err = (g["range_m"] - g["first_path_m"]).dropna().abs()
         toa_err_mf = (m["range_m"] - m["first_path_m"]).dropna().abs()
+        rts = g["rts_error_m"]
+        heard = g["n_paths"] > 0
         metrics += [
-            Metric("first_path_excess_median_nlos_m", float(excess.median()) if len(excess) else float("nan"),
-                   None, "m", "ray tracer: earliest path length minus distance, NLOS links"),
-            Metric("gsic_first_path_error_median_m", float(toa_err.median()), None, "m",
-                   "GSIC |range - earliest traced path|: the detector's own error"),
+            Metric("sic_first_path_error_median_m", float(toa_err.median()), None, "m",
+                   "OMP-SIC |range - earliest traced path|: the detectors' own error (RTS and ACK)"),
             Metric("matched_filter_first_path_error_median_m", float(toa_err_mf.median()), None, "m",
                    "matched filter |range - earliest traced path|"),
-            Metric("gsic_first_path_within_chip", float((toa_err < 15.0).mean()), None, "",
-                   "fraction of GSIC ranges within half a chip (15 m) of the earliest path"),
+            Metric("sic_first_path_within_chip", float((toa_err < 15.0).mean()), None, "",
+                   "fraction of OMP-SIC ranges within half a chip (15 m) of the earliest path"),
             Metric("matched_filter_first_path_within_chip", float((toa_err_mf < 15.0).mean()), None, "",
                    "same for the matched filter"),
+            Metric("rts_detection_rate", float(rts[heard].notna().mean()) if heard.any() else float("nan"),
+                   None, "", f"responders that detect the RTS (rts_sync = {config.cdma.rts_sync}), links with a path"),
+            Metric("rts_error_median_m", float(rts.dropna().abs().median()) if rts.notna().any() else float("nan"),
+                   None, "m", "|c (t_rts - first path)| of the responders' RTS detection"),
         ]
+        per_node = self._per_node(results, links, config)
+        un = per_node[~per_node["assisted"]]
+        for e in ESTIMATORS:
+            ok = un[["nlos_share", e]].dropna()
+            okx = un[["excess_median_m", e]].dropna()
+            metrics += [
+                Metric(f"{e}_unassisted_error_vs_nlos_share_spearman",
+                       float(ok.corr(method="spearman").iloc[0, 1]) if len(ok) > 2 else float("nan"),
+                       None, "", f"rank correlation over {len(ok)} unassisted nodes (all placements)"),
+                Metric(f"{e}_unassisted_error_vs_excess_spearman",
+                       float(okx.corr(method="spearman").iloc[0, 1]) if len(okx) > 2 else float("nan"),
+                       None, "", "rank correlation with the node's median first-path excess"),
+            ]
         early = min(5, last)
         about = lambda v: 10.0 <= v <= 30.0  # noqa: E731  "about 20 m"
         claims = [
@@ -253,16 +331,62 @@ class UrbanRadiolocation(Experiment):
             Claim(f"the error decreases rapidly: after {early} packets the unassisted EKF error is below "
                   "half its prior value",
                   float(curve[("ekf", "unassisted", early)]) < 0.5 * float(curve[("ekf", "unassisted", 0)])),
-            Claim("GSIC ranges have a lower RMSE than the matched filter's", rmse(g) < rmse(m)),
+            Claim("OMP-SIC ranges have a lower RMSE than the matched filter's", rmse(g) < rmse(m)),
         ]
-        self._fig_map(results, truth, config, out_dir)
+        nd0 = nodes[nodes["scenario"] == 0].sort_values("node")
+        truth0 = nd0[["x", "y"]].to_numpy(float)
+        self._fig_map(results, truth0, config, out_dir)
         self._fig_curve(curve, config, out_dir)
         self._fig_hist(re, out_dir)
-        notes = [f"node positions (m): {np.round(truth, 1).tolist()}",
-                 f"traced paths per link: {links['n_paths'].astype(int).tolist()}",
-                 "the city, node placement and hand-shake noise come from the 'scene', "
-                 "'placement' and 'channel' streams of the experiment seed"]
+        self._fig_nlos(per_node, config, out_dir)
+        fin_s = results[results["table"] == "final"].copy()
+        fin_s["scenario"] = fin_s["scenario"].astype(int)
+        by_s = fin_s[fin_s["group"] == "unassisted"].groupby(["scenario", "estimator"])["error_m"].mean()
+        notes = [f"channel provider: {config.provider}",
+                 f"node positions of placement 0 (m): {np.round(truth0, 1).tolist()}",
+                 f"traced paths per link, placement 0: "
+                 f"{links[links['scenario'] == 0]['n_paths'].astype(int).tolist()}",
+                 "unassisted final error per placement (RLS / EKF, m): " + "; ".join(
+                     f"{i}: {by_s.get((i, 'rls'), np.nan):.1f} / {by_s.get((i, 'ekf'), np.nan):.1f}"
+                     for i in range(config.scenarios)),
+                 "NLOS share per placement: " + "; ".join(
+                     f"{i}: {(~links[links['scenario'] == i]['los']).mean():.2f}" for i in range(config.scenarios)),
+                 "the city, node placements and hand-shake noise come from the 'scene', "
+                 "'placement/<i>' and 'channel/<i>' streams of the experiment seed"]
         return Summary(metrics, claims, notes)
+
+    @staticmethod
+    def _per_node(results: pd.DataFrame, links: pd.DataFrame, config: UrbanConfig) -> pd.DataFrame:
+        """Per (placement, node): mean final error (RLS, EKF), NLOS share of its links and
+        median first-path excess over its links that have a path."""
+        fin = results[results["table"] == "final"].copy()
+        fin["scenario"] = fin["scenario"].astype(int)
+        err = fin.pivot_table(index=["scenario", "node"], columns="estimator", values="error_m",
+                              aggfunc="mean")
+        both = pd.concat([links.assign(n=links["master"]), links.assign(n=links["node"])])
+        both["excess"] = both["first_path_m"] - both["true_m"]
+        agg = both.groupby(["scenario", "n"]).agg(nlos_share=("los", lambda v: float((~v).mean())),
+                                                  excess_median_m=("excess", "median"))
+        agg.index = agg.index.set_names(["scenario", "node"])
+        out = err.join(agg, how="left").reset_index()
+        out["assisted"] = out["node"].astype(int) < config.assisted
+        return out
+
+    @staticmethod
+    def _fig_nlos(per_node, config, out_dir):
+        fig, axes = figure(1, 2, width=10.0, height=4.2)
+        un = per_node[~per_node["assisted"]]
+        for ax, col, lab in ((axes[0], "nlos_share", "share of the node's links without LOS"),
+                             (axes[1], "excess_median_m", "node's median first-path excess [m]")):
+            for e, mk, c in (("rls", "o", COLORS["ours"]), ("ekf", "s", COLORS["alt"])):
+                ax.plot(un[col], un[e], mk, color=c, mfc="none", mew=1.5, label=e.upper())
+            ax.axhline(20.0, color=COLORS["bound"], ls=":", lw=1, label="paper: about 20 m")
+            ax.set_yscale("log")
+            ax.set_xlabel(lab)
+            ax.set_ylabel("final error, unassisted node [m]")
+            ax.legend(fontsize=8)
+        fig.suptitle(f"Unassisted nodes, {config.scenarios} placements, provider {config.provider}")
+        save(fig, out_dir / "error_vs_nlos.png")
 
     @staticmethod
     def _fig_map(results, truth, config, out_dir):
@@ -289,7 +413,7 @@ class UrbanRadiolocation(Experiment):
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
-        ax.set_title("Fig. 3: buildings, nodes and one RLS trace")
+        ax.set_title(f"Fig. 3: buildings, nodes (placement 0) and one RLS trace ({config.provider})")
         ax.legend(loc="upper right", fontsize=8)
         save(fig, out_dir / "fig3_map.png")
 
@@ -304,7 +428,8 @@ class UrbanRadiolocation(Experiment):
         ax.set_yscale("log")
         ax.set_xlabel("packet number (ACK set)")
         ax.set_ylabel("average position error [m]")
-        ax.set_title(f"Fig. 4: average error over {config.runs} orderings and priors")
+        ax.set_title(f"Fig. 4: average error over {config.runs} orderings and priors, "
+                     f"{config.scenarios} placements ({config.provider})")
         ax.legend(ncol=2, fontsize=8)
         save(fig, out_dir / "fig4_error_vs_packet.png")
 
@@ -315,7 +440,7 @@ class UrbanRadiolocation(Experiment):
             d = re[re["los"] == los]
             lim = 200.0 if los else 600.0
             bins = np.linspace(-lim, lim, 41)
-            for name, col, lab in (("gsic", COLORS["ours"], "GSIC"),
+            for name, col, lab in (("omp_sic", COLORS["ours"], "OMP-SIC"),
                                    ("matched_filter", COLORS["baseline"], "matched filter")):
                 e = d[d["detector"] == name]["error_m"]
                 miss = e.isna().mean() if len(e) else 0.0

@@ -3,10 +3,12 @@ ray-traced channels of every link and the ranges of repeated RTS/ACK hand-shakes
 
 :func:`simulate_urban_network` draws everything from named child streams of the
 experiment seed (:func:`radioloc.core.rng.stream`): ``"scene"`` (the city layout),
-``"placement"`` (candidate street points and the node-set search) and ``"channel"``
+``"placement/<i>"`` (the street points of scenario ``i``) and ``"channel/<i>"``
 (hand-shake jitter, path phases and receiver noise), so ``--seed`` changes the whole
 scenario and every block of runs sees the same one. Ray tracing is cached on disk by
-scene, end points and trace settings.
+provider, scene, end points and trace settings. The channel provider is chosen by the
+trace configuration's type: :class:`radioloc.channel.raytrace.TraceConfig` (the 2-D
+tracer) or :class:`radioloc.channel.sionna_rt.SionnaConfig` (Sionna RT).
 
 Nothing here imports an estimator.
 """
@@ -20,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.channel.cdma import CDMAConfig
-from radioloc.channel.gsic import GSICConfig
+from radioloc.channel.gsic import OMPSICConfig
 from radioloc.channel.ranging import NetworkRanges, network_ranges, trace_network
 from radioloc.channel.raytrace import TraceConfig, trace_links_cached
 from radioloc.channel.scene import Scene, city_grid, street_positions
@@ -42,7 +44,7 @@ class UrbanNetwork:
     positions : ndarray, shape (K, 2)
         True node positions, metres.
     ranges : NetworkRanges
-        Ranges of every ACK set at every master (GSIC and matched filter).
+        Ranges of every ACK set at every master (OMP-SIC and matched filter).
     """
 
     scene: Scene
@@ -52,13 +54,16 @@ class UrbanNetwork:
 
 def place_nodes(scene: Scene, nodes: int, rng: np.random.Generator, *, candidates: int,
                 half_width_m: float, trace: TraceConfig | None = None,
-                cache_dir: str | None = None, attempts: int = 20) -> np.ndarray:
-    """``nodes`` street positions in which every pair has at least one traced path.
+                cache_dir: str | None = None, attempts: int = 20,
+                require_paths: bool = False) -> np.ndarray:
+    """``nodes`` random street positions (optionally with a traced path on every link).
 
-    ``candidates`` street points in ``[-half_width_m, half_width_m]^2`` are traced
-    pairwise (reflection order 1) and a randomised depth-first search looks for a
-    ``nodes``-clique of the connectivity graph; without one, a fresh candidate set is
-    drawn (at most ``attempts`` times).
+    By default the first ``nodes`` of ``candidates`` random street points in
+    ``[-half_width_m, half_width_m]^2`` are kept, whatever their links. With
+    ``require_paths`` (a labelled variant: it selects easy geometries) the candidates are
+    traced pairwise with the 2-D tracer (reflection order 1) and a randomised depth-first
+    search looks for a ``nodes``-clique of the connectivity graph; without one, a fresh
+    candidate set is drawn (at most ``attempts`` times).
 
     Parameters
     ----------
@@ -77,6 +82,8 @@ def place_nodes(scene: Scene, nodes: int, rng: np.random.Generator, *, candidate
         Ray-tracing cache.
     attempts : int
         Candidate sets tried.
+    require_paths : bool
+        Keep only node sets in which every pair has a traced path.
 
     Returns
     -------
@@ -90,7 +97,11 @@ def place_nodes(scene: Scene, nodes: int, rng: np.random.Generator, *, candidate
     if nodes < 2 or candidates < nodes:
         raise InputError(f"candidates: need at least nodes = {nodes} >= 2 candidates, "
                          f"got {candidates}")
-    t = trace or TraceConfig()
+    if not require_paths:
+        cand = street_positions(scene, candidates, rng, half_width_m=half_width_m,
+                                clearance_m=3.0)
+        return cand[:nodes]
+    t = trace if isinstance(trace, TraceConfig) else TraceConfig()
     quick = TraceConfig(max_order=1, max_excess_m=t.max_excess_m, carrier_hz=t.carrier_hz,
                         wall_permittivity=t.wall_permittivity)
     for _ in range(int(attempts)):
@@ -119,19 +130,22 @@ def place_nodes(scene: Scene, nodes: int, rng: np.random.Generator, *, candidate
                         f"{attempts} candidate sets; change the seed or the placement area")
 
 
-@lru_cache(maxsize=4)
-def simulate_urban_network(seed: int, *, nodes: int = 6, rounds: int = 28,
+@lru_cache(maxsize=16)
+def simulate_urban_network(seed: int, *, scenario: int = 0, nodes: int = 6, rounds: int = 28,
                            city_size_m: float = 1000.0, half_width_m: float = 300.0,
-                           candidates: int = 24, trace: TraceConfig | None = None,
-                           cdma: CDMAConfig | None = None, gsic: GSICConfig | None = None,
-                           cache_dir: str | None = None) -> UrbanNetwork:
+                           candidates: int = 24, trace=None,
+                           cdma: CDMAConfig | None = None, sic: OMPSICConfig | None = None,
+                           cache_dir: str | None = None,
+                           require_paths: bool = False) -> UrbanNetwork:
     """The scene, the node positions and the ranges of every ACK set (cached per arguments).
 
     Parameters
     ----------
     seed : int
-        Experiment seed; the draws come from its ``"scene"``, ``"placement"`` and
-        ``"channel"`` streams.
+        Experiment seed; the draws come from its ``"scene"``, ``"placement/<scenario>"`` and
+        ``"channel/<scenario>"`` streams.
+    scenario : int
+        Index of the node placement in the same city.
     nodes : int
         ``K``; node ``k`` uses Gold code ``k``.
     rounds : int
@@ -140,21 +154,26 @@ def simulate_urban_network(seed: int, *, nodes: int = 6, rounds: int = 28,
         Side of the synthetic city (:func:`radioloc.channel.scene.city_grid`).
     half_width_m, candidates : float, int
         Node placement (:func:`place_nodes`).
-    trace, cdma, gsic : configs, optional
-        Physical-layer settings.
+    trace : TraceConfig or SionnaConfig, optional
+        Channel provider and its settings (default: the 2-D tracer, ``TraceConfig()``).
+    cdma, sic : configs, optional
+        Physical-layer and detector settings.
     cache_dir : str, optional
         Ray-tracing cache (default ``~/.cache/radioloc/channels`` or ``$RADIOLOC_CACHE``).
+    require_paths : bool
+        Placement keeps only node sets with a traced path on every link (variant).
 
     Returns
     -------
     UrbanNetwork
     """
     scene = city_grid(stream(seed, "scene"), size_m=city_size_m)
-    pos = place_nodes(scene, nodes, stream(seed, "placement"), candidates=candidates,
-                      half_width_m=half_width_m, trace=trace, cache_dir=cache_dir)
+    pos = place_nodes(scene, nodes, stream(seed, f"placement/{scenario}"), candidates=candidates,
+                      half_width_m=half_width_m, trace=trace, cache_dir=cache_dir,
+                      require_paths=require_paths)
     ch = trace_network(scene, pos, trace, cache_dir)
-    ranges = network_ranges(scene, pos, rounds, stream(seed, "channel"), cdma=cdma, gsic=gsic,
-                            channels=ch)
+    ranges = network_ranges(scene, pos, rounds, stream(seed, f"channel/{scenario}"), cdma=cdma,
+                            sic=sic, channels=ch)
     return UrbanNetwork(scene, pos, ranges)
 
 
@@ -163,8 +182,9 @@ def ack_set_ranges(ranges: np.ndarray, order: np.ndarray, min_ranges: int = 3) -
 
     Parameters
     ----------
-    ranges : ndarray, shape (S, K, K)
-        Range at master ``k`` to node ``i`` in ACK set ``s`` (NaN: not detected).
+    ranges : ndarray, shape (S, K, K) or (R, S, K, K)
+        Range at master ``k`` to node ``i`` in ACK set ``s`` (NaN: not detected), shared
+        by every run or one set per run.
     order : ndarray of int, shape (R, K, S)
         Order of the ACK sets of every master in every run (a permutation of ``0..S-1``).
     min_ranges : int
@@ -177,9 +197,13 @@ def ack_set_ranges(ranges: np.ndarray, order: np.ndarray, min_ranges: int = 3) -
         ``out[r, n, k, i]``: range at master ``k`` to node ``i`` in packet ``n`` of run
         ``r``; NaN where missing (the diagonal included).
     """
-    S, K, _ = ranges.shape
+    S, K = ranges.shape[-3:-1]
     kk = np.arange(K)
-    rho = ranges[order.transpose(0, 2, 1), kk[None, None, :], :]          # (R, S, K, K)
+    if ranges.ndim == 3:
+        rho = ranges[order.transpose(0, 2, 1), kk[None, None, :], :]      # (R, S, K, K)
+    else:
+        rr = np.arange(len(order))[:, None, None]
+        rho = ranges[rr, order.transpose(0, 2, 1), kk[None, None, :], :]
     rho = np.where(kk[:, None] == kk[None, :], np.nan, rho)
     sends = np.isfinite(rho).sum(axis=-1) >= min_ranges
     return np.where(sends[..., None], rho, np.nan)
@@ -195,21 +219,22 @@ def range_table(r: NetworkRanges) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``round, master, node, detector`` (``"gsic"`` or ``"matched_filter"``),
-        ``range_m, true_m, los, first_path_m, n_paths, error_m`` (``range_m - true_m``;
-        NaN where nothing was detected).
+        Columns ``round, master, node, detector`` (``"omp_sic"`` or ``"matched_filter"``),
+        ``range_m, true_m, los, first_path_m, n_paths, rts_error_m, error_m``
+        (``range_m - true_m``; NaN where nothing was detected).
     """
-    S, K, _ = r.gsic_m.shape
+    S, K, _ = r.sic_m.shape
     s, k, i = np.meshgrid(np.arange(S), np.arange(K), np.arange(K), indexing="ij")
     off = k != i
     frames = []
-    for name, arr in (("gsic", r.gsic_m), ("matched_filter", r.matched_filter_m)):
+    for name, arr in (("omp_sic", r.sic_m), ("matched_filter", r.matched_filter_m)):
         frames.append(pd.DataFrame({
             "round": s[off], "master": k[off], "node": i[off], "detector": name,
             "range_m": arr[off], "true_m": np.broadcast_to(r.true_m, arr.shape)[off],
             "los": np.broadcast_to(r.los, arr.shape)[off],
             "first_path_m": np.broadcast_to(r.first_path_m, arr.shape)[off],
-            "n_paths": np.broadcast_to(r.n_paths, arr.shape)[off]}))
+            "n_paths": np.broadcast_to(r.n_paths, arr.shape)[off],
+            "rts_error_m": r.rts_error_m[off]}))
     df = pd.concat(frames, ignore_index=True)
     df["error_m"] = df["range_m"] - df["true_m"]
     return df
