@@ -37,6 +37,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from radioloc.models.los_nlos import log_ndtr_fast as _log_ndtr
+
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 _SQRT1_2 = math.sqrt(0.5)
 _U_ONE = 8.5          # Phi(u) = 1 to 1e-17 above this
@@ -45,16 +47,6 @@ _TINY = 1e-150        # below: evaluate the link in the log domain
 _LOW, _HIGH = 1e-150, 1e150  # renormalise the running product outside these
 _SUM_OK = 1e-200      # a detection sum above this is resolved in the linear domain
 _EXP_MIN = -746.0     # exp(x) == 0.0 in float64 below this
-
-
-@njit(cache=True, inline="always")
-def _log_ndtr(u: float) -> float:
-    """``log Phi(u)``: erfc down to u = -20, the asymptotic series below (rel. err < 1e-10)."""
-    if u > _U_ASYM:
-        return math.log(0.5 * math.erfc(-u * _SQRT1_2))
-    r = 1.0 / (u * u)
-    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
-    return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
 
 
 @njit(cache=True, inline="always")
