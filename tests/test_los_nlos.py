@@ -70,3 +70,16 @@ def test_bad_input():
         LosNlosRange(los_std_m=0.0)
     with pytest.raises(InputError, match="los"):
         LosNlosRange().sample(np.zeros(3), np.zeros(2, bool), np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.3, 1.0])
+def test_compiled_mixture_logpdf_equals_the_scipy_form(alpha):
+    m = LosNlosRange(0.05, 5.0, alpha)
+    e = np.concatenate([np.linspace(-60, 80, 2001), [-1e3, 1e4]])
+    lp = m.logpdf_by_state(e, 0.0)
+    with np.errstate(divide="ignore"):
+        ref = np.logaddexp(lp[..., 0] + np.log1p(-alpha), lp[..., 1] + np.log(alpha))
+    np.testing.assert_allclose(m.logpdf(e, 0.0), ref, rtol=1e-10, atol=1e-10)
+    # broadcasting of measured against true ranges
+    np.testing.assert_allclose(m.logpdf(e[:5, None] + 3.0, np.full((1, 4), 3.0)),
+                               np.broadcast_to(ref[:5, None], (5, 4)), rtol=1e-10, atol=1e-10)

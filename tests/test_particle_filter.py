@@ -4,8 +4,7 @@ from hypothesis import given, settings, strategies as st
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.links import gather_packed, pack_mask, scatter_packed
-from radioloc.estimators.p2p_particle import (P2PParticleFilter, _link_log_phi_and_weights,
-                                              _posterior_and_resample)
+from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.resampling import SCHEMES, get_scheme
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
@@ -80,33 +79,6 @@ def test_alpha_one_tiny_noise_converges_to_truth():
     # with alpha = 1 every link is LOS and detected as such
     det = res.diagnostics["los_detected"]
     assert np.all(det[:, :, -5:] == d.in_range[:, :, -5:])
-
-
-def test_numba_kernel_equals_numpy_and_batched_equals_one_by_one():
-    rng = np.random.default_rng(5)
-    b, k, l = (2, 3), 50, 6
-    particles = rng.normal(size=b + (k, 2)) * 3
-    node_xy = rng.normal(size=b + (l, 2)) * 5
-    th = rng.uniform(0, 12, size=b + (l,))
-    valid = rng.random(b + (l,)) < 0.7
-    where_prev = np.where(rng.random(b + (l,)) < 0.5, rng.integers(0, 4, b + (l,)), -1)
-    prev = np.log(rng.dirichlet([1, 1], size=b + (k, 4)))
-    model = LosNlosRange(0.05, 5.0, 0.3)
-    chain = StickyLinkChain(0.3)
-    ref_phi, ref_w = _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev,
-                                               model, chain, "numpy")
-    phi, w = _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev, model, chain, "numba")
-    np.testing.assert_allclose(w, ref_w, rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(np.where(valid[..., None, :, None], phi, 0),
-                               np.where(valid[..., None, :, None], ref_phi, 0), rtol=1e-9, atol=1e-9)
-    one = _link_log_phi_and_weights(particles[1, 2], node_xy[1, 2], th[1, 2], valid[1, 2],
-                                    where_prev[1, 2], prev[1, 2], model, chain, "numba")[1]
-    np.testing.assert_allclose(one, w[1, 2])
-    idx = rng.integers(0, k, b + (k,))
-    post_ref, res_ref = _posterior_and_resample(ref_phi, valid, idx, "numpy")
-    post, res = _posterior_and_resample(phi, valid, idx, "numba")
-    np.testing.assert_allclose(post, post_ref, rtol=1e-9)
-    np.testing.assert_allclose(res, res_ref, rtol=1e-9, atol=1e-12)
 
 
 def test_phi_without_history_is_prior_times_likelihood():

@@ -52,6 +52,7 @@ DIAGNOSTICS: dict[str, str] = {
     "ols_state": "the ordinary least-squares state a closed-form fit starts from",
     "gated": "int: measurements the innovation gate refused at each step",
     "used_differences": "int: difference rows a closed-form fit used (rows of missing samples dropped)",
+    "em_parameters": "online-EM estimates of the range model, (s_LOS, s_NLOS, alpha) per filter",
 }
 
 

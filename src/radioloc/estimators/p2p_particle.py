@@ -26,7 +26,11 @@ unnormalised ``phi_{t-1}`` forward, which would count the history of each link t
 in the resampled particle set, once more in ``phi``). We carry the normalised link
 posterior ``phi_{t-1}(z) / sum_z phi_{t-1}(z)`` instead, which is the exact
 Rao-Blackwellised update after resampling; without resampling both agree up to a factor
-common to all particles.
+common to all particles. Since the two values of a normalised posterior sum to one, one
+number per particle and link is carried: the LOS probability ``p(z = 1 | .)``.
+
+The parameters of the range model can be estimated inside the filter by online EM
+(:class:`OnlineEM`, ``online_em=``), which the paper names (Sect. V).
 """
 
 from __future__ import annotations
@@ -41,16 +45,84 @@ from radioloc.core.links import gather_packed, pack_mask, scatter_packed
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
                                       check_probability)
+from radioloc.estimators import pf_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.pf_kernels import finish_step, link_update
 from radioloc.estimators.resampling import get_scheme
-from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
+from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf
 
-__all__ = ["P2PParticleFilter", "ParticleState", "MESSAGES", "link_log_phi"]
+__all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_log_phi"]
 
 #: How vehicle ``k`` places neighbour ``m`` at step ``t`` (see :class:`P2PParticleFilter`).
 MESSAGES = ("previous", "extrapolated", "given")
 KERNELS = ("numba", "numpy")
+#: Particles per parallel task of the compiled link update.
+CHUNK = 2048
+
+
+@dataclass(frozen=True)
+class OnlineEM:
+    """Online EM of the range model inside the filter (paper 001, Sect. V: "the parameters
+    of the distributions and the fraction alpha can be estimated using an EM algorithm at
+    every step").
+
+    Stochastic-approximation EM in the manner of Cappé and Moulines: every filter (one per
+    vehicle, on its own links) keeps running sufficient statistics
+
+        S_n = (1 - g_n) S_{n-1} + g_n s_n,   g_n = n^(-step_exponent),
+
+    where ``n`` counts its steps with at least one link and ``s_n`` sums over the step's
+    links the particle-weighted expectations ``(1, q, q e^2, (1 - q) e)``: ``q`` is the
+    particle's LOS posterior of the link after the update and ``e`` the range minus the
+    particle's distance to the node. The M-step maps ``S = (S_1, S_q, S_qe2, S_e)`` to
+
+        alpha = S_q / S_1,   s_LOS^2 = S_qe2 / S_q,   s_NLOS = S_e / (S_1 - S_q)
+
+    (exact for alpha and the Gaussian LOS spread; for the exponential excess the moment
+    equation ``E[e | NLOS] = s_NLOS``, since the EMG's M-step has no closed form). The
+    filter uses the parameters of the previous step; they start at the measurement model's
+    and move after ``burn_in`` steps with links. The link chain stays the paper's sticky
+    chain of the current alpha.
+
+    Parameters
+    ----------
+    step_exponent : float
+        kappa in (0.5, 1] of the step sizes ``g_n = n^(-kappa)``.
+    burn_in : int
+        Steps with links before the parameters are updated (statistics accumulate from
+        the first).
+    fit : tuple of str
+        Parameters estimated, among ``"alpha"``, ``"los_std_m"``, ``"nlos_mean_m"``; the
+        others stay at the measurement model's values.
+    alpha_bounds : tuple of float
+        Clip of the alpha estimate.
+    min_los_std_m, min_nlos_mean_m : float
+        Floors of the ``s_LOS`` and ``s_NLOS`` estimates.
+    """
+
+    step_exponent: float = 0.6
+    burn_in: int = 20
+    fit: tuple[str, ...] = ("alpha", "los_std_m", "nlos_mean_m")
+    alpha_bounds: tuple[float, float] = (0.01, 0.99)
+    min_los_std_m: float = 1e-3
+    min_nlos_mean_m: float = 1e-2
+
+    def __post_init__(self) -> None:
+        if not 0.5 < float(self.step_exponent) <= 1.0:
+            raise ConfigError(f"step_exponent: must be in (0.5, 1], got {self.step_exponent!r}")
+        if int(self.burn_in) != self.burn_in or self.burn_in < 0:
+            raise ConfigError(f"burn_in: must be an integer >= 0, got {self.burn_in!r}")
+        bad = set(self.fit) - set(PARAMETERS)
+        if bad or not self.fit:
+            raise ConfigError(f"fit: choose among {PARAMETERS}, got {self.fit!r}")
+        lo, hi = self.alpha_bounds
+        if not 0.0 <= lo < hi <= 1.0:
+            raise ConfigError(f"alpha_bounds: need 0 <= low < high <= 1, got {self.alpha_bounds!r}")
+        check_positive(self.min_los_std_m, "min_los_std_m")
+        check_positive(self.min_nlos_mean_m, "min_nlos_mean_m")
+
+
+#: Order of the range-model parameters in :attr:`ParticleState.params`.
+PARAMETERS = ("los_std_m", "nlos_mean_m", "alpha")
 
 
 @dataclass(frozen=True)
@@ -62,9 +134,9 @@ class ParticleState:
     particles : ndarray, shape (..., N, K, n)
         Equally weighted particles (after resampling) of the ``n``-dimensional state,
         position first.
-    log_phi : ndarray, shape (..., N, K, L, 2)
-        Normalised log link posteriors ``log p(z | .)`` per particle for the stored links
-        (z = 0 NLOS, 1 LOS).
+    link_los : ndarray, shape (..., N, K, L)
+        Normalised link posterior ``p(z = 1 | .)`` (LOS) per particle for the stored links;
+        ``p(z = 0 | .)`` is one minus it.
     links : ndarray of int64, shape (..., N, L)
         Node index of each stored link, ``-1`` for padding.
     mean : ndarray, shape (..., N, n)
@@ -87,10 +159,17 @@ class ParticleState:
         Index, in the previous step's particle set, of the ancestor of each particle (the
         resampling indices of the last step; None before the first step). Following them
         back gives each particle's history, for a fixed-lag smoother.
+    params : ndarray, shape (..., N, 3), optional
+        Range-model parameters ``(s_LOS, s_NLOS, alpha)`` each filter uses at the next step
+        (the measurement model's, or the online EM's estimates); None: the model's.
+    em_stats : ndarray, shape (..., N, 4), optional
+        Online EM's running statistics ``(S_1, S_q, S_qe2, S_e)`` (None without online EM).
+    em_steps : ndarray of int64, shape (..., N), optional
+        Online EM's count of steps with links.
     """
 
     particles: np.ndarray
-    log_phi: np.ndarray
+    link_los: np.ndarray
     links: np.ndarray
     mean: np.ndarray
     covariance: np.ndarray
@@ -100,6 +179,9 @@ class ParticleState:
     resets: np.ndarray
     time: float | np.ndarray = 0.0
     ancestors: np.ndarray | None = None
+    params: np.ndarray | None = None
+    em_stats: np.ndarray | None = None
+    em_steps: np.ndarray | None = None
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -140,63 +222,108 @@ def link_log_phi(loglik: np.ndarray, prev_log_phi: np.ndarray, was_neighbour: np
     return loglik + prior
 
 
-def _link_log_phi_and_weights(particles, node_xy, th, valid, where_prev, prev_store, model, chain,
-                              kernel):
-    """Unnormalised ``log phi_t`` (..., N, K, L, 2) and ``log w_t`` (..., N, K) (lines 6-11).
+def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params):
+    """Plain NumPy reference of :func:`radioloc.estimators.pf_kernels.link_weights`
+    (the same maths in the log domain).
 
-    ``particles`` are the positions (..., N, K, 2); ``where_prev`` (..., N, L): slot of each
-    link in ``prev_store`` (..., N, K, L', 2), the normalised ``log phi_{t-1}``, or -1 for a
-    new neighbour.
+    Returns ``log_w`` (..., K), ``q_new`` (..., K, L), ``post`` (..., L, 2) = ``log sum_i
+    phi^i(z)`` and ``em_pp`` (..., K, 3).
     """
+    s, mu, a = (params[..., i][..., None, None] for i in range(3))       # (..., 1, 1)
+    if prev_q.shape[-1]:
+        q = np.take_along_axis(prev_q, np.maximum(where_prev, 0)[..., None, :], axis=-1)
+    else:
+        q = np.zeros(particles.shape[:-1] + (node_xy.shape[-2],))
+    was_nb = (valid & (where_prev >= 0))[..., None, :]
+    diff = particles[..., :, None, :2] - node_xy[..., None, :, :]          # (..., K, L, 2)
+    e = th[..., None, :] - np.sqrt(np.sum(diff * diff, axis=-1))
+    l0, l1 = emg_logpdf(e, s, mu), gaussian_logpdf(e, s)
+    pi1 = np.where(was_nb, q * (1 + a) / 2 + (1 - q) * a / 2, a)
+    pi0 = np.where(was_nb, q * (1 - a) / 2 + (1 - q) * (1 - a / 2), 1 - a)
+    with np.errstate(divide="ignore"):
+        A0, A1 = l0 + np.log(pi0), l1 + np.log(pi1)
+    lse = np.logaddexp(A0, A1)
+    ok = valid[..., None, :]
+    q_new = np.where(ok, np.exp(A1 - lse), 0.0)
+    log_w = np.sum(np.where(ok, lse, 0.0), axis=-1)
+    neg = -np.inf
+    post = np.stack([logsumexp(np.where(ok, A0, neg), axis=-2),
+                     logsumexp(np.where(ok, A1, neg), axis=-2)], axis=-1)
+    ez = np.where(ok, e, 0.0)
+    em_pp = np.stack([q_new.sum(-1), (q_new * ez * ez).sum(-1), ((1 - q_new) * ez).sum(-1)], axis=-1)
+    return log_w, q_new, post, em_pp
+
+
+def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em):
+    """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
+    (..., L, 2) and the online-EM per-particle sums (..., K, 3) (lines 6-11)."""
     if kernel == "numpy":
-        was_nb = valid & (where_prev >= 0)
-        if prev_store.shape[-2]:
-            prev = np.take_along_axis(prev_store, np.maximum(where_prev, 0)[..., None, :, None], axis=-2)
-        else:
-            prev = np.zeros(particles.shape[:-1] + (node_xy.shape[-2], 2))
-        diff = particles[..., :, None, :] - node_xy[..., None, :, :]     # (..., N, K, L, 2)
-        dist = np.sqrt(np.sum(diff * diff, axis=-1))
-        loglik = model.logpdf_by_state(th[..., None, :], dist)
-        log_phi = link_log_phi(loglik, prev, was_nb[..., None, :], chain)
-        log_phi = np.where(valid[..., None, :, None], log_phi, 0.0)
-        per_link = np.logaddexp(log_phi[..., 0], log_phi[..., 1])
-        log_w = np.sum(np.where(valid[..., None, :], per_link, 0.0), axis=-1)
-        return log_phi, log_w
+        return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
     batch = particles.shape[:-2]
-    k, width = particles.shape[-2], node_xy.shape[-2]
+    k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
     b = int(np.prod(batch, dtype=int))
-    log_phi = np.empty((b, k, width, 2))
+    nc = _k.n_chunks(k, CHUNK)
     log_w = np.empty((b, k))
+    q_new = np.empty((b, k, width))
+    part_s = np.empty((b, nc, width, 2))
+    part_l = np.empty((b, nc, width, 2))
+    em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
     wp = np.where(valid, where_prev, -1)
-    if prev_store.shape[-2] == 0:
+    if prev_q.shape[-1] == 0:
         wp = np.full_like(wp, -1)
-        prev_store = np.zeros(batch + (k, 1, 2))
-    link_update(np.ascontiguousarray(particles.reshape(b, k, 2)),
-                np.ascontiguousarray(node_xy.reshape(b, width, 2)),
-                np.ascontiguousarray(th.reshape(b, width)),
-                np.ascontiguousarray(valid.reshape(b, width)),
-                np.ascontiguousarray(wp.reshape(b, width)),
-                np.ascontiguousarray(prev_store.reshape((b, k) + prev_store.shape[-2:])),
-                float(model.los_std_m), float(model.nlos_mean_m),
-                chain.log_transition, chain.log_stationary, log_phi, log_w)
-    return log_phi.reshape(batch + (k, width, 2)), log_w.reshape(batch + (k,))
+        prev_q = np.zeros(batch + (k, 1))
+    p = params.reshape(b, 3)
+    _k.link_weights(np.ascontiguousarray(particles.reshape(b, k, n)),
+                    np.ascontiguousarray(node_xy.reshape(b, width, 2)),
+                    np.ascontiguousarray(th.reshape(b, width)),
+                    np.ascontiguousarray(valid.reshape(b, width)),
+                    np.ascontiguousarray(wp.reshape(b, width)),
+                    np.ascontiguousarray(prev_q.reshape((b, k) + prev_q.shape[-1:])),
+                    np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]),
+                    np.ascontiguousarray(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp)
+    lam = 1.0 / p[:, 1]
+    ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
+    with np.errstate(divide="ignore"):
+        post = np.logaddexp(np.log(part_s.sum(axis=1)) + ce[:, None, None],
+                            np.logaddexp.reduce(part_l, axis=1))
+    out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + (k, width)),
+           post.reshape(batch + (width, 2)))
+    return out + ((em_pp.reshape(batch + (k, 3)) if em else None),)
 
 
-def _posterior_and_resample(log_phi, valid, idx, kernel):
-    """``log sum_i phi^i(z)`` (..., N, L, 2) and the resampled normalised ``log phi``."""
+def _moments(log_w, particles, kernel):
+    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n), ESS."""
     if kernel == "numpy":
-        post = logsumexp(log_phi, axis=-3)
-        norm = log_phi - np.logaddexp(log_phi[..., :1], log_phi[..., 1:])
-        norm = np.where(valid[..., None, :, None], norm, 0.0)
-        return post, np.take_along_axis(norm, idx[..., None, None], axis=-3)
-    shape = log_phi.shape
-    b = int(np.prod(shape[:-3], dtype=int))
-    post = np.empty((b, shape[-2], 2))
-    out = np.empty((b,) + shape[-3:])
-    finish_step(np.ascontiguousarray(log_phi.reshape((b,) + shape[-3:])),
-                np.ascontiguousarray(valid.reshape(b, shape[-2])),
-                np.ascontiguousarray(idx.reshape(b, shape[-3])), post, out)
-    return post.reshape(shape[:-3] + (shape[-2], 2)), out.reshape(shape)
+        w = np.exp(log_w - log_w.max(axis=-1, keepdims=True))
+        w /= w.sum(axis=-1, keepdims=True)
+        mean = np.einsum("...k,...kd->...d", w, particles)
+        dev = particles - mean[..., None, :]
+        cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
+        return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
+    batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
+    b = int(np.prod(batch, dtype=int))
+    w, mean, cov, ess = np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+    _k.normalise_weights(np.ascontiguousarray(log_w.reshape(b, k)),
+                         np.ascontiguousarray(particles.reshape(b, k, n)), w, mean, cov, ess)
+    return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
+            ess.reshape(batch))
+
+
+def _gather(particles, q, idx, kernel):
+    """Resampled particles and link posteriors, and the number of distinct ancestors."""
+    if kernel == "numpy":
+        s = np.sort(idx, axis=-1)
+        distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
+        return (np.take_along_axis(particles, idx[..., None], axis=-2),
+                np.take_along_axis(q, idx[..., None], axis=-2), distinct)
+    batch, (k, n), width = particles.shape[:-2], particles.shape[-2:], q.shape[-1]
+    b = int(np.prod(batch, dtype=int))
+    out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    distinct = np.empty(b, dtype=np.int64)
+    _k.gather_resampled(particles.reshape(b, k, n), q.reshape(b, k, width),
+                        np.ascontiguousarray(idx.reshape(b, k)), out_p, out_q, distinct,
+                        np.empty((b, k), dtype=bool))
+    return (out_p.reshape(particles.shape), out_q.reshape(q.shape), distinct.reshape(batch))
 
 
 def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.ndarray:
@@ -257,6 +384,10 @@ class P2PParticleFilter(RecursiveEstimator):
         step (with INS: plus the neighbour's own INS reading, one more number in the
         message); ``"given"`` positions passed to :meth:`run` (e.g. the truth, to measure
         what the approximation costs).
+    online_em : bool or OnlineEM
+        Estimate alpha, s_LOS and s_NLOS inside the filter (each vehicle on its own links),
+        starting from the measurement model's values; ``True`` is ``OnlineEM()``. The
+        estimates are the diagnostic ``em_parameters`` ``(s_LOS, s_NLOS, alpha)``.
 
     Examples
     --------
@@ -270,7 +401,7 @@ class P2PParticleFilter(RecursiveEstimator):
     def __init__(self, motion, measurement, *, particles: int = 900,
                  resampling: str = "systematic", init_std=1.0, reset_fraction: float = 0.05,
                  reset_std_m: float = 0.5, kernel: str = "numba",
-                 messages: str = "previous") -> None:
+                 messages: str = "previous", online_em: bool | OnlineEM = False) -> None:
         for attr in ("sample", "predict", "dim", "state_dim"):
             if not hasattr(motion, attr):
                 raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
@@ -301,6 +432,11 @@ class P2PParticleFilter(RecursiveEstimator):
         self.reset_std_m = float(reset_std_m)
         self.kernel = kernel
         self.messages = messages
+        if online_em is True:
+            online_em = OnlineEM()
+        if online_em is not False and online_em is not None and not isinstance(online_em, OnlineEM):
+            raise ConfigError(f"online_em: expected a bool or OnlineEM, got {online_em!r}")
+        self.online_em = online_em or None
         self._init_std = std
         self._input_driven = type(motion).__name__ == "InputDriven"
 
@@ -332,14 +468,20 @@ class P2PParticleFilter(RecursiveEstimator):
         particles = v0[..., None, :] + self._init_std * rng.standard_normal(batch + (k, n))
         cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
                               batch + (n, n)).copy()
+        m = self.measurement
+        params = np.broadcast_to(np.array([m.los_std_m, m.nlos_mean_m, m.alpha]),
+                                 batch + (3,)).copy()
+        em = self.online_em is not None
         return ParticleState(particles=particles,
-                             log_phi=np.zeros(batch + (k, 0, 2)),
+                             link_los=np.zeros(batch + (k, 0)),
                              links=np.full(batch + (0,), -1, dtype=np.int64),
                              mean=v0.copy(), covariance=cov,
                              ess=np.full(batch, float(k)),
                              los_detected=np.zeros(batch + (0,), dtype=bool),
                              reset=np.zeros(batch, dtype=bool),
-                             resets=np.zeros(batch, dtype=np.int64), time=time)
+                             resets=np.zeros(batch, dtype=np.int64), time=time, params=params,
+                             em_stats=np.zeros(batch + (4,)) if em else None,
+                             em_steps=np.zeros(batch, dtype=np.int64) if em else None)
 
     def step(self, state: ParticleState, ranges, node_positions, rng: np.random.Generator,
              control=None, dt: float | np.ndarray = 1.0) -> ParticleState:
@@ -402,47 +544,80 @@ class P2PParticleFilter(RecursiveEstimator):
 
         # line 3: propagate every particle through the motion model
         particles = self.motion.sample(state.particles, dt, rng, control=u)
-        pos = particles[..., :D]
 
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)
         th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
         where_prev = _previous_slots(state.links, links, mask.shape[-1])
-        chain = self.measurement.chain
-        log_phi, log_w = _link_log_phi_and_weights(pos, node_xy, th, valid, where_prev,
-                                                   state.log_phi, self.measurement, chain,
-                                                   self.kernel)
-        log_w = log_w - log_w.max(axis=-1, keepdims=True)
-        w = np.exp(log_w)
-        w /= w.sum(axis=-1, keepdims=True)
+        params = self._params(state)
+        em = self.online_em is not None
+        # lines 6, 8, 11: link posteriors and weights
+        log_w, q, post, em_pp = _link_update(particles, node_xy, th, valid, where_prev,
+                                             state.link_los, params, self.kernel, em)
         # line 14: weighted mean; weighted covariance and effective sample size
-        mean = np.einsum("...k,...kd->...d", w, particles)
-        dev = particles - mean[..., None, :]
-        cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
-        ess = 1.0 / np.sum(w * w, axis=-1)
+        w, mean, cov, ess = _moments(log_w, particles, self.kernel)
 
         # line 12: resample; detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0); carry the
         # normalised link posterior of each surviving particle
-        idx = get_scheme(self.resampling)(w, rng)                             # (..., N, K)
-        post, log_phi = _posterior_and_resample(log_phi, valid, idx, self.kernel)
+        if self.resampling == "systematic" and self.kernel == "numba":
+            u01 = rng.random(batch + (1,))          # the draw of resampling.systematic
+            idx = np.empty(w.shape, dtype=np.int64)
+            _k.systematic_indices(w.reshape(-1, k), u01.reshape(-1),
+                                  idx.reshape(-1, k))
+        else:
+            idx = get_scheme(self.resampling)(w, rng)                         # (..., N, K)
         los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
                                       mask.shape[-1]) & mask
-        particles = np.take_along_axis(particles, idx[..., None], axis=-2)
+        particles, q, distinct = _gather(particles, q, idx, self.kernel)
 
         # reset on degeneracy: few distinct ancestors
-        s = np.sort(idx, axis=-1)
-        distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
         reset = distinct < self.reset_fraction * k
         if np.any(reset):
             particles[reset, :, :D] = mean[reset][:, None, :D] + self.reset_std_m * \
                 rng.standard_normal((int(reset.sum()), k, D))
-            mean_post = post - np.logaddexp(post[..., :1], post[..., 1:])     # (..., N, L, 2)
-            log_phi[reset] = mean_post[reset][:, None, :, :]
-        return ParticleState(particles=particles, log_phi=log_phi,
+            with np.errstate(invalid="ignore"):
+                mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
+            q[reset] = np.where(valid, np.nan_to_num(mean_post), 0.0)[reset][:, None, :]
+        em_stats, em_steps = state.em_stats, state.em_steps
+        if em:
+            em_stats, em_steps, params = self._em_update(state, w, em_pp, valid, params)
+        return ParticleState(particles=particles, link_los=q,
                              links=np.where(valid, links, -1), mean=mean, covariance=cov,
                              ess=ess, los_detected=los_detected, reset=reset,
                              resets=state.resets + reset, time=state.time + dt,
-                             ancestors=idx)
+                             ancestors=idx, params=params, em_stats=em_stats,
+                             em_steps=em_steps)
+
+    def _params(self, state: ParticleState) -> np.ndarray:
+        """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
+        if state.params is not None:
+            return state.params
+        m = self.measurement
+        return np.broadcast_to(np.array([m.los_std_m, m.nlos_mean_m, m.alpha]),
+                               state.batch_shape + (3,))
+
+    def _em_update(self, state, w, em_pp, valid, params):
+        """One online EM step (see :class:`OnlineEM`): new statistics, counts, parameters."""
+        cfg = self.online_em
+        n_links = valid.sum(axis=-1).astype(float)                            # (..., N)
+        step_stats = np.concatenate([n_links[..., None],
+                                     np.einsum("...k,...kc->...c", w, em_pp)], axis=-1)
+        has = n_links > 0
+        steps = state.em_steps + has
+        gamma = np.where(has, np.maximum(steps, 1) ** (-cfg.step_exponent), 0.0)[..., None]
+        stats = (1.0 - gamma) * state.em_stats + gamma * step_stats
+        ready = (steps > cfg.burn_in) & has
+        s1, sq, sqe2, se = (stats[..., i] for i in range(4))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            est = {"alpha": np.clip(sq / s1, *cfg.alpha_bounds),
+                   "los_std_m": np.maximum(np.sqrt(sqe2 / sq), cfg.min_los_std_m),
+                   "nlos_mean_m": np.maximum(se / (s1 - sq), cfg.min_nlos_mean_m)}
+        new = params.copy()
+        for name in cfg.fit:
+            col = PARAMETERS.index(name)
+            ok = ready & np.isfinite(est[name])
+            new[..., col] = np.where(ok, est[name], params[..., col])
+        return stats, steps, new
 
     def estimate(self, state: ParticleState) -> Estimate:
         """The weighted particle mean and covariance of the last step.
@@ -456,13 +631,15 @@ class P2PParticleFilter(RecursiveEstimator):
         Estimate
             ``position`` (..., N, 2), ``covariance`` (..., N, 2, 2); diagnostics ``state``
             and ``state_covariance`` (full state), ``ess``, ``los_detected`` (..., N, J),
-            ``resets`` (count so far).
+            ``resets`` (count so far); with online EM ``em_parameters`` (..., N, 3), the
+            ``(s_LOS, s_NLOS, alpha)`` the next step uses.
         """
         D = self.motion.dim
-        return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time,
-                        {"state": state.mean, "state_covariance": state.covariance,
-                         "ess": state.ess, "los_detected": state.los_detected,
-                         "resets": state.resets})
+        diag = {"state": state.mean, "state_covariance": state.covariance,
+                "ess": state.ess, "los_detected": state.los_detected, "resets": state.resets}
+        if self.online_em is not None:
+            diag["em_parameters"] = self._params(state)
+        return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time, diag)
 
     def run(self, ranges, initial, rng: np.random.Generator, *, anchors=None, controls=None,
             time=None, given_positions=None) -> Track:
@@ -492,7 +669,8 @@ class P2PParticleFilter(RecursiveEstimator):
         Track
             ``position`` (..., N, T, 2), ``covariance`` (..., N, T, 2, 2); per-step
             diagnostics ``state``, ``state_covariance``, ``ess``, ``los_detected``
-            (..., N, T, J) and ``resets`` (cumulative).
+            (..., N, T, J), ``resets`` (cumulative) and, with online EM,
+            ``em_parameters`` (..., N, T, 3).
         """
         r = as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True)
         n_veh, T, J = r.shape[-3:]

@@ -6,7 +6,9 @@ five (anchors, vehicles) pairs at alpha = 30%; the RANSAC row at alpha = 30%; Fi
 error CDFs; Fig. 4(b) true and estimated trajectories. Extra rows at alpha = 30% measure
 what the one-step lag of the neighbours' messages costs and run the earlier centre-line
 anchor layout (labelled variants); the genie ML is read twice, as a global snapshot search
-and as a local search around its previous estimate.
+and as a local search around its previous estimate. The online EM the paper names
+(Sect. V) runs inside the filter, started from wrong parameters, and its estimates of
+alpha, s_LOS and s_NLOS are reported against the truth.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from radioloc.core.metrics import error_cdf, position_error
 from radioloc.core.rng import stream
 from radioloc.estimators.ekf_ranging import run_peer_ekf
 from radioloc.estimators.ekf_tracker import RangeEKF
-from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.p2p_particle import OnlineEM, P2PParticleFilter
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.los_nlos import LosNlosRange
@@ -52,13 +54,20 @@ class HighwayConfig:
         labelled variant (``layout_variants``, at ``layout_variant_alphas``).
     init_std_m, reset_fraction, reset_std_m, resampling: see P2PParticleFilter (init_std).
     ransac_threshold_m: inlier gate of RANSAC (3 s_LOS).
-    ml_every: the local ML and RANSAC are evaluated every this many steps (cost).
+    ml_every: the genie ML (both readings) and RANSAC are evaluated every this many steps
+        (cost: they search about 1400 candidate positions per vehicle and step; 5 at full
+        size, i.e. 140 of the 700 steps of every run).
     ml_local_radius_m: half width of the local reading of the genie ML: the search is a
         square of this half width around the ML's previous estimate moved by the INS
         readings since (the start: the true start, as the PF's p(v_0) mean).
     lag_variants: message variants run at alpha = 30% besides the paper's "previous".
     layout_variants, layout_variant_alphas: other anchor layouts run (PF only, paper's
         messages) at these alphas, M = 26, N = 20.
+    em_alphas: alphas at which the PF with online EM (``OnlineEM``) runs, M = 26, N = 20,
+        paper's messages.
+    em_initial: (s_LOS, s_NLOS, alpha) the online EM starts from (the truth: 0.05 m,
+        5 m, the case's alpha).
+    em_step_exponent, em_burn_in: see ``OnlineEM``.
     """
 
     runs: int = 10
@@ -83,6 +92,10 @@ class HighwayConfig:
     lag_variants: tuple[str, ...] = ("extrapolated", "given")
     layout_variants: tuple[str, ...] = ("centre",)
     layout_variant_alphas: tuple[float, ...] = (0.30,)
+    em_alphas: tuple[float, ...] = (0.05, 0.30)
+    em_initial: tuple[float, float, float] = (0.15, 2.0, 0.5)
+    em_step_exponent: float = 0.6
+    em_burn_in: int = 20
 
 
 def _cases(c: HighwayConfig) -> list[dict]:
@@ -93,6 +106,8 @@ def _cases(c: HighwayConfig) -> list[dict]:
     cases += [dict(alpha=0.30, M=26, N=20, messages=v, ml=False, layout=lay) for v in c.lag_variants]
     cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=v)
               for v in c.layout_variants if v != lay for a in c.layout_variant_alphas]
+    cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=lay, em=True)
+              for a in c.em_alphas]
     return cases
 
 
@@ -161,7 +176,7 @@ class HighwayExperiment(Experiment):
         HighwayConfig
         """
         if full:
-            return HighwayConfig()
+            return HighwayConfig(ml_every=5)
         return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
 
     def run_block(self, config: HighwayConfig, runs: np.ndarray,
@@ -192,10 +207,14 @@ class HighwayExperiment(Experiment):
             anchors = anchor_layout(case["layout"], case["M"], sc.length_m, sc.width_m,
                                     rng=stream(rng, f"anchor-layout-M{case['M']}"))
             data = simulate(sc, model, runs.size, rng, anchors=anchors)
-            pf = P2PParticleFilter(InputDriven(c.ins_std_m), model, particles=c.particles,
+            em = case.get("em", False)
+            pf = P2PParticleFilter(InputDriven(c.ins_std_m),
+                                   LosNlosRange(*c.em_initial) if em else model,
+                                   particles=c.particles,
                                    resampling=c.resampling, init_std=c.init_std_m,
                                    reset_fraction=c.reset_fraction, reset_std_m=c.reset_std_m,
-                                   messages=case["messages"])
+                                   messages=case["messages"],
+                                   online_em=OnlineEM(c.em_step_exponent, c.em_burn_in) if em else False)
             truth = data.truth[:, :, 1:]                                  # (R, N, T, 2)
             res = pf.run(data.ranges, data.truth[:, :, 0], rng, anchors=data.anchors,
                          controls=data.ins, given_positions=truth)
@@ -203,9 +222,14 @@ class HighwayExperiment(Experiment):
             los = in_range & data.los
             det = res.diagnostics["los_detected"]
             all_steps = np.arange(c.steps)
-            frames.append(_frame(case, runs, "pf", all_steps, res.position, truth, {
-                "los_links": los.sum(-1), "los_detected": (det & los).sum(-1),
-                "nlos_as_los": (det & in_range & ~data.los).sum(-1)}))
+            extra = {"los_links": los.sum(-1), "los_detected": (det & los).sum(-1),
+                     "nlos_as_los": (det & in_range & ~data.los).sum(-1)}
+            if em:
+                par = res.diagnostics["em_parameters"]                    # (R, N, T, 3)
+                extra.update(em_los_std_m=par[..., 0], em_nlos_mean_m=par[..., 1],
+                             em_alpha=par[..., 2])
+            frames.append(_frame(case, runs, "pf_em" if em else "pf", all_steps, res.position,
+                                 truth, extra))
             if case["ml"]:
                 sub = all_steps[::c.ml_every]
                 ml, local, rs = _snapshot(data, model, c, sub)
@@ -278,6 +302,20 @@ class HighwayExperiment(Experiment):
             metrics.append(Metric(f"pf_mean_error_m_alpha{tag}_layout_{lay}", g.error_m.mean(),
                                   PAPER_C.get(tag, (None, None, None))[1], "m",
                                   f"variant: anchor layout {lay} (default: {config.layout}), table 4(c)"))
+        em_rows = r[r.method == "pf_em"]
+        for a, g in em_rows.groupby("alpha"):
+            tag = int(round(a * 100))
+            last = g[g.step == g.step.max()]
+            truth = {"em_alpha": a, "em_los_std_m": config.los_std_m, "em_nlos_mean_m": config.nlos_mean_m}
+            start = dict(zip(("em_los_std_m", "em_nlos_mean_m", "em_alpha"), config.em_initial))
+            metrics.append(Metric(f"pf_em_mean_error_m_alpha{tag}", g.error_m.mean(), PAPER_C.get(tag, (None,) * 3)[1],
+                                  "m", "variant: PF with online EM from wrong parameters "
+                                  f"(s_LOS, s_NLOS, alpha) = {config.em_initial}, table 4(c)"))
+            for col, unit in (("em_alpha", ""), ("em_los_std_m", "m"), ("em_nlos_mean_m", "m")):
+                metrics.append(Metric(f"{col}_final_alpha{tag}", last[col].mean(), None, unit,
+                                      f"online EM estimate at the last step, mean over vehicles and runs "
+                                      f"(truth {truth[col]:g}, start {start[col]:g}); "
+                                      f"spread over vehicles (sd) {last[col].std(ddof=0):.3g}"))
         # claims
         if 30 in ml_c:
             rans = metrics[[m.name for m in metrics].index("ransac_mean_error_m_alpha30")].value
@@ -309,6 +347,7 @@ class HighwayExperiment(Experiment):
                                 bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
         self._figures(config, base, out_dir)
         self._lag_figure(r, variants, out_dir)
+        self._em_figure(config, em_rows, out_dir)
         notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
                      f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps")
         if "x_true" in r:
@@ -339,6 +378,30 @@ class HighwayExperiment(Experiment):
         ax.set_title("Message lag and anchor layout, alpha = 30%, M = 26, N = 20")
         ax.legend()
         save(fig, out_dir / "message_lag_error_vs_step.png")
+
+    @staticmethod
+    def _em_figure(config: HighwayConfig, em_rows: pd.DataFrame, out_dir: Path) -> None:
+        if em_rows.empty:
+            return
+        fig, axes = figure(width=10.0, height=3.4, ncols=3)
+        palette = [COLORS["ours"], COLORS["alt"], COLORS["truth"], COLORS["alt2"]]
+        cols = (("em_alpha", "alpha (LOS fraction)"), ("em_los_std_m", "s_LOS [m]"),
+                ("em_nlos_mean_m", "s_NLOS [m]"))
+        for (a, g), col in zip(em_rows.groupby("alpha"), palette):
+            curves = g.groupby("step")[[c for c, _ in cols]].mean()
+            truth = {"em_alpha": a, "em_los_std_m": config.los_std_m, "em_nlos_mean_m": config.nlos_mean_m}
+            for ax, (c, label) in zip(axes, cols):
+                ax.plot(curves.index, curves[c].to_numpy(), color=col, label=f"estimate, alpha = {a:.0%}")
+                shared = c != "em_alpha"                   # s_LOS, s_NLOS: one truth for all
+                ax.axhline(truth[c], color="black" if shared else col, ls="--", lw=1,
+                           label=None if shared else f"truth, alpha = {a:.0%}")
+                ax.set_xlabel("step")
+                ax.set_title(label)
+        axes[1].set_yscale("log")
+        axes[0].set_ylabel("mean over vehicles and runs")
+        axes[0].legend(fontsize=7)
+        fig.suptitle("Online EM inside the PF (M = 26, N = 20): estimates vs truth (dashed)")
+        save(fig, out_dir / "online_em_estimates_vs_step.png")
 
     @staticmethod
     def _figures(config: HighwayConfig, base: pd.DataFrame, out_dir: Path) -> None:
