@@ -51,6 +51,8 @@ DIAGNOSTICS: dict[str, str] = {
     "ols_state": "the ordinary least-squares state a closed-form fit starts from",
     "gated": "int: measurements the innovation gate refused at each step",
     "used_differences": "int: difference rows a closed-form fit used (rows of missing samples dropped)",
+    "stations_ignored": "int: received stations the model does not know (unseen or dropped at calibration)",
+    "zone": "int labels of the chosen zone per level, coarse to fine (e.g. building, floor)",
 }
 
 
