@@ -44,8 +44,8 @@ def test_locate_gmm_finds_user_and_tracks(tmp_path):
     truth = _files(tmp_path)
     req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
     out = locate_gmm(req)
-    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m"]
-    assert len(out) == 3
+    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "stations_ignored"]
+    assert len(out) == 3 and np.all(out["stations_ignored"] == 0)
     err = np.hypot(out["x"] - truth[0], out["y"] - truth[1])
     assert np.all(err < 1.5) and np.all(out["uncertainty_m"] > 0)
     req.options = {"track": "1"}
@@ -53,11 +53,17 @@ def test_locate_gmm_finds_user_and_tracks(tmp_path):
     assert np.all(np.hypot(tr["x"] - truth[0], tr["y"] - truth[1]) < 1.5)
 
 
-def test_locate_gmm_unknown_station_raises(tmp_path):
-    _files(tmp_path, peer="ap9")
+def test_locate_gmm_unknown_station_ignored_and_counted(tmp_path):
+    truth = _files(tmp_path, peer="ap9")
     req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
-    with pytest.raises(InputError, match="ap9"):
-        locate_gmm(req)
+    with pytest.warns(UserWarning, match="ap9"):
+        out = locate_gmm(req)
+    assert np.all(out["stations_ignored"] == 1) and len(out) == 3
+    # the estimate equals the one from a log without the unknown station's rows
+    clean = req.measurements[req.measurements["peer"] != "ap9"]
+    ref = locate_gmm(LocateRequest(clean, calibration=tmp_path / "cal.csv"))
+    np.testing.assert_allclose(out[["x", "y"]], ref[["x", "y"]])
+    assert np.all(np.hypot(out["x"] - truth[0], out["y"] - truth[1]) < 3.0)
     with pytest.raises(InputError, match="calibration"):
         locate_gmm(LocateRequest(req.measurements))
 

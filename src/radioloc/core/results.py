@@ -53,6 +53,8 @@ DIAGNOSTICS: dict[str, str] = {
     "gated": "int: measurements the innovation gate refused at each step",
     "used_differences": "int: difference rows a closed-form fit used (rows of missing samples dropped)",
     "em_parameters": "online-EM estimates of the range model, (s_LOS, s_NLOS, alpha) per filter",
+    "stations_ignored": "int: received stations the model does not know (unseen or dropped at calibration)",
+    "zone": "int labels of the chosen zone per level, coarse to fine (e.g. building, floor)",
 }
 
 

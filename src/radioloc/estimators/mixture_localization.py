@@ -23,20 +23,25 @@ base stations received.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
-from radioloc.models.mixture import (DiagMixture, check_reduction, convolve, linear_predict,
-                                     outer, pad_components, product, product_on, reduce,
-                                     select, uniform_ball)
+from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
+from radioloc.models.mixture import (_TIE, DiagMixture, check_reduction, compact, convolve,
+                                     linear_predict, outer, pad_components, product,
+                                     product_on, reduce, select, uniform_ball)
 from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 
 __all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture"]
+
+_LOG2PI = math.log(2.0 * math.pi)
 
 #: diagnostics keys holding the posterior mixture
 MIXTURE_KEYS = ("mixture_weights", "mixture_means", "mixture_variances")
@@ -100,41 +105,80 @@ def posterior_mixture(result: Estimate) -> DiagMixture:
 class MixtureLocalizer(SnapshotEstimator):
     """One-shot localization by the product of conditioned station models, eq. (2).
 
+    Two kinds of models:
+
+    - a :class:`~radioloc.models.mixture.DiagMixture` per base station (paper 004 as
+      written): each received station's ``D^(k)(x, y, m)`` (eq. (1)) is conditioned on its
+      measurement, the ``N_r`` densities are multiplied (eq. (2)) and reduced to
+      ``max_components`` after each product; stations not received (NaN) are left out.
+      Computed by one compiled kernel over the rows (:func:`_product_kernel`), equal to the
+      composition of :meth:`DiagMixture.condition`, :func:`product` and :func:`reduce`.
+    - a :class:`~radioloc.models.fingerprint_mixture.FingerprintMixture` (WiFi scale:
+      place components shared by all access points, "not detected" an explicit outcome;
+      NaN = not detected): the place weights of every scan come from one matrix product,
+      the zone (e.g. building, then floor) is the one of largest posterior mass
+      (:func:`~radioloc.models.fingerprint_mixture.zone_posterior`), and the estimate is
+      the mean and covariance of the posterior mixture restricted to that zone.
+
     Parameters
     ----------
-    models : DiagMixture
-        One calibration model per base station, batch shape ``(..., S)`` (extra leading
-        axes broadcast against the measurements), dimension ``D + 1``: the position
-        coordinates ``(x[, y])`` then the signal strength ``m`` (eq. (1)).
+    models : DiagMixture or FingerprintMixture
+        Per-station models, batch shape ``(..., S)`` (extra leading axes broadcast against
+        the measurements), dimension ``D + 1``: the position coordinates ``(x[, y])`` then
+        the signal strength ``m`` (eq. (1)); or a fingerprint model.
     max_components : int
-        Bound on the components of every position density (after each product).
+        Bound on the components of every position density (after each product); with a
+        fingerprint model, the number of heaviest place components reported in the
+        diagnostics.
     reduction : str
-        ``"runnalls"`` (West/Runnalls greedy merging) or ``"progressive"`` (the Progressive
-        Bayes ISD homotopy, :func:`radioloc.models.mixture.reduce`).
+        ``"runnalls"`` (West/Runnalls greedy merging, one compiled kernel) or
+        ``"progressive"`` (the Progressive Bayes ISD homotopy,
+        :func:`radioloc.models.mixture.reduce`); station models only.
+    temperature : float
+        Fingerprint models only: ``T >= 1`` tempering the product over access points
+        (place weights ``∝ exp(log L / T)``); 1 = the plain product.
 
     Raises
     ------
     InputError
-        Naming ``models``, ``max_components`` or ``reduction`` when they are not valid.
+        Naming ``models``, ``max_components``, ``reduction`` or ``temperature`` when they
+        are not valid.
     """
 
     name = "mixture"
 
-    def __init__(self, models: DiagMixture, max_components: int = 16,
-                 reduction: str = "runnalls") -> None:
-        self.models = _check_models(models)
+    def __init__(self, models: DiagMixture | FingerprintMixture, max_components: int = 16,
+                 reduction: str = "runnalls", temperature: float = 1.0) -> None:
+        if isinstance(models, FingerprintMixture):
+            self.models = models
+        else:
+            self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
         self.reduction = check_reduction(reduction)
+        t = temperature
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.floating)) \
+                or not np.isfinite(t) or t < 1:
+            raise InputError(f"temperature: must be a finite number >= 1, got {t!r}")
+        if t != 1 and not isinstance(models, FingerprintMixture):
+            raise InputError("temperature: applies to fingerprint models only")
+        self.temperature = float(t)
+
+    @property
+    def fingerprint(self) -> bool:
+        """Whether the models are a :class:`FingerprintMixture`."""
+        return isinstance(self.models, FingerprintMixture)
 
     @property
     def n_stations(self) -> int:
         """Number of base stations S."""
+        if self.fingerprint:
+            return self.models.n_stations
         return self.models.batch_shape[-1]
 
     @property
     def dim(self) -> int:
         """Position coordinates D."""
-        return self.models.dim - 1
+        return self.models.dim if self.fingerprint else self.models.dim - 1
 
     def _check_rss(self, rss: object, name: str = "rss", min_ndim: int = 1) -> np.ndarray:
         m = as_float_array(rss, name, min_ndim=min_ndim, allow_nan=True)
@@ -145,6 +189,11 @@ class MixtureLocalizer(SnapshotEstimator):
             idx = tuple(int(i) for i in np.argwhere(np.isinf(m))[0])
             raise InputError(f"{name}: infinite signal strength at index {idx}")
         return m
+
+    def _require_stations(self, what: str) -> None:
+        if self.fingerprint:
+            raise InputError(f"{what}: needs per-station DiagMixture models (this localizer "
+                             "holds a FingerprintMixture; use locate)")
 
     def density_and_mask(self, rss: np.ndarray, models: DiagMixture | None = None
                          ) -> tuple[DiagMixture, np.ndarray]:
@@ -165,6 +214,56 @@ class MixtureLocalizer(SnapshotEstimator):
         received : ndarray of bool, shape (...)
             True where at least one station was received.
         """
+        self._require_stations("density_and_mask")
+        models = self.models if models is None else models
+        try:
+            shape = np.broadcast_shapes(models.batch_shape[:-1], rss.shape[:-1])
+        except ValueError:
+            raise InputError(f"rss: batch shape {rss.shape[:-1]} does not broadcast with the "
+                             f"models' {models.batch_shape[:-1]}") from None
+        s, k, d1 = models.batch_shape[-1], models.n_components, models.dim
+        w = np.broadcast_to(models.weights, shape + (s, k)).reshape(-1, s, k)
+        mu = np.broadcast_to(models.means, shape + (s, k, d1)).reshape(-1, s, k, d1)
+        var = np.broadcast_to(models.variances, shape + (s, k, d1)).reshape(-1, s, k, d1)
+        m = np.broadcast_to(rss, shape + (s,)).reshape(-1, s)
+        if self.reduction != "runnalls":          # the compiled kernel merges West/Runnalls
+            return self.density_reference(rss, models)
+        kmax = self.max_components
+        # slots of a product before its reduction: at most min(k, kmax) squared
+        kc = min(k, kmax)
+        ow, om, ov, ok = _product_kernel(np.ascontiguousarray(w, dtype=float),
+                                         np.ascontiguousarray(mu, dtype=float),
+                                         np.ascontiguousarray(var, dtype=float),
+                                         np.ascontiguousarray(m, dtype=float),
+                                         kmax, kc, _TIE)
+        if not np.all(ok):
+            raise InputError("weights: a mixture lost all its mass (disjoint densities)")
+        post = compact(DiagMixture(ow, om, ov))
+        kk = post.n_components
+        post = DiagMixture(post.weights.reshape(shape + (kk,)),
+                           post.means.reshape(shape + (kk, d1 - 1)),
+                           post.variances.reshape(shape + (kk, d1 - 1)))
+        return post, np.broadcast_to(np.isfinite(rss).any(-1), shape)
+
+    def density_reference(self, rss: np.ndarray, models: DiagMixture | None = None
+                          ) -> tuple[DiagMixture, np.ndarray]:
+        """:meth:`density_and_mask` composed of the NumPy mixture operations
+        (:meth:`DiagMixture.condition`, :func:`product`, :func:`reduce`), one station at a
+        time: the reference the compiled kernel is tested against.
+
+        Parameters
+        ----------
+        rss : ndarray, shape (..., S)
+            Signal strengths, NaN = not received (already validated).
+        models : DiagMixture, optional
+            The station models (default: this localizer's).
+
+        Returns
+        -------
+        density : DiagMixture
+        received : ndarray of bool
+        """
+        self._require_stations("density_reference")
         models = self.models if models is None else models
         got = np.isfinite(rss)
         try:
@@ -211,6 +310,7 @@ class MixtureLocalizer(SnapshotEstimator):
         InputError
             If a row has no received base station, or on a shape mismatch.
         """
+        self._require_stations("density")
         m = self._check_rss(rss)
         post, have = self.density_and_mask(m)
         if not np.all(have):
@@ -224,26 +324,61 @@ class MixtureLocalizer(SnapshotEstimator):
         Parameters
         ----------
         rss : array_like, shape (..., S)
-            Measured signal strengths in dBm; NaN = base station not received (skipped).
+            Measured signal strengths in dBm; NaN = base station not received (skipped)
+            with station models, not detected (an outcome) with a fingerprint model.
 
         Returns
         -------
         Estimate
             ``position`` ``(..., D)`` = the mixture mean, ``covariance`` ``(..., D, D)`` =
             the mixture covariance; diagnostics ``measurements_used`` and the posterior
-            mixture (:func:`posterior_mixture`).
+            mixture (:func:`posterior_mixture`). With a fingerprint model: the zone-restricted
+            posterior (its ``max_components`` heaviest places, renormalised, in the
+            diagnostics), ``stations_ignored`` (detected access points the model dropped)
+            and ``zone`` ``(..., L)`` (the chosen label of each zone level).
 
         Raises
         ------
         InputError
-            If a row has no received base station, or on a shape mismatch.
+            If a row has no received base station (station models), or on a shape mismatch.
         """
         m = self._check_rss(rss)
+        if self.fingerprint:
+            return self._locate_places(m)
         post = self.density(m)
         mean, cov = post.moments()
         used = np.broadcast_to(np.isfinite(m).sum(-1), post.batch_shape)
         return Estimate(mean, cov, None, {"measurements_used": used,
                                           **_with_mixture(post, self.max_components)})
+
+    def _locate_places(self, m: np.ndarray) -> Estimate:
+        fm: FingerprintMixture = self.models
+        lead = m.shape[:-1]
+        flat = m.reshape(-1, m.shape[-1])
+        w = fm.posterior(flat, self.temperature)
+        chosen, inside = zone_posterior(w, fm.zones)
+        w = np.where(inside, w, 0.0)
+        w /= w.sum(1, keepdims=True)
+        pos, pvar = fm.positions, fm.position_variances
+        mean = w @ pos
+        second = np.einsum("nk,ki,kj->nij", w, pos, pos) + np.einsum("nk,ki->ni", w, pvar)[
+            ..., None] * np.eye(fm.dim)
+        cov = second - mean[:, :, None] * mean[:, None, :]
+        det = np.isfinite(flat)
+        top = min(self.max_components, fm.n_places)
+        idx = np.argpartition(-w, top - 1, axis=1)[:, :top]
+        tw = np.take_along_axis(w, idx, 1)
+        order = np.argsort(-tw, axis=1, kind="stable")
+        idx, tw = np.take_along_axis(idx, order, 1), np.take_along_axis(tw, order, 1)
+        mix = DiagMixture(tw / tw.sum(1, keepdims=True), pos[idx], pvar[idx])
+        diag = {"measurements_used": (det & fm.active).sum(-1).reshape(lead),
+                "stations_ignored": (det & ~fm.active).sum(-1).reshape(lead),
+                **{k: v.reshape(lead + v.shape[1:]) for k, v in
+                   _with_mixture(mix, self.max_components).items()}}
+        if fm.zones.shape[1]:
+            diag["zone"] = chosen.reshape(lead + chosen.shape[1:])
+        return Estimate(mean.reshape(lead + (fm.dim,)), cov.reshape(lead + (fm.dim, fm.dim)),
+                        None, diag)
 
 
 @dataclass(frozen=True)
@@ -521,3 +656,219 @@ class MixtureTracker(RecursiveEstimator):
             state = self._update(state, mi, received[..., i], used[..., i], float(dts[i]))
             steps.append(self.estimate(state))
         return track_from_steps(steps, t)
+
+
+# --- compiled eq. (2): condition, product and West/Runnalls reduction fused per row ---------
+
+@njit(cache=True)
+def _compact_into(w, m, v, n, ow, om, ov):  # pragma: no cover - compiled
+    """Copy the positive-weight components of ``w[:n]`` into ``ow, om, ov`` sorted by
+    decreasing weight, stably (as :func:`radioloc.models.mixture.compact`); returns the count."""
+    order = np.argsort(-w[:n], kind="mergesort")
+    c = 0
+    for r in range(n):
+        i = order[r]
+        if w[i] > 0:
+            ow[c] = w[i]
+            om[c, :] = m[i, :]
+            ov[c, :] = v[i, :]
+            c += 1
+    return c
+
+
+@njit(cache=True)
+def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
+    """West's greedy merging of one compacted mixture ``w[:n]`` down to ``kmax`` components,
+    in place: the rule, the moment-matched merge and Runnalls' cost with the tie handling of
+    ``models.mixture._west_kernel`` (costs within a relative ``tie`` count as equal and the
+    lower index wins). Faster form of the same decisions:
+
+    - the merged variance is ``a1 v_i + a2 v_c + a1 a2 (m_i - m_c)^2`` (the moment formula
+      rearranged), the log-determinants of the components are cached and the merged one is
+      the logarithm of the product of the per-axis variances (one logarithm per pair);
+    - the candidates are scanned in index order and the scan stops once the best cost is
+      within the tie tolerance of zero: Runnalls' cost is never negative (beyond rounding,
+      far below ``tie``), so no later candidate can then beat the best by the tolerance.
+    """
+    d = m.shape[1]
+    logdet = np.empty(n)
+    for c in range(n):
+        acc = 0.0
+        for e in range(d):
+            acc += math.log(v[c, e])
+        logdet[c] = acc
+    n_active = 0
+    for c in range(n):
+        if w[c] > 0:
+            n_active += 1
+    while n_active > kmax:
+        i = -1
+        for c in range(n):
+            if w[c] > 0 and (i < 0 or w[c] < w[i] * (1.0 - tie)):
+                i = c
+        wi = w[i]
+        ldi = logdet[i]
+        best = np.inf
+        best_scale = 0.0
+        j = -1
+        for c in range(n):
+            wc = w[c]
+            if c == i or wc <= 0:
+                continue
+            ws = wi + wc
+            a1 = wi / ws
+            a2 = wc / ws
+            prod = 1.0
+            for e in range(d):
+                dm = m[i, e] - m[c, e]
+                prod *= a1 * v[i, e] + a2 * v[c, e] + a1 * a2 * dm * dm
+            ld = math.log(prod)
+            ldc = logdet[c]
+            cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
+            scale = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
+            if j < 0 or cost < best - tie * (scale + best_scale):
+                best = cost
+                best_scale = scale
+                j = c
+                if best <= tie * best_scale:
+                    break
+        ws = wi + w[j]
+        a1 = wi / ws
+        a2 = w[j] / ws
+        acc = 0.0
+        for e in range(d):
+            mm = a1 * m[i, e] + a2 * m[j, e]
+            vv = a1 * (v[i, e] + (m[i, e] - mm) ** 2) + a2 * (v[j, e] + (m[j, e] - mm) ** 2)
+            m[j, e] = mm
+            v[j, e] = vv
+            acc += math.log(vv)
+        logdet[j] = acc
+        w[j] = ws
+        w[i] = 0.0
+        n_active -= 1
+
+
+@njit(cache=True)
+def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, sw, sm, sv):  # pragma: no cover - compiled
+    """:func:`radioloc.models.mixture.reduce` of one mixture ``w[:n]`` into ``ow, om, ov``
+    (``sw, sm, sv``: scratch of at least ``n`` slots); returns the component count."""
+    c = _compact_into(w, m, v, n, sw, sm, sv)
+    if c <= kmax:
+        ow[:c] = sw[:c]
+        om[:c, :] = sm[:c, :]
+        ov[:c, :] = sv[:c, :]
+        return c
+    _west_one(sw, sm, sv, c, kmax, tie)
+    return _compact_into(sw, sm, sv, c, ow, om, ov)
+
+
+@njit(cache=True)
+def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - compiled
+    """Weights of one station model conditioned on its last coordinate (the section of
+    eq. (1) of Sect. 3.2, :meth:`DiagMixture.condition`); False if all mass is lost."""
+    k, d1 = mu.shape
+    top = -np.inf
+    for j in range(k):
+        lw = math.log(w[j]) if w[j] > 0 else -np.inf
+        if received:
+            vj = var[j, d1 - 1]
+            lw += -0.5 * ((value - mu[j, d1 - 1]) ** 2 / vj + math.log(vj) + _LOG2PI)
+        cw[j] = lw
+        if lw > top:
+            top = lw
+    if not np.isfinite(top):
+        return False
+    tot = 0.0
+    for j in range(k):
+        cw[j] = math.exp(cw[j] - top)
+        tot += cw[j]
+    for j in range(k):
+        cw[j] /= tot
+    return True
+
+
+
+@njit(cache=True, parallel=True)
+def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compiled
+    """Eq. (2) for every row: condition each station model on its reading, reduce it to
+    ``kmax`` components, multiply it into the running product and reduce, exactly as
+    :meth:`MixtureLocalizer.density_reference` composes the NumPy operations.
+
+    Parameters: ``w (B, S, K)``, ``mu, var (B, S, K, D + 1)``, ``rss (B, S)`` (NaN = not
+    received), ``kc = min(K, kmax)``. Returns ``(weights (B, kmax), means (B, kmax, D),
+    variances (B, kmax, D), ok (B,))`` with unused slots at weight 0 (mean 0, variance 1).
+    """
+    nb, ns, k, d1 = mu.shape
+    d = d1 - 1
+    ow = np.zeros((nb, kmax))
+    om = np.zeros((nb, kmax, d))
+    ov = np.ones((nb, kmax, d))
+    ok = np.ones(nb, dtype=np.bool_)
+    big = max(k, kc * kc)
+    for b in prange(nb):
+        cw = np.empty(k)
+        pw = np.empty(kmax)
+        pm = np.empty((kmax, d))
+        pv = np.empty((kmax, d))
+        qw = np.empty(kmax)
+        qm = np.empty((kmax, d))
+        qv = np.empty((kmax, d))
+        xw = np.empty(big)
+        xm = np.empty((big, d))
+        xv = np.empty((big, d))
+        sw = np.empty(big)
+        sm = np.empty((big, d))
+        sv = np.empty((big, d))
+        pn = 0
+        have = False
+        started = False
+        for s in range(ns):
+            got = np.isfinite(rss[b, s])
+            if started and not got:
+                continue
+            if not _condition_into(w[b, s], mu[b, s], var[b, s], rss[b, s], got, cw):
+                ok[b] = False
+                break
+            qn = _reduce_into(cw, mu[b, s, :, :d], var[b, s, :, :d], k, kmax, tie,
+                              qw, qm, qv, sw, sm, sv)
+            if not started or not have:
+                pw[:qn] = qw[:qn]
+                pm[:qn, :] = qm[:qn, :]
+                pv[:qn, :] = qv[:qn, :]
+                pn = qn
+                started = True
+                have = got
+                continue
+            # product of the running density (pn) with this station's (qn), i-major
+            top = -np.inf
+            r = 0
+            for i in range(pn):
+                for j in range(qn):
+                    lc = 0.0
+                    for e in range(d):
+                        vi = pv[i, e]
+                        vj = qv[j, e]
+                        ss = vi + vj
+                        xv[r, e] = vi * vj / ss
+                        xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
+                        lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
+                    lw = math.log(pw[i]) + math.log(qw[j]) - 0.5 * lc
+                    xw[r] = lw
+                    if lw > top:
+                        top = lw
+                    r += 1
+            if not np.isfinite(top):
+                ok[b] = False
+                break
+            tot = 0.0
+            for i in range(r):
+                xw[i] = math.exp(xw[i] - top)
+                tot += xw[i]
+            for i in range(r):
+                xw[i] /= tot
+            pn = _reduce_into(xw, xm, xv, r, kmax, tie, pw, pm, pv, sw, sm, sv)
+        for c in range(pn):
+            ow[b, c] = pw[c]
+            om[b, c, :] = pm[c, :]
+            ov[b, c, :] = pv[c, :]
+    return ow, om, ov, ok

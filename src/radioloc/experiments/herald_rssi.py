@@ -5,12 +5,21 @@
    distance given the RSSI, ``log p(d | rssi)``, each normalised over distances
    ``[0, d_max]`` with a small uniform floor (so a reading outside a trapezoid's support
    does not give ``-inf``).
-2. Localize a static phone with the grid filter (:class:`~radioloc.estimators.grid.GridFilter`,
+2. Distance from one reading, across devices: each model's point estimate is the median of
+   its ``p(d | rssi)`` normalised over ``[0, d_max]`` (the estimate minimising the expected
+   absolute error); each phone's file of the test session is one device, evaluated without
+   and with the label-free per-device offset (:func:`radioloc.models.rssi_logdistance.device_offset`:
+   the shift aligning the device's RSSI distribution with the calibration's, no distance
+   used), beside the constant guess (the median calibration distance). Both directions (fit
+   on one session, test on the other) and, as a labelled stress test emulating a phone that
+   reads ``synthetic_shift`` dB higher, the test readings shifted by that amount.
+3. Localize a static phone with the grid filter (:class:`~radioloc.estimators.grid.GridFilter`,
    no motion, GetLocation of Algorithm 2): a walker at random points around it reads RSSI
    values drawn from the test session's recordings at the nearest recorded distance.
 
 The results table has a ``table`` column: ``"runs"`` rows are the static-localization runs;
-the block holding run 0 adds the model comparison (``"loglik"``), the fitted models
+the block holding run 0 adds the model comparison (``"loglik"``), the distance errors
+(``"distance"``), the fitted models
 (``"model"``: trapezoid support per RSSI row and the log-distance parameters) and an evenly
 spaced subsample of the test readings for the figure (``"readings"``).
 :meth:`HeraldRssi.summarize` only reads that table.
@@ -52,6 +61,7 @@ class HeraldConfig:
     walk_radius_m: the walker's reading points are uniform in a disc of this radius.
     steps: readings per run; epsilon: grid floor.
     figure_readings: test readings shown in the figure (an evenly spaced subsample).
+    synthetic_shift: RSSI steps (dB) added to the test readings in the stress test.
     RSSI in dBm is mapped to 0..100 with dbm_to_rssi100 (rssi = dBm + 110).
     """
 
@@ -72,6 +82,7 @@ class HeraldConfig:
     steps: int = 150
     epsilon: float = 1e-7
     figure_readings: int = 4000
+    synthetic_shift: int = 12
 
 
 @lru_cache(maxsize=4)
@@ -80,20 +91,79 @@ def _data(root: str, session: str) -> tuple[np.ndarray, np.ndarray]:
     return dbm_to_rssi100(df["rssi_dbm"].to_numpy()), df["distance_m"].to_numpy()
 
 
-def _models(root: str, config: HeraldConfig):
-    r, d = _data(root, config.train_session)
+@lru_cache(maxsize=4)
+def _by_phone(root: str, session: str) -> tuple[tuple[str, np.ndarray, np.ndarray], ...]:
+    df = load_session(root, session)
+    return tuple((str(ph), dbm_to_rssi100(g["rssi_dbm"].to_numpy()), g["distance_m"].to_numpy())
+                 for ph, g in df.groupby("phone", sort=True))
+
+
+def _models(root: str, config: HeraldConfig, session: str | None = None):
+    r, d = _data(root, config.train_session if session is None else session)
     trap = fit_trapezoid_model(r, d, tau_min=config.tau_min_m, sigma_min=config.sigma_min_m,
                                window=config.smooth_window)
     return trap, LogDistanceGaussian.fit(r.astype(float), d)
 
 
-def _conditional_loglik(model, r, d, config: HeraldConfig) -> np.ndarray:
-    """``log p(d | r)`` with p normalised over [0, d_max] and mixed with the uniform floor."""
+def _density_table(model, config: HeraldConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``p(d | r)`` normalised over [0, d_max] for every RSSI row: ``(grid, dens (101, G))``."""
     grid = np.arange(0.0, config.d_max_m + config.d_step_m / 2, config.d_step_m)
     levels = np.arange(RSSI_LEVELS)
     table = model.likelihood(grid[None, :], levels[:, None])             # (101, G)
     area = np.trapezoid(table, grid, axis=1)
     dens = np.where(area[:, None] > 0, table / np.where(area > 0, area, 1.0)[:, None], 1.0 / config.d_max_m)
+    return grid, dens
+
+
+def _median_distance(model, config: HeraldConfig) -> np.ndarray:
+    """Median of the normalised ``p(d | r)`` per RSSI row, ``(101,)`` metres."""
+    grid, dens = _density_table(model, config)
+    cdf = np.cumsum(dens, axis=1)
+    cdf /= cdf[:, -1:]
+    return grid[np.argmax(cdf >= 0.5, axis=1)]
+
+
+def _distance_rows(root: str, config: HeraldConfig, run: int) -> pd.DataFrame:
+    """Mean absolute distance error per direction, model, offset mode and shift."""
+    rows = []
+    for fit_s, test_s in ((config.train_session, config.test_session),
+                          (config.test_session, config.train_session)):
+        trap, gauss = _models(root, config, fit_s)
+        _, d_fit = _data(root, fit_s)
+        const = float(np.median(d_fit))
+        medians = {"trapezoid": _median_distance(trap, config),
+                   "logdistance": _median_distance(gauss, config)}
+        for shift in (0, config.synthetic_shift):
+            err = {}
+            for phone, r, d in _by_phone(root, test_s):
+                r = np.clip(r + shift, 0, RSSI_LEVELS - 1)
+                delta = {"trapezoid": trap.device_offset(r), "logdistance": gauss.device_offset(r)}
+                for name in ("trapezoid", "logdistance"):
+                    for mode in ("none", "auto"):
+                        rc = trap.correct(r, delta[name] if mode == "auto" else 0)
+                        e = np.abs(medians[name][rc] - d)
+                        err.setdefault((name, mode), []).append(e)
+                        rows.append({"table": "distance", "run": run, "fit": fit_s, "test": test_s,
+                                     "shift": shift, "model": name, "offset_mode": mode,
+                                     "phone": phone, "offset": float(delta[name]) if mode == "auto"
+                                     else 0.0, "mae_m": float(e.mean()), "readings": e.size})
+                e = np.abs(const - d)
+                err.setdefault(("constant", "none"), []).append(e)
+                rows.append({"table": "distance", "run": run, "fit": fit_s, "test": test_s,
+                             "shift": shift, "model": "constant", "offset_mode": "none",
+                             "phone": phone, "offset": 0.0, "mae_m": float(e.mean()),
+                             "readings": e.size})
+            for (name, mode), es in err.items():
+                e = np.concatenate(es)
+                rows.append({"table": "distance", "run": run, "fit": fit_s, "test": test_s,
+                             "shift": shift, "model": name, "offset_mode": mode, "phone": "all",
+                             "offset": np.nan, "mae_m": float(e.mean()), "readings": e.size})
+    return pd.DataFrame(rows)
+
+
+def _conditional_loglik(model, r, d, config: HeraldConfig) -> np.ndarray:
+    """``log p(d | r)`` with p normalised over [0, d_max] and mixed with the uniform floor."""
+    grid, dens = _density_table(model, config)
     dens = (1 - config.floor) * dens + config.floor / config.d_max_m
     idx = np.clip(np.rint(d / config.d_step_m).astype(int), 0, grid.size - 1)
     return np.log(dens[r, idx])
@@ -201,7 +271,7 @@ class HeraldRssi(Experiment):
         pick = np.unique(np.linspace(0, r_test.size - 1, min(config.figure_readings, r_test.size)).astype(int))
         readings = pd.DataFrame({"table": "readings", "run": run, "rssi": r_test[pick],
                                  "distance_m": d_test[pick]})
-        return [pd.DataFrame(ll), model_rows, readings]
+        return [pd.DataFrame(ll), model_rows, readings, _distance_rows(root, config, run)]
 
     def summarize(self, config: HeraldConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
         """Metrics, claims and the figure, all from the results table.
@@ -248,7 +318,41 @@ class HeraldRssi(Experiment):
                    "error of guessing the grid centre (no measurement)"),
             Metric("logdistance_exponent", gauss.n, None, "", f"fitted n; residual std {gauss.s:.1f} dB"),
         ]
+        dist = tab("distance")
+        pooled = dist[dist["phone"] == "all"].set_index(["fit", "shift", "model", "offset_mode"])["mae_m"]
+        offsets = dist[(dist["offset_mode"] == "auto") & (dist["phone"] != "all")]
+        below = {}
+        for fit_s in (config.train_session, config.test_session):
+            for shift in (0, config.synthetic_shift):
+                const = float(pooled[(fit_s, shift, "constant", "none")])
+                tag = f"fit{fit_s}" + (f"_shift{shift:+d}" if shift else "")
+                metrics.append(Metric(f"distance_mae_constant_{tag}", const, None, "m",
+                                      "constant guess = median calibration distance"))
+                for name in ("trapezoid", "logdistance"):
+                    for mode in ("none", "auto"):
+                        v = float(pooled[(fit_s, shift, name, mode)])
+                        below[(fit_s, shift, name, mode)] = 1 - v / const
+                        metrics.append(Metric(
+                            f"distance_mae_{name}_{mode}_{tag}", v, None, "m",
+                            f"{'with' if mode == 'auto' else 'without'} device offset; "
+                            f"{100 * (1 - v / const):.0f} % below the constant guess"))
+        metrics.append(Metric("device_offsets_trapezoid_unshifted", float(np.abs(
+            offsets[(offsets["model"] == "trapezoid") & (offsets["shift"] == 0)]["offset"]).max()),
+            None, "dB", "largest |offset| estimated for a real phone file (both directions)"))
+        sessions = (config.train_session, config.test_session)
         claims = [
+            Claim("With the label-free device offset, the trapezoid model's mean absolute distance "
+                  "error is at least 30 % below the constant guess, fitted on either session and "
+                  "tested on the other", all(below[(f, 0, "trapezoid", "auto")] >= 0.3
+                                              for f in sessions)),
+            Claim("With the label-free device offset, the log-distance model's mean absolute "
+                  "distance error is at least 30 % below the constant guess, both directions",
+                  all(below[(f, 0, "logdistance", "auto")] >= 0.3 for f in sessions)),
+            Claim(f"Stress test (test readings +{config.synthetic_shift} dB, another phone's "
+                  "level): with the offset both models stay at least 30 % below the constant "
+                  "guess, both directions",
+                  all(below[(f, config.synthetic_shift, m, "auto")] >= 0.3
+                      for f in sessions for m in ("trapezoid", "logdistance"))),
             Claim("The data-driven trapezoid model describes held-out RSSI/distance pairs better than "
                   "a log-distance Gaussian (higher held-out log-likelihood)", bool(ll_t > ll_g)),
             Claim("The grid filter with the trapezoid model localizes a static phone better than guessing "

@@ -71,8 +71,9 @@ def _open_table(path: Path):
     return open(path, newline="", encoding="utf-8-sig")
 
 
-def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
-    """Read a CSV as text cells with lower-case, stripped, unique column names.
+def _read_csv(path: Path | str, what: str, preserve_case: bool = False) -> pd.DataFrame:
+    """Read a CSV as text cells with lower-case (or, with ``preserve_case``, as written),
+    stripped, unique column names.
 
     The frame's ``attrs["lines"]`` holds the file line where each row starts (blank lines
     and rows of empty cells are skipped but counted).
@@ -111,7 +112,7 @@ def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if header is None:
         raise InputError(f"{path}: the file is empty")
-    names = [c.strip().lower() for c in header]
+    names = [c.strip() if preserve_case else c.strip().lower() for c in header]
     width = len(names)
     for k, rec in enumerate(rows):
         if len(rec) != width and any(c.strip() for c in rec[width:]) or len(rec) < width:
@@ -137,6 +138,31 @@ def _read_csv(path: Path | str, what: str) -> pd.DataFrame:
                          columns=[names[j] for j in keep], dtype=str)
     frame.attrs["lines"] = np.asarray(lines)
     return frame
+
+
+def read_cells(path: Path | str, what: str) -> pd.DataFrame:
+    """Read a CSV as text cells keeping the column names' case (e.g. a calibration file whose
+    columns are station ids), with the checks of the measurements reader: a column named
+    twice, a row with more or fewer cells than the header, an unnamed column holding values.
+
+    Parameters
+    ----------
+    path : path
+        The file (CSV, or Parquet read as its cells).
+    what : str
+        What the file is, for messages ("calibration").
+
+    Returns
+    -------
+    DataFrame
+        Text cells, column names stripped; ``attrs["lines"]`` = the file line of each row.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line.
+    """
+    return _read_csv(path, what, preserve_case=True)
 
 
 def _require_columns(frame: pd.DataFrame, columns: Iterable[str], path: Path | str) -> None:

@@ -1,15 +1,35 @@
 """``radioloc locate --method gmm``: Gaussian-mixture RSS fingerprinting (paper 004).
 
-Calibration file (``--calibration``), CSV: columns ``x, y`` (metres) and one column per
-base station, named with the station id used as ``peer`` in the measurements; a cell is the
-signal strength in dBm, empty when that station was not received::
+Calibration file (``--calibration``), CSV: columns ``x, y`` (metres), optionally
+``building`` and ``floor`` (integer zone labels), and one column per base station, named
+with the station id used as ``peer`` in the measurements (names keep their case); a cell is
+the signal strength in dBm, empty when that station was not received::
 
     x,y,ap1,ap2,ap3
     0.0,0.0,-45.2,-61.0,
     0.5,0.0,-46.0,-60.1,-72.3
 
+Data sets that write a sentinel for "not detected" (UJIIndoorLoc: ``100``) are read with
+``-o not_detected=100``: such cells count as empty.
+
+Models (``-o model=``):
+
+- ``stations`` (default, paper 004 as written): one mixture per station fitted by EM,
+  eq. (1); one-shot localization by eq. (2) or tracking (``-o track=1``).
+- ``places`` (WiFi scale: hundreds of stations, most not detected, several floors): the
+  shared-place model :class:`~radioloc.models.fingerprint_mixture.FingerprintMixture`,
+  "not detected" an explicit outcome, the building and floor decided first when the
+  calibration has those columns (output columns ``building``, ``floor``); ``-o
+  temperature=T`` tempers the product over stations. See docs/fingerprinting.md.
+
 Measurements: ``rss`` rows, ``node`` = the mobile, ``peer`` = the base station id; all
-rows of one ``(time, node)`` form one measurement vector (duplicates are averaged).
+rows of one ``(time, node)`` form one measurement vector (duplicates are averaged). A
+reading of a station the calibration does not have, or that was dropped for having fewer
+than ``min_samples`` calibration readings, is ignored with a warning and counted in the
+output column ``stations_ignored``; a ``(time, node)`` with no reading left is left out, with
+a warning. ``-o device_offset=auto`` subtracts from each node's readings its label-free
+offset against the calibration readings
+(:func:`radioloc.models.rssi_logdistance.device_offset`); a number subtracts that many dB.
 
 The EM initialisation draws from a generator seeded by the content of the calibration file,
 so the same file always gives the same models.
@@ -17,24 +37,36 @@ so the same file always gives the same models.
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 import pandas as pd
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
-from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM
+from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.models.fingerprint_mixture import FingerprintMixture
 from radioloc.models.mixture_calibration import em_calibration
 from radioloc.models.motion import UniformDisk
+from radioloc.models.rssi_logdistance import device_offset
+
+RESERVED = ("x", "y", "building", "floor")
 
 
-def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def read_calibration(path, not_detected: float | None = None, *, with_zones: bool = False):
     """Read a calibration file.
 
     Parameters
     ----------
     path : str or Path
-        The CSV file (columns ``x, y`` and one per base station).
+        The CSV file (columns ``x, y``, optionally ``building, floor``, and one per base
+        station; reserved names match in any case, station ids keep theirs).
+    not_detected : float, optional
+        A cell value that means "not detected" (read as empty), e.g. 100.
+    with_zones : bool
+        Also return the zone labels.
 
     Returns
     -------
@@ -44,62 +76,150 @@ def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         Signal strengths, NaN = not received.
     ids : list of str
         The station ids (column names).
+    zones : ndarray of int, shape (N, L), and names : tuple of str
+        Only with ``with_zones``: the ``building``/``floor`` labels present (L = 0..2).
     """
-    try:
-        frame = pd.read_csv(path, dtype={"x": float, "y": float})
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read the calibration file ({exc})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    missing = {"x", "y"} - set(frame.columns)
+    frame = read_cells(path, "calibration")
+    lower = {c.lower(): c for c in frame.columns if c.lower() in RESERVED}
+    twice = [c for c in frame.columns if c.lower() in RESERVED and lower[c.lower()] != c]
+    if twice:
+        raise InputError(f"{path}: column {twice[0]!r} appears twice (names of x, y, building, "
+                         "floor are read in any case)")
+    missing = [c for c in ("x", "y") if c not in lower]
     if missing:
-        raise InputError(f"{path}: calibration column(s) {', '.join(sorted(missing))} missing")
-    ids = [c for c in frame.columns if c not in ("x", "y")]
+        raise InputError(f"{path}: calibration column(s) {', '.join(missing)} missing")
+    ids = [c for c in frame.columns if c.lower() not in RESERVED]
     if not ids:
         raise InputError(f"{path}: no base station column besides x, y")
-    try:
-        rss = frame[ids].apply(pd.to_numeric, errors="raise").to_numpy(float)
-    except ValueError as exc:
-        raise InputError(f"{path}: a base station column is not numeric ({exc})") from None
-    pos = frame[["x", "y"]].to_numpy(float)
+
+    def numbers(cols, allow_empty):
+        raw = frame[cols].apply(lambda c: c.str.strip())
+        val = raw.apply(pd.to_numeric, errors="coerce").to_numpy(float)
+        empty = (raw == "").to_numpy()
+        bad = np.isnan(val) & ~(empty & allow_empty) & ~(raw.apply(
+            lambda c: c.str.lower() == "nan").to_numpy() & allow_empty)
+        if bad.any():
+            i, j = (int(k) for k in np.argwhere(bad)[0])
+            raise InputError(f"{path}: line {_line(frame, i)}, column {cols[j]}: not a number: "
+                             f"{raw.iloc[i, j]!r}")
+        return val
+
+    pos = numbers([lower["x"], lower["y"]], False)
     if not np.all(np.isfinite(pos)):
         i = int(np.flatnonzero(~np.isfinite(pos).all(1))[0])
-        raise InputError(f"{path}: line {i + 2}: x, y must be finite")
+        raise InputError(f"{path}: line {_line(frame, i)}: x, y must be finite")
     far = np.abs(pos) > LIMITS["coordinate_m"]
     if far.any():
         i, j = (int(k) for k in np.argwhere(far)[0])
-        raise InputError(f"{path}: line {i + 2}, column {'xy'[j]}: |{pos[i, j]:g}| m exceeds "
-                         f"{LIMITS['coordinate_m']:g} m")
-    got = np.isfinite(rss)
+        raise InputError(f"{path}: line {_line(frame, i)}, column {'xy'[j]}: |{pos[i, j]:g}| m "
+                         f"exceeds {LIMITS['coordinate_m']:g} m")
+    rss = numbers(ids, True)
+    if not_detected is not None:
+        rss = np.where(rss == float(not_detected), np.nan, rss)
     if np.isinf(rss).any():
         i, j = (int(k) for k in np.argwhere(np.isinf(rss))[0])
-        raise InputError(f"{path}: line {i + 2}, column {ids[j]}: RSS must be finite "
+        raise InputError(f"{path}: line {_line(frame, i)}, column {ids[j]}: RSS must be finite "
                          "(leave the cell empty for a station not received)")
+    got = np.isfinite(rss)
     out = got & ((rss > LIMITS["rss_max_dbm"]) | (rss < LIMITS["rss_min_dbm"]))
     if out.any():
         i, j = (int(k) for k in np.argwhere(out)[0])
-        hint = (" (+100 is the 'not detected' sentinel of WiFi sets: leave such cells empty)"
+        hint = (" (+100 is the 'not detected' sentinel of WiFi sets: read it with "
+                "-o not_detected=100, or leave such cells empty)"
                 if rss[i, j] == RSS_NOT_DETECTED_DBM else "")
-        raise InputError(f"{path}: line {i + 2}, column {ids[j]}: RSS {rss[i, j]:g} dBm outside "
-                         f"[{LIMITS['rss_min_dbm']:g}, {LIMITS['rss_max_dbm']:g}]{hint}")
-    return pos, rss, ids
+        raise InputError(f"{path}: line {_line(frame, i)}, column {ids[j]}: RSS {rss[i, j]:g} dBm "
+                         f"outside [{LIMITS['rss_min_dbm']:g}, {LIMITS['rss_max_dbm']:g}]{hint}")
+    if not with_zones:
+        return pos, rss, ids
+    names = tuple(n for n in ("building", "floor") if n in lower)
+    zones = numbers([lower[n] for n in names], False) if names else np.zeros((len(pos), 0))
+    if names and np.any(zones != np.round(zones)):
+        i, j = (int(k) for k in np.argwhere(zones != np.round(zones))[0])
+        raise InputError(f"{path}: line {_line(frame, i)}, column {names[j]}: a zone label must "
+                         "be a whole number")
+    return pos, rss, ids, zones.astype(np.int64), names
+
+
+def _offset_option(request: LocateRequest) -> str | float | None:
+    text = request.option("device_offset", None, str)
+    if text is None:
+        return None
+    text = str(text).strip().lower()
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"option device_offset: expected 'auto' or a number of dB, got "
+                          f"{text!r}") from None
+    if not math.isfinite(value) or abs(value) > 100:
+        raise ConfigError(f"option device_offset: must be 'auto' or a finite number within "
+                          f"+-100 dB, got {text!r}")
+    return value
+
+
+def apply_device_offset(meas: np.ndarray, nodes: np.ndarray, reference: np.ndarray,
+                        option) -> np.ndarray:
+    """Subtract each node's device offset from its readings.
+
+    Parameters
+    ----------
+    meas : ndarray, shape (N, S)
+        Readings (NaN = none), one row per measurement vector.
+    nodes : ndarray, shape (N,)
+        The node of each row.
+    reference : ndarray
+        The calibration readings (NaN ignored): the reference distribution of ``"auto"``.
+    option : "auto", float or None
+        ``"auto"``: the label-free offset per node; a number: that offset for every node.
+
+    Returns
+    -------
+    ndarray, shape (N, S)
+        Corrected readings.
+    """
+    if option is None:
+        return meas
+    if option != "auto":
+        return meas - float(option)
+    ref = reference[np.isfinite(reference)]
+    out = meas.copy()
+    for node in pd.unique(nodes):          # one offset per device
+        rows = nodes == node
+        out[rows] = meas[rows] - device_offset(meas[rows], ref)
+    return out
 
 
 @locate_method("gmm", "Gaussian-mixture RSS fingerprinting (paper 004) from a calibration file "
-                      "(options: components, position_components, track=0/1, v_max)",
-               options={"components": Option("mixture components per station model (16)", int,
+                      "(options: model=stations/places, components, position_components, track, "
+                      "v_max, not_detected, min_samples, temperature, device_offset)",
+               options={"model": Option("stations: per-station mixtures, eq. (2) (default); "
+                                        "places: shared places with not-detected outcome "
+                                        "(WiFi scale)", str, choices=("stations", "places")),
+                        "components": Option("mixture components per station model (16)", int,
                                              min=1, max=256),
                         "position_components": Option("components kept in position densities (8)",
                                                       int, min=1, max=256),
                         "track": Option("1: recursive tracking, 0: one-shot per row (0)", bool),
                         "v_max": Option("maximum speed when tracking, m/s (1.5)", float, min=0,
-                                        max=1e3)},
+                                        max=1e3),
+                        "not_detected": Option("calibration cell value meaning 'not detected', "
+                                               "e.g. 100 (none)", float, min=-1e4, max=1e4),
+                        "min_samples": Option("stations with fewer calibration readings are "
+                                              "dropped, with a warning (3)", int, min=2, max=1e6),
+                        "temperature": Option("places model: tempering T >= 1 of the product "
+                                              "over stations (1)", float, min=1, max=1e3),
+                        "device_offset": Option("'auto': label-free per-node RSS offset against "
+                                                "the calibration; or dB to subtract (none)", str)},
                kinds=("rss",), inputs=("calibration",))
 def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     """Fingerprint localization with mixture models fitted to a calibration file.
 
-    Each base station's model is fitted by EM to the calibration file; each
-    ``(time, node)`` measurement vector is localized by eq. (2); with ``-o track=1`` each
-    node is tracked over time with the uniform-disk motion model of radius ``v_max * dt``.
+    With ``-o model=stations`` each base station's model is fitted by EM to the calibration
+    file and each ``(time, node)`` measurement vector is localized by eq. (2); with
+    ``-o track=1`` each node is tracked over time with the uniform-disk motion model of
+    radius ``v_max * dt``. With ``-o model=places`` the shared-place model is fitted and
+    every vector is localized (zone first, then position).
 
     Parameters
     ----------
@@ -109,39 +229,90 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        Columns ``time, node, x, y, uncertainty_m``, one row per ``(time, node)``.
+        Columns ``time, node, x, y, uncertainty_m, stations_ignored`` (and ``building``,
+        ``floor`` from a places model whose calibration has them), one row per
+        ``(time, node)``.
     """
     if request.calibration is None:
         raise InputError("method gmm: needs a calibration file (--calibration)")
-    pos, cal_rss, ids = read_calibration(request.calibration)
+    kind = request.option("model", "stations", str)
+    nd = request.option("not_detected", None)
+    pos, cal_rss, ids, zones, zone_names = read_calibration(request.calibration, nd,
+                                                            with_zones=True)
+    min_samples = int(request.option("min_samples", 3))
+    offset = _offset_option(request)
+    if kind == "places" and request.option("track", 0.0):
+        raise ConfigError("method gmm: -o track=1 needs -o model=stations (the places model "
+                          "is one-shot)")
+    if kind != "places" and "temperature" in request.options:
+        raise ConfigError("method gmm: -o temperature applies to -o model=places")
+    counts = np.isfinite(cal_rss).sum(0)
+    keep = counts >= min_samples
+    if not keep.any():
+        raise InputError(f"{request.calibration}: no base station has {min_samples} or more "
+                         "calibration readings")
+    if not keep.all():
+        warnings.warn(f"method gmm: {int((~keep).sum())} of {len(ids)} base stations dropped "
+                      f"(fewer than {min_samples} calibration readings: "
+                      f"{', '.join(np.asarray(ids)[~keep][:5])}{' ...' if (~keep).sum() > 5 else ''})"
+                      "; their readings are ignored", UserWarning, stacklevel=2)
+    ids = [i for i, k in zip(ids, keep) if k]
+    cal_rss = cal_rss[:, keep]
+
     rss = request.kind("rss", "gmm")
-    unknown = ~rss["peer"].isin(ids)
-    if unknown.any():
-        row = rss[unknown].iloc[0]
-        raise InputError(f"method gmm: line {row['line']}: peer {row['peer']!r} is not a base "
-                         f"station of the calibration file (known: {', '.join(ids)})")
+    epochs = rss[["time", "node"]].drop_duplicates()
+    known = rss["peer"].isin(ids)
+    ignored = rss[~known].groupby(["node", "time"]).size()
+    if (~known).any():
+        first = rss[~known].iloc[0]
+        warnings.warn(f"method gmm: {int((~known).sum())} reading(s) of "
+                      f"{rss.loc[~known, 'peer'].nunique()} base station(s) not in the "
+                      f"calibration (or dropped) ignored, e.g. line {first['line']}: peer "
+                      f"{first['peer']!r}; counted in column stations_ignored",
+                      UserWarning, stacklevel=2)
+    rss = rss[known]
+    if rss.empty:
+        raise InputError("method gmm: no rss reading of a base station of the calibration file")
     rss = rss.groupby(["time", "node", "peer"], sort=True, as_index=False)["value"].mean()
     table = rss.pivot_table(index=["node", "time"], columns="peer", values="value")
     table = table.reindex(columns=ids).sort_index()
-    content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-        np.frombuffer(content.tobytes(), dtype=np.uint32))))
-    models = em_calibration(pos, cal_rss, int(request.option("components", 16)), rng=rng)
-    kmax = int(request.option("position_components", 8))
+    lost = len(epochs) - len(table)
+    if lost:
+        warnings.warn(f"method gmm: {lost} (time, node) measurement vector(s) left out: none of "
+                      "their readings is of a calibrated base station", UserWarning, stacklevel=2)
     meas = table.to_numpy(float)
     out = table.index.to_frame(index=False)[["time", "node"]]
-    if request.option("track", 0.0):
-        mean = np.empty((len(out), 2))
-        cov = np.empty((len(out), 2, 2))
-        tracker = MixtureTracker(models, UniformDisk(float(request.option("v_max", 1.5)), dim=2),
-                                 kmax)
-        for node in out["node"].unique():         # nodes have different time axes
-            idx = np.flatnonzero(out["node"].to_numpy() == node)
-            res = tracker.run(meas[idx], out["time"].to_numpy()[idx])
-            mean[idx], cov[idx] = res.position, res.covariance
-    else:
-        est = MixtureLocalizer(models, kmax).locate(meas)
+    meas = apply_device_offset(meas, out["node"].to_numpy(), cal_rss, offset)
+    kmax = int(request.option("position_components", 8))
+    extra = {}
+    if kind == "places":
+        model = FingerprintMixture.fit(pos, cal_rss, zones, zone_names, min_samples=1)
+        est = MixtureLocalizer(model, kmax, temperature=float(request.option("temperature", 1.0))
+                               ).locate(meas)
         mean, cov = est.position, est.covariance
+        for j, name in enumerate(zone_names):
+            extra[name] = est.diagnostics["zone"][:, j]
+    else:
+        content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+            np.frombuffer(content.tobytes(), dtype=np.uint32))))
+        models = em_calibration(pos, cal_rss, int(request.option("components", 16)), rng=rng)
+        if request.option("track", 0.0):
+            mean = np.empty((len(out), 2))
+            cov = np.empty((len(out), 2, 2))
+            tracker = MixtureTracker(models, UniformDisk(float(request.option("v_max", 1.5)),
+                                                         dim=2), kmax)
+            for node in out["node"].unique():         # nodes have different time axes
+                idx = np.flatnonzero(out["node"].to_numpy() == node)
+                res = tracker.run(meas[idx], out["time"].to_numpy()[idx])
+                mean[idx], cov[idx] = res.position, res.covariance
+        else:
+            est = MixtureLocalizer(models, kmax).locate(meas)
+            mean, cov = est.position, est.covariance
     out["x"], out["y"] = mean[:, 0], mean[:, 1]
     out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    out["stations_ignored"] = ignored.reindex(
+        pd.MultiIndex.from_frame(out[["node", "time"]]), fill_value=0).to_numpy()
+    for name, values in extra.items():
+        out[name] = values
     return out

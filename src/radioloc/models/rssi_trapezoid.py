@@ -23,6 +23,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
+from radioloc.models.rssi_logdistance import device_offset as _device_offset
 
 RSSI_LEVELS = 101
 """Number of RSSI values (0..100 inclusive)."""
@@ -203,6 +204,52 @@ class TrapezoidModel:
         wide = (rng.random(np.shape(i)) - 0.5) * (2.0 * tau + sigma)
         narrow = (rng.random(np.shape(i)) - 0.5) * sigma
         return self.mu[i] + wide + narrow
+
+    def device_offset(self, rssi) -> int:
+        """Label-free offset of one device's readings (0..100 scale) against the
+        calibration readings, whose histogram is ``count``: the Wasserstein-1 aligning
+        shift of :func:`radioloc.models.rssi_logdistance.device_offset`, rounded to a whole
+        RSSI step. Correct the readings with :meth:`correct`.
+
+        Parameters
+        ----------
+        rssi : array_like
+            All readings of the device (0..100 scale; NaN ignored).
+
+        Returns
+        -------
+        int
+            The offset ``delta`` (RSSI steps; one step is 1 dB with the default map).
+
+        Raises
+        ------
+        InputError
+            The model holds no calibration counts (``count`` all zero).
+        """
+        if not np.any(self.count > 0):
+            raise InputError("device_offset: this model has no calibration counts (count is "
+                             "all zero), so no reference distribution")
+        levels = np.arange(RSSI_LEVELS, dtype=float)
+        return int(np.rint(_device_offset(rssi, levels, reference_weights=self.count)))
+
+    @staticmethod
+    def correct(rssi, offset: float) -> np.ndarray:
+        """Readings corrected by a device offset: ``rssi - offset`` rounded and clipped to
+        0..100.
+
+        Parameters
+        ----------
+        rssi : array_like of int
+            Readings in 0..100.
+        offset : float
+            The device's offset (:meth:`device_offset`).
+
+        Returns
+        -------
+        ndarray of int64
+        """
+        r = as_rssi(rssi)
+        return np.clip(np.rint(r - float(offset)), 0, RSSI_LEVELS - 1).astype(np.int64)
 
     def to_dict(self) -> dict:
         """The model as a JSON-ready dict.
