@@ -405,7 +405,7 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
         d_b = (s_b - s_b_prev)[:, None]
         rel = (th_b + rng.normal(0, comp, B))[:, None] - (th_a + rng.normal(0, comp, (B, M)))
         if P.share_odometry:
-            shift = np.where(synced[..., None], _rot(0.0 * rel, d_b), 0.0)
+            shift = np.where(synced[..., None], _rot(rel, d_b), 0.0)
             blur = np.where(synced, 0.0, np.linalg.norm(d_b, axis=-1))
         else:                                   # no report: the trackee's top speed
             shift = np.zeros((B, M, 2))
