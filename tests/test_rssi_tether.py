@@ -135,10 +135,12 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 2 * 40
     assert set(runs["variant"]) == {"main", "cells_1m"}
     assert np.isfinite(runs["error_odom_m"]).all()
-    assert set(df["table"]) == {"runs", "model", "fig3", "fig6"}
+    assert set(df["table"]) == {"runs", "model", "fig3", "fig6", "team"}
+    team = df[df["table"] == "team"]
+    assert len(team) == 2 * 2 * 2 * 2 * 40          # runs x trackers x share x compass x steps
     # a block without run 0 holds no figure rows
     other = exp.run_block(cfg, np.arange(2, 4), block_generator(0, 1))
-    assert set(other["table"]) == {"runs"}
+    assert set(other["table"]) == {"runs", "team"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
     assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s",
@@ -146,6 +148,7 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     assert (tmp_path / "ablation.csv").is_file()
     assert any("| cells_1m (1 m cells) |" in n for n in summary.notes)
     assert (tmp_path / "fig2_model.png").is_file() and (tmp_path / "fig6_snapshots.png").is_file()
+    assert (tmp_path / "fig_sharing.png").is_file()
 
 
 @pytest.mark.skipif(not HERALD.is_dir(), reason="Herald data absent")
