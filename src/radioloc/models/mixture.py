@@ -357,7 +357,7 @@ def linear_predict(mix: DiagMixture, F, Q) -> DiagMixture:
         Same weights.
     """
     F, Q = np.asarray(F, float), np.asarray(Q, float)
-    mean = mix.means.copy()          # DELIBERATE BREAK: velocity ignored
+    mean = mix.means @ F.T
     var = mix.variances @ (F.T ** 2) + np.diagonal(Q)
     return DiagMixture(mix.weights, mean, var)
 
