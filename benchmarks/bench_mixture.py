@@ -2,15 +2,16 @@
 
 Peer: a vectorised NumPy implementation of the same greedy West/Runnalls reduction (one
 merge per iteration for the whole batch), measured in the same process against the compiled
-kernel used by :func:`radioloc.models.mixture.reduce`.
+kernel used by :func:`radioloc.models.mixture.reduce`. The Progressive Bayes reduction
+(:func:`radioloc.models.progressive_bayes.progressive_reduce`) is timed beside the compiled
+West/Runnalls reduction it starts from (on a tenth of the batch).
 """
-
-import time
 
 import numpy as np
 
 from radioloc.estimators.mixture_localization import MixtureLocalizer
 from radioloc.models.mixture import DiagMixture, merge_moments, product, reduce, runnalls_cost
+from radioloc.models.progressive_bayes import progressive_reduce
 from timing import best_of
 
 
@@ -32,17 +33,42 @@ def numpy_reduce(mix: DiagMixture, kmax: int) -> DiagMixture:
         w[r, i] = 0.0
 
 
-def main():
-    rng = np.random.default_rng(0)
-    b, k, d = 500, 8, 2
+def main(batch: int = 500, seed: int = 0) -> list[dict]:
+    """Time the reductions and the localizer and print the throughputs.
+
+    Parameters
+    ----------
+    batch : int
+        Mixtures reduced at once (64 -> 8 components, 2-D).
+    seed : int
+        Seed of the random mixtures.
+
+    Returns
+    -------
+    list of dict
+        Rows ``{"workload", "throughput", "unit", "peer", "peer_throughput", "ratio"}``.
+    """
+    rng = np.random.default_rng(seed)
+    b, k, d = batch, 8, 2
     a = DiagMixture.create(rng.uniform(0.1, 1, (b, k)), rng.normal(0, 3, (b, k, d)),
                            rng.uniform(0.5, 2, (b, k, d)))
     prod = product(a, a)                                   # 64 components each
     reduce(prod, 8)                                        # compile
-    t_kernel = best_of(lambda: reduce(prod, 8))
+    t_kernel = best_of(lambda: reduce(prod, 8), repeat=5)
     t_numpy = best_of(lambda: numpy_reduce(prod, 8))
-    print(f"reduce {b} mixtures 64 -> 8 components: compiled {b / t_kernel:,.0f} mixtures/s, "
-          f"NumPy peer {b / t_numpy:,.0f} mixtures/s, ratio {t_numpy / t_kernel:.1f}x")
+    rows = [{"workload": "mixture reduction 64 -> 8 (West/Runnalls, 2-D)",
+             "throughput": b / t_kernel, "unit": "mixtures/s",
+             "peer": "NumPy (same greedy rule, vectorised over the batch)",
+             "peer_throughput": b / t_numpy, "ratio": t_numpy / t_kernel}]
+    nb = max(1, b // 10)
+    sub = prod[:nb]
+    progressive_reduce(sub[:2], 8)                         # compile
+    t_prog = best_of(lambda: progressive_reduce(sub, 8), repeat=2)
+    t_west = best_of(lambda: reduce(sub, 8), repeat=5)
+    rows.append({"workload": "mixture reduction 64 -> 8 (Progressive Bayes ISD homotopy, 2-D)",
+                 "throughput": nb / t_prog, "unit": "mixtures/s",
+                 "peer": "compiled West/Runnalls (its start)", "peer_throughput": nb / t_west,
+                 "ratio": t_west / t_prog})
     models = DiagMixture.create(rng.uniform(0.1, 1, (6, 16)), rng.normal(0, 3, (6, 16, 3)),
                                 rng.uniform(0.5, 4, (6, 16, 3)))
     rss = rng.normal(0, 3, (1000, 6))
@@ -50,6 +76,10 @@ def main():
     t_loc = best_of(lambda: loc.locate(rss))
     print(f"MixtureLocalizer.locate (6 stations x 16 components, eq. (2)): "
           f"{rss.shape[0] / t_loc:,.0f} rows/s")
+    for r in rows:
+        print(f"{r['workload']}: {r['throughput']:,.0f} {r['unit']}, {r['peer']} "
+              f"{r['peer_throughput']:,.0f}, ratio {r['ratio']:.2f}x")
+    return rows
 
 
 if __name__ == "__main__":

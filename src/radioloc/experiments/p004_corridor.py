@@ -430,7 +430,8 @@ class CorridorExperiment(Experiment):
         notes.append("metric names without suffix are at 2 dB noise; '_noise10db' at 10 dB")
         notes.append("the disk motion model has zero mean: a user walking at a constant speed "
                      "close to v_max is followed with a lag (tracking_mean_lag_m)")
-        claims += self._figures(config, results[results["table"] == "figure"], trk, out_dir, notes)
+        claims += self._figures(config, results[results["table"] == "figure"], trk, out_dir, notes,
+                                runs[runs["scenario"] == "tracking_cv"])
         return Summary(metrics, claims, notes)
 
     @staticmethod
@@ -504,7 +505,7 @@ class CorridorExperiment(Experiment):
 
     # ---- figures (plots of the "figure" rows; no computation beyond reading them) -----------
     def _figures(self, config: CorridorConfig, figs: pd.DataFrame, trk: pd.DataFrame,
-                 out_dir: Path, notes: list[str]) -> list[Claim]:
+                 out_dir: Path, notes: list[str], cv: pd.DataFrame | None = None) -> list[Claim]:
         noise = config.noise_db[0]
         corridor = Corridor()                     # labels only: station and door positions
 
@@ -581,10 +582,17 @@ class CorridorExperiment(Experiment):
         t = trk[(trk["noise_db"] == noise) & (trk["run"] == trk["run"].min())]
         fig, ax = figure()
         ax.plot(t["step"] * config.dt_s, t["x_true"], color="k", label="true position")
-        ax.plot(t["step"] * config.dt_s, t["x_est"], color=COLORS["ours"], label="mixture filter mean")
+        ax.plot(t["step"] * config.dt_s, t["x_est"], color=COLORS["ours"],
+                label=f"disk model (paper), {config.reduction} reduction")
         ax.fill_between(t["step"] * config.dt_s, t["x_est"] - 2 * t["std_m"],
                         t["x_est"] + 2 * t["std_m"], color=COLORS["ours"], alpha=0.2,
                         label="+/- 2 std")
+        if cv is not None and len(cv):
+            c = cv[(cv["noise_db"] == noise) & (cv["run"] == t["run"].iloc[0])]
+            ax.plot(c["step"] * config.dt_s, c["x_est"], "--", color=COLORS["baseline"],
+                    label="constant velocity (ours)")
+            ax.fill_between(c["step"] * config.dt_s, c["x_est"] - 2 * c["std_m"],
+                            c["x_est"] + 2 * c["std_m"], color=COLORS["baseline"], alpha=0.15)
         ax.set_xlabel("time [s]")
         ax.set_ylabel("position x [m]")
         ax.set_title(f"Tracking a walking user ({noise:g} dB, run {int(t['run'].iloc[0])})")

@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.special import logsumexp, softmax
 
 from radioloc.core.errors import InputError
@@ -542,17 +542,24 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
                        out.variances.reshape(bshape + (kk, d)))
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _west_kernel(w, m, v, kmax, tie):  # pragma: no cover - compiled
-    """In-place greedy merging of :func:`reduce` (sequential by nature: each merge changes
-    the costs of the next). Same rule and formulas as :func:`merge_moments` and
-    :func:`runnalls_cost`."""
+    """In-place greedy merging of :func:`reduce` (sequential by nature within a mixture:
+    each merge changes the costs of the next; the mixtures of the batch run in parallel).
+    Same rule and formulas as :func:`merge_moments` and :func:`runnalls_cost`; the log
+    determinants of the components are kept in an array and the merged one is the log of
+    the product of the per-axis variances (one logarithm per candidate)."""
     nb, k, d = m.shape
-    for b in range(nb):
+    for b in prange(nb):
         n_active = 0
+        ld_all = np.zeros(k)
         for c in range(k):
             if w[b, c] > 0:
                 n_active += 1
+                acc = 1.0
+                for e in range(d):
+                    acc *= v[b, c, e]
+                ld_all[c] = np.log(acc)
         while n_active > kmax:
             i = -1
             for c in range(k):
@@ -561,38 +568,38 @@ def _west_kernel(w, m, v, kmax, tie):  # pragma: no cover - compiled
             best = np.inf
             best_scale = 0.0
             j = -1
-            logdet_i = 0.0
-            for e in range(d):
-                logdet_i += np.log(v[b, i, e])
+            logdet_i = ld_all[i]
+            wi = w[b, i]
             for c in range(k):
                 if c == i or w[b, c] <= 0:
                     continue
-                ws = w[b, i] + w[b, c]
-                a1 = w[b, i] / ws
+                ws = wi + w[b, c]
+                a1 = wi / ws
                 a2 = w[b, c] / ws
-                ld = 0.0
-                ldc = 0.0
+                prod = 1.0
                 for e in range(d):
-                    mm = a1 * m[b, i, e] + a2 * m[b, c, e]
-                    vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
-                        a2 * (v[b, c, e] + (m[b, c, e] - mm) ** 2)
-                    ld += np.log(vv)
-                    ldc += np.log(v[b, c, e])
-                cost = 0.5 * (ws * ld - w[b, i] * logdet_i - w[b, c] * ldc)
-                scale = 0.5 * (ws * abs(ld) + w[b, i] * abs(logdet_i) + w[b, c] * abs(ldc))
+                    dm = m[b, i, e] - m[b, c, e]
+                    prod *= a1 * v[b, i, e] + a2 * v[b, c, e] + a1 * a2 * dm * dm
+                ld = np.log(prod)
+                ldc = ld_all[c]
+                cost = 0.5 * (ws * ld - wi * logdet_i - w[b, c] * ldc)
+                scale = 0.5 * (ws * abs(ld) + wi * abs(logdet_i) + w[b, c] * abs(ldc))
                 if j < 0 or cost < best - tie * (scale + best_scale):
                     best = cost
                     best_scale = scale
                     j = c
-            ws = w[b, i] + w[b, j]
-            a1 = w[b, i] / ws
+            ws = wi + w[b, j]
+            a1 = wi / ws
             a2 = w[b, j] / ws
+            prod = 1.0
             for e in range(d):
                 mm = a1 * m[b, i, e] + a2 * m[b, j, e]
                 vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
                     a2 * (v[b, j, e] + (m[b, j, e] - mm) ** 2)
                 m[b, j, e] = mm
                 v[b, j, e] = vv
+                prod *= vv
+            ld_all[j] = np.log(prod)
             w[b, j] = ws
             w[b, i] = 0.0
             n_active -= 1
