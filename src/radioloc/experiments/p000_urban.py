@@ -38,7 +38,7 @@ from radioloc.channel.cdma import CDMAConfig
 from radioloc.channel.gsic import OMPSICConfig
 from radioloc.channel.raytrace import TraceConfig
 from radioloc.channel.sionna_rt import SionnaConfig
-from radioloc.core.errors import ConfigError
+from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.rng import experiment_seed
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.rls import NetworkRLS
@@ -139,6 +139,25 @@ def simulate(config: UrbanConfig, seed: int, scenario: int = 0) -> UrbanNetwork:
                                   require_paths=config.require_paths)
 
 
+def _run_or_fail(est, rho: np.ndarray, prior: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+    """``est.run(...).position`` of every run; a run whose estimator raises GeometryError
+    (e.g. the RLS information matrix becomes singular) is taken out and gets NaN positions
+    (counted as diverged by the summary)."""
+    R = len(rho)
+    ok = np.ones(R, bool)
+    out = np.full(prior.shape[:2] + (rho.shape[1], 2), np.nan)
+    while ok.any():                         # at most one retry per failing run
+        idx = np.flatnonzero(ok)
+        try:
+            out[idx] = est.run(rho[idx], prior[idx], prior_var[idx]).position
+            break
+        except GeometryError as exc:
+            if not exc.index:
+                raise
+            ok[idx[exc.index[0]]] = False
+    return out
+
+
 @register
 class UrbanRadiolocation(Experiment):
     """``p000-urban``: ray-traced urban channels, OMP-SIC ranging, RLS and EKF (Figs. 3-4)."""
@@ -197,8 +216,8 @@ class UrbanRadiolocation(Experiment):
         assisted = np.arange(K) < config.assisted
         rows = []
         for name, est in estimators.items():
-            track = est.run(rho, prior, prior_var)
-            pos = np.concatenate([prior[:, :, None], track.position], axis=2)  # (R, K, S+1, 2)
+            track_pos = _run_or_fail(est, rho, prior, prior_var)
+            pos = np.concatenate([prior[:, :, None], track_pos], axis=2)       # (R, K, S+1, 2)
             err = np.linalg.norm(pos - truth[:, :, None], axis=-1)             # (R, K, S+1)
             for grp, sel in zip(GROUPS, (assisted, ~assisted)):
                 rows.append(pd.DataFrame({
@@ -294,7 +313,8 @@ class UrbanRadiolocation(Experiment):
             Metric("ekf_final_error_unassisted_median_m", medf[("ekf", "unassisted")], None, "m",
                    "same, EKF"),
             Metric("rls_diverged_runs", float(bad[("rls", "unassisted")].sum()), None, "",
-                   f"runs (of {int(len(bad[('rls', 'unassisted')]))}) whose unassisted error diverged, RLS"),
+                   f"runs (of {int(len(bad[('rls', 'unassisted')]))}) whose unassisted error diverged "
+                   "or whose information matrix became singular, RLS"),
             Metric("ekf_diverged_runs", float(bad[("ekf", "unassisted")].sum()), None, "",
                    "same, EKF"),
             Metric("rls_final_error_assisted_m", fin[("rls", "assisted")], None, "m", "GPS-assisted nodes, RLS"),
