@@ -159,13 +159,16 @@ def test_paths_never_shorter_than_straight_line_and_reciprocal(x0, y0, x1, y1):
 
 
 def _rotated_scene(rng, n=25):
-    """Random rotated quadrilaterals and triangles (walls at every angle)."""
+    """Random rotated rectangles and L-shapes (walls at every angle, concave footprints)."""
     from shapely.affinity import rotate
     from shapely.geometry import box as _box
     polys = []
     for _ in range(n * 3):
         c = rng.uniform(-200, 200, 2)
-        p = rotate(_box(*(c - rng.uniform(5, 25, 2)), *(c + rng.uniform(5, 25, 2))), rng.uniform(0, 180))
+        p = _box(*(c - rng.uniform(5, 25, 2)), *(c + rng.uniform(5, 25, 2)))
+        if rng.random() < 0.4:                                   # an L-shaped (concave) block
+            p = p.difference(_box(*c, *(c + 30)))
+        p = rotate(p, rng.uniform(0, 180))
         if all(not p.buffer(2.0).intersects(q) for q in polys):
             polys.append(p)
         if len(polys) == n:

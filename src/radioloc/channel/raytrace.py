@@ -40,7 +40,7 @@ import numpy as np
 import shapely
 from numba import njit, prange
 
-from radioloc.channel.scene import Scene, _leg_blocked
+from radioloc.channel.scene import Scene, _beam_blocked, _leg_blocked
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.geometry import segment_intersections
 from radioloc.core.validation import as_positions, check_positive
@@ -326,6 +326,7 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
     x0, y0, h, nx, ny, cs, cw = scene.grid
     fs, fw = scene.facing
+    convex, bstart = scene.convex_buildings
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
     cap = 256
@@ -334,7 +335,8 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
                                              np.ascontiguousarray(lmax, dtype=float), start,
                                              wk.astype(np.int64), A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
-                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, cap)
+                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, scene.wall_building.astype(np.int64), convex,
+                                             bstart, cap)
         if not over.any():
             break
         cap *= 4
@@ -540,11 +542,14 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
 
 @njit(cache=True, parallel=True)
 def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
-                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, cap):
+                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap):
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
     at most per link.
 
-    The tests of :func:`_extend`, in the same order, plus three that no valid path fails:
+    The tests of :func:`_extend`, in the same order, plus four that no valid path fails
+    (the last: a convex building that spans the beam from the parent's lit part, or from
+    the transmitter, to the child's lit part blocks the whole subtree; one that spans the
+    beam from the lit part to the receiver blocks the sequence's own path):
     a child wall must be a follower of its parent (:attr:`Scene.facing`), it must meet the
     beam of its parent's *lit part* (the aperture: the part of the parent wall inside the
     grandparent's beam, not the whole wall), and a sequence is traced back only when the
@@ -662,21 +667,42 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                 dot = (ix0 - ax) * nx_ + (iy0 - ay) * ny_
                 ix = ix0 - 2 * dot * nx_
                 iy = iy0 - 2 * dot * ny_
+            if depth == 0:
+                c0x, c0y, c1x, c1y = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
+                tagbox[0] += 1
+                if _beam_blocked(txx, txy, c0x, c0y, txx, txy, c1x, c1y, A, B, owner, convex,
+                                 bstart, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                    continue
+            else:
+                dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
+                c0x, c0y = A[w, 0] + t0 * dx, A[w, 1] + t0 * dy
+                c1x, c1y = A[w, 0] + t1 * dx, A[w, 1] + t1 * dy
+                # the edge rays meet the parent wall line at q0, q1
+                den0 = (c0x - ix0) * pnx + (c0y - iy0) * pny
+                den1 = (c1x - ix0) * pnx + (c1y - iy0) * pny
+                num = (pax - ix0) * pnx + (pay - iy0) * pny
+                if den0 != 0.0 and den1 != 0.0:
+                    u0 = num / den0
+                    u1 = num / den1
+                    if 0.0 < u0 < 1.0 and 0.0 < u1 < 1.0:
+                        q0x, q0y = ix0 + u0 * (c0x - ix0), iy0 + u0 * (c0y - iy0)
+                        q1x, q1y = ix0 + u1 * (c1x - ix0), iy0 + u1 * (c1y - iy0)
+                        tagbox[0] += 1
+                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, owner,
+                                         convex, bstart, g0x, g0y, h, nx, ny, cstart, cwalls,
+                                         stamp, tagbox[0]):
+                            continue
             seq[depth] = w
             imgs[depth, 0] = ix
             imgs[depth, 1] = iy
-            if depth == 0:
-                ap[0, 0], ap[0, 1], ap[0, 2], ap[0, 3] = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-            else:
-                dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
-                ap[depth, 0] = A[w, 0] + t0 * dx
-                ap[depth, 1] = A[w, 1] + t0 * dy
-                ap[depth, 2] = A[w, 0] + t1 * dx
-                ap[depth, 3] = A[w, 1] + t1 * dy
+            ap[depth, 0], ap[depth, 1], ap[depth, 2], ap[depth, 3] = c0x, c0y, c1x, c1y
             k = depth + 1
             length = -1.0
             gam = 0j
-            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0:
+            tagbox[0] += 1
+            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and not _beam_blocked(
+                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, owner, convex, bstart,
+                    g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
                 length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
                                     g0y, h, nx, ny, cstart, cwalls, stamp, tagbox, pts)
             if length >= 0:

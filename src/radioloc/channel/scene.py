@@ -170,6 +170,23 @@ class Scene:
         return float(lo[0]), float(lo[1]), h, int(nx), int(ny), start, walls[order].astype(np.int64)
 
     @cached_property
+    def convex_buildings(self) -> tuple[np.ndarray, np.ndarray]:
+        """Which footprints are convex, and each footprint's walls.
+
+        Returns
+        -------
+        convex : ndarray of bool, shape (n_buildings,)
+        start : ndarray of int64, shape (n_buildings + 1,)
+            The walls of building ``b`` are ``start[b]:start[b + 1]`` (walls are stored
+            building by building).
+        """
+        convex = np.array([abs(p.convex_hull.area - p.area) <= 1e-9 * max(p.area, 1.0)
+                           for p in self.polygons], bool)
+        start = np.concatenate([[0], np.cumsum(np.bincount(self.wall_building,
+                                                           minlength=len(self.polygons)))])
+        return convex, start.astype(np.int64)
+
+    @cached_property
     def facing(self) -> tuple[np.ndarray, np.ndarray]:
         """For every wall ``p``, the walls ``w`` that can follow it in a reflection sequence.
 
@@ -496,3 +513,86 @@ def _blocked_batch(a, b, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
             out[i] = _leg_blocked(a[i, 0], a[i, 1], b[i, 0], b[i, 1], trim, A, B, g0x, g0y, h,
                                   nx, ny, cstart, cwalls, stamp, tag)
     return out
+
+
+@njit(cache=True)
+def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, bstart,
+                  g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
+    """Whether one convex building spans the beam between the edges e0 -> e1 and f0 -> f1
+    (the two sides of a convex quadrilateral or triangle of rays): it then meets both sides
+    (1 cm or more from their ends), and every ray between them crosses it."""
+    dx, dy = e1x - e0x, e1y - e0y
+    L = np.sqrt(dx * dx + dy * dy)
+    gx, gy = f1x - f0x, f1y - f0y
+    M = np.sqrt(gx * gx + gy * gy)
+    d = 0.01
+    if L <= 4 * d or M <= 4 * d:
+        return False
+    px, py = e0x + dx / L * d, e0y + dy / L * d
+    qx, qy = e1x - dx / L * d, e1y - dy / L * d
+    rx_, ry_ = f0x + gx / M * d, f0y + gy / M * d
+    sx, sy = f1x - gx / M * d, f1y - gy / M * d
+    ex, ey = qx - px, qy - py
+    # clip to the grid box
+    x1, y1 = g0x + nx * h, g0y + ny * h
+    s0, s1 = 0.0, 1.0
+    for k in range(2):
+        p = px if k == 0 else py
+        e = ex if k == 0 else ey
+        lo = g0x if k == 0 else g0y
+        hi = x1 if k == 0 else y1
+        if e == 0.0:
+            if p < lo or p > hi:
+                return False
+        else:
+            ta = (lo - p) / e
+            tb = (hi - p) / e
+            if ta > tb:
+                ta, tb = tb, ta
+            s0 = max(s0, ta)
+            s1 = min(s1, tb)
+    if s0 > s1:
+        return False
+    cx, cy = px + s0 * ex, py + s0 * ey
+    ci = min(max(int((cx - g0x) / h), 0), nx - 1)
+    cj = min(max(int((cy - g0y) / h), 0), ny - 1)
+    stepx = 1 if ex > 0 else -1
+    stepy = 1 if ey > 0 else -1
+    if ex != 0.0:
+        tmx = (g0x + (ci + (1 if ex > 0 else 0)) * h - px) / ex
+        tdx = h / abs(ex)
+    else:
+        tmx = np.inf
+        tdx = np.inf
+    if ey != 0.0:
+        tmy = (g0y + (cj + (1 if ey > 0 else 0)) * h - py) / ey
+        tdy = h / abs(ey)
+    else:
+        tmy = np.inf
+        tdy = np.inf
+    for _ in range(nx + ny + 2):
+        c = ci * ny + cj
+        for q in range(cstart[c], cstart[c + 1]):
+            w = cwalls[q]
+            if stamp[w] == tag:
+                continue
+            stamp[w] = tag
+            b = owner[w]
+            if not convex[b]:
+                continue
+            if not _seg_hits(px, py, qx, qy, A[w, 0], A[w, 1], B[w, 0], B[w, 1]):
+                continue
+            for v in range(bstart[b], bstart[b + 1]):
+                if _seg_hits(rx_, ry_, sx, sy, A[v, 0], A[v, 1], B[v, 0], B[v, 1]):
+                    return True
+        if min(tmx, tmy) > s1:
+            break
+        if tmx < tmy:
+            ci += stepx
+            tmx += tdx
+        else:
+            cj += stepy
+            tmy += tdy
+        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+            break
+    return False
