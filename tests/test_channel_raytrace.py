@@ -9,7 +9,7 @@ from shapely.geometry import box
 
 from radioloc.channel.raytrace import (C_LIGHT, TraceConfig, knife_edge_loss_db, trace_links,
                                        trace_links_cached)
-from radioloc.channel.scene import Scene, city_grid, scene_from_geojson
+from radioloc.channel.scene import Scene, city_grid, scene_from_geojson, street_positions
 from radioloc.core.errors import ConfigError, InputError
 
 
@@ -156,3 +156,52 @@ def test_paths_never_shorter_than_straight_line_and_reciprocal(x0, y0, x1, y1):
     # free-space amplitude bound: no path is stronger than free space over its length
     lam = cfg.wavelength_m
     assert np.all(np.abs(fwd.gains[0, :n]) <= lam / (4 * np.pi * fwd.delays[0, :n] * C_LIGHT) * (1 + 1e-9))
+
+
+def _rotated_scene(rng, n=25):
+    """Random rotated rectangles and L-shapes (walls at every angle, concave footprints)."""
+    from shapely.affinity import rotate
+    from shapely.geometry import box as _box
+    polys = []
+    for _ in range(n * 3):
+        c = rng.uniform(-200, 200, 2)
+        p = _box(*(c - rng.uniform(5, 25, 2)), *(c + rng.uniform(5, 25, 2)))
+        if rng.random() < 0.4:                                   # an L-shaped (concave) block
+            p = p.difference(_box(*c, *(c + 30)))
+        p = rotate(p, rng.uniform(0, 180))
+        if all(not p.buffer(2.0).intersects(q) for q in polys):
+            polys.append(p)
+        if len(polys) == n:
+            break
+    return Scene.from_polygons(polys)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_compiled_tracer_equals_numpy_reference_on_random_links(order):
+    rng = np.random.default_rng(order)
+    for scene in (city_grid(rng, size_m=500.0), _rotated_scene(rng)):
+        pts = street_positions(scene, 16, rng, half_width_m=200.0)
+        tx, rx = pts[:8], pts[8:]
+        cfg = TraceConfig(max_order=order, max_excess_m=400.0)
+        fast = trace_links(scene, tx, rx, cfg)
+        ref = trace_links(scene, tx, rx, cfg, engine="numpy")
+        np.testing.assert_array_equal(fast.n_paths, ref.n_paths)
+        np.testing.assert_array_equal(fast.kind, ref.kind)
+        np.testing.assert_array_equal(fast.los, ref.los)
+        np.testing.assert_allclose(fast.delays, ref.delays, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(fast.gains, ref.gains, rtol=1e-9, atol=1e-15)
+        assert ref.n_paths.sum() > 8
+
+
+def test_compiled_blocking_equals_shapely_on_random_segments():
+    rng = np.random.default_rng(3)
+    for scene in (city_grid(rng, size_m=500.0), _rotated_scene(rng)):
+        a = rng.uniform(-260, 260, (6000, 2))
+        a = a[~scene.inside(a)]
+        b = a + rng.normal(0, 120, a.shape)
+        fast = scene.blocked(a, b)
+        ref = scene.blocked(a, b, engine="shapely")
+        np.testing.assert_array_equal(fast, ref)
+        assert 0.2 < ref.mean() < 0.95
+    with pytest.raises(InputError, match="engine"):
+        scene.blocked(a, b, engine="gpu")

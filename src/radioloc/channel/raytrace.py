@@ -38,9 +38,9 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-from numba import njit
+from numba import njit, prange
 
-from radioloc.channel.scene import Scene
+from radioloc.channel.scene import Scene, _beam_blocked, _leg_blocked
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.geometry import segment_intersections
 from radioloc.core.validation import as_positions, check_positive
@@ -125,8 +125,10 @@ class LinkChannels:
         return out
 
 
-def _ellipses(tx: np.ndarray, rx: np.ndarray, L: np.ndarray, n: int = 24) -> np.ndarray:
-    """Polygons (n vertices, circumscribed) of the ellipses |p-tx|+|p-rx| <= L."""
+def _ellipses(tx: np.ndarray, rx: np.ndarray, L: np.ndarray, n: int = 24,
+              points: bool = False) -> np.ndarray:
+    """Polygons (n vertices, circumscribed) of the ellipses |p-tx|+|p-rx| <= L (or their
+    vertices, shape (L, n, 2), with ``points``)."""
     c = 0.5 * (tx + rx)
     d = rx - tx
     dist = np.linalg.norm(d, axis=1)
@@ -139,7 +141,7 @@ def _ellipses(tx: np.ndarray, rx: np.ndarray, L: np.ndarray, n: int = 24) -> np.
     ey = s * b[:, None] * np.sin(th)
     ca, sa = np.cos(ang)[:, None], np.sin(ang)[:, None]
     pts = np.stack([c[:, 0:1] + ca * ex - sa * ey, c[:, 1:2] + sa * ex + ca * ey], axis=-1)
-    return shapely.polygons(pts)
+    return pts if points else shapely.polygons(pts)
 
 
 def _fresnel(cos_t: np.ndarray, eps: float) -> np.ndarray:
@@ -223,7 +225,7 @@ def _extend(last_img, last_wall, link, counts, offsets, wk, A, B, N, rx, lmax):
     return par[:n], wal[:n]
 
 
-def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
+def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "shapely"):
     """Specular paths of every link: (link, length, gain, order) arrays."""
     out = []
     if cfg.max_order == 0 or len(scene.walls) == 0:
@@ -276,7 +278,7 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
         if idx.size == 0:
             continue
         P = pts[idx]
-        blocked = scene.blocked(P[:, :-1], P[:, 1:]).any(axis=1)
+        blocked = scene.blocked(P[:, :-1], P[:, 1:], engine=engine).any(axis=1)
         idx, P = idx[~blocked], P[~blocked]
         if idx.size == 0:
             continue
@@ -289,7 +291,7 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     return out
 
 
-def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig):
+def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: str = "shapely"):
     if not cfg.diffraction or len(scene.corners) == 0 or not nlos.any():
         return []
     links = np.flatnonzero(nlos)
@@ -298,7 +300,7 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig):
     d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
     li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
     link = links[li]
-    clear = ~(scene.blocked(tx[link], C[ci]) | scene.blocked(C[ci], rx[link]))
+    clear = ~(scene.blocked(tx[link], C[ci], engine=engine) | scene.blocked(C[ci], rx[link], engine=engine))
     link, ci = link[clear], ci[clear]
     a = np.linalg.norm(C[ci] - tx[link], axis=1)
     b = np.linalg.norm(rx[link] - C[ci], axis=1)
@@ -309,8 +311,45 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig):
     return [(link, length, g, np.full(link.size, KIND_DIFFRACTION))]
 
 
+def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
+    """Specular paths of every link by the compiled image-tree walk (same paths, same order
+    as :func:`_reflections`)."""
+    if cfg.max_order == 0 or len(scene.walls) == 0:
+        return []
+    ell = _ellipses(tx, rx, lmax, points=True)                       # (L, 24, 2)
+    elo, ehi = ell.min(axis=1), ell.max(axis=1)
+    W = scene.walls
+    wlo, whi = W.min(axis=1), W.max(axis=1)
+    # the STRtree query without predicate: wall envelope meets the ellipse polygon's envelope
+    hit = np.all((wlo[None] <= ehi[:, None]) & (whi[None] >= elo[:, None]), axis=-1)
+    lk, wk = np.nonzero(hit)                                           # sorted by link, wall
+    start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
+    x0, y0, h, nx, ny, cs, cw = scene.grid
+    fs, fw = scene.facing
+    convex, bstart = scene.convex_buildings
+    A = np.ascontiguousarray(W[:, 0])
+    B = np.ascontiguousarray(W[:, 1])
+    cap = 256
+    while True:
+        ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
+                                             np.ascontiguousarray(lmax, dtype=float), start,
+                                             wk.astype(np.int64), A, B, scene.normals,
+                                             int(cfg.max_order), float(cfg.wall_permittivity),
+                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, scene.wall_building.astype(np.int64), convex,
+                                             bstart, cap)
+        if not over.any():
+            break
+        cap *= 4
+    keep = np.arange(ln.shape[1])[None, :] < n[:, None]
+    link = np.nonzero(keep)[0]
+    order_k = od[keep]
+    # the reference emits level by level across links: order (level, link, walk order)
+    o = np.lexsort((np.nonzero(keep)[1], link, order_k))
+    return [(link[o], ln[keep][o], gm[keep][o], order_k[o])]
+
+
 def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
-                config: TraceConfig | None = None) -> LinkChannels:
+                config: TraceConfig | None = None, engine: str = "compiled") -> LinkChannels:
     """Trace every link ``tx[i] -> rx[i]``.
 
     Parameters
@@ -319,6 +358,9 @@ def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
     tx, rx : array_like, shape (L, 2)
         End points of the links; neither may lie inside a building.
     config : TraceConfig, optional
+    engine : {"compiled", "numpy"}
+        The compiled image-tree walk with grid-accelerated blocking tests (default, in
+        parallel over links) or the NumPy/shapely reference (same paths).
 
     Returns
     -------
@@ -338,12 +380,18 @@ def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
     dist = np.linalg.norm(rx - tx, axis=1)
     if np.any(dist <= 0):
         raise InputError(f"tx, rx: link {int(np.argmin(dist))} has coincident end points")
+    if engine not in ("compiled", "numpy"):
+        raise ConfigError(f"engine: expected 'compiled' or 'numpy', got {engine!r}")
+    bl = "compiled" if engine == "compiled" else "shapely"
     lmax = dist + cfg.max_excess_m
-    los = ~scene.blocked(tx, rx)
+    los = ~scene.blocked(tx, rx, engine=bl)
     parts = [(np.flatnonzero(los), dist[los], np.ones(los.sum(), complex),
               np.full(los.sum(), KIND_LOS))]
-    parts += _reflections(scene, tx, rx, lmax, cfg)
-    parts += _diffractions(scene, tx, rx, lmax, ~los, cfg)
+    if engine == "compiled":
+        parts += _reflections_compiled(scene, tx, rx, lmax, cfg)
+    else:
+        parts += _reflections(scene, tx, rx, lmax, cfg, bl)
+    parts += _diffractions(scene, tx, rx, lmax, ~los, cfg, bl)
     link = np.concatenate([p[0] for p in parts]).astype(int)
     length = np.concatenate([p[1] for p in parts])
     coef = np.concatenate([p[2] for p in parts])
@@ -443,3 +491,242 @@ def all_pairs(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     K = len(positions)
     i, j = np.triu_indices(K, 1)
     return i, j
+
+@njit(cache=True)
+def _fresnel1(cos_t, eps):
+    root = np.sqrt(complex(eps - (1.0 - cos_t * cos_t)))
+    return (cos_t - root) / (cos_t + root)
+
+
+@njit(cache=True)
+def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx, ny, cstart,
+          cwalls, stamp, tagbox, pts):
+    """Trace a sequence of ``k`` walls back from the receiver; the path's length and
+    reflection coefficient, or length -1 when it is not a valid unblocked path."""
+    px, py = rxx, rxy
+    pts[k + 1, 0], pts[k + 1, 1] = rxx, rxy
+    pts[0, 0], pts[0, 1] = txx, txy
+    for m in range(k - 1, -1, -1):
+        w = seq[m]
+        ix, iy = imgs[m, 0], imgs[m, 1]
+        rx_, ry_ = px - ix, py - iy
+        sx, sy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
+        qx, qy = A[w, 0] - ix, A[w, 1] - iy
+        den = rx_ * sy - ry_ * sx
+        if den == 0.0:
+            return -1.0, 0j
+        u = (qx * sy - qy * sx) / den
+        t = (qx * ry_ - qy * rx_) / den
+        if not (np.isfinite(u) and np.isfinite(t) and u > 0 and u < 1 and t >= 0 and t <= 1):
+            return -1.0, 0j
+        px = ix + u * (px - ix)
+        py = iy + u * (py - iy)
+        pts[m + 1, 0], pts[m + 1, 1] = px, py
+    for m in range(k + 1):
+        tagbox[0] += 1
+        if _leg_blocked(pts[m, 0], pts[m, 1], pts[m + 1, 0], pts[m + 1, 1], trim, A, B, g0x, g0y,
+                        h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+            return -1.0, 0j
+    length = 0.0
+    gam = 1.0 + 0j
+    for m in range(k + 1):
+        lx, ly = pts[m + 1, 0] - pts[m, 0], pts[m + 1, 1] - pts[m, 1]
+        ln = np.sqrt(lx * lx + ly * ly)
+        length += ln
+        if m < k:
+            w = seq[m]
+            c = abs(lx / ln * N[w, 0] + ly / ln * N[w, 1])
+            gam *= _fresnel1(c, eps)
+    return length, gam
+
+
+@njit(cache=True, parallel=True)
+def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
+                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap):
+    """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
+    at most per link.
+
+    The tests of :func:`_extend`, in the same order, plus four that no valid path fails
+    (the last: a convex building that spans the beam from the parent's lit part, or from
+    the transmitter, to the child's lit part blocks the whole subtree; one that spans the
+    beam from the lit part to the receiver blocks the sequence's own path):
+    a child wall must be a follower of its parent (:attr:`Scene.facing`), it must meet the
+    beam of its parent's *lit part* (the aperture: the part of the parent wall inside the
+    grandparent's beam, not the whole wall), and a sequence is traced back only when the
+    receiver is in front of its last wall."""
+    L = tx.shape[0]
+    W = A.shape[0]
+    out_len = np.zeros((L, cap))
+    out_gam = np.zeros((L, cap), np.complex128)
+    out_ord = np.zeros((L, cap), np.int64)
+    out_n = np.zeros(L, np.int64)
+    overflow = np.zeros(L, np.bool_)
+    for l in prange(L):
+        stamp = np.zeros(W, np.int64)
+        tagbox = np.zeros(1, np.int64)
+        seq = np.zeros(max_order, np.int64)
+        imgs = np.zeros((max_order, 2))
+        pos = np.zeros(max_order, np.int64)          # next candidate index at each depth
+        ap = np.zeros((max_order, 4))                # lit part of the wall at each depth
+        pts = np.zeros((max_order + 2, 2))
+        c0, c1 = cand_start[l], cand_start[l + 1]
+        txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
+        incand = np.zeros(W, np.bool_)
+        for q in range(c0, c1):
+            incand[cand[q]] = True
+        end = np.zeros(max_order, np.int64)
+        end[0] = c1
+        # per-level buffers so that paths come out level by level, as in the reference
+        nlev = np.zeros(max_order + 1, np.int64)
+        lev_len = np.zeros((max_order + 1, cap))
+        lev_gam = np.zeros((max_order + 1, cap), np.complex128)
+        depth = 0
+        pos[0] = c0
+        while depth >= 0:
+            if pos[depth] >= end[depth]:
+                depth -= 1
+                continue
+            if depth == 0:
+                w = cand[pos[0]]
+            else:
+                w = fwalls[pos[depth]]
+                if not incand[w]:
+                    pos[depth] += 1
+                    continue
+            pos[depth] += 1
+            if depth == 0:
+                dot = (txx - A[w, 0]) * N[w, 0] + (txy - A[w, 1]) * N[w, 1]
+                ix = txx - 2 * dot * N[w, 0]
+                iy = txy - 2 * dot * N[w, 1]
+                if not (dot > 0 and np.sqrt((ix - rxx) ** 2 + (iy - rxy) ** 2) <= lmax[l]):
+                    continue
+            else:
+                wp = seq[depth - 1]
+                ix0, iy0 = imgs[depth - 1, 0], imgs[depth - 1, 1]
+                if w == wp:
+                    continue
+                ax, ay, bx, by = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
+                nx_, ny_ = N[w, 0], N[w, 1]
+                if (ix0 - ax) * nx_ + (iy0 - ay) * ny_ <= 0.0:
+                    continue
+                pax, pay = A[wp, 0], A[wp, 1]
+                pbx, pby = B[wp, 0], B[wp, 1]
+                pnx, pny = N[wp, 0], N[wp, 1]
+                if (ax - pax) * pnx + (ay - pay) * pny <= 1e-9 and (bx - pax) * pnx + (by - pay) * pny <= 1e-9:
+                    continue
+                if (pax - ix0) * (pby - iy0) - (pay - iy0) * (pbx - ix0) < 0:
+                    lox, loy, hix, hiy = pbx, pby, pax, pay
+                else:
+                    lox, loy, hix, hiy = pax, pay, pbx, pby
+                # the parent's lit part (a sub-segment of the parent wall)
+                qax, qay, qbx, qby = ap[depth - 1, 0], ap[depth - 1, 1], ap[depth - 1, 2], ap[depth - 1, 3]
+                if (qax - ix0) * (qby - iy0) - (qay - iy0) * (qbx - ix0) < 0:
+                    qlx, qly, qhx, qhy = qbx, qby, qax, qay
+                else:
+                    qlx, qly, qhx, qhy = qax, qay, qbx, qby
+                c1_ = (lox - ix0) * (ay - iy0) - (loy - iy0) * (ax - ix0)
+                c2_ = (lox - ix0) * (by - iy0) - (loy - iy0) * (bx - ix0)
+                if c1_ < 0 and c2_ < 0:
+                    continue
+                c1_ = (ax - ix0) * (hiy - iy0) - (ay - iy0) * (hix - ix0)
+                c2_ = (bx - ix0) * (hiy - iy0) - (by - iy0) * (hix - ix0)
+                if c1_ < 0 and c2_ < 0:
+                    continue
+                dx, dy = bx - ax, by - ay
+                dd = dx * dx + dy * dy
+                t = min(max(((ix0 - ax) * dx + (iy0 - ay) * dy) / dd, 0.0), 1.0)
+                d1 = np.hypot(ax + t * dx - ix0, ay + t * dy - iy0)
+                t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
+                d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
+                if d1 + d2 > lmax[l]:
+                    continue
+                # lit part of w: inside the beam through the parent's lit part, ahead of it
+                t0, t1 = 0.0, 1.0
+                for e in range(3):
+                    if e == 0:
+                        f0 = (qlx - ix0) * (ay - iy0) - (qly - iy0) * (ax - ix0)
+                        f1 = (qlx - ix0) * (by - iy0) - (qly - iy0) * (bx - ix0)
+                    elif e == 1:
+                        f0 = (ax - ix0) * (qhy - iy0) - (ay - iy0) * (qhx - ix0)
+                        f1 = (bx - ix0) * (qhy - iy0) - (by - iy0) * (qhx - ix0)
+                    else:
+                        f0 = (ax - pax) * pnx + (ay - pay) * pny
+                        f1 = (bx - pax) * pnx + (by - pay) * pny
+                    tol = 1e-9 * (abs(f0) + abs(f1)) + 1e-12
+                    f0 += tol
+                    f1 += tol
+                    if f0 < 0 and f1 < 0:
+                        t0, t1 = 1.0, 0.0
+                        break
+                    if f0 < 0:
+                        t0 = max(t0, f0 / (f0 - f1))
+                    elif f1 < 0:
+                        t1 = min(t1, f0 / (f0 - f1))
+                if t0 > t1:
+                    continue
+                dot = (ix0 - ax) * nx_ + (iy0 - ay) * ny_
+                ix = ix0 - 2 * dot * nx_
+                iy = iy0 - 2 * dot * ny_
+            if depth == 0:
+                c0x, c0y, c1x, c1y = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
+                tagbox[0] += 1
+                if _beam_blocked(txx, txy, c0x, c0y, txx, txy, c1x, c1y, A, B, owner, convex,
+                                 bstart, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                    continue
+            else:
+                dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
+                c0x, c0y = A[w, 0] + t0 * dx, A[w, 1] + t0 * dy
+                c1x, c1y = A[w, 0] + t1 * dx, A[w, 1] + t1 * dy
+                # the edge rays meet the parent wall line at q0, q1
+                den0 = (c0x - ix0) * pnx + (c0y - iy0) * pny
+                den1 = (c1x - ix0) * pnx + (c1y - iy0) * pny
+                num = (pax - ix0) * pnx + (pay - iy0) * pny
+                if den0 != 0.0 and den1 != 0.0:
+                    u0 = num / den0
+                    u1 = num / den1
+                    if 0.0 < u0 < 1.0 and 0.0 < u1 < 1.0:
+                        q0x, q0y = ix0 + u0 * (c0x - ix0), iy0 + u0 * (c0y - iy0)
+                        q1x, q1y = ix0 + u1 * (c1x - ix0), iy0 + u1 * (c1y - iy0)
+                        tagbox[0] += 1
+                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, owner,
+                                         convex, bstart, g0x, g0y, h, nx, ny, cstart, cwalls,
+                                         stamp, tagbox[0]):
+                            continue
+            seq[depth] = w
+            imgs[depth, 0] = ix
+            imgs[depth, 1] = iy
+            ap[depth, 0], ap[depth, 1], ap[depth, 2], ap[depth, 3] = c0x, c0y, c1x, c1y
+            k = depth + 1
+            length = -1.0
+            gam = 0j
+            tagbox[0] += 1
+            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and not _beam_blocked(
+                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, owner, convex, bstart,
+                    g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
+                                    g0y, h, nx, ny, cstart, cwalls, stamp, tagbox, pts)
+            if length >= 0:
+                if nlev[k] < cap:
+                    lev_len[k, nlev[k]] = length
+                    lev_gam[k, nlev[k]] = gam
+                    nlev[k] += 1
+                else:
+                    overflow[l] = True
+            if k < max_order:
+                depth += 1
+                pos[depth] = fstart[w]
+                end[depth] = fstart[w + 1]
+        n = 0
+        for k in range(1, max_order + 1):
+            for i in range(nlev[k]):
+                if n < cap:
+                    out_len[l, n] = lev_len[k, i]
+                    out_gam[l, n] = lev_gam[k, i]
+                    out_ord[l, n] = k
+                    n += 1
+                else:
+                    overflow[l] = True
+        out_n[l] = n
+    return out_len, out_gam, out_ord, out_n, overflow
+
+
