@@ -65,3 +65,17 @@ def test_cli_refuses_options_for_all_and_unknown_keys(tmp_path):
 def test_config_command_lists_fields():
     res = CliRunner().invoke(app, ["config", EXP])
     assert res.exit_code == 0 and "iterations" in res.output
+
+
+def test_nested_config_fields_are_set_by_dotted_names():
+    exp = get_experiment("p000-urban")
+    cfg = exp.config(False)
+    new = exp.with_options(cfg, {"trace.max_order": "2", "provider": "sionna"})
+    assert new.trace.max_order == 2 and new.provider == "sionna"
+    assert cfg.trace.max_order != 2 or cfg.provider != "sionna"   # the original is untouched
+    with pytest.raises(ConfigError, match="trace.FIELD"):
+        exp.with_options(cfg, {"trace": "3"})
+    with pytest.raises(ConfigError, match="max_ordr"):
+        exp.with_options(cfg, {"trace.max_ordr": "3"})
+    with pytest.raises(ConfigError, match="provider"):
+        exp.with_options(cfg, {"provider": "nonsense"})       # the config's own validation

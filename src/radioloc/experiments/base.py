@@ -142,7 +142,8 @@ class Experiment:
         config : dataclass
             The experiment's configuration at the chosen size.
         options : dict of str to str, optional
-            Field name to its new value as text. The text is read as the field's current
+            Field name (``name.field`` for a field of a nested config) to its new value
+            as text. The text is read as the field's current
             type: bool (``1/0/true/false/yes/no/on/off``), int, float, str, or a tuple
             of numbers or words separated by commas.
 
@@ -161,18 +162,34 @@ class Experiment:
         """
         if not options:
             return config
-        fields = {f.name: f for f in dataclasses.fields(config)}
-        changes: dict[str, Any] = {}
         for key, text in options.items():
-            if key not in fields:
-                raise ConfigError(f"-o {key}: {self.id} has no such option; known: "
-                                  f"{', '.join(sorted(k for k in fields if k != 'runs'))}")
             if key == "runs":
                 raise ConfigError("-o runs: use --runs")
-            value = _read_as(f"-o {key}", text, getattr(config, key))
-            _check_sign(f"-o {key}", value, getattr(config, key))
-            changes[key] = value
-        return dataclasses.replace(config, **changes)
+            config = _set_field(self.id, config, key.split("."), key, text)
+        return config
+
+
+def _set_field(exp_id: str, config: Any, path: list[str], key: str, text: str) -> Any:
+    """``config`` with the (dotted) field ``path`` set from ``text``."""
+    fields = {f.name for f in dataclasses.fields(config)}
+    head = path[0]
+    if head not in fields:
+        where = exp_id if len(path) == len(key.split(".")) else \
+            f"{exp_id} {key.rsplit('.', len(path))[0]}"
+        raise ConfigError(f"-o {key}: {where} has no such option; known: "
+                          f"{', '.join(sorted(k for k in fields if k != 'runs'))}")
+    current = getattr(config, head)
+    if len(path) > 1:
+        if not dataclasses.is_dataclass(current):
+            raise ConfigError(f"-o {key}: {head} has no fields")
+        value = _set_field(exp_id, current, path[1:], key, text)
+    else:
+        if dataclasses.is_dataclass(current):
+            raise ConfigError(f"-o {key}: set its fields as {key}.FIELD=VALUE; known: "
+                              f"{', '.join(f.name for f in dataclasses.fields(current))}")
+        value = _read_as(f"-o {key}", text, current)
+        _check_sign(f"-o {key}", value, current)
+    return dataclasses.replace(config, **{head: value})
 
 
 _TRUE = {"1", "true", "yes", "on"}
