@@ -216,7 +216,7 @@ class MixtureLocalizer(SnapshotEstimator):
         var = np.broadcast_to(models.variances, shape + (s, k, d1)).reshape(-1, s, k, d1)
         m = np.broadcast_to(rss, shape + (s,)).reshape(-1, s)
         kmax = self.max_components
-        # slots of a product before its reduction: at most min(k, kmax) squared
+        # a station density has at most kc = min(k, kmax) components after its reduction
         kc = min(k, kmax)
         ow, om, ov, ok = _product_kernel(np.ascontiguousarray(w, dtype=float),
                                          np.ascontiguousarray(mu, dtype=float),
@@ -745,7 +745,7 @@ def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compi
     om = np.zeros((nb, kmax, d))
     ov = np.ones((nb, kmax, d))
     ok = np.ones(nb, dtype=np.bool_)
-    big = max(k, kc * kc)
+    big = max(k, kmax * kc)      # a product: <= kmax running slots x <= kc station slots
     for b in prange(nb):
         cw = np.empty(k)
         pw = np.empty(kmax)
