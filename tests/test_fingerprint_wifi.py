@@ -293,11 +293,15 @@ def test_wifi_reproduction_reduced_size(tmp_path, monkeypatch):
     test = df[df["table"] == "test"]
     gm = test[test["method"] == "gmm_places"]["error_m"].to_numpy()
     wk = test[test["method"] == "wknn"]["error_m"].to_numpy()
-    print({k: round(v, 4) for k, v in m.items()}, gm.std(ddof=1) / np.sqrt(gm.size),
-          (gm - wk).std(ddof=1) / np.sqrt(gm.size))
+    se_gm = gm.std(ddof=1) / np.sqrt(gm.size)
+    se_wk = wk.std(ddof=1) / np.sqrt(wk.size)
     assert np.isclose(m["gmm_places_mean_error"], gm.mean())
+    # recorded at this reduced size (seed 0): 9.42 and 9.78 file m (full size: 8.54, 9.10);
+    # band: 3 standard errors of a mean over the 1,111 validation scans
+    assert abs(m["gmm_places_mean_error"] - 9.42) < 3 * se_gm
+    assert abs(m["wknn_mean_error"] - 9.78) < 3 * se_wk
     assert m["gmm_places_mean_error"] <= m["wknn_mean_error"]
     assert summary.claims[0].holds
-    assert m["gmm_places_building_hit_rate"] > 0.98 and m["gmm_places_floor_hit_rate"] > 0.8
-    assert 7.0 < m["gmm_places_mean_error"] < 11.0 and 7.0 < m["wknn_mean_error"] < 12.0
+    assert abs(m["gmm_places_floor_hit_rate"] - 0.888) < 3 * np.sqrt(0.888 * 0.112 / gm.size)
+    assert m["gmm_places_building_hit_rate"] > 0.99
     assert (tmp_path / "error_cdf.png").is_file()
