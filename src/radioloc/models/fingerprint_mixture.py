@@ -125,7 +125,7 @@ class FingerprintMixture:
             raise InputError("variance: must be > 0")
         # coefficients of the one-product log-likelihood: features [d, d m, d m^2]
         a, mu, v = self.active, np.asarray(self.mean), np.asarray(self.variance)
-        lp, lq = np.log(p), 0.0 * np.log1p(-p)  # SCRATCH: not-detected ignored
+        lp, lq = np.log(p), np.log1p(-p)
         c_d = lp - 0.5 * (np.log(v) + _LOG2PI) - 0.5 * mu * mu / v - lq
         coef = np.concatenate([c_d, mu / v, -0.5 / v], axis=1) * np.tile(a, 3)   # (K, 3S)
         object.__setattr__(self, "_coef", np.ascontiguousarray(coef.T))          # (3S, K)
