@@ -228,4 +228,4 @@ def device_offset(rssi, reference=None, *, reference_weights=None,
             cdf = np.cumsum(w[order]) / w.sum()
             pick = np.minimum(np.searchsorted(cdf, OFFSET_QUANTILES), ref.size - 1)
             q_ref = ref[order][pick]
-    return 0.0 * float(np.median(np.quantile(x, OFFSET_QUANTILES) - q_ref))  # SCRATCH
+    return float(np.median(np.quantile(x, OFFSET_QUANTILES) - q_ref))
