@@ -68,7 +68,7 @@ class WifiConfig:
     knn_ks: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20)
     temperatures: tuple[float, ...] = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
     knn_missing_dbm: float = -110.0
-    alpha: float = 1.0  # SCRATCH
+    alpha: float = 0.1
     shrink: float = 5.0
     var_min_db2: float = 25.0
     position_var_m2: float = 1.0
