@@ -160,7 +160,7 @@ def test_herald_experiment_smoke(tmp_path, monkeypatch):
     exp = HeraldRssi()
     cfg = replace(exp.config(False), runs=3, block_size=3, steps=10)
     df = exp.run_block(cfg, np.arange(3), block_generator(0, 0))
-    assert set(df["table"]) == {"runs", "loglik", "model", "readings"}
+    assert set(df["table"]) == {"runs", "loglik", "model", "readings", "distance"}
     summary = exp.summarize(cfg, df, tmp_path)
     assert all(np.isfinite(m.value) for m in summary.metrics)
 

@@ -229,7 +229,7 @@ class MixtureLocalizer(SnapshotEstimator):
         if self.reduction != "runnalls":          # the compiled kernel merges West/Runnalls
             return self.density_reference(rss, models)
         kmax = self.max_components
-        # slots of a product before its reduction: at most min(k, kmax) squared
+        # a station density has at most kc = min(k, kmax) components after its reduction
         kc = min(k, kmax)
         ow, om, ov, ok = _product_kernel(np.ascontiguousarray(w, dtype=float),
                                          np.ascontiguousarray(mu, dtype=float),
@@ -678,18 +678,22 @@ def _compact_into(w, m, v, n, ow, om, ov):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
-    """West's greedy merging of one compacted mixture ``w[:n]`` down to ``kmax`` components,
-    in place: the rule, the moment-matched merge and Runnalls' cost with the tie handling of
-    ``models.mixture._west_kernel`` (costs within a relative ``tie`` count as equal and the
-    lower index wins). Faster form of the same decisions:
+    """West's greedy merging of one compacted mixture ``w[:n]`` (all weights > 0) down to
+    ``kmax`` components, in place: the rule, the moment-matched merge and Runnalls' cost with
+    the tie handling of ``models.mixture._west_kernel`` (weights or costs within a relative
+    ``tie`` count as equal and the lower index wins). Faster form of the same decisions:
 
+    - merged components are removed by shifting the later ones down, so the survivors keep
+      their relative order (the tie rule's "lower index") and no empty slot is visited;
     - the merged variance is ``a1 v_i + a2 v_c + a1 a2 (m_i - m_c)^2`` (the moment formula
       rearranged), the log-determinants of the components are cached and the merged one is
       the logarithm of the product of the per-axis variances (one logarithm per pair);
     - the candidates are scanned in index order and the scan stops once the best cost is
       within the tie tolerance of zero: Runnalls' cost is never negative (beyond rounding,
       far below ``tie``), so no later candidate can then beat the best by the tolerance.
-    """
+
+    On return ``w[:k]`` (``k = min(n, kmax)``) holds the survivors in their order and
+    ``w[k:n]`` is 0."""
     d = m.shape[1]
     logdet = np.empty(n)
     for c in range(n):
@@ -697,31 +701,36 @@ def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
         for e in range(d):
             acc += math.log(v[c, e])
         logdet[c] = acc
-    n_active = 0
-    for c in range(n):
-        if w[c] > 0:
-            n_active += 1
-    while n_active > kmax:
-        i = -1
-        for c in range(n):
-            if w[c] > 0 and (i < 0 or w[c] < w[i] * (1.0 - tie)):
+    cnt = n
+    while cnt > kmax:
+        i = 0
+        for c in range(1, cnt):
+            if w[c] < w[i] * (1.0 - tie):
                 i = c
         wi = w[i]
         ldi = logdet[i]
         best = np.inf
         best_scale = 0.0
         j = -1
-        for c in range(n):
-            wc = w[c]
-            if c == i or wc <= 0:
+        for c in range(cnt):
+            if c == i:
                 continue
+            wc = w[c]
             ws = wi + wc
-            a1 = wi / ws
-            a2 = wc / ws
-            prod = 1.0
-            for e in range(d):
-                dm = m[i, e] - m[c, e]
-                prod *= a1 * v[i, e] + a2 * v[c, e] + a1 * a2 * dm * dm
+            inv = 1.0 / ws
+            a1 = wi * inv
+            a2 = wc * inv
+            a12 = a1 * a2
+            if d == 2:
+                dm0 = m[i, 0] - m[c, 0]
+                dm1 = m[i, 1] - m[c, 1]
+                prod = (a1 * v[i, 0] + a2 * v[c, 0] + a12 * dm0 * dm0) * \
+                    (a1 * v[i, 1] + a2 * v[c, 1] + a12 * dm1 * dm1)
+            else:
+                prod = 1.0
+                for e in range(d):
+                    dm = m[i, e] - m[c, e]
+                    prod *= a1 * v[i, e] + a2 * v[c, e] + a12 * dm * dm
             ld = math.log(prod)
             ldc = logdet[c]
             cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
@@ -744,8 +753,14 @@ def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
             acc += math.log(vv)
         logdet[j] = acc
         w[j] = ws
-        w[i] = 0.0
-        n_active -= 1
+        for c in range(i, cnt - 1):          # remove i, keeping the order
+            w[c] = w[c + 1]
+            logdet[c] = logdet[c + 1]
+            for e in range(d):
+                m[c, e] = m[c + 1, e]
+                v[c, e] = v[c + 1, e]
+        cnt -= 1
+        w[cnt] = 0.0
 
 
 @njit(cache=True)
@@ -804,7 +819,7 @@ def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compi
     om = np.zeros((nb, kmax, d))
     ov = np.ones((nb, kmax, d))
     ok = np.ones(nb, dtype=np.bool_)
-    big = max(k, kc * kc)
+    big = max(k, kmax * kc)      # a product: <= kmax running slots x <= kc station slots
     for b in prange(nb):
         cw = np.empty(k)
         pw = np.empty(kmax)

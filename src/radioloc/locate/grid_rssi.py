@@ -9,7 +9,10 @@ with ``rssi = round(100 (dBm - dbm_min) / (dbm_max - dbm_min))``.
 
 Options: ``cell_m`` (0.5), ``margin_m`` (5: grid extends this far beyond the anchors),
 ``epsilon`` (1e-9), ``blur_m`` (0: BlurGrid radius applied between epochs for a moving
-node), ``dbm_min`` (-110), ``dbm_max`` (-10).
+node), ``dbm_min`` (-110), ``dbm_max`` (-10), ``device_offset`` (none): ``auto`` subtracts
+from each node's readings its label-free offset against the model's calibration readings
+(:meth:`TrapezoidModel.device_offset`, from the ``count`` histogram of the model file); a
+number subtracts that many dB from every reading.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import InputError
+from radioloc.locate.gmm import _offset_option
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
@@ -34,7 +38,10 @@ from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
                                           max=1),
                         "blur_m": Option("blur radius per row, m (0)", float, min=0, max=1e4),
                         "dbm_min": Option("dBm mapped to RSSI 0 (-110)", float, min=-200, max=30),
-                        "dbm_max": Option("dBm mapped to RSSI 100 (-10)", float, min=-200, max=30)},
+                        "dbm_max": Option("dBm mapped to RSSI 100 (-10)", float, min=-200, max=30),
+                        "device_offset": Option("'auto': label-free per-node RSSI offset against "
+                                                "the model's calibration readings; or dB to "
+                                                "subtract (none)", str)},
                kinds=("rss",), inputs=("anchors", "calibration"))
 def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     """Run the grid filter on every node's RSS rows to anchors.
@@ -71,8 +78,16 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     geom = GridGeometry(w, h, cell, (float(lo[0]), float(lo[1])))
 
     rss = rss.sort_values(["node", "time", "line"]).reset_index(drop=True)
-    rssi = dbm_to_rssi100(rss["value"].to_numpy(), request.option("dbm_min", -110.0),
-                          request.option("dbm_max", -10.0))
+    offset = _offset_option(request)
+    dbm = rss["value"].to_numpy()
+    if offset is not None and offset != "auto":
+        dbm = dbm - float(offset)
+    rssi = dbm_to_rssi100(dbm, request.option("dbm_min", -110.0), request.option("dbm_max", -10.0))
+    if offset == "auto":
+        node_of = rss["node"].to_numpy()
+        for node in pd.unique(node_of):           # one offset per device
+            rows = node_of == node
+            rssi[rows] = model.correct(rssi[rows], model.device_offset(rssi[rows]))
     nodes = list(dict.fromkeys(rss["node"]))
     if w * h * len(nodes) > 20_000_000:       # one float64 grid per node, several copies a step
         raise InputError(f"option cell_m: {len(nodes)} nodes x {w} x {h} cells need about "

@@ -46,7 +46,11 @@ Fit (:meth:`FingerprintMixture.fit`), per place ``j`` with ``n_j`` scans and acc
   point never seen at a place is not impossible there);
 - ``mu_jk = (c_jk mbar_jk + lam mu_k) / (c_jk + lam)``, shrunk towards the access point's
   mean ``mu_k`` over all scans by ``lam`` pseudo-samples;
-- ``v_jk = max(v_min, (c_jk s2_jk + lam max(v_k, v_min)) / (c_jk + lam))``;
+- ``v_jk = max(v_min, (c_jk s2_jk + lam max(v_k, v_min)) / (c_jk + lam))``, shrunk towards
+  the access point's pooled *within-place* variance
+  ``v_k = sum_j c_jk s2_jk / sum_j (c_jk - 1)`` over the places with two or more readings
+  (``v_min`` where there is none): the spread of the readings at one place, not the spread
+  over the whole area, which also holds the signal's change with position;
 - ``s_j^2`` = the spread of the calibration positions of place ``j`` (0 for a single
   point) plus ``position_var_m2``.
 
@@ -234,12 +238,15 @@ class FingerprintMixture:
         s1 = _group_sum(codes, x, k)
         s2 = _group_sum(codes, x * x, k)
         mu_ap = np.where(count_ap > 0, x.sum(0) / np.maximum(count_ap, 1), 0.0)
-        var_ap = np.where(count_ap > 1, (x * x).sum(0) / np.maximum(count_ap, 1) - mu_ap**2,
-                          var_min_db2)
-        var_ap = np.maximum(var_ap, var_min_db2)
         with np.errstate(invalid="ignore", divide="ignore"):
             mbar = np.where(c > 0, s1 / c, 0.0)
             s2p = np.where(c > 0, np.maximum(s2 / np.maximum(c, 1) - mbar**2, 0.0), 0.0)
+        # pooled within-place variance of each access point (places with >= 2 readings)
+        rep = c >= 2
+        dof = np.sum(np.where(rep, c - 1, 0.0), axis=0)
+        var_ap = np.where(dof > 0, np.sum(np.where(rep, c * s2p, 0.0), axis=0)
+                          / np.maximum(dof, 1), var_min_db2)
+        var_ap = np.maximum(var_ap, var_min_db2)
         lam = float(shrink)
         denom = np.maximum(c + lam, 1e-300)
         mu = np.where(c + lam > 0, (c * mbar + lam * mu_ap) / denom, mu_ap)
