@@ -80,3 +80,39 @@ def test_batch_equals_one_by_one_and_coincident_estimates_raise():
     rho[2, 0, 0, 1] = 500.0
     with pytest.raises(GeometryError, match="run 2"):
         ekf.iterate(ekf.init(prior, var), rho[:, 0])
+
+
+@pytest.mark.parametrize("seed,forgetting", [(0, 1.0), (1, 0.9), (2, 1.0)])
+def test_compiled_rls_iteration_equals_the_numpy_steps(seed, forgetting):
+    """NetworkRLS.iterate (compiled, all masters) against K calls of the NumPy step with the
+    previous iteration's positions as reference, with missing links and a mask."""
+    from radioloc.estimators.rls import NetworkRLS
+    rng = np.random.default_rng(seed)
+    R, K = 9, 6
+    truth = rng.uniform(0, 1000, (R, K, 2))
+    prior = truth + rng.normal(0, 30, truth.shape)
+    est = NetworkRLS(forgetting=forgetting)
+    state = ref = est.init(prior, np.full(truth.shape, 900.0))
+    for _ in range(3):
+        rho = pairwise_distances(truth) + rng.normal(0, 30, (R, K, K))
+        rho[rng.random(rho.shape) < 0.15] = np.nan
+        mask = rng.random(rho.shape) > 0.1
+        state = est.iterate(state, rho, mask)
+        start = ref.position
+        for k in range(K):
+            ref = est.step(ref, np.full(R, k), rho[:, k], mask[:, k], reference=start)
+        np.testing.assert_allclose(state.position, ref.position, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(state.information, ref.information, rtol=1e-12)
+        np.testing.assert_array_equal(state.used, ref.used)
+
+
+def test_compiled_rls_singular_information_names_run_and_node():
+    from radioloc.estimators.rls import NetworkRLS
+    R, K = 3, 4
+    prior = np.zeros((R, K, 2))
+    prior[:, :, 0] = np.arange(K)                    # collinear estimates, no prior weight
+    est = NetworkRLS()
+    state = est.init(prior, np.full(prior.shape, 1e30))
+    rho = np.abs(pairwise_distances(prior) + 1.0)
+    with pytest.raises(GeometryError, match="run 0, node 0"):
+        est.iterate(state, rho)

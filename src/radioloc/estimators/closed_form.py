@@ -95,6 +95,7 @@ def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
 # with the NumPy path on random inputs.
 _FM = {"contract"}
 _S0, _S1, _S2, _S3 = 1.0, -3.0, 3.0, -1.0          # a row of S, eq. (10)
+_PARALLEL_MIN_TRACKS = 16                           # fewer tracks: no parallel launch
 
 
 @njit(cache=True)
@@ -295,6 +296,30 @@ def _gls_tracks(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_on
             out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
                                    ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
                                    out_beta[a], out_cov[a])
+
+
+@njit(cache=True)
+def _gls_tracks_serial(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
+                       out_beta, out_cov, out_crit):
+    """:func:`_gls_tracks` on the calling thread (a few tracks: no parallel launch)."""
+    n = r.shape[1]
+    m = n - 3
+    dx = np.empty(n)
+    dy = np.empty(n)
+    ex = np.empty(n)
+    y = np.empty(n)
+    am = np.empty((n, 4))
+    keep = np.empty(m, np.bool_)
+    Z = np.empty((5, m))
+    M = np.empty((m, m + 5))
+    ur = np.empty(n)
+    sv = np.empty(m)
+    sx = np.empty(m)
+    G = np.empty((5, 5))
+    for a in range(idx.size):
+        out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
+                               ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
+                               out_beta[a], out_cov[a])
 
 
 class ClosedFormTracker(SnapshotEstimator):
@@ -524,7 +549,8 @@ class ClosedFormTracker(SnapshotEstimator):
             out_b = np.empty((idx.size, 4))
             out_c = np.empty((idx.size, 4, 4))
             crit = np.empty(idx.size)
-            _gls_tracks(idx, rr, ss, xi, mean, state, *consts, ols_only, out_b, out_c, crit)
+            kernel = _gls_tracks if idx.size >= _PARALLEL_MIN_TRACKS else _gls_tracks_serial
+            kernel(idx, rr, ss, xi, mean, state, *consts, ols_only, out_b, out_c, crit)
             if np.any(np.isnan(crit)):
                 raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
                                     "and channel noise variances cannot both be zero for the "
