@@ -62,7 +62,6 @@ full: $(STAMP)
 # it is installed without its dependencies so that pip keeps the project's numpy.
 bench: $(STAMP_DEV)
 	$(BIN)/python -c "import particles" 2>/dev/null || $(BIN)/python -m pip install -q --no-deps particles
-	for f in benchmarks/bench_*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 	$(BIN)/python benchmarks/collect.py
 
 clean:
