@@ -5,10 +5,13 @@ from radioloc.io.logs import (
     LIMITS,
     check_kinds,
     check_output_path,
+    read_cells,
     read_anchors,
     read_measurements,
     write_estimates,
 )
 
-__all__ = ["LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
+from radioloc.io.ujiindoorloc import UjiScans, load_split, read_scans
+
+__all__ = ["UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
            "read_measurements", "read_table_text", "write_estimates", "write_table"]

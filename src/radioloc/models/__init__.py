@@ -3,9 +3,12 @@ Kalman filter needs: ``F(dt)``/``Q(dt)`` for motion, ``moments()`` and
 :func:`range_geometry` for ranges) that any estimator they fit takes as arguments."""
 
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
-from radioloc.models.mixture import DiagMixture
+from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
+from radioloc.models.mixture import (REDUCTIONS, DiagMixture, linear_predict, outer, product,
+                                     product_on, reduce)
 from radioloc.models.mixture_calibration import em_calibration, progressive_calibration
 from radioloc.models.motion import (
+    BoundedSpeedCV,
     ConstantAcceleration,
     ConstantVelocity,
     InputDriven,
@@ -14,7 +17,8 @@ from radioloc.models.motion import (
     WhiteAccelerationCV,
 )
 from radioloc.models.ranging import GaussianRange, range_geometry
-from radioloc.models.rssi_logdistance import LogDistanceGaussian
+from radioloc.models.progressive_bayes import ProgressionInfo, isd, progressive_reduce
+from radioloc.models.rssi_logdistance import LogDistanceGaussian, device_offset
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_trapezoid_model
 from radioloc.models.single_sensor import SquaredRangeModel
 
@@ -23,4 +27,7 @@ __all__ = [
     "GaussianRange", "range_geometry", "LosNlosRange", "StickyLinkChain",
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",
+    "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",
+    "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS",
+    "progressive_reduce", "isd", "ProgressionInfo",
 ]
