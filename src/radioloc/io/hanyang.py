@@ -311,7 +311,7 @@ def authors_reference(reference: pd.DataFrame, times: np.ndarray, trajectory: st
     keep = (rt >= t0) & (rt <= t1) & (np.abs(reference["z"].to_numpy(float)) < AUTHORS_MAX_ABS_Z_M)
     if not keep.any():
         raise InputError("reference: no row inside the authors' window with |z| < 0.5 m")
-    inside = (t >= t0 - 5.0) & (t <= t1)   # SCRATCH: window 5 s earlier
+    inside = (t >= t0) & (t <= t1)
     out = np.empty((t.size, 3))
     for j, c in enumerate("xyz"):
         v = reference[c].to_numpy(float)
