@@ -156,7 +156,7 @@ class RealUwbHanyang(Experiment):
             stop = c.max_time_s or np.inf
             meas, anchors = measurement_rows(run)
             meas = meas[meas.time <= stop]
-            seed = int(stream(rng, "pf-seed").integers(2**63 - 1))
+            seed = int(rng.integers(2**63 - 1))          # per run: the block's generator
             base = {"tag_height_m": str(c.tag_height_m)}
             pf = pf_tracks(_request(meas, anchors, dict(base, particles=str(c.particles),
                                                         seed=str(seed))),
@@ -215,13 +215,12 @@ class RealUwbHanyang(Experiment):
         out["ransac"] = pd.DataFrame({"time": t, "x": rs[:, 0], "y": rs[:, 1]})
         # pf-ins: paper 001's filter with INS readings taken from the RTK reference
         xy = truth[:, :2]
-        ins = np.diff(xy, axis=0, prepend=xy[:1]) + c.velocity_std_m * \
-            stream(rng, "ins-noise").standard_normal(xy.shape)
+        ins = np.diff(xy, axis=0, prepend=xy[:1]) + c.velocity_std_m * rng.standard_normal(xy.shape)
         pf = P2PParticleFilter(InputDriven(c.velocity_std_m), model, particles=c.ins_particles,
                                init_std=c.init_std_m, reset_fraction=c.reset_fraction,
                                reset_std_m=c.reset_std_m)
         ranges = np.concatenate([np.full((t.size, 1), np.nan), horiz], axis=1)[None, None]
-        res = pf.run(ranges, xy[None, :1], stream(rng, "pf-ins"), anchors=anchors[:, :2],
+        res = pf.run(ranges, xy[None, :1], rng, anchors=anchors[:, :2],
                      controls=ins[None, None], time=t)
         p = res.position[0, 0]
         out["pf-ins"] = pd.DataFrame({"time": t, "x": p[:, 0], "y": p[:, 1]})
