@@ -166,7 +166,6 @@ def test_gn_refuses_the_asynchronous_rows_naming_node_and_time(tmp_path):
 # ---- reduced reproduction of real-uwb-hanyang ----------------------------------------------
 
 @need_real
-@pytest.mark.skip(reason="reference numbers being measured")
 def test_real_uwb_hanyang_reduced_reproduction(tmp_path, monkeypatch):
     """First 62 s of LOS/A/1 (the authors' window starts at 51.6 s), two pf seeds."""
     from dataclasses import replace
@@ -182,27 +181,31 @@ def test_real_uwb_hanyang_reduced_reproduction(tmp_path, monkeypatch):
     results = pd.concat(blocks, ignore_index=True)
     summary = exp.summarize(cfg, results, tmp_path)
     m = {x.name: x.value for x in summary.metrics}
-    claims = {c.claim.split(":")[0]: c.holds for c in summary.claims}
     # the data set's own estimates, in the authors' metric on the same 51.6-62 s
     run = load_dynamic(dynamic_runs(REAL)[0])
     for key in ("ls", "eskf"):
         est = run.estimates[key]
         direct = authors_rmse(run.reference, est[est.time_s <= 62.0], "A")["rmse_2d"]
         assert m[f"{key}_rmse2d_LOS_A_Case_1"] == pytest.approx(direct, rel=1e-9)
-    # ekf-track is deterministic: measured 1.186 m causal, 1.071 m RTS on this window
-    assert m["ekf-track_rmse2d_mean"] == pytest.approx(1.186, abs=0.02)
+    # ekf-track is deterministic: measured 1.538 m causal, 1.411 m RTS on this window (the
+    # far end of the track, x = 46-50 m, where every method is worst)
+    assert m["ekf-track_rmse2d_mean"] == pytest.approx(1.538, abs=0.02)
     assert m["ekf-track-rts_rmse2d_mean"] < m["ekf-track_rmse2d_mean"]
     # pf: two seeds; band = 4 standard errors of their mean (at least 0.1 m)
     band = max(4 * m["pf_rmse2d_mean_seed_std"] / np.sqrt(2), 0.1)
     assert m["pf_rmse2d_mean"] == pytest.approx(PF_REDUCED, abs=band)
     assert "pf-ins_rmse2d_mean" in m and "gn_epochs_ambiguous" in m
-    # verdicts on this window: both trackers beat 0.8 x the data set's ESKF (2.25 m here)
-    assert claims["pf (causal, log only)"] and claims["ekf-track (causal, log only)"]
+    # verdicts on this window (ESKF 1.553 m, bar 1.242 m): neither tracker meets the bar here;
+    # ekf-track is below the ESKF (1.538 < 1.553), pf (1.65 m over two seeds) is not
+    verdicts = [c.holds for c in summary.claims]
+    texts = [c.claim for c in summary.claims]
+    assert not any("reproduces RMSD_results" in t for t in texts)    # cropped: not judged
+    assert verdicts == [False, False, False, True, False], texts
     assert (tmp_path / "table.md").is_file() and (tmp_path / "trajectories.png").is_file()
 
 
 #: mean authors' RMSE of causal pf on the reduced reproduction (two seeds), measured
-PF_REDUCED = 1.2
+PF_REDUCED = 1.650            # seeds of block_generator(20, 0) and (20, 8); their std 0.144 m
 
 
 def test_cli_export_of_the_raw_rows_runs_the_trackers(tmp_path, monkeypatch):
