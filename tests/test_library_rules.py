@@ -23,7 +23,8 @@ ALLOWED = {
     "io": {"core"},
     "report": {"core"},
     "locate": {"core", "io", "models", "estimators", "bounds"},
-    "experiments": {"core", "io", "models", "bounds", "estimators", "channel", "sim", "report"},
+    "experiments": {"core", "io", "models", "bounds", "estimators", "channel", "sim", "report",
+                    "locate"},
 }
 
 PUBLIC_PACKAGES = ["radioloc.estimators", "radioloc.models", "radioloc.bounds", "radioloc.sim",

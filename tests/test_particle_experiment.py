@@ -37,14 +37,15 @@ def test_real_uwb_experiment_smoke(tmp_path, monkeypatch):
         pytest.skip("hanyang-uwb-outdoor data set absent")
     monkeypatch.setenv("RADIOLOC_DATA", str(root))
     exp = get_experiment("real-uwb-hanyang")
-    cfg = dataclasses.replace(exp.config(full=False), max_epochs=40, particles=50, static_samples=300)
+    cfg = dataclasses.replace(exp.config(full=False), max_time_s=55.0, particles=50,
+                              ins_particles=50, static_samples=300)
     res = exp.run_block(cfg, np.array([0]), block_generator(0, 0))
     summary = exp.summarize(cfg, res, tmp_path)
     names = {m.name for m in summary.metrics}
     run = res.name.iloc[0]
-    for meth in ("pf", "ml", "ransac", "ls", "eskf"):
-        assert f"{meth}_rmse_m_{run}" in names
-    assert res.error_m.notna().all()
+    for meth in ("pf", "ekf-track", "pf-ins", "ml", "ransac", "ls", "eskf"):
+        assert f"{meth}_rmse2d_{run}" in names
+    assert res[["x_est", "y_est", "x_ref", "y_ref"]].notna().all().all()
 
 
 # ---------------------------------------------------------------- layout, road, local ML

@@ -36,6 +36,27 @@ def hanyang() -> None:
                       "y": tag[:, 1] - off, "z": tag[:, 2] + 1.0}).to_csv(run / name, index=False)
     (run / "RMSD_results.txt").write_text("LS RMSE: 0.15 m\nLS RMSE_2d: 0.14\n"
                                           "ESKF RMSE: 0.08 m\nESKF RMSE_2d: 0.07\n")
+    hanyang_static()
+
+
+def hanyang_static() -> None:
+    """Two static files (LOS and NLOS, anchor at 125 cm, 4 m): 5 rows and the 6 summary rows."""
+    cols = ["timestamp", "Transmission #", "Reception #", "maxNoise", "Distance", "Channel",
+            "FirstPathAmp1", "FirstPathAmp2", "FirstPathAmp3", "Max Growth CIR",
+            "Rx Preamble Count", "Standard Noise", "RSSI(dBm)", "RSSI_fp(dBm)", "rtd_init",
+            "rtd_resp", "resp_rx_ts", "poll_tx_ts", "resp_tx_ts", "poll_rx_ts", "anchor_id"]
+    for cond, extra in (("LOS", 0.0), ("NLOS", 0.2)):
+        folder = HERE / "hanyang-uwb-outdoor" / "Static_measurements" / cond / "height_125.0cm"
+        folder.mkdir(parents=True, exist_ok=True)
+        k = np.arange(5)
+        dist = np.hypot(4.0, 0.25) + extra + 0.01 * k
+        rows = [[1_723_714_114.0 + 0.1 * i, 100 + i, 99 + i, 2000, dist[i], 5, 14000, 14000,
+                 7800, 7200, 230, 90, -79.0 - 0.1 * i, -81.0, 7.2e7, 7.2e7, 1.0, 2.0, 3.0, 4.0,
+                 12] for i in k]
+        lines = [",".join(cols)] + [",".join(str(v) for v in r) for r in rows]
+        lines += [f"Distance Mean,{dist.mean()}", "Distance Std,0.01", "RSSI(dBm) Mean,-79.2",
+                  "RSSI(dBm) Std,0.1", "RSSI_fp(dBm) Mean,-81.0", "RSSI_fp(dBm) Std,0.0"]
+        (folder / "4m.csv").write_text("\n".join(lines) + "\n")
 
 
 def kolakowski() -> None:

@@ -603,7 +603,8 @@ def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | 
     root : path, optional
         The data set folder (default :func:`require`).
     epoch_s : float
-        Epoch length in seconds.
+        Epoch length in seconds; 0 writes every range at its own time stamp (one anchor
+        per row, as the anchors answer), for the trackers (``ekf-track``, ``pf``).
     tag_height_m : float, optional
         If given, ranges are projected to the horizontal plane with the tag at this height
         (``sqrt(r^2 - (h - z_a)^2)``, 0 when negative) and anchors are written in 2-D;
@@ -619,11 +620,20 @@ def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | 
     """
     from radioloc.io.hanyang import TAG_HEIGHT_OFFSET_M, load_dynamic
 
-    if epoch_s <= 0:
-        raise ConfigError(f"epoch_s: must be > 0, got {epoch_s}")
+    if not epoch_s >= 0:
+        raise ConfigError(f"epoch_s: must be >= 0 (0: the raw rows), got {epoch_s}")
     ext = _ext(fmt)
     root = Path(root) if root is not None else require("hanyang-uwb-outdoor")
     dyn = load_dynamic(_hanyang_folder(root, run))
+    if epoch_s == 0:                                  # the rows as they arrive, unsampled
+        from radioloc.io.hanyang import measurement_rows
+
+        meas, anchors = measurement_rows(dyn)
+        if tag_height_m is not None:
+            dz = float(tag_height_m) - meas["peer"].map(dict(zip(anchors["id"], anchors["z"])))
+            meas["value"] = np.sqrt(np.maximum(meas["value"] ** 2 - dz ** 2, 0.0))
+            anchors = anchors[["id", "x", "y"]]
+        return _write_hanyang(Path(out), ext, meas, anchors, dyn)
     ids = dyn.anchors["id"].to_numpy()
     start = float(dyn.ranges.time_s.min()) + epoch_s
     t = np.arange(start, float(dyn.ranges.time_s.max()) + 1e-9, epoch_s)
@@ -645,9 +655,14 @@ def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | 
     meas = pd.DataFrame({"time": np.repeat(np.round(t, 6), n_a), "node": "tag",
                          "peer": np.tile(anchors["id"].to_numpy(), n_t), "kind": "range",
                          "value": value.ravel()})
+    return _write_hanyang(Path(out), ext, meas, anchors, dyn)
+
+
+def _write_hanyang(out: Path, ext: str, meas, anchors, dyn) -> dict[str, Path]:
+    from radioloc.io.hanyang import TAG_HEIGHT_OFFSET_M
+
     ref = dyn.reference.rename(columns={"time_s": "time"})
     ref = ref.assign(z=ref["z"] + TAG_HEIGHT_OFFSET_M)
-    out = Path(out)
     paths = {"measurements": write_table(meas, out / f"measurements{ext}"),
              "anchors": write_table(anchors, out / f"anchors{ext}"),
              "reference": write_table(ref, out / f"reference{ext}")}

@@ -276,22 +276,66 @@ def authors_window(reference: pd.DataFrame, trajectory: str) -> tuple[float, flo
     return float(t[first[0]]), float(t[later[0]])
 
 
+def authors_reference(reference: pd.DataFrame, times: np.ndarray, trajectory: str
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The reference position the data set's authors compare an estimate of time ``t`` with.
+
+    Inside the scoring window (:func:`authors_window`) the reference rows with
+    ``|z| < 0.5 m`` are linearly interpolated to ``t`` (held at the first / last such row
+    outside them); outside the window, where the authors do not score, all reference rows
+    are interpolated (for other metrics).
+
+    Parameters
+    ----------
+    reference : DataFrame
+        ``time_s, x, y, z`` of the RTK reference, trajectory frame (``DynamicRun.reference``).
+    times : ndarray, shape (T,)
+        Estimate times, same clock.
+    trajectory : {"A", "B"}
+
+    Returns
+    -------
+    xyz : ndarray, shape (T, 3)
+        Reference ``x, y, z`` (trajectory frame: add the tag offset to ``z``).
+    in_window : ndarray of bool, shape (T,)
+        Whether the authors score an estimate at that time.
+
+    Raises
+    ------
+    InputError
+        No reference row inside the window with ``|z| < 0.5 m``.
+    """
+    t0, t1 = authors_window(reference, trajectory)
+    t = np.asarray(times, dtype=float)
+    rt = reference["time_s"].to_numpy(float)
+    keep = (rt >= t0) & (rt <= t1) & (np.abs(reference["z"].to_numpy(float)) < AUTHORS_MAX_ABS_Z_M)
+    if not keep.any():
+        raise InputError("reference: no row inside the authors' window with |z| < 0.5 m")
+    inside = (t >= t0) & (t <= t1)
+    out = np.empty((t.size, 3))
+    for j, c in enumerate("xyz"):
+        v = reference[c].to_numpy(float)
+        out[:, j] = np.where(inside, np.interp(t, rt[keep], v[keep]), np.interp(t, rt, v))
+    return out, inside
+
+
 def authors_rmse(reference: pd.DataFrame, estimate: pd.DataFrame, trajectory: str,
                  z_offset_m: float = TAG_HEIGHT_OFFSET_M) -> dict:
     """RMSE of an estimated track as the data set's authors compute ``RMSD_results.txt``.
 
     Read from ``Technical_validation/localization_error_analysis.py`` of the data set's
     repository and checked against every ``RMSD_results.txt`` (LS and ESKF, 2-D and 3-D,
-    eight runs: equal to the printed digits). The steps:
+    eight runs of trajectories A and B: equal to the printed digits). The steps:
 
-    1. Window: only the times between :func:`authors_window` start and end count (on
-       trajectory A the return leg from the far end, about the last 40 % of a run).
+    1. Window: only the times between :func:`authors_window` start and end count. On
+       trajectory A this is the return leg from the far end (x > 49.3 m) to x <= 12 m,
+       y > 3.4 m: 140-170 s of the 235-314 s runs; the outbound leg is not scored.
     2. Reference rows inside the window with ``|z| >= 0.5 m`` are dropped.
     3. Every estimate inside the window is compared with the remaining reference linearly
-       interpolated to the estimate's time (held at the first / last row outside them).
+       interpolated to the estimate's time (:func:`authors_reference`).
     4. RMSE = ``sqrt(mean(dx^2 + dy^2))`` over the estimates (2-D); 3-D adds
-       ``(z_ref + z_offset_m - z)^2``. Each estimate row weighs the same, so a method that
-       outputs more rows per second weighs the same time span more finely, not more.
+       ``(z_ref + z_offset_m - z)^2``. Every estimate row weighs the same (a method that
+       outputs 40 rows per second is averaged over 40 samples per second).
 
     Parameters
     ----------
@@ -315,25 +359,19 @@ def authors_rmse(reference: pd.DataFrame, estimate: pd.DataFrame, trajectory: st
         No estimate inside the window, or no reference row left in it.
     """
     t0, t1 = authors_window(reference, trajectory)
-    rt = reference["time_s"].to_numpy(float)
-    keep = (rt >= t0) & (rt <= t1) & (np.abs(reference["z"].to_numpy(float)) < AUTHORS_MAX_ABS_Z_M)
-    if not keep.any():
-        raise InputError("reference: no row inside the authors' window with |z| < 0.5 m")
-    ref = reference[keep]
     te = estimate["time_s"].to_numpy(float)
-    inside = (te >= t0) & (te <= t1)
+    ref, inside = authors_reference(reference, te, trajectory)
     if not inside.any():
         raise InputError(f"estimate: no row between {t0:.3f} s and {t1:.3f} s (the authors' "
                          "window)")
+    ref = ref[inside]
     est = estimate[inside]
-    te = te[inside]
-    at = {c: np.interp(te, ref["time_s"].to_numpy(float), ref[c].to_numpy(float)) for c in "xyz"}
-    d2 = (at["x"] - est["x"].to_numpy(float)) ** 2 + (at["y"] - est["y"].to_numpy(float)) ** 2
+    d2 = (ref[:, 0] - est["x"].to_numpy(float)) ** 2 + (ref[:, 1] - est["y"].to_numpy(float)) ** 2
     rmse_3d = np.nan
     if "z" in est.columns:
-        dz = at["z"] + z_offset_m - est["z"].to_numpy(float)
+        dz = ref[:, 2] + z_offset_m - est["z"].to_numpy(float)
         rmse_3d = float(np.sqrt(np.mean(d2 + dz ** 2)))
-    return {"rmse_2d": float(np.sqrt(np.mean(d2))), "rmse_3d": rmse_3d, "samples": int(te.size),
+    return {"rmse_2d": float(np.sqrt(np.mean(d2))), "rmse_3d": rmse_3d, "samples": int(inside.sum()),
             "start_s": t0, "end_s": t1}
 
 

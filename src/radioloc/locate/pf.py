@@ -64,7 +64,7 @@ TRIM = 20.0
 GATE_PATIENCE = 10
 
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tag_height_m",
-                                       "prior_std_m", "init_s")}
+                                       "prior_std_m", "init_s", "gate", "max_gap_s")}
 OPTIONS.update({
     "los_std_m": Option("s_LOS, standard deviation of every range's Gaussian error, m "
                         "(default: EM on the log)", float, min=0, min_exclusive=True, max=1e6),
@@ -164,7 +164,7 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
 
 @locate_method("pf", "LOS/NLOS particle filter (paper 001) tracking each node from its ranges "
                      "to anchors as they arrive, no INS (parameters fitted by EM on the log "
-                     "unless given; fixed-lag smoother with -o smooth=1)",
+                     "unless given; fixed-lag or backward-simulation smoother with -o smooth=1)",
                options=OPTIONS, kinds=("range",), inputs=("anchors",))
 def locate_pf(request: LocateRequest) -> pd.DataFrame:
     """Track every node with a :class:`P2PParticleFilter` over its range rows.
@@ -178,8 +178,35 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     -------
     DataFrame
         ``time, node, x, y, uncertainty_m``: one row per time stamp at which the node has a
-        range to an anchor.
+        range to an anchor (filtered, or smoothed with ``smooth=1``).
     """
+    if not request.option("smooth", False, bool):
+        want = "filtered"
+    else:
+        want = request.option("smoother", "fixed-lag", str)
+    return pf_tracks(request, (want,))[want]
+
+
+def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.DataFrame]:
+    """The filtered and smoothed tracks of ``--method pf`` from one filter pass.
+
+    Parameters
+    ----------
+    request : LocateRequest
+        As for ``locate --method pf`` (its ``smooth`` and ``smoother`` options are ignored:
+        ``outputs`` says what to return).
+    outputs : tuple of {"filtered", "fixed-lag", "backward"}
+        Tracks to return: the causal filter's, the fixed-lag smoother's, the backward
+        simulation smoother's (drawn after the filter from the same generator).
+
+    Returns
+    -------
+    dict of str to DataFrame
+        One ``time, node, x, y, uncertainty_m`` table per name of ``outputs``.
+    """
+    bad = set(outputs) - {"filtered", "fixed-lag", "backward"}
+    if bad:
+        raise InputError(f"outputs: unknown track(s) {sorted(bad)}")
     anchors, per_node = range_rows(request, "pf")
     s = tracker_settings(request, anchors)
     if s["dim"] != 2:
@@ -190,10 +217,9 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     particles = request.option("particles", 900, int)
     lag = request.option("lag", 20, int)
-    smoother = (request.option("smoother", "fixed-lag", str),
-                request.option("trajectories", 100, int))
+    trajectories = request.option("trajectories", 100, int)
     gate = request.option("gate", 16.0) or None
-    tables = []
+    tables = {k: [] for k in outputs}
     for node, times, R in per_node:
         parts = segments(times, s["max_gap_s"])
         try:
@@ -207,17 +233,18 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
             else:
                 model, bias = LosNlosRange(*given), s["bias"]
             for seg in parts:
-                track = _filter(times[seg], R[seg], anchors, s, model, bias, particles, lag, rng,
-                                gate, smoother)
-                tables.append(track_table(node, times[seg], track))
+                tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
+                                 gate, outputs, lag, trajectories)
+                for k, track in tracks.items():
+                    tables[k].append(track_table(node, times[seg], track))
         except GeometryError as exc:
             raise GeometryError(f"method pf: node {node!r}: {exc}") from None
-    return pd.concat(tables, ignore_index=True)
+    return {k: pd.concat(v, ignore_index=True) for k, v in tables.items()}
 
 
-def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate,
-            smoother=("fixed-lag", 100)) -> Track:
-    """One node's particle-filter track over one segment (see the module docstring)."""
+def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, lag,
+            trajectories) -> dict[str, Track]:
+    """One node's particle-filter tracks over one segment (see the module docstring)."""
     xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
     r = R - bias
     if anchors.shape[1] == 3:
@@ -232,6 +259,7 @@ def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate,
     dts = np.diff(times, prepend=times[0])
     state = pf.init(xy0[None], rng, time=times[0])
     means, covs, history, ancestors = [], [], [], []
+    keep = "fixed-lag" in outputs or "backward" in outputs
     bias_m, var_m2 = model.moments()
     streak = 0
     for k in range(len(times)):
@@ -252,12 +280,17 @@ def _filter(times, R, anchors, s, model, bias, particles, lag, rng, gate,
         state = pf.step(state, row, nodes, rng, dt=dts[k])
         means.append(state.mean[0])
         covs.append(state.covariance[0])
-        if s["smooth"]:
+        if keep:
             history.append(state.particles[0])
             ancestors.append(state.ancestors[0])
-    mean, cov = np.stack(means), np.stack(covs)
-    if s["smooth"] and smoother[0] == "backward":
-        mean, cov = backward_simulation(history, times, motion, smoother[1], rng)
-    elif s["smooth"]:
+    out = {}
+    if "filtered" in outputs:
+        mean, cov = np.stack(means), np.stack(covs)
+        out["filtered"] = Track(mean[:, :2], cov[:, :2, :2], times)
+    if "fixed-lag" in outputs:
         mean, cov = fixed_lag(history, ancestors, lag)
-    return Track(mean[:, :2], cov[:, :2, :2], times)
+        out["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], times)
+    if "backward" in outputs:
+        mean, cov = backward_simulation(history, times, motion, trajectories, rng)
+        out["backward"] = Track(mean[:, :2], cov[:, :2, :2], times)
+    return out
