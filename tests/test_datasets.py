@@ -210,7 +210,7 @@ def test_export_hanyang_2d_then_locate_end_to_end(test_root, tmp_path):
     from radioloc.cli import app
 
     res = runner.invoke(app, ["datasets", "export", "hanyang", "--out", str(tmp_path),
-                              "--tag-height", "1.1"])
+                              "--tag-height", "1.1", "--epoch-s", "0.1"])
     assert res.exit_code == 0, res.output
     assert list(read_anchors(tmp_path / "anchors.csv").columns)[:3] == ["id", "x", "y"]
     res = runner.invoke(app, ["locate", str(tmp_path / "measurements.csv"), "--anchors",
@@ -256,6 +256,14 @@ def test_export_ujiindoorloc_one_floor(test_root, tmp_path):
     assert list(ref.time) == [0.0, 1.0, 2.0]
     meas = read_measurements(paths["measurements"])
     assert set(meas["peer"]) <= set(waps)
+
+
+def test_export_hanyang_default_is_the_raw_rows_for_the_trackers(test_root, tmp_path):
+    paths = ds.export("hanyang", tmp_path, run="LOS/A/1")
+    meas = pd.read_csv(paths["measurements"])
+    # one anchor per row, at the time it answered: no time stamp carries all anchors
+    assert meas.groupby("time")["peer"].nunique().max() == 1
+    assert meas["time"].is_monotonic_increasing
 
 
 def test_export_parquet_reads_like_csv(test_root, tmp_path):

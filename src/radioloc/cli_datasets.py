@@ -74,7 +74,7 @@ def export_dataset(
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("export"),
     fmt: Annotated[str, typer.Option("--format", help="csv or parquet (Parquet needs pyarrow).")] = "csv",
     run: Annotated[str, typer.Option(help="hanyang: run CONDITION/TRAJECTORY/CASE, e.g. LOS/A/1.")] = "LOS/A/1",
-    epoch_s: Annotated[float, typer.Option(help="hanyang: epoch length (s) on which anchors' ranges are sampled; 0: every range at its own time (for ekf-track, pf).")] = 0.1,
+    epoch_s: Annotated[float, typer.Option(help="hanyang: 0 (default) writes every range at its own time, as the anchors answer (for ekf-track, pf); > 0: anchors' ranges sampled on epochs of this length, all anchors per epoch (for gn, e.g. 0.1).")] = 0.0,
     tag_height: Annotated[Optional[float], typer.Option(help="hanyang: project ranges to 2-D with the tag at this height (m).")] = None,
     building: Annotated[int, typer.Option(help="ujiindoorloc: BUILDINGID.")] = 0,
     floor: Annotated[int, typer.Option(help="ujiindoorloc: FLOOR.")] = 0,

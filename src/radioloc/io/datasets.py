@@ -586,13 +586,16 @@ def _hanyang_folder(root: Path, run: str) -> Path:
 
 
 def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | None = None,
-                   epoch_s: float = 0.1, tag_height_m: float | None = None,
+                   epoch_s: float = 0.0, tag_height_m: float | None = None,
                    fmt: str = "csv") -> dict[str, Path]:
     """Write one Hanyang dynamic run in the ``radioloc locate`` schema.
 
-    Each anchor's ranges are sampled on a common epoch grid: at each epoch, an anchor's
-    latest range of the last ``epoch_s`` seconds (sample and hold); epochs where some
-    anchor has no fresh range are dropped, so every epoch has all anchors.
+    By default every range is written at its own time stamp, one anchor per row, as the
+    anchors answer: the log as it is, for the trackers (``ekf-track``, ``pf``). With
+    ``epoch_s > 0`` each anchor's ranges are sampled on a common epoch grid instead: at
+    each epoch, an anchor's latest range of the last ``epoch_s`` seconds (sample and hold);
+    epochs where some anchor has no fresh range are dropped, so every epoch has all
+    anchors (what per-epoch multilateration, ``gn``, needs).
 
     Parameters
     ----------
@@ -603,8 +606,9 @@ def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | 
     root : path, optional
         The data set folder (default :func:`require`).
     epoch_s : float
-        Epoch length in seconds; 0 writes every range at its own time stamp (one anchor
-        per row, as the anchors answer), for the trackers (``ekf-track``, ``pf``).
+        Epoch length in seconds; 0 (default) writes every range at its own time stamp
+        (one anchor per row, as the anchors answer), for the trackers (``ekf-track``,
+        ``pf``); e.g. 0.1 for ``gn``.
     tag_height_m : float, optional
         If given, ranges are projected to the horizontal plane with the tag at this height
         (``sqrt(r^2 - (h - z_a)^2)``, 0 when negative) and anchors are written in 2-D;

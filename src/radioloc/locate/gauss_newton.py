@@ -73,7 +73,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         i = int(np.flatnonzero(counts < need)[0])
         raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g} "
                             f"has ranges to {int(counts[i])} anchor(s); {need} are needed in "
-                            f"{len(dims)}-D")
+                            f"{len(dims)}-D" + (
+                                " (ranges that arrive one anchor at a time: track them with "
+                                "--method ekf-track or pf, or sample them on common epochs)"
+                                if np.median(counts) < need else ""))
     skip = request.option("on_degenerate", "error", str) == "skip"
     try:
         fit = Multilateration(range_std_m=request.option("range_std_m"),
