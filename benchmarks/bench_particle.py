@@ -1,9 +1,21 @@
-"""Throughput of the peer-to-peer particle filter step (particle-link updates per second).
+"""Particle-filter throughput: paper 001's peer-to-peer filter and a plain range-only
+bootstrap filter, each against a peer measured in the same process.
 
-Compares :meth:`radioloc.estimators.p2p_particle.P2PParticleFilter.step` (batched over runs, vehicles,
-particles and links; fused numba link kernel) with a straightforward implementation that
-loops over vehicles and links in Python with numpy over particles, both measured here on
-the same highway data. Run: ``PYTHONPATH=src python benchmarks/bench_particle.py``.
+Rows (returned by :func:`main`):
+
+* highway P2P filter, ``P2PParticleFilter.step`` batched over runs, vehicles, particles and
+  links (particle-link updates/s), against a per-vehicle, per-link NumPy loop of the same
+  maths;
+* the particle-link update kernel alone (``pf_kernels.link_weights``, particle-link
+  updates per CPU second; no peer);
+* range-only bootstrap PF, 4 anchors, 2-D random walk, N = 10^5 particles, systematic
+  resampling at every step (particle-steps/s): ``P2PParticleFilter(RandomWalk(q),
+  LosNlosRange(s, 1, alpha=1))`` with anchors only (alpha = 1: every link LOS, so the
+  likelihood is the Gaussian range likelihood) against Stone Soup's ``ParticlePredictor`` /
+  ``ParticleUpdater`` + ``SystematicResampler`` and against ``particles`` (Chopin)
+  ``SMC(Bootstrap)`` with ``ESSrmin=1`` (resampling at every step), same model and N.
+
+Run: ``PYTHONPATH=src python benchmarks/bench_particle.py``.
 """
 
 from __future__ import annotations
@@ -16,8 +28,10 @@ from scipy.special import logsumexp
 from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.resampling import systematic
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.motion import InputDriven
+from radioloc.models.motion import InputDriven, RandomWalk
 from radioloc.sim.highway import HighwayScenario, simulate
+
+ANCHORS = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 30.0], [30.0, 30.0]])
 
 
 def loop_step(particles, log_phi_prev, ins, ranges, in_range, nodes, model, ins_std_m, rng):
@@ -71,8 +85,14 @@ def loop_step(particles, log_phi_prev, ins, ranges, in_range, nodes, model, ins_
     return est, new_phi
 
 
-def main(runs: int = 4, steps: int = 20, particles: int = 900) -> None:
-    """Print the throughput of the batched step and of the loop reference.
+def _row(workload, rate, unit, peer=None, peer_rate=None):
+    return {"workload": workload, "throughput": float(rate), "unit": unit, "peer": peer,
+            "peer_throughput": None if peer_rate is None else float(peer_rate),
+            "ratio": None if peer_rate is None else float(rate / peer_rate)}
+
+
+def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[dict]:
+    """The P2P filter step and its link kernel on highway data.
 
     Parameters
     ----------
@@ -81,8 +101,12 @@ def main(runs: int = 4, steps: int = 20, particles: int = 900) -> None:
 
     Returns
     -------
-    None
+    list of dict
+        Two rows.
     """
+    from radioloc.estimators import pf_kernels
+    from radioloc.estimators.p2p_particle import _link_update
+
     rng = np.random.default_rng(0)
     model = LosNlosRange(0.05, 5.0, 0.3)
     sc = HighwayScenario(steps=steps, start_width_m=20.0)
@@ -94,14 +118,12 @@ def main(runs: int = 4, steps: int = 20, particles: int = 900) -> None:
     def one_step(st, t):
         nodes = np.concatenate([pf.estimate(st).position, anchors], axis=1)
         return pf.step(st, data.ranges[:, :, t], nodes, rng, control=data.ins[:, :, t])
-    # warm-up (numba compile)
-    one_step(pf.init(data.truth[:, :, 0], rng), 0)
+    one_step(pf.init(data.truth[:, :, 0], rng), 0)                       # compile
     st = pf.init(data.truth[:, :, 0], rng)
     t0 = time.perf_counter()
     for t in range(steps):
         st = one_step(st, t)
-    fast = time.perf_counter() - t0
-    rate_fast = links * particles / fast
+    rate_fast = links * particles / (time.perf_counter() - t0)
 
     loop_steps = max(steps // 4, 2)
     parts = data.truth[0, :, 0][:, None, :] + rng.standard_normal((sc.vehicles, particles, 2))
@@ -111,15 +133,205 @@ def main(runs: int = 4, steps: int = 20, particles: int = 900) -> None:
         nodes = np.concatenate([est, data.anchors], axis=0)
         est, phi = loop_step(parts, phi, data.ins[0, :, t], data.ranges[0, :, t],
                              data.in_range[0, :, t], nodes, model, sc.ins_std_m, rng)
-    slow = time.perf_counter() - t0
-    rate_slow = int(data.in_range[0, :, :loop_steps].sum()) * particles / slow
+    rate_slow = int(data.in_range[0, :, :loop_steps].sum()) * particles / (time.perf_counter() - t0)
+
+    # the link kernel alone, on the last step's links, per CPU second (steadier under load)
+    mask = np.isfinite(data.ranges[:, :, -1])
+    from radioloc.core.links import gather_packed, pack_mask
+    lk, valid = pack_mask(mask)
+    nodes = np.concatenate([st.mean[..., :2], anchors], axis=1)
+    node_xy = gather_packed(np.broadcast_to(nodes[:, None], mask.shape + (2,)), lk, axis=-2)
+    th = gather_packed(np.where(mask, data.ranges[:, :, -1], 0.0), lk)
+    wp = np.where(valid, np.arange(lk.shape[-1]), -1)
+    prev = np.full(st.particles.shape[:-1] + (lk.shape[-1],), 0.3)
+    params = np.broadcast_to([0.05, 5.0, 0.3], st.mean.shape[:-1] + (3,))
+    args = (st.particles, node_xy, th, valid, wp, prev, params, "numba", False)
+    _link_update(*args)
+    reps = 20
+    c0 = time.process_time()
+    for _ in range(reps):
+        _link_update(*args)
+    kernel_rate = reps * int(valid.sum()) * particles / (time.process_time() - c0)
     print(f"highway N={sc.vehicles}, M={sc.anchors}, K={particles}, mean links/vehicle "
-          f"{data.in_range.sum(-1).mean():.1f}")
+          f"{data.in_range.sum(-1).mean():.1f}, numba threads {pf_kernels.__name__ and _threads()}")
     print(f"batched P2PParticleFilter.step ({runs} runs x {steps} steps): {rate_fast / 1e6:8.2f} M particle-link updates/s")
     print(f"per-vehicle/per-link loop (1 run x {loop_steps} steps): {rate_slow / 1e6:8.2f} M particle-link updates/s")
-    print(f"ratio batched / loop: {rate_fast / rate_slow:.1f}x")
-    print(f"one full table-4(c) row (1 run x 700 steps) at this rate: "
-          f"{700 * links / (runs * steps) * particles / rate_fast:.1f} s")
+    print(f"link kernel alone: {kernel_rate / 1e6:8.2f} M particle-link updates per CPU second")
+    return [_row("P2P particle filter step, highway N=20 M=26 K=900", rate_fast,
+                 "particle-link updates/s", "per-vehicle/per-link NumPy loop", rate_slow),
+            _row("P2P particle-link update kernel (link_weights)", kernel_rate,
+                 "particle-link updates per CPU-s")]
+
+
+def _threads() -> int:
+    import numba
+    return numba.get_num_threads()
+
+
+def _bootstrap_data(steps, q, sigma, rng):
+    x = np.cumsum(np.sqrt(q) * rng.standard_normal((steps + 1, 2)), axis=0) + 15.0
+    d = np.linalg.norm(x[1:, None, :] - ANCHORS, axis=-1)
+    return x, d + sigma * rng.standard_normal(d.shape)
+
+
+def ours_bootstrap(n, steps, q, sigma, x, y, rng):
+    """Particle-steps/s of P2PParticleFilter on the range-only random-walk model.
+
+    Parameters
+    ----------
+    n, steps : int
+    q, sigma : float
+        Random-walk variance per step and range noise std.
+    x, y : ndarray
+        True path (steps + 1, 2) and ranges (steps, 4).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    rate : float
+    error : float
+        Mean position error (a check that the filter tracks).
+    """
+    pf = P2PParticleFilter(RandomWalk(q), LosNlosRange(sigma, 1.0, 1.0), particles=n, init_std=1.0)
+    ranges = np.concatenate([np.full((steps, 1), np.nan), y[:steps]], axis=-1)[None, None]
+    pf.run(ranges[..., :2, :], x[None, None, 0], rng, anchors=ANCHORS)   # compile
+    t0 = time.perf_counter()
+    tr = pf.run(ranges, x[None, None, 0], rng, anchors=ANCHORS)
+    dt = time.perf_counter() - t0
+    return n * steps / dt, float(np.linalg.norm(tr.position[0, 0] - x[1:steps + 1], axis=-1).mean())
+
+
+def stonesoup_bootstrap(n, steps, q, sigma, x, y):
+    """The same filter in Stone Soup (predictor, updater with systematic resampling)."""
+    from datetime import datetime, timedelta
+
+    from stonesoup.base import Property
+    from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
+    from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel
+    from stonesoup.models.transition.linear import RandomWalk as SSRandomWalk
+    from stonesoup.predictor.particle import ParticlePredictor
+    from stonesoup.resampler.particle import SystematicResampler
+    from stonesoup.types.array import StateVector, StateVectors
+    from stonesoup.types.detection import Detection
+    from stonesoup.types.hypothesis import SingleHypothesis
+    from stonesoup.types.state import ParticleState
+    from stonesoup.updater.particle import ParticleUpdater
+
+    class RangesToAnchors(NonLinearGaussianMeasurement):
+        anchors: np.ndarray = Property(doc="anchor positions (M, 2)")
+
+        @property
+        def ndim_meas(self):
+            return len(self.anchors)
+
+        def function(self, state, noise=False, **kwargs):
+            xy = np.asarray(state.state_vector[self.mapping, :], dtype=float)      # (2, N)
+            d = np.sqrt(((xy[None, :, :] - self.anchors[:, :, None]) ** 2).sum(1))
+            if noise is True:
+                noise = self.rvs(num_samples=d.shape[1], **kwargs)
+            return StateVectors(d) + (noise if not isinstance(noise, bool) else 0)
+
+    tm = CombinedLinearGaussianTransitionModel([SSRandomWalk(q), SSRandomWalk(q)])
+    mm = RangesToAnchors(ndim_state=2, mapping=(0, 1), noise_covar=sigma**2 * np.eye(4),
+                         anchors=ANCHORS)
+    predictor = ParticlePredictor(tm)
+    updater = ParticleUpdater(mm, resampler=SystematicResampler())
+    t0 = datetime(2024, 1, 1)
+    rng = np.random.default_rng(1)
+    start = x[0][:, None] + rng.standard_normal((2, n))
+
+    def run(k):
+        prior = ParticleState(StateVectors(start), weight=np.full(n, 1.0 / n), timestamp=t0)
+        est = []
+        for i in range(k):
+            t = t0 + timedelta(seconds=i + 1)
+            pred = predictor.predict(prior, timestamp=t)
+            det = Detection(StateVector(y[i]), timestamp=t, measurement_model=mm)
+            prior = updater.update(SingleHypothesis(pred, det))
+            est.append(np.asarray(prior.mean, dtype=float).ravel())
+        return np.array(est)
+    run(1)
+    c = time.perf_counter()
+    est = run(steps)
+    dt = time.perf_counter() - c
+    return n * steps / dt, float(np.linalg.norm(est - x[1:steps + 1], axis=-1).mean())
+
+
+def particles_bootstrap(n, steps, q, sigma, x, y):
+    """The same filter in ``particles`` (Chopin): Bootstrap Feynman-Kac model, SMC with
+    systematic resampling at every step (``ESSrmin=1``)."""
+    import particles
+    from particles import distributions as dists
+    from particles import state_space_models as ssm
+
+    class RangeRW(ssm.StateSpaceModel):
+        def PX0(self):
+            return dists.MvNormal(loc=x[0], scale=1.0, cov=np.eye(2))
+
+        def PX(self, t, xp):
+            return dists.MvNormal(loc=xp, scale=np.sqrt(q), cov=np.eye(2))
+
+        def PY(self, t, xp, xx):
+            d = np.linalg.norm(xx[:, None, :] - ANCHORS, axis=-1)              # (N, 4)
+            return dists.IndepProd(*[dists.Normal(loc=d[:, m], scale=sigma) for m in range(4)])
+
+    data = [yy for yy in y[:steps]]
+    fk = ssm.Bootstrap(ssm=RangeRW(), data=data)
+    alg = particles.SMC(fk=fk, N=n, resampling="systematic", ESSrmin=1.0,
+                        collect=None, store_history=False, verbose=False)
+    c = time.perf_counter()
+    est = []
+    for _ in range(steps):
+        next(alg)
+        est.append(np.average(alg.X, weights=alg.W, axis=0))
+    dt = time.perf_counter() - c
+    return n * steps / dt, float(np.linalg.norm(np.array(est) - x[1:steps + 1], axis=-1).mean())
+
+
+def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int = 5) -> list[dict]:
+    """The range-only bootstrap PF (4 anchors, 2-D random walk) against Stone Soup and
+    ``particles``.
+
+    Parameters
+    ----------
+    n : int
+        Particles.
+    steps, peer_steps : int
+        Steps timed for ours and for each peer.
+
+    Returns
+    -------
+    list of dict
+        One row per peer.
+    """
+    q, sigma = 0.25, 0.3
+    rng = np.random.default_rng(2)
+    x, y = _bootstrap_data(steps, q, sigma, rng)
+    ours, err = ours_bootstrap(n, steps, q, sigma, x, y, rng)
+    print(f"bootstrap PF, N={n}: ours {ours / 1e6:.2f} M particle-steps/s (mean error {err:.2f} m)")
+    rows = []
+    for name, fn in (("Stone Soup", stonesoup_bootstrap), ("particles (Chopin)", particles_bootstrap)):
+        try:
+            rate, perr = fn(n, peer_steps, q, sigma, x, y)
+        except ImportError as exc:
+            print(f"{name}: not installed ({exc})")
+            continue
+        print(f"  {name}: {rate / 1e6:.3f} M particle-steps/s (mean error {perr:.2f} m), "
+              f"ratio {ours / rate:.1f}x")
+        rows.append(_row("range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5", ours,
+                         "particle-steps/s", name, rate))
+    return rows
+
+
+def main() -> list[dict]:
+    """Print and return every row.
+
+    Returns
+    -------
+    list of dict
+        ``{"workload", "throughput", "unit", "peer", "peer_throughput", "ratio"}``.
+    """
+    return highway_rows() + bootstrap_rows()
 
 
 if __name__ == "__main__":

@@ -148,3 +148,14 @@ def test_whole_filter_numba_equals_numpy_with_online_em():
                                out["numpy"].diagnostics["em_parameters"], rtol=1e-8)
     np.testing.assert_array_equal(out["numba"].diagnostics["los_detected"],
                                   out["numpy"].diagnostics["los_detected"])
+
+
+@pytest.mark.parametrize("dt", [1.0, np.array([[[0.5], [2.0]]])])
+def test_motion_draw_equals_the_models_sample(dt):
+    from radioloc.estimators.p2p_particle import _sample_motion
+    from radioloc.models.motion import ConstantVelocity, RandomWalk
+    for motion in (RandomWalk(0.3), ConstantVelocity(0.2)):
+        x = np.random.default_rng(1).normal(size=(1, 2, 50, motion.state_dim))
+        a = _sample_motion(motion, x, dt, np.random.default_rng(5), None)
+        b = motion.sample(x, dt, np.random.default_rng(5))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)

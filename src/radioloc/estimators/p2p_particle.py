@@ -49,6 +49,7 @@ from radioloc.estimators import pf_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf
+from radioloc.models.motion import MotionModel
 
 __all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_log_phi"]
 
@@ -309,6 +310,22 @@ def _moments(log_w, particles, kernel):
             ess.reshape(batch))
 
 
+def _sample_motion(motion, particles, dt, rng, control):
+    """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
+    models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
+    is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
+    same draws, the same maths)."""
+    if type(motion).sample is not MotionModel.sample:
+        return motion.sample(particles, dt, rng, control=control)
+    mean = motion.predict(particles, dt, control=control)
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    z = rng.standard_normal(mean.shape)
+    if factor.ndim == 2:                                    # one Q for every particle
+        return mean + z @ factor.T
+    return mean + np.einsum("...ij,...j->...i", factor, z)
+
+
 def _gather(particles, q, idx, kernel):
     """Resampled particles and link posteriors, and the number of distinct ancestors."""
     if kernel == "numpy":
@@ -543,7 +560,7 @@ class P2PParticleFilter(RecursiveEstimator):
                              "reading of every step")
 
         # line 3: propagate every particle through the motion model
-        particles = self.motion.sample(state.particles, dt, rng, control=u)
+        particles = _sample_motion(self.motion, state.particles, dt, rng, u)
 
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)

@@ -70,11 +70,16 @@ def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
     if c_nlos == -np.inf:
         return l1
     u = z - lam_std
-    if c_los == -np.inf:
+    if c_los == -np.inf or k_tail <= 0.0 or (u < 8.5 and u > -20.0 and (c_nlos - c_los) - lam * e + 0.5 * z * z > 700.0):
+        # alpha = 0, or so small that exp(l_0 - l_1) would overflow: plain log-sum
         l0 = c_nlos - lam * e
         if u < 8.5:
             l0 += log_ndtr_fast(u)
-        return l0
+        if c_los == -np.inf:
+            return l0
+        if l0 > l1:
+            return l0 + math.log1p(math.exp(l1 - l0))
+        return l1 + math.log1p(math.exp(l0 - l1))
     if u >= 8.5:
         l0 = c_nlos - lam * e
         if l1 > l0:
@@ -226,6 +231,7 @@ class LosNlosRange:
         c_nlos = logw[0] + np.log(lam) + 0.5 * (lam * s) ** 2
         with np.errstate(invalid="ignore", over="ignore"):
             k_tail = float(np.exp(c_nlos - c_los - 0.5 * (lam * s) ** 2 - 0.5 * _LOG_2PI))
+        # k_tail = 0 (overflow, alpha tiny) selects the plain log-sum inside
         return _mixture_logpdf(e, 1.0 / s, lam, lam * s, c_los, c_nlos,
                                k_tail if np.isfinite(k_tail) else 0.0)
 
