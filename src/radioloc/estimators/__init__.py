@@ -31,7 +31,8 @@ from radioloc.estimators.mixture_localization import (
 from radioloc.estimators.multilateration import Multilateration
 from radioloc.estimators.nlls import NLLSResult, solve_nlls
 from radioloc.estimators.nlls_newton import NewtonTracker
-from radioloc.estimators.p2p_particle import P2PParticleFilter
+from radioloc.estimators.p2p_particle import OnlineEM, P2PParticleFilter
+from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 
@@ -44,7 +45,7 @@ __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
     "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
     "MixtureTracker",
-    "GridGeometry", "posterior_mixture", "fit_los_nlos",
+    "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
     "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
     "GaussianState", "kalman_predict", "kalman_update", "NLLSResult", "solve_nlls",
 ]

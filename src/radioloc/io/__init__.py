@@ -11,7 +11,8 @@ from radioloc.io.logs import (
     write_estimates,
 )
 
+from radioloc.io.hanyang import authors_reference, authors_rmse, authors_window, measurement_rows
 from radioloc.io.ujiindoorloc import UjiScans, load_split, read_scans
 
-__all__ = ["UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
+__all__ = ["authors_rmse", "authors_window", "authors_reference", "measurement_rows", "UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
            "read_measurements", "read_table_text", "write_estimates", "write_table"]
