@@ -101,3 +101,22 @@ def test_collinear_anchors_name_the_node_and_time(tmp_path):
     res = runner.invoke(app, ["locate", str(meas), "--anchors", str(anchors)])
     assert res.exit_code == 2
     assert "node 'tagC' at time 7" in res.output and "collinear" in res.output
+
+
+def test_not_detected_sentinel_rows_are_dropped_on_request(tmp_path):
+    """`-o not_detected=100`: rss rows of the sentinel value are stations not received."""
+    import warnings as _w
+
+    from radioloc.core.errors import InputError as _InputError
+    from radioloc.io.logs import read_measurements as _read
+
+    p = tmp_path / "m.csv"
+    p.write_text("time,node,peer,kind,value\n0,phone,ap1,rss,-60\n0,phone,ap2,rss,100\n"
+                 "1,phone,ap1,rss,100\n1,phone,ap2,rss,-70\n")
+    with pytest.raises(_InputError, match="line 3.*not_detected=100"):
+        _read(p)
+    with _w.catch_warnings(record=True) as caught:
+        _w.simplefilter("always")
+        m = _read(p, not_detected=100)
+    assert m["value"].tolist() == [-60.0, -70.0] and m["line"].tolist() == [2, 5]
+    assert any("2 rss row(s)" in str(c.message) for c in caught)

@@ -259,7 +259,12 @@ def locate(
         opts["smooth"] = "1"
     with numeric_errors_raise():
         anchor_table = read_anchors(anchors) if anchors is not None else None
-        meas = read_measurements(measurements, anchors=anchor_table)
+        nd = opts.get("not_detected")
+        try:
+            nd = None if nd is None else float(nd)
+        except ValueError:
+            raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
+        meas = read_measurements(measurements, anchors=anchor_table, not_detected=nd)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
         estimates = run_method(method, request)
     write_estimates(estimates, out)

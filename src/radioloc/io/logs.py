@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import csv
 import sys
+import warnings
 from pathlib import Path
 from typing import Iterable
 
@@ -245,7 +246,8 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     return out
 
 
-def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) -> pd.DataFrame:
+def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
+                      not_detected: float | None = None) -> pd.DataFrame:
     """Read and validate a measurements CSV (``time, node, peer, kind, value``).
 
     Parameters
@@ -255,6 +257,10 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) 
     anchors : DataFrame, optional
         The anchors table. If given, every ``peer`` must be an anchor id or an id that
         appears in the ``node`` column, otherwise :class:`InputError` names the row.
+    not_detected : float, optional
+        An RSS value that marks "not detected" (UJIIndoorLoc writes ``100``): rss rows with
+        exactly this value are dropped (a station not received has no row), with one
+        warning giving their count. ``locate`` passes ``-o not_detected=V`` here.
 
     Returns
     -------
@@ -286,6 +292,15 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) 
     if (i := _first(~out["kind"].isin(KINDS))) is not None:
         fail(i, f"column 'kind': {frame['kind'].iloc[i]!r} is not one of {', '.join(KINDS)}")
     _check_magnitude(frame, out["time"], "time", LIMITS["time_s"], "s", path)
+    if not_detected is not None:
+        if not np.isfinite(not_detected):
+            raise InputError(f"not_detected: must be a finite number, got {not_detected!r}")
+        absent = ((out["kind"] == "rss") & (out["value"] == float(not_detected))).to_numpy()
+        if absent.any():
+            warnings.warn(f"{path}: {int(absent.sum())} rss row(s) equal to the not-detected "
+                          f"value {float(not_detected):g} left out (stations not received)",
+                          stacklevel=2)
+            out = out[~absent].reset_index(drop=True)
     is_range = (out["kind"] == "range").to_numpy()
     is_rss = (out["kind"] == "rss").to_numpy()
     value = out["value"].to_numpy()
@@ -296,7 +311,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None) 
                 f"{LIMITS['range_m']:g} m")
     if (i := _first(is_rss & (value > LIMITS["rss_max_dbm"]))) is not None:
         sentinel = (" (+100 dBm is the 'not detected' marker of WiFi fingerprint data sets: "
-                    "drop those rows, a station not received has no rss row)"
+                    "drop those rows or read them with -o not_detected=100)"
                     if value[i] == RSS_NOT_DETECTED_DBM else "")
         fail(i, f"column 'value': rss {value[i]:g} dBm is above the plausible maximum of "
                 f"{LIMITS['rss_max_dbm']:g} dBm{sentinel}")

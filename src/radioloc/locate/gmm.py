@@ -10,7 +10,8 @@ the signal strength in dBm, empty when that station was not received::
     0.5,0.0,-46.0,-60.1,-72.3
 
 Data sets that write a sentinel for "not detected" (UJIIndoorLoc: ``100``) are read with
-``-o not_detected=100``: such cells count as empty.
+``-o not_detected=100``: such calibration cells count as empty and such measurement rows
+are left out (a warning gives their count).
 
 Models (``-o model=``):
 
@@ -203,8 +204,8 @@ def apply_device_offset(meas: np.ndarray, nodes: np.ndarray, reference: np.ndarr
                         "track": Option("1: recursive tracking, 0: one-shot per row (0)", bool),
                         "v_max": Option("maximum speed when tracking, m/s (1.5)", float, min=0,
                                         max=1e3),
-                        "not_detected": Option("calibration cell value meaning 'not detected', "
-                                               "e.g. 100 (none)", float, min=-1e4, max=1e4),
+                        "not_detected": Option("RSS value meaning 'not detected' in the calibration "
+                                               "and the measurements, e.g. 100 (none)", float, min=-1e4, max=1e4),
                         "min_samples": Option("stations with fewer calibration readings are "
                                               "dropped, with a warning (3)", int, min=2, max=1e6),
                         "temperature": Option("places model: tempering T >= 1 of the product "
