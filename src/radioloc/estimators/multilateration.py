@@ -297,7 +297,27 @@ class Multilateration(SnapshotEstimator):
         self._degenerate(singular & ~flat & ~ambiguous,
                          f"anchors are {'collinear' if d == 2 else 'coplanar'} or the position "
                          "coincides with an anchor; the geometry does not fix the position")
-        stuck = ~fit.converged & ~flat & ~ambiguous & ~singular
+        # not converged to tol_m within max_iter: large-residual problems make Gauss-Newton
+        # converge slowly (linearly) or zigzag around the minimum. Such a fix is settled
+        # (kept, diagnostics["converged"] False) when one more line-searched iteration from
+        # where it stopped moves it by at most its standard deviation or lowers the cost by
+        # at most 1e-6 of itself; only a problem still travelling (a fix far from where the
+        # data put it) is stuck.
+        settled = np.zeros(batch, dtype=bool)
+        open_ = ~fit.converged & ~flat & ~ambiguous & ~singular
+        if np.any(open_):
+            more = solve_nlls(_range_residuals(r[open_], a[open_]), fit.x[open_],
+                              weights=w[open_], method=self.method, max_iter=1, tol=self.tol_m)
+            s2_now = (np.full(more.cost.shape, self.range_std_m**2) if self.range_std_m
+                      is not None else fit.cost[open_] / np.maximum(n_used[open_] - d, 1))
+            with np.errstate(all="ignore"):
+                sd = np.sqrt(s2_now * np.trace(np.linalg.inv(JtWJ[open_]), axis1=-2, axis2=-1))
+            moved = np.linalg.norm(more.x - fit.x[open_], axis=-1)
+            drop = fit.cost[open_] - more.cost
+            settled[open_] = np.isfinite(more.cost) & (
+                (np.isfinite(sd) & (moved <= sd))
+                | (drop <= 1e-6 * np.maximum(fit.cost[open_], s2_now)))
+        stuck = ~fit.converged & ~settled & ~flat & ~ambiguous & ~singular
         self._degenerate(stuck, lambda idx: (
             f"no converged fix after {int(fit.iterations[idx])} iterations (residual rms "
             f"{float(np.sqrt(fit.cost[idx] / max(float(np.sum(w[idx])), 1e-300))):.3g} m): the "
