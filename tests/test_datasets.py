@@ -320,3 +320,35 @@ def test_locate_reads_and_writes_parquet(test_root, tmp_path):
     a = pd.read_csv(tmp_path / "est_csv.csv")
     b = pd.read_parquet(tmp_path / "est_pq.parquet")
     np.testing.assert_allclose(b[["x", "y"]].to_numpy(), a[["x", "y"]].to_numpy(), atol=1e-5)
+
+
+CONVERTED = [
+    # (data set, export options, method, locate options): every method that fits each format
+    ("hanyang", {"epoch_s": 0.1, "tag_height_m": 1.1}, "gn", ["-o", "on_degenerate=skip"]),
+    ("hanyang", {"tag_height_m": 1.1}, "ekf-track", []),
+    ("hanyang", {"tag_height_m": 1.1}, "ekf-track", ["--smooth"]),
+    ("hanyang", {"tag_height_m": 1.1}, "pf", ["-o", "particles=200", "-o", "seed=1"]),
+    ("kolakowski", {}, "gmm", ["-o", "components=2"]),
+    ("uji", {"building": 0, "floor": 0, "min_detections": 1}, "gmm", ["-o", "components=2"]),
+    ("uji", {"building": 0, "floor": 0, "min_detections": 1}, "gmm", ["-o", "model=places"]),
+]
+
+
+@pytest.mark.parametrize("name, export_opts, method, opts", CONVERTED,
+                         ids=[f"{c[0]}-{c[2]}{'-' + c[3][0] if c[3] else ''}" for c in CONVERTED])
+def test_every_converted_log_runs_through_locate(test_root, tmp_path, name, export_opts,
+                                                 method, opts):
+    from radioloc.cli import app
+
+    paths = ds.export(name, tmp_path, **export_opts)
+    args = ["locate", str(paths["measurements"]), "--method", method, *opts,
+            "--out", str(tmp_path / "est.csv")]
+    if "calibration" in paths:
+        args += ["--calibration", str(paths["calibration"])]
+    elif "anchors" in paths:
+        args += ["--anchors", str(paths["anchors"])]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    est = pd.read_csv(tmp_path / "est.csv")
+    assert len(est) > 0 and np.isfinite(est[["x", "y"]].to_numpy()).all()
+    assert {"time", "node", "x", "y"} <= set(est.columns)
