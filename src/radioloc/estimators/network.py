@@ -14,7 +14,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array
+from radioloc.core.validation import as_float_array, refuse_infinite
 
 __all__ = ["check_packet", "check_prior", "check_iteration", "run_iterations"]
 
@@ -135,7 +135,7 @@ def check_iteration(ranges: object, mask: object | None, runs: int, nodes: int
     InputError
         A shape disagrees.
     """
-    rho = as_float_array(ranges, "ranges", ndim=3, allow_nan=True)
+    rho = refuse_infinite(as_float_array(ranges, "ranges", ndim=3, allow_nan=True), "ranges")
     if rho.shape != (runs, nodes, nodes):
         raise InputError(f"ranges: expected shape ({runs}, {nodes}, {nodes}), got {rho.shape}")
     if mask is not None:
@@ -167,7 +167,7 @@ def run_iterations(estimator: Any, state: Any, ranges: object, mask: object | No
     Track
         ``position`` ``(R, K, N, 2)``: batch axes (runs, nodes) lead, iterations follow.
     """
-    rho = as_float_array(ranges, "ranges", ndim=4, allow_nan=True)
+    rho = refuse_infinite(as_float_array(ranges, "ranges", ndim=4, allow_nan=True), "ranges")
     R, N = rho.shape[:2]
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
