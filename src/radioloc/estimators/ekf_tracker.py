@@ -137,7 +137,11 @@ class RangeEKF(RecursiveEstimator):
             np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:
             raise InputError("prior_cov: not symmetric positive definite") from None
-        batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
+        try:
+            batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
+        except ValueError:
+            raise InputError(f"prior_cov: batch shape {cov.shape[:-2]} does not broadcast with "
+                             f"prior_mean's {mean.shape[:-1]}") from None
         return GaussianState(np.broadcast_to(mean, batch + (n,)).copy(),
                              np.broadcast_to(cov, batch + (n, n)).copy(), time)
 
