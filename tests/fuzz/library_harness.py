@@ -176,7 +176,7 @@ def case_range_ekf() -> Case:
                 {"ranges": r, "time": t, "prior_mean": np.c_[start, np.zeros((B, 2))],
                  "prior_cov": np.eye(4)},
                 {"anchors": Field(setting=True), "range_bias_m": Field(setting=True),
-                 "gate": Field(setting=True, neg_ok=False, zero_ok=False),
+                 "gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  # a measured range may be slightly negative (noise): RangeEKF takes it
                  "ranges": Field(nan_ok=True), "time": Field(),
                  "prior_mean": Field(), "prior_cov": Field(neg_ok=False)},
