@@ -18,7 +18,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array, check_finite_output
+from radioloc.core.validation import as_float_array, check_finite_output, check_positive, check_real
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.kalman import (
     GaussianState,
@@ -90,13 +90,10 @@ class RangeEKF(RecursiveEstimator):
         self.motion = motion
         self.measurement = measurement
         self.anchors = None if anchors is None else as_float_array(anchors, "anchors", min_ndim=2)
-        if height_m is not None and not np.isfinite(height_m):
-            raise ConfigError(f"height_m: must be finite, got {height_m}")
-        self.height_m = None if height_m is None else float(height_m)
-        if not np.isfinite(range_bias_m):
-            raise ConfigError(f"range_bias_m: must be finite, got {range_bias_m}")
-        if gate is not None and not (np.isfinite(gate) and gate > 0):
-            raise ConfigError(f"gate: must be a finite number > 0, got {gate}")
+        height_m = None if height_m is None else check_real(height_m, "height_m")
+        self.height_m = height_m
+        range_bias_m = check_real(range_bias_m, "range_bias_m")
+        gate = None if gate is None else check_positive(gate, "gate")
         self.range_bias_m = float(range_bias_m)
         self.gate = None if gate is None else float(gate)
         if int(gate_patience) != gate_patience or gate_patience < 1:
