@@ -106,6 +106,13 @@ def check_prior(prior_mean: object, prior_var: object) -> tuple[np.ndarray, np.n
     if np.any(var <= 0):
         idx = tuple(int(i) for i in np.argwhere(var <= 0)[0])
         raise InputError(f"prior_var: must be > 0 (m^2), got 0 at index {idx}")
+    # the filters invert and update these variances against metre-scale range variances:
+    # beyond this window the update loses every digit (a NaN estimate) or overflows
+    out = (var < 1e-24) | (var > 1e12)
+    if np.any(out):
+        idx = tuple(int(i) for i in np.argwhere(out)[0])
+        raise InputError(f"prior_var: {var[idx]:g} m^2 at index {idx} is outside the supported "
+                         "range [1e-24, 1e12] m^2")
     if mean.shape[1] < 3:
         raise InputError(f"prior_mean: a network needs at least 3 nodes, got {mean.shape[1]}")
     return mean.copy(), var
