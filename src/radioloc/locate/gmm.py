@@ -60,7 +60,16 @@ def read_calibration(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
         rss = frame[ids].apply(pd.to_numeric, errors="raise").to_numpy(float)
     except ValueError as exc:
         raise InputError(f"{path}: a base station column is not numeric ({exc})") from None
-    pos = frame[["x", "y"]].to_numpy(float)
+    cols = []
+    for c in ("x", "y"):
+        v = pd.to_numeric(frame[c], errors="coerce")
+        bad = v.isna() & frame[c].notna()
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(f"{path}: line {i + 2}, column {c}: not a number "
+                             f"({str(frame[c].iloc[i])[:20]!r})")
+        cols.append(v.to_numpy(float))
+    pos = np.column_stack(cols)
     if not np.all(np.isfinite(pos)):
         i = int(np.flatnonzero(~np.isfinite(pos).all(1))[0])
         raise InputError(f"{path}: line {i + 2}: x, y must be finite")
