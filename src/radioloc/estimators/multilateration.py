@@ -131,36 +131,42 @@ class Multilateration(SnapshotEstimator):
         """Solve again from the mirror image of each solution across the anchors' best-fit
         line (2-D) or plane (3-D). Keep the better fit; where both fit the ranges within
         the noise and lie apart, the fix is ambiguous (returned as a mask with a function
-        that words the reason for one problem)."""
+        that words the reason for one problem). Two rounds: a start on the anchors' line
+        (where Gauss-Newton stalls) is its own mirror, so the second round mirrors the
+        best fit of the first."""
         d = anchors.shape[-1]
         centroid, sv, vt = _anchor_frame(anchors, used)
         normal = vt[..., d - 1, :]                              # least-spread direction
-        offset = np.einsum("...d,...d->...", fit.x - centroid, normal)
-        mirror_start = fit.x - 2.0 * offset[..., None] * normal
-        alt = solve_nlls(residuals, mirror_start, weights=w, method=self.method,
-                         max_iter=self.max_iter, tol=self.tol_m)
-        better = alt.cost < fit.cost * (1 - 1e-9) - 1e-300
+        for _ in range(2):
+            offset = np.einsum("...d,...d->...", fit.x - centroid, normal)
+            mirror_start = fit.x - 2.0 * offset[..., None] * normal
+            alt = solve_nlls(residuals, mirror_start, weights=w, method=self.method,
+                             max_iter=self.max_iter, tol=self.tol_m)
+            better = alt.cost < fit.cost * (1 - 1e-9) - 1e-300
+            prev = fit
+            if np.any(better):
+                def pick(a, b):
+                    return np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)),
+                                    b, a)
+                fit = type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
         dof = np.maximum(n_used - d, 1)
         scale = np.maximum(sv[..., 0], 1.0)
         if self.range_std_m is not None:
             s2 = np.full(fit.cost.shape, self.range_std_m**2)
         else:
-            s2 = np.minimum(fit.cost, alt.cost) / dof
+            s2 = np.minimum(prev.cost, alt.cost) / dof
         s2 = np.maximum(s2, (1e-9 * scale) ** 2)
-        apart = np.linalg.norm(alt.x - fit.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
-        ambiguous = apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
+        apart = np.linalg.norm(alt.x - prev.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
+        ambiguous = (apart & (np.abs(alt.cost - prev.cost) <= 4.0 * s2) & alt.converged
+                     & prev.converged)
 
-        first, second = fit.x + origin, alt.x + origin
+        first, second = prev.x + origin, alt.x + origin
 
         def detail(idx):
             p, q = first[idx], second[idx]
             return (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
                     f"{np.array2string(q, precision=3)} fit the ranges equally well "
                     "(anchors nearly collinear or coplanar seen from the node)")
-        if np.any(better):
-            def pick(a, b):
-                return np.where(better.reshape(better.shape + (1,) * (a.ndim - better.ndim)), b, a)
-            fit = type(fit)(**{k: pick(getattr(fit, k), getattr(alt, k)) for k in vars(fit)})
         return fit, ambiguous, detail
 
     def locate(self, ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray | None = None,
