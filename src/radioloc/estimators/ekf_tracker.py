@@ -28,6 +28,9 @@ from radioloc.estimators.kalman import (
 )
 from radioloc.models.ranging import range_geometry
 
+#: largest prior variance :meth:`RangeEKF.init` accepts (m^2, (m/s)^2, ...)
+PRIOR_VARIANCE_LIMIT = 1e12
+
 __all__ = ["RangeEKF"]
 
 
@@ -126,6 +129,12 @@ class RangeEKF(RecursiveEstimator):
         cov = as_float_array(prior_cov, "prior_cov", min_ndim=2, last_dim=n)
         if cov.shape[-2] != n:
             raise InputError(f"prior_cov: expected (..., {n}, {n}), got {cov.shape}")
+        diag = np.diagonal(cov, axis1=-2, axis2=-1)
+        if np.any(diag > PRIOR_VARIANCE_LIMIT):
+            idx = tuple(int(i) for i in np.argwhere(diag > PRIOR_VARIANCE_LIMIT)[0])
+            raise InputError(f"prior_cov: variance {diag[idx]:g} at diagonal index {idx} is beyond "
+                             f"the supported {PRIOR_VARIANCE_LIMIT:g} (the update would lose "
+                             "every digit against metre-scale ranges)")
         asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
             np.swapaxes(cov, -1, -2))) + 1e-300
         if np.any(asym):
