@@ -523,6 +523,9 @@ class P2PParticleFilter(RecursiveEstimator):
         if state.batch_shape[-1] != n_veh:
             raise InputError(f"initial: {state.batch_shape[-1]} vehicles, ranges have {n_veh}")
         batch = state.batch_shape[:-1]
+        if u is not None and u.shape[:-2] != state.batch_shape:
+            raise InputError(f"controls: leading shape {u.shape[:-2]} differs from the runs and "
+                             f"vehicles {state.batch_shape}")
         try:
             anchors_b = np.broadcast_to(a, batch + a.shape[-2:])
         except ValueError:
