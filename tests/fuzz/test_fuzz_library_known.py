@@ -207,3 +207,15 @@ def test_cli_gmm_text_in_calibration_position(scenarios, workdir):
     meas.write_text(render(sc.rows))
     outcome, detail = classify(run(sc2.args(meas)), sc2, meas)
     assert outcome == "error" and "line 4" in detail and "column x" in detail, f"{outcome}: {detail}"
+
+
+def test_range_ekf_huge_prior_variance():
+    cov = np.eye(4)
+    cov[1, 1] = 1e20
+    _clean(_mutated("RangeEKF", prior_cov=cov), ("prior_cov",))
+
+
+def test_particle_filter_controls_batch_mismatch():
+    c = CASES["P2PParticleFilter"]().args["controls"]
+    _clean(_mutated("P2PParticleFilter", controls=np.broadcast_to(c, (3,) + c.shape).copy()),
+           ("controls",))
