@@ -144,7 +144,8 @@ def case_network_rls() -> Case:
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"forgetting": Field(setting=True, neg_ok=False, zero_ok=False),
                  "range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
+                 # Gaussian range noise (paper 000): a negative measured range is a sample
+                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkRLS(**s).run(**a))
 
@@ -154,7 +155,8 @@ def case_network_ekf() -> Case:
     return Case("NetworkEKF", {"range_var_m2": 0.01},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
+                 # Gaussian range noise (paper 000): a negative measured range is a sample
+                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkEKF(**s).run(**a))
 
