@@ -28,9 +28,40 @@ def workdir(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz-cases")
 
 
-def pytest_terminal_summary(terminalreporter):
-    from fuzz_harness import TALLY
+def _tally():
+    from collections import Counter
 
-    if TALLY:
+    from fuzz_harness import TALLY
+    from library_harness import TALLY as LIBRARY
+
+    return Counter(TALLY) + Counter(LIBRARY)
+
+
+def pytest_sessionfinish(session):
+    """With ``RADIOLOC_FUZZ_TALLY=<file>``, every process (each xdist worker) appends its
+    outcome counts to that file as one JSON line."""
+    import json
+    import os
+
+    path = os.environ.get("RADIOLOC_FUZZ_TALLY")
+    tally = _tally()
+    if path and tally:
+        with open(path, "a") as fh:
+            fh.write(json.dumps(dict(tally)) + "\n")
+
+
+def pytest_terminal_summary(terminalreporter):
+    import json
+    import os
+    from collections import Counter
+
+    tally = _tally()
+    path = os.environ.get("RADIOLOC_FUZZ_TALLY")
+    if path and os.path.exists(path):
+        tally = Counter()
+        with open(path) as fh:
+            for line in fh:
+                tally.update(json.loads(line))
+    if tally:
         terminalreporter.write_line("fuzz outcomes: " + ", ".join(
-            f"{k}={v}" for k, v in sorted(TALLY.items())))
+            f"{k}={v}" for k, v in sorted(tally.items())))

@@ -36,7 +36,7 @@ from typing import Any, Callable
 import numpy as np
 from hypothesis import strategies as st
 
-from radioloc.core.errors import RadiolocError
+from radioloc.core.errors import GeometryError, RadiolocError
 from radioloc.core.results import Estimate, Track
 from radioloc.estimators import (
     ESTIMATORS,
@@ -143,8 +143,9 @@ def case_network_rls() -> Case:
     return Case("NetworkRLS", {"forgetting": 0.7},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"forgetting": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
+                 "range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
+                 # Gaussian range noise (paper 000): a negative measured range is a sample
+                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkRLS(**s).run(**a))
 
@@ -154,7 +155,8 @@ def case_network_ekf() -> Case:
     return Case("NetworkEKF", {"range_var_m2": 0.01},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
+                 # Gaussian range noise (paper 000): a negative measured range is a sample
+                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkEKF(**s).run(**a))
 
@@ -176,7 +178,7 @@ def case_range_ekf() -> Case:
                 {"ranges": r, "time": t, "prior_mean": np.c_[start, np.zeros((B, 2))],
                  "prior_cov": np.eye(4)},
                 {"anchors": Field(setting=True), "range_bias_m": Field(setting=True),
-                 "gate": Field(setting=True, neg_ok=False, zero_ok=False),
+                 "gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  # a measured range may be slightly negative (noise): RangeEKF takes it
                  "ranges": Field(nan_ok=True), "time": Field(),
                  "prior_mean": Field(), "prior_cov": Field(neg_ok=False)},
@@ -196,7 +198,8 @@ def case_particle_filter() -> Case:
                 {"particles": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
                  "init_std": Field(setting=True, neg_ok=False),
                  "reset_std_m": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "initial": Field(),
+                 # LOS ranges are Gaussian: a slightly negative one is a measurement
+                 "ranges": Field(nan_ok=True), "initial": Field(),
                  "anchors": Field(), "controls": Field()},
                 lambda s, a: P2PParticleFilter(**s).run(
                     a["ranges"], a["initial"], np.random.default_rng(5), anchors=a["anchors"],
@@ -217,7 +220,7 @@ def case_local_ml() -> Case:
                 {"ranges": r, "centres": centres},
                 {"radius_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  "coarse_points": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "centres": Field()},
+                 "ranges": Field(nan_ok=True), "centres": Field()},
                 lambda s, a: LocalML(**s).locate(**a), truth, 0.1)
 
 
@@ -227,7 +230,7 @@ def case_ransac() -> Case:
                 {"ranges": r, "centres": centres},
                 {"threshold_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  "radius_m": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
+                 "max_iter": Field(setting=True, integer=True, neg_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "centres": Field()},
                 lambda s, a: Ransac(**s).locate(**a), truth, 0.01)
 
@@ -249,7 +252,7 @@ def case_closed_form() -> Case:
                 {"ranges": r, "sensor_path": sensor, "sample_period_s": T},
                 {"accel_var": Field(setting=True, neg_ok=False),
                  "range_var": Field(setting=True, neg_ok=False),
-                 "max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
+                 "max_iter": Field(setting=True, integer=True, neg_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "sensor_path": Field(extra_ok=True),
                  "sample_period_s": Field(neg_ok=False, zero_ok=False, shape_free=True)},
                 lambda s, a: ClosedFormTracker(**s).locate(**a), truth, 0.05)
@@ -260,7 +263,7 @@ def case_newton() -> Case:
     return Case("NewtonTracker", {},
                 {"ranges": r, "sensor_path": sensor, "sample_period_s": T,
                  "initial_state": state + 0.3},
-                {"max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
+                {"max_iter": Field(setting=True, integer=True, neg_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "sensor_path": Field(),
                  "sample_period_s": Field(neg_ok=False, zero_ok=False, shape_free=True),
                  "initial_state": Field()},
@@ -580,7 +583,10 @@ def classify_call(fn: Callable[[], Any], *, names: tuple[str, ...] = (), invalid
         msg = str(exc)
         if "\n" in msg.strip():
             return "multi-line error", msg
-        if names and not any(n in msg for n in names):
+        # a geometry error names the problem (row, run, node) whose geometry fails
+        place = isinstance(exc, GeometryError) and any(
+            w in msg for w in ("problem", "run ", "node", "nodes"))
+        if names and not place and not any(n in msg for n in names):
             return "error naming the wrong field", f"expected one of {names}: {msg}"
         return "error", f"{type(exc).__name__}: {msg}"
     arrays = _arrays(result)

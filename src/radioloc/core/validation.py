@@ -333,7 +333,7 @@ def ambiguous_fixes(position: np.ndarray, centres: np.ndarray, ranges: np.ndarra
     def rms(x):
         d = np.linalg.norm(x[..., None, :] - centres, axis=-1)
         return np.sqrt(np.sum(np.where(used, (ranges - d) ** 2, 0.0), -1) / np.maximum(n, 1))
-    apart = np.abs(2.0 * offset) > 10.0 * tol_m
+    apart = np.abs(2.0 * offset) > 2.0 * tol_m
     same_fit = rms(mirror) <= rms(position) + tol_m
     mask = flat | (apart & same_fit)
 
@@ -347,3 +347,31 @@ def ambiguous_fixes(position: np.ndarray, centres: np.ndarray, ranges: np.ndarra
                 f"mirror {np.array2string(mirror[index], precision=3)} fit the ranges "
                 "equally well (points nearly collinear seen from the node)")
     return mask, reason
+
+
+def refuse_infinite(arr: np.ndarray, name: str) -> np.ndarray:
+    """Refuse an infinite entry in an array where NaN marks a missing measurement.
+
+    Parameters
+    ----------
+    arr : ndarray
+        Measurements (NaN allowed).
+    name : str
+        Argument name for the message.
+
+    Returns
+    -------
+    ndarray
+        ``arr``.
+
+    Raises
+    ------
+    InputError
+        Naming ``name`` and the index of the first infinite entry.
+    """
+    bad = np.isinf(arr)
+    if np.any(bad):
+        idx = _first_bad_index(bad)
+        raise InputError(f"{name}: infinite value at index {idx} (NaN marks a missing "
+                         "measurement)")
+    return arr

@@ -32,7 +32,7 @@ from numba import njit, prange
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import check_finite_output
+from radioloc.core.validation import check_finite_output, check_positive
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
@@ -339,9 +339,7 @@ class NetworkEKF(RecursiveEstimator):
     name = "ekf"
 
     def __init__(self, range_var_m2: float = 900.0) -> None:
-        if not (np.isfinite(range_var_m2) and range_var_m2 > 0):
-            raise ConfigError(f"range_var_m2: must be > 0 (m^2), got {range_var_m2!r}")
-        self.range_var_m2 = float(range_var_m2)
+        self.range_var_m2 = check_positive(range_var_m2, "range_var_m2")
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
         """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. (25)).

@@ -18,7 +18,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array, check_finite_output
+from radioloc.core.validation import as_float_array, check_finite_output, check_positive, check_real
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.kalman import (
     GaussianState,
@@ -27,6 +27,9 @@ from radioloc.estimators.kalman import (
     normalised_innovation_squared,
 )
 from radioloc.models.ranging import range_geometry
+
+#: largest prior variance :meth:`RangeEKF.init` accepts (m^2, (m/s)^2, ...)
+PRIOR_VARIANCE_LIMIT = 1e12
 
 __all__ = ["RangeEKF"]
 
@@ -90,13 +93,10 @@ class RangeEKF(RecursiveEstimator):
         self.motion = motion
         self.measurement = measurement
         self.anchors = None if anchors is None else as_float_array(anchors, "anchors", min_ndim=2)
-        if height_m is not None and not np.isfinite(height_m):
-            raise ConfigError(f"height_m: must be finite, got {height_m}")
-        self.height_m = None if height_m is None else float(height_m)
-        if not np.isfinite(range_bias_m):
-            raise ConfigError(f"range_bias_m: must be finite, got {range_bias_m}")
-        if gate is not None and not (np.isfinite(gate) and gate > 0):
-            raise ConfigError(f"gate: must be a finite number > 0, got {gate}")
+        height_m = None if height_m is None else check_real(height_m, "height_m")
+        self.height_m = height_m
+        range_bias_m = check_real(range_bias_m, "range_bias_m")
+        gate = None if gate is None else check_positive(gate, "gate")
         self.range_bias_m = float(range_bias_m)
         self.gate = None if gate is None else float(gate)
         if int(gate_patience) != gate_patience or gate_patience < 1:
@@ -129,6 +129,12 @@ class RangeEKF(RecursiveEstimator):
         cov = as_float_array(prior_cov, "prior_cov", min_ndim=2, last_dim=n)
         if cov.shape[-2] != n:
             raise InputError(f"prior_cov: expected (..., {n}, {n}), got {cov.shape}")
+        diag = np.diagonal(cov, axis1=-2, axis2=-1)
+        if np.any(diag > PRIOR_VARIANCE_LIMIT):
+            idx = tuple(int(i) for i in np.argwhere(diag > PRIOR_VARIANCE_LIMIT)[0])
+            raise InputError(f"prior_cov: variance {diag[idx]:g} at diagonal index {idx} is beyond "
+                             f"the supported {PRIOR_VARIANCE_LIMIT:g} (the update would lose "
+                             "every digit against metre-scale ranges)")
         asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
             np.swapaxes(cov, -1, -2))) + 1e-300
         if np.any(asym):
@@ -137,7 +143,11 @@ class RangeEKF(RecursiveEstimator):
             np.linalg.cholesky(cov)
         except np.linalg.LinAlgError:
             raise InputError("prior_cov: not symmetric positive definite") from None
-        batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
+        try:
+            batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
+        except ValueError:
+            raise InputError(f"prior_cov: batch shape {cov.shape[:-2]} does not broadcast with "
+                             f"prior_mean's {mean.shape[:-1]}") from None
         return GaussianState(np.broadcast_to(mean, batch + (n,)).copy(),
                              np.broadcast_to(cov, batch + (n, n)).copy(), time)
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array
+from radioloc.core.validation import as_float_array, refuse_infinite
 
 __all__ = ["check_packet", "check_prior", "check_iteration", "run_iterations"]
 
@@ -106,6 +106,13 @@ def check_prior(prior_mean: object, prior_var: object) -> tuple[np.ndarray, np.n
     if np.any(var <= 0):
         idx = tuple(int(i) for i in np.argwhere(var <= 0)[0])
         raise InputError(f"prior_var: must be > 0 (m^2), got 0 at index {idx}")
+    # the filters invert and update these variances against metre-scale range variances:
+    # beyond this window the update loses every digit (a NaN estimate) or overflows
+    out = (var < 1e-24) | (var > 1e12)
+    if np.any(out):
+        idx = tuple(int(i) for i in np.argwhere(out)[0])
+        raise InputError(f"prior_var: {var[idx]:g} m^2 at index {idx} is outside the supported "
+                         "range [1e-24, 1e12] m^2")
     if mean.shape[1] < 3:
         raise InputError(f"prior_mean: a network needs at least 3 nodes, got {mean.shape[1]}")
     return mean.copy(), var
@@ -135,7 +142,7 @@ def check_iteration(ranges: object, mask: object | None, runs: int, nodes: int
     InputError
         A shape disagrees.
     """
-    rho = as_float_array(ranges, "ranges", ndim=3, allow_nan=True)
+    rho = refuse_infinite(as_float_array(ranges, "ranges", ndim=3, allow_nan=True), "ranges")
     if rho.shape != (runs, nodes, nodes):
         raise InputError(f"ranges: expected shape ({runs}, {nodes}, {nodes}), got {rho.shape}")
     if mask is not None:
@@ -167,7 +174,7 @@ def run_iterations(estimator: Any, state: Any, ranges: object, mask: object | No
     Track
         ``position`` ``(R, K, N, 2)``: batch axes (runs, nodes) lead, iterations follow.
     """
-    rho = as_float_array(ranges, "ranges", ndim=4, allow_nan=True)
+    rho = refuse_infinite(as_float_array(ranges, "ranges", ndim=4, allow_nan=True), "ranges")
     R, N = rho.shape[:2]
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)

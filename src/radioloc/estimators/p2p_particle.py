@@ -428,7 +428,10 @@ class P2PParticleFilter(RecursiveEstimator):
             raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
         particles = check_int(particles, "particles", minimum=1, maximum=MAX_PARTICLES)
         get_scheme(resampling)
-        std = np.asarray(init_std, dtype=float)
+        try:
+            std = as_float_array(init_std, "init_std")
+        except InputError as exc:
+            raise ConfigError(str(exc)) from None
         if std.ndim > 1 or (std.ndim == 1 and std.shape[0] != motion.state_dim):
             raise ConfigError(f"init_std: expected a scalar or {motion.state_dim} values, "
                               f"got shape {std.shape}")
@@ -715,7 +718,14 @@ class P2PParticleFilter(RecursiveEstimator):
         if state.batch_shape[-1] != n_veh:
             raise InputError(f"initial: {state.batch_shape[-1]} vehicles, ranges have {n_veh}")
         batch = state.batch_shape[:-1]
-        anchors_b = np.broadcast_to(a, batch + a.shape[-2:])
+        if u is not None and u.shape[:-2] != state.batch_shape:
+            raise InputError(f"controls: leading shape {u.shape[:-2]} differs from the runs and "
+                             f"vehicles {state.batch_shape}")
+        try:
+            anchors_b = np.broadcast_to(a, batch + a.shape[-2:])
+        except ValueError:
+            raise InputError(f"anchors: batch shape {a.shape[:-2]} does not broadcast with the "
+                             f"runs' {batch}") from None
         estimates = []
         for k in range(T):
             uk = None if u is None else u[..., k, :]

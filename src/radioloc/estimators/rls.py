@@ -36,7 +36,7 @@ from numba import njit, prange
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import as_float_array, check_finite_output
+from radioloc.core.validation import as_float_array, check_finite_output, check_positive
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
@@ -218,7 +218,7 @@ class NetworkRLS(RecursiveEstimator):
 
     def __init__(self, forgetting: float = 1.0, prior_scale: float | str = 1.0,
                  range_var_m2: float | None = None) -> None:
-        if not (np.isfinite(forgetting) and 0 < forgetting <= 1):
+        if not (0 < check_positive(forgetting, "forgetting") <= 1):
             raise ConfigError(f"forgetting: must lie in (0, 1], got {forgetting!r}")
         if isinstance(prior_scale, str):
             if prior_scale != "transformed-noise":
@@ -226,12 +226,10 @@ class NetworkRLS(RecursiveEstimator):
                                   f"{prior_scale!r}")
             if range_var_m2 is None:
                 raise ConfigError("range_var_m2: needed by prior_scale='transformed-noise'")
-        elif not (np.isfinite(prior_scale) and prior_scale > 0):
-            raise ConfigError(f"prior_scale: must be > 0, got {prior_scale!r}")
         else:
-            prior_scale = float(prior_scale)
-        if range_var_m2 is not None and not (np.isfinite(range_var_m2) and range_var_m2 > 0):
-            raise ConfigError(f"range_var_m2: must be > 0 (m^2), got {range_var_m2!r}")
+            prior_scale = check_positive(prior_scale, "prior_scale")
+        if range_var_m2 is not None:
+            range_var_m2 = check_positive(range_var_m2, "range_var_m2")
         self.forgetting = float(forgetting)
         self.prior_scale = prior_scale
         self.range_var_m2 = None if range_var_m2 is None else float(range_var_m2)

@@ -40,6 +40,11 @@ class _Network:
     masks: np.ndarray             # (P, K)
 
 
+#: prior variances the network filters take (m^2): below, the RLS information overflows;
+#: above, the EKF update loses every digit (the library refuses them as well)
+PRIOR_VAR_RANGE = (1e-24, 1e12)
+
+
 def _network(request: LocateRequest, method: str) -> _Network:
     if request.priors is None:
         raise InputError(f"method {method}: needs a priors file (--priors) with columns "
@@ -48,9 +53,19 @@ def _network(request: LocateRequest, method: str) -> _Network:
     ids = list(priors["node"])
     mean = priors[["x", "y"]].to_numpy()
     var = priors[["var_x", "var_y"]].to_numpy()
+    out = (var < PRIOR_VAR_RANGE[0]) | (var > PRIOR_VAR_RANGE[1])
+    if out.any():
+        i, j = (int(k) for k in np.argwhere(out)[0])
+        where = f"line {int(priors['line'].iloc[i])}, " if "line" in priors else ""
+        raise InputError(f"{request.priors}: {where}column {('var_x', 'var_y')[j]}: "
+                         f"{var[i, j]:g} m^2 for node {ids[i]} is outside the supported range "
+                         f"[{PRIOR_VAR_RANGE[0]:g}, {PRIOR_VAR_RANGE[1]:g}] m^2")
     reported = np.ones(len(ids), bool)
     if request.anchors is not None:
         avar = check_positive(request.option("anchor_var_m2", 1e-6), "anchor_var_m2")
+        if not PRIOR_VAR_RANGE[0] <= avar <= PRIOR_VAR_RANGE[1]:
+            raise InputError(f"anchor_var_m2: {avar:g} m^2 is outside the supported range "
+                             f"[{PRIOR_VAR_RANGE[0]:g}, {PRIOR_VAR_RANGE[1]:g}] m^2")
         anchors = request.anchors[~request.anchors["id"].isin(ids)]
         ids += list(anchors["id"])
         mean = np.vstack([mean, anchors[["x", "y"]].to_numpy()])

@@ -38,6 +38,9 @@ _LOG2PI = np.log(2.0 * np.pi)
 #: relative tolerance under which two weights or two merge costs count as tied in
 #: :func:`reduce` (ties go to the lower component index, whatever the rounding).
 _TIE = 1e-9
+#: smallest variance :meth:`DiagMixture.create` accepts (squared distances over it stay
+#: far from float64 overflow)
+_VARIANCE_FLOOR = 1e-60
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,10 @@ class DiagMixture:
             raise InputError(f"weights: shape {w.shape} does not match means {m.shape[:-1]}")
         if np.any(v <= 0):
             raise InputError("variances: must be > 0")
+        if np.any(v < _VARIANCE_FLOOR):
+            idx = tuple(int(i) for i in np.argwhere(v < _VARIANCE_FLOOR)[0])
+            raise InputError(f"variances: {v[idx]:g} at index {idx} is below the supported "
+                             f"floor of {_VARIANCE_FLOOR:g} (its inverse would overflow)")
         total = w.sum(axis=-1, keepdims=True)
         if np.any(total <= 0):
             raise InputError("weights: every mixture needs a positive total weight")

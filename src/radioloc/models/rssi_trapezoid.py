@@ -104,7 +104,7 @@ class TrapezoidModel:
 
     def __post_init__(self):
         for name in ("mu", "tau", "sigma", "count"):
-            arr = np.asarray(getattr(self, name), dtype=np.float64)
+            arr = as_float_array(getattr(self, name), name, allow_nan=True)
             if arr.shape != (RSSI_LEVELS,):
                 raise InputError(f"{name}: expected {RSSI_LEVELS} rows (RSSI 0..100), got shape {arr.shape}")
             object.__setattr__(self, name, arr)
@@ -112,6 +112,9 @@ class TrapezoidModel:
             i = int(np.flatnonzero(~np.isfinite(self.mu + self.tau + self.sigma))[0])
             raise InputError(f"mu/tau/sigma: row {i} is not finite (unsmoothed gap?); "
                              "call smooth() to fill gaps")
+        if np.any(~np.isfinite(self.count) | (self.count < 0)):
+            i = int(np.flatnonzero(~np.isfinite(self.count) | (self.count < 0))[0])
+            raise InputError(f"count: row {i} is {self.count[i]}; need a finite count >= 0")
         if np.any(self.sigma <= 0) or np.any(self.tau < 0):
             i = int(np.flatnonzero((self.sigma <= 0) | (self.tau < 0))[0])
             raise InputError(f"sigma/tau: row {i} has sigma={self.sigma[i]}, tau={self.tau[i]}; "

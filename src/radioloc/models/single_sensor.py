@@ -376,6 +376,11 @@ def validate_inputs(ranges, sensor, reference_index, *, allow_nan: bool = False)
     n = r.shape[-1]
     if s.shape[-2] != n:
         raise InputError(f"sensor_path: has {s.shape[-2]} positions but ranges has {n} samples")
+    try:
+        np.broadcast_shapes(r.shape[:-1], s.shape[:-2])
+    except ValueError:
+        raise InputError(f"sensor_path: batch shape {s.shape[:-2]} does not broadcast with "
+                         f"ranges' {r.shape[:-1]}") from None
     if n < MIN_SAMPLES:
         raise InputError(f"ranges: need >= {MIN_SAMPLES} samples, got {n}")
     k = n - 1 if reference_index is None else int(reference_index)

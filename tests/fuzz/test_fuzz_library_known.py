@@ -1,0 +1,221 @@
+"""Regression inputs from the library and CLI failures the long fuzz found (one per class):
+each must now end in a clean error naming the place, or a correct answer."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fuzz_harness import HEAD, classify, render, run
+from library_harness import CASES, Case, classify_call, mixture_arrays
+from radioloc.estimators import LocalML, Multilateration, Ransac
+from radioloc.models import (
+    DiagMixture,
+    GaussianRange,
+    LogDistanceGaussian,
+    LosNlosRange,
+    TrapezoidModel,
+    UniformDisk,
+)
+
+
+def _mutated(name, settings=None, **args):
+    case = CASES[name]()
+    return Case(case.name, {**case.settings, **(settings or {})}, {**case.args, **args},
+                case.fields, case.solve)
+
+
+def _clean(case: Case, names, invalid=True):
+    outcome, detail = classify_call(lambda: case.solve(case.settings, case.args), names=names,
+                                    invalid=invalid)
+    assert outcome == "error", f"{outcome}: {detail}"
+    return detail
+
+
+def _subnormal(a, index):
+    a = np.array(a, float)
+    a[index] = 2.2250738585e-313
+    return a
+
+
+@pytest.mark.parametrize("value", [1e-300, 5e-324, 1e20])
+def test_network_prior_var_out_of_range(value):
+    for name in ("NetworkRLS", "NetworkEKF"):
+        var = CASES[name]().args["prior_var"].copy()
+        var[0, 1, 0] = value
+        assert "prior_var" in _clean(_mutated(name, prior_var=var), ("prior_var",))
+
+
+@pytest.mark.parametrize("value", ["abc", None, 1e300, math.inf])
+def test_range_ekf_scalar_settings(value):
+    for setting in ("range_bias_m", "gate", "height_m"):
+        if value is None and setting in ("gate", "height_m"):
+            continue                       # None is their default (off)
+        _clean(_mutated("RangeEKF", {setting: value}), (setting,))
+
+
+@pytest.mark.parametrize("value", ["abc", 1e300, -1.0])
+def test_particle_filter_init_std(value):
+    _clean(_mutated("P2PParticleFilter", {"init_std": value}), ("init_std",))
+
+
+@pytest.mark.parametrize("name", ["ClosedFormTracker", "NewtonTracker"])
+def test_sensor_path_batch_mismatch(name):
+    path = CASES[name]().args["sensor_path"]
+    _clean(_mutated(name, sensor_path=np.broadcast_to(path, (3,) + path.shape).copy()),
+           ("sensor_path",))
+
+
+def test_particle_filter_anchor_batch_mismatch():
+    a = CASES["P2PParticleFilter"]().args["anchors"]
+    _clean(_mutated("P2PParticleFilter", anchors=np.broadcast_to(a, (3,) + a.shape).copy()),
+           ("anchors",))
+
+
+@pytest.mark.parametrize("name,setting", [("Multilateration", "max_iter"),
+                                          ("Ransac", "max_iter"),
+                                          ("ClosedFormTracker", "max_iter"),
+                                          ("P2PParticleFilter", "particles"),
+                                          ("MixtureLocalizer", "max_components"),
+                                          ("MixtureTracker", "max_components")])
+@pytest.mark.parametrize("value", ["abc", None, math.inf, -math.inf, True, 10**15])
+def test_integer_settings(name, setting, value):
+    _clean(_mutated(name, {setting: value}), (setting,))
+
+
+def test_mixture_components_beyond_memory_refused_before_allocating():
+    detail = _clean(_mutated("MixtureTracker", {"max_components": 99_999}), ("max_components",))
+    assert "memory" in detail
+
+
+@pytest.mark.parametrize("kw", [{"a": "abc"}, {"n": None}, {"s": 0.0}, {"s": -1.0},
+                                {"d_ref_m": math.inf}, {"a": math.nan}])
+def test_log_distance_parameters(kw):
+    args = {"a": 60.0, "n": 2.0, "s": 2.0, "d_ref_m": 0.1, **kw}
+    outcome, detail = classify_call(lambda: LogDistanceGaussian(**args).likelihood(
+        np.array([1.0, 5.0]), np.array(50.0)), names=tuple(kw), invalid=True)
+    assert outcome == "error", f"{outcome}: {detail}"
+
+
+@pytest.mark.parametrize("ctor,kw", [(GaussianRange, {"std_m": 1e-300}),
+                                     (GaussianRange, {"std_m": 5e-324}),
+                                     (LosNlosRange, {"los_std_m": 1e300}),
+                                     (LosNlosRange, {"nlos_mean_m": 1e-300}),
+                                     (UniformDisk, {"v_max_m_per_s": 1e300})])
+def test_model_scalar_magnitudes(ctor, kw):
+    outcome, detail = classify_call(lambda: ctor(**kw), names=tuple(kw), invalid=True)
+    assert outcome == "error", f"{outcome}: {detail}"
+
+
+def test_trapezoid_and_mixture_arrays():
+    mu = np.linspace(40.0, 0.5, 101)
+    for count in (np.full(101, -1.0), np.full(101, np.inf), np.array(["abc"] * 101, object)):
+        outcome, detail = classify_call(lambda: TrapezoidModel(mu, np.ones(101), np.ones(101),
+                                                               count), names=("count",),
+                                        invalid=True)
+        assert outcome == "error", f"{outcome}: {detail}"
+    arrays = mixture_arrays()
+    arrays["variances"] = arrays["variances"] * 1e-300
+    outcome, detail = classify_call(lambda: DiagMixture.create(**arrays).logpdf(
+        np.array([[1.0, 1.0]])), names=("variances",), invalid=True)
+    assert outcome == "error", f"{outcome}: {detail}"
+
+
+@pytest.mark.parametrize("anchors,truth", [
+    ([(24.751, 0.0), (99.424, 1e-06), (-20.188, 0.0)], (12.0, 12.0)),
+    ([(-20.0, 19.164), (-0.0, 54.824000999999996), (-86.66, -99.69077999999998)],
+     (-49.473, 0.631)),
+    ([(-20.0, 0.0), (-15.619, 1e-06), (20.196, 0.0), (-67.317, 0.0)], (0.0, 89.245)),
+    ([(300020.66, 300020.66), (300002.5, 300005.0), (300000.0, 300083.878),
+      (300002.5, 299954.398)], (299941.122, 300005.986)),
+])
+@pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
+@pytest.mark.parametrize("std", [None, 0.01])
+def test_multilateration_near_collinear_and_far_anchors(anchors, truth, method, std):
+    a, t = np.array(anchors), np.array(truth)
+    r = np.linalg.norm(a - t, axis=-1)
+    outcome, detail = classify_call(
+        lambda: Multilateration(method=method, range_std_m=std).locate(r, a),
+        names=("anchors",), truth=t, tol_m=1e-3 * max(1.0, float(r.max())))
+    assert outcome in ("error", "success"), f"{outcome}: {detail}"
+
+
+@pytest.mark.parametrize("cls", ["LocalML", "Ransac"])
+def test_link_estimators_refuse_collinear_and_coincident_points(cls):
+    for anchors in ([(0.0, 3.0), (5.0, 3.0), (10.0, 3.0), (20.0, 3.0)], [(1.0, 2.0)] * 4):
+        a = np.array(anchors)
+        r = np.linalg.norm(a - [6.0, 8.0], axis=-1)
+        est = (LocalML(LosNlosRange(0.02, 5.0, 0.9), 40.0, on_degenerate="raise")
+               if cls == "LocalML" else Ransac(0.5, 40.0, on_degenerate="raise"))
+        outcome, detail = classify_call(lambda: est.locate(r, a), names=("centres",),
+                                        invalid=True)
+        assert outcome == "error", f"{outcome}: {detail}"
+        flagged = (LocalML(LosNlosRange(0.02, 5.0, 0.9), 40.0) if cls == "LocalML"
+                   else Ransac(0.5, 40.0)).locate(r, a)
+        assert bool(flagged.diagnostics["degenerate"])
+
+
+def test_cli_gn_near_collinear_mirror(scenarios, workdir):
+    pts, truth = [(24.751, 0.0), (99.424, 1e-06), (-20.188, 0.0)], (12.0, 12.0)
+    sc = scenarios["gn"]
+    afile = workdir / "nc-anchors.csv"
+    afile.write_text("id,x,y\n" + "".join(f"A{i},{x!r},{y!r}\n" for i, (x, y) in enumerate(pts)))
+    meas = workdir / "nc.csv"
+    meas.write_text(render([HEAD] + [["0.0", "t", f"A{i}", "range", repr(math.dist(truth, p))]
+                                     for i, p in enumerate(pts)]))
+    sc2 = type(sc)(**{**sc.__dict__, "files": {"anchors": afile}})
+    res = run(sc2.args(meas))
+    outcome, detail = classify(res, sc2, meas)
+    assert outcome in ("error", "success"), f"{outcome}: {detail}"
+    if outcome == "success":
+        import io
+
+        import pandas as pd
+        est = pd.read_csv(io.StringIO(res.stdout))
+        assert math.dist((est.x.iloc[0], est.y.iloc[0]), truth) < 1e-3 * 100
+
+
+@pytest.mark.parametrize("cell", ["2.2250738585e-313", "1e30", "0"])
+def test_cli_rls_prior_variance_out_of_range(scenarios, workdir, cell):
+    sc = scenarios["rls"]
+    lines = sc.files["priors"].read_text().splitlines()
+    parts = lines[1].split(",")
+    parts[4] = cell
+    lines[1] = ",".join(parts)
+    p = workdir / "priors-tiny.csv"
+    p.write_text("\n".join(lines) + "\n")
+    sc2 = type(sc)(**{**sc.__dict__, "files": {"priors": p}})
+    meas = workdir / "rls.csv"
+    meas.write_text(render(sc.rows))
+    outcome, detail = classify(run(sc2.args(meas)), sc2, meas)
+    assert outcome == "error" and "line 2" in detail and "var_y" in detail, f"{outcome}: {detail}"
+
+
+def test_cli_gmm_text_in_calibration_position(scenarios, workdir):
+    sc = scenarios["gmm"]
+    lines = sc.files["calibration"].read_text().splitlines()
+    lines[0] = " x , y ," + lines[0].split(",", 2)[2]
+    parts = lines[3].split(",")
+    parts[0] = "âbÔ?"
+    lines[3] = ",".join(parts)
+    p = workdir / "cal-text.csv"
+    p.write_text("\n".join(lines) + "\n")
+    sc2 = type(sc)(**{**sc.__dict__, "files": {"calibration": p}})
+    meas = workdir / "gmm.csv"
+    meas.write_text(render(sc.rows))
+    outcome, detail = classify(run(sc2.args(meas)), sc2, meas)
+    assert outcome == "error" and "line 4" in detail and "column x" in detail, f"{outcome}: {detail}"
+
+
+def test_range_ekf_huge_prior_variance():
+    cov = np.eye(4)
+    cov[1, 1] = 1e20
+    _clean(_mutated("RangeEKF", prior_cov=cov), ("prior_cov",))
+
+
+def test_particle_filter_controls_batch_mismatch():
+    c = CASES["P2PParticleFilter"]().args["controls"]
+    _clean(_mutated("P2PParticleFilter", controls=np.broadcast_to(c, (3,) + c.shape).copy()),
+           ("controls",))
