@@ -228,6 +228,10 @@ class MixtureLocalizer(SnapshotEstimator):
         m = np.broadcast_to(rss, shape + (s,)).reshape(-1, s)
         if self.reduction != "runnalls":          # the compiled kernel merges West/Runnalls
             return self.density_reference(rss, models)
+        s, k = models.batch_shape[-1], models.n_components
+        k_eff = min(float(self.max_components), float(k) ** s)
+        check_memory(32.0 * np.prod(shape, dtype=float) * k_eff * k_eff * (2 * models.dim - 1),
+                     "max_components", "the products of the position mixtures")
         kmax = self.max_components
         # a station density has at most kc = min(k, kmax) components after its reduction
         kc = min(k, kmax)
