@@ -112,7 +112,7 @@ def test_compiled_rls_singular_information_names_run_and_node():
     prior = np.zeros((R, K, 2))
     prior[:, :, 0] = np.arange(K)                    # collinear estimates, no prior weight
     est = NetworkRLS()
-    state = est.init(prior, np.full(prior.shape, 1e30))
+    state = est.init(prior, np.full(prior.shape, 1e12))
     rho = np.abs(pairwise_distances(prior) + 1.0)
     with pytest.raises(GeometryError, match="run 0, node 0"):
         est.iterate(state, rho)

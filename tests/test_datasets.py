@@ -309,9 +309,9 @@ def test_locate_reads_and_writes_parquet(test_root, tmp_path):
     pytest.importorskip("pyarrow")
     from radioloc.cli import app
 
-    paths = ds.export("hanyang", tmp_path / "pq", fmt="parquet", tag_height_m=1.1)
+    paths = ds.export("hanyang", tmp_path / "pq", fmt="parquet", tag_height_m=1.1, epoch_s=0.1)
     assert list(read_anchors(paths["anchors"]).columns)[:3] == ["id", "x", "y"]
-    ds.export("hanyang", tmp_path / "csv", tag_height_m=1.1)
+    ds.export("hanyang", tmp_path / "csv", tag_height_m=1.1, epoch_s=0.1)
     for kind, ext in (("csv", "csv"), ("pq", "parquet")):
         res = runner.invoke(app, ["locate", str(tmp_path / kind / f"measurements.{ext}"),
                                   "--anchors", str(tmp_path / kind / f"anchors.{ext}"),

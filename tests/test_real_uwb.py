@@ -148,7 +148,7 @@ def test_gn_runs_on_the_synchronous_export(tmp_path, monkeypatch):
     """The epoch export has every anchor at every time stamp: the snapshot method fits."""
     monkeypatch.setenv("RADIOLOC_DATA", str(TEST_DATA.parent))
     res = runner.invoke(app, ["datasets", "export", "hanyang", "--run", "LOS/A/1",
-                              "--tag-height", "1.1", "--out", str(tmp_path)])
+                              "--tag-height", "1.1", "--epoch-s", "0.1", "--out", str(tmp_path)])
     assert res.exit_code == 0, res.output
     est = _locate(tmp_path, "gn")
     run = load_dynamic(RUN)
