@@ -422,6 +422,50 @@ def _seg_hits(px, py, qx, qy, ax, ay, bx, by):
 
 
 @njit(cache=True)
+def _walk_start(px, py, ex, ey, g0x, g0y, h, nx, ny):
+    """Start of a grid walk (Amanatides-Woo) along ``p + s e``, ``s`` in [0, 1]: the segment
+    clipped to the grid box, the first cell, the steps and the parameters of the next cell
+    boundaries. ``ok`` is False when the segment misses the box."""
+    x1, y1 = g0x + nx * h, g0y + ny * h
+    s0, s1 = 0.0, 1.0
+    for k in range(2):
+        p = px if k == 0 else py
+        e = ex if k == 0 else ey
+        lo = g0x if k == 0 else g0y
+        hi = x1 if k == 0 else y1
+        if e == 0.0:
+            if p < lo or p > hi:
+                return False, s1, 0, 0, 1, 1, np.inf, np.inf, np.inf, np.inf
+        else:
+            ta = (lo - p) / e
+            tb = (hi - p) / e
+            if ta > tb:
+                ta, tb = tb, ta
+            s0 = max(s0, ta)
+            s1 = min(s1, tb)
+    if s0 > s1:
+        return False, s1, 0, 0, 1, 1, np.inf, np.inf, np.inf, np.inf
+    cx, cy = px + s0 * ex, py + s0 * ey
+    ci = min(max(int((cx - g0x) / h), 0), nx - 1)
+    cj = min(max(int((cy - g0y) / h), 0), ny - 1)
+    stepx = 1 if ex > 0 else -1
+    stepy = 1 if ey > 0 else -1
+    if ex != 0.0:
+        tmx = (g0x + (ci + (1 if ex > 0 else 0)) * h - px) / ex
+        tdx = h / abs(ex)
+    else:
+        tmx = np.inf
+        tdx = np.inf
+    if ey != 0.0:
+        tmy = (g0y + (cj + (1 if ey > 0 else 0)) * h - py) / ey
+        tdy = h / abs(ey)
+    else:
+        tmy = np.inf
+        tdy = np.inf
+    return True, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy
+
+
+@njit(cache=True)
 def _leg_blocked(ax, ay, bx, by, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
     """Whether the leg a -> b, both ends pulled in by ``min(trim, L / 4)``, crosses a wall.
 
@@ -435,47 +479,11 @@ def _leg_blocked(ax, ay, bx, by, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls
     t = min(trim, 0.25 * L)
     px, py = ax + ux * t, ay + uy * t
     qx, qy = bx - ux * t, by - uy * t
-    # clip the leg to the grid box
-    x0, y0 = g0x, g0y
-    x1, y1 = g0x + nx * h, g0y + ny * h
-    s0, s1 = 0.0, 1.0
     ex, ey = qx - px, qy - py
-    for k in range(2):
-        p = px if k == 0 else py
-        e = ex if k == 0 else ey
-        lo = x0 if k == 0 else y0
-        hi = x1 if k == 0 else y1
-        if e == 0.0:
-            if p < lo or p > hi:
-                return False
-        else:
-            ta = (lo - p) / e
-            tb = (hi - p) / e
-            if ta > tb:
-                ta, tb = tb, ta
-            s0 = max(s0, ta)
-            s1 = min(s1, tb)
-    if s0 > s1:
+    ok, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy = _walk_start(px, py, ex, ey, g0x, g0y, h,
+                                                                   nx, ny)
+    if not ok:
         return False
-    sx, sy = px + s0 * ex, py + s0 * ey
-    ci = min(max(int((sx - g0x) / h), 0), nx - 1)
-    cj = min(max(int((sy - g0y) / h), 0), ny - 1)
-    stepx = 1 if ex > 0 else -1
-    stepy = 1 if ey > 0 else -1
-    if ex != 0.0:
-        nbx = g0x + (ci + (1 if ex > 0 else 0)) * h
-        tmx = (nbx - px) / ex
-        tdx = h / abs(ex)
-    else:
-        tmx = np.inf
-        tdx = np.inf
-    if ey != 0.0:
-        nby = g0y + (cj + (1 if ey > 0 else 0)) * h
-        tmy = (nby - py) / ey
-        tdy = h / abs(ey)
-    else:
-        tmy = np.inf
-        tdy = np.inf
     for _ in range(nx + ny + 2):
         c = ci * ny + cj
         for q in range(cstart[c], cstart[c + 1]):
@@ -533,43 +541,10 @@ def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, b
     rx_, ry_ = f0x + gx / M * d, f0y + gy / M * d
     sx, sy = f1x - gx / M * d, f1y - gy / M * d
     ex, ey = qx - px, qy - py
-    # clip to the grid box
-    x1, y1 = g0x + nx * h, g0y + ny * h
-    s0, s1 = 0.0, 1.0
-    for k in range(2):
-        p = px if k == 0 else py
-        e = ex if k == 0 else ey
-        lo = g0x if k == 0 else g0y
-        hi = x1 if k == 0 else y1
-        if e == 0.0:
-            if p < lo or p > hi:
-                return False
-        else:
-            ta = (lo - p) / e
-            tb = (hi - p) / e
-            if ta > tb:
-                ta, tb = tb, ta
-            s0 = max(s0, ta)
-            s1 = min(s1, tb)
-    if s0 > s1:
+    ok, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy = _walk_start(px, py, ex, ey, g0x, g0y, h,
+                                                                   nx, ny)
+    if not ok:
         return False
-    cx, cy = px + s0 * ex, py + s0 * ey
-    ci = min(max(int((cx - g0x) / h), 0), nx - 1)
-    cj = min(max(int((cy - g0y) / h), 0), ny - 1)
-    stepx = 1 if ex > 0 else -1
-    stepy = 1 if ey > 0 else -1
-    if ex != 0.0:
-        tmx = (g0x + (ci + (1 if ex > 0 else 0)) * h - px) / ex
-        tdx = h / abs(ex)
-    else:
-        tmx = np.inf
-        tdx = np.inf
-    if ey != 0.0:
-        tmy = (g0y + (cj + (1 if ey > 0 else 0)) * h - py) / ey
-        tdy = h / abs(ey)
-    else:
-        tmy = np.inf
-        tdy = np.inf
     for _ in range(nx + ny + 2):
         c = ci * ny + cj
         for q in range(cstart[c], cstart[c + 1]):
