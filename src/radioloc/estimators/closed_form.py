@@ -270,6 +270,15 @@ def _gls_one(b, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
     return crit
 
 
+@njit(cache=True)
+def _gls_workspace(n):
+    """Scratch arrays of :func:`_gls_one` for tracks of ``n`` samples."""
+    m = n - 3
+    return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty((n, 4)),
+            np.empty(m, np.bool_), np.empty((5, m)), np.empty((m, m + 5)), np.empty(n),
+            np.empty(m), np.empty(m), np.empty((5, 5)))
+
+
 @njit(parallel=True, cache=True)
 def _gls_tracks(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
                 out_beta, out_cov, out_crit):
@@ -277,21 +286,9 @@ def _gls_tracks(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_on
     over chunks of tracks that share one workspace."""
     A = idx.size
     n = r.shape[1]
-    m = n - 3
     nch = min(A, 64)
     for ch in prange(nch):
-        dx = np.empty(n)
-        dy = np.empty(n)
-        ex = np.empty(n)
-        y = np.empty(n)
-        am = np.empty((n, 4))
-        keep = np.empty(m, np.bool_)
-        Z = np.empty((5, m))
-        M = np.empty((m, m + 5))
-        ur = np.empty(n)
-        sv = np.empty(m)
-        sx = np.empty(m)
-        G = np.empty((5, 5))
+        dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G = _gls_workspace(n)
         for a in range(ch * A // nch, (ch + 1) * A // nch):
             out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
                                    ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
@@ -303,19 +300,7 @@ def _gls_tracks_serial(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
                        out_beta, out_cov, out_crit):
     """:func:`_gls_tracks` on the calling thread (a few tracks: no parallel launch)."""
     n = r.shape[1]
-    m = n - 3
-    dx = np.empty(n)
-    dy = np.empty(n)
-    ex = np.empty(n)
-    y = np.empty(n)
-    am = np.empty((n, 4))
-    keep = np.empty(m, np.bool_)
-    Z = np.empty((5, m))
-    M = np.empty((m, m + 5))
-    ur = np.empty(n)
-    sv = np.empty(m)
-    sx = np.empty(m)
-    G = np.empty((5, 5))
+    dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G = _gls_workspace(n)
     for a in range(idx.size):
         out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
                                ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
