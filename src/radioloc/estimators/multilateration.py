@@ -146,7 +146,8 @@ class Multilateration(SnapshotEstimator):
         and the cost of the reflected point is evaluated (one residual evaluation). Only
         where the reflection fits the ranges within ``4 s^2`` of the solution or better
         (nearly collinear / coplanar anchors, or a solution stuck in the worse of two
-        basins), and lies more than ``10 s`` from the solution, is the problem solved again
+        basins), or within the reflection's own error where the anchors lie within 1 % of
+        their spread of a line (plane), and lies more than ``10 s`` from the solution, is the problem solved again
         from the reflection, on that subset only. Of
         the two the better fit is kept; where both fit within ``4 s^2`` and lie more than
         ``10 s`` apart the fix is ambiguous. A reflection that fits worse than that is not
@@ -174,7 +175,16 @@ class Multilateration(SnapshotEstimator):
 
         s2_m = noise_var(c_mirror)
         far = 2.0 * np.abs(offset) > 10.0 * np.sqrt(s2_m) + 1e-6 * scale
-        maybe = far & np.isfinite(c_mirror) & (c_mirror <= fit.cost + 4.0 * s2_m)
+        # Anchors that are only nearly on the line (plane): the reflection lands beside the
+        # mirror solution. Anchor i at distance e_i from the line moves each reflected range
+        # by at most 2 e_i (triangle inequality), so the mirror basin can fit as well as
+        # the solution although the reflected point fits worse by up to that much.
+        e = np.where(used, np.einsum("...md,...d->...m", a - centroid[..., None, :], normal), 0.0)
+        slack = 2.0 * np.sqrt(np.sum(w * e ** 2, axis=-1))
+        nearly_flat = slack <= 1e-2 * scale * np.sqrt(np.max(np.where(used, w, 0.0), axis=-1))
+        tie = c_mirror <= fit.cost + 4.0 * s2_m
+        tie |= nearly_flat & (np.sqrt(c_mirror) <= np.sqrt(fit.cost + 4.0 * s2_m) + slack)
+        maybe = far & np.isfinite(c_mirror) & tie
         alt = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
         alt.x = np.array(mirror, copy=True)
         alt.cost = np.array(c_mirror, copy=True)
