@@ -67,7 +67,11 @@ bench: $(STAMP_DEV)
 clean:
 	rm -rf $(VENV) out out-full site .pytest_cache
 
-# Long fuzz of `radioloc locate` (>= 10,000 generated cases; `make test` runs a fast profile).
+# Long fuzz of `radioloc locate` and of the library's estimators and models (>= 10,000
+# generated cases, each classified; the outcome counts of both workers are summed from
+# out/fuzz-tally.jsonl and printed at the end). `make test` runs a fast profile.
 .PHONY: fuzz
 fuzz: $(STAMP_DEV)
-	RADIOLOC_FUZZ_PROFILE=long $(BIN)/python -m pytest -n 2 -p no:cacheprovider tests/fuzz
+	@mkdir -p out && rm -f out/fuzz-tally.jsonl
+	RADIOLOC_FUZZ_PROFILE=long RADIOLOC_FUZZ_TALLY=out/fuzz-tally.jsonl \
+	  $(BIN)/python -m pytest -n 2 -p no:cacheprovider tests/fuzz

@@ -218,3 +218,12 @@ def test_the_solution_stuck_in_the_worse_basin_is_solved_again(monkeypatch):
     fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a, initial=start)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
     assert sizes == [1, 1]
+
+
+def test_a_range_beyond_any_consistent_geometry_is_refused_naming_ranges():
+    """A range of 1e20 m among ranges of tens of metres puts the closed-form start beyond
+    1e30 m: the error names the ranges (not the solver's internal start)."""
+    a = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0]])
+    r = np.array([[1e20, 25.9, 10.6, 24.3], [21.3, 9.8, 26.4, 18.3]])
+    with pytest.raises(InputError, match=r"^ranges: the ranges of problem \(0,\) put the node"):
+        Multilateration(range_std_m=0.01).locate(r, a)

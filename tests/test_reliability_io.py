@@ -41,6 +41,9 @@ def write(tmp_path, text, name="m.csv"):
     (HEAD + "0,t,A,range,1e400\n", "line 2, column 'value': 1e400 is not a finite number"),
     ("", "the file is empty"),
     ("\n\n  \n", "the file is empty"),
+    (HEAD + "0,t,A,range,3\n0,nan,A,range,3\n", "line 3, column 'node': id 'nan' reads as a "
+                                                "missing value"),
+    (HEAD + "0,t,NULL,range,3\n", "line 2, column 'peer': id 'NULL' reads as a missing value"),
 ])
 def test_bad_measurements_are_refused_naming_line_and_column(tmp_path, text, pattern):
     with pytest.raises(InputError, match=pattern):

@@ -63,5 +63,5 @@ def pytest_terminal_summary(terminalreporter):
             for line in fh:
                 tally.update(json.loads(line))
     if tally:
-        terminalreporter.write_line("fuzz outcomes: " + ", ".join(
+        terminalreporter.write_line(f"fuzz outcomes ({sum(tally.values()):,} cases): " + ", ".join(
             f"{k}={v}" for k, v in sorted(tally.items())))

@@ -260,7 +260,9 @@ def classify(res, scenario: Scenario, meas: Path) -> tuple[str, str]:
         return "internal error", lines[-1] if lines else text
     if res.exit_code != 0:
         return f"exit {res.exit_code}", text
-    err = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    # the CLI's own one-line warnings (readings or stations dropped and counted) are part of
+    # a success; anything else on stderr (a RuntimeWarning, a library's message) is noise
+    err = [ln for ln in res.stderr.splitlines() if ln.strip() and not ln.startswith("warning: ")]
     if err:
         return "noise on stderr", "\n".join(err)
     try:

@@ -14,7 +14,8 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate
-from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
+from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_array, check_int,
+                                      check_positive)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.nlls import solve_nlls
 
@@ -284,7 +285,15 @@ class Multilateration(SnapshotEstimator):
             raise GeometryError(f"problem {idx}: {detail}", index=idx, detail=detail)
 
         if initial is None:
-            x0 = linear_initial(r, a, w)
+            with np.errstate(over="ignore", invalid="ignore"):
+                x0 = linear_initial(r, a, w)
+            far = ~np.all(np.isfinite(x0) & (np.abs(x0) <= MAGNITUDE_LIMIT), axis=-1)
+            if np.any(far):
+                idx = _first(far)
+                raise InputError(f"ranges: the ranges of problem {idx} put the node beyond "
+                                 f"{MAGNITUDE_LIMIT:g} m of the anchors (a range far larger "
+                                 "than the anchors' spread allows: "
+                                 f"{np.array2string(r[idx], precision=4)})")
         else:
             x0 = as_float_array(initial, "initial", last_dim=d)
             try:

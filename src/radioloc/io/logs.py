@@ -189,12 +189,24 @@ def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     return values
 
 
+# ids that CSV readers (pandas, R) read back as a missing value: a node called "nan" would
+# vanish from whoever reads our output, so such ids are refused (compared case-blind)
+MISSING_IDS = frozenset(v.lower() for v in (
+    "#N/A", "#N/A N/A", "#NA", "-1.#IND", "-1.#QNAN", "-NaN", "-nan", "1.#IND", "1.#QNAN",
+    "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null"))
+
+
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     ids = frame[column].astype(str).str.strip()
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
         raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': empty id")
+    missing = ids.str.lower().isin(MISSING_IDS)
+    if missing.any():
+        i = int(np.flatnonzero(missing.to_numpy())[0])
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': id "
+                         f"{ids.iloc[i]!r} reads as a missing value in CSV readers; rename it")
     return ids
 
 
