@@ -41,7 +41,7 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
                            HealthCheck.data_too_large, HealthCheck.function_scoped_fixture])
 settings.register_profile(
-    "radioloc-fuzz-long", max_examples=2200, deadline=None, database=None,
+    "radioloc-fuzz-long", max_examples=1200, deadline=None, database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
                            HealthCheck.data_too_large, HealthCheck.function_scoped_fixture])
 settings.register_profile(
