@@ -28,6 +28,10 @@ Parallelism: ``prange`` over (batch entry, chunk of particles) tasks, so one fil
 10^5 particles uses every core as well as 20 vehicles of 900. All arithmetic is float64:
 at these sizes a vehicle's particles and link posteriors fit in the L2 cache and the
 kernel is bound by the exponentials, not by memory, so float32 storage would not pay.
+Measured on the paper 001 highway (alpha = 30 %, 2 shared cores): 75 % of the
+particle-link updates take the no-``erfc`` branch, 23 % the ``erfc`` one, 1.5 % the
+asymptotic ``log Phi``; about 30-35 ns per update, most of it in ``exp`` and ``erfc`` (libm,
+scalar: this numba build has no SVML, so the loop is not vectorised).
 """
 
 from __future__ import annotations
