@@ -335,6 +335,8 @@ def _sample_motion(motion, particles, dt, rng, control):
     vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
     z = rng.standard_normal(mean.shape)
+    if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
+        return mean + z * np.diagonal(factor)               # diagonal: the product's values
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
     return mean + np.einsum("...ij,...j->...i", factor, z)
