@@ -159,3 +159,16 @@ def test_motion_draw_equals_the_models_sample(dt):
         a = _sample_motion(motion, x, dt, np.random.default_rng(5), None)
         b = motion.sample(x, dt, np.random.default_rng(5))
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("control", [False, True])
+def test_fast_motion_draws_equal_the_models_sample_bit_for_bit(control):
+    from radioloc.estimators.p2p_particle import _sample_motion
+    from radioloc.models.motion import InputDriven, RandomWalk
+    x = np.random.default_rng(1).normal(size=(3, 4, 60, 2))
+    u = np.random.default_rng(2).normal(size=(3, 4, 1, 2)) if control else None
+    for motion in (InputDriven(0.1), RandomWalk(0.3)):
+        for dt in (1.0, 0.0, 2.5):
+            a = _sample_motion(motion, x, dt, np.random.default_rng(5), u)
+            b = motion.sample(x, dt, np.random.default_rng(5), control=u)
+            np.testing.assert_array_equal(a, b)

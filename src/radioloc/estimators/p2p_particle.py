@@ -49,7 +49,7 @@ from radioloc.estimators import pf_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf
-from radioloc.models.motion import MotionModel
+from radioloc.models.motion import InputDriven, MotionModel
 
 __all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_log_phi"]
 
@@ -315,12 +315,28 @@ def _sample_motion(motion, particles, dt, rng, control):
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
     is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
     same draws, the same maths)."""
+    if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
+        # InputDriven.sample without its identity product: x + u + std z, the same draws
+        # and the same floating-point result
+        z = rng.standard_normal(particles.shape)
+        mean = particles if control is None else particles + control
+        return mean + motion.std_m * z
     if type(motion).sample is not MotionModel.sample:
         return motion.sample(particles, dt, rng, control=control)
-    mean = motion.predict(particles, dt, control=control)
+    F = motion.F(dt)
+    n = particles.shape[-1]
+    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):
+        # F = I (random walk): the product is the identity, skip it (the same result)
+        mean = particles.copy()
+        if control is not None:
+            mean[..., : motion.dim] += control
+    else:
+        mean = motion.predict(particles, dt, control=control)
     vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
     z = rng.standard_normal(mean.shape)
+    if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
+        return mean + z * np.diagonal(factor)               # diagonal: the product's values
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
     return mean + np.einsum("...ij,...j->...i", factor, z)

@@ -50,9 +50,10 @@ def log_ndtr_fast(u: float) -> float:
     return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
 
 
-@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64)"], cache=True)
-def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
-    """``log(alpha N(e; s) + (1 - alpha) EMG(e; s, mu))`` element by element (one pass).
+@njit(cache=True, inline="always")
+def mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
+    """``log(alpha N(e; s) + (1 - alpha) EMG(e; s, mu))`` of one range error, for compiled
+    code (the constants from :meth:`LosNlosRange.mixture_constants`).
 
     With ``l_1 = c_los - z^2 / 2`` (``z = e / s``, ``c_los = log alpha - log s - log(2 pi)/2``)
     and ``l_0 = c_nlos - lam e + log Phi(u)`` (``u = z - lam s``, ``c_nlos = log(1 - alpha)
@@ -64,6 +65,18 @@ def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
     * ``u <= -20``: the asymptotic series of ``Phi`` makes the Gaussian tails cancel:
       ``exp(l_0 - l_1) = k_tail series(u) / (-u)``, ``k_tail = exp(c_nlos - c_los -
       (lam s)^2 / 2 - log(2 pi) / 2)``.
+
+    Parameters
+    ----------
+    e : float
+        Range error ``theta - d``, metres.
+    inv_std, lam, lam_std, c_los, c_nlos, k_tail : float
+        ``1 / s``, ``lam``, ``lam s`` and the three constants above.
+
+    Returns
+    -------
+    float
+        The mixture log-density.
     """
     z = e * inv_std
     l1 = c_los - 0.5 * z * z
@@ -92,6 +105,12 @@ def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
     r = 1.0 / (u * u)
     series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
     return l1 + math.log1p(k_tail * series / (-u))
+
+
+@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64)"], cache=True)
+def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
+    """:func:`mixture_logpdf_scalar` element by element (one pass)."""
+    return mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail)
 
 
 def gaussian_logpdf(x: np.ndarray, std: float) -> np.ndarray:
@@ -224,6 +243,19 @@ class LosNlosRange:
             The log-density, broadcast shape.
         """
         e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
+        return _mixture_logpdf(e, *self.mixture_constants())
+
+    def mixture_constants(self) -> tuple[float, float, float, float, float, float]:
+        """Constants of the compiled mixture log-density :func:`mixture_logpdf_scalar`.
+
+        Returns
+        -------
+        tuple of float
+            ``(1 / s, lam, lam s, c_los, c_nlos, k_tail)`` with ``lam = 1 / s_NLOS``,
+            ``c_los = log alpha - log s - log(2 pi) / 2``, ``c_nlos = log(1 - alpha) +
+            log lam + (lam s)^2 / 2`` and ``k_tail = exp(c_nlos - c_los - (lam s)^2 / 2 -
+            log(2 pi) / 2)`` (0 where it overflows, which selects the plain log-sum).
+        """
         with np.errstate(divide="ignore"):
             logw = np.log([1.0 - self.alpha, self.alpha])
         s, lam = self.los_std_m, 1.0 / self.nlos_mean_m
@@ -232,8 +264,8 @@ class LosNlosRange:
         with np.errstate(invalid="ignore", over="ignore"):
             k_tail = float(np.exp(c_nlos - c_los - 0.5 * (lam * s) ** 2 - 0.5 * _LOG_2PI))
         # k_tail = 0 (overflow, alpha tiny) selects the plain log-sum inside
-        return _mixture_logpdf(e, 1.0 / s, lam, lam * s, c_los, c_nlos,
-                               k_tail if np.isfinite(k_tail) else 0.0)
+        return (1.0 / s, lam, lam * s, float(c_los), float(c_nlos),
+                k_tail if np.isfinite(k_tail) else 0.0)
 
     def sample(self, true_ranges: np.ndarray, los: np.ndarray,
                rng: np.random.Generator) -> np.ndarray:
