@@ -211,6 +211,15 @@ def test_other_warnings_are_one_line_each(fake_methods, meas_range):
         "warning: the fit did not converge after 100 iterations"]
 
 
+def test_a_failure_after_a_warning_prints_the_error_line_only(fake_methods, meas_range):
+    def warns_then_fails(request):
+        warnings.warn("2 readings of 1 station ignored", UserWarning)
+        raise GeometryError("no reading left")
+    _register(warns_then_fails)
+    line = assert_one_line_error(invoke(["locate", meas_range, "--method", "fake"]))
+    assert line == "error: no reading left"
+
+
 def test_geometry_error_is_one_error_line(fake_methods, meas_range):
     def geo(request):
         raise GeometryError("method fake: node 't' at time 0: anchors are collinear")

@@ -10,7 +10,8 @@ Errors are one line on standard error, never a traceback or a usage box:
 
 Floating-point trouble never reaches the terminal as ``RuntimeWarning`` noise: inside
 ``locate`` a RuntimeWarning (overflow, invalid value, division by zero) is an error; other
-warnings are printed as one ``warning: ...`` line each.
+warnings are printed as one ``warning: ...`` line each when the command succeeds (a failure
+prints its error line only).
 """
 
 from __future__ import annotations
@@ -72,8 +73,10 @@ class OneLineErrors(TyperGroup):
              **extra: Any) -> Any:
         code = 0
         try:
-            with _warnings_on_one_line():
+            with _warnings_on_one_line() as held:
                 rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+            for text in held:              # a failure prints its error line only
+                _echo_err(text)
             code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
             if code == EXIT_INTERRUPTED:  # typer turns KeyboardInterrupt into Exit(130)
                 _echo_err("interrupted")
@@ -108,19 +111,19 @@ class OneLineErrors(TyperGroup):
 
 
 @contextlib.contextmanager
-def _warnings_on_one_line() -> Iterator[None]:
-    """Print warnings as ``warning: <message>`` (one line, once per message)."""
-    seen: set[str] = set()
+def _warnings_on_one_line() -> Iterator[list[str]]:
+    """Collect warnings as ``warning: <message>`` lines (one line, once per message), to be
+    printed when the command succeeds; a command that fails prints its one error line."""
+    held: list[str] = []
 
     def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001
         text = f"warning: {_one_line(message)}"
-        if text not in seen:
-            seen.add(text)
-            _echo_err(text)
+        if text not in held:
+            held.append(text)
 
     with warnings.catch_warnings():
         warnings.showwarning = show
-        yield
+        yield held
 
 
 @contextlib.contextmanager

@@ -133,6 +133,10 @@ def test_trapezoid_and_mixture_arrays():
     # the solver lands in the mirror basin and the reflection of that fix misses the true
     # solution by the anchors' 1e-6 m offset: the fix must be the truth or refused
     ([(0.0, 0.0), (16.0, 1e-06), (-4.0, 0.0)], (0.0, -1.0)),
+    # the closed-form start lies on the anchors' line, a saddle of the cost where
+    # Gauss-Newton stalls with a 15 m residual rms
+    ([(-69.622, -0.068622), (-81.241, -0.08024), (2.0, 0.003), (-0.0, 0.001),
+      (11.507, 0.012507), (-93.319, -0.092319)], (0.0, 24.558)),
 ])
 @pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
 @pytest.mark.parametrize("std", [None, 0.01])

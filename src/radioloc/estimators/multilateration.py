@@ -140,6 +140,51 @@ class Multilateration(SnapshotEstimator):
         self.max_iter = check_int(max_iter, "max_iter", minimum=1, maximum=MAX_ITERATIONS)
         self.tol_m = check_positive(tol_m, "tol_m", allow_zero=True)
 
+    def _leave_saddles(self, fit, r, a, w):
+        """Re-solve the problems whose fit is a saddle point of the cost, not a minimum.
+
+        Gauss-Newton stops (or stalls) wherever the gradient vanishes; on the line (plane) of nearly
+        collinear (coplanar) anchors the gradient across it vanishes by symmetry although
+        the cost falls on both sides (exact ranges from a node 25 m off such a line gave a
+        "converged" fix on the line with a 15 m residual). The exact Hessian of
+        ``sum w e^2 / 2`` with ``e_i = r_i - d_i`` is
+        ``sum w_i (u_i u_i^T - e_i (I - u_i u_i^T) / d_i)`` (``u_i`` the unit vector from
+        anchor i, ``d_i`` the distance); where its smallest eigenvalue is negative the
+        problem is solved again from both sides, a residual rms along that direction, and
+        the better of the two kept (the mirror check then decides whether they tie).
+        """
+        diff = fit.x[..., None, :] - a
+        dist = np.linalg.norm(diff, axis=-1)
+        with np.errstate(all="ignore"):
+            u = diff / dist[..., None]
+            e = np.where(w > 0, r - dist, 0.0)
+            eye = np.eye(a.shape[-1])
+            hess = np.einsum("...m,...mi,...mj->...ij", w, u, u) - np.einsum(
+                "...m,...mij->...ij", w * e / dist, eye - u[..., :, None] * u[..., None, :])
+        ok = np.all(np.isfinite(hess), axis=(-2, -1)) & np.all(dist > 0, axis=-1)
+        hess = np.where(ok[..., None, None], hess, np.eye(a.shape[-1]))
+        lam, vec = np.linalg.eigh(hess)
+        saddle = ok & np.isfinite(fit.cost) & (lam[..., 0] < -1e-9 * np.abs(lam[..., -1]))
+        if not np.any(saddle):
+            return fit
+        rs, as_, ws = r[saddle], a[saddle], w[saddle]
+        h = np.sqrt(fit.cost[saddle] / np.maximum(np.sum(ws, axis=-1), 1e-300))
+        step = np.maximum(h, 1e-6 * np.max(np.abs(as_), axis=(-2, -1)))[..., None] * vec[saddle][..., 0]
+        best = None
+        for sign in (1.0, -1.0):
+            sub = solve_nlls(_range_residuals(rs, as_), fit.x[saddle] + sign * step, weights=ws,
+                             method=self.method, max_iter=self.max_iter, tol=self.tol_m)
+            if best is None:
+                best = sub
+            else:
+                take = sub.cost < best.cost
+                best = type(sub)(**{k: np.where(take.reshape(take.shape + (1,) * (np.ndim(v) - take.ndim)),
+                                                v, getattr(best, k)) for k, v in vars(sub).items()})
+        out = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
+        for k, v in vars(best).items():
+            getattr(out, k)[saddle] = v
+        return out
+
     def _resolve_mirror(self, fit, r, a, used, w, n_used, origin):
         """The mirror check with one solve for the well-posed problems.
 
@@ -306,6 +351,7 @@ class Multilateration(SnapshotEstimator):
         self._degenerate(flat, flat_detail)
         fit = solve_nlls(_range_residuals(r, a), x0, weights=w, method=self.method,
                          max_iter=self.max_iter, tol=self.tol_m)
+        fit = self._leave_saddles(fit, r, a, w)
         fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used,
                                                              origin)
         self._degenerate(ambiguous & ~flat, amb_detail)
