@@ -325,7 +325,7 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     lk, wk = np.nonzero(hit)                                           # sorted by link, wall
     start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
     x0, y0, h, nx, ny, cs, cw = scene.grid
-    fs, fw = scene.facing
+    fs, fw = scene.visible
     convex, bstart = scene.convex_buildings
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])

@@ -213,6 +213,38 @@ class Scene:
         start = np.concatenate([[0], np.cumsum(np.bincount(p, minlength=len(W)))]).astype(np.int64)
         return start, w.astype(np.int64)
 
+    @cached_property
+    def visible(self) -> tuple[np.ndarray, np.ndarray]:
+        """For every wall ``p``, the followers (:attr:`facing`) that are not hidden from it.
+
+        A follower ``w`` is hidden when one convex footprint spans the quadrilateral between
+        the two walls (the convex hull of ``p`` and ``w``, when it is a strictly convex
+        quadrilateral with ``p`` and ``w`` as opposite sides): the footprint then cuts every
+        segment from a point of ``p`` to a point of ``w``, so no reflection path goes from
+        ``p`` to ``w`` directly. The test is the one the tracer applies to beams
+        (:func:`_beam_blocked`), applied once per scene to the whole walls; a pair it cannot
+        decide is kept. Lists in increasing wall order (a sub-list of :attr:`facing`).
+
+        Returns
+        -------
+        start, walls : ndarray of int64
+            CSR arrays: the visible followers of wall ``p`` are
+            ``walls[start[p]:start[p + 1]]``.
+        """
+        fs, fw = self.facing
+        if len(fw) == 0:
+            return fs, fw
+        x0, y0, h, nx, ny, cs, cw = self.grid
+        convex, bstart = self.convex_buildings
+        keep = _wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
+                                   np.ascontiguousarray(self.walls[:, 1]), fs, fw,
+                                   self.wall_building.astype(np.int64), convex, bstart,
+                                   x0, y0, h, nx, ny, cs, cw)
+        owner = np.repeat(np.arange(len(fs) - 1), np.diff(fs))
+        count = np.bincount(owner[keep], minlength=len(fs) - 1)
+        start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+        return start, fw[keep]
+
     def blocked(self, a: np.ndarray, b: np.ndarray, trim_m: float = 1e-3,
                 engine: str = "compiled") -> np.ndarray:
         """Whether the segment ``a -> b`` passes through a building.
@@ -571,3 +603,43 @@ def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, b
         if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
             break
     return False
+
+
+@njit(cache=True)
+def _cross(ox, oy, ax, ay, bx, by):
+    return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
+
+
+@njit(cache=True, parallel=True)
+def _wall_pairs_visible(A, B, fstart, fwalls, owner, convex, bstart, g0x, g0y, h, nx, ny,
+                        cstart, cwalls):
+    """For every pair (p, w) of the follower lists, False when one convex footprint spans
+    the convex quadrilateral between the two walls (see :attr:`Scene.visible`)."""
+    P = fstart.shape[0] - 1
+    W = A.shape[0]
+    keep = np.ones(fwalls.shape[0], np.bool_)
+    for p in prange(P):
+        stamp = np.zeros(W, np.int64)
+        tag = 0
+        ax, ay, bx, by = A[p, 0], A[p, 1], B[p, 0], B[p, 1]
+        for q in range(fstart[p], fstart[p + 1]):
+            w = fwalls[q]
+            cx, cy, dx, dy = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
+            # pair the ends so that the sides a -> x and b -> y do not cross
+            xx, xy, yx, yy = cx, cy, dx, dy
+            if _cross(ax, ay, cx, cy, bx, by) * _cross(ax, ay, cx, cy, dx, dy) < 0 and \
+                    _cross(bx, by, dx, dy, ax, ay) * _cross(bx, by, dx, dy, cx, cy) < 0:
+                xx, xy, yx, yy = dx, dy, cx, cy
+            # quadrilateral a, b, y, x strictly convex (all turns of one sign)
+            t0 = _cross(ax, ay, bx, by, yx, yy)
+            t1 = _cross(bx, by, yx, yy, xx, xy)
+            t2 = _cross(yx, yy, xx, xy, ax, ay)
+            t3 = _cross(xx, xy, ax, ay, bx, by)
+            if not ((t0 > 0 and t1 > 0 and t2 > 0 and t3 > 0)
+                    or (t0 < 0 and t1 < 0 and t2 < 0 and t3 < 0)):
+                continue
+            tag += 1
+            if _beam_blocked(ax, ay, xx, xy, bx, by, yx, yy, A, B, owner, convex, bstart,
+                             g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
+                keep[q] = False
+    return keep
