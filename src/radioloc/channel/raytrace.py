@@ -296,12 +296,24 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: st
         return []
     links = np.flatnonzero(nlos)
     C = scene.corners
-    d1 = np.linalg.norm(C[None] - tx[links, None], axis=2)
-    d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
-    li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
-    link = links[li]
-    clear = ~(scene.blocked(tx[link], C[ci], engine=engine) | scene.blocked(C[ci], rx[link], engine=engine))
-    link, ci = link[clear], ci[clear]
+    if engine == "compiled":
+        x0, y0, h, nx, ny, cs, cw = scene.grid
+        li, ci = np.nonzero(_corner_paths(np.ascontiguousarray(tx[links]),
+                                          np.ascontiguousarray(rx[links]),
+                                          np.ascontiguousarray(lmax[links], dtype=float),
+                                          np.ascontiguousarray(C), 1e-3,
+                                          np.ascontiguousarray(scene.walls[:, 0]),
+                                          np.ascontiguousarray(scene.walls[:, 1]),
+                                          x0, y0, h, nx, ny, cs, cw))
+        link = links[li]
+    else:
+        d1 = np.linalg.norm(C[None] - tx[links, None], axis=2)
+        d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
+        li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
+        link = links[li]
+        clear = ~(scene.blocked(tx[link], C[ci], engine=engine)
+                  | scene.blocked(C[ci], rx[link], engine=engine))
+        link, ci = link[clear], ci[clear]
     a = np.linalg.norm(C[ci] - tx[link], axis=1)
     b = np.linalg.norm(rx[link] - C[ci], axis=1)
     d = np.linalg.norm(rx[link] - tx[link], axis=1)
@@ -572,8 +584,17 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
         c0, c1 = cand_start[l], cand_start[l + 1]
         txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
         incand = np.zeros(W, np.bool_)
+        # lastok: candidates the receiver sees (in front, no convex footprint spanning the
+        # triangle receiver-wall); only they can be the last wall of a path
+        lastok = np.zeros(W, np.bool_)
         for q in range(c0, c1):
-            incand[cand[q]] = True
+            w = cand[q]
+            incand[w] = True
+            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0:
+                tagbox[0] += 1
+                lastok[w] = not _beam_blocked(rxx, rxy, A[w, 0], A[w, 1], rxx, rxy, B[w, 0],
+                                              B[w, 1], A, B, owner, convex, bstart, g0x, g0y,
+                                              h, nx, ny, cstart, cwalls, stamp, tagbox[0])
         end = np.zeros(max_order, np.int64)
         end[0] = c1
         # per-level buffers so that paths come out level by level, as in the reference
@@ -594,6 +615,8 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                     pos[depth] += 1
                     continue
             pos[depth] += 1
+            if depth == max_order - 1 and not lastok[w]:
+                continue
             if depth == 0:
                 dot = (txx - A[w, 0]) * N[w, 0] + (txy - A[w, 1]) * N[w, 1]
                 ix = txx - 2 * dot * N[w, 0]
@@ -730,3 +753,30 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
     return out_len, out_gam, out_ord, out_n, overflow
 
 
+
+
+@njit(cache=True, parallel=True)
+def _corner_paths(tx, rx, lmax, C, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
+    """Diffraction corners of every link (compiled): ``ok[l, c]`` when ``|c - tx| + |c -
+    rx| <= lmax`` and both legs tx -> c and c -> rx are clear (:meth:`Scene.blocked`)."""
+    L = tx.shape[0]
+    W = A.shape[0]
+    ok = np.zeros((L, C.shape[0]), np.bool_)
+    for l in prange(L):
+        stamp = np.zeros(W, np.int64)
+        tag = 0
+        txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
+        for c in range(C.shape[0]):
+            cx, cy = C[c, 0], C[c, 1]
+            d1 = np.sqrt((cx - txx) * (cx - txx) + (cy - txy) * (cy - txy))
+            d2 = np.sqrt((cx - rxx) * (cx - rxx) + (cy - rxy) * (cy - rxy))
+            if not d1 + d2 <= lmax[l]:
+                continue
+            tag += 1
+            if _leg_blocked(txx, txy, cx, cy, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls,
+                            stamp, tag):
+                continue
+            tag += 1
+            ok[l, c] = not _leg_blocked(cx, cy, rxx, rxy, trim, A, B, g0x, g0y, h, nx, ny,
+                                        cstart, cwalls, stamp, tag)
+    return ok

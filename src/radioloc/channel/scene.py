@@ -239,7 +239,7 @@ class Scene:
         keep = _wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
                                    np.ascontiguousarray(self.walls[:, 1]), fs, fw,
                                    self.wall_building.astype(np.int64), convex, bstart,
-                                   x0, y0, h, nx, ny, cs, cw)
+                                   x0, y0, h, nx, ny, cs, cw, 1)
         owner = np.repeat(np.arange(len(fs) - 1), np.diff(fs))
         count = np.bincount(owner[keep], minlength=len(fs) - 1)
         start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
@@ -610,36 +610,58 @@ def _cross(ox, oy, ax, ay, bx, by):
     return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
 
 
+@njit(cache=True)
+def _quad_spanned(ax, ay, bx, by, cx, cy, dx, dy, A, B, owner, convex, bstart, g0x, g0y, h,
+                  nx, ny, cstart, cwalls, stamp, tag):
+    """Whether one convex footprint spans the quadrilateral between the segments a-b and
+    c-d (False when that quadrilateral is not strictly convex)."""
+    # pair the ends so that the sides a -> x and b -> y do not cross
+    xx, xy, yx, yy = cx, cy, dx, dy
+    if _cross(ax, ay, cx, cy, bx, by) * _cross(ax, ay, cx, cy, dx, dy) < 0 and \
+            _cross(bx, by, dx, dy, ax, ay) * _cross(bx, by, dx, dy, cx, cy) < 0:
+        xx, xy, yx, yy = dx, dy, cx, cy
+    # quadrilateral a, b, y, x strictly convex (all turns of one sign)
+    t0 = _cross(ax, ay, bx, by, yx, yy)
+    t1 = _cross(bx, by, yx, yy, xx, xy)
+    t2 = _cross(yx, yy, xx, xy, ax, ay)
+    t3 = _cross(xx, xy, ax, ay, bx, by)
+    if not ((t0 > 0 and t1 > 0 and t2 > 0 and t3 > 0)
+            or (t0 < 0 and t1 < 0 and t2 < 0 and t3 < 0)):
+        return False
+    return _beam_blocked(ax, ay, xx, xy, bx, by, yx, yy, A, B, owner, convex, bstart,
+                         g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag)
+
+
 @njit(cache=True, parallel=True)
 def _wall_pairs_visible(A, B, fstart, fwalls, owner, convex, bstart, g0x, g0y, h, nx, ny,
-                        cstart, cwalls):
-    """For every pair (p, w) of the follower lists, False when one convex footprint spans
-    the convex quadrilateral between the two walls (see :attr:`Scene.visible`)."""
+                        cstart, cwalls, nsub):
+    """For every pair (p, w) of the follower lists, False when the two walls, cut into
+    ``nsub`` equal pieces each, have every pair of pieces spanned by a convex footprint
+    (see :attr:`Scene.visible`)."""
     P = fstart.shape[0] - 1
     W = A.shape[0]
     keep = np.ones(fwalls.shape[0], np.bool_)
     for p in prange(P):
         stamp = np.zeros(W, np.int64)
         tag = 0
-        ax, ay, bx, by = A[p, 0], A[p, 1], B[p, 0], B[p, 1]
+        ax, ay = A[p, 0], A[p, 1]
+        ux, uy = (B[p, 0] - ax) / nsub, (B[p, 1] - ay) / nsub
         for q in range(fstart[p], fstart[p + 1]):
             w = fwalls[q]
-            cx, cy, dx, dy = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-            # pair the ends so that the sides a -> x and b -> y do not cross
-            xx, xy, yx, yy = cx, cy, dx, dy
-            if _cross(ax, ay, cx, cy, bx, by) * _cross(ax, ay, cx, cy, dx, dy) < 0 and \
-                    _cross(bx, by, dx, dy, ax, ay) * _cross(bx, by, dx, dy, cx, cy) < 0:
-                xx, xy, yx, yy = dx, dy, cx, cy
-            # quadrilateral a, b, y, x strictly convex (all turns of one sign)
-            t0 = _cross(ax, ay, bx, by, yx, yy)
-            t1 = _cross(bx, by, yx, yy, xx, xy)
-            t2 = _cross(yx, yy, xx, xy, ax, ay)
-            t3 = _cross(xx, xy, ax, ay, bx, by)
-            if not ((t0 > 0 and t1 > 0 and t2 > 0 and t3 > 0)
-                    or (t0 < 0 and t1 < 0 and t2 < 0 and t3 < 0)):
-                continue
-            tag += 1
-            if _beam_blocked(ax, ay, xx, xy, bx, by, yx, yy, A, B, owner, convex, bstart,
-                             g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
-                keep[q] = False
+            cx, cy = A[w, 0], A[w, 1]
+            vx, vy = (B[w, 0] - cx) / nsub, (B[w, 1] - cy) / nsub
+            hidden = True
+            for i in range(nsub):
+                for j in range(nsub):
+                    tag += 1
+                    if not _quad_spanned(ax + i * ux, ay + i * uy, ax + (i + 1) * ux,
+                                         ay + (i + 1) * uy, cx + j * vx, cy + j * vy,
+                                         cx + (j + 1) * vx, cy + (j + 1) * vy, A, B, owner,
+                                         convex, bstart, g0x, g0y, h, nx, ny, cstart, cwalls,
+                                         stamp, tag):
+                        hidden = False
+                        break
+                if not hidden:
+                    break
+            keep[q] = not hidden
     return keep
