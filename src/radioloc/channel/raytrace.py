@@ -552,6 +552,22 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
     return length, gam
 
 
+@njit(cache=True)
+def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
+    """Whether the line from the image ``i`` to ``p`` meets the lit part c0-c1 (1 um of
+    slack at both ends): the last reflection point of a valid path lies in the lit part."""
+    ux, uy = c1x - c0x, c1y - c0y
+    vx, vy = px - ix, py - iy
+    den = vx * uy - vy * ux
+    if den == 0.0:
+        return True
+    lam = ((c0x - ix) * uy - (c0y - iy) * ux) / den
+    rx_, ry_ = ix + lam * vx - c0x, iy + lam * vy - c0y
+    ln = np.sqrt(ux * ux + uy * uy)
+    s = (rx_ * ux + ry_ * uy) / ln
+    return -1e-6 <= s <= ln + 1e-6
+
+
 @njit(cache=True, parallel=True)
 def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
                    g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap):
@@ -723,7 +739,8 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
             length = -1.0
             gam = 0j
             tagbox[0] += 1
-            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and not _beam_blocked(
+            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and _in_wedge(
+                    ix, iy, c0x, c0y, c1x, c1y, rxx, rxy) and not _beam_blocked(
                     c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, owner, convex, bstart,
                     g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
                 length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
