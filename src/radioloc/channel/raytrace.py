@@ -341,14 +341,24 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     convex, bstart = scene.convex_buildings
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
+    # wall visibility from each distinct end point (links of a network share their nodes)
+    pts, inv = np.unique(np.concatenate([tx, rx]), axis=0, return_inverse=True)
+    inv = inv.reshape(-1).astype(np.int64)
+    txi, rxi = inv[:len(tx)], inv[len(tx):]
+    need = np.zeros((len(pts), len(W)), bool)
+    need[txi[lk], wk] = True
+    need[rxi[lk], wk] = True
+    owner = scene.wall_building.astype(np.int64)
+    pvis = _point_wall_visible(np.ascontiguousarray(pts), need, A, B, scene.normals, owner,
+                               convex, bstart, x0, y0, h, nx, ny, cs, cw)
     cap = 256
     while True:
         ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
                                              np.ascontiguousarray(lmax, dtype=float), start,
                                              wk.astype(np.int64), A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
-                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, scene.wall_building.astype(np.int64), convex,
-                                             bstart, cap)
+                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, owner, convex,
+                                             bstart, cap, pvis, txi, rxi)
         if not over.any():
             break
         cap *= 4
@@ -552,6 +562,27 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
     return length, gam
 
 
+@njit(cache=True, parallel=True)
+def _point_wall_visible(pts, need, A, B, N, owner, convex, bstart, g0x, g0y, h, nx, ny,
+                        cstart, cwalls):
+    """``vis[i, w]``: point ``i`` is in front of wall ``w`` and no convex footprint spans the
+    triangle point-wall (computed where ``need[i, w]``, False elsewhere)."""
+    P, W = need.shape
+    vis = np.zeros((P, W), np.bool_)
+    for i in prange(P):
+        stamp = np.zeros(W, np.int64)
+        tag = 0
+        px, py = pts[i, 0], pts[i, 1]
+        for w in range(W):
+            if not need[i, w] or (px - A[w, 0]) * N[w, 0] + (py - A[w, 1]) * N[w, 1] <= 0:
+                continue
+            tag += 1
+            vis[i, w] = not _beam_blocked(px, py, A[w, 0], A[w, 1], px, py, B[w, 0], B[w, 1],
+                                          A, B, owner, convex, bstart, g0x, g0y, h, nx, ny,
+                                          cstart, cwalls, stamp, tag)
+    return vis
+
+
 @njit(cache=True)
 def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
     """Whether the line from the image ``i`` to ``p`` meets the lit part c0-c1 (1 um of
@@ -570,7 +601,8 @@ def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
 
 @njit(cache=True, parallel=True)
 def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
-                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap):
+                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap,
+                   pvis, txi, rxi):
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
     at most per link.
 
@@ -602,15 +634,11 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
         incand = np.zeros(W, np.bool_)
         # lastok: candidates the receiver sees (in front, no convex footprint spanning the
         # triangle receiver-wall); only they can be the last wall of a path
-        lastok = np.zeros(W, np.bool_)
+        # (pvis: the same test for every end point, computed once per point)
+        lastok = pvis[rxi[l]]
+        txvis = pvis[txi[l]]
         for q in range(c0, c1):
-            w = cand[q]
-            incand[w] = True
-            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0:
-                tagbox[0] += 1
-                lastok[w] = not _beam_blocked(rxx, rxy, A[w, 0], A[w, 1], rxx, rxy, B[w, 0],
-                                              B[w, 1], A, B, owner, convex, bstart, g0x, g0y,
-                                              h, nx, ny, cstart, cwalls, stamp, tagbox[0])
+            incand[cand[q]] = True
         end = np.zeros(max_order, np.int64)
         end[0] = c1
         # per-level buffers so that paths come out level by level, as in the reference
@@ -708,9 +736,7 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                 iy = iy0 - 2 * dot * ny_
             if depth == 0:
                 c0x, c0y, c1x, c1y = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-                tagbox[0] += 1
-                if _beam_blocked(txx, txy, c0x, c0y, txx, txy, c1x, c1y, A, B, owner, convex,
-                                 bstart, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                if not txvis[w]:            # no convex footprint spans the triangle tx-wall
                     continue
             else:
                 dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
