@@ -331,9 +331,10 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     ell = _ellipses(tx, rx, lmax, points=True)                       # (L, 24, 2)
     elo, ehi = ell.min(axis=1), ell.max(axis=1)
     W = scene.walls
-    wlo, whi = W.min(axis=1), W.max(axis=1)
+    wlo, whi = np.minimum(W[:, 0], W[:, 1]), np.maximum(W[:, 0], W[:, 1])
     # the STRtree query without predicate: wall envelope meets the ellipse polygon's envelope
-    hit = np.all((wlo[None] <= ehi[:, None]) & (whi[None] >= elo[:, None]), axis=-1)
+    hit = ((wlo[None, :, 0] <= ehi[:, None, 0]) & (wlo[None, :, 1] <= ehi[:, None, 1])
+           & (whi[None, :, 0] >= elo[:, None, 0]) & (whi[None, :, 1] >= elo[:, None, 1]))
     lk, wk = np.nonzero(hit)                                           # sorted by link, wall
     start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
     x0, y0, h, nx, ny, cs, cw = scene.grid
