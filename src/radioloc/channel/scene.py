@@ -217,13 +217,14 @@ class Scene:
     def visible(self) -> tuple[np.ndarray, np.ndarray]:
         """For every wall ``p``, the followers (:attr:`facing`) that are not hidden from it.
 
-        A follower ``w`` is hidden when one convex footprint spans the quadrilateral between
-        the two walls (the convex hull of ``p`` and ``w``, when it is a strictly convex
-        quadrilateral with ``p`` and ``w`` as opposite sides): the footprint then cuts every
-        segment from a point of ``p`` to a point of ``w``, so no reflection path goes from
-        ``p`` to ``w`` directly. The test is the one the tracer applies to beams
-        (:func:`_beam_blocked`), applied once per scene to the whole walls; a pair it cannot
-        decide is kept. Lists in increasing wall order (a sub-list of :attr:`facing`).
+        Both walls are cut in two halves; a follower ``w`` is hidden when, for each of the
+        four pairs of halves, one convex footprint spans the quadrilateral between the two
+        halves (their convex hull, when it is a strictly convex quadrilateral with the two
+        halves as opposite sides): the footprint then cuts every segment from a point of the
+        one half to a point of the other, so no reflection path goes from ``p`` to ``w``
+        directly. The test is the one the tracer applies to beams (:func:`_beam_blocked`),
+        applied once per scene; a pair it cannot decide is kept. Lists in increasing wall
+        order (a sub-list of :attr:`facing`).
 
         Returns
         -------
@@ -239,7 +240,7 @@ class Scene:
         keep = _wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
                                    np.ascontiguousarray(self.walls[:, 1]), fs, fw,
                                    self.wall_building.astype(np.int64), convex, bstart,
-                                   x0, y0, h, nx, ny, cs, cw, 1)
+                                   x0, y0, h, nx, ny, cs, cw, 2)
         owner = np.repeat(np.arange(len(fs) - 1), np.diff(fs))
         count = np.bincount(owner[keep], minlength=len(fs) - 1)
         start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
