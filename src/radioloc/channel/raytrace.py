@@ -298,8 +298,13 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: st
     C = scene.corners
     if engine == "compiled":
         x0, y0, h, nx, ny, cs, cw = scene.grid
+        pts, inv = np.unique(np.concatenate([tx[links], rx[links]]), axis=0,
+                             return_inverse=True)
+        inv = inv.reshape(-1).astype(np.int64)
         li, ci = np.nonzero(_corner_paths(np.ascontiguousarray(tx[links]),
                                           np.ascontiguousarray(rx[links]),
+                                          inv[:len(links)], inv[len(links):],
+                                          np.ascontiguousarray(pts),
                                           np.ascontiguousarray(lmax[links], dtype=float),
                                           np.ascontiguousarray(C), 1e-3,
                                           np.ascontiguousarray(scene.walls[:, 0]),
@@ -800,27 +805,58 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
 
 
 @njit(cache=True, parallel=True)
-def _corner_paths(tx, rx, lmax, C, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
-    """Diffraction corners of every link (compiled): ``ok[l, c]`` when ``|c - tx| + |c -
-    rx| <= lmax`` and both legs tx -> c and c -> rx are clear (:meth:`Scene.blocked`)."""
-    L = tx.shape[0]
+def _corner_legs(pts, need, C, to_point, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
+    """``blocked[i, c]``: the leg point ``i`` -> corner ``c`` (``to_point``: corner -> point)
+    crosses a wall (:meth:`Scene.blocked`), computed where ``need[i, c]``."""
+    P, NC = need.shape
     W = A.shape[0]
-    ok = np.zeros((L, C.shape[0]), np.bool_)
-    for l in prange(L):
+    out = np.zeros((P, NC), np.bool_)
+    for i in prange(P):
         stamp = np.zeros(W, np.int64)
         tag = 0
+        px, py = pts[i, 0], pts[i, 1]
+        for c in range(NC):
+            if not need[i, c]:
+                continue
+            tag += 1
+            if to_point:
+                out[i, c] = _leg_blocked(C[c, 0], C[c, 1], px, py, trim, A, B, g0x, g0y, h,
+                                         nx, ny, cstart, cwalls, stamp, tag)
+            else:
+                out[i, c] = _leg_blocked(px, py, C[c, 0], C[c, 1], trim, A, B, g0x, g0y, h,
+                                         nx, ny, cstart, cwalls, stamp, tag)
+    return out
+
+
+@njit(cache=True)
+def _corner_paths(tx, rx, txi, rxi, pts, lmax, C, trim, A, B, g0x, g0y, h, nx, ny, cstart,
+                  cwalls):
+    """Diffraction corners of every link (compiled): ``ok[l, c]`` when ``|c - tx| + |c -
+    rx| <= lmax`` and both legs tx -> c and c -> rx are clear (:meth:`Scene.blocked`); the
+    legs are tested once per distinct end point (``pts``, ``txi``, ``rxi``) and corner."""
+    L = tx.shape[0]
+    NC = C.shape[0]
+    P = pts.shape[0]
+    near = np.zeros((L, NC), np.bool_)
+    need = np.zeros((P, NC), np.bool_)
+    for l in range(L):
         txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
-        for c in range(C.shape[0]):
+        for c in range(NC):
             cx, cy = C[c, 0], C[c, 1]
             d1 = np.sqrt((cx - txx) * (cx - txx) + (cy - txy) * (cy - txy))
             d2 = np.sqrt((cx - rxx) * (cx - rxx) + (cy - rxy) * (cy - rxy))
-            if not d1 + d2 <= lmax[l]:
-                continue
-            tag += 1
-            if _leg_blocked(txx, txy, cx, cy, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls,
-                            stamp, tag):
-                continue
-            tag += 1
-            ok[l, c] = not _leg_blocked(cx, cy, rxx, rxy, trim, A, B, g0x, g0y, h, nx, ny,
-                                        cstart, cwalls, stamp, tag)
+            if d1 + d2 <= lmax[l]:
+                near[l, c] = True
+                need[txi[l], c] = True
+    first = _corner_legs(pts, need, C, False, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
+    need[:] = False
+    for l in range(L):
+        for c in range(NC):
+            if near[l, c] and not first[txi[l], c]:
+                need[rxi[l], c] = True
+    second = _corner_legs(pts, need, C, True, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
+    ok = np.zeros((L, NC), np.bool_)
+    for l in range(L):
+        for c in range(NC):
+            ok[l, c] = near[l, c] and not first[txi[l], c] and not second[rxi[l], c]
     return ok
