@@ -52,3 +52,47 @@ def test_two_facing_walls_with_a_block_between():
         bottom = int(np.flatnonzero((W[:, :, 1] == -40).all(axis=1))[0])
         assert (top, bottom) in _pairs(*scene.facing)
         assert ((top, bottom) not in _pairs(*scene.visible)) == hidden
+
+
+def _beam_blocked_brute(e0, e1, f0, f1, scene):
+    """One convex footprint with a wall crossing each trimmed side (every footprint tried)."""
+    from radioloc.channel.scene import _seg_hits
+    d = 0.01
+    def trim(a, b):
+        u = (b - a) / np.linalg.norm(b - a)
+        return a + u * d, b - u * d
+    if np.linalg.norm(e1 - e0) <= 4 * d or np.linalg.norm(f1 - f0) <= 4 * d:
+        return False
+    p, q = trim(e0, e1)
+    r, s = trim(f0, f1)
+    convex, start = scene.convex_buildings
+    W = scene.walls
+    for b in np.flatnonzero(convex):
+        ws = W[start[b]:start[b + 1]]
+        if any(_seg_hits(*p, *q, *w[0], *w[1]) for w in ws) and \
+                any(_seg_hits(*r, *s, *w[0], *w[1]) for w in ws):
+            return True
+    return False
+
+
+def test_compiled_beam_test_equals_trying_every_footprint():
+    from radioloc.channel.scene import _beam_blocked
+    rng = np.random.default_rng(11)
+    for scene in (city_grid(rng, size_m=500.0), _rotated_scene(rng)):
+        x0, y0, h, nx, ny, cs, cw = scene.grid
+        bbox, bcs, bcell = scene.convex_grid
+        _, bstart = scene.convex_buildings
+        A = np.ascontiguousarray(scene.walls[:, 0])
+        B = np.ascontiguousarray(scene.walls[:, 1])
+        stamp = np.zeros(len(A), np.int64)
+        got, want = [], []
+        for k in range(300):
+            e0 = rng.uniform(-260, 260, 2)
+            e1 = e0 + rng.normal(0, 100, 2)
+            f0 = e0 + rng.normal(0, 15, 2) if k % 2 else e0      # quadrilaterals and triangles
+            f1 = e1 + rng.normal(0, 15, 2)
+            got.append(_beam_blocked(*e0, *e1, *f0, *f1, A, B, bbox, bstart, x0, y0, h, nx, ny,
+                                     bcs, bcell, stamp, k + 1))
+            want.append(_beam_blocked_brute(e0, e1, f0, f1, scene))
+        assert got == want
+        assert 0.1 < np.mean(want) < 0.9

@@ -345,6 +345,7 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     x0, y0, h, nx, ny, cs, cw = scene.grid
     fs, fw = scene.visible
     convex, bstart = scene.convex_buildings
+    bbox, bcs, bcell = scene.convex_grid
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
     # wall visibility from each distinct end point (links of a network share their nodes)
@@ -354,16 +355,15 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     need = np.zeros((len(pts), len(W)), bool)
     need[txi[lk], wk] = True
     need[rxi[lk], wk] = True
-    owner = scene.wall_building.astype(np.int64)
-    pvis = _point_wall_visible(np.ascontiguousarray(pts), need, A, B, scene.normals, owner,
-                               convex, bstart, x0, y0, h, nx, ny, cs, cw)
+    pvis = _point_wall_visible(np.ascontiguousarray(pts), need, A, B, scene.normals, bbox,
+                               bstart, x0, y0, h, nx, ny, bcs, bcell)
     cap = 256
     while True:
         ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
                                              np.ascontiguousarray(lmax, dtype=float), start,
                                              wk.astype(np.int64), A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
-                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, owner, convex,
+                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, bbox, bcs, bcell,
                                              bstart, cap, pvis, txi, rxi)
         if not over.any():
             break
@@ -569,8 +569,7 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
 
 
 @njit(cache=True, parallel=True)
-def _point_wall_visible(pts, need, A, B, N, owner, convex, bstart, g0x, g0y, h, nx, ny,
-                        cstart, cwalls):
+def _point_wall_visible(pts, need, A, B, N, bbox, bstart, g0x, g0y, h, nx, ny, bcs, bcell):
     """``vis[i, w]``: point ``i`` is in front of wall ``w`` and no convex footprint spans the
     triangle point-wall (computed where ``need[i, w]``, False elsewhere)."""
     P, W = need.shape
@@ -584,8 +583,8 @@ def _point_wall_visible(pts, need, A, B, N, owner, convex, bstart, g0x, g0y, h, 
                 continue
             tag += 1
             vis[i, w] = not _beam_blocked(px, py, A[w, 0], A[w, 1], px, py, B[w, 0], B[w, 1],
-                                          A, B, owner, convex, bstart, g0x, g0y, h, nx, ny,
-                                          cstart, cwalls, stamp, tag)
+                                          A, B, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
+                                          bcell, stamp, tag)
     return vis
 
 
@@ -607,7 +606,7 @@ def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
 
 @njit(cache=True, parallel=True)
 def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
-                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap,
+                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, bbox, bcs, bcell, bstart, cap,
                    pvis, txi, rxi):
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
     at most per link.
@@ -759,9 +758,9 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                         q0x, q0y = ix0 + u0 * (c0x - ix0), iy0 + u0 * (c0y - iy0)
                         q1x, q1y = ix0 + u1 * (c1x - ix0), iy0 + u1 * (c1y - iy0)
                         tagbox[0] += 1
-                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, owner,
-                                         convex, bstart, g0x, g0y, h, nx, ny, cstart, cwalls,
-                                         stamp, tagbox[0]):
+                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, bbox,
+                                         bstart, g0x, g0y, h, nx, ny, bcs, bcell, stamp,
+                                         tagbox[0]):
                             continue
             seq[depth] = w
             imgs[depth, 0] = ix
@@ -773,8 +772,8 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
             tagbox[0] += 1
             if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and _in_wedge(
                     ix, iy, c0x, c0y, c1x, c1y, rxx, rxy) and not _beam_blocked(
-                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, owner, convex, bstart,
-                    g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, bbox, bstart,
+                    g0x, g0y, h, nx, ny, bcs, bcell, stamp, tagbox[0]):
                 length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
                                     g0y, h, nx, ny, cstart, cwalls, stamp, tagbox, pts)
             if length >= 0:
