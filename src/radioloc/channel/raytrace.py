@@ -291,6 +291,13 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "sh
     return out
 
 
+def _distinct_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``p`` (shape (n, 2)) and the index of each row among them (the
+    rows as complex numbers: one 1-D sort instead of a row-wise unique)."""
+    z, inv = np.unique(p[:, 0] + 1j * p[:, 1], return_inverse=True)
+    return np.ascontiguousarray(np.stack([z.real, z.imag], axis=1)), inv.astype(np.int64)
+
+
 def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: str = "shapely"):
     if not cfg.diffraction or len(scene.corners) == 0 or not nlos.any():
         return []
@@ -298,9 +305,7 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: st
     C = scene.corners
     if engine == "compiled":
         x0, y0, h, nx, ny, cs, cw = scene.grid
-        pts, inv = np.unique(np.concatenate([tx[links], rx[links]]), axis=0,
-                             return_inverse=True)
-        inv = inv.reshape(-1).astype(np.int64)
+        pts, inv = _distinct_points(np.concatenate([tx[links], rx[links]]))
         li, ci = np.nonzero(_corner_paths(np.ascontiguousarray(tx[links]),
                                           np.ascontiguousarray(rx[links]),
                                           inv[:len(links)], inv[len(links):],
@@ -349,8 +354,7 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
     # wall visibility from each distinct end point (links of a network share their nodes)
-    pts, inv = np.unique(np.concatenate([tx, rx]), axis=0, return_inverse=True)
-    inv = inv.reshape(-1).astype(np.int64)
+    pts, inv = _distinct_points(np.concatenate([tx, rx]))
     txi, rxi = inv[:len(tx)], inv[len(tx):]
     need = np.zeros((len(pts), len(W)), bool)
     need[txi[lk], wk] = True
