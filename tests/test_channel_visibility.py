@@ -1,8 +1,10 @@
-"""Wall-to-wall visibility of a scene (the tracer's pruned follower lists): a sub-list of the
-follower lists, and every pair it drops is really hidden (segments between the two walls
-are blocked by the shapely reference)."""
+"""Pruning structures of the compiled ray tracer: the wall-to-wall visibility lists (a
+sub-list of the follower lists; every pair they drop is really hidden, by the shapely
+reference), the grid beam test (equal to trying every convex footprint), and the tracer on
+network links whose end points are shared (equal to the NumPy/shapely reference)."""
 
 import numpy as np
+import pytest
 from test_channel_raytrace import _rotated_scene
 
 from radioloc.channel.scene import Scene, city_grid
@@ -96,3 +98,24 @@ def test_compiled_beam_test_equals_trying_every_footprint():
             want.append(_beam_blocked_brute(e0, e1, f0, f1, scene))
         assert got == want
         assert 0.1 < np.mean(want) < 0.9
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_compiled_tracer_equals_reference_on_network_links(order):
+    # all pairs of a few nodes, both directions: end points shared between links (the
+    # compiled tracer tests walls and corners once per distinct end point)
+    from radioloc.channel.raytrace import TraceConfig, trace_links
+    from radioloc.channel.scene import street_positions
+    rng = np.random.default_rng(20 + order)
+    for scene in (city_grid(rng, size_m=500.0), _rotated_scene(rng)):
+        nodes = street_positions(scene, 5, rng, half_width_m=200.0)
+        i, j = np.nonzero(~np.eye(5, dtype=bool))
+        cfg = TraceConfig(max_order=order, max_excess_m=300.0)
+        fast = trace_links(scene, nodes[i], nodes[j], cfg)
+        ref = trace_links(scene, nodes[i], nodes[j], cfg, engine="numpy")
+        np.testing.assert_array_equal(fast.n_paths, ref.n_paths)
+        np.testing.assert_array_equal(fast.kind, ref.kind)
+        np.testing.assert_array_equal(fast.los, ref.los)
+        np.testing.assert_allclose(fast.delays, ref.delays, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(fast.gains, ref.gains, rtol=1e-9, atol=1e-15)
+        assert (ref.kind > 1).sum() > 5 and (ref.kind == -1).sum() > 0
