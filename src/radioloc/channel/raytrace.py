@@ -9,9 +9,14 @@ Paths between a transmitter and a receiver in the horizontal plane:
 * single-edge diffraction at building corners (only for links without LOS): the path
   tx -> corner -> rx with both legs clear, attenuated by the knife-edge loss J(nu).
 
-Every computation is vectorised over links and wall sequences; the candidate walls of a link
-come from the wall STRtree queried with the link's ellipse ``|p - tx| + |p - rx| <= d +
-max_excess_m`` (paths longer than that are not traced).
+The reference engine (``engine="numpy"``) is vectorised over links and wall sequences; the
+candidate walls of a link come from the wall STRtree queried with the link's ellipse ``|p -
+tx| + |p - rx| <= d + max_excess_m`` (paths longer than that are not traced). The default
+compiled engine finds the same paths by a depth-first walk of the image tree per link (in
+parallel over links) pruned by a visibility tree: per scene, the walls each wall can see
+(:attr:`radioloc.channel.scene.Scene.visible`); per call, the walls each distinct end point
+can see; per node, the beam through the parent's lit part. Blocking tests walk a uniform
+grid.
 
 Coefficients (the paper's [15] does not state them; these are the documented choices):
 
@@ -615,14 +620,20 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
     at most per link.
 
-    The tests of :func:`_extend`, in the same order, plus four that no valid path fails
-    (the last: a convex building that spans the beam from the parent's lit part, or from
-    the transmitter, to the child's lit part blocks the whole subtree; one that spans the
-    beam from the lit part to the receiver blocks the sequence's own path):
-    a child wall must be a follower of its parent (:attr:`Scene.facing`), it must meet the
-    beam of its parent's *lit part* (the aperture: the part of the parent wall inside the
-    grandparent's beam, not the whole wall), and a sequence is traced back only when the
-    receiver is in front of its last wall."""
+    The tests of :func:`_extend`, in the same order, plus pruning tests that no valid path
+    fails (a convex building that spans a beam cuts every ray of it):
+
+    * a child wall must be a visible follower of its parent (:attr:`Scene.visible`: no
+      convex building spans the quadrilaterals between the two walls' halves);
+    * it must meet the beam of its parent's *lit part* (the aperture: the part of the
+      parent wall inside the grandparent's beam, not the whole wall), and no convex
+      building may span the beam from the parent's lit part (or from the transmitter,
+      ``pvis[txi[l]]``) to the child's lit part;
+    * a wall at the last depth must be seen by the receiver (``pvis[rxi[l]]``: in front,
+      no convex building spanning the receiver-wall triangle);
+    * a sequence is traced back only when the receiver is in front of its last wall, the
+      line from its last image to the receiver meets the last lit part (:func:`_in_wedge`)
+      and no convex building spans the beam from the lit part to the receiver."""
     L = tx.shape[0]
     W = A.shape[0]
     out_len = np.zeros((L, cap))
