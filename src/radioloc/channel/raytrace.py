@@ -350,27 +350,22 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     # the STRtree query without predicate: wall envelope meets the ellipse polygon's envelope
     hit = ((wlo[None, :, 0] <= ehi[:, None, 0]) & (wlo[None, :, 1] <= ehi[:, None, 1])
            & (whi[None, :, 0] >= elo[:, None, 0]) & (whi[None, :, 1] >= elo[:, None, 1]))
-    lk, wk = np.nonzero(hit)                                           # sorted by link, wall
-    start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
     x0, y0, h, nx, ny, cs, cw = scene.grid
     fs, fw = scene.visible
-    convex, bstart = scene.convex_buildings
+    _, bstart = scene.convex_buildings
     bbox, bcs, bcell = scene.convex_grid
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
     # wall visibility from each distinct end point (links of a network share their nodes)
     pts, inv = _distinct_points(np.concatenate([tx, rx]))
     txi, rxi = inv[:len(tx)], inv[len(tx):]
-    need = np.zeros((len(pts), len(W)), bool)
-    need[txi[lk], wk] = True
-    need[rxi[lk], wk] = True
-    pvis = _point_wall_visible(np.ascontiguousarray(pts), need, A, B, scene.normals, bbox,
-                               bstart, x0, y0, h, nx, ny, bcs, bcell)
+    pvis = _point_wall_visible(pts, hit, txi, rxi, A, B, scene.normals, bbox, bstart, x0, y0,
+                               h, nx, ny, bcs, bcell)
     cap = 256
     while True:
         ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
-                                             np.ascontiguousarray(lmax, dtype=float), start,
-                                             wk.astype(np.int64), A, B, scene.normals,
+                                             np.ascontiguousarray(lmax, dtype=float), hit,
+                                             A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
                                              1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, bbox, bcs, bcell,
                                              bstart, cap, pvis, txi, rxi)
@@ -578,17 +573,25 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
 
 
 @njit(cache=True, parallel=True)
-def _point_wall_visible(pts, need, A, B, N, bbox, bstart, g0x, g0y, h, nx, ny, bcs, bcell):
+def _point_wall_visible(pts, hit, txi, rxi, A, B, N, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
+                        bcell):
     """``vis[i, w]``: point ``i`` is in front of wall ``w`` and no convex footprint spans the
-    triangle point-wall (computed where ``need[i, w]``, False elsewhere)."""
-    P, W = need.shape
+    triangle point-wall (computed where ``w`` is a candidate, ``hit[l, w]``, of a link ``l``
+    that starts or ends at ``i``; False elsewhere)."""
+    P = pts.shape[0]
+    L, W = hit.shape
     vis = np.zeros((P, W), np.bool_)
     for i in prange(P):
         stamp = np.zeros(W, np.int64)
+        need = np.zeros(W, np.bool_)
+        for l in range(L):
+            if txi[l] == i or rxi[l] == i:
+                for w in range(W):
+                    need[w] |= hit[l, w]
         tag = 0
         px, py = pts[i, 0], pts[i, 1]
         for w in range(W):
-            if not need[i, w] or (px - A[w, 0]) * N[w, 0] + (py - A[w, 1]) * N[w, 1] <= 0:
+            if not need[w] or (px - A[w, 0]) * N[w, 0] + (py - A[w, 1]) * N[w, 1] <= 0:
                 continue
             tag += 1
             vis[i, w] = not _beam_blocked(px, py, A[w, 0], A[w, 1], px, py, B[w, 0], B[w, 1],
@@ -614,7 +617,7 @@ def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
 
 
 @njit(cache=True, parallel=True)
-def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
+def _reflect_links(tx, rx, lmax, hit, A, B, N, max_order, eps, trim,
                    g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, bbox, bcs, bcell, bstart, cap,
                    pvis, txi, rxi):
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
@@ -649,35 +652,29 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
         pos = np.zeros(max_order, np.int64)          # next candidate index at each depth
         ap = np.zeros((max_order, 4))                # lit part of the wall at each depth
         pts = np.zeros((max_order + 2, 2))
-        c0, c1 = cand_start[l], cand_start[l + 1]
         txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
-        incand = np.zeros(W, np.bool_)
+        incand = hit[l]                              # the link's candidate walls
         # lastok: candidates the receiver sees (in front, no convex footprint spanning the
         # triangle receiver-wall); only they can be the last wall of a path
         # (pvis: the same test for every end point, computed once per point)
         lastok = pvis[rxi[l]]
         txvis = pvis[txi[l]]
-        for q in range(c0, c1):
-            incand[cand[q]] = True
         end = np.zeros(max_order, np.int64)
-        end[0] = c1
+        end[0] = W
         # per-level buffers so that paths come out level by level, as in the reference
         nlev = np.zeros(max_order + 1, np.int64)
         lev_len = np.zeros((max_order + 1, cap))
         lev_gam = np.zeros((max_order + 1, cap), np.complex128)
         depth = 0
-        pos[0] = c0
+        pos[0] = 0
         while depth >= 0:
             if pos[depth] >= end[depth]:
                 depth -= 1
                 continue
-            if depth == 0:
-                w = cand[pos[0]]
-            else:
-                w = fwalls[pos[depth]]
-                if not incand[w]:
-                    pos[depth] += 1
-                    continue
+            w = pos[0] if depth == 0 else fwalls[pos[depth]]
+            if not incand[w]:
+                pos[depth] += 1
+                continue
             pos[depth] += 1
             if depth == max_order - 1 and not lastok[w]:
                 continue
