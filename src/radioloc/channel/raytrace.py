@@ -9,9 +9,14 @@ Paths between a transmitter and a receiver in the horizontal plane:
 * single-edge diffraction at building corners (only for links without LOS): the path
   tx -> corner -> rx with both legs clear, attenuated by the knife-edge loss J(nu).
 
-Every computation is vectorised over links and wall sequences; the candidate walls of a link
-come from the wall STRtree queried with the link's ellipse ``|p - tx| + |p - rx| <= d +
-max_excess_m`` (paths longer than that are not traced).
+The reference engine (``engine="numpy"``) is vectorised over links and wall sequences; the
+candidate walls of a link come from the wall STRtree queried with the link's ellipse ``|p -
+tx| + |p - rx| <= d + max_excess_m`` (paths longer than that are not traced). The default
+compiled engine finds the same paths by a depth-first walk of the image tree per link (in
+parallel over links) pruned by a visibility tree: per scene, the walls each wall can see
+(:attr:`radioloc.channel.scene.Scene.visible`); per call, the walls each distinct end point
+can see; per node, the beam through the parent's lit part. Blocking tests walk a uniform
+grid.
 
 Coefficients (the paper's [15] does not state them; these are the documented choices):
 
@@ -291,17 +296,39 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "sh
     return out
 
 
+def _distinct_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``p`` (shape (n, 2)) and the index of each row among them (the
+    rows as complex numbers: one 1-D sort instead of a row-wise unique)."""
+    z, inv = np.unique(p[:, 0] + 1j * p[:, 1], return_inverse=True)
+    return np.ascontiguousarray(np.stack([z.real, z.imag], axis=1)), inv.astype(np.int64)
+
+
 def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: str = "shapely"):
     if not cfg.diffraction or len(scene.corners) == 0 or not nlos.any():
         return []
     links = np.flatnonzero(nlos)
     C = scene.corners
-    d1 = np.linalg.norm(C[None] - tx[links, None], axis=2)
-    d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
-    li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
-    link = links[li]
-    clear = ~(scene.blocked(tx[link], C[ci], engine=engine) | scene.blocked(C[ci], rx[link], engine=engine))
-    link, ci = link[clear], ci[clear]
+    if engine == "compiled":
+        x0, y0, h, nx, ny, cs, cw = scene.grid
+        pts, inv = _distinct_points(np.concatenate([tx[links], rx[links]]))
+        li, ci = np.nonzero(_corner_paths(np.ascontiguousarray(tx[links]),
+                                          np.ascontiguousarray(rx[links]),
+                                          inv[:len(links)], inv[len(links):],
+                                          np.ascontiguousarray(pts),
+                                          np.ascontiguousarray(lmax[links], dtype=float),
+                                          np.ascontiguousarray(C), 1e-3,
+                                          np.ascontiguousarray(scene.walls[:, 0]),
+                                          np.ascontiguousarray(scene.walls[:, 1]),
+                                          x0, y0, h, nx, ny, cs, cw))
+        link = links[li]
+    else:
+        d1 = np.linalg.norm(C[None] - tx[links, None], axis=2)
+        d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
+        li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
+        link = links[li]
+        clear = ~(scene.blocked(tx[link], C[ci], engine=engine)
+                  | scene.blocked(C[ci], rx[link], engine=engine))
+        link, ci = link[clear], ci[clear]
     a = np.linalg.norm(C[ci] - tx[link], axis=1)
     b = np.linalg.norm(rx[link] - C[ci], axis=1)
     d = np.linalg.norm(rx[link] - tx[link], axis=1)
@@ -319,24 +346,29 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     ell = _ellipses(tx, rx, lmax, points=True)                       # (L, 24, 2)
     elo, ehi = ell.min(axis=1), ell.max(axis=1)
     W = scene.walls
-    wlo, whi = W.min(axis=1), W.max(axis=1)
+    wlo, whi = np.minimum(W[:, 0], W[:, 1]), np.maximum(W[:, 0], W[:, 1])
     # the STRtree query without predicate: wall envelope meets the ellipse polygon's envelope
-    hit = np.all((wlo[None] <= ehi[:, None]) & (whi[None] >= elo[:, None]), axis=-1)
-    lk, wk = np.nonzero(hit)                                           # sorted by link, wall
-    start = np.concatenate([[0], np.cumsum(np.bincount(lk, minlength=len(tx)))]).astype(np.int64)
+    hit = ((wlo[None, :, 0] <= ehi[:, None, 0]) & (wlo[None, :, 1] <= ehi[:, None, 1])
+           & (whi[None, :, 0] >= elo[:, None, 0]) & (whi[None, :, 1] >= elo[:, None, 1]))
     x0, y0, h, nx, ny, cs, cw = scene.grid
-    fs, fw = scene.facing
-    convex, bstart = scene.convex_buildings
+    fs, fw = scene.visible
+    _, bstart = scene.convex_buildings
+    bbox, bcs, bcell = scene.convex_grid
     A = np.ascontiguousarray(W[:, 0])
     B = np.ascontiguousarray(W[:, 1])
+    # wall visibility from each distinct end point (links of a network share their nodes)
+    pts, inv = _distinct_points(np.concatenate([tx, rx]))
+    txi, rxi = inv[:len(tx)], inv[len(tx):]
+    pvis = _point_wall_visible(pts, hit, txi, rxi, A, B, scene.normals, bbox, bstart, x0, y0,
+                               h, nx, ny, bcs, bcell)
     cap = 256
     while True:
         ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
-                                             np.ascontiguousarray(lmax, dtype=float), start,
-                                             wk.astype(np.int64), A, B, scene.normals,
+                                             np.ascontiguousarray(lmax, dtype=float), hit,
+                                             A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
-                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, scene.wall_building.astype(np.int64), convex,
-                                             bstart, cap)
+                                             1e-3, x0, y0, h, nx, ny, cs, cw, fs, fw, bbox, bcs, bcell,
+                                             bstart, cap, pvis, txi, rxi)
         if not over.any():
             break
         cap *= 4
@@ -541,19 +573,70 @@ def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx,
 
 
 @njit(cache=True, parallel=True)
-def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim,
-                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, owner, convex, bstart, cap):
+def _point_wall_visible(pts, hit, txi, rxi, A, B, N, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
+                        bcell):
+    """``vis[i, w]``: point ``i`` is in front of wall ``w`` and no convex footprint spans the
+    triangle point-wall (computed where ``w`` is a candidate, ``hit[l, w]``, of a link ``l``
+    that starts or ends at ``i``; False elsewhere)."""
+    P = pts.shape[0]
+    L, W = hit.shape
+    vis = np.zeros((P, W), np.bool_)
+    for i in prange(P):
+        stamp = np.zeros(W, np.int64)
+        need = np.zeros(W, np.bool_)
+        for l in range(L):
+            if txi[l] == i or rxi[l] == i:
+                for w in range(W):
+                    need[w] |= hit[l, w]
+        tag = 0
+        px, py = pts[i, 0], pts[i, 1]
+        for w in range(W):
+            if not need[w] or (px - A[w, 0]) * N[w, 0] + (py - A[w, 1]) * N[w, 1] <= 0:
+                continue
+            tag += 1
+            vis[i, w] = not _beam_blocked(px, py, A[w, 0], A[w, 1], px, py, B[w, 0], B[w, 1],
+                                          A, B, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
+                                          bcell, stamp, tag)
+    return vis
+
+
+@njit(cache=True)
+def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
+    """Whether the line from the image ``i`` to ``p`` meets the lit part c0-c1 (1 um of
+    slack at both ends): the last reflection point of a valid path lies in the lit part."""
+    ux, uy = c1x - c0x, c1y - c0y
+    vx, vy = px - ix, py - iy
+    den = vx * uy - vy * ux
+    if den == 0.0:
+        return True
+    lam = ((c0x - ix) * uy - (c0y - iy) * ux) / den
+    rx_, ry_ = ix + lam * vx - c0x, iy + lam * vy - c0y
+    ln = np.sqrt(ux * ux + uy * uy)
+    s = (rx_ * ux + ry_ * uy) / ln
+    return -1e-6 <= s <= ln + 1e-6
+
+
+@njit(cache=True, parallel=True)
+def _reflect_links(tx, rx, lmax, hit, A, B, N, max_order, eps, trim,
+                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, bbox, bcs, bcell, bstart, cap,
+                   pvis, txi, rxi):
     """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
     at most per link.
 
-    The tests of :func:`_extend`, in the same order, plus four that no valid path fails
-    (the last: a convex building that spans the beam from the parent's lit part, or from
-    the transmitter, to the child's lit part blocks the whole subtree; one that spans the
-    beam from the lit part to the receiver blocks the sequence's own path):
-    a child wall must be a follower of its parent (:attr:`Scene.facing`), it must meet the
-    beam of its parent's *lit part* (the aperture: the part of the parent wall inside the
-    grandparent's beam, not the whole wall), and a sequence is traced back only when the
-    receiver is in front of its last wall."""
+    The tests of :func:`_extend`, in the same order, plus pruning tests that no valid path
+    fails (a convex building that spans a beam cuts every ray of it):
+
+    * a child wall must be a visible follower of its parent (:attr:`Scene.visible`: no
+      convex building spans the quadrilaterals between the two walls' halves);
+    * it must meet the beam of its parent's *lit part* (the aperture: the part of the
+      parent wall inside the grandparent's beam, not the whole wall), and no convex
+      building may span the beam from the parent's lit part (or from the transmitter,
+      ``pvis[txi[l]]``) to the child's lit part;
+    * a wall at the last depth must be seen by the receiver (``pvis[rxi[l]]``: in front,
+      no convex building spanning the receiver-wall triangle);
+    * a sequence is traced back only when the receiver is in front of its last wall, the
+      line from its last image to the receiver meets the last lit part (:func:`_in_wedge`)
+      and no convex building spans the beam from the lit part to the receiver."""
     L = tx.shape[0]
     W = A.shape[0]
     out_len = np.zeros((L, cap))
@@ -569,31 +652,32 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
         pos = np.zeros(max_order, np.int64)          # next candidate index at each depth
         ap = np.zeros((max_order, 4))                # lit part of the wall at each depth
         pts = np.zeros((max_order + 2, 2))
-        c0, c1 = cand_start[l], cand_start[l + 1]
         txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
-        incand = np.zeros(W, np.bool_)
-        for q in range(c0, c1):
-            incand[cand[q]] = True
+        incand = hit[l]                              # the link's candidate walls
+        # lastok: candidates the receiver sees (in front, no convex footprint spanning the
+        # triangle receiver-wall); only they can be the last wall of a path
+        # (pvis: the same test for every end point, computed once per point)
+        lastok = pvis[rxi[l]]
+        txvis = pvis[txi[l]]
         end = np.zeros(max_order, np.int64)
-        end[0] = c1
+        end[0] = W
         # per-level buffers so that paths come out level by level, as in the reference
         nlev = np.zeros(max_order + 1, np.int64)
         lev_len = np.zeros((max_order + 1, cap))
         lev_gam = np.zeros((max_order + 1, cap), np.complex128)
         depth = 0
-        pos[0] = c0
+        pos[0] = 0
         while depth >= 0:
             if pos[depth] >= end[depth]:
                 depth -= 1
                 continue
-            if depth == 0:
-                w = cand[pos[0]]
-            else:
-                w = fwalls[pos[depth]]
-                if not incand[w]:
-                    pos[depth] += 1
-                    continue
+            w = pos[0] if depth == 0 else fwalls[pos[depth]]
+            if not incand[w]:
+                pos[depth] += 1
+                continue
             pos[depth] += 1
+            if depth == max_order - 1 and not lastok[w]:
+                continue
             if depth == 0:
                 dot = (txx - A[w, 0]) * N[w, 0] + (txy - A[w, 1]) * N[w, 1]
                 ix = txx - 2 * dot * N[w, 0]
@@ -669,9 +753,7 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                 iy = iy0 - 2 * dot * ny_
             if depth == 0:
                 c0x, c0y, c1x, c1y = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-                tagbox[0] += 1
-                if _beam_blocked(txx, txy, c0x, c0y, txx, txy, c1x, c1y, A, B, owner, convex,
-                                 bstart, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+                if not txvis[w]:            # no convex footprint spans the triangle tx-wall
                     continue
             else:
                 dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
@@ -688,9 +770,9 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
                         q0x, q0y = ix0 + u0 * (c0x - ix0), iy0 + u0 * (c0y - iy0)
                         q1x, q1y = ix0 + u1 * (c1x - ix0), iy0 + u1 * (c1y - iy0)
                         tagbox[0] += 1
-                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, owner,
-                                         convex, bstart, g0x, g0y, h, nx, ny, cstart, cwalls,
-                                         stamp, tagbox[0]):
+                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, bbox,
+                                         bstart, g0x, g0y, h, nx, ny, bcs, bcell, stamp,
+                                         tagbox[0]):
                             continue
             seq[depth] = w
             imgs[depth, 0] = ix
@@ -700,9 +782,10 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
             length = -1.0
             gam = 0j
             tagbox[0] += 1
-            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and not _beam_blocked(
-                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, owner, convex, bstart,
-                    g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
+            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and _in_wedge(
+                    ix, iy, c0x, c0y, c1x, c1y, rxx, rxy) and not _beam_blocked(
+                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, bbox, bstart,
+                    g0x, g0y, h, nx, ny, bcs, bcell, stamp, tagbox[0]):
                 length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
                                     g0y, h, nx, ny, cstart, cwalls, stamp, tagbox, pts)
             if length >= 0:
@@ -730,3 +813,61 @@ def _reflect_links(tx, rx, lmax, cand_start, cand, A, B, N, max_order, eps, trim
     return out_len, out_gam, out_ord, out_n, overflow
 
 
+
+
+@njit(cache=True, parallel=True)
+def _corner_legs(pts, need, C, to_point, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
+    """``blocked[i, c]``: the leg point ``i`` -> corner ``c`` (``to_point``: corner -> point)
+    crosses a wall (:meth:`Scene.blocked`), computed where ``need[i, c]``."""
+    P, NC = need.shape
+    W = A.shape[0]
+    out = np.zeros((P, NC), np.bool_)
+    for i in prange(P):
+        stamp = np.zeros(W, np.int64)
+        tag = 0
+        px, py = pts[i, 0], pts[i, 1]
+        for c in range(NC):
+            if not need[i, c]:
+                continue
+            tag += 1
+            if to_point:
+                out[i, c] = _leg_blocked(C[c, 0], C[c, 1], px, py, trim, A, B, g0x, g0y, h,
+                                         nx, ny, cstart, cwalls, stamp, tag)
+            else:
+                out[i, c] = _leg_blocked(px, py, C[c, 0], C[c, 1], trim, A, B, g0x, g0y, h,
+                                         nx, ny, cstart, cwalls, stamp, tag)
+    return out
+
+
+@njit(cache=True)
+def _corner_paths(tx, rx, txi, rxi, pts, lmax, C, trim, A, B, g0x, g0y, h, nx, ny, cstart,
+                  cwalls):
+    """Diffraction corners of every link (compiled): ``ok[l, c]`` when ``|c - tx| + |c -
+    rx| <= lmax`` and both legs tx -> c and c -> rx are clear (:meth:`Scene.blocked`); the
+    legs are tested once per distinct end point (``pts``, ``txi``, ``rxi``) and corner."""
+    L = tx.shape[0]
+    NC = C.shape[0]
+    P = pts.shape[0]
+    near = np.zeros((L, NC), np.bool_)
+    need = np.zeros((P, NC), np.bool_)
+    for l in range(L):
+        txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
+        for c in range(NC):
+            cx, cy = C[c, 0], C[c, 1]
+            d1 = np.sqrt((cx - txx) * (cx - txx) + (cy - txy) * (cy - txy))
+            d2 = np.sqrt((cx - rxx) * (cx - rxx) + (cy - rxy) * (cy - rxy))
+            if d1 + d2 <= lmax[l]:
+                near[l, c] = True
+                need[txi[l], c] = True
+    first = _corner_legs(pts, need, C, False, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
+    need[:] = False
+    for l in range(L):
+        for c in range(NC):
+            if near[l, c] and not first[txi[l], c]:
+                need[rxi[l], c] = True
+    second = _corner_legs(pts, need, C, True, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
+    ok = np.zeros((L, NC), np.bool_)
+    for l in range(L):
+        for c in range(NC):
+            ok[l, c] = near[l, c] and not first[txi[l], c] and not second[rxi[l], c]
+    return ok

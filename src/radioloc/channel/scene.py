@@ -187,6 +187,34 @@ class Scene:
         return convex, start.astype(np.int64)
 
     @cached_property
+    def convex_grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The convex footprints on the grid of :attr:`grid` (for the compiled beam test).
+
+        Returns
+        -------
+        bbox : ndarray, shape (n_buildings, 4)
+            Envelope ``(xmin, ymin, xmax, ymax)`` of every footprint.
+        start, buildings : ndarray of int64
+            CSR arrays: the convex footprints with a wall overlapping cell ``c`` (numbered as
+            in :attr:`grid`) are ``buildings[start[c]:start[c + 1]]``, in increasing order.
+        """
+        x0, y0, h, nx, ny, cs, cw = self.grid
+        convex, _ = self.convex_buildings
+        W = self.walls
+        nb = len(self.polygons)
+        bbox = np.zeros((nb, 4))
+        if nb:
+            bbox[:, :2] = np.minimum.reduceat(W.min(axis=1), self.convex_buildings[1][:-1])
+            bbox[:, 2:] = np.maximum.reduceat(W.max(axis=1), self.convex_buildings[1][:-1])
+        cell = np.repeat(np.arange(len(cs) - 1), np.diff(cs))
+        b = self.wall_building[cw] if len(cw) else np.zeros(0, np.int64)
+        keep = convex[b] if len(b) else np.zeros(0, bool)
+        pairs = np.unique(np.stack([cell[keep], b[keep]], axis=1), axis=0) if keep.any() \
+            else np.zeros((0, 2), np.int64)
+        start = np.concatenate([[0], np.cumsum(np.bincount(pairs[:, 0], minlength=len(cs) - 1))])
+        return bbox, start.astype(np.int64), pairs[:, 1].astype(np.int64)
+
+    @cached_property
     def facing(self) -> tuple[np.ndarray, np.ndarray]:
         """For every wall ``p``, the walls ``w`` that can follow it in a reflection sequence.
 
@@ -212,6 +240,39 @@ class Scene:
         p, w = np.nonzero(ok)
         start = np.concatenate([[0], np.cumsum(np.bincount(p, minlength=len(W)))]).astype(np.int64)
         return start, w.astype(np.int64)
+
+    @cached_property
+    def visible(self) -> tuple[np.ndarray, np.ndarray]:
+        """For every wall ``p``, the followers (:attr:`facing`) that are not hidden from it.
+
+        Both walls are cut in two halves; a follower ``w`` is hidden when, for each of the
+        four pairs of halves, one convex footprint spans the quadrilateral between the two
+        halves (their convex hull, when it is a strictly convex quadrilateral with the two
+        halves as opposite sides): the footprint then cuts every segment from a point of the
+        one half to a point of the other, so no reflection path goes from ``p`` to ``w``
+        directly. The test is the one the tracer applies to beams (:func:`_beam_blocked`),
+        applied once per scene; a pair it cannot decide is kept. Lists in increasing wall
+        order (a sub-list of :attr:`facing`).
+
+        Returns
+        -------
+        start, walls : ndarray of int64
+            CSR arrays: the visible followers of wall ``p`` are
+            ``walls[start[p]:start[p + 1]]``.
+        """
+        fs, fw = self.facing
+        if len(fw) == 0:
+            return fs, fw
+        x0, y0, h, nx, ny, cs, cw = self.grid
+        convex, bstart = self.convex_buildings
+        bbox, bcs, bcell = self.convex_grid
+        keep = _wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
+                                   np.ascontiguousarray(self.walls[:, 1]), fs, fw, bbox, bstart,
+                                   x0, y0, h, nx, ny, bcs, bcell, 2)
+        owner = np.repeat(np.arange(len(fs) - 1), np.diff(fs))
+        count = np.bincount(owner[keep], minlength=len(fs) - 1)
+        start = np.concatenate([[0], np.cumsum(count)]).astype(np.int64)
+        return start, fw[keep]
 
     def blocked(self, a: np.ndarray, b: np.ndarray, trim_m: float = 1e-3,
                 engine: str = "compiled") -> np.ndarray:
@@ -524,11 +585,15 @@ def _blocked_batch(a, b, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
 
 
 @njit(cache=True)
-def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, bstart,
-                  g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
+def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, bbox, bstart,
+                  g0x, g0y, h, nx, ny, bcs, bcell, stamp, tag):
     """Whether one convex building spans the beam between the edges e0 -> e1 and f0 -> f1
     (the two sides of a convex quadrilateral or triangle of rays): it then meets both sides
-    (1 cm or more from their ends), and every ray between them crosses it."""
+    (1 cm or more from their ends), and every ray between them crosses it.
+
+    The convex buildings come from :attr:`Scene.convex_grid` (``bbox`` their envelopes,
+    ``bcs``/``bcell`` the buildings of each cell) walked along the first side; a building
+    whose envelope misses either side is skipped before its walls are tested."""
     dx, dy = e1x - e0x, e1y - e0y
     L = np.sqrt(dx * dx + dy * dy)
     gx, gy = f1x - f0x, f1y - f0y
@@ -540,6 +605,10 @@ def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, b
     qx, qy = e1x - dx / L * d, e1y - dy / L * d
     rx_, ry_ = f0x + gx / M * d, f0y + gy / M * d
     sx, sy = f1x - gx / M * d, f1y - gy / M * d
+    elx, ehx = min(px, qx) - 1e-7, max(px, qx) + 1e-7
+    ely, ehy = min(py, qy) - 1e-7, max(py, qy) + 1e-7
+    flx, fhx = min(rx_, sx) - 1e-7, max(rx_, sx) + 1e-7
+    fly, fhy = min(ry_, sy) - 1e-7, max(ry_, sy) + 1e-7
     ex, ey = qx - px, qy - py
     ok, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy = _walk_start(px, py, ex, ey, g0x, g0y, h,
                                                                    nx, ny)
@@ -547,15 +616,21 @@ def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, b
         return False
     for _ in range(nx + ny + 2):
         c = ci * ny + cj
-        for q in range(cstart[c], cstart[c + 1]):
-            w = cwalls[q]
-            if stamp[w] == tag:
+        for q in range(bcs[c], bcs[c + 1]):
+            b = bcell[q]
+            if stamp[b] == tag:
                 continue
-            stamp[w] = tag
-            b = owner[w]
-            if not convex[b]:
+            stamp[b] = tag
+            if (bbox[b, 0] > ehx or bbox[b, 2] < elx or bbox[b, 1] > ehy or bbox[b, 3] < ely
+                    or bbox[b, 0] > fhx or bbox[b, 2] < flx or bbox[b, 1] > fhy
+                    or bbox[b, 3] < fly):
                 continue
-            if not _seg_hits(px, py, qx, qy, A[w, 0], A[w, 1], B[w, 0], B[w, 1]):
+            hit = False
+            for v in range(bstart[b], bstart[b + 1]):
+                if _seg_hits(px, py, qx, qy, A[v, 0], A[v, 1], B[v, 0], B[v, 1]):
+                    hit = True
+                    break
+            if not hit:
                 continue
             for v in range(bstart[b], bstart[b + 1]):
                 if _seg_hits(rx_, ry_, sx, sy, A[v, 0], A[v, 1], B[v, 0], B[v, 1]):
@@ -571,3 +646,65 @@ def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, owner, convex, b
         if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
             break
     return False
+
+
+@njit(cache=True)
+def _cross(ox, oy, ax, ay, bx, by):
+    return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
+
+
+@njit(cache=True)
+def _quad_spanned(ax, ay, bx, by, cx, cy, dx, dy, A, B, bbox, bstart, g0x, g0y, h, nx, ny,
+                  bcs, bcell, stamp, tag):
+    """Whether one convex footprint spans the quadrilateral between the segments a-b and
+    c-d (False when that quadrilateral is not strictly convex)."""
+    # pair the ends so that the sides a -> x and b -> y do not cross
+    xx, xy, yx, yy = cx, cy, dx, dy
+    if _cross(ax, ay, cx, cy, bx, by) * _cross(ax, ay, cx, cy, dx, dy) < 0 and \
+            _cross(bx, by, dx, dy, ax, ay) * _cross(bx, by, dx, dy, cx, cy) < 0:
+        xx, xy, yx, yy = dx, dy, cx, cy
+    # quadrilateral a, b, y, x strictly convex (all turns of one sign)
+    t0 = _cross(ax, ay, bx, by, yx, yy)
+    t1 = _cross(bx, by, yx, yy, xx, xy)
+    t2 = _cross(yx, yy, xx, xy, ax, ay)
+    t3 = _cross(xx, xy, ax, ay, bx, by)
+    if not ((t0 > 0 and t1 > 0 and t2 > 0 and t3 > 0)
+            or (t0 < 0 and t1 < 0 and t2 < 0 and t3 < 0)):
+        return False
+    return _beam_blocked(ax, ay, xx, xy, bx, by, yx, yy, A, B, bbox, bstart,
+                         g0x, g0y, h, nx, ny, bcs, bcell, stamp, tag)
+
+
+@njit(cache=True, parallel=True)
+def _wall_pairs_visible(A, B, fstart, fwalls, bbox, bstart, g0x, g0y, h, nx, ny, bcs, bcell,
+                        nsub):
+    """For every pair (p, w) of the follower lists, False when the two walls, cut into
+    ``nsub`` equal pieces each, have every pair of pieces spanned by a convex footprint
+    (see :attr:`Scene.visible`)."""
+    P = fstart.shape[0] - 1
+    W = A.shape[0]
+    keep = np.ones(fwalls.shape[0], np.bool_)
+    for p in prange(P):
+        stamp = np.zeros(W, np.int64)
+        tag = 0
+        ax, ay = A[p, 0], A[p, 1]
+        ux, uy = (B[p, 0] - ax) / nsub, (B[p, 1] - ay) / nsub
+        for q in range(fstart[p], fstart[p + 1]):
+            w = fwalls[q]
+            cx, cy = A[w, 0], A[w, 1]
+            vx, vy = (B[w, 0] - cx) / nsub, (B[w, 1] - cy) / nsub
+            hidden = True
+            for i in range(nsub):
+                for j in range(nsub):
+                    tag += 1
+                    if not _quad_spanned(ax + i * ux, ay + i * uy, ax + (i + 1) * ux,
+                                         ay + (i + 1) * uy, cx + j * vx, cy + j * vy,
+                                         cx + (j + 1) * vx, cy + (j + 1) * vy, A, B, bbox,
+                                         bstart, g0x, g0y, h, nx, ny, bcs, bcell, stamp,
+                                         tag):
+                        hidden = False
+                        break
+                if not hidden:
+                    break
+            keep[q] = not hidden
+    return keep
