@@ -34,12 +34,17 @@ from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (_TIE, DiagMixture, _reduce_into, check_reduction,
-                                     compact, convolve, linear_predict, outer, pad_components,
-                                     product, product_on, reduce, select, uniform_ball)
+from radioloc.models.mixture import (_TIE, REDUCTIONS, DiagMixture, _reduce_into,
+                                     check_reduction, compact, convolve, linear_predict,
+                                     merge_groups, outer, pad_components, product, product_on,
+                                     reduce, select, uniform_ball)
 from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 
-__all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture"]
+__all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture",
+           "TRACKER_REDUCTIONS"]
+
+#: reductions of :class:`MixtureTracker` (the first is the default)
+TRACKER_REDUCTIONS = ("continuous",) + REDUCTIONS
 
 _LOG2PI = math.log(2.0 * math.pi)
 
@@ -437,10 +442,30 @@ class MixtureTracker(RecursiveEstimator):
     max_components : int
         Bound on the components of every density.
     reduction : str
-        ``"runnalls"`` (West/Runnalls greedy merging, default) or ``"progressive"`` (the
-        Progressive Bayes ISD homotopy of the paper's reference [3]) for every
-        re-approximation: the measurement density of eq. (2), the filter step and the
-        prediction.
+        How the filter step and the prediction are re-approximated:
+
+        - ``"continuous"`` (default): a fixed-structure reduction, continuous in the
+          inputs. The prediction convolves every component with the disk mixture and keeps
+          all the cells (no reduction); the filter step multiplies this prediction by the
+          measurement density of eq. (2) and merges, for every component of the
+          measurement density, its products with all the predicted components into one,
+          moment-matched (:func:`radioloc.models.mixture.merge_groups`); a step with no
+          station received merges each component's disk cells (the moment-matched
+          convolution). The posterior then has as many components as the measurement
+          density (at most ``max_components``), placed by the data and weighted and
+          narrowed by the prior. No cost is compared, so the estimate is a continuous
+          function of the time steps and of the prior, exactly independent of the order of
+          the components, and rotates and translates with the scene. The measurement
+          density itself (the product over the stations, reduced after each factor by
+          West/Runnalls; the stations by decreasing reading) depends only on the readings
+          and the models, not on time.
+        - ``"runnalls"``: West/Runnalls greedy merging of every product and prediction
+          (the re-approximation as in Sect. 4); the greedy choice jumps where two merges
+          are about as cheap, so the track can move by metres when a time step changes by a
+          millisecond.
+        - ``"progressive"``: the Progressive Bayes ISD homotopy of the paper's reference
+          [3] for every re-approximation (started from West/Runnalls, so not continuous
+          either).
 
     Raises
     ------
@@ -452,10 +477,17 @@ class MixtureTracker(RecursiveEstimator):
     name = "mixture-tracker"
 
     def __init__(self, models: DiagMixture, motion: UniformDisk | BoundedSpeedCV,
-                 max_components: int = 16, reduction: str = "runnalls") -> None:
+                 max_components: int = 16, reduction: str = "continuous") -> None:
         self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
-        self.reduction = check_reduction(reduction)
+        if not isinstance(reduction, str) or reduction not in TRACKER_REDUCTIONS:
+            raise InputError(f"reduction: must be one of {', '.join(TRACKER_REDUCTIONS)}, "
+                             f"got {reduction!r}")
+        self.reduction = reduction
+        self.continuous = reduction == "continuous"
+        #: the reduction of the fixed densities (measurement density, calibration area,
+        #: a prior with too many components): West/Runnalls for the continuous tracker
+        self.base_reduction = "runnalls" if self.continuous else reduction
         if not isinstance(motion, (UniformDisk, BoundedSpeedCV)):
             raise InputError(f"motion: expected radioloc.models.motion.UniformDisk or "
                              f"BoundedSpeedCV, got {type(motion).__name__}")
@@ -466,7 +498,7 @@ class MixtureTracker(RecursiveEstimator):
             raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
         self.motion = motion
         self.velocity = isinstance(motion, BoundedSpeedCV)
-        self._localizer = MixtureLocalizer(models, max_components, reduction)
+        self._localizer = MixtureLocalizer(models, max_components, self.base_reduction)
 
     @property
     def dim(self) -> int:
@@ -479,13 +511,17 @@ class MixtureTracker(RecursiveEstimator):
         return 2 * self.dim if self.velocity else self.dim
 
     def _reduce(self, mix: DiagMixture) -> DiagMixture:
-        return reduce(mix, self.max_components, self.reduction)
+        return reduce(mix, self.max_components, self.base_reduction)
 
     def _with_velocity(self, pos: DiagMixture) -> DiagMixture:
-        """A position density extended by the velocity prior (uniform in the ball v_max)."""
+        """A position density extended by the velocity prior (uniform in the ball v_max);
+        continuous tracker: each position component with the moment-matched ball."""
         if not self.velocity:
             return pos
-        return self._reduce(outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim)))
+        joint = outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim))
+        if self.continuous:
+            return merge_groups(joint, pos.n_components, "outer")
+        return self._reduce(joint)
 
     def calibration_area(self) -> DiagMixture:
         """The flat-prior stand-in: the position marginal of all station models pooled.
@@ -557,8 +593,43 @@ class MixtureTracker(RecursiveEstimator):
             return mix
         return self._reduce(convolve(mix, uniform_ball(r, self.dim)))
 
+    def _update_continuous(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
+                           used: np.ndarray, dt: float) -> MixtureState:
+        """The filter step of ``reduction="continuous"`` (see the class docstring)."""
+        informed = np.broadcast_to(state.informed, meas.batch_shape)
+        received = np.broadcast_to(received, meas.batch_shape)
+        prior = state.mixture
+        kp = prior.n_components
+        if self.velocity:
+            cells = linear_predict(prior, self.motion.F(dt), self.motion.Q(dt)) if dt > 0 \
+                else prior
+            merged = cells
+        else:
+            r = float(self.motion.radius(dt))
+            if r > 0:
+                cells = convolve(prior, uniform_ball(r, self.dim))
+                merged = merge_groups(cells, kp, "outer")
+            else:
+                cells = merged = prior
+        if np.any(informed):
+            pred = select(informed, cells, prior)
+            if self.velocity:
+                prod = product_on(pred, meas, list(range(self.dim)))
+            else:
+                prod = product(pred, meas)
+            filtered = merge_groups(prod, pred.n_components, "inner")
+            kept = select(informed, merged, prior)
+        else:
+            filtered, kept = meas, prior
+        first = self._with_velocity(meas)
+        post = select(received & informed, filtered, select(received, first, kept))
+        return MixtureState(compact(post), informed | received,
+                            np.broadcast_to(used, meas.batch_shape), state.time + dt)
+
     def _update(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
                 used: np.ndarray, dt: float) -> MixtureState:
+        if self.continuous:
+            return self._update_continuous(state, meas, received, used, dt)
         informed = np.broadcast_to(state.informed, meas.batch_shape)
         received = np.broadcast_to(received, meas.batch_shape)
         prior = state.mixture

@@ -828,3 +828,55 @@ def select(mask, new: DiagMixture, old: DiagMixture) -> DiagMixture:
     return DiagMixture(np.where(mk, new.weights, old.weights),
                        np.where(mk[..., None], new.means, old.means),
                        np.where(mk[..., None], new.variances, old.variances))
+
+
+def merge_groups(mix: DiagMixture, n_outer: int, keep: str) -> DiagMixture:
+    """Moment-matched merge of the components of a product along one of its two factors:
+    a fixed-structure reduction, continuous in its input.
+
+    The ``K = n_outer * n_inner`` components of ``mix`` are read as the pairs ``(a, b)`` of
+    :func:`product`, :func:`product_on`, :func:`convolve` or :func:`outer` (``a`` outer,
+    ``b`` inner). ``keep="outer"`` merges, for every ``a``, its ``n_inner`` components into
+    one (``n_outer`` components); ``keep="inner"`` merges, for every ``b``, its ``n_outer``
+    components into one (``n_inner`` components). Each merged component has the total
+    weight, the mean and the per-axis variances of its group (:func:`merge_moments`
+    applied to the whole group), so the mass, the mean and the diagonal of the covariance
+    of the mixture are preserved exactly.
+
+    Which components merge is fixed by the structure, not decided by comparing costs: the
+    result is a continuous (smooth where the group weights are positive) function of the
+    weights, means and variances, it does not depend on the order of the components within
+    a factor (sums), and rotating or translating the means rotates or translates it.
+    A group of total weight 0 gives an empty slot (weight 0, mean 0, variance 1).
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of products, ``n_outer * n_inner`` components each.
+    n_outer : int
+        Components of the outer factor ``a``.
+    keep : str
+        ``"outer"`` or ``"inner"``: the factor whose components are kept.
+
+    Returns
+    -------
+    DiagMixture
+        ``n_outer`` (``keep="outer"``) or ``n_inner`` components per mixture.
+    """
+    k = mix.n_components
+    n_outer = int(n_outer)
+    if n_outer < 1 or k % n_outer:
+        raise InputError(f"n_outer: {n_outer} does not divide the {k} components")
+    if keep not in ("outer", "inner"):
+        raise InputError(f"keep: must be 'outer' or 'inner', got {keep!r}")
+    shape = mix.batch_shape + (n_outer, k // n_outer)
+    w = mix.weights.reshape(shape)
+    m = mix.means.reshape(shape + (mix.dim,))
+    v = mix.variances.reshape(shape + (mix.dim,))
+    axis = -1 if keep == "outer" else -2
+    total = w.sum(axis)
+    a = w / np.expand_dims(np.where(total > 0, total, 1.0), axis)
+    mean = np.sum(a[..., None] * m, axis=axis - 1)
+    var = np.sum(a[..., None] * (v + (m - np.expand_dims(mean, axis - 1)) ** 2), axis=axis - 1)
+    empty = (total <= 0)[..., None]
+    return DiagMixture(total, np.where(empty, 0.0, mean), np.where(empty, 1.0, var))
