@@ -4,13 +4,15 @@ Peer: a vectorised NumPy implementation of the same greedy West/Runnalls reducti
 merge per iteration for the whole batch), measured in the same process against the compiled
 kernel used by :func:`radioloc.models.mixture.reduce`. The Progressive Bayes reduction
 (:func:`radioloc.models.progressive_bayes.progressive_reduce`) is timed beside the compiled
-West/Runnalls reduction it starts from (on a tenth of the batch).
+West/Runnalls reduction it starts from (on a tenth of the batch). The tracker's continuous default (fixed-structure merges) is timed
+against its greedy West/Runnalls option.
 """
 
 import numpy as np
 
-from radioloc.estimators.mixture_localization import MixtureLocalizer
+from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
 from radioloc.models.mixture import DiagMixture, merge_moments, product, reduce, runnalls_cost
+from radioloc.models.motion import UniformDisk
 from radioloc.models.progressive_bayes import progressive_reduce
 from timing import best_of
 
@@ -76,6 +78,24 @@ def main(batch: int = 500, seed: int = 0) -> list[dict]:
     t_loc = best_of(lambda: loc.locate(rss))
     print(f"MixtureLocalizer.locate (6 stations x 16 components, eq. (2)): "
           f"{rss.shape[0] / t_loc:,.0f} rows/s")
+    # tracking: 200 steps of 0.33 s, 4 stations x 16 components, 8 position components,
+    # a batch of 8 runs; the continuous default against the greedy West/Runnalls option
+    steps, runs = 200, 8
+    tmod = DiagMixture.create(rng.uniform(0.1, 1, (4, 16)), rng.normal(0, 3, (4, 16, 3)),
+                              rng.uniform(0.5, 4, (4, 16, 3)))
+    trss = rng.normal(0, 3, (runs, steps, 4))
+    times = 0.33 * np.arange(steps)
+    cont = MixtureTracker(tmod, UniformDisk(1.5), 8)
+    greedy = MixtureTracker(tmod, UniformDisk(1.5), 8, reduction="runnalls")
+    cont.run(trss[:, :3], times[:3])
+    greedy.run(trss[:, :3], times[:3])
+    t_cont = best_of(lambda: cont.run(trss, times), repeat=2)
+    t_greedy = best_of(lambda: greedy.run(trss, times), repeat=1)
+    rows.append({"workload": "mixture tracking, 4 stations x 16 components, 8 position "
+                             "components (continuous default)",
+                 "throughput": runs * steps / t_cont, "unit": "run-steps/s",
+                 "peer": "reduction='runnalls' (greedy West/Runnalls, same tracker)",
+                 "peer_throughput": runs * steps / t_greedy, "ratio": t_greedy / t_cont})
     for r in rows:
         print(f"{r['workload']}: {r['throughput']:,.0f} {r['unit']}, {r['peer']} "
               f"{r['peer_throughput']:,.0f}, ratio {r['ratio']:.2f}x")

@@ -8,8 +8,8 @@ No truth is needed: the relation between two runs is known.
   is axis-aligned (grid filter, axis-aligned mixtures, the coarse grids of LocalML and
   Ransac) are rotated by 90 degrees, which maps their grids onto themselves (the mixture
   tracker, whose disk mixture has 60-degree symmetry, by 180 degrees); the others by 0.7 rad.
-  The mixture estimators agree to a stated tolerance, not to rounding: their greedy
-  reduction depends on the order of the stations and breaks exact ties by index.
+  The mixture estimators agree to rounding: the stations enter the product of eq. (2) by
+  decreasing reading, and the tracker's default reduction compares no costs.
 - **Permutation**: reordering the anchors (with their ranges) changes nothing. Not for the
   network estimators (their sequential update order over masters is part of the
   algorithm, paper 000) nor the single-sensor trackers (their rows are time samples).
@@ -277,9 +277,9 @@ def scene_mixture_localizer():
     def solve(R, t, perm, ts):
         p = np.arange(4) if perm is None else perm
         return _final(MixtureLocalizer(_mixture_models(R, t, perm), 200).locate(rss[:, p]))
-    # the product of the stations is reduced after each factor (greedy West reduction), so
-    # another station order merges other pairs: measured 5.7e-6 m over all 24 orders
-    return Scene(solve, angle=np.pi / 2, tol_m=1e-6, permutation_tol_m=1e-4)
+    # the product of the stations is reduced after each factor (greedy West reduction); the
+    # stations enter it by decreasing reading, so their column order changes nothing
+    return Scene(solve, angle=np.pi / 2, tol_m=1e-6, permutation_tol_m=1e-9)
 
 
 def scene_mixture_tracker():
@@ -292,12 +292,10 @@ def scene_mixture_tracker():
         p = np.arange(4) if perm is None else perm
         trk = MixtureTracker(_mixture_models(R, t, perm), UniformDisk(1.5), max_components=8)
         return _final(trk.run(rss[..., p], time * ts))
-    # 8 components: the greedy reduction sees the stations in another order when they are
-    # permuted (0.119 m at most over the 24 orders), and its exact ties (the symmetric
-    # cells of the disk mixture, 60-degree symmetry) go to the lower index, which a
-    # rotation relabels (0.057 m for a half turn, 0.086 m for a quarter turn): agreement
-    # within 0.15 m, a fraction of the tracker's spread, not to rounding
-    return Scene(solve, angle=np.pi, tol_m=1e-6, rotation_tol_m=0.15, permutation_tol_m=0.15)
+    # default reduction "continuous" (fixed-structure merges, no cost compared): a station
+    # permutation changes nothing and a half turn (a symmetry of the disk mixture's cells)
+    # rotates the estimate to rounding (the greedy "runnalls" option agreed within 0.15 m)
+    return Scene(solve, angle=np.pi, tol_m=1e-9)
 
 
 SCENES: dict[type, Callable[[], Scene]] = {

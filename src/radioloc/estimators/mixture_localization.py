@@ -34,12 +34,17 @@ from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (_TIE, DiagMixture, check_reduction, compact, convolve,
-                                     linear_predict, outer, pad_components, product,
-                                     product_on, reduce, select, uniform_ball)
+from radioloc.models.mixture import (_TIE, REDUCTIONS, DiagMixture, _reduce_into,
+                                     check_reduction, compact, convolve, linear_predict,
+                                     merge_groups, outer, pad_components, product, product_on,
+                                     reduce, select, uniform_ball)
 from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 
-__all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture"]
+__all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture",
+           "TRACKER_REDUCTIONS"]
+
+#: reductions of :class:`MixtureTracker` (the first is the default)
+TRACKER_REDUCTIONS = ("continuous",) + REDUCTIONS
 
 _LOG2PI = math.log(2.0 * math.pi)
 
@@ -239,7 +244,7 @@ class MixtureLocalizer(SnapshotEstimator):
                                          np.ascontiguousarray(mu, dtype=float),
                                          np.ascontiguousarray(var, dtype=float),
                                          np.ascontiguousarray(m, dtype=float),
-                                         kmax, kc, _TIE)
+                                         _station_order(m), kmax, kc, _TIE)
         if not np.all(ok):
             raise InputError("weights: a mixture lost all its mass (disjoint densities)")
         post = compact(DiagMixture(ow, om, ov))
@@ -279,15 +284,22 @@ class MixtureLocalizer(SnapshotEstimator):
         check_memory(32.0 * np.prod(shape, dtype=float) * k * k * (2 * models.dim - 1),
                      "max_components", "the products of the position mixtures")
         cond = models.condition(models.dim - 1, np.where(got, rss, 0.0), valid=got)
+        s = self.n_stations
+        order = _station_order(np.broadcast_to(rss, shape + (s,)))
+        cw = np.broadcast_to(cond.weights, shape + cond.weights.shape[-2:])
+        cm = np.broadcast_to(cond.means, shape + cond.means.shape[-3:])
+        cv = np.broadcast_to(cond.variances, shape + cond.variances.shape[-3:])
+        got = np.broadcast_to(got, shape + (s,))
         post = None
         have = None
-        for k in range(self.n_stations):
+        for p in range(s):
+            k = order[..., p]
             ck = DiagMixture(
-                np.broadcast_to(cond.weights[..., k, :], shape + cond.weights.shape[-1:]),
-                np.broadcast_to(cond.means[..., k, :, :], shape + cond.means.shape[-2:]),
-                np.broadcast_to(cond.variances[..., k, :, :], shape + cond.variances.shape[-2:]))
+                np.take_along_axis(cw, k[..., None, None], -2)[..., 0, :],
+                np.take_along_axis(cm, k[..., None, None, None], -3)[..., 0, :, :],
+                np.take_along_axis(cv, k[..., None, None, None], -3)[..., 0, :, :])
             ck = reduce(ck, self.max_components, self.reduction)
-            gk = np.broadcast_to(got[..., k], shape)
+            gk = np.take_along_axis(got, k[..., None], -1)[..., 0]
             if post is None:
                 post, have = ck, gk
                 continue
@@ -430,10 +442,30 @@ class MixtureTracker(RecursiveEstimator):
     max_components : int
         Bound on the components of every density.
     reduction : str
-        ``"runnalls"`` (West/Runnalls greedy merging, default) or ``"progressive"`` (the
-        Progressive Bayes ISD homotopy of the paper's reference [3]) for every
-        re-approximation: the measurement density of eq. (2), the filter step and the
-        prediction.
+        How the filter step and the prediction are re-approximated:
+
+        - ``"continuous"`` (default): a fixed-structure reduction, continuous in the
+          inputs. The prediction convolves every component with the disk mixture and keeps
+          all the cells (no reduction); the filter step multiplies this prediction by the
+          measurement density of eq. (2) and merges, for every component of the
+          measurement density, its products with all the predicted components into one,
+          moment-matched (:func:`radioloc.models.mixture.merge_groups`); a step with no
+          station received merges each component's disk cells (the moment-matched
+          convolution). The posterior then has as many components as the measurement
+          density (at most ``max_components``), placed by the data and weighted and
+          narrowed by the prior. No cost is compared, so the estimate is a continuous
+          function of the time steps and of the prior, exactly independent of the order of
+          the components, and rotates and translates with the scene. The measurement
+          density itself (the product over the stations, reduced after each factor by
+          West/Runnalls; the stations by decreasing reading) depends only on the readings
+          and the models, not on time.
+        - ``"runnalls"``: West/Runnalls greedy merging of every product and prediction
+          (the re-approximation as in Sect. 4); the greedy choice jumps where two merges
+          are about as cheap, so the track can move by metres when a time step changes by a
+          millisecond.
+        - ``"progressive"``: the Progressive Bayes ISD homotopy of the paper's reference
+          [3] for every re-approximation (started from West/Runnalls, so not continuous
+          either).
 
     Raises
     ------
@@ -445,10 +477,17 @@ class MixtureTracker(RecursiveEstimator):
     name = "mixture-tracker"
 
     def __init__(self, models: DiagMixture, motion: UniformDisk | BoundedSpeedCV,
-                 max_components: int = 16, reduction: str = "runnalls") -> None:
+                 max_components: int = 16, reduction: str = "continuous") -> None:
         self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
-        self.reduction = check_reduction(reduction)
+        if not isinstance(reduction, str) or reduction not in TRACKER_REDUCTIONS:
+            raise InputError(f"reduction: must be one of {', '.join(TRACKER_REDUCTIONS)}, "
+                             f"got {reduction!r}")
+        self.reduction = reduction
+        self.continuous = reduction == "continuous"
+        #: the reduction of the fixed densities (measurement density, calibration area,
+        #: a prior with too many components): West/Runnalls for the continuous tracker
+        self.base_reduction = "runnalls" if self.continuous else reduction
         if not isinstance(motion, (UniformDisk, BoundedSpeedCV)):
             raise InputError(f"motion: expected radioloc.models.motion.UniformDisk or "
                              f"BoundedSpeedCV, got {type(motion).__name__}")
@@ -459,7 +498,7 @@ class MixtureTracker(RecursiveEstimator):
             raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
         self.motion = motion
         self.velocity = isinstance(motion, BoundedSpeedCV)
-        self._localizer = MixtureLocalizer(models, max_components, reduction)
+        self._localizer = MixtureLocalizer(models, max_components, self.base_reduction)
 
     @property
     def dim(self) -> int:
@@ -472,13 +511,17 @@ class MixtureTracker(RecursiveEstimator):
         return 2 * self.dim if self.velocity else self.dim
 
     def _reduce(self, mix: DiagMixture) -> DiagMixture:
-        return reduce(mix, self.max_components, self.reduction)
+        return reduce(mix, self.max_components, self.base_reduction)
 
     def _with_velocity(self, pos: DiagMixture) -> DiagMixture:
-        """A position density extended by the velocity prior (uniform in the ball v_max)."""
+        """A position density extended by the velocity prior (uniform in the ball v_max);
+        continuous tracker: each position component with the moment-matched ball."""
         if not self.velocity:
             return pos
-        return self._reduce(outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim)))
+        joint = outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim))
+        if self.continuous:
+            return merge_groups(joint, pos.n_components, "outer")
+        return self._reduce(joint)
 
     def calibration_area(self) -> DiagMixture:
         """The flat-prior stand-in: the position marginal of all station models pooled.
@@ -550,8 +593,43 @@ class MixtureTracker(RecursiveEstimator):
             return mix
         return self._reduce(convolve(mix, uniform_ball(r, self.dim)))
 
+    def _update_continuous(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
+                           used: np.ndarray, dt: float) -> MixtureState:
+        """The filter step of ``reduction="continuous"`` (see the class docstring)."""
+        informed = np.broadcast_to(state.informed, meas.batch_shape)
+        received = np.broadcast_to(received, meas.batch_shape)
+        prior = state.mixture
+        kp = prior.n_components
+        if self.velocity:
+            cells = linear_predict(prior, self.motion.F(dt), self.motion.Q(dt)) if dt > 0 \
+                else prior
+            merged = cells
+        else:
+            r = float(self.motion.radius(dt))
+            if r > 0:
+                cells = convolve(prior, uniform_ball(r, self.dim))
+                merged = merge_groups(cells, kp, "outer")
+            else:
+                cells = merged = prior
+        if np.any(informed):
+            pred = select(informed, cells, prior)
+            if self.velocity:
+                prod = product_on(pred, meas, list(range(self.dim)))
+            else:
+                prod = product(pred, meas)
+            filtered = merge_groups(prod, pred.n_components, "inner")
+            kept = select(informed, merged, prior)
+        else:
+            filtered, kept = meas, prior
+        first = self._with_velocity(meas)
+        post = select(received & informed, filtered, select(received, first, kept))
+        return MixtureState(compact(post), informed | received,
+                            np.broadcast_to(used, meas.batch_shape), state.time + dt)
+
     def _update(self, state: MixtureState, meas: DiagMixture, received: np.ndarray,
                 used: np.ndarray, dt: float) -> MixtureState:
+        if self.continuous:
+            return self._update_continuous(state, meas, received, used, dt)
         informed = np.broadcast_to(state.informed, meas.batch_shape)
         received = np.broadcast_to(received, meas.batch_shape)
         prior = state.mixture
@@ -664,121 +742,27 @@ class MixtureTracker(RecursiveEstimator):
 
 # --- compiled eq. (2): condition, product and West/Runnalls reduction fused per row ---------
 
-@njit(cache=True)
-def _compact_into(w, m, v, n, ow, om, ov):  # pragma: no cover - compiled
-    """Copy the positive-weight components of ``w[:n]`` into ``ow, om, ov`` sorted by
-    decreasing weight, stably (as :func:`radioloc.models.mixture.compact`); returns the count."""
-    order = np.argsort(-w[:n], kind="mergesort")
-    c = 0
-    for r in range(n):
-        i = order[r]
-        if w[i] > 0:
-            ow[c] = w[i]
-            om[c, :] = m[i, :]
-            ov[c, :] = v[i, :]
-            c += 1
-    return c
+def _station_order(rss: np.ndarray) -> np.ndarray:
+    """The order in which the stations of each row enter the product of eq. (2): received
+    stations by decreasing signal strength, then the stations not received; equal readings
+    keep their column order.
 
+    The product is reduced after each factor, so its result depends on this order; taking
+    it from the readings (not from the column order) makes a permutation of the stations
+    (models and columns together) change nothing, as long as the received readings differ.
 
-@njit(cache=True)
-def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
-    """West's greedy merging of one compacted mixture ``w[:n]`` (all weights > 0) down to
-    ``kmax`` components, in place: the rule, the moment-matched merge and Runnalls' cost with
-    the tie handling of ``models.mixture._west_kernel`` (weights or costs within a relative
-    ``tie`` count as equal and the lower index wins). Faster form of the same decisions:
+    Parameters
+    ----------
+    rss : ndarray, shape (..., S)
+        Signal strengths, NaN = not received.
 
-    - merged components are removed by shifting the later ones down, so the survivors keep
-      their relative order (the tie rule's "lower index") and no empty slot is visited;
-    - the merged variance is ``a1 v_i + a2 v_c + a1 a2 (m_i - m_c)^2`` (the moment formula
-      rearranged), the log-determinants of the components are cached and the merged one is
-      the logarithm of the product of the per-axis variances (one logarithm per pair);
-    - the candidates are scanned in index order and the scan stops once the best cost is
-      within the tie tolerance of zero: Runnalls' cost is never negative (beyond rounding,
-      far below ``tie``), so no later candidate can then beat the best by the tolerance.
-
-    On return ``w[:k]`` (``k = min(n, kmax)``) holds the survivors in their order and
-    ``w[k:n]`` is 0."""
-    d = m.shape[1]
-    logdet = np.empty(n)
-    for c in range(n):
-        acc = 0.0
-        for e in range(d):
-            acc += math.log(v[c, e])
-        logdet[c] = acc
-    cnt = n
-    while cnt > kmax:
-        i = 0
-        for c in range(1, cnt):
-            if w[c] < w[i] * (1.0 - tie):
-                i = c
-        wi = w[i]
-        ldi = logdet[i]
-        best = np.inf
-        best_scale = 0.0
-        j = -1
-        for c in range(cnt):
-            if c == i:
-                continue
-            wc = w[c]
-            ws = wi + wc
-            inv = 1.0 / ws
-            a1 = wi * inv
-            a2 = wc * inv
-            a12 = a1 * a2
-            if d == 2:
-                dm0 = m[i, 0] - m[c, 0]
-                dm1 = m[i, 1] - m[c, 1]
-                prod = (a1 * v[i, 0] + a2 * v[c, 0] + a12 * dm0 * dm0) * \
-                    (a1 * v[i, 1] + a2 * v[c, 1] + a12 * dm1 * dm1)
-            else:
-                prod = 1.0
-                for e in range(d):
-                    dm = m[i, e] - m[c, e]
-                    prod *= a1 * v[i, e] + a2 * v[c, e] + a12 * dm * dm
-            ld = math.log(prod)
-            ldc = logdet[c]
-            cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
-            scale = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
-            if j < 0 or cost < best - tie * (scale + best_scale):
-                best = cost
-                best_scale = scale
-                j = c
-                if best <= tie * best_scale:
-                    break
-        ws = wi + w[j]
-        a1 = wi / ws
-        a2 = w[j] / ws
-        acc = 0.0
-        for e in range(d):
-            mm = a1 * m[i, e] + a2 * m[j, e]
-            vv = a1 * (v[i, e] + (m[i, e] - mm) ** 2) + a2 * (v[j, e] + (m[j, e] - mm) ** 2)
-            m[j, e] = mm
-            v[j, e] = vv
-            acc += math.log(vv)
-        logdet[j] = acc
-        w[j] = ws
-        for c in range(i, cnt - 1):          # remove i, keeping the order
-            w[c] = w[c + 1]
-            logdet[c] = logdet[c + 1]
-            for e in range(d):
-                m[c, e] = m[c + 1, e]
-                v[c, e] = v[c + 1, e]
-        cnt -= 1
-        w[cnt] = 0.0
-
-
-@njit(cache=True)
-def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, sw, sm, sv):  # pragma: no cover - compiled
-    """:func:`radioloc.models.mixture.reduce` of one mixture ``w[:n]`` into ``ow, om, ov``
-    (``sw, sm, sv``: scratch of at least ``n`` slots); returns the component count."""
-    c = _compact_into(w, m, v, n, sw, sm, sv)
-    if c <= kmax:
-        ow[:c] = sw[:c]
-        om[:c, :] = sm[:c, :]
-        ov[:c, :] = sv[:c, :]
-        return c
-    _west_one(sw, sm, sv, c, kmax, tie)
-    return _compact_into(sw, sm, sv, c, ow, om, ov)
+    Returns
+    -------
+    ndarray of int, shape (..., S)
+        Column indices in product order.
+    """
+    key = np.where(np.isfinite(rss), -rss, np.inf)
+    return np.ascontiguousarray(np.argsort(key, axis=-1, kind="stable"))
 
 
 @njit(cache=True)
@@ -808,14 +792,18 @@ def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - comp
 
 
 @njit(cache=True, parallel=True)
-def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compiled
+def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover - compiled
     """Eq. (2) for every row: condition each station model on its reading, reduce it to
     ``kmax`` components, multiply it into the running product and reduce, exactly as
     :meth:`MixtureLocalizer.density_reference` composes the NumPy operations.
 
     Parameters: ``w (B, S, K)``, ``mu, var (B, S, K, D + 1)``, ``rss (B, S)`` (NaN = not
-    received), ``kc = min(K, kmax)``. Returns ``(weights (B, kmax), means (B, kmax, D),
-    variances (B, kmax, D), ok (B,))`` with unused slots at weight 0 (mean 0, variance 1).
+    received), ``order (B, S)`` the stations of each row in the order they enter the
+    product (:func:`_station_order`), ``kc = min(K, kmax)``. Returns ``(weights (B, kmax),
+    means (B, kmax, D), variances (B, kmax, D), ok (B,))`` with unused slots at weight 0
+    (mean 0, variance 1). The product is unrolled for one and two coordinates (one
+    logarithm of the product of the two variance sums per pair; the logarithms of the
+    weights are taken once per factor).
     """
     nb, ns, k, d1 = mu.shape
     d = d1 - 1
@@ -832,6 +820,8 @@ def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compi
         qw = np.empty(kmax)
         qm = np.empty((kmax, d))
         qv = np.empty((kmax, d))
+        lp = np.empty(kmax)
+        lq = np.empty(kmax)
         xw = np.empty(big)
         xm = np.empty((big, d))
         xv = np.empty((big, d))
@@ -841,7 +831,8 @@ def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compi
         pn = 0
         have = False
         started = False
-        for s in range(ns):
+        for si in range(ns):
+            s = order[b, si]
             got = np.isfinite(rss[b, s])
             if started and not got:
                 continue
@@ -859,19 +850,47 @@ def _product_kernel(w, mu, var, rss, kmax, kc, tie):  # pragma: no cover - compi
                 have = got
                 continue
             # product of the running density (pn) with this station's (qn), i-major
+            for i in range(pn):
+                lp[i] = math.log(pw[i])
+            for j in range(qn):
+                lq[j] = math.log(qw[j])
             top = -np.inf
             r = 0
             for i in range(pn):
                 for j in range(qn):
-                    lc = 0.0
-                    for e in range(d):
-                        vi = pv[i, e]
-                        vj = qv[j, e]
+                    if d == 1:
+                        vi = pv[i, 0]
+                        vj = qv[j, 0]
                         ss = vi + vj
-                        xv[r, e] = vi * vj / ss
-                        xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
-                        lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
-                    lw = math.log(pw[i]) + math.log(qw[j]) - 0.5 * lc
+                        xv[r, 0] = vi * vj / ss
+                        xm[r, 0] = (pm[i, 0] * vj + qm[j, 0] * vi) / ss
+                        dm = pm[i, 0] - qm[j, 0]
+                        lc = dm * dm / ss + math.log(ss) + _LOG2PI
+                    elif d == 2:
+                        vi0 = pv[i, 0]
+                        vj0 = qv[j, 0]
+                        vi1 = pv[i, 1]
+                        vj1 = qv[j, 1]
+                        s0 = vi0 + vj0
+                        s1 = vi1 + vj1
+                        xv[r, 0] = vi0 * vj0 / s0
+                        xv[r, 1] = vi1 * vj1 / s1
+                        xm[r, 0] = (pm[i, 0] * vj0 + qm[j, 0] * vi0) / s0
+                        xm[r, 1] = (pm[i, 1] * vj1 + qm[j, 1] * vi1) / s1
+                        dm0 = pm[i, 0] - qm[j, 0]
+                        dm1 = pm[i, 1] - qm[j, 1]
+                        lc = dm0 * dm0 / s0 + dm1 * dm1 / s1 + math.log(s0 * s1) \
+                            + 2.0 * _LOG2PI
+                    else:
+                        lc = 0.0
+                        for e in range(d):
+                            vi = pv[i, e]
+                            vj = qv[j, e]
+                            ss = vi + vj
+                            xv[r, e] = vi * vj / ss
+                            xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
+                            lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
+                    lw = lp[i] + lq[j] - 0.5 * lc
                     xw[r] = lw
                     if lw > top:
                         top = lw

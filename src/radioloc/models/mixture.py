@@ -24,6 +24,7 @@ exact in mass, mean and diagonal covariance, and an approximation in the off-dia
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -501,17 +502,19 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     ``mix`` is never larger than West/Runnalls'; mass is kept, the mean and variances are
     not preserved exactly).
 
-    ``method="runnalls"`` (default): West's (1993) greedy rule: while a mixture has too many components, its lowest-weight
-    component is merged (:func:`merge_moments`) into the component for which Runnalls'
-    cost :func:`runnalls_cost` of the merge is smallest. Each merge preserves the mass, the
-    mean and the per-axis variances of the pair, so the whole reduction preserves the mass,
-    the mean and the diagonal of the covariance of the mixture. One merge per loop
-    iteration per mixture, in a compiled kernel (:func:`_west_kernel`).
+    ``method="runnalls"`` (default): West's (1993) greedy rule: while a mixture has too many
+    components, its lowest-weight component is merged (:func:`merge_moments`) into the
+    component for which Runnalls' cost :func:`runnalls_cost` of the merge is smallest. Each
+    merge preserves the mass, the mean and the per-axis variances of the pair, so the whole
+    reduction preserves the mass, the mean and the diagonal of the covariance of the
+    mixture. One compiled kernel, the mixtures of the batch in parallel
+    (:func:`_reduce_batch`).
 
     Weights, and merge costs, that agree to a relative ``1e-9`` count as tied and the tie
-    goes to the lower component index. Without this, exact ties (the symmetric cells of
-    :func:`uniform_ball`) were broken by rounding, and a change of ``1e-12`` in a radius
-    flipped a merge and moved a tracked position by a metre.
+    goes to the lower component index (components ordered by decreasing weight, stably).
+    Without this, exact ties (the symmetric cells of :func:`uniform_ball`) were broken by
+    rounding. The greedy rule is still a discrete choice: its result jumps where a near-tie
+    flips (a continuous alternative for products: :func:`merge_groups`).
 
     Parameters
     ----------
@@ -526,7 +529,8 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     Returns
     -------
     DiagMixture
-        At most ``max_components`` components per mixture (compacted).
+        At most ``max_components`` components per mixture (compacted: sorted by decreasing
+        weight, stably, no trailing empty slot).
     """
     if int(max_components) < 1:
         raise InputError(f"max_components: must be >= 1, got {max_components}")
@@ -534,82 +538,201 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
         from radioloc.models.progressive_bayes import progressive_reduce
 
         return progressive_reduce(mix, int(max_components))
-    mix = compact(mix)
-    if mix.n_components <= max_components:
-        return mix
     bshape = mix.batch_shape
     k, d = mix.n_components, mix.dim
-    w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float).copy()
-    m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float).copy()
-    v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float).copy()
-    _west_kernel(w, m, v, int(max_components), _TIE)
-    out = compact(DiagMixture(w, m, v))
-    kk = out.n_components
-    return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
-                       out.variances.reshape(bshape + (kk, d)))
+    if k <= max_components:
+        return compact(mix)
+    w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float)
+    m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float)
+    v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float)
+    ow, om, ov, cnt = _reduce_batch(w, m, v, int(max_components), _TIE)
+    kk = max(1, int(cnt.max(initial=1)))
+    return DiagMixture(ow[:, :kk].reshape(bshape + (kk,)), om[:, :kk].reshape(bshape + (kk, d)),
+                       ov[:, :kk].reshape(bshape + (kk, d)))
+
+
+@njit(cache=True)
+def _compact_into(w, m, v, n, ow, om, ov):  # pragma: no cover - compiled
+    """Copy the positive-weight components of ``w[:n]`` into ``ow, om, ov`` sorted by
+    decreasing weight, stably (as :func:`compact`); returns the count. An insertion sort
+    of the kept indices in the first slots of ``ow`` (no allocation; the mixtures are
+    small)."""
+    c = 0
+    for r in range(n):
+        wr = w[r]
+        if wr > 0:
+            pos = c
+            while pos > 0 and w[np.int64(ow[pos - 1])] < wr:
+                ow[pos] = ow[pos - 1]
+                pos -= 1
+            ow[pos] = r
+            c += 1
+    d = m.shape[1]
+    for r in range(c - 1, -1, -1):      # from the back: slot r only reads index ow[r]
+        i = np.int64(ow[r])
+        for e in range(d):
+            om[r, e] = m[i, e]
+            ov[r, e] = v[i, e]
+        ow[r] = w[i]
+    return c
+
+
+@njit(cache=True)
+def _logdet(v):  # pragma: no cover - compiled
+    """``sum(log(v))``: one logarithm of the product for up to two coordinates (variances
+    floored at ``1e-60`` keep it a normal float), one per coordinate beyond."""
+    if v.shape[0] <= 2:
+        acc = 1.0
+        for e in range(v.shape[0]):
+            acc *= v[e]
+        return math.log(acc)
+    acc = 0.0
+    for e in range(v.shape[0]):
+        acc += math.log(v[e])
+    return acc
+
+
+@njit(cache=True)
+def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
+    """West's greedy merging of one compacted mixture ``w[:n]`` (all weights > 0) down to
+    ``kmax`` components, in place, with Runnalls' cost and the tie rule of :func:`reduce`
+    (weights or costs within a relative ``tie`` count as equal and the lower index wins).
+
+    - Merged components are removed by shifting the later ones down, so the survivors keep
+      their relative order (the tie rule's "lower index") and no empty slot is visited.
+    - The merged variance is ``a1 v_i + a2 v_c + a1 a2 (m_i - m_c)^2`` (the moment formula
+      rearranged); the log-determinants of the components are cached (:func:`_logdet`) and
+      a candidate's is the logarithm of the product of its per-axis variances.
+    - A candidate is skipped without its logarithm when a lower bound of its cost is not
+      below the best cost so far (it cannot win, not even by the tie rule): with
+      ``s_e = a1 v_ie + a2 v_ce`` and ``q_e = a1 a2 dm_e^2``, concavity of the logarithm
+      gives ``cost >= 0.5 ws sum_e log(1 + q_e / s_e) >= 0.5 ws sum_e 2 q_e / (2 s_e + q_e)``.
+    - The candidates are scanned in index order and the scan stops once the best cost is
+      within the tie tolerance of zero: Runnalls' cost is never negative (beyond rounding),
+      so no later candidate can then beat the best by the tolerance.
+
+    West's rule needs the costs of one row (the lowest-weight component against the
+    others), and that component is removed by the merge: a cached pair-cost matrix would
+    cost ``n^2 / 2`` logarithms up front for rows that are mostly never read.
+
+    On return ``w[:k]`` (``k = min(n, kmax)``) holds the survivors in their order and
+    ``w[k:n]`` is 0."""
+    d = m.shape[1]
+    logdet = np.empty(n)
+    for c in range(n):
+        logdet[c] = _logdet(v[c])
+    cnt = n
+    while cnt > kmax:
+        i = 0
+        for c in range(1, cnt):
+            if w[c] < w[i] * (1.0 - tie):
+                i = c
+        wi = w[i]
+        ldi = logdet[i]
+        best = np.inf
+        best_scale = 0.0
+        j = -1
+        for c in range(cnt):
+            if c == i:
+                continue
+            wc = w[c]
+            ws = wi + wc
+            inv = 1.0 / ws
+            a1 = wi * inv
+            a2 = wc * inv
+            a12 = a1 * a2
+            if d == 2:
+                dm0 = m[i, 0] - m[c, 0]
+                dm1 = m[i, 1] - m[c, 1]
+                s0 = a1 * v[i, 0] + a2 * v[c, 0]
+                s1 = a1 * v[i, 1] + a2 * v[c, 1]
+                q0 = a12 * dm0 * dm0
+                q1 = a12 * dm1 * dm1
+                t0 = 2.0 * s0 + q0
+                t1 = 2.0 * s1 + q1
+                if ws * (q0 * t1 + q1 * t0) >= best * (t0 * t1):
+                    continue
+                prod = (s0 + q0) * (s1 + q1)
+            elif d == 1:
+                dm0 = m[i, 0] - m[c, 0]
+                s0 = a1 * v[i, 0] + a2 * v[c, 0]
+                q0 = a12 * dm0 * dm0
+                if j >= 0 and ws * q0 / (2.0 * s0 + q0) >= best:
+                    continue
+                prod = s0 + q0
+            else:
+                prod = 1.0
+                lb = 0.0
+                for e in range(d):
+                    dm = m[i, e] - m[c, e]
+                    s = a1 * v[i, e] + a2 * v[c, e]
+                    q = a12 * dm * dm
+                    lb += q / (2.0 * s + q)
+                    prod *= s + q
+                if j >= 0 and ws * lb >= best:
+                    continue
+            ld = math.log(prod)
+            ldc = logdet[c]
+            cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
+            scale = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
+            if j < 0 or cost < best - tie * (scale + best_scale):
+                best = cost
+                best_scale = scale
+                j = c
+                if best <= tie * best_scale:
+                    break
+        ws = wi + w[j]
+        a1 = wi / ws
+        a2 = w[j] / ws
+        for e in range(d):
+            mm = a1 * m[i, e] + a2 * m[j, e]
+            vv = a1 * (v[i, e] + (m[i, e] - mm) ** 2) + a2 * (v[j, e] + (m[j, e] - mm) ** 2)
+            m[j, e] = mm
+            v[j, e] = vv
+        logdet[j] = _logdet(v[j])
+        w[j] = ws
+        for c in range(i, cnt - 1):          # remove i, keeping the order
+            w[c] = w[c + 1]
+            logdet[c] = logdet[c + 1]
+            for e in range(d):
+                m[c, e] = m[c + 1, e]
+                v[c, e] = v[c + 1, e]
+        cnt -= 1
+        w[cnt] = 0.0
+
+
+@njit(cache=True)
+def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, sw, sm, sv):  # pragma: no cover - compiled
+    """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``sw, sm, sv``: scratch
+    of at least ``n`` slots); returns the component count."""
+    c = _compact_into(w, m, v, n, sw, sm, sv)
+    if c <= kmax:
+        ow[:c] = sw[:c]
+        om[:c, :] = sm[:c, :]
+        ov[:c, :] = sv[:c, :]
+        return c
+    _west_one(sw, sm, sv, c, kmax, tie)
+    return _compact_into(sw, sm, sv, c, ow, om, ov)
 
 
 @njit(cache=True, parallel=True)
-def _west_kernel(w, m, v, kmax, tie):  # pragma: no cover - compiled
-    """In-place greedy merging of :func:`reduce` (sequential by nature within a mixture:
-    each merge changes the costs of the next; the mixtures of the batch run in parallel).
-    Same rule and formulas as :func:`merge_moments` and :func:`runnalls_cost`; the log
-    determinants of the components are kept in an array and the merged one is the log of
-    the product of the per-axis variances (one logarithm per candidate)."""
+def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
+    """:func:`reduce` (West/Runnalls) of every mixture of ``w (B, K)``, ``m, v (B, K, D)``,
+    the mixtures in parallel; returns ``(weights (B, kmax), means, variances, counts (B,))``
+    with the survivors sorted by decreasing weight (stably) and unused slots at weight 0,
+    mean 0, variance 1."""
     nb, k, d = m.shape
+    kout = min(kmax, k)
+    ow = np.zeros((nb, kout))
+    om = np.zeros((nb, kout, d))
+    ov = np.ones((nb, kout, d))
+    cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        n_active = 0
-        ld_all = np.zeros(k)
-        for c in range(k):
-            if w[b, c] > 0:
-                n_active += 1
-                acc = 1.0
-                for e in range(d):
-                    acc *= v[b, c, e]
-                ld_all[c] = np.log(acc)
-        while n_active > kmax:
-            i = -1
-            for c in range(k):
-                if w[b, c] > 0 and (i < 0 or w[b, c] < w[b, i] * (1.0 - tie)):
-                    i = c
-            best = np.inf
-            best_scale = 0.0
-            j = -1
-            logdet_i = ld_all[i]
-            wi = w[b, i]
-            for c in range(k):
-                if c == i or w[b, c] <= 0:
-                    continue
-                ws = wi + w[b, c]
-                a1 = wi / ws
-                a2 = w[b, c] / ws
-                prod = 1.0
-                for e in range(d):
-                    dm = m[b, i, e] - m[b, c, e]
-                    prod *= a1 * v[b, i, e] + a2 * v[b, c, e] + a1 * a2 * dm * dm
-                ld = np.log(prod)
-                ldc = ld_all[c]
-                cost = 0.5 * (ws * ld - wi * logdet_i - w[b, c] * ldc)
-                scale = 0.5 * (ws * abs(ld) + wi * abs(logdet_i) + w[b, c] * abs(ldc))
-                if j < 0 or cost < best - tie * (scale + best_scale):
-                    best = cost
-                    best_scale = scale
-                    j = c
-            ws = wi + w[b, j]
-            a1 = wi / ws
-            a2 = w[b, j] / ws
-            prod = 1.0
-            for e in range(d):
-                mm = a1 * m[b, i, e] + a2 * m[b, j, e]
-                vv = a1 * (v[b, i, e] + (m[b, i, e] - mm) ** 2) + \
-                    a2 * (v[b, j, e] + (m[b, j, e] - mm) ** 2)
-                m[b, j, e] = mm
-                v[b, j, e] = vv
-                prod *= vv
-            ld_all[j] = np.log(prod)
-            w[b, j] = ws
-            w[b, i] = 0.0
-            n_active -= 1
+        sw = np.empty(k)
+        sm = np.empty((k, d))
+        sv = np.empty((k, d))
+        cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], sw, sm, sv)
+    return ow, om, ov, cnt
 
 
 def uniform_ball(radius, dim: int) -> DiagMixture:
@@ -705,3 +828,55 @@ def select(mask, new: DiagMixture, old: DiagMixture) -> DiagMixture:
     return DiagMixture(np.where(mk, new.weights, old.weights),
                        np.where(mk[..., None], new.means, old.means),
                        np.where(mk[..., None], new.variances, old.variances))
+
+
+def merge_groups(mix: DiagMixture, n_outer: int, keep: str) -> DiagMixture:
+    """Moment-matched merge of the components of a product along one of its two factors:
+    a fixed-structure reduction, continuous in its input.
+
+    The ``K = n_outer * n_inner`` components of ``mix`` are read as the pairs ``(a, b)`` of
+    :func:`product`, :func:`product_on`, :func:`convolve` or :func:`outer` (``a`` outer,
+    ``b`` inner). ``keep="outer"`` merges, for every ``a``, its ``n_inner`` components into
+    one (``n_outer`` components); ``keep="inner"`` merges, for every ``b``, its ``n_outer``
+    components into one (``n_inner`` components). Each merged component has the total
+    weight, the mean and the per-axis variances of its group (:func:`merge_moments`
+    applied to the whole group), so the mass, the mean and the diagonal of the covariance
+    of the mixture are preserved exactly.
+
+    Which components merge is fixed by the structure, not decided by comparing costs: the
+    result is a continuous (smooth where the group weights are positive) function of the
+    weights, means and variances, it does not depend on the order of the components within
+    a factor (sums), and rotating or translating the means rotates or translates it.
+    A group of total weight 0 gives an empty slot (weight 0, mean 0, variance 1).
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of products, ``n_outer * n_inner`` components each.
+    n_outer : int
+        Components of the outer factor ``a``.
+    keep : str
+        ``"outer"`` or ``"inner"``: the factor whose components are kept.
+
+    Returns
+    -------
+    DiagMixture
+        ``n_outer`` (``keep="outer"``) or ``n_inner`` components per mixture.
+    """
+    k = mix.n_components
+    n_outer = int(n_outer)
+    if n_outer < 1 or k % n_outer:
+        raise InputError(f"n_outer: {n_outer} does not divide the {k} components")
+    if keep not in ("outer", "inner"):
+        raise InputError(f"keep: must be 'outer' or 'inner', got {keep!r}")
+    shape = mix.batch_shape + (n_outer, k // n_outer)
+    w = mix.weights.reshape(shape)
+    m = mix.means.reshape(shape + (mix.dim,))
+    v = mix.variances.reshape(shape + (mix.dim,))
+    axis = -1 if keep == "outer" else -2
+    total = w.sum(axis)
+    a = w / np.expand_dims(np.where(total > 0, total, 1.0), axis)
+    mean = np.sum(a[..., None] * m, axis=axis - 1)
+    var = np.sum(a[..., None] * (v + (m - np.expand_dims(mean, axis - 1)) ** 2), axis=axis - 1)
+    empty = (total <= 0)[..., None]
+    return DiagMixture(total, np.where(empty, 0.0, mean), np.where(empty, 1.0, var))
