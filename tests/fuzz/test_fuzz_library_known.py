@@ -137,6 +137,8 @@ def test_trapezoid_and_mixture_arrays():
     # Gauss-Newton stalls with a 15 m residual rms
     ([(-69.622, -0.068622), (-81.241, -0.08024), (2.0, 0.003), (-0.0, 0.001),
       (11.507, 0.012507), (-93.319, -0.092319)], (0.0, 24.558)),
+    ([(0.15, -0.1443), (-99.69, 95.901781), (-41.262, 39.694044), (-15.293, 14.711866)],
+     (-0.962, -0.962)),
 ])
 @pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
 @pytest.mark.parametrize("std", [None, 0.01])
