@@ -4,8 +4,8 @@ Kalman filter needs: ``F(dt)``/``Q(dt)`` for motion, ``moments()`` and
 
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (REDUCTIONS, DiagMixture, linear_predict, outer, product,
-                                     product_on, reduce)
+from radioloc.models.mixture import (REDUCTIONS, DiagMixture, linear_predict, merge_groups, outer,
+                                     product, product_on, reduce)
 from radioloc.models.mixture_calibration import em_calibration, progressive_calibration
 from radioloc.models.motion import (
     BoundedSpeedCV,
@@ -28,6 +28,6 @@ __all__ = [
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",
     "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",
-    "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS",
+    "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS", "merge_groups",
     "progressive_reduce", "isd", "ProgressionInfo",
 ]
