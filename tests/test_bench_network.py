@@ -116,3 +116,33 @@ def test_compiled_rls_singular_information_names_run_and_node():
     rho = np.abs(pairwise_distances(prior) + 1.0)
     with pytest.raises(GeometryError, match="run 0, node 0"):
         est.iterate(state, rho)
+
+
+@pytest.mark.parametrize("K", [6, 5])
+def test_shared_master_kernels_equal_the_per_run_master_kernel(K):
+    # iterate (the same master per packet in every run) runs the kernels without the
+    # master's own row (K = 6: sizes fixed at compile time); they must give the numbers of
+    # the per-run-master kernel exactly, missing links included
+    from radioloc.estimators import ekf as E
+    prior, var, rho = _draws(11 + K, R=37, K=K, N=3, missing=0.15)
+    ekf = NetworkEKF(range_var_m2=900.0)
+    s = ekf.init(prior, var)
+    R = prior.shape[0]
+    masters = np.broadcast_to(np.arange(K), (R, K))
+    for n in range(3):
+        valid = np.isfinite(rho[:, n]) & ~np.eye(K, dtype=bool)
+        rr = np.where(valid, rho[:, n], 0.0)
+        outs = []
+        for kernel, ms in ((E._packets, np.ascontiguousarray(masters)),
+                           (E._packets_shared, np.arange(K)),
+                           (E._packets_shared6 if K == 6 else E._packets_shared, np.arange(K))):
+            mean, cov = s.mean.copy(), s.covariance.copy()
+            nis, used = s.nis.copy(), s.used.copy()
+            err = np.full((R, 2), -1, np.int64)
+            kernel(mean, cov, ms, rr, valid, 900.0, nis, used, err)
+            outs.append((mean, cov, nis, used))
+        for got in outs[1:]:
+            for a, b in zip(got, outs[0]):
+                np.testing.assert_array_equal(a, b)
+        s = ekf.iterate(s, rho[:, n])
+        np.testing.assert_array_equal(s.mean, outs[0][0])

@@ -8,8 +8,8 @@ import pytest
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators import grid_kernels as gk
-from radioloc.estimators.grid import (GridFilter, GridGeometry, blur_grid, cell_distances,
-                                      floor_normalise, probability_update)
+from radioloc.estimators.grid import (GridFilter, GridGeometry, GridState, blur_grid,
+                                      cell_distances, floor_normalise, probability_update)
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
 from radioloc.models.rssi_trapezoid import TrapezoidModel, fit_trapezoid_model
 
@@ -196,3 +196,20 @@ def test_fused_step_equals_predict_then_update(blur, model):
     split = f.update(f.predict(state, dt=0.5, extra_blur_m=np.array([0.0, 0.3, 2.0])), xy, r)
     np.testing.assert_array_equal(fused.p, split.p)
     assert fused.time == split.time
+
+
+@pytest.mark.parametrize("bad,match", [(np.nan, "non-finite"), (-1e-9, "negative"),
+                                       (np.inf, "non-finite"), (1e31, "magnitude")])
+def test_compiled_grid_check_agrees_with_the_numpy_checks(bad, match):
+    rng = np.random.default_rng(29)
+    p = _grids(rng, 3)
+    assert gk.grids_in_range(p, 1e30)
+    f = GridFilter(GEOM, _trap(), epsilon=1e-9, blur_m=1.5, blur="recursive")
+    q = p.copy()
+    q[2, 5, 7] = bad
+    assert not gk.grids_in_range(q, 1e30)
+    for call in (lambda: f.step(GridState(q, 0.0), np.zeros((3, 2)), np.full(3, 50.0)),
+                 lambda: blur_grid(q, GEOM, 1.0, 1e-9, method="recursive")):
+        with pytest.raises(InputError, match=match) as err:
+            call()
+        assert "(2, 5, 7)" in str(err.value)

@@ -26,7 +26,8 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import as_float_array, check_positive, check_probability
+from radioloc.core.validation import (MAGNITUDE_LIMIT, as_float_array, check_positive,
+                                      check_probability)
 from radioloc.estimators import grid_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
@@ -128,7 +129,13 @@ class GridGeometry:
 
 
 def _check_grid(p, geom: GridGeometry) -> np.ndarray:
-    p = as_float_array(p, "grid", ndim=3, nonnegative=True)
+    if (isinstance(p, np.ndarray) and p.dtype == np.float64 and p.ndim == 3 and p.size
+            and p.flags.c_contiguous and _k.grids_in_range(p, MAGNITUDE_LIMIT)):
+        # the checks of as_float_array in one compiled pass (it names the bad cell when
+        # this one finds any)
+        pass
+    else:
+        p = as_float_array(p, "grid", ndim=3, nonnegative=True)
     if p.shape[1:] != (geom.h, geom.w):
         raise InputError(f"grid: expected shape (B, {geom.h}, {geom.w}), got {p.shape}")
     return p

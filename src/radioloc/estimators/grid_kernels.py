@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["trapezoid_update", "weighted_update", "floor_normalise_into", "yvv_coefficients",
-           "recursive_gaussian", "RECURSIVE_MIN_SIGMA"]
+           "recursive_gaussian", "grids_in_range", "RECURSIVE_MIN_SIGMA"]
 
 RECURSIVE_MIN_SIGMA = 2.0
 """Smallest standard deviation, in cells, blurred by the recursive Gaussian (below it the
@@ -45,6 +45,42 @@ def _floored(x, mode, c, eps, k):
     if mode == 2:
         return 1.0 / k
     return x
+
+
+@njit(parallel=True, cache=True)
+def _bad_rows(p, limit, bad):
+    B, h, w = p.shape
+    for job in prange(B * h):
+        b = job // h
+        r = job - b * h
+        row = p[b, r]
+        n = 0
+        for j in range(w):
+            v = row[j]
+            n += 0 if (v >= 0.0 and v <= limit) else 1     # NaN fails both tests
+        bad[b, r] = n
+
+
+def grids_in_range(p: np.ndarray, limit: float) -> bool:
+    """Whether every cell of a float64 grid batch is finite and in ``[0, limit]``.
+
+    One compiled pass, parallel over rows (the NumPy checks of
+    :func:`radioloc.core.validation.as_float_array` make several passes and temporaries).
+
+    Parameters
+    ----------
+    p : ndarray, shape (B, h, w)
+        Grids, float64.
+    limit : float
+        Largest accepted value.
+
+    Returns
+    -------
+    bool
+    """
+    bad = np.empty(p.shape[:2], np.int64)
+    _bad_rows(p, float(limit), bad)
+    return not bad.any()
 
 
 def _grid_array(p) -> np.ndarray:
