@@ -87,3 +87,26 @@ def test_online_em_moves_alpha_and_s_nlos_towards_the_truth(reproduction):
     m = {x.name: x.value for x in reproduction[0].metrics}
     assert abs(m["em_alpha_final_alpha30"] - 0.30) < abs(0.5 - 0.30)
     assert abs(m["em_nlos_mean_m_final_alpha30"] - 5.0) < abs(2.0 - 5.0)
+
+
+def test_variant_runs_drops_the_variant_rows_of_later_runs_and_nothing_else():
+    import dataclasses
+
+    import pandas as pd
+
+    from radioloc.core.rng import block_generator
+    from radioloc.experiments.p001_highway import HighwayExperiment
+
+    e = HighwayExperiment()
+    c = dataclasses.replace(e.config(False), runs=2, variant_runs=1)
+    first = e.run_block(c, np.array([0]), block_generator(0, 0))
+    later = e.run_block(c, np.array([1]), block_generator(0, 1))
+    every = e.run_block(dataclasses.replace(c, variant_runs=None), np.array([1]),
+                        block_generator(0, 1))
+    variant = (first.messages != "previous") | (first.layout != c.layout) | (first.method == "pf_em")
+    assert variant.any()
+    assert not ((later.messages != "previous") | (later.layout != c.layout)
+                | (later.method == "pf_em")).any()
+    # the paper's rows of the later run are the same draws with and without the variants
+    pd.testing.assert_frame_equal(later.reset_index(drop=True),
+                                  every.iloc[:len(later)][later.columns].reset_index(drop=True))

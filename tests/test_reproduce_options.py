@@ -79,3 +79,15 @@ def test_nested_config_fields_are_set_by_dotted_names():
         exp.with_options(cfg, {"trace.max_ordr": "3"})
     with pytest.raises(ConfigError, match="provider"):
         exp.with_options(cfg, {"provider": "nonsense"})       # the config's own validation
+
+
+def test_an_optional_number_reads_none_and_positive_numbers_only():
+    from radioloc.experiments.p001_highway import HighwayExperiment
+    e = HighwayExperiment()
+    for full in (False, True):
+        c = e.config(full)
+        assert e.with_options(c, {"variant_runs": "3"}).variant_runs == 3
+        assert e.with_options(c, {"variant_runs": "none"}).variant_runs is None
+        for bad in ("0", "-2", "x"):
+            with pytest.raises(ConfigError, match="-o variant_runs"):
+                e.with_options(c, {"variant_runs": bad})

@@ -187,9 +187,35 @@ def _set_field(exp_id: str, config: Any, path: list[str], key: str, text: str) -
         if dataclasses.is_dataclass(current):
             raise ConfigError(f"-o {key}: set its fields as {key}.FIELD=VALUE; known: "
                               f"{', '.join(f.name for f in dataclasses.fields(current))}")
-        value = _read_as(f"-o {key}", text, current)
-        _check_sign(f"-o {key}", value, current)
+        optional = _optional_number(type(config), head)
+        if optional is not None and text.strip().lower() == "none":
+            value = None
+        elif optional is not None and current is None:
+            value = _read_as(f"-o {key}", text, optional(1))
+            if value <= 0:        # an optional number is a positive size or scale
+                raise ConfigError(f"-o {key}: must be > 0 (or none), got {value!r}")
+        else:
+            value = _read_as(f"-o {key}", text, current)
+            _check_sign(f"-o {key}", value, current)
     return dataclasses.replace(config, **{head: value})
+
+
+def _optional_number(cls: type, name: str) -> type | None:
+    """``int`` or ``float`` where the field ``name`` of dataclass ``cls`` is annotated as
+    that type or None (``-o name=none`` then sets None), else None."""
+    import types
+    import typing
+    try:
+        hint = typing.get_type_hints(cls).get(name)
+    except Exception:  # noqa: BLE001 - an unresolvable annotation: not an optional number
+        return None
+    args = set(typing.get_args(hint)) if typing.get_origin(hint) in (typing.Union,
+                                                                     types.UnionType) else set()
+    if type(None) in args and len(args) == 2:
+        (other,) = args - {type(None)}
+        if other in (int, float):
+            return other
+    return None
 
 
 _TRUE = {"1", "true", "yes", "on"}

@@ -13,7 +13,7 @@ alpha, s_LOS and s_NLOS are reported against the truth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +68,11 @@ class HighwayConfig:
     em_initial: (s_LOS, s_NLOS, alpha) the online EM starts from (the truth: 0.05 m,
         5 m, the case's alpha).
     em_step_exponent, em_burn_in: see ``OnlineEM``.
+    variant_runs: the variant rows (message lag, other layouts, online EM; none is a row of
+        tables 4(c) or 4(d)) run on the runs with index below this only (None: every run).
+        4 at full size: a variant row then averages 4 x 20 vehicles x 700 steps = 56,000
+        vehicle-steps, and the five variant cases no longer cost 38 % of the PF's time on
+        the other 6 runs (the cost that kept ``--full`` above 10 minutes on 2 cores).
     """
 
     runs: int = 10
@@ -96,6 +101,7 @@ class HighwayConfig:
     em_initial: tuple[float, float, float] = (0.15, 2.0, 0.5)
     em_step_exponent: float = 0.6
     em_burn_in: int = 20
+    variant_runs: int | None = None
 
 
 def _cases(c: HighwayConfig) -> list[dict]:
@@ -103,11 +109,12 @@ def _cases(c: HighwayConfig) -> list[dict]:
     cases = [dict(alpha=a, M=26, N=20, messages="previous", ml=True, layout=lay) for a in c.alphas]
     cases += [dict(alpha=0.30, M=m, N=n, messages="previous", ml=False, layout=lay)
               for m, n in c.table_d if (m, n) != (26, 20)]
-    cases += [dict(alpha=0.30, M=26, N=20, messages=v, ml=False, layout=lay) for v in c.lag_variants]
-    cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=v)
+    cases += [dict(alpha=0.30, M=26, N=20, messages=v, ml=False, layout=lay, variant=True)
+              for v in c.lag_variants]
+    cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=v, variant=True)
               for v in c.layout_variants if v != lay for a in c.layout_variant_alphas]
-    cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=lay, em=True)
-              for a in c.em_alphas]
+    cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=lay, em=True,
+                   variant=True) for a in c.em_alphas]
     return cases
 
 
@@ -176,7 +183,7 @@ class HighwayExperiment(Experiment):
         HighwayConfig
         """
         if full:
-            return HighwayConfig(ml_every=5)
+            return HighwayConfig(ml_every=5, variant_runs=4)
         return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
 
     def run_block(self, config: HighwayConfig, runs: np.ndarray,
@@ -207,6 +214,14 @@ class HighwayExperiment(Experiment):
             anchors = anchor_layout(case["layout"], case["M"], sc.length_m, sc.width_m,
                                     rng=stream(rng, f"anchor-layout-M{case['M']}"))
             data = simulate(sc, model, runs.size, rng, anchors=anchors)
+            case_runs = runs
+            if case.get("variant") and c.variant_runs is not None:
+                keep = runs < c.variant_runs
+                if not keep.any():
+                    continue
+                case_runs = runs[keep]
+                data = replace(data, truth=data.truth[keep], ins=data.ins[keep],
+                               ranges=data.ranges[keep], los=data.los[keep])
             em = case.get("em", False)
             pf = P2PParticleFilter(InputDriven(c.ins_std_m),
                                    LosNlosRange(*c.em_initial) if em else model,
@@ -228,18 +243,18 @@ class HighwayExperiment(Experiment):
                 par = res.diagnostics["em_parameters"]                    # (R, N, T, 3)
                 extra.update(em_los_std_m=par[..., 0], em_nlos_mean_m=par[..., 1],
                              em_alpha=par[..., 2])
-            frames.append(_frame(case, runs, "pf_em" if em else "pf", all_steps, res.position,
+            frames.append(_frame(case, case_runs, "pf_em" if em else "pf", all_steps, res.position,
                                  truth, extra))
             if case["ml"]:
                 sub = all_steps[::c.ml_every]
                 ml, local, rs = _snapshot(data, model, c, sub)
-                frames.append(_frame(case, runs, "ml", sub, ml, truth[:, :, sub]))
-                frames.append(_frame(case, runs, "ml_local", sub, local, truth[:, :, sub]))
-                frames.append(_frame(case, runs, "ransac", sub, rs, truth[:, :, sub]))
+                frames.append(_frame(case, case_runs, "ml", sub, ml, truth[:, :, sub]))
+                frames.append(_frame(case, case_runs, "ml_local", sub, local, truth[:, :, sub]))
+                frames.append(_frame(case, case_runs, "ransac", sub, rs, truth[:, :, sub]))
                 ekf = run_peer_ekf(RangeEKF(InputDriven(c.ins_std_m), model), data.ranges,
                                    data.truth[:, :, 0], init_std_m=c.init_std_m,
                                    anchors=data.anchors, controls=data.ins)
-                frames.append(_frame(case, runs, "ekf", all_steps, ekf.position, truth))
+                frames.append(_frame(case, case_runs, "ekf", all_steps, ekf.position, truth))
         return pd.concat(frames, ignore_index=True)
 
     def summarize(self, config: HighwayConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
@@ -349,7 +364,10 @@ class HighwayExperiment(Experiment):
         self._lag_figure(r, variants, out_dir)
         self._em_figure(config, em_rows, out_dir)
         notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
-                     f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps")
+                     f"layout={config.layout}, ML/RANSAC every {config.ml_every} steps"
+                     + ("" if config.variant_runs is None else
+                        f"; variant rows (message lag, other layouts, online EM) on runs "
+                        f"0-{config.variant_runs - 1} only"))
         if "x_true" in r:
             off = float(((r.x_true < 0) | (r.x_true > HighwayScenario().length_m)).mean())
             notes.append(f"fraction of vehicle-step rows off the road: {off:.4f}")
