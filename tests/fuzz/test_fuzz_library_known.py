@@ -228,3 +228,27 @@ def test_particle_filter_controls_batch_mismatch():
     c = CASES["P2PParticleFilter"]().args["controls"]
     _clean(_mutated("P2PParticleFilter", controls=np.broadcast_to(c, (3,) + c.shape).copy()),
            ("controls",))
+
+
+def test_range_ekf_time_with_a_batch_axis_that_does_not_broadcast():
+    t = CASES["RangeEKF"]().args["time"]
+    detail = _clean(_mutated("RangeEKF", time=np.broadcast_to(t, (3,) + t.shape).copy()),
+                    names=("time",))
+    assert "time: batch shape" in detail
+
+
+def test_cli_network_priors_node_without_ranges_is_left_out_with_a_warning(scenarios, workdir):
+    for method in ("rls", "ekf"):
+        sc = scenarios[method]
+        lines = sc.files["priors"].read_text().splitlines()
+        extra = lines[1].split(",")
+        extra[0] = "inf"
+        p = workdir / "priors-extra.csv"
+        p.write_text("\n".join([lines[0], ",".join(extra)] + lines[1:]) + "\n")
+        sc2 = type(sc)(**{**sc.__dict__, "files": {"priors": p}})
+        meas = workdir / "net.csv"
+        meas.write_text(render(sc.rows))
+        res = run(sc2.args(meas))
+        outcome, detail = classify(res, sc2, meas)
+        assert outcome == "success", f"{outcome}: {detail}"
+        assert "'inf' (priors line 2)" in res.stderr and "inf" not in res.stdout

@@ -168,6 +168,11 @@ class RangeEKF(RecursiveEstimator):
             The predicted state (a new object).
         """
         dt_arr = as_float_array(dt, "dt")
+        try:
+            np.broadcast_shapes(dt_arr.shape, state.mean.shape[:-1])
+        except ValueError:
+            raise InputError(f"dt: shape {dt_arr.shape} does not broadcast with the state's "
+                             f"batch {state.mean.shape[:-1]}") from None
         u = None
         if control is not None:
             c = as_float_array(control, "control", last_dim=self.motion.dim)
@@ -315,6 +320,12 @@ class RangeEKF(RecursiveEstimator):
             a = self._anchors(anchors)
         u = None if controls is None else as_float_array(controls, "controls", min_ndim=2)
         state = self.init(prior_mean, prior_cov, t[..., 0])
+        try:
+            np.broadcast_shapes(t.shape[:-1], state.mean.shape[:-1], r.shape[:-2])
+        except ValueError:
+            raise InputError(f"time: batch shape {t.shape[:-1]} does not broadcast with the "
+                             f"ranges' {r.shape[:-2]} and the prior's "
+                             f"{state.mean.shape[:-1]}") from None
         estimates, infos, states = [], [], []
         streak = np.zeros(state.mean.shape[:-1], dtype=np.int64)   # steps fully gated in a row
         for k in range(T):

@@ -15,6 +15,7 @@ EKF only), ``forgetting`` (RLS lambda, default 1), ``anchor_var_m2``.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,6 +80,15 @@ def _network(request: LocateRequest, method: str) -> _Network:
             r = rows[unknown].iloc[0]
             raise InputError(f"method {method}: measurements line {int(r['line'])}, column "
                              f"'{col}': node {r[col]!r} has no row in the priors file")
+    heard = set(rows["node"]) | set(rows["peer"])
+    silent = [i for i, n in enumerate(ids) if reported[i] and n not in heard]
+    if silent:
+        reported[silent] = False
+        first = int(priors["line"].iloc[silent[0]]) if "line" in priors else None
+        warnings.warn(f"method {method}: {len(silent)} node(s) of the priors file with no range "
+                      f"measurement not estimated (left out of the output), e.g. "
+                      f"{ids[silent[0]]!r}" + (f" (priors line {first})" if first else ""),
+                      stacklevel=2)
     rows = rows.groupby(["time", "node", "peer"], sort=True, as_index=False).agg(
         value=("value", "mean"), line=("line", "min"))
     packets = rows[["time", "node"]].drop_duplicates().reset_index(drop=True)
