@@ -252,3 +252,98 @@ def test_cli_network_priors_node_without_ranges_is_left_out_with_a_warning(scena
         outcome, detail = classify(res, sc2, meas)
         assert outcome == "success", f"{outcome}: {detail}"
         assert "'inf' (priors line 2)" in res.stderr and "inf" not in res.stdout
+
+
+# Nearly collinear anchors (anchor 1 is 1e-6 m off the line y = -1.5 x) and a node 0.28 m
+# from their line: the closed-form start lies on the line, a saddle of the cost where the
+# Gauss-Newton information across the line is about 1e-13 of that along it, so a restart
+# from a small offset overshot and stalled; the fix returned was the point on the line,
+# 0.277 m from the truth. The two mirror fixes differ in cost by 5e-18 m^2: not
+# distinguishable by the ranges, so the fix must be refused as ambiguous, naming the anchors.
+NEAR_LINE = [(28.5, -42.75), (60.5, -90.749999), (-22.0, 33.0)]
+
+
+@pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
+@pytest.mark.parametrize("std", [None, 0.01, 0.1])
+def test_multilateration_node_near_the_anchors_line_is_ambiguous(method, std):
+    from radioloc.core.errors import GeometryError
+    a = np.array(NEAR_LINE)
+    r = np.linalg.norm(a - [0.0, 0.5], axis=-1)
+    with pytest.raises(GeometryError, match=r"ambiguous fix.*anchors 0, 1, 2 nearly collinear"):
+        Multilateration(method=method, range_std_m=std).locate(r, a)
+    fit = Multilateration(method=method, range_std_m=std, on_degenerate="flag").locate(r, a)
+    assert bool(fit.diagnostics["ambiguous"]) and np.isnan(fit.covariance).all()
+
+
+def _mirror_gap(a, truth):
+    """Cost of the best fit in the mirror basin of ``truth`` (exact ranges: the truth's
+    cost is 0), from the reflection of the truth across the anchors' best-fit line/plane."""
+    from radioloc.estimators.multilateration import _range_residuals
+    from radioloc.estimators.nlls import solve_nlls
+    c = a.mean(0)
+    _, sv, vt = np.linalg.svd(a - c)
+    n = vt[-1]
+    mirror = truth - 2 * np.dot(truth - c, n) * n
+    fit = solve_nlls(_range_residuals(np.linalg.norm(a - truth, axis=-1), a), mirror,
+                     method="levenberg-marquardt", max_iter=500, tol=1e-13)
+    return float(fit.cost), float(np.linalg.norm(fit.x - truth)), float(sv[0])
+
+
+def _near_flat_scene(dim, eps, h):
+    """Anchors on a line (2-D) or plane (3-D) with anchor 1 ``eps`` m off it, a node ``h`` m
+    off it."""
+    if dim == 2:
+        t, n = np.array([1.0, -1.5]) / np.sqrt(3.25), np.array([1.5, 1.0]) / np.sqrt(3.25)
+        a = np.array([28.5, 60.5, -22.0, 7.0])[:, None] * np.sqrt(3.25) * t
+        truth = 11.0 * t + h * n
+    else:
+        b1, b2, n = np.eye(3)[[0, 1, 2]]
+        c = np.array([[30.0, -20.0], [60.0, 40.0], [-22.0, 33.0], [5.0, -70.0], [-40.0, -10.0]])
+        a = c[:, :1] * b1 + c[:, 1:] * b2
+        truth = 11.0 * b1 - 4.0 * b2 + h * n
+    a = a + np.array([0.0, 1.0] + [0.0] * (len(a) - 2))[:, None] * eps * n
+    rot = np.linalg.qr(np.arange(1.0, dim * dim + 1).reshape(dim, dim) ** 1.5)[0]
+    return a @ rot.T + 7.0, truth @ rot.T + 7.0
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("eps", [1e-6, 1e-3, 0.1, 2.0])
+@pytest.mark.parametrize("h", [0.05, 0.28, 3.0])
+@pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
+@pytest.mark.parametrize("std", [None, 0.01])
+def test_multilateration_near_flat_anchors_truth_or_ambiguous(dim, eps, h, method, std):
+    """Exact ranges: the truth wherever the mirror minimum fits measurably worse (cost gap
+    above 4 s^2 with margin), a refusal as ambiguous wherever it fits within the noise the
+    solver assumes (``range_std_m``, else its floor 1e-9 of the anchors' spread)."""
+    from radioloc.core.errors import GeometryError
+    a, truth = _near_flat_scene(dim, eps, h)
+    r = np.linalg.norm(a - truth, axis=-1)
+    gap, dist, spread = _mirror_gap(a, truth)
+    s2 = std ** 2 if std is not None else (1e-9 * max(spread, 1.0)) ** 2
+    try:
+        fit = Multilateration(method=method, range_std_m=std).locate(r, a)
+    except GeometryError as exc:
+        assert "ambiguous" in str(exc) or "coplanar" in str(exc) or "collinear" in str(exc), exc
+        assert gap <= 8 * s2, f"refused although the mirror fits worse by {gap:.3g} m^2: {exc}"
+        return
+    assert np.linalg.norm(fit.position - truth) < 1e-6 * max(1.0, float(r.max())), (
+        f"{fit.position} returned for {truth} (mirror gap {gap:.3g}, 4 s^2 {4 * s2:.3g})")
+    if dist > 1e-3:
+        assert gap > 2 * s2, f"mirror fits within the noise ({gap:.3g} m^2) but no refusal"
+
+
+def test_cli_gn_ambiguous_fix_names_the_anchor_ids(scenarios, workdir):
+    sc = scenarios["gn"]
+    afile = workdir / "near-line-anchors.csv"
+    afile.write_text("id,x,y\n" + "".join(f"N{i},{x!r},{y!r}\n"
+                                          for i, (x, y) in enumerate(NEAR_LINE)))
+    meas = workdir / "near-line.csv"
+    meas.write_text(render([HEAD] + [["1700000000.125", "t", f"N{i}", "range",
+                                      repr(math.dist((0.0, 0.5), p))]
+                                     for i, p in enumerate(NEAR_LINE)]))
+    sc2 = type(sc)(**{**sc.__dict__, "files": {"anchors": afile}})
+    res = run(sc2.args(meas))
+    outcome, detail = classify(res, sc2, meas)
+    assert outcome == "error", f"{outcome}: {detail}"
+    assert "ambiguous" in detail and "anchors N0, N1, N2" in detail
+    assert "1700000000.125" in detail

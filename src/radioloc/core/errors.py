@@ -24,15 +24,17 @@ class GeometryError(RadiolocError):
     """The geometry cannot determine a position: too few anchors, coincident nodes,
     collinear anchors, a singular information matrix.
 
-    Batched estimators pass ``index``, the batch index of the first failing problem, and
-    ``detail``, the reason without it, so that a caller can name its own row or node.
+    Batched estimators pass ``index``, the batch index of the first failing problem,
+    ``detail``, the reason without it, so that a caller can name its own row or node, and
+    ``anchors``, the indices of the anchors the reason is about (where it names some).
     """
 
     def __init__(self, message: str, *, index: tuple[int, ...] | None = None,
-                 detail: str | None = None) -> None:
+                 detail: str | None = None, anchors: tuple[int, ...] | None = None) -> None:
         super().__init__(message)
         self.index = index
         self.detail = detail if detail is not None else message
+        self.anchors = anchors
 
 
 class ConfigError(RadiolocError):

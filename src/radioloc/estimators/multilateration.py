@@ -19,7 +19,7 @@ from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.nlls import solve_nlls
 
-__all__ = ["Multilateration", "linear_initial"]
+__all__ = ["Multilateration", "anchor_phrase", "linear_initial"]
 
 #: condition number of ``J^T W J`` above which the geometry does not fix the position
 _COND_LIMIT = 1e10
@@ -57,6 +57,12 @@ def linear_initial(ranges: np.ndarray, anchors: np.ndarray, weights: np.ndarray)
     # small ridge keeps exactly-determined problems solvable; the NLLS refines afterwards
     AtA = AtA + 1e-9 * np.trace(AtA, axis1=-2, axis2=-1)[..., None, None] * np.eye(d + 1)
     return np.linalg.solve(AtA, Atb[..., None])[..., 0][..., :d]
+
+
+def anchor_phrase(indices) -> str:
+    """``"anchors 0, 2, 3"``: the anchors (indices into ``anchors``) a geometry error is
+    about; the command line replaces the phrase by the anchors' ids."""
+    return "anchors " + ", ".join(str(int(i)) for i in indices)
 
 
 def _anchor_frame(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -150,9 +156,55 @@ class Multilateration(SnapshotEstimator):
         ``sum w e^2 / 2`` with ``e_i = r_i - d_i`` is
         ``sum w_i (u_i u_i^T - e_i (I - u_i u_i^T) / d_i)`` (``u_i`` the unit vector from
         anchor i, ``d_i`` the distance); where its smallest eigenvalue is negative the
-        problem is solved again from both sides, a residual rms along that direction, and
-        the better of the two kept (the mirror check then decides whether they tie).
+        cost is searched along that eigenvector on both sides (a geometric grid of step
+        lengths from ``1e-12`` to 4 times the anchors' extent, ratio ``sqrt 2``), the
+        problem solved again from the best point of each side, and the better of the two
+        kept (the mirror check then decides whether they tie). The Gauss-Newton
+        information across the line of nearly collinear anchors is almost zero near the
+        line, so a Gauss-Newton step from a fixed small offset overshoots by orders of
+        magnitude and stalls (a node 0.28 m from such a line stalled on the line); the
+        line search puts the restart in the basin itself.
+
+        Returns the fit and the mask of problems still at a saddle point afterwards.
         """
+        saddle, down, _ = self._saddles(fit, r, a, w)
+        if not np.any(saddle):
+            return fit, saddle
+        rs, as_, ws = r[saddle], a[saddle], w[saddle]
+        down = down[saddle]
+        x_s = fit.x[saddle]
+        extent = np.max(np.abs(as_ - x_s[..., None, :]), axis=(-2, -1))
+        lengths = extent[..., None] * 2.0 ** np.arange(-40.0, 2.25, 0.5)    # (k, T)
+        best = None
+        for sign in (1.0, -1.0):
+            trial = x_s[..., None, :] + sign * lengths[..., None] * down[..., None, :]  # (k, T, D)
+            with np.errstate(all="ignore"):
+                res, _ = _range_residuals(rs[..., None, :], as_[..., None, :, :])(trial)
+                cost = np.sum(ws[..., None, :] * res ** 2, axis=-1)
+            cost = np.where(np.isfinite(cost), cost, np.inf)
+            pick = np.argmin(cost, axis=-1)
+            start = np.take_along_axis(trial, pick[..., None, None], axis=-2)[..., 0, :]
+            sub = solve_nlls(_range_residuals(rs, as_), start, weights=ws,
+                             method=self.method, max_iter=self.max_iter, tol=self.tol_m)
+            if best is None:
+                best = sub
+            else:
+                take = sub.cost < best.cost
+                best = type(sub)(**{k: np.where(take.reshape(take.shape + (1,) * (np.ndim(v) - take.ndim)),
+                                                v, getattr(best, k)) for k, v in vars(sub).items()})
+        keep = best.cost < fit.cost[saddle]
+        out = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
+        for k, val in vars(best).items():
+            dst = getattr(out, k)
+            dst[saddle] = np.where(keep.reshape(keep.shape + (1,) * (np.ndim(val) - keep.ndim)),
+                                   val, dst[saddle])
+        return out, self._saddles(out, r, a, w)[0]
+
+    @staticmethod
+    def _saddles(fit, r, a, w):
+        """Where the exact Hessian of the cost has a negative eigenvalue ``(...)``, the
+        eigenvector of its smallest eigenvalue ``(..., D)``, and the Newton decrement
+        ``g^T H^-1 g`` (the cost decrease a Newton step predicts; infinite at a saddle)."""
         diff = fit.x[..., None, :] - a
         dist = np.linalg.norm(diff, axis=-1)
         with np.errstate(all="ignore"):
@@ -161,29 +213,18 @@ class Multilateration(SnapshotEstimator):
             eye = np.eye(a.shape[-1])
             hess = np.einsum("...m,...mi,...mj->...ij", w, u, u) - np.einsum(
                 "...m,...mij->...ij", w * e / dist, eye - u[..., :, None] * u[..., None, :])
-        ok = np.all(np.isfinite(hess), axis=(-2, -1)) & np.all(dist > 0, axis=-1)
+            grad = -np.einsum("...m,...mi->...i", w * e, u)        # of sum w e^2 / 2
+        ok = (np.all(np.isfinite(hess), axis=(-2, -1)) & np.all(np.isfinite(grad), axis=-1)
+              & np.all(dist > 0, axis=-1))
         hess = np.where(ok[..., None, None], hess, np.eye(a.shape[-1]))
+        grad = np.where(ok[..., None], grad, 0.0)
         lam, vec = np.linalg.eigh(hess)
         saddle = ok & np.isfinite(fit.cost) & (lam[..., 0] < -1e-9 * np.abs(lam[..., -1]))
-        if not np.any(saddle):
-            return fit
-        rs, as_, ws = r[saddle], a[saddle], w[saddle]
-        h = np.sqrt(fit.cost[saddle] / np.maximum(np.sum(ws, axis=-1), 1e-300))
-        step = np.maximum(h, 1e-6 * np.max(np.abs(as_), axis=(-2, -1)))[..., None] * vec[saddle][..., 0]
-        best = None
-        for sign in (1.0, -1.0):
-            sub = solve_nlls(_range_residuals(rs, as_), fit.x[saddle] + sign * step, weights=ws,
-                             method=self.method, max_iter=self.max_iter, tol=self.tol_m)
-            if best is None:
-                best = sub
-            else:
-                take = sub.cost < best.cost
-                best = type(sub)(**{k: np.where(take.reshape(take.shape + (1,) * (np.ndim(v) - take.ndim)),
-                                                v, getattr(best, k)) for k, v in vars(sub).items()})
-        out = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
-        for k, v in vars(best).items():
-            getattr(out, k)[saddle] = v
-        return out
+        proj = np.einsum("...di,...d->...i", vec, grad)
+        with np.errstate(all="ignore"):
+            dec = 2.0 * np.sum(np.where(lam > 0, proj ** 2 / lam, np.where(proj == 0, 0.0, np.inf)),
+                               axis=-1)
+        return saddle, vec[..., 0], np.where(saddle, np.inf, dec)
 
     def _resolve_mirror(self, fit, r, a, used, w, n_used, origin):
         """The mirror check with one solve for the well-posed problems.
@@ -193,11 +234,19 @@ class Multilateration(SnapshotEstimator):
         where the reflection fits the ranges within ``4 s^2`` of the solution or better
         (nearly collinear / coplanar anchors, or a solution stuck in the worse of two
         basins), or within the reflection's own error where the anchors lie within 1 % of
-        their spread of a line (plane), and lies more than ``10 s`` from the solution, is the problem solved again
-        from the reflection, on that subset only. Of
-        the two the better fit is kept; where both fit within ``4 s^2`` and lie more than
-        ``10 s`` apart the fix is ambiguous. A reflection that fits worse than that is not
-        refined: for anchors far from a line or plane the mirror basin is not a near tie.
+        their spread of a line (plane), and is a different point (more than ``1e-6`` of the
+        anchors' spread from the solution), is the problem solved again from the
+        reflection, on that subset only (for anchors that are not nearly flat, only a
+        reflection more than ``10 s`` away: closer it is the same fix). Of the two minima the better fit is kept; where
+        they are different points (``1e-6`` of the spread apart, beyond the solver's
+        tolerance) and their costs differ by at most ``4 s^2`` (``s`` the configured
+        ``range_std_m``, else the residual estimate) the ranges cannot tell them apart
+        and the fix is ambiguous. The distance between the two is not compared with
+        ``s``: across the line of nearly collinear anchors the position's uncertainty is
+        many times ``s`` (a node 0.28 m off such a line with ``s`` = 0.1 m was fixed in
+        whichever basin the solver reached). A reflection that fits worse than that is
+        not refined: for anchors far from a line or plane the mirror basin is not a near
+        tie.
 
         Returns the (possibly switched) fit, the ambiguous mask, a function wording the
         reason for one problem, and the number of problems solved twice.
@@ -211,6 +260,7 @@ class Multilateration(SnapshotEstimator):
         c_mirror = np.sum(w * res_m ** 2, axis=-1)
         dof = np.maximum(n_used - d, 1)
         scale = np.maximum(sv[..., 0], 1.0)
+        distinct = 1e-6 * scale + 10.0 * self.tol_m
 
         def noise_var(other_cost):
             if self.range_std_m is not None:
@@ -220,7 +270,6 @@ class Multilateration(SnapshotEstimator):
             return np.maximum(s2, (1e-9 * scale) ** 2)
 
         s2_m = noise_var(c_mirror)
-        far = 2.0 * np.abs(offset) > 10.0 * np.sqrt(s2_m) + 1e-6 * scale
         # Anchors that are only nearly on the line (plane): the reflection lands beside the
         # mirror solution. Anchor i at distance e_i from the line moves each reflected range
         # by at most 2 e_i (triangle inequality), so the mirror basin can fit as well as
@@ -228,6 +277,11 @@ class Multilateration(SnapshotEstimator):
         e = np.where(used, np.einsum("...md,...d->...m", a - centroid[..., None, :], normal), 0.0)
         slack = 2.0 * np.sqrt(np.sum(w * e ** 2, axis=-1))
         nearly_flat = slack <= 1e-2 * scale * np.sqrt(np.max(np.where(used, w, 0.0), axis=-1))
+        # a reflection within 10 s of the solution is the same fix where the anchors are
+        # spread (the position's error is about s); across nearly collinear (coplanar)
+        # anchors it is many times s, so there any different point is checked
+        far = 2.0 * np.abs(offset) > np.where(nearly_flat, distinct,
+                                              10.0 * np.sqrt(s2_m) + 1e-6 * scale)
         tie = c_mirror <= fit.cost + 4.0 * s2_m
         tie |= nearly_flat & (np.sqrt(c_mirror) <= np.sqrt(fit.cost + 4.0 * s2_m) + slack)
         maybe = far & np.isfinite(c_mirror) & tie
@@ -239,12 +293,18 @@ class Multilateration(SnapshotEstimator):
             sub = solve_nlls(_range_residuals(r[maybe], a[maybe]), mirror[maybe],
                              weights=w[maybe], method=self.method, max_iter=self.max_iter,
                              tol=self.tol_m)
+            sub, _ = self._leave_saddles(sub, r[maybe], a[maybe], w[maybe])
             for k, v in vars(sub).items():
                 getattr(alt, k)[maybe] = v
         better = maybe & (alt.cost < fit.cost * (1 - 1e-9) - 1e-300)
         s2 = noise_var(alt.cost)
-        apart = np.linalg.norm(alt.x - fit.x, axis=-1) > 10.0 * np.sqrt(s2) + 1e-6 * scale
-        ambiguous = maybe & apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & alt.converged
+        apart = np.linalg.norm(alt.x - fit.x, axis=-1) > distinct
+        # the mirror solve is a competing fix where it converged, or where it stalled (no
+        # step lowers the cost in rounding, as in a weak direction) with an exact Newton
+        # step promising less than s^2: a minimum within the noise
+        _, _, dec = self._saddles(alt, r, a, w)
+        minimum = alt.converged | (dec <= s2)
+        ambiguous = maybe & apart & (np.abs(alt.cost - fit.cost) <= 4.0 * s2) & minimum
         first, second = fit, alt
         shape = "collinear" if d == 2 else "coplanar"
 
@@ -252,7 +312,8 @@ class Multilateration(SnapshotEstimator):
             p, q = first.x[idx] + origin[idx], second.x[idx] + origin[idx]
             return (f"ambiguous fix: {np.array2string(p, precision=3)} and its mirror "
                     f"{np.array2string(q, precision=3)} fit the ranges equally well "
-                    f"(anchors nearly {shape} seen from the node)")
+                    f"({anchor_phrase(np.flatnonzero(used[idx]))} nearly {shape} seen from "
+                    "the node)")
         if np.any(better):
             def pick(x, y):
                 return np.where(better.reshape(better.shape + (1,) * (x.ndim - better.ndim)), y, x)
@@ -351,10 +412,11 @@ class Multilateration(SnapshotEstimator):
         self._degenerate(flat, flat_detail)
         fit = solve_nlls(_range_residuals(r, a), x0, weights=w, method=self.method,
                          max_iter=self.max_iter, tol=self.tol_m)
-        fit = self._leave_saddles(fit, r, a, w)
+        fit, _ = self._leave_saddles(fit, r, a, w)
         fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used,
                                                              origin)
-        self._degenerate(ambiguous & ~flat, amb_detail)
+        self._degenerate(ambiguous & ~flat, amb_detail,
+                         lambda idx: tuple(int(i) for i in np.flatnonzero(used[idx])))
         JtWJ = fit.normal_matrix
         with np.errstate(all="ignore"):
             cond = np.linalg.cond(JtWJ)
@@ -379,13 +441,21 @@ class Multilateration(SnapshotEstimator):
                 sd = np.sqrt(s2_now * np.trace(np.linalg.inv(JtWJ[open_]), axis1=-2, axis2=-1))
             moved = np.linalg.norm(more.x - fit.x[open_], axis=-1)
             drop = fit.cost[open_] - more.cost
-            settled[open_] = np.isfinite(more.cost) & (
+            # a stalled Gauss-Newton step does not move at all, so the exact Newton
+            # decrement must also promise less than the noise (or 1e-6 of the cost)
+            _, _, dec = self._saddles(fit, r, a, w)
+            small = dec[open_] <= np.maximum(s2_now, 1e-6 * fit.cost[open_])
+            settled[open_] = np.isfinite(more.cost) & small & (
                 (np.isfinite(sd) & (moved <= sd))
                 | (drop <= 1e-6 * np.maximum(fit.cost[open_], s2_now)))
-        stuck = ~fit.converged & ~settled & ~flat & ~ambiguous & ~singular
+        # a fix where the cost still falls in some direction (a saddle the search along
+        # its descent direction could not leave) is never reported, settled or not
+        at_saddle = self._saddles(fit, r, a, w)[0]
+        stuck = ((~fit.converged & ~settled) | at_saddle) & ~flat & ~ambiguous & ~singular
         self._degenerate(stuck, lambda idx: (
             f"no converged fix after {int(fit.iterations[idx])} iterations (residual rms "
-            f"{float(np.sqrt(fit.cost[idx] / max(float(np.sum(w[idx])), 1e-300))):.3g} m): the "
+            f"{float(np.sqrt(fit.cost[idx] / max(float(np.sum(w[idx])), 1e-300))):.3g} m"
+            + (", at a saddle point of the cost" if at_saddle[idx] else "") + "): the "
             "anchors do not fix the position from this start"))
         degenerate = flat | ambiguous | singular | stuck
         JtWJ = np.where(degenerate[..., None, None], np.eye(d), JtWJ)
@@ -403,9 +473,11 @@ class Multilateration(SnapshotEstimator):
             "iterations": fit.iterations, "residual_rms_m": rms, "degenerate": degenerate,
             "ambiguous": ambiguous & ~flat})
 
-    def _degenerate(self, mask: np.ndarray, detail: str) -> None:
-        """Raise for the first masked problem when ``on_degenerate="raise"``."""
+    def _degenerate(self, mask: np.ndarray, detail, anchors=None) -> None:
+        """Raise for the first masked problem when ``on_degenerate="raise"`` (``anchors``:
+        a function of the problem's index giving the indices of the anchors named)."""
         if self.on_degenerate == "raise" and np.any(mask):
             idx = _first(mask)
             text = detail(idx) if callable(detail) else detail
-            raise GeometryError(f"problem {idx}: {text}", index=idx, detail=text)
+            raise GeometryError(f"problem {idx}: {text}", index=idx, detail=text,
+                                anchors=None if anchors is None else anchors(idx))

@@ -304,6 +304,6 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
                 track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
             except GeometryError as exc:
                 raise GeometryError(f"method ekf-track: node {node!r} from time "
-                                    f"{times[seg][0]:g}: {exc}") from None
+                                    f"{float(times[seg][0])!r}: {exc}") from None
             tables.append(track_table(node, times[seg], track))
     return pd.concat(tables, ignore_index=True)

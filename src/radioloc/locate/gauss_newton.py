@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError
-from radioloc.estimators.multilateration import Multilateration
+from radioloc.estimators.multilateration import Multilateration, anchor_phrase
 from radioloc.locate.base import LocateRequest, Option, locate_method
 
 
@@ -71,7 +71,7 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     need = len(dims) + 1
     if np.any(counts < need):
         i = int(np.flatnonzero(counts < need)[0])
-        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g} "
+        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {float(epochs['time'][i])!r} "
                             f"has ranges to {int(counts[i])} anchor(s); {need} are needed in "
                             f"{len(dims)}-D" + (
                                 " (ranges that arrive one anchor at a time: track them with "
@@ -86,8 +86,12 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         if exc.index is None:
             raise GeometryError(f"method gn: {exc}") from None
         i = exc.index[0]
-        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {epochs['time'][i]:g}: "
-                            f"{exc.detail}") from None
+        detail = exc.detail
+        if exc.anchors is not None:          # name the anchors by their ids, not indices
+            ids = ", ".join(str(anchors["id"].iloc[k]) for k in exc.anchors)
+            detail = detail.replace(anchor_phrase(exc.anchors), f"anchors {ids}")
+        raise GeometryError(f"method gn: node {epochs['node'][i]!r} at time {float(epochs['time'][i])!r}: "
+                            f"{detail}") from None
     out = epochs.copy()
     for k, c in enumerate(dims):
         out[c] = fit.position[:, k]
@@ -99,10 +103,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
         if bad.all():
             raise GeometryError(f"method gn: no epoch has a geometry that fixes the position "
                                 f"({int(mirror.sum())} ambiguous mirror fixes; first: node "
-                                f"{epochs['node'][i]!r} at time {epochs['time'][i]:g})")
+                                f"{epochs['node'][i]!r} at time {float(epochs['time'][i])!r})")
         warnings.warn(f"method gn: {int(bad.sum())} of {bad.size} epochs left out: their geometry "
                       f"does not fix the position ({int(mirror.sum())} of them ambiguous: a "
                       "mirror fix fits the ranges as well; first: node "
-                      f"{epochs['node'][i]!r} at time {epochs['time'][i]:g})", stacklevel=2)
+                      f"{epochs['node'][i]!r} at time {float(epochs['time'][i])!r})", stacklevel=2)
         out = out[~bad].reset_index(drop=True)
     return out
