@@ -83,7 +83,8 @@ def _fmt(v: float) -> str:
 
 
 def build_scenarios(folder: Path) -> dict[str, Scenario]:
-    """Valid inputs for gn, gmm, grid-rssi, rls and ekf (small: a case runs in ms)."""
+    """Valid inputs for gn (2-D and 3-D), ekf-track, pf, gmm, grid-rssi, rls and ekf (small:
+    a case runs in ms)."""
     rng = np.random.default_rng(12345)
     folder = Path(folder)
     out: dict[str, Scenario] = {}
@@ -99,6 +100,46 @@ def build_scenarios(folder: Path) -> dict[str, Scenario]:
                 rows.append([_fmt(t), n, a, "range", _fmt(math.dist(p, q))])
     out["gn"] = Scenario("gn", rows, {"anchors": folder / "anchors.csv"},
                          option_keys=("range_std_m",), truth=truth)
+
+    # gn in 3-D: anchors with a height, exact ranges
+    anchors3 = {"B1": (0.0, 0.0, 0.5), "B2": (20.0, 0.0, 3.0), "B3": (20.0, 20.0, 0.8),
+                "B4": (0.0, 20.0, 2.7), "B5": (10.0, -5.0, 4.0)}
+    (folder / "anchors3.csv").write_text(
+        "id,x,y,z\n" + "".join(f"{k},{x},{y},{z}\n" for k, (x, y, z) in anchors3.items()))
+    truth3 = {"t1": (7.0, 12.0, 1.5)}
+    rows = [HEAD]
+    for t in (0.0, 1.0):
+        for n, p in truth3.items():
+            for a, q in anchors3.items():
+                rows.append([_fmt(t), n, a, "range", _fmt(math.dist(p, q))])
+    out["gn3"] = Scenario("gn", rows, {"anchors": folder / "anchors3.csv"},
+                          option_keys=("range_std_m", "on_degenerate"),
+                          truth={k: v[:2] for k, v in truth3.items()})
+
+    # ekf-track and pf: a node walking past the anchors, ranges arriving one anchor at a
+    # time (and a second node hearing all anchors at once every second)
+    rows = [HEAD]
+    names = list(anchors)
+    for k in range(24):
+        t = 0.25 * k
+        p = (5.0 + 0.5 * t, 6.0 + 0.25 * t)
+        a = names[k % 4]
+        rows.append([_fmt(t), "w1", a, "range", _fmt(math.dist(p, anchors[a]))])
+        if k % 4 == 0:
+            for a in names:
+                rows.append([_fmt(t), "w2", a, "range", _fmt(math.dist((12.0, 9.0),
+                                                                        anchors[a]))])
+    out["ekf-track"] = Scenario(
+        "ekf-track", rows, {"anchors": folder / "anchors.csv"},
+        option_keys=("motion", "q", "range_std_m", "range_bias_m", "tag_height_m", "gate",
+                     "smooth", "prior_std_m", "init_s", "max_gap_s"))
+    out["pf"] = Scenario(
+        "pf", rows, {"anchors": folder / "anchors.csv"},
+        options={"particles": "200", "seed": "3", "los_std_m": "0.2", "nlos_mean_m": "1",
+                 "alpha": "0.9"},
+        option_keys=("motion", "q", "particles", "seed", "los_std_m", "nlos_mean_m", "alpha",
+                     "smooth", "smoother", "lag", "trajectories", "min_los_std_m", "gate",
+                     "max_gap_s", "init_s", "prior_std_m", "tag_height_m", "range_bias_m"))
 
     # gmm: a small calibration file and rss rows
     aps = {"ap1": (0.0, 0.0), "ap2": (10.0, 0.0), "ap3": (5.0, 10.0)}

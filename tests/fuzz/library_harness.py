@@ -122,10 +122,12 @@ def case_multilateration() -> Case:
     truth = np.array([[7.0, 12.0], [21.0, 4.0]])
     r = np.linalg.norm(truth[:, None] - ANCHORS, axis=-1)
     return Case("Multilateration", {"range_std_m": 0.01},
-                {"ranges": r, "anchors": ANCHORS.copy()},
+                {"ranges": r, "anchors": ANCHORS.copy(), "weights": np.ones(r.shape),
+                 "initial": truth + 1.5},
                 {"range_std_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True, neg_ok=False), "anchors": Field(extra_ok=True)},
+                 "ranges": Field(nan_ok=True, neg_ok=False), "anchors": Field(extra_ok=True),
+                 "weights": Field(neg_ok=False), "initial": Field()},
                 lambda s, a: Multilateration(**s).locate(**a), truth)
 
 
@@ -484,10 +486,41 @@ def anchor_geometry(draw, n_min=3, n_max=6):
         xs = draw(st.lists(coord, min_size=n, max_size=n, unique=True))
         anchors = np.array([(x, y0 + slope * x) for x in xs])
         if shape == "near-collinear":
-            anchors[1, 1] += 1e-6
+            anchors[1, 1] += draw(st.sampled_from([1e-6, 1e-4, 1e-2, 0.3]))
+        if draw(st.booleans()):
+            # a node 1 cm .. 10 m from the anchors' line: the two mirror fixes nearly tie
+            h = draw(st.sampled_from([0.01, 0.05, 0.28, 1.0, 3.0, 10.0, -0.05, -1.0]))
+            x = draw(coord)
+            return (f"{shape}, node {h} m off the line", anchors,
+                    np.array([x, y0 + slope * x]) + h * np.array([-slope, 1.0]) / math.hypot(1, slope))
     truth = np.array([draw(coord), draw(coord)]) + (anchors.mean(0) if shape == "far-offset"
                                                      else 0.0)
     return shape, anchors, truth
+
+
+@st.composite
+def anchor_geometry3(draw, n_min=4, n_max=6):
+    """``(shape, anchors (n, 3), truth (3,))``: general, coplanar, nearly coplanar (one
+    anchor 1e-6 .. 0.1 m off the plane) or collinear anchors; a node sometimes close to
+    their plane."""
+    n = draw(st.integers(n_min, n_max))
+    coord = st.floats(-60, 60, allow_nan=False).map(lambda v: round(v, 3))
+    shape = draw(st.sampled_from(["general", "coplanar", "near-coplanar", "collinear"]))
+    pts = np.array([(draw(coord), draw(coord), draw(coord)) for _ in range(n)])
+    if shape == "collinear":
+        pts = pts[:1] + np.linspace(-1.0, 1.0, n)[:, None] * (pts[1] - pts[0])
+    elif shape != "general":
+        normal = np.array([draw(st.floats(-1, 1)), draw(st.floats(-1, 1)), 1.0])
+        normal /= np.linalg.norm(normal)
+        pts = pts - np.outer((pts - pts[0]) @ normal, normal)
+        if shape == "near-coplanar":
+            pts[1] += draw(st.sampled_from([1e-6, 1e-3, 0.1])) * normal
+        if draw(st.booleans()):
+            h = draw(st.sampled_from([0.02, 0.3, 2.0, -0.3]))
+            return (f"{shape}, node {h} m off the plane", pts,
+                    pts.mean(0) + np.array([draw(coord), draw(coord), 0.0]) @ (
+                        np.eye(3) - np.outer(normal, normal)) + h * normal)
+    return shape, pts, np.array([draw(coord), draw(coord), draw(coord)])
 
 
 def conditioning(anchors, truth) -> float:

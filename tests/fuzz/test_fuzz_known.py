@@ -84,3 +84,12 @@ def test_gmm_calibration_huge_value(scenarios, workdir):
 def test_grid_rssi_zero_cell(scenarios, workdir):
     sc, meas, args = _case(workdir, scenarios, "grid-rssi", options={"cell_m": "0"})
     _assert_clean(run(args), sc, meas)
+
+
+@pytest.mark.parametrize("cell", ["1e-320", "5e-324", "1e-300"])
+def test_grid_subnormal_cell_is_refused_naming_cell_m(scenarios, workdir, cell):
+    """``-o cell_m=1e-320``: the grid's side over the cell overflowed (a RuntimeWarning and
+    an internal error); now a one-line error naming cell_m and the limit."""
+    sc, meas, args = _case(workdir, scenarios, "grid-rssi", options={"cell_m": cell})
+    outcome, detail = classify(run(args), sc, meas)
+    assert outcome == "error" and "cell_m" in detail and "too large" in detail, detail

@@ -22,6 +22,7 @@ from library_harness import (
     Case,
     Field,
     anchor_geometry,
+    anchor_geometry3,
     classify_call,
     conditioning,
     invalid_setting,
@@ -86,6 +87,23 @@ def test_fuzz_multilateration_geometry(g, method):
     record(outcome, detail, f"Multilateration {method}, {shape} anchors {anchors.tolist()}, "
                             f"truth {truth.tolist()} (conditioning "
                             f"{conditioning(anchors, truth):.2g})")
+
+
+@FUZZ
+@given(g=anchor_geometry3(), method=st.sampled_from(["gauss-newton", "levenberg-marquardt"]),
+       std=st.sampled_from([None, 0.01]))
+def test_fuzz_multilateration_geometry_3d(g, method, std):
+    """3-D: exact ranges to general, coplanar, nearly coplanar or collinear anchors: the
+    truth or a clean refusal."""
+    shape, anchors, truth = g
+    r = _exact_ranges(anchors, truth)
+    scale = max(1.0, float(r.max()))
+    outcome, detail = classify_call(
+        lambda: Multilateration(method=method, range_std_m=std).locate(r, anchors),
+        names=("anchors", "ranges", "geometry", "coplanar", "collinear", "coincident"),
+        truth=truth, tol_m=1e-3 * scale)
+    record(outcome, detail, f"Multilateration 3-D {method} std {std}, {shape} anchors "
+                            f"{anchors.tolist()}, truth {truth.tolist()}")
 
 
 @FUZZ

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from fuzz_harness import FUZZ, HEAD, NASTY, check, mutated_rows, option_values, render
 
-METHODS = ["gn", "gmm", "grid-rssi", "rls", "ekf"]
+METHODS = ["gn", "gn3", "ekf-track", "pf", "gmm", "grid-rssi", "rls", "ekf"]
 
 
 @FUZZ
@@ -24,8 +24,8 @@ def test_fuzz_malformed_measurements(scenarios, workdir, data, method, quoted):
     check(sc.args(meas), sc, meas)
 
 
-SIDE = {"gn": "anchors", "grid-rssi": "anchors", "rls": "priors", "ekf": "priors",
-        "gmm": "calibration"}
+SIDE = {"gn": "anchors", "gn3": "anchors", "ekf-track": "anchors", "pf": "anchors",
+        "grid-rssi": "anchors", "rls": "priors", "ekf": "priors", "gmm": "calibration"}
 
 
 @FUZZ
@@ -67,16 +67,26 @@ def geometry(draw):
     """Anchors (3..6; sometimes collinear or coincident) and a node, exact ranges."""
     n = draw(st.integers(3, 6))
     coord = st.floats(-100, 100, allow_nan=False).map(lambda v: round(v, 3))
-    shape = draw(st.sampled_from(["general", "general", "collinear", "near-collinear"]))
+    shape = draw(st.sampled_from(["general", "general", "collinear", "near-collinear",
+                                  "near-collinear, node near the line"]))
     if shape == "general":
         anchors = [(draw(coord), draw(coord)) for _ in range(n)]
+        truth = (draw(coord), draw(coord))
     else:
         y0, slope = draw(coord), draw(st.floats(-2, 2).map(lambda v: round(v, 3)))
-        eps = 0.0 if shape == "collinear" else 1e-6
+        eps = 0.0 if shape == "collinear" else draw(st.sampled_from([1e-6, 1e-4, 1e-2, 0.3]))
         anchors = [(x, y0 + slope * x + (eps if i == 1 else 0.0))
                    for i, x in enumerate(draw(st.lists(coord, min_size=n, max_size=n,
                                                        unique=True)))]
-    truth = (draw(coord), draw(coord))
+        x = draw(coord)
+        if shape.endswith("near the line"):
+            # a node 1 cm .. 10 m from the anchors' line (the mirror fixes nearly tie)
+            h = draw(st.sampled_from([0.01, 0.05, 0.28, 1.0, 3.0, 10.0])) * draw(
+                st.sampled_from([-1.0, 1.0]))
+            truth = (round(x - h * slope / math.hypot(1, slope), 6),
+                     round(y0 + slope * x + h / math.hypot(1, slope), 6))
+        else:
+            truth = (x, draw(coord))
     return shape, anchors, truth
 
 
@@ -140,3 +150,44 @@ def test_fuzz_error_names_the_right_line(scenarios, workdir, data, bad, blank):
         return None
 
     assert check(sc.args(meas), sc, meas, error_check=names_place) != "success"
+
+
+@st.composite
+def geometry3(draw):
+    """3-D anchors (4..6; general, coplanar or nearly coplanar) and a node, exact ranges."""
+    n = draw(st.integers(4, 6))
+    coord = st.floats(-50, 50, allow_nan=False).map(lambda v: round(v, 3))
+    shape = draw(st.sampled_from(["general", "coplanar", "near-coplanar"]))
+    pts = [(draw(coord), draw(coord), draw(coord)) for _ in range(n)]
+    if shape != "general":
+        eps = 0.0 if shape == "coplanar" else draw(st.sampled_from([1e-6, 1e-3, 0.1]))
+        z0 = draw(coord)
+        pts = [(x, y, z0 + (eps if i == 1 else 0.0)) for i, (x, y, _) in enumerate(pts)]
+    truth = (draw(coord), draw(coord), draw(coord))
+    return shape, pts, truth
+
+
+@FUZZ
+@given(g=geometry3())
+def test_fuzz_gn_3d_known_answer(scenarios, workdir, g):
+    """3-D exact ranges: a fix at the truth (x, y) or a clean refusal."""
+    shape, anchors, truth = g
+    sc = scenarios["gn3"]
+    afile = workdir / "anchors-geo3.csv"
+    afile.write_text("id,x,y,z\n" + "".join(f"B{i},{x!r},{y!r},{z!r}\n"
+                                            for i, (x, y, z) in enumerate(anchors)))
+    rows = [HEAD] + [["0.0", "t", f"B{i}", "range", repr(math.dist(truth, p))]
+                     for i, p in enumerate(anchors)]
+    meas = workdir / "meas-geo3.csv"
+    meas.write_text(render(rows))
+    sc2 = type(sc)(**{**sc.__dict__, "files": {"anchors": afile}})
+    scale = max(1.0, max(math.dist(truth, p) for p in anchors))
+
+    def near_truth(est):
+        got = [float(est[c].iloc[0]) for c in ("x", "y", "z") if c in est.columns]
+        err = math.dist(got, truth[:len(got)])
+        if len(got) != 3 or err > 1e-3 * scale:
+            return f"{shape} anchors {anchors}, truth {truth}: estimate {got} ({err:.3g} m)"
+        return None
+
+    check(sc2.args(meas), sc2, meas, est_check=near_truth)

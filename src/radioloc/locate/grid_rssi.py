@@ -72,9 +72,15 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     xy = anchors.set_index("id")[["x", "y"]]
     lo = xy.min().to_numpy() - margin
     hi = xy.max().to_numpy() + margin
-    w, h = (int(np.ceil((hi[i] - lo[i]) / cell)) for i in (0, 1))
-    if w * h > 4_000_000:
-        raise InputError(f"option cell_m: grid of {w} x {h} cells is too large; use a larger cell_m")
+    # the cell count in floating point first: a subnormal cell_m or a huge margin_m
+    # overflows it (the quotient is inf), and int(inf) is not a size
+    with np.errstate(all="ignore"):
+        sides = np.ceil((hi - lo) / cell)
+    if not np.all(np.isfinite(sides)) or float(np.prod(sides)) > 4_000_000:
+        raise InputError(f"option cell_m: a grid of {sides[0]:.3g} x {sides[1]:.3g} cells of "
+                         f"{cell:g} m over the anchors and margin_m={margin:g} is too large "
+                         "(limit 4e6 cells); use a larger cell_m or a smaller margin_m")
+    w, h = (int(v) for v in sides)
     geom = GridGeometry(w, h, cell, (float(lo[0]), float(lo[1])))
 
     rss = rss.sort_values(["node", "time", "line"]).reset_index(drop=True)
