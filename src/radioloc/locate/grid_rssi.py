@@ -76,7 +76,7 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     # overflows it (the quotient is inf), and int(inf) is not a size
     with np.errstate(all="ignore"):
         sides = np.ceil((hi - lo) / cell)
-    if not np.all(np.isfinite(sides)) or float(np.prod(sides)) > 4_000_000:
+    if not np.all(np.isfinite(sides) & (sides <= 4_000_000)) or sides[0] * sides[1] > 4_000_000:
         raise InputError(f"option cell_m: a grid of {sides[0]:.3g} x {sides[1]:.3g} cells of "
                          f"{cell:g} m over the anchors and margin_m={margin:g} is too large "
                          "(limit 4e6 cells); use a larger cell_m or a smaller margin_m")
