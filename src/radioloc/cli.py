@@ -18,13 +18,31 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 import traceback
 import warnings
 from pathlib import Path
 from typing import Annotated, Any, Iterator, Optional
 
-import click
+
+def _interrupted_while_importing(signum, frame):  # pragma: no cover - timing dependent
+    """Ctrl-C during the imports below (a second or more on a loaded machine): nothing has
+    been read or written yet, so end at once with the CLI's own one-line message."""
+    sys.stderr.write("interrupted\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
+# only in the `radioloc` console script: a program that imports this module keeps its own
+# Ctrl-C; the script's handler is restored when the command line starts (OneLineErrors.main)
+_SIGINT_BEFORE = None
+if (threading.current_thread() is threading.main_thread()
+        and os.path.basename(sys.argv[0] if sys.argv else "").startswith("radioloc")):
+    _SIGINT_BEFORE = signal.signal(signal.SIGINT, _interrupted_while_importing)
+
+import click  # noqa: E402
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -71,6 +89,10 @@ class OneLineErrors(TyperGroup):
     def main(self, args: Any = None, prog_name: str | None = None,
              complete_var: str | None = None, standalone_mode: bool = True,
              **extra: Any) -> Any:
+        global _SIGINT_BEFORE
+        if _SIGINT_BEFORE is not None:   # Ctrl-C from here on: KeyboardInterrupt, below
+            signal.signal(signal.SIGINT, _SIGINT_BEFORE)
+            _SIGINT_BEFORE = None
         code = 0
         try:
             with _warnings_on_one_line() as held:
