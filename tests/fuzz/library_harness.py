@@ -95,6 +95,7 @@ class Field:
     shape_free: bool = False       # no shape to break (a scalar argument)
     none_ok: bool = False          # None is a valid setting (its default)
     extra_ok: bool = False         # one more coordinate (3-D) is a valid input
+    drop_ok: bool = False          # without its first batch row it still broadcasts (valid)
 
 
 @dataclass
@@ -127,7 +128,7 @@ def case_multilateration() -> Case:
                 {"range_std_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "anchors": Field(extra_ok=True),
-                 "weights": Field(neg_ok=False), "initial": Field()},
+                 "weights": Field(neg_ok=False), "initial": Field(drop_ok=True)},
                 lambda s, a: Multilateration(**s).locate(**a), truth)
 
 
@@ -449,7 +450,11 @@ def mutations(draw, case: Case) -> tuple[Case, Mutation]:
     elif kind == "leading_axis":
         new = np.broadcast_to(arr, (3,) + arr.shape).copy()
     elif kind == "drop_axis":
-        new = arr[..., 0] if arr.ndim else np.zeros((2, 2, 2))
+        if spec.drop_ok and arr.ndim >= 2:
+            new = arr[0]                 # one row for the whole batch: broadcasts, valid
+            invalid = False
+        else:
+            new = arr[..., 0] if arr.ndim else np.zeros((2, 2, 2))
     elif kind == "empty":
         new = arr[:0] if arr.ndim else np.zeros(0)
     elif kind == "text":
