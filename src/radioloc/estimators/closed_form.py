@@ -87,7 +87,8 @@ def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
 
 
 # ---- compiled iterative BLUE ---------------------------------------------------------
-# One track at a time per thread (prange over tracks); the same maths as _gls, with
+# One track at a time per thread (prange over chunks of tracks), each track iterated to
+# its own stop inside the kernel (one launch per call); the same maths as _gls, with
 # S Sigma S' built from its parts and factorised by Cholesky instead of LU:
 #   Sigma_ij = 4 c_ij (d_i . d_j) + 2 c2_ij + delta_ij e_i (+ the printed eq. (14) terms),
 #   d_i = p_k + t_i v_k - s_i, e_i = 4 xi_i (|d_i|^2 + 2 c_ii) + (2 + kappa) xi_i^2,
