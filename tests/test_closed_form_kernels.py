@@ -1,4 +1,4 @@
-"""The compiled iterative BLUE of paper 002 (``closed_form._gls_tracks``) against the plain
+"""The compiled iterative BLUE of paper 002 (``closed_form._blue_tracks``) against the plain
 NumPy path of the same maths (``_differenced_system``, ``S Sigma S'`` by
 ``SquaredRangeModel.differenced_covariance`` and an LU solve in ``_gls``), on random tracks,
 sensor paths, missing samples and model options; a track's result does not depend on the

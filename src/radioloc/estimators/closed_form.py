@@ -87,7 +87,8 @@ def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
 
 
 # ---- compiled iterative BLUE ---------------------------------------------------------
-# One track at a time per thread (prange over tracks); the same maths as _gls, with
+# One track at a time per thread (prange over chunks of tracks), each track iterated to
+# its own stop inside the kernel (one launch per call); the same maths as _gls, with
 # S Sigma S' built from its parts and factorised by Cholesky instead of LU:
 #   Sigma_ij = 4 c_ij (d_i . d_j) + 2 c2_ij + delta_ij e_i (+ the printed eq. (14) terms),
 #   d_i = p_k + t_i v_k - s_i, e_i = 4 xi_i (|d_i|^2 + 2 c_ii) + (2 + kappa) xi_i^2,
@@ -132,15 +133,16 @@ def _spd_inverse4(G, out):
 
 
 @njit(cache=True, fastmath=_FM)
-def _gls_one(b, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
+def _gls_one(b, r, s, xi, mean, st, c, sks, tv, kap, printed, var, ols_only,
              dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, out_beta, out_cov):
-    """Steps 1-2 and one GLS step (3b-3c; OLS, step 3a, with ``ols_only``) of track ``b``.
-    Returns the criterion, or NaN when a matrix is not positive definite."""
+    """Steps 1-2 and one GLS step (3b-3c, ``Sigma`` at the state ``st``; OLS, step 3a, with
+    ``ols_only``) of track ``b``. Returns the criterion, or NaN when a matrix is not
+    positive definite."""
     n = r.shape[1]
     m = n - 3
     sb = b if s.shape[0] > 1 else 0
     xb = b if xi.shape[0] > 1 else 0
-    bx, by, bvx, bvy = beta[b, 0], beta[b, 1], beta[b, 2], beta[b, 3]
+    bx, by, bvx, bvy = st[0], st[1], st[2], st[3]
     for i in range(n):
         ai = s[sb, i, 0]
         bi = s[sb, i, 1]
@@ -279,32 +281,63 @@ def _gls_workspace(n):
             np.empty(m), np.empty(m), np.empty((5, 5)))
 
 
-@njit(parallel=True, cache=True)
-def _gls_tracks(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
-                out_beta, out_cov, out_crit):
-    """:func:`_gls_one` for the tracks ``idx`` (outputs indexed like ``idx``), in parallel
-    over chunks of tracks that share one workspace."""
-    A = idx.size
-    n = r.shape[1]
-    nch = min(A, 64)
-    for ch in prange(nch):
-        dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G = _gls_workspace(n)
-        for a in range(ch * A // nch, (ch + 1) * A // nch):
-            out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
-                                   ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
-                                   out_beta[a], out_cov[a])
-
-
 @njit(cache=True)
-def _gls_tracks_serial(idx, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, ols_only,
-                       out_beta, out_cov, out_crit):
-    """:func:`_gls_tracks` on the calling thread (a few tracks: no parallel launch)."""
+def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, tv, kap, printed, var, tol, max_iter,
+                       crit_stop, out_ols, out_beta, out_cov, out_it, out_flags):
+    """Steps 1-3d for the tracks ``a0 <= b < a1``, each iterated to its own stop (the
+    rule of :meth:`ClosedFormTracker.locate`); ``out_flags[b]``: bit 0 converged, bit 1
+    stalled (criterion stopping), bit 2 a matrix not positive definite."""
     n = r.shape[1]
     dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G = _gls_workspace(n)
-    for a in range(idx.size):
-        out_crit[a] = _gls_one(idx[a], r, s, xi, mean, beta, c, sks, tv, kap, printed, var,
-                               ols_only, dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G,
-                               out_beta[a], out_cov[a])
+    zero = np.zeros(4)
+    new = np.empty(4)
+    new_cov = np.empty((4, 4))
+    for b in range(a0, a1):
+        beta = out_beta[b]
+        cov = out_cov[b]
+        crit = _gls_one(b, r, s, xi, mean, zero, c, sks, tv, kap, printed, var, True,
+                        dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, out_ols[b], new_cov)
+        flags = 4 if math.isnan(crit) else 0                               # step 3a
+        beta[:] = out_ols[b]
+        cov[:] = 0.0
+        best = np.inf
+        it = 0
+        if flags == 0:
+            for _ in range(max_iter):
+                crit = _gls_one(b, r, s, xi, mean, beta, c, sks, tv, kap, printed, var, False,
+                                dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, new, new_cov)
+                if math.isnan(crit):                                       # steps 3b-3c
+                    flags = 4
+                    break
+                if crit_stop and not crit < best:
+                    flags = 2
+                    break
+                change = 0.0
+                for p in range(4):
+                    change += (new[p] - beta[p]) ** 2
+                change = math.sqrt(change)
+                beta[:] = new
+                cov[:] = new_cov
+                best = crit
+                it += 1
+                if change <= tol:                                          # step 3d
+                    flags = 1
+                    break
+        out_it[b] = it
+        out_flags[b] = flags
+
+
+@njit(parallel=True, cache=True)
+def _blue_tracks(r, s, xi, mean, c, sks, tv, kap, printed, var, tol, max_iter, crit_stop,
+                 out_ols, out_beta, out_cov, out_it, out_flags):
+    """:func:`_blue_tracks_range` for every track, in parallel over chunks of tracks that
+    share one workspace."""
+    B = r.shape[0]
+    nch = min(B, 64)
+    for ch in prange(nch):
+        _blue_tracks_range(ch * B // nch, (ch + 1) * B // nch, r, s, xi, mean, c, sks, tv, kap,
+                           printed, var, tol, max_iter, crit_stop, out_ols, out_beta, out_cov,
+                           out_it, out_flags)
 
 
 class ClosedFormTracker(SnapshotEstimator):
@@ -499,7 +532,7 @@ class ClosedFormTracker(SnapshotEstimator):
                                 "does not separate [x_k, y_k, vx_k, vy_k]")
 
     def _locate_compiled(self, r, s, k, T, t_k, model, batch) -> Estimate:
-        """Steps 1-3d by the compiled kernel (:func:`_gls_tracks`): the same estimate as
+        """Steps 1-3d by the compiled kernel (:func:`_blue_tracks`): the same estimate as
         the NumPy path (``_differenced_system`` and ``_gls``) up to rounding."""
         n = r.shape[-1]
         B = int(np.prod(batch, dtype=np.int64))
@@ -528,45 +561,23 @@ class ClosedFormTracker(SnapshotEstimator):
                           difference_rows(design_matrix(ss if ss.shape[0] == 1 else ss[odd], T, k)),
                           0.0)
             self._check_condition(sa)
-        consts = (model.c, sks, tv, self.range_excess_kurtosis, self.printed_eq14, var)
-
-        def gls(idx, state, ols_only):
-            out_b = np.empty((idx.size, 4))
-            out_c = np.empty((idx.size, 4, 4))
-            crit = np.empty(idx.size)
-            kernel = _gls_tracks if idx.size >= _PARALLEL_MIN_TRACKS else _gls_tracks_serial
-            kernel(idx, rr, ss, xi, mean, state, *consts, ols_only, out_b, out_c, crit)
-            if np.any(np.isnan(crit)):
-                raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
-                                    "and channel noise variances cannot both be zero for the "
-                                    "BLUE")
-            return out_b, out_c, crit
-
-        ols = gls(np.arange(B), np.zeros((B, 4)), True)[0]         # step 3a
-        beta = ols.copy()
-        best_crit = np.full(B, np.inf)
-        cov = np.zeros((B, 4, 4))
-        active = np.ones(B, dtype=bool)
-        converged = np.zeros(B, dtype=bool)
-        stalled = np.zeros(B, dtype=bool)
-        iterations = np.zeros(B, dtype=int)
-        for _ in range(self.max_iter):
-            idx = np.flatnonzero(active)
-            if idx.size == 0:
-                break
-            new, new_cov, crit = gls(idx, beta, False)              # steps 3b-3c
-            improved = (crit < best_crit[idx]) | (self.stopping == "change")
-            take = idx[improved]
-            stalled[idx[~improved]] = True
-            change = np.sqrt(np.sum((new - beta[idx]) ** 2, axis=-1))
-            beta[take] = new[improved]
-            cov[take] = new_cov[improved]
-            best_crit[take] = crit[improved]
-            iterations[take] += 1
-            done = improved & (change <= self.tol)                  # step 3d
-            converged[idx[done]] = True
-            active[:] = False
-            active[idx[improved & ~done]] = True
+        ols = np.empty((B, 4))
+        beta = np.empty((B, 4))
+        cov = np.empty((B, 4, 4))
+        iterations = np.empty(B, dtype=np.int64)
+        flags = np.empty(B, dtype=np.int64)
+        args = (rr, ss, xi, mean, model.c, sks, tv, self.range_excess_kurtosis,
+                self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
+                ols, beta, cov, iterations, flags)
+        if B >= _PARALLEL_MIN_TRACKS:                               # steps 3a-3d
+            _blue_tracks(*args)
+        else:
+            _blue_tracks_range(0, B, *args)
+        if np.any(flags & 4):
+            raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
+                                "and channel noise variances cannot both be zero for the BLUE")
+        converged = (flags & 1) > 0
+        stalled = (flags & 2) > 0
         check_finite_output(beta, "ClosedFormTracker state")
         shape = lambda a, tail: a.reshape(batch + tail)             # noqa: E731
         return self._estimate(shape(beta, (4,)), shape(cov, (4, 4)), shape(ols, (4,)), n, T, k,
