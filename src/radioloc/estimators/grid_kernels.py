@@ -9,12 +9,14 @@ batch. The plain NumPy functions of :mod:`radioloc.estimators.grid` are the refe
 
 * :func:`trapezoid_update` - Algorithm 1 with the trapezoid likelihood computed in the loop:
   ``p_i <- max(p_i L(|l_i - s_a|), eps) / sum``.
+* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step).
 * :func:`weighted_update` - the same with a likelihood grid given by the caller (any model).
 * :func:`floor_normalise_into` - ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``.
 * :func:`recursive_gaussian` - separable recursive Gaussian of Young & van Vliet (1995):
   third-order causal and anti-causal recursions along columns (streamed over whole rows of
-  a chunk of columns), then along rows (four rows at a time as independent scalar chains),
-  with the zero boundary of the exact blur: the recursions
+  a chunk of columns, SIMD across columns), written into a block layout of ``LANES`` rows
+  whose row recursions run on the rows of a block at once (SIMD across rows; see
+  :func:`gaussian_blocks`), with the zero boundary of the exact blur: the recursions
   run on through ``tail`` zero cells past the far border before the anti-causal pass
   starts, so the mass blurred out of the grid is lost as in the exact (FFT) blur.
 """
