@@ -2,8 +2,9 @@
 ProbabilityUpdate).
 
 Prints cell-updates per second of radioloc's batched filter step with the recursive blur
-(``GridFilter(blur="recursive")``: Young-van Vliet recursions + the fused numba
-floor-and-normalise and trapezoid update) and with the exact FFT blur, and of a peer measured in
+(``GridFilter(blur="recursive")``: Young-van Vliet recursions, columns then rows on blocks of
+32 rows, with the input check fused into the column pass, then the fused numba
+floor-and-normalise and trapezoid update reading the blocks) and with the exact FFT blur, and of a peer measured in
 the same process: the NumPy update followed by ``scipy.ndimage.gaussian_filter`` (one call per
 grid, the usual way to blur a single grid) and a renormalisation. Ratios are taken within the
 run (the machine is shared: absolute numbers vary with the load). Run:

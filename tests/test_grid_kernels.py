@@ -194,7 +194,12 @@ def test_fused_step_equals_predict_then_update(blur, model):
     r = rng.integers(40, 70, 3).astype(float) if model == "trap" else rng.uniform(-80, -50, 3)
     fused = f.step(state, xy, r, dt=0.5, extra_blur_m=np.array([0.0, 0.3, 2.0]))
     split = f.update(f.predict(state, dt=0.5, extra_blur_m=np.array([0.0, 0.3, 2.0])), xy, r)
-    np.testing.assert_array_equal(fused.p, split.p)
+    if (blur, model) == ("recursive", "trap"):
+        # the fused recursive step reads the blur's block layout and sums each row cell by
+        # cell; the split path's update sums rows in the vectorised order: rounding only
+        np.testing.assert_allclose(fused.p, split.p, rtol=1e-13, atol=0)
+    else:
+        np.testing.assert_array_equal(fused.p, split.p)
     assert fused.time == split.time
 
 

@@ -9,12 +9,14 @@ batch. The plain NumPy functions of :mod:`radioloc.estimators.grid` are the refe
 
 * :func:`trapezoid_update` - Algorithm 1 with the trapezoid likelihood computed in the loop:
   ``p_i <- max(p_i L(|l_i - s_a|), eps) / sum``.
+* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step).
 * :func:`weighted_update` - the same with a likelihood grid given by the caller (any model).
 * :func:`floor_normalise_into` - ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``.
 * :func:`recursive_gaussian` - separable recursive Gaussian of Young & van Vliet (1995):
   third-order causal and anti-causal recursions along columns (streamed over whole rows of
-  a chunk of columns), then along rows (four rows at a time as independent scalar chains),
-  with the zero boundary of the exact blur: the recursions
+  a chunk of columns, SIMD across columns), written into a block layout of ``LANES`` rows
+  whose row recursions run on the rows of a block at once (SIMD across rows; see
+  :func:`gaussian_blocks`), with the zero boundary of the exact blur: the recursions
   run on through ``tail`` zero cells past the far border before the anti-causal pass
   starts, so the mass blurred out of the grid is lost as in the exact (FFT) blur.
 """
@@ -26,8 +28,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["trapezoid_update", "weighted_update", "floor_normalise_into", "yvv_coefficients",
-           "recursive_gaussian", "grids_in_range", "RECURSIVE_MIN_SIGMA"]
+__all__ = ["trapezoid_update", "trapezoid_update_blocks", "weighted_update",
+           "floor_normalise_into", "yvv_coefficients", "recursive_gaussian", "gaussian_blocks",
+           "grids_in_range", "RECURSIVE_MIN_SIGMA", "LANES"]
 
 RECURSIVE_MIN_SIGMA = 2.0
 """Smallest standard deviation, in cells, blurred by the recursive Gaussian (below it the
@@ -163,8 +166,10 @@ def _yvv_variance(q):
 
 
 _FM = {"contract"}
-_COL_CHUNK = 256          # columns of one job of the vertical pass (rows of 2 kB, streamed)
-_ROWS = 4                 # rows filtered together by the horizontal pass (independent chains)
+_COL_CHUNK = 64           # columns of one job of the vertical pass (a 512 kB float64 buffer at h = 1000)
+LANES = 32
+"""Rows per block of the blurred grid's block layout ``(B, ceil(h / LANES), w, LANES)``: the
+row recursions run on the ``LANES`` rows of a block at once (contiguous SIMD lanes)."""
 
 
 @njit(inline="always")
@@ -175,11 +180,11 @@ def _yvv(x, y1, y2, y3, g, a1, a2, a3):
 
 
 @njit(parallel=True, cache=True, fastmath=_FM)
-def _vert_pass(p, out, coef, tails):
-    """Column recursions ``out = anti(causal(p))`` along the rows' axis, both directions
-    streamed over whole rows of a chunk of ``_COL_CHUNK`` columns (contiguous vectors). The
-    recursions' state is float64 whatever ``out`` stores (float32 storage rounds each
-    stored value once; the rounding does not feed back into the recursion)."""
+def _vert_blocks(p, blk, coef, tails, limit, bad):
+    """Column recursions ``anti(causal(p))`` along the rows' axis, streamed over whole rows of
+    a chunk of ``_COL_CHUNK`` columns (contiguous vectors, float64 state and buffer), written
+    into the block layout ``blk[b, r // LANES, c, r % LANES]``. ``bad[job]`` counts the cells
+    of the chunk that are not in ``[0, limit]`` (NaN included): the input check, fused."""
     B, h, w = p.shape
     nch = (w + _COL_CHUNK - 1) // _COL_CHUNK
     for job in prange(B * nch):
@@ -190,20 +195,25 @@ def _vert_pass(p, out, coef, tails):
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         tail = tails[b]
         pb = p[b]
-        ob = out[b]
-        st = np.zeros((3, n))                     # the last three outputs, float64
+        bb = blk[b]
+        buf = np.empty((h, n))                    # the causal outputs
+        st = np.zeros((3, n))                     # the last three outputs
         tb = np.zeros((tail, n))                  # the causal outputs past the border
         o1 = st[0]
         o2 = st[1]
         o3 = st[2]
+        nbad = 0
         for r in range(h):                                   # causal
             x = pb[r, c0:c1]
-            o = ob[r, c0:c1]
+            o = buf[r]
             for j in range(n):
-                y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
+                v = x[j]
+                nbad += 0 if (v >= 0.0 and v <= limit) else 1    # NaN fails both tests
+                y = _yvv(v, o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 o[j] = y
             o1, o2, o3 = o3, o1, o2
+        bad[job] = nbad
         for t in range(tail):                                # on through the zero border
             o = tb[t]
             for j in range(n):
@@ -218,99 +228,144 @@ def _vert_pass(p, out, coef, tails):
                 o3[j] = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
             o1, o2, o3 = o3, o1, o2
         for r in range(h - 1, -1, -1):
-            o = ob[r, c0:c1]
+            o = buf[r]
             for j in range(n):
                 y = _yvv(o[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 o[j] = y
             o1, o2, o3 = o3, o1, o2
+            if r % LANES == 0:                   # a block of rows done: store it transposed
+                dst = bb[r // LANES, c0:c1]
+                if r + LANES <= h:
+                    for j in range(n):
+                        d = dst[j]
+                        for i in range(LANES):
+                            d[i] = buf[r + i, j]
+                else:
+                    for j in range(n):
+                        for i in range(h - r):
+                            dst[j, i] = buf[r + i, j]
 
 
 @njit(parallel=True, cache=True, fastmath=_FM)
-def _horiz_pass(out, coef, tails, eps, rows):
-    """Row recursions in place, ``_ROWS`` rows at a time as independent scalar chains (no
-    transposition); ``rows[b, r]`` receives ``sum (v - eps)_+`` of row ``r``."""
-    B, h, w = out.shape
-    nblk = (h + _ROWS - 1) // _ROWS
-    for job in prange(B * nblk):
-        b = job // nblk
-        r0 = (job - b * nblk) * _ROWS
+def _horiz_blocks(blk, coef, tails, eps, rows):
+    """Row recursions in place on each block of ``LANES`` rows (the lanes of one column are
+    contiguous: SIMD across rows, float64 state); ``rows[b, r]`` receives ``sum (v - eps)_+``
+    of row ``r`` from the stored values."""
+    B, nb, w, L = blk.shape
+    h = rows.shape[1]
+    for job in prange(B * nb):
+        b = job // nb
+        k = job - b * nb
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         tail = tails[b]
-        ob = out[b]
-        spare = np.zeros((3, w), out.dtype)      # stands in for the rows past the last one
-        ra = ob[r0]
-        rb = ob[r0 + 1] if r0 + 1 < h else spare[0]
-        rc = ob[r0 + 2] if r0 + 2 < h else spare[1]
-        rd = ob[r0 + 3] if r0 + 3 < h else spare[2]
-        tb = np.zeros((tail, 4))
-        a_1 = a_2 = a_3 = b_1 = b_2 = b_3 = c_1 = c_2 = c_3 = d_1 = d_2 = d_3 = 0.0
+        t = blk[b, k]
+        st = np.zeros((3, LANES))
+        tb = np.zeros((tail, LANES))
+        acc = np.zeros(LANES)
+        o1 = st[0]
+        o2 = st[1]
+        o3 = st[2]
         for c in range(w):                                   # causal
-            ya = _yvv(ra[c], a_1, a_2, a_3, g, a1, a2, a3)
-            yb = _yvv(rb[c], b_1, b_2, b_3, g, a1, a2, a3)
-            yc = _yvv(rc[c], c_1, c_2, c_3, g, a1, a2, a3)
-            yd = _yvv(rd[c], d_1, d_2, d_3, g, a1, a2, a3)
-            ra[c] = ya
-            rb[c] = yb
-            rc[c] = yc
-            rd[c] = yd
-            a_3, a_2, a_1 = a_2, a_1, ya
-            b_3, b_2, b_1 = b_2, b_1, yb
-            c_3, c_2, c_1 = c_2, c_1, yc
-            d_3, d_2, d_1 = d_2, d_1, yd
-        for t in range(tail):                                # on through the zero border
-            ya = _yvv(0.0, a_1, a_2, a_3, g, a1, a2, a3)
-            yb = _yvv(0.0, b_1, b_2, b_3, g, a1, a2, a3)
-            yc = _yvv(0.0, c_1, c_2, c_3, g, a1, a2, a3)
-            yd = _yvv(0.0, d_1, d_2, d_3, g, a1, a2, a3)
-            tb[t, 0] = ya
-            tb[t, 1] = yb
-            tb[t, 2] = yc
-            tb[t, 3] = yd
-            a_3, a_2, a_1 = a_2, a_1, ya
-            b_3, b_2, b_1 = b_2, b_1, yb
-            c_3, c_2, c_1 = c_2, c_1, yc
-            d_3, d_2, d_1 = d_2, d_1, yd
-        a_1 = a_2 = a_3 = b_1 = b_2 = b_3 = c_1 = c_2 = c_3 = d_1 = d_2 = d_3 = 0.0
-        for t in range(tail - 1, -1, -1):                    # anti-causal, border first
-            ya = _yvv(tb[t, 0], a_1, a_2, a_3, g, a1, a2, a3)
-            yb = _yvv(tb[t, 1], b_1, b_2, b_3, g, a1, a2, a3)
-            yc = _yvv(tb[t, 2], c_1, c_2, c_3, g, a1, a2, a3)
-            yd = _yvv(tb[t, 3], d_1, d_2, d_3, g, a1, a2, a3)
-            a_3, a_2, a_1 = a_2, a_1, ya
-            b_3, b_2, b_1 = b_2, b_1, yb
-            c_3, c_2, c_1 = c_2, c_1, yc
-            d_3, d_2, d_1 = d_2, d_1, yd
-        sa = sb = sc = sd = 0.0
+            x = t[c]
+            for j in range(LANES):
+                y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
+                o3[j] = y
+                x[j] = y
+            o1, o2, o3 = o3, o1, o2
+        for i in range(tail):                                # on through the zero border
+            o = tb[i]
+            for j in range(LANES):
+                y = _yvv(0.0, o1[j], o2[j], o3[j], g, a1, a2, a3)
+                o3[j] = y
+                o[j] = y
+            o1, o2, o3 = o3, o1, o2
+        st[:] = 0.0
+        for i in range(tail - 1, -1, -1):                    # anti-causal, border first
+            x = tb[i]
+            for j in range(LANES):
+                o3[j] = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
+            o1, o2, o3 = o3, o1, o2
         for c in range(w - 1, -1, -1):
-            ya = _yvv(ra[c], a_1, a_2, a_3, g, a1, a2, a3)
-            yb = _yvv(rb[c], b_1, b_2, b_3, g, a1, a2, a3)
-            yc = _yvv(rc[c], c_1, c_2, c_3, g, a1, a2, a3)
-            yd = _yvv(rd[c], d_1, d_2, d_3, g, a1, a2, a3)
-            ra[c] = ya
-            rb[c] = yb
-            rc[c] = yc
-            rd[c] = yd
-            sa += max(ra[c] - eps, 0.0)       # the stored value (rounded if float32)
-            sb += max(rb[c] - eps, 0.0)
-            sc += max(rc[c] - eps, 0.0)
-            sd += max(rd[c] - eps, 0.0)
-            a_3, a_2, a_1 = a_2, a_1, ya
-            b_3, b_2, b_1 = b_2, b_1, yb
-            c_3, c_2, c_1 = c_2, c_1, yc
-            d_3, d_2, d_1 = d_2, d_1, yd
-        rows[b, r0] = sa
-        if r0 + 1 < h:
-            rows[b, r0 + 1] = sb
-        if r0 + 2 < h:
-            rows[b, r0 + 2] = sc
-        if r0 + 3 < h:
-            rows[b, r0 + 3] = sd
+            x = t[c]
+            for j in range(LANES):
+                y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
+                o3[j] = y
+                x[j] = y
+                acc[j] += max(x[j] - eps, 0.0)     # the stored value (rounded if float32)
+            o1, o2, o3 = o3, o1, o2
+        r0 = k * LANES
+        for j in range(min(LANES, h - r0)):
+            rows[b, r0 + j] = acc[j]
+
+
+@njit(parallel=True, cache=True)
+def _from_blocks(blk, out):
+    B, h, w = out.shape
+    for job in prange(B * h):
+        b = job // h
+        r = job - b * h
+        src = blk[b, r // LANES]
+        lane = r % LANES
+        o = out[b, r]
+        for c in range(w):
+            o[c] = src[c, lane]
+
+
+def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0,
+                    dtype=np.float32, limit: float = np.inf
+                    ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The recursive Gaussian of :func:`recursive_gaussian` in the block layout.
+
+    Parameters
+    ----------
+    p : ndarray, shape (B, h, w)
+        Grids (float64).
+    sigma_cells : ndarray, shape (B,)
+        Standard deviation of each run's blur, cells (``>= 0.5``).
+    epsilon : float
+        Floor whose excess ``sum (v - eps)_+`` is returned with the blur.
+    dtype : {numpy.float32, numpy.float64}
+        Storage of the blurred grids.
+    limit : float
+        Cells of ``p`` outside ``[0, limit]`` (or NaN) are counted (the input check).
+
+    Returns
+    -------
+    blocks : ndarray, shape (B, ceil(h / LANES), w, LANES)
+        ``blocks[b, r // LANES, c, r % LANES]`` is the blurred cell ``(r, c)``; the lanes
+        past the last row are zero.
+    excess : ndarray, shape (B,)
+        ``sum (blurred - eps)_+`` of each grid, from the stored values.
+    bad : int
+        Number of cells of ``p`` outside ``[0, limit]``.
+    """
+    p = np.ascontiguousarray(p, dtype=np.float64)
+    B, h, w = p.shape
+    s = np.asarray(sigma_cells, dtype=np.float64).reshape(B)
+    if np.dtype(dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ValueError(f"dtype: float64 or float32, got {dtype}")
+    coef = yvv_coefficients(s)
+    # the recursions decay with the Gaussian: 6 sigma of zeros past the border lose < 1e-8
+    tails = np.ceil(6.0 * s).astype(np.int64) + 3
+    nb = (h + LANES - 1) // LANES
+    blk = np.empty((B, nb, w, LANES), dtype)
+    if h % LANES:
+        blk[:, -1, :, h % LANES:] = 0.0
+    bad = np.empty(B * ((w + _COL_CHUNK - 1) // _COL_CHUNK), np.int64)
+    _vert_blocks(p, blk, coef, tails, float(limit), bad)
+    rows = np.empty((B, h))
+    _horiz_blocks(blk, coef, tails, float(epsilon), rows)
+    return blk, rows.sum(axis=1), int(bad.sum())
 
 
 def recursive_gaussian(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0,
                        dtype=np.float64) -> tuple[np.ndarray, np.ndarray]:
     """Recursive Gaussian blur of each grid (zero outside the grid).
+
+    Column recursions (SIMD across columns) write the block layout of
+    :func:`gaussian_blocks`, whose row recursions run on ``LANES`` rows at once (SIMD across
+    rows); this function copies the result back to the grid's layout.
 
     Parameters
     ----------
@@ -321,10 +376,10 @@ def recursive_gaussian(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 
     epsilon : float
         Floor whose excess ``sum (v - eps)_+`` is returned with the blur.
     dtype : {numpy.float64, numpy.float32}
-        Storage of the blurred grid. The recursions always run in float64; float32 storage
-        rounds each cell four times (after each of the four recursions) (relative
-        error below ``4 * 2**-24`` of the cell's value, tested), and halves the memory
-        traffic of the blur.
+        Storage of the blurred grid. The recursions always run in float64 and keep the
+        column recursions' causal outputs in float64; float32 storage rounds each cell twice
+        (after the column and after the row recursions: relative error below
+        ``2 * 2**-24`` of the cell's value, tested), and halves the memory traffic.
 
     Returns
     -------
@@ -335,19 +390,10 @@ def recursive_gaussian(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 
         ``sum (blurred - eps)_+`` of each grid, from the stored values (for
         :func:`floor_normalise_into`).
     """
-    p = np.ascontiguousarray(p, dtype=np.float64)
-    B, h, w = p.shape
-    s = np.asarray(sigma_cells, dtype=np.float64).reshape(B)
-    coef = yvv_coefficients(s)
-    # the recursions decay with the Gaussian: 6 sigma of zeros past the border lose < 1e-8
-    tails = np.ceil(6.0 * s).astype(np.int64) + 3
-    if np.dtype(dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
-        raise ValueError(f"dtype: float64 or float32, got {dtype}")
-    out = np.empty(p.shape, dtype)
-    _vert_pass(p, out, coef, tails)
-    rows = np.empty((B, h))
-    _horiz_pass(out, coef, tails, float(epsilon), rows)
-    return out, rows.sum(axis=1)
+    blk, excess, _ = gaussian_blocks(p, sigma_cells, epsilon, dtype)
+    out = np.empty(np.shape(p), dtype)
+    _from_blocks(blk, out)
+    return out, excess
 
 
 @njit(parallel=True, cache=True)
@@ -409,6 +455,14 @@ def floor_normalise_into(p: np.ndarray, epsilon: float, excess: np.ndarray | Non
     return out
 
 
+@njit(inline="always")
+def _trapezoid(d2, m, t, s):
+    # the trapezoid likelihood at squared distance d2
+    d = math.sqrt(d2)
+    e = max(abs(d - m) - t, 0.0)
+    return max(s - e, 0.0) / s
+
+
 @njit(parallel=True, cache=True, fastmath={"reassoc"})
 def _trapezoid_rows(p, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
     B, h, w = p.shape
@@ -426,13 +480,49 @@ def _trapezoid_rows(p, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
         acc = 0.0
         for j in range(w):
             dx = xs[j] - px
-            d = math.sqrt(dx * dx + dy2)
-            e = max(abs(d - m) - t, 0.0)
-            lik = max(s - e, 0.0) / s
+            lik = _trapezoid(dx * dx + dy2, m, t, s)
             v = max(_floored(prow[j], mode, c, eps, k) * lik, eps)
             orow[j] = v
             acc += v
         rows[b, r] = acc
+
+
+@njit(parallel=True, cache=True, fastmath=_FM)
+def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
+    """:func:`_trapezoid_rows` reading the block layout: the ``LANES`` rows of a block are
+    the SIMD lanes (row sums in the same order, cell by cell along the row)."""
+    B, h, w = out.shape
+    nb = blk.shape[1]
+    k = h * w
+    for job in prange(B * nb):
+        b = job // nb
+        q = job - b * nb
+        r0 = q * LANES
+        nl = min(LANES, h - r0)
+        px, py = pos[b, 0], pos[b, 1]
+        m, t, s = mu[b], tau[b], sig[b]
+        mode, c = fmode[b], fc[b]
+        dy2 = np.empty(LANES)
+        for j in range(LANES):
+            dy = ys[min(r0 + j, h - 1)] - py
+            dy2[j] = dy * dy
+        acc = np.zeros(LANES)
+        vals = np.empty(LANES)
+        src = blk[b, q]
+        ob = out[b]
+        for col in range(w):
+            dx = xs[col] - px
+            dx2 = dx * dx
+            x = src[col]
+            for j in range(LANES):
+                lik = _trapezoid(dx2 + dy2[j], m, t, s)
+                v = max(_floored(x[j], mode, c, eps, k) * lik, eps)
+                vals[j] = v
+                acc[j] += v
+            for j in range(nl):
+                ob[r0 + j, col] = vals[j]
+        for j in range(nl):
+            rows[b, r0 + j] = acc[j]
 
 
 @njit(parallel=True, cache=True, fastmath={"reassoc"})
@@ -499,6 +589,39 @@ def trapezoid_update(p: np.ndarray, x: np.ndarray, y: np.ndarray, tracker_xy: np
     mode, c = _floor_args(p.shape[0], p.shape[1] * p.shape[2], float(epsilon), prior_excess)
     _trapezoid_rows(p, f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma), float(epsilon),
                     out, rows, mode, c)
+    _scale_rows(out, rows.sum(axis=1))
+    return out
+
+
+def trapezoid_update_blocks(blk: np.ndarray, shape: tuple[int, int, int], x: np.ndarray,
+                            y: np.ndarray, tracker_xy: np.ndarray, mu: np.ndarray,
+                            tau: np.ndarray, sigma: np.ndarray, epsilon: float,
+                            prior_excess: np.ndarray) -> np.ndarray:
+    """:func:`trapezoid_update` of a blurred grid in the block layout of
+    :func:`gaussian_blocks` (the prior is its floor, computed cell by cell).
+
+    Parameters
+    ----------
+    blk : ndarray, shape (B, ceil(h / LANES), w, LANES)
+        Blurred grids in the block layout (float32 or float64).
+    shape : tuple of int
+        ``(B, h, w)`` of the grids.
+    x, y, tracker_xy, mu, tau, sigma, epsilon
+        As in :func:`trapezoid_update`.
+    prior_excess : ndarray, shape (B,)
+        ``sum (blk - eps)_+`` of each grid (from :func:`gaussian_blocks`).
+
+    Returns
+    -------
+    ndarray, shape (B, h, w)
+        Posterior grids ``max(p L, eps) / sum`` (float64).
+    """
+    out = np.empty(shape)
+    rows = np.empty(shape[:2])
+    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
+    _trapezoid_blocks(blk, f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma),
+                      float(epsilon), out, rows, mode, c)
     _scale_rows(out, rows.sum(axis=1))
     return out
 
