@@ -39,8 +39,10 @@ for ``x >= 0``. The errors against NumPy/SciPy are in tests/test_pf_fast_math.py
 Gaussian case. A filter whose LOS fraction is exactly 1 and whose carried link posteriors
 are all exactly 1 (the invariant of such a filter: ``pi_0 = 0`` for every link) has
 ``E_0 = 0``, so its link update is the Gaussian range log-likelihood summed over the links
-per particle (no exponential per link except the detection sum ``sum_i E_1``); the kernel
-checks the condition per task and takes that path by itself.
+per particle: a square root and a multiply-add per particle-link, no exponential (its new
+posteriors are 1 and its pooled link posterior is LOS with probability exactly 1, so
+neither is computed). The kernel checks the condition per filter and takes that path by
+itself; ``P2PParticleFilter`` then carries the posteriors as one broadcast row.
 
 Parallelism: ``prange`` over (batch entry, chunk of particles) tasks, so one filter of
 10^5 particles uses every core as well as 20 vehicles of 900. All arithmetic is float64.
@@ -74,6 +76,10 @@ _LN2_LO = 1.90821492927058770002e-10
 _INV_LN2 = 1.0 / math.log(2.0)
 _EXP_LO, _EXP_HI = -745.2, 710.0         # exp(x) is 0 below, inf above
 _ERFCX_K = 3.75
+_SHIFT = 6755399441055744.0             # 1.5 * 2^52: x + _SHIFT rounds x to an integer
+_SHIFT_BITS = 0x4338000000000000         # bits of _SHIFT
+_TWO52 = 4503599627370496.0              # 2^52
+_TWO52_BITS = 0x4330000000000000         # bits of 2^52
 _MANT = (1 << 52) - 1
 _ONE_BITS = 1023 << 52
 _TINY = 1e-150        # below: evaluate the link in the log domain
@@ -112,7 +118,7 @@ def vexp(x: float) -> float:
         ``exp(x)``, within 2 ulps of ``numpy.exp`` for normal results (tests).
     """
     x = min(max(x, _EXP_LO), _EXP_HI)
-    kf = math.floor(x * _INV_LN2 + 0.5)
+    kf = (x * _INV_LN2 + _SHIFT) - _SHIFT          # round to nearest integer
     r = (x - kf * _LN2_HI) - kf * _LN2_LO
     p = 1.0 / 6227020800.0
     p = p * r + 1.0 / 479001600.0
@@ -128,9 +134,12 @@ def vexp(x: float) -> float:
     p = p * r + 0.5
     p = p * r + 1.0
     p = p * r + 1.0
-    k = np.int64(kf)
-    k1 = k >> 1
-    return p * _i64_as_f64((k1 + 1023) << 52) * _i64_as_f64((k - k1 + 1023) << 52)
+    # 2^k in two factors 2^k1 2^(k - k1) (subnormal results); the integers are read from
+    # the bits of k + 1.5 2^52 (AVX2 has no float -> int64 conversion)
+    k1f = math.floor(0.5 * kf)
+    k1 = _f64_as_i64(k1f + _SHIFT) - _SHIFT_BITS
+    k2 = _f64_as_i64((kf - k1f) + _SHIFT) - _SHIFT_BITS
+    return p * _i64_as_f64((k1 + 1023) << 52) * _i64_as_f64((k2 + 1023) << 52)
 
 
 @njit(cache=True, inline="always")
@@ -221,15 +230,13 @@ def n_chunks(particles: int, chunk: int) -> int:
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
-def _gauss_link(buf, m, nx, ny, th, s, d1):
-    """Gaussian link (pi_0 = 0): log-likelihood into row 7, ``E_1`` into row 5."""
+def _gauss_link(buf, m, nx, ny, th, inv_s):
+    """Gaussian link (pi_0 = 0): ``-z^2 / 2`` added to row 7."""
     for i in range(m):
         dx = buf[0, i] - nx
         dy = buf[1, i] - ny
-        z = (th - math.sqrt(dx * dx + dy * dy)) / s
-        h = -0.5 * z * z
-        buf[7, i] += h
-        buf[5, i] = vexp(d1 + h)
+        z = (th - math.sqrt(dx * dx + dy * dy)) * inv_s
+        buf[7, i] -= 0.5 * z * z
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
@@ -259,7 +266,9 @@ def _mixture_link(buf, m, nx, ny, th, s, lam, ls2, half_c, big_d1, c11, c10, c01
         ok = tot > _TINY
         f = buf[2, i] * (tot if ok else 1.0)
         bits = _f64_as_i64(f)
-        buf[3, i] += np.float64((bits >> 52) - 1023)
+        # biased exponent as a float: its bits under those of 2^52 (no int64 -> float
+        # conversion in AVX2)
+        buf[3, i] += _i64_as_f64((bits >> 52) | _TWO52_BITS) - (_TWO52 + 1023.0)
         buf[2, i] = _i64_as_f64((bits & _MANT) | _ONE_BITS)
         buf[6, i] = a1 / tot if ok else -1.0
         buf[4, i] = a0 if ok else 0.0
@@ -270,7 +279,7 @@ def _mixture_link(buf, m, nx, ny, th, s, lam, ls2, half_c, big_d1, c11, c10, c01
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
 def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, nlos_mean,
-                 alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp):
+                 alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp, gauss):
     """Particle-link update of Algorithm 2 (lines 6, 8, 11) for every filter of a batch.
 
     Parameters
@@ -285,8 +294,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
         Which link slots exist.
     where_prev : ndarray of int64, shape (B, L)
         Slot of the link in ``prev_q``, or -1 for a new neighbour (line 8).
-    prev_q : ndarray, shape (B, K, L')
-        Carried LOS posteriors ``p(z_{t-1} = 1 | .)`` of the previous step's links.
+    prev_q : ndarray, shape (B, K, L') or (B, 1, L')
+        Carried LOS posteriors ``p(z_{t-1} = 1 | .)`` of the previous step's links (one row
+        shared by every particle in the second form).
     los_std, nlos_mean, alpha : ndarray, shape (B,)
         ``s_LOS``, ``s_NLOS`` and alpha of each filter (the sticky chain follows alpha).
     chunk : int
@@ -309,6 +319,11 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
     em_pp : ndarray, shape (B, K, 3)
         Output if ``em``: per particle ``sum_m q'``, ``sum_m q' e^2`` and
         ``sum_m (1 - q') e`` (e: range minus particle distance).
+    gauss : ndarray of bool, shape (B,)
+        Output: the filters that took the Gaussian case (alpha = 1 and every carried
+        posterior of a linked slot 1). For those ``q_new`` is not written (it is 1 on
+        every link), ``part_s`` is 0 and ``part_l`` is ``(-inf, 0)`` per chunk (the NLOS
+        sum is exactly 0; the LOS sum is left unnormalised: its exponentials are skipped).
 
     Returns
     -------
@@ -317,6 +332,26 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
     """
     nb, nk, nl = q_new.shape[0], q_new.shape[1], q_new.shape[2]
     nc = part_s.shape[1]
+    qs = 1 if prev_q.shape[1] == nk else 0      # 0: one row shared by every particle
+    # Gaussian case: alpha = 1 and every carried LOS posterior of a link exactly 1
+    ok = np.ones((nb, nc), dtype=np.bool_)
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        if alpha[b] != 1.0:
+            ok[b, c] = False
+            continue
+        i1 = min(nk, (c + 1) * chunk) if qs else 1
+        for j in range(nl):
+            jp = where_prev[b, j]
+            if valid[b, j] and jp >= 0:
+                for i in range(c * chunk * qs, i1):
+                    if prev_q[b, i, jp] != 1.0:
+                        ok[b, c] = False
+    for b in range(nb):
+        gauss[b] = True
+        for c in range(nc):
+            gauss[b] = gauss[b] and ok[b, c]
     for task in prange(nb * nc):
         b = task // nc
         c = task - b * nc
@@ -344,15 +379,7 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             buf[0, i] = particles[b, i0 + i, 0]
             buf[1, i] = particles[b, i0 + i, 1]
             buf[2, i] = 1.0
-        # Gaussian case: alpha = 1 and every carried LOS posterior exactly 1 (pi_0 = 0)
-        gauss = a == 1.0
-        if gauss:
-            for j in range(nl):
-                jp = where_prev[b, j]
-                if valid[b, j] and jp >= 0:
-                    for i in range(i0, i1):
-                        if prev_q[b, i, jp] != 1.0:
-                            gauss = False
+        gs = gauss[b]
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
@@ -365,24 +392,22 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             part_l[b, c, j, 0] = -np.inf
             part_l[b, c, j, 1] = -np.inf
             if not valid[b, j]:
-                for i in range(i0, i1):
-                    q_new[b, i, j] = 0.0
+                if not gs:
+                    for i in range(i0, i1):
+                        q_new[b, i, j] = 0.0
                 continue
             nvalid += 1
             nx = node_xy[b, j, 0]
             ny = node_xy[b, j, 1]
             th = theta[b, j]
             jp = where_prev[b, j]
-            if gauss:
-                _gauss_link(buf, m, nx, ny, th, s, d1)
-                part_s[b, c, j, 1] = _vsum(buf[5], m)
-                for i in range(i0, i1):
-                    q_new[b, i, j] = 1.0
+            if gs:
+                _gauss_link(buf, m, nx, ny, th, 1.0 / s)
+                part_l[b, c, j, 1] = 0.0
             else:
                 if jp >= 0:
                     for i in range(m):
-                        q = prev_q[b, i0 + i, jp]
-                        buf[6, i] = q
+                        buf[6, i] = prev_q[b, (i0 + i) * qs, jp]
                     c11, c10, c01, c00 = t11, t01, t10, t00
                 else:
                     for i in range(m):
@@ -401,7 +426,7 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                         e = th - math.sqrt(dx * dx + dy * dy)
                         z = e / s
                         if jp >= 0:
-                            q = prev_q[b, i0 + i, jp]
+                            q = prev_q[b, (i0 + i) * qs, jp]
                             pi1 = q * t11 + (1.0 - q) * t01
                             pi0 = q * t10 + (1.0 - q) * t00
                         else:
@@ -420,16 +445,17 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     q_new[b, i0 + i, j] = buf[6, i]
             if em:
                 for i in range(m):
-                    qn = q_new[b, i0 + i, j]
+                    qn = 1.0 if gs else q_new[b, i0 + i, j]
                     dx = buf[0, i] - nx
                     dy = buf[1, i] - ny
                     e = th - math.sqrt(dx * dx + dy * dy)
                     em_pp[b, i0 + i, 0] += qn
                     em_pp[b, i0 + i, 1] += qn * e * e
                     em_pp[b, i0 + i, 2] += (1.0 - qn) * e
-        if gauss:
+        if gs:
             for i in range(m):
                 log_w[b, i0 + i] = nvalid * cg + buf[7, i]
+            continue
         else:
             for i in range(m):
                 log_w[b, i0 + i] = (nvalid * ce + buf[7, i] + buf[3, i] * _LN2
@@ -447,11 +473,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                 dy = particles[b, i, 1] - node_xy[b, j, 1]
                 e = theta[b, j] - math.sqrt(dx * dx + dy * dy)
                 z = e / s
-                if gauss:
-                    pi1 = 1.0
-                    pi0 = 0.0
-                elif jp >= 0:
-                    q = prev_q[b, i, jp]
+                if jp >= 0:
+                    q = prev_q[b, i * qs, jp]
                     pi1 = q * t11 + (1.0 - q) * t01
                     pi0 = q * t10 + (1.0 - q) * t00
                 else:
@@ -467,9 +490,64 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             part_l[b, c, j, 1] = m1
 
 
-@njit(cache=True)
-def normalise_weights(log_w, particles, w, mean, cov, ess):
+@njit(cache=True, inline="always", error_model="numpy", fastmath={"reassoc", "contract"})
+def _moment_sums(w, particles, b, i0, i1, sums):
+    """``sums = (sum v, sum v^2, sum v dx_d, sum v dx_d dx_g (g <= d))`` over particles
+    ``i0..i1`` of filter ``b``, ``dx`` relative to particle 0 of the filter."""
+    n = particles.shape[2]
+    for t in range(sums.shape[0]):
+        sums[t] = 0.0
+    if n == 2:                                  # position only: scalar accumulators
+        rx = particles[b, 0, 0]
+        ry = particles[b, 0, 1]
+        s0 = 0.0
+        sq = 0.0
+        sx = 0.0
+        sy = 0.0
+        sxx = 0.0
+        syx = 0.0
+        syy = 0.0
+        for i in range(i0, i1):
+            v = w[b, i]
+            dx = particles[b, i, 0] - rx
+            dy = particles[b, i, 1] - ry
+            s0 += v
+            sq += v * v
+            sx += v * dx
+            sy += v * dy
+            sxx += v * dx * dx
+            syx += v * dy * dx
+            syy += v * dy * dy
+        sums[0] = s0
+        sums[1] = sq
+        sums[2] = sx
+        sums[3] = sy
+        sums[4] = sxx
+        sums[5] = syx
+        sums[6] = syy
+        return
+    for i in range(i0, i1):
+        v = w[b, i]
+        sums[0] += v
+        sums[1] += v * v
+        t = 2 + n
+        for d in range(n):
+            dd = particles[b, i, d] - particles[b, 0, d]
+            sums[2 + d] += v * dd
+            for g in range(d + 1):
+                sums[t] += v * dd * (particles[b, i, g] - particles[b, 0, g])
+                t += 1
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
+def weights_moments(log_w, particles, chunk, w, mean, cov, ess):
     """Normalised weights, weighted mean and covariance and ESS (Algorithm 2, line 14).
+
+    Three parallel passes over (filter, chunk of particles) tasks: the maximum log weight,
+    then ``v = exp(log w - max)`` and the chunk's sums of ``v``, ``v^2``, ``v dx`` and ``v
+    dx dx'`` (``dx`` relative to the filter's first particle, so the covariance
+    ``sum v dx dx' / sum v - mean(dx) mean(dx)'`` does not lose the digits of a large
+    position), then the normalisation.
 
     Parameters
     ----------
@@ -477,6 +555,8 @@ def normalise_weights(log_w, particles, w, mean, cov, ess):
         Log weights.
     particles : ndarray, shape (B, K, n)
         Particle states.
+    chunk : int
+        Particles per parallel task.
     w : ndarray, shape (B, K)
         Output: normalised weights.
     mean : ndarray, shape (B, n)
@@ -492,45 +572,63 @@ def normalise_weights(log_w, particles, w, mean, cov, ess):
         The results are written into the output arrays.
     """
     nb, nk, n = particles.shape
-    for b in range(nb):
+    nc = max(1, -(-nk // chunk))
+    ns = 2 + n + n * (n + 1) // 2
+    cmax = np.empty((nb, nc))
+    sums = np.empty((nb, nc, ns))
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
         m = -np.inf
-        for i in range(nk):
-            if log_w[b, i] > m:
-                m = log_w[b, i]
-        tot = 0.0
-        for i in range(nk):
-            v = math.exp(log_w[b, i] - m)
-            w[b, i] = v
-            tot += v
-        inv = 1.0 / tot
-        sq = 0.0
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            m = max(m, log_w[b, i])
+        cmax[b, c] = m
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        m = cmax[b, 0]
+        for cc in range(1, nc):
+            m = max(m, cmax[b, cc])
+        i0 = c * chunk
+        i1 = min(nk, i0 + chunk)
+        for i in range(i0, i1):
+            w[b, i] = vexp(log_w[b, i] - m)
+        _moment_sums(w, particles, b, i0, i1, sums[b, c])
+    for b in range(nb):
+        tot = np.zeros(ns)
+        for c in range(nc):
+            for t in range(ns):
+                tot[t] += sums[b, c, t]
+        inv = 1.0 / tot[0]
+        ess[b] = tot[0] * tot[0] / tot[1]
+        t = 2 + n
         for d in range(n):
-            mean[b, d] = 0.0
-        for i in range(nk):
-            v = w[b, i] * inv
-            w[b, i] = v
-            sq += v * v
-            for d in range(n):
-                mean[b, d] += v * particles[b, i, d]
-        ess[b] = 1.0 / sq
-        for d in range(n):
-            for g in range(n):
-                cov[b, d, g] = 0.0
-        for i in range(nk):
-            v = w[b, i]
-            for d in range(n):
-                dd = particles[b, i, d] - mean[b, d]
-                for g in range(d + 1):
-                    cov[b, d, g] += v * dd * (particles[b, i, g] - mean[b, g])
-        for d in range(n):
-            for g in range(d):
-                cov[b, g, d] = cov[b, d, g]
+            md = tot[2 + d] * inv
+            mean[b, d] = particles[b, 0, d] + md
+            for g in range(d + 1):
+                cv = tot[t] * inv - md * tot[2 + g] * inv
+                cov[b, d, g] = cv
+                cov[b, g, d] = cv
+                t += 1
+        tot[0] = inv
+        sums[b, 0, 0] = inv
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        inv = sums[b, 0, 0]
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            w[b, i] *= inv
 
 
-@njit(cache=True)
-def systematic_indices(w, u, idx):
+@njit(cache=True, parallel=True)
+def systematic_indices(w, u, idx, chunk=2048):
     """Systematic resampling: ancestor of new particle j is the first i with
     ``cumsum(w)_i > (u + j) / K``.
+
+    Parallel over (filter, chunk of ancestors) tasks: each chunk's weight sum gives where
+    its part of the cumulative sum starts, and the task writes the new particles whose
+    position ``(u + j) / K`` falls in its part (the last ancestor of a chunk takes any
+    position rounding puts past the chunk's end).
 
     Parameters
     ----------
@@ -540,6 +638,8 @@ def systematic_indices(w, u, idx):
         One uniform in [0, 1) per filter.
     idx : ndarray of int64, shape (B, K)
         Output: ancestor indices (non-decreasing).
+    chunk : int
+        Ancestors per parallel task.
 
     Returns
     -------
@@ -547,19 +647,46 @@ def systematic_indices(w, u, idx):
         The result is written into ``idx``.
     """
     nb, nk = w.shape
+    nc = max(1, -(-nk // chunk))
+    start = np.empty((nb, nc + 1))
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        s = 0.0
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            s += w[b, i]
+        start[b, c + 1] = s
+    first = np.empty((nb, nc + 1), dtype=np.int64)
     for b in range(nb):
-        i = 0
-        cdf = w[b, 0]
-        for j in range(nk):
+        start[b, 0] = 0.0
+        for c in range(nc):
+            start[b, c + 1] += start[b, c]
+        # first new particle of chunk c: the first j with (u + j) / K >= start of c
+        for c in range(nc + 1):
+            j = int(math.ceil(start[b, c] * nk - u[b]))
+            first[b, c] = min(max(j, 0), nk)
+            while first[b, c] > 0 and (u[b] + first[b, c] - 1) / nk >= start[b, c]:
+                first[b, c] -= 1
+            while first[b, c] < nk and (u[b] + first[b, c]) / nk < start[b, c]:
+                first[b, c] += 1
+        first[b, 0] = 0
+        first[b, nc] = nk
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        i = c * chunk
+        last = min(nk, (c + 1) * chunk) - 1
+        cdf = start[b, c] + w[b, i]
+        for j in range(first[b, c], max(first[b, c], first[b, c + 1])):
             pos = (u[b] + j) / nk
-            while cdf <= pos and i < nk - 1:
+            while cdf <= pos and i < last:
                 i += 1
                 cdf += w[b, i]
             idx[b, j] = i
 
 
-@njit(cache=True)
-def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark):
+@njit(cache=True, parallel=True)
+def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark, chunk=2048):
     """Copy the resampled particles and their link posteriors; count distinct ancestors.
 
     Parameters
@@ -577,6 +704,8 @@ def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark):
         Output: number of distinct ancestors.
     mark : ndarray of bool, shape (B, K)
         Scratch.
+    chunk : int
+        New particles per parallel task.
 
     Returns
     -------
@@ -585,17 +714,29 @@ def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark):
     """
     nb, nk, n = particles.shape
     nl = q.shape[2]
-    for b in range(nb):
-        for i in range(nk):
+    nc = max(1, -(-nk // chunk))
+    counts = np.zeros((nb, nc), dtype=np.int64)
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
             mark[b, i] = False
-        cnt = 0
-        for i in range(nk):
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
             a = idx[b, i]
-            if not mark[b, a]:
-                mark[b, a] = True
-                cnt += 1
+            mark[b, a] = True           # every writer writes True: the order is immaterial
             for d in range(n):
                 out_particles[b, i, d] = particles[b, a, d]
             for j in range(nl):
                 out_q[b, i, j] = q[b, a, j]
-        distinct[b] = cnt
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        cnt = 0
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            cnt += mark[b, i]
+        counts[b, c] = cnt
+    for b in range(nb):
+        distinct[b] = counts[b].sum()
