@@ -56,3 +56,23 @@ def test_gather_resampled_chunked_equals_numpy(chunk):
     np.testing.assert_array_equal(op, np.take_along_axis(particles, idx[..., None], axis=1))
     np.testing.assert_array_equal(oq, np.take_along_axis(q, idx[..., None], axis=1))
     np.testing.assert_array_equal(distinct, [len(np.unique(r)) for r in idx])
+
+
+def test_large_normal_draws_are_reproducible_and_standard():
+    from radioloc.estimators import p2p_particle as pp
+    shape = (3, 70_000)                                    # above the parallel threshold
+    a = pp._standard_normal(np.random.default_rng(4), shape)
+    b = pp._standard_normal(np.random.default_rng(4), shape)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == shape
+    # parts from independent children: mean 0, variance 1 within 5 standard errors
+    n = a.size
+    assert abs(a.mean()) < 5 / np.sqrt(n)
+    assert abs(a.var() - 1.0) < 5 * np.sqrt(2.0 / n)
+    # parts do not repeat each other
+    part = pp._DRAW_PART
+    flat = a.ravel()
+    assert not np.array_equal(flat[:100], flat[part:part + 100])
+    # small draws: the generator's own stream
+    np.testing.assert_array_equal(pp._standard_normal(np.random.default_rng(4), (5, 2)),
+                                  np.random.default_rng(4).standard_normal((5, 2)))

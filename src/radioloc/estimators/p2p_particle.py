@@ -336,31 +336,73 @@ def _moments(log_w, particles, kernel):
             ess.reshape(batch))
 
 
+#: Normal draws of one step at or above this many numbers are made in parts of
+#: ``_DRAW_PART`` numbers from child generators of ``rng`` (``rng.spawn``), on threads
+#: (NumPy releases the GIL while it fills an array); the parts depend on the size only, so
+#: the draws do not depend on the number of threads.
+_DRAW_PARALLEL = 1 << 17
+_DRAW_PART = 1 << 16
+_POOL = None
+
+
+def _standard_normal(rng, shape):
+    """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
+    filled in parallel (see ``_DRAW_PARALLEL``)."""
+    global _POOL
+    size = int(np.prod(shape, dtype=np.int64))
+    if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+        return rng.standard_normal(shape)
+    import numba
+    from concurrent.futures import ThreadPoolExecutor
+    out = np.empty(size)
+    parts = -(-size // _DRAW_PART)
+    children = rng.spawn(parts)
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max(1, numba.get_num_threads()))
+
+    def fill(i):
+        children[i].standard_normal(out=out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
+    list(_POOL.map(fill, range(parts)))
+    return out.reshape(shape)
+
+
 def _sample_motion(motion, particles, dt, rng, control):
     """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
     is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
-    same draws, the same maths)."""
+    same maths; draws through :func:`_standard_normal`)."""
     if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
-        # InputDriven.sample without its identity product: x + u + std z, the same draws
-        # and the same floating-point result
-        z = rng.standard_normal(particles.shape)
-        mean = particles if control is None else particles + control
-        return mean + motion.std_m * z
+        # InputDriven.sample without its identity product: (x + u) + std z, the same
+        # floating-point result, into the array of the draws
+        z = _standard_normal(rng, particles.shape)
+        z *= motion.std_m
+        z += particles if control is None else particles + control
+        return z
     if type(motion).sample is not MotionModel.sample:
         return motion.sample(particles, dt, rng, control=control)
     F = motion.F(dt)
     n = particles.shape[-1]
-    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):
-        # F = I (random walk): the product is the identity, skip it (the same result)
+    identity = F.shape == (n, n) and np.array_equal(F, np.eye(n))
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    z = _standard_normal(rng, particles.shape)
+    if identity and factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
+        # F = I (random walk), diagonal noise: (x + u) + diag(factor) z, the product's
+        # values, into the array of the draws
+        z *= np.diagonal(factor)
+        if control is None:
+            z += particles
+        else:
+            mean = particles.copy()
+            mean[..., : motion.dim] += control
+            z += mean
+        return z
+    if identity:
         mean = particles.copy()
         if control is not None:
             mean[..., : motion.dim] += control
     else:
         mean = motion.predict(particles, dt, control=control)
-    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
-    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = rng.standard_normal(mean.shape)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
         return mean + z * np.diagonal(factor)               # diagonal: the product's values
     if factor.ndim == 2:                                    # one Q for every particle
