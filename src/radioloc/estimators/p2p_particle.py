@@ -137,7 +137,9 @@ class ParticleState:
         position first.
     link_los : ndarray, shape (..., N, K, L)
         Normalised link posterior ``p(z = 1 | .)`` (LOS) per particle for the stored links;
-        ``p(z = 0 | .)`` is one minus it.
+        ``p(z = 0 | .)`` is one minus it. After a step in which every filter took the
+        Gaussian case (alpha = 1, every posterior 1) a read-only view of one row broadcast
+        over the particles.
     links : ndarray of int64, shape (..., N, L)
         Node index of each stored link, ``-1`` for padding.
     mean : ndarray, shape (..., N, n)
@@ -223,12 +225,20 @@ def link_log_phi(loglik: np.ndarray, prev_log_phi: np.ndarray, was_neighbour: np
     return loglik + prior
 
 
+def _normalise_post(post):
+    """``log sum_i phi^i(z)`` (..., L, 2) normalised over ``z``; -inf where both are."""
+    top = np.logaddexp(post[..., :1], post[..., 1:])
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(top), post - top, -np.inf)
+
+
 def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params):
     """Plain NumPy reference of :func:`radioloc.estimators.pf_kernels.link_weights`
     (the same maths in the log domain).
 
     Returns ``log_w`` (..., K), ``q_new`` (..., K, L), ``post`` (..., L, 2) = ``log sum_i
-    phi^i(z)`` and ``em_pp`` (..., K, 3).
+    phi^i(z)`` normalised over ``z`` (the particle-pooled link posterior; -inf where the
+    link does not exist), ``em_pp`` (..., K, 3) and None (no Gaussian-case flags).
     """
     s, mu, a = (params[..., i][..., None, None] for i in range(3))       # (..., 1, 1)
     if prev_q.shape[-1]:
@@ -250,14 +260,19 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     neg = -np.inf
     post = np.stack([logsumexp(np.where(ok, A0, neg), axis=-2),
                      logsumexp(np.where(ok, A1, neg), axis=-2)], axis=-1)
+    post = _normalise_post(post)
     ez = np.where(ok, e, 0.0)
     em_pp = np.stack([q_new.sum(-1), (q_new * ez * ez).sum(-1), ((1 - q_new) * ez).sum(-1)], axis=-1)
-    return log_w, q_new, post, em_pp
+    return log_w, q_new, post, em_pp, None
 
 
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
-    (..., L, 2) and the online-EM per-particle sums (..., K, 3) (lines 6-11)."""
+    normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
+    which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
+
+    A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
+    step leaves) is passed to the kernel as one row shared by every particle."""
     if kernel == "numpy":
         return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
     batch = particles.shape[:-2]
@@ -272,24 +287,35 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     wp = np.where(valid, where_prev, -1)
     if prev_q.shape[-1] == 0:
         wp = np.full_like(wp, -1)
-        prev_q = np.zeros(batch + (k, 1))
+        prev_q = np.zeros(batch + (1, 1))
+    elif prev_q.strides[-2] == 0:
+        prev_q = prev_q[..., :1, :]
+    gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
     _k.link_weights(np.ascontiguousarray(particles.reshape(b, k, n)),
                     np.ascontiguousarray(node_xy.reshape(b, width, 2)),
                     np.ascontiguousarray(th.reshape(b, width)),
                     np.ascontiguousarray(valid.reshape(b, width)),
                     np.ascontiguousarray(wp.reshape(b, width)),
-                    np.ascontiguousarray(prev_q.reshape((b, k) + prev_q.shape[-1:])),
+                    np.ascontiguousarray(prev_q.reshape((b,) + prev_q.shape[-2:])),
                     np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]),
-                    np.ascontiguousarray(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp)
+                    np.ascontiguousarray(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
+                    gauss)
     lam = 1.0 / p[:, 1]
     ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
         post = np.logaddexp(np.log(part_s.sum(axis=1)) + ce[:, None, None],
                             np.logaddexp.reduce(part_l, axis=1))
+    post = _normalise_post(post)
+    # the kernel leaves q_new of a Gaussian-case filter unwritten: 1 on its links; when
+    # every filter is, one row broadcast over the particles (read-only, no copy)
+    if gauss.all():
+        q_new = np.broadcast_to(valid.reshape(b, 1, width).astype(float), (b, k, width))
+    elif gauss.any():
+        q_new[gauss] = valid.reshape(b, width)[gauss][:, None, :]
     out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + (k, width)),
            post.reshape(batch + (width, 2)))
-    return out + ((em_pp.reshape(batch + (k, 3)) if em else None),)
+    return out + ((em_pp.reshape(batch + (k, 3)) if em else None), gauss.reshape(batch))
 
 
 def _moments(log_w, particles, kernel):
@@ -304,37 +330,79 @@ def _moments(log_w, particles, kernel):
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
     w, mean, cov, ess = np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-    _k.normalise_weights(np.ascontiguousarray(log_w.reshape(b, k)),
-                         np.ascontiguousarray(particles.reshape(b, k, n)), w, mean, cov, ess)
+    _k.weights_moments(np.ascontiguousarray(log_w.reshape(b, k)),
+                       np.ascontiguousarray(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
             ess.reshape(batch))
+
+
+#: Normal draws of one step at or above this many numbers are made in parts of
+#: ``_DRAW_PART`` numbers from child generators of ``rng`` (``rng.spawn``), on threads
+#: (NumPy releases the GIL while it fills an array); the parts depend on the size only, so
+#: the draws do not depend on the number of threads.
+_DRAW_PARALLEL = 1 << 17
+_DRAW_PART = 1 << 16
+_POOL = None
+
+
+def _standard_normal(rng, shape):
+    """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
+    filled in parallel (see ``_DRAW_PARALLEL``)."""
+    global _POOL
+    size = int(np.prod(shape, dtype=np.int64))
+    if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+        return rng.standard_normal(shape)
+    import numba
+    from concurrent.futures import ThreadPoolExecutor
+    out = np.empty(size)
+    parts = -(-size // _DRAW_PART)
+    children = rng.spawn(parts)
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max(1, numba.get_num_threads()))
+
+    def fill(i):
+        children[i].standard_normal(out=out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
+    list(_POOL.map(fill, range(parts)))
+    return out.reshape(shape)
 
 
 def _sample_motion(motion, particles, dt, rng, control):
     """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
     is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
-    same draws, the same maths)."""
+    same maths; draws through :func:`_standard_normal`)."""
     if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
-        # InputDriven.sample without its identity product: x + u + std z, the same draws
-        # and the same floating-point result
-        z = rng.standard_normal(particles.shape)
-        mean = particles if control is None else particles + control
-        return mean + motion.std_m * z
+        # InputDriven.sample without its identity product: (x + u) + std z, the same
+        # floating-point result, into the array of the draws
+        z = _standard_normal(rng, particles.shape)
+        z *= motion.std_m
+        z += particles if control is None else particles + control
+        return z
     if type(motion).sample is not MotionModel.sample:
         return motion.sample(particles, dt, rng, control=control)
     F = motion.F(dt)
     n = particles.shape[-1]
-    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):
-        # F = I (random walk): the product is the identity, skip it (the same result)
+    identity = F.shape == (n, n) and np.array_equal(F, np.eye(n))
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    z = _standard_normal(rng, particles.shape)
+    if identity and factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
+        # F = I (random walk), diagonal noise: (x + u) + diag(factor) z, the product's
+        # values, into the array of the draws
+        z *= np.diagonal(factor)
+        if control is None:
+            z += particles
+        else:
+            mean = particles.copy()
+            mean[..., : motion.dim] += control
+            z += mean
+        return z
+    if identity:
         mean = particles.copy()
         if control is not None:
             mean[..., : motion.dim] += control
     else:
         mean = motion.predict(particles, dt, control=control)
-    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
-    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = rng.standard_normal(mean.shape)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
         return mean + z * np.diagonal(factor)               # diagonal: the product's values
     if factor.ndim == 2:                                    # one Q for every particle
@@ -355,7 +423,7 @@ def _gather(particles, q, idx, kernel):
     distinct = np.empty(b, dtype=np.int64)
     _k.gather_resampled(particles.reshape(b, k, n), q.reshape(b, k, width),
                         np.ascontiguousarray(idx.reshape(b, k)), out_p, out_q, distinct,
-                        np.empty((b, k), dtype=bool))
+                        np.empty((b, k), dtype=bool), CHUNK)
     return (out_p.reshape(particles.shape), out_q.reshape(q.shape), distinct.reshape(batch))
 
 
@@ -588,8 +656,8 @@ class P2PParticleFilter(RecursiveEstimator):
         params = self._params(state)
         em = self.online_em is not None
         # lines 6, 8, 11: link posteriors and weights
-        log_w, q, post, em_pp = _link_update(particles, node_xy, th, valid, where_prev,
-                                             state.link_los, params, self.kernel, em)
+        log_w, q, post, em_pp, gauss = _link_update(particles, node_xy, th, valid, where_prev,
+                                                    state.link_los, params, self.kernel, em)
         # line 14: weighted mean; weighted covariance and effective sample size
         w, mean, cov, ess = _moments(log_w, particles, self.kernel)
 
@@ -599,12 +667,15 @@ class P2PParticleFilter(RecursiveEstimator):
             u01 = rng.random(batch + (1,))          # the draw of resampling.systematic
             idx = np.empty(w.shape, dtype=np.int64)
             _k.systematic_indices(w.reshape(-1, k), u01.reshape(-1),
-                                  idx.reshape(-1, k))
+                                  idx.reshape(-1, k), CHUNK)
         else:
             idx = get_scheme(self.resampling)(w, rng)                         # (..., N, K)
         los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
                                       mask.shape[-1]) & mask
-        particles, q, distinct = _gather(particles, q, idx, self.kernel)
+        if q.strides[-2] == 0:                  # shared by every particle (Gaussian case)
+            particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel)
+        else:
+            particles, q, distinct = _gather(particles, q, idx, self.kernel)
 
         # reset on degeneracy: few distinct ancestors
         reset = distinct < self.reset_fraction * k
@@ -613,6 +684,8 @@ class P2PParticleFilter(RecursiveEstimator):
                 rng.standard_normal((int(reset.sum()), k, D))
             with np.errstate(invalid="ignore"):
                 mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
+            if not q.flags.writeable:
+                q = q.copy()
             q[reset] = np.where(valid, np.nan_to_num(mean_post), 0.0)[reset][:, None, :]
         em_stats, em_steps = state.em_stats, state.em_steps
         if em:
