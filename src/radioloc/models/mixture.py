@@ -887,10 +887,10 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
-    ``t`` (``2 D + 9`` rows, at least ``n`` columns) holds one component per column: row 0
+    ``t`` (``2 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
     the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
     log-determinant, weight times its absolute value, the cost bound, the cost, the cost's
-    rounding scale, the tie set, the best cost and its scale per tied lowest weight). Returns the component count; the survivors are the first columns, in
+    rounding scale, the tie set, the best cost, its scale and its partner per tied lowest weight). Returns the component count; the survivors are the first columns, in
     no particular order (the rule never reads positions).
 
     - ``i``: the lowest weight. Weights ``w`` with ``w (1 - tie) <= w_min`` tie with it; of
@@ -913,7 +913,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
       ``scale <= |cost| + B``).
     - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
     """
-    d = (t.shape[0] - 9) // 2
+    d = (t.shape[0] - 10) // 2
     LD = 2 * d + 1
     AB = LD + 1
     LB = LD + 2
@@ -922,6 +922,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     TS = LD + 5
     IC = LD + 6
     IS = LD + 7
+    IJ = LD + 8
     for c in range(n):
         ld = _logdet(t, d, c)
         t[LD, c] = ld
@@ -948,9 +949,10 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
             bi = np.inf
             for c in range(cnt):
                 if t[IC, c] >= 0.0:
-                    _, co, sc = _partner(t, d, cnt, c, tie)
+                    jj, co, sc = _partner(t, d, cnt, c, tie)
                     t[IC, c] = co
                     t[IS, c] = sc
+                    t[IJ, c] = jj
                     bi = min(bi, co)
                 else:
                     t[IC, c] = np.inf
@@ -958,7 +960,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
             for c in range(cnt):
                 t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
             i = _pick(t, d, cnt, TS)
-            j, _, _ = _partner(t, d, cnt, i, tie)
+            j = np.int64(t[IJ, i])
         wi = t[0, i]
         # merge i into j (moment matching), then replace column i by the last one
         wj = t[0, j]
@@ -986,7 +988,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
     """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
-    ``2 D + 9`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
+    ``2 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
     count. The output is in the canonical order of :func:`compact`: decreasing weight,
     equal weights by means, then variances (an insertion sort; the mixtures are small)."""
     d = m.shape[1]
@@ -1031,7 +1033,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        t = np.empty((2 * d + 9, k))
+        t = np.empty((2 * d + 10, k))
         cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
     return ow, om, ov, cnt
 
