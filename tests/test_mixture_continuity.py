@@ -13,12 +13,14 @@ stations, 8 position components). Bounds and why:
   change (measured 0.75 mm, 1.5e-1 m with ``reduction="runnalls"``);
 - stations permuted (models and columns together): exact (the measurement density takes
   the stations by decreasing reading);
-- components of the models permuted: exact to 1e-9 for models without tied weights (the
-  measurement density is still reduced by West/Runnalls, whose exact ties, e.g. the
-  symmetric grid of ``test_metamorphic``, go to the lower index);
+- components of the models permuted: exact to 1e-9 (the West/Runnalls reduction of the
+  measurement density breaks exact ties by the components' contents, never by position;
+  the tied grid of ``test_metamorphic`` is in ``test_mixture_fast``);
 - the scene rotated by a half turn (the disk mixture's 60-degree symmetry and the
   axis-aligned components map onto themselves) and translated: the estimate rotates and
-  translates to 1e-9 m.
+  translates to 1e-8 m (measured 1.2e-9 m after 900 steps: the reductions return their
+  components in a canonical order, which the half turn reverses for equal weights, so
+  sums run in another order and rounding accumulates).
 """
 
 import numpy as np
@@ -127,7 +129,7 @@ def test_half_turn_and_translation_move_the_estimate_with_the_scene(walk, base):
     time, _, rss = walk
     R = rot(np.pi)
     turned = _track(_mixture_models(R, SHIFT, None), rss, time).position
-    assert _moved((turned - SHIFT) @ R, base) < 1e-9
+    assert _moved((turned - SHIFT) @ R, base) < 1e-8
 
 
 def test_greedy_option_is_kept_and_validated(walk):

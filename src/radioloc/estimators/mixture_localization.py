@@ -791,7 +791,7 @@ def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - comp
 
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover - compiled
     """Eq. (2) for every row: condition each station model on its reading, reduce it to
     ``kmax`` components, multiply it into the running product and reduce, exactly as
@@ -825,9 +825,7 @@ def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover 
         xw = np.empty(big)
         xm = np.empty((big, d))
         xv = np.empty((big, d))
-        sw = np.empty(big)
-        sm = np.empty((big, d))
-        sv = np.empty((big, d))
+        t = np.empty((2 * d + 10, big))
         pn = 0
         have = False
         started = False
@@ -840,7 +838,7 @@ def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover 
                 ok[b] = False
                 break
             qn = _reduce_into(cw, mu[b, s, :, :d], var[b, s, :, :d], k, kmax, tie,
-                              qw, qm, qv, sw, sm, sv)
+                              qw, qm, qv, t)
             if not started or not have:
                 pw[:qn] = qw[:qn]
                 pm[:qn, :] = qm[:qn, :]
@@ -904,7 +902,7 @@ def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover 
                 tot += xw[i]
             for i in range(r):
                 xw[i] /= tot
-            pn = _reduce_into(xw, xm, xv, r, kmax, tie, pw, pm, pv, sw, sm, sv)
+            pn = _reduce_into(xw, xm, xv, r, kmax, tie, pw, pm, pv, t)
         for c in range(pn):
             ow[b, c] = pw[c]
             om[b, c, :] = pm[c, :]

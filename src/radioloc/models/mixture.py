@@ -456,14 +456,160 @@ def compact(mix: DiagMixture) -> DiagMixture:
     Returns
     -------
     DiagMixture
-        Components sorted by decreasing weight (stable), trailing empty slots removed.
+        Components in the canonical order: decreasing weight, equal weights by their means,
+        then their variances, compared lexicographically (the order does not depend on the
+        input order); trailing empty slots removed.
     """
-    order = np.argsort(-mix.weights, axis=-1, kind="stable")
+    keys = [mix.variances[..., e] for e in range(mix.dim - 1, -1, -1)] \
+        + [mix.means[..., e] for e in range(mix.dim - 1, -1, -1)] + [-mix.weights]
+    order = np.lexsort(keys, axis=-1)
     keep = max(1, int(np.max(np.sum(mix.weights > 0, axis=-1), initial=1)))
     order = order[..., :keep]
     return DiagMixture(np.take_along_axis(mix.weights, order, -1),
                        np.take_along_axis(mix.means, order[..., None], -2),
                        np.take_along_axis(mix.variances, order[..., None], -2))
+
+
+def _logdet_np(v: np.ndarray) -> np.ndarray:
+    """``sum(log(v), -1)`` with the kernel's arithmetic (:func:`_logdet`): one logarithm of
+    the product for up to two coordinates, a sequential sum of logarithms beyond."""
+    if v.shape[-1] <= 2:
+        return np.log(np.prod(v, axis=-1))
+    acc = np.log(v[..., 0])
+    for e in range(1, v.shape[-1]):
+        acc = acc + np.log(v[..., e])
+    return acc
+
+
+def _canonical_first(mask: np.ndarray, w: np.ndarray, m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Per row of ``mask (B, K)`` (the tie set; ``w > 0`` marks the mixture's components),
+    the tie rule of :func:`_pick`: the True component nearest to the mixture's mean, then
+    the lowest in the canonical order (means, then variances, then weight,
+    lexicographically: :func:`_key_less`)."""
+    first = np.argmax(mask, axis=-1)
+    many = np.count_nonzero(mask, axis=-1) > 1
+    if np.any(many):
+        cand = mask[many]
+        wm, mm = w[many], m[many]
+        mu = np.sum(wm[..., None] * mm, axis=-2) / np.sum(wm, axis=-1)[..., None]
+        r = np.sum((mm - mu[..., None, :]) ** 2, axis=-1)
+        rmin = np.min(np.where(cand, r, np.inf), axis=-1, keepdims=True)
+        cand = cand & (r <= rmin * (1.0 + _TIE))
+        pair = (np.count_nonzero(cand, axis=-1) == 2) & (m.shape[-1] >= 2)
+        if np.any(pair):
+            ab = np.argsort(~cand[pair], axis=-1, kind="stable")[:, :2]
+            rows = np.arange(ab.shape[0])
+            pa, pb = mm[pair][rows, ab[:, 0]], mm[pair][rows, ab[:, 1]]
+            c0 = mu[pair]
+            cross = (pa[:, 0] - c0[:, 0]) * (pb[:, 1] - c0[:, 1]) \
+                - (pa[:, 1] - c0[:, 1]) * (pb[:, 0] - c0[:, 0])
+            lim = rmin[pair][:, 0] * (1.0 + _TIE)
+            won = np.where(cross > 0, ab[:, 0], ab[:, 1])
+            sure = np.abs(cross) > _TIE * lim
+            sub = cand[pair]
+            sub[sure] = False
+            sub[np.nonzero(sure)[0], won[sure]] = True
+            cand[pair] = sub
+        keys = [m[many][..., e] for e in range(m.shape[-1])] \
+            + [v[many][..., e] for e in range(v.shape[-1])] + [w[many]]
+        for key in keys:
+            low = np.min(np.where(cand, key, np.inf), axis=-1, keepdims=True)
+            cand = cand & (key == low)
+        first[many] = np.argmax(cand, axis=-1)
+    return first
+
+
+def _partners(wr, mr, vr, ldr, act, i):
+    """For each row, the partner ``j`` of component ``i`` under the rule of :func:`reduce`
+    (lowest Runnalls cost, the tie rule of :func:`_canonical_first`) with the kernel's
+    arithmetic; returns ``(j, cost, scale)`` (``scale``: the cost's rounding scale)."""
+    n = np.arange(wr.shape[0])
+    d = mr.shape[-1]
+    wi, ldi = wr[n, i][:, None], ldr[n, i][:, None]
+    with np.errstate(all="ignore"):              # empty slots: masked below
+        ws = wi + wr
+        inv = 1.0 / ws
+        a1, a2 = wi * inv, wr * inv
+        a12 = a1 * a2
+        dm = mr[n, i][:, None, :] - mr
+        terms = a1[..., None] * vr[n, i][:, None, :] + a2[..., None] * vr \
+            + a12[..., None] * dm * dm
+        prod = terms[..., 0]
+        for e in range(1, d):
+            prod = prod * terms[..., e]
+        lm = np.log(prod)
+        cost = 0.5 * (ws * lm - wi * ldi - wr * ldr)
+        scale = 0.5 * (ws * np.abs(lm) + wi * np.abs(ldi) + wr * np.abs(ldr))
+    cand = act.copy()
+    cand[n, i] = False
+    cost = np.where(cand, cost, np.inf)
+    best = np.min(cost, axis=-1, keepdims=True)
+    j = _canonical_first(cand & (cost <= best + 2.0 * _TIE * scale), wr, mr, vr)
+    return j, cost[n, j], scale[n, j]
+
+
+def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
+    """Plain NumPy West/Runnalls reduction with the rules of :func:`reduce`: one merge per
+    loop for the whole batch (the reference the compiled kernel is tested against, and the
+    benchmark's peer).
+
+    Same choices (lowest weight, lowest Runnalls cost, the order-free tie rule) and the same
+    arithmetic as the kernel, so the results agree bit for bit; every cost of a row is
+    computed here (the kernel skips candidates by a bound).
+
+    Parameters
+    ----------
+    mix : DiagMixture
+        A batch of mixtures.
+    max_components : int
+        The bound, >= 1.
+
+    Returns
+    -------
+    DiagMixture
+        As :func:`reduce` with ``method="runnalls"``.
+    """
+    kmax = int(max_components)
+    if kmax < 1:
+        raise InputError(f"max_components: must be >= 1, got {max_components}")
+    k, d = mix.n_components, mix.dim
+    w = mix.weights.reshape(-1, k).astype(float)
+    m = mix.means.reshape(-1, k, d).astype(float)
+    v = mix.variances.reshape(-1, k, d).astype(float)
+    ld = _logdet_np(v)
+    rows = np.arange(w.shape[0])
+    while True:
+        active = w > 0
+        r = rows[active.sum(-1) > kmax]
+        if r.size == 0:
+            break
+        n = np.arange(r.size)
+        wr, mr, vr, ldr, act = w[r], m[r], v[r], ld[r], active[r]
+        wmin = np.min(np.where(act, wr, np.inf), axis=-1, keepdims=True)
+        tied = act & (wr * (1.0 - _TIE) <= wmin)
+        i = np.argmax(tied, axis=-1)
+        many = np.count_nonzero(tied, axis=-1) > 1
+        if np.any(many):
+            # tied lowest weights: the cheapest best merge, ties by the canonical pick
+            q = np.nonzero(many)[0]
+            nq = q.size
+            rep = np.repeat(q, k)
+            ii = np.tile(np.arange(k), nq)
+            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ldr[rep], act[rep], ii)
+            co = np.where(tied[q].reshape(-1), co, np.inf).reshape(nq, k)
+            sc = sc.reshape(nq, k)
+            bi = np.min(co, axis=-1, keepdims=True)
+            i[q] = _canonical_first(co <= bi + 2.0 * _TIE * sc, wr[q], mr[q], vr[q])
+        j, _, _ = _partners(wr, mr, vr, ldr, act, i)
+        wj, mj, vj = merge_moments(wr[n, i], mr[n, i], vr[n, i], wr[n, j], mr[n, j], vr[n, j])
+        w[r, j], m[r, j], v[r, j] = wj, mj, vj
+        ld[r, j] = _logdet_np(vj)
+        w[r, i] = 0.0
+    out = compact(DiagMixture(w, m, v))
+    kk = out.n_components
+    bshape = mix.batch_shape
+    return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
+                       out.variances.reshape(bshape + (kk, d)))
 
 
 #: reduction methods of :func:`reduce`
@@ -552,175 +698,334 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
 
 
 @njit(cache=True)
-def _compact_into(w, m, v, n, ow, om, ov):  # pragma: no cover - compiled
-    """Copy the positive-weight components of ``w[:n]`` into ``ow, om, ov`` sorted by
-    decreasing weight, stably (as :func:`compact`); returns the count. An insertion sort
-    of the kept indices in the first slots of ``ow`` (no allocation; the mixtures are
-    small)."""
-    c = 0
-    for r in range(n):
-        wr = w[r]
-        if wr > 0:
-            pos = c
-            while pos > 0 and w[np.int64(ow[pos - 1])] < wr:
-                ow[pos] = ow[pos - 1]
-                pos -= 1
-            ow[pos] = r
-            c += 1
-    d = m.shape[1]
-    for r in range(c - 1, -1, -1):      # from the back: slot r only reads index ow[r]
-        i = np.int64(ow[r])
+def _key_less(t, d, a, b):  # pragma: no cover - compiled
+    """The canonical order of two components ``a``, ``b`` (columns of the scratch ``t`` of
+    :func:`_west_soa`): means, then variances, then the weight, compared
+    lexicographically. It depends on the components' contents only, never on their
+    positions."""
+    for r in range(1, 2 * d + 1):
+        if t[r, a] != t[r, b]:
+            return t[r, a] < t[r, b]
+    return t[0, a] < t[0, b]
+
+
+@njit(cache=True, error_model="numpy")
+def _pick(t, d, cnt, ts):  # pragma: no cover - compiled
+    """The tie rule of :func:`reduce`: of the columns ``c < cnt`` of ``t`` flagged by
+    ``t[ts, c] >= 0`` (unflagged: -1), the one nearest to the mixture's mean (squared
+    distances within a relative ``_TIE`` of the nearest count as equal); of two at the same
+    distance (in 2-D or more) the one the other follows counter-clockwise about the mean
+    (in the first two coordinates); otherwise the lowest in the canonical order
+    (:func:`_key_less`). The first two steps are kept by rotations and translations of the
+    mixture, none reads a position. Overwrites row ``ts``."""
+    first = -1
+    many = False
+    for c in range(cnt):
+        if t[ts, c] >= 0.0:
+            if first < 0:
+                first = c
+            else:
+                many = True
+    if not many:
+        return first
+    tot = 0.0
+    for c in range(cnt):
+        tot += t[0, c]
+    mu = np.zeros(d)
+    for c in range(cnt):
         for e in range(d):
-            om[r, e] = m[i, e]
-            ov[r, e] = v[i, e]
-        ow[r] = w[i]
-    return c
+            mu[e] += t[0, c] * t[1 + e, c]
+    for e in range(d):
+        mu[e] /= tot
+    rmin = np.inf
+    for c in range(cnt):
+        if t[ts, c] >= 0.0:
+            r = 0.0
+            for e in range(d):
+                r += (t[1 + e, c] - mu[e]) ** 2
+            t[ts, c] = r
+            rmin = min(rmin, r)
+    lim = rmin * (1.0 + _TIE)
+    a = -1
+    b = -1
+    n2 = 0
+    for c in range(cnt):
+        if t[ts, c] >= 0.0 and t[ts, c] <= lim:
+            n2 += 1
+            if a < 0:
+                a = c
+            elif b < 0:
+                b = c
+    if n2 == 2 and d >= 2:
+        # two at the same distance: the one the other follows counter-clockwise (the sign
+        # of the cross product about the mean is kept by rotations and translations)
+        cross = (t[1, a] - mu[0]) * (t[2, b] - mu[1]) - (t[2, a] - mu[1]) * (t[1, b] - mu[0])
+        if abs(cross) > _TIE * lim:
+            return a if cross > 0 else b
+    j = -1
+    for c in range(cnt):
+        if t[ts, c] >= 0.0 and t[ts, c] <= lim and (j < 0 or _key_less(t, d, c, j)):
+            j = c
+    return j
 
 
 @njit(cache=True)
-def _logdet(v):  # pragma: no cover - compiled
-    """``sum(log(v))``: one logarithm of the product for up to two coordinates (variances
-    floored at ``1e-60`` keep it a normal float), one per coordinate beyond."""
-    if v.shape[0] <= 2:
+def _logdet(t, d, c):  # pragma: no cover - compiled
+    """``sum(log(v))`` of column ``c`` of the scratch ``t``: one logarithm of the product
+    for up to two coordinates (variances floored at ``1e-60`` keep it a normal float), one
+    per coordinate beyond."""
+    if d <= 2:
         acc = 1.0
-        for e in range(v.shape[0]):
-            acc *= v[e]
+        for e in range(d):
+            acc *= t[1 + d + e, c]
         return math.log(acc)
     acc = 0.0
-    for e in range(v.shape[0]):
-        acc += math.log(v[e])
+    for e in range(d):
+        acc += math.log(t[1 + d + e, c])
     return acc
 
 
-@njit(cache=True)
-def _west_one(w, m, v, n, kmax, tie):  # pragma: no cover - compiled
-    """West's greedy merging of one compacted mixture ``w[:n]`` (all weights > 0) down to
-    ``kmax`` components, in place, with Runnalls' cost and the tie rule of :func:`reduce`
-    (weights or costs within a relative ``tie`` count as equal and the lower index wins).
-
-    - Merged components are removed by shifting the later ones down, so the survivors keep
-      their relative order (the tie rule's "lower index") and no empty slot is visited.
-    - The merged variance is ``a1 v_i + a2 v_c + a1 a2 (m_i - m_c)^2`` (the moment formula
-      rearranged); the log-determinants of the components are cached (:func:`_logdet`) and
-      a candidate's is the logarithm of the product of its per-axis variances.
-    - A candidate is skipped without its logarithm when a lower bound of its cost is not
-      below the best cost so far (it cannot win, not even by the tie rule): with
-      ``s_e = a1 v_ie + a2 v_ce`` and ``q_e = a1 a2 dm_e^2``, concavity of the logarithm
-      gives ``cost >= 0.5 ws sum_e log(1 + q_e / s_e) >= 0.5 ws sum_e 2 q_e / (2 s_e + q_e)``.
-    - The candidates are scanned in index order and the scan stops once the best cost is
-      within the tie tolerance of zero: Runnalls' cost is never negative (beyond rounding),
-      so no later candidate can then beat the best by the tolerance.
-
-    West's rule needs the costs of one row (the lowest-weight component against the
-    others), and that component is removed by the merge: a cached pair-cost matrix would
-    cost ``n^2 / 2`` logarithms up front for rows that are mostly never read.
-
-    On return ``w[:k]`` (``k = min(n, kmax)``) holds the survivors in their order and
-    ``w[k:n]`` is 0."""
-    d = m.shape[1]
-    logdet = np.empty(n)
-    for c in range(n):
-        logdet[c] = _logdet(v[c])
-    cnt = n
-    while cnt > kmax:
-        i = 0
-        for c in range(1, cnt):
-            if w[c] < w[i] * (1.0 - tie):
-                i = c
-        wi = w[i]
-        ldi = logdet[i]
-        best = np.inf
-        best_scale = 0.0
-        j = -1
+@njit(cache=True, error_model="numpy")
+def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
+    """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
+    and 2 and the tie set); returns ``(j, cost, scale)``. Uses the scratch rows of ``t``
+    from the bound to the tie set."""
+    LD = 2 * d + 1
+    AB = LD + 1
+    LB = LD + 2
+    CO = LD + 3
+    SC = LD + 4
+    TS = LD + 5
+    wi = t[0, i]
+    ldi = t[LD, i]
+    # pass 1: the bounds
+    amax = 0.0
+    if d == 2:
+        mi0 = t[1, i]
+        mi1 = t[2, i]
+        vi0 = t[3, i]
+        vi1 = t[4, i]
+        wiinv = 1.0 / wi
         for c in range(cnt):
-            if c == i:
-                continue
-            wc = w[c]
+            wc = t[0, c]
+            rho = wc * wiinv
+            dm0 = mi0 - t[1, c]
+            dm1 = mi1 - t[2, c]
+            a0 = rho * dm0 * dm0
+            a1 = rho * dm1 * dm1
+            t0 = 2.0 * (1.0 + rho) * (vi0 + rho * t[3, c]) + a0
+            t1 = 2.0 * (1.0 + rho) * (vi1 + rho * t[4, c]) + a1
+            t[LB, c] = (wi + wc) * (a0 * t1 + a1 * t0) / (t0 * t1)
+            amax = max(amax, t[AB, c])
+    else:
+        for c in range(cnt):
+            wc = t[0, c]
             ws = wi + wc
             inv = 1.0 / ws
             a1 = wi * inv
             a2 = wc * inv
-            a12 = a1 * a2
-            if d == 2:
-                dm0 = m[i, 0] - m[c, 0]
-                dm1 = m[i, 1] - m[c, 1]
-                s0 = a1 * v[i, 0] + a2 * v[c, 0]
-                s1 = a1 * v[i, 1] + a2 * v[c, 1]
-                q0 = a12 * dm0 * dm0
-                q1 = a12 * dm1 * dm1
-                t0 = 2.0 * s0 + q0
-                t1 = 2.0 * s1 + q1
-                if ws * (q0 * t1 + q1 * t0) >= best * (t0 * t1):
-                    continue
-                prod = (s0 + q0) * (s1 + q1)
-            elif d == 1:
-                dm0 = m[i, 0] - m[c, 0]
-                s0 = a1 * v[i, 0] + a2 * v[c, 0]
-                q0 = a12 * dm0 * dm0
-                if j >= 0 and ws * q0 / (2.0 * s0 + q0) >= best:
-                    continue
-                prod = s0 + q0
-            else:
-                prod = 1.0
-                lb = 0.0
-                for e in range(d):
-                    dm = m[i, e] - m[c, e]
-                    s = a1 * v[i, e] + a2 * v[c, e]
-                    q = a12 * dm * dm
-                    lb += q / (2.0 * s + q)
-                    prod *= s + q
-                if j >= 0 and ws * lb >= best:
-                    continue
-            ld = math.log(prod)
-            ldc = logdet[c]
-            cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
-            scale = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
-            if j < 0 or cost < best - tie * (scale + best_scale):
-                best = cost
-                best_scale = scale
-                j = c
-                if best <= tie * best_scale:
-                    break
-        ws = wi + w[j]
-        a1 = wi / ws
-        a2 = w[j] / ws
-        for e in range(d):
-            mm = a1 * m[i, e] + a2 * m[j, e]
-            vv = a1 * (v[i, e] + (m[i, e] - mm) ** 2) + a2 * (v[j, e] + (m[j, e] - mm) ** 2)
-            m[j, e] = mm
-            v[j, e] = vv
-        logdet[j] = _logdet(v[j])
-        w[j] = ws
-        for c in range(i, cnt - 1):          # remove i, keeping the order
-            w[c] = w[c + 1]
-            logdet[c] = logdet[c + 1]
+            lb = 0.0
             for e in range(d):
-                m[c, e] = m[c + 1, e]
-                v[c, e] = v[c + 1, e]
+                dm = t[1 + e, i] - t[1 + e, c]
+                s = a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c]
+                q = a1 * a2 * dm * dm
+                lb += q / (2.0 * s + q)
+            t[LB, c] = ws * lb
+            amax = max(amax, t[AB, c])
+    t[LB, i] = np.inf
+    c0 = 0
+    for c in range(1, cnt):
+        if t[LB, c] < t[LB, c0]:
+            c0 = c
+    # pass 2: exact costs where the bound allows a win or a tie
+    slack = 4.0 * (wi * abs(ldi) + amax)
+    best = np.inf
+    for step in range(cnt + 1):
+        if step == 0:
+            c = c0
+        else:
+            c = step - 1
+            if c == c0:
+                continue
+            if c == i or \
+                    t[LB, c] * (1.0 - 2.0 * tie) > best + tie * (2.0 * abs(best) + slack):
+                t[CO, c] = np.inf
+                t[SC, c] = 0.0
+                continue
+        wc = t[0, c]
+        ws = wi + wc
+        inv = 1.0 / ws
+        a1 = wi * inv
+        a2 = wc * inv
+        a12 = a1 * a2
+        if d == 2:
+            dm0 = t[1, i] - t[1, c]
+            dm1 = t[2, i] - t[2, c]
+            s0 = a1 * t[3, i] + a2 * t[3, c]
+            s1 = a1 * t[4, i] + a2 * t[4, c]
+            prod = (s0 + a12 * dm0 * dm0) * (s1 + a12 * dm1 * dm1)
+        else:
+            prod = 1.0
+            for e in range(d):
+                dm = t[1 + e, i] - t[1 + e, c]
+                prod *= a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c] + a12 * dm * dm
+        ld = math.log(prod)
+        ldc = t[LD, c]
+        cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
+        t[SC, c] = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
+        t[CO, c] = cost
+        best = min(best, cost)
+    # the tie set and the canonical choice in it
+    for c in range(cnt):
+        t[TS, c] = 0.0 if t[CO, c] <= best + 2.0 * tie * t[SC, c] else -1.0
+    j = _pick(t, d, cnt, TS)
+    return j, t[CO, j], t[SC, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
+    """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
+    place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
+
+    ``t`` (``2 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
+    the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
+    log-determinant, weight times its absolute value, the cost bound, the cost, the cost's
+    rounding scale, the tie set, the best cost, its scale and its partner per tied lowest weight). Returns the component count; the survivors are the first columns, in
+    no particular order (the rule never reads positions).
+
+    - ``i``: the lowest weight. Weights ``w`` with ``w (1 - tie) <= w_min`` tie with it; of
+      tied ones, the one whose best merge (below) is cheapest, cost ties by :func:`_pick`
+      (equal weights are common: data points, the disk cells).
+    - Pass 1 computes, for every candidate ``c``, a logarithm-free lower bound of Runnalls'
+      cost (vectorisable, no branch): with ``s_e = a1 v_ie + a2 v_ce`` and
+      ``q_e = a1 a2 dm_e^2``, concavity of the logarithm gives
+      ``cost >= 0.5 ws sum_e log(1 + q_e / s_e) >= ws sum_e q_e / (2 s_e + q_e)``, which in
+      2-D is ``ws (A0 T1 + A1 T0) / (T0 T1)`` with ``r = wc / wi``, ``A_e = r dm_e^2`` and
+      ``T_e = 2 (1 + r) (v_ie + r v_ce) + A_e`` (one division; ``r >= 1 - tie``, so no
+      underflow; an overflow gives NaN, which skips nothing).
+    - Pass 2 takes the exact cost (one logarithm) of the candidate with the lowest bound,
+      then of every candidate whose bound does not exclude it from the tie set below.
+    - ``j``: with ``best`` the lowest exact cost, the candidates with
+      ``cost <= best + 2 tie scale`` (``scale``: the magnitude of the cancelling terms of
+      the cost, its rounding scale) tie and :func:`_pick` chooses among them.
+      A candidate is skipped when ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
+      ``B`` bounding ``wi |log|P_i|| + wc |log|P_c||`` (then it cannot tie:
+      ``scale <= |cost| + B``).
+    - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
+    """
+    d = (t.shape[0] - 10) // 2
+    LD = 2 * d + 1
+    AB = LD + 1
+    LB = LD + 2
+    CO = LD + 3
+    SC = LD + 4
+    TS = LD + 5
+    IC = LD + 6
+    IS = LD + 7
+    IJ = LD + 8
+    for c in range(n):
+        ld = _logdet(t, d, c)
+        t[LD, c] = ld
+        t[AB, c] = t[0, c] * abs(ld)
+    cnt = n
+    while cnt > kmax:
+        wmin = t[0, 0]
+        for c in range(1, cnt):
+            wmin = min(wmin, t[0, c])
+        for c in range(cnt):
+            t[IC, c] = 0.0 if t[0, c] * (1.0 - tie) <= wmin else -1.0
+        first = -1
+        many = False
+        for c in range(cnt):
+            if t[IC, c] >= 0.0:
+                many = first >= 0
+                if first < 0:
+                    first = c
+        if not many:
+            i = first
+            j, _, _ = _partner(t, d, cnt, i, tie)
+        else:
+            # tied lowest weights: the one with the cheapest merge, ties by _pick
+            bi = np.inf
+            for c in range(cnt):
+                if t[IC, c] >= 0.0:
+                    jj, co, sc = _partner(t, d, cnt, c, tie)
+                    t[IC, c] = co
+                    t[IS, c] = sc
+                    t[IJ, c] = jj
+                    bi = min(bi, co)
+                else:
+                    t[IC, c] = np.inf
+                    t[IS, c] = 0.0
+            for c in range(cnt):
+                t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
+            i = _pick(t, d, cnt, TS)
+            j = np.int64(t[IJ, i])
+        wi = t[0, i]
+        # merge i into j (moment matching), then replace column i by the last one
+        wj = t[0, j]
+        ws = wi + wj
+        a1 = wi / ws
+        a2 = wj / ws
+        for e in range(d):
+            mie = t[1 + e, i]
+            mje = t[1 + e, j]
+            mm = a1 * mie + a2 * mje
+            vv = a1 * (t[1 + d + e, i] + (mie - mm) ** 2) + a2 * (t[1 + d + e, j] + (mje - mm) ** 2)
+            t[1 + e, j] = mm
+            t[1 + d + e, j] = vv
+        t[0, j] = ws
+        ld = _logdet(t, d, j)
+        t[LD, j] = ld
+        t[AB, j] = ws * abs(ld)
         cnt -= 1
-        w[cnt] = 0.0
+        if i != cnt:
+            for r in range(AB + 1):
+                t[r, i] = t[r, cnt]
+    return cnt
 
 
-@njit(cache=True)
-def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, sw, sm, sv):  # pragma: no cover - compiled
-    """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``sw, sm, sv``: scratch
-    of at least ``n`` slots); returns the component count."""
-    c = _compact_into(w, m, v, n, sw, sm, sv)
-    if c <= kmax:
-        ow[:c] = sw[:c]
-        om[:c, :] = sm[:c, :]
-        ov[:c, :] = sv[:c, :]
-        return c
-    _west_one(sw, sm, sv, c, kmax, tie)
-    return _compact_into(sw, sm, sv, c, ow, om, ov)
+@njit(cache=True, error_model="numpy")
+def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
+    """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
+    ``2 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
+    count. The output is in the canonical order of :func:`compact`: decreasing weight,
+    equal weights by means, then variances (an insertion sort; the mixtures are small)."""
+    d = m.shape[1]
+    c = 0
+    for r in range(n):
+        if w[r] > 0:
+            t[0, c] = w[r]
+            for e in range(d):
+                t[1 + e, c] = m[r, e]
+                t[1 + d + e, c] = v[r, e]
+            c += 1
+    if c > kmax:
+        c = _west_soa(t, c, kmax, tie)
+    for r in range(c):                   # sorted column indices in the first slots of ow
+        pos = r
+        while pos > 0:
+            p = np.int64(ow[pos - 1])
+            if t[0, p] > t[0, r] or (t[0, p] == t[0, r] and not _key_less(t, d, r, p)):
+                break
+            ow[pos] = ow[pos - 1]
+            pos -= 1
+        ow[pos] = r
+    for r in range(c):                   # slot r reads index ow[r] before writing it
+        i = np.int64(ow[r])
+        for e in range(d):
+            om[r, e] = t[1 + e, i]
+            ov[r, e] = t[1 + d + e, i]
+        ow[r] = t[0, i]
+    return c
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, error_model="numpy")
 def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     """:func:`reduce` (West/Runnalls) of every mixture of ``w (B, K)``, ``m, v (B, K, D)``,
     the mixtures in parallel; returns ``(weights (B, kmax), means, variances, counts (B,))``
-    with the survivors sorted by decreasing weight (stably) and unused slots at weight 0,
-    mean 0, variance 1."""
+    in the canonical order (:func:`_reduce_into`) and unused slots at weight 0, mean 0,
+    variance 1."""
     nb, k, d = m.shape
     kout = min(kmax, k)
     ow = np.zeros((nb, kout))
@@ -728,10 +1033,8 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        sw = np.empty(k)
-        sm = np.empty((k, d))
-        sv = np.empty((k, d))
-        cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], sw, sm, sv)
+        t = np.empty((2 * d + 10, k))
+        cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
     return ow, om, ov, cnt
 
 
