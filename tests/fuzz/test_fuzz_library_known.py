@@ -347,3 +347,14 @@ def test_cli_gn_ambiguous_fix_names_the_anchor_ids(scenarios, workdir):
     assert outcome == "error", f"{outcome}: {detail}"
     assert "ambiguous" in detail and "anchors N0, N1, N2" in detail
     assert "1700000000.125" in detail
+
+
+@pytest.mark.parametrize("track", [0, 1])
+def test_closed_form_missing_ranges_name_ranges(track):
+    """A NaN range of an 8-sample track drops difference rows until S A is rank deficient:
+    the error names ``ranges`` and that track (flat index), not the sensor path."""
+    r = np.array(CASES["ClosedFormTracker"]().args["ranges"], float)
+    assert r.ndim == 2 and r.shape[0] >= 2
+    r[track, 3] = np.nan
+    detail = _clean(_mutated("ClosedFormTracker", ranges=r), ("ranges",))
+    assert "sensor_path" not in detail and f"track {track}" in detail

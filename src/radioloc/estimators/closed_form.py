@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from radioloc.core.errors import ConfigError, GeometryError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_finite_output,
                                       check_int, check_positive)
@@ -458,10 +458,11 @@ class ClosedFormTracker(SnapshotEstimator):
         ------
         InputError
             Bad shapes, negative or infinite ranges, fewer than 7 samples, k out of range,
-            non-uniform ``time``.
+            non-uniform ``time``, or missing (NaN) ranges that leave ``S A`` rank deficient
+            (the message names ``ranges`` and the track).
         GeometryError
-            Sensor path quadratic in n, or ``S A`` numerically rank deficient (also when
-            missing samples leave fewer than 4 differences), or a singular noise
+            Sensor path quadratic in n, or ``S A`` numerically rank deficient with every
+            difference row kept, or a singular noise
             covariance (zero motion and channel noise).
         """
         r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True)
@@ -479,7 +480,7 @@ class ClosedFormTracker(SnapshotEstimator):
 
         def cov_at(state):
             return _mask_covariance(model.differenced_covariance(state, s), keep)
-        self._check_condition(sa)
+        self._check_condition(sa, keep)
         ols = _ols(sa, sy)                                          # step 3a
         ones = np.ones(batch, dtype=bool)
         if covariance_state is not None:
@@ -522,11 +523,25 @@ class ClosedFormTracker(SnapshotEstimator):
                               keep)
 
     # ---- helpers --------------------------------------------------------------------
-    def _check_condition(self, sa: np.ndarray) -> None:
-        """GeometryError when ``S A`` (column-scaled) is numerically rank deficient."""
+    def _check_condition(self, sa: np.ndarray, keep: np.ndarray | None = None,
+                         tracks: np.ndarray | None = None) -> None:
+        """GeometryError when ``S A`` (column-scaled) is numerically rank deficient;
+        InputError naming ``ranges`` when it is so only because difference rows were
+        dropped for missing (NaN) ranges (``keep`` (..., n - 3) False). ``tracks``: the
+        flat track number of each entry of ``sa`` (default: its flat index)."""
         col = np.linalg.norm(sa, axis=-2, keepdims=True)
         cond = np.linalg.cond(sa / np.where(col > 0, col, 1.0))
-        if np.any(~np.isfinite(cond) | (cond > self.cond_limit)):
+        bad = ~np.isfinite(cond) | (cond > self.cond_limit)
+        if np.any(bad) and keep is not None:
+            rows = keep.reshape(-1, keep.shape[-1])
+            gap = np.ravel(bad) & ~np.all(rows, axis=-1)
+            if np.any(gap):
+                i = int(np.flatnonzero(gap)[0])
+                track = int(tracks[i]) if tracks is not None else i
+                raise InputError(f"ranges: the missing (NaN) ranges of track {track} leave "
+                                 f"{int(np.sum(rows[i]))} of {rows.shape[-1]} difference rows, "
+                                 "too few to separate [x_k, y_k, vx_k, vy_k] (S A rank deficient)")
+        if np.any(bad):
             raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
                                 f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "
                                 "does not separate [x_k, y_k, vx_k, vy_k]")
@@ -560,7 +575,7 @@ class ClosedFormTracker(SnapshotEstimator):
             sa = np.where(keep[odd][..., None],
                           difference_rows(design_matrix(ss if ss.shape[0] == 1 else ss[odd], T, k)),
                           0.0)
-            self._check_condition(sa)
+            self._check_condition(sa, keep[odd], np.flatnonzero(odd))
         ols = np.empty((B, 4))
         beta = np.empty((B, 4))
         cov = np.empty((B, 4, 4))
