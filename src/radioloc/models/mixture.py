@@ -37,7 +37,7 @@ from radioloc.core.validation import as_float_array
 _LOG2PI = np.log(2.0 * np.pi)
 
 #: relative tolerance under which two weights or two merge costs count as tied in
-#: :func:`reduce` (ties go to the lower component index, whatever the rounding).
+#: :func:`reduce` (ties broken by the components' contents, whatever the rounding).
 _TIE = 1e-9
 #: smallest variance :meth:`DiagMixture.create` accepts (squared distances over it stay
 #: far from float64 overflow)
@@ -656,9 +656,12 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     mixture. One compiled kernel, the mixtures of the batch in parallel
     (:func:`_reduce_batch`).
 
-    Weights, and merge costs, that agree to a relative ``1e-9`` count as tied and the tie
-    goes to the lower component index (components ordered by decreasing weight, stably).
-    Without this, exact ties (the symmetric cells of :func:`uniform_ball`) were broken by
+    Weights, and merge costs, that agree to a relative ``1e-9`` count as tied, and ties are
+    broken by the components' contents, never their position (see :func:`reduce_reference`:
+    of tied lowest weights the one with the cheapest best merge; of tied partners the one
+    nearest the mixture mean, then counter-clockwise about it, then the lexicographic order
+    of means, variances and weight); the result comes in that canonical order, so permuting
+    the components of ``mix`` does not change it. Without a tie rule, exact ties (the symmetric cells of :func:`uniform_ball`) were broken by
     rounding. The greedy rule is still a discrete choice: its result jumps where a near-tie
     flips (a continuous alternative for products: :func:`merge_groups`).
 
