@@ -12,19 +12,7 @@ from radioloc.core.errors import InputError
 from radioloc.estimators import grid_kernels as gk
 from radioloc.estimators.grid import GridFilter, GridGeometry, GridState, cell_distances
 from radioloc.models.rssi_trapezoid import fit_trapezoid_model
-
-
-def _ref_yvv_1d(x, coef, tail):                     # the recursions, plain Python/NumPy
-    g, a1, a2, a3 = coef
-    z = np.concatenate([x, np.zeros(tail)])
-    fw = np.zeros(z.size + 3)
-    for n in range(z.size):
-        fw[n + 3] = g * z[n] + a1 * fw[n + 2] + a2 * fw[n + 1] + a3 * fw[n]
-    fw = fw[3:]
-    bw = np.zeros(z.size + 3)
-    for n in range(z.size - 1, -1, -1):
-        bw[n] = g * fw[n] + a1 * bw[n + 1] + a2 * bw[n + 2] + a3 * bw[n + 3]
-    return bw[:x.size]
+from test_grid_kernels import _ref_yvv_1d
 
 
 def _ref_blur(p, s):

@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_finite_output,
                                       check_int, check_positive)
@@ -458,11 +458,11 @@ class ClosedFormTracker(SnapshotEstimator):
         ------
         InputError
             Bad shapes, negative or infinite ranges, fewer than 7 samples, k out of range,
-            non-uniform ``time``, or missing (NaN) ranges that leave ``S A`` rank deficient
-            (the message names ``ranges`` and the track).
+            non-uniform ``time``.
         GeometryError
-            Sensor path quadratic in n, or ``S A`` numerically rank deficient with every
-            difference row kept, or a singular noise
+            Sensor path quadratic in n, or ``S A`` numerically rank deficient (when missing
+            (NaN) ranges leave too few difference rows, the message names ``ranges`` and the
+            track), or a singular noise
             covariance (zero motion and channel noise).
         """
         r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True)
@@ -525,8 +525,8 @@ class ClosedFormTracker(SnapshotEstimator):
     # ---- helpers --------------------------------------------------------------------
     def _check_condition(self, sa: np.ndarray, keep: np.ndarray | None = None,
                          tracks: np.ndarray | None = None) -> None:
-        """GeometryError when ``S A`` (column-scaled) is numerically rank deficient;
-        InputError naming ``ranges`` when it is so only because difference rows were
+        """GeometryError when ``S A`` (column-scaled) is numerically rank deficient, naming
+        ``ranges`` and the track when it is so because difference rows were
         dropped for missing (NaN) ranges (``keep`` (..., n - 3) False). ``tracks``: the
         flat track number of each entry of ``sa`` (default: its flat index)."""
         col = np.linalg.norm(sa, axis=-2, keepdims=True)
@@ -538,9 +538,10 @@ class ClosedFormTracker(SnapshotEstimator):
             if np.any(gap):
                 i = int(np.flatnonzero(gap)[0])
                 track = int(tracks[i]) if tracks is not None else i
-                raise InputError(f"ranges: the missing (NaN) ranges of track {track} leave "
-                                 f"{int(np.sum(rows[i]))} of {rows.shape[-1]} difference rows, "
-                                 "too few to separate [x_k, y_k, vx_k, vy_k] (S A rank deficient)")
+                raise GeometryError(f"ranges: the missing (NaN) ranges of track {track} leave "
+                                    f"{int(np.sum(rows[i]))} of {rows.shape[-1]} difference "
+                                    "rows, too few to separate [x_k, y_k, vx_k, vy_k] (S A "
+                                    "rank deficient)")
         if np.any(bad):
             raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
                                 f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "

@@ -179,6 +179,29 @@ def _yvv(x, y1, y2, y3, g, a1, a2, a3):
     return a1 * y1 + (a2 * y2 + (a3 * y3 + g * x))
 
 
+@njit(cache=True, inline="always", fastmath=_FM)
+def _through_border(tb, st, o1, o2, o3, n, g, a1, a2, a3):
+    """The causal recursion on through the zero border (``tb`` rows of ``n`` lanes receive
+    it), then the anti-causal one from the border's far end back to the grid's edge
+    (state ``st`` reset first). Returns the rotated state rows ``(o1, o2, o3)`` for the
+    anti-causal pass over the grid."""
+    tail = tb.shape[0]
+    for t in range(tail):
+        o = tb[t]
+        for j in range(n):
+            y = _yvv(0.0, o1[j], o2[j], o3[j], g, a1, a2, a3)
+            o3[j] = y
+            o[j] = y
+        o1, o2, o3 = o3, o1, o2
+    st[:] = 0.0
+    for t in range(tail - 1, -1, -1):
+        x = tb[t]
+        for j in range(n):
+            o3[j] = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
+        o1, o2, o3 = o3, o1, o2
+    return o1, o2, o3
+
+
 @njit(parallel=True, cache=True, fastmath=_FM)
 def _vert_blocks(p, blk, coef, tails, limit, bad):
     """Column recursions ``anti(causal(p))`` along the rows' axis, streamed over whole rows of
@@ -214,19 +237,7 @@ def _vert_blocks(p, blk, coef, tails, limit, bad):
                 o[j] = y
             o1, o2, o3 = o3, o1, o2
         bad[job] = nbad
-        for t in range(tail):                                # on through the zero border
-            o = tb[t]
-            for j in range(n):
-                y = _yvv(0.0, o1[j], o2[j], o3[j], g, a1, a2, a3)
-                o3[j] = y
-                o[j] = y
-            o1, o2, o3 = o3, o1, o2
-        st[:] = 0.0
-        for t in range(tail - 1, -1, -1):                    # anti-causal, border first
-            x = tb[t]
-            for j in range(n):
-                o3[j] = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
-            o1, o2, o3 = o3, o1, o2
+        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, n, g, a1, a2, a3)
         for r in range(h - 1, -1, -1):
             o = buf[r]
             for j in range(n):
@@ -273,19 +284,7 @@ def _horiz_blocks(blk, coef, tails, eps, rows):
                 o3[j] = y
                 x[j] = y
             o1, o2, o3 = o3, o1, o2
-        for i in range(tail):                                # on through the zero border
-            o = tb[i]
-            for j in range(LANES):
-                y = _yvv(0.0, o1[j], o2[j], o3[j], g, a1, a2, a3)
-                o3[j] = y
-                o[j] = y
-            o1, o2, o3 = o3, o1, o2
-        st[:] = 0.0
-        for i in range(tail - 1, -1, -1):                    # anti-causal, border first
-            x = tb[i]
-            for j in range(LANES):
-                o3[j] = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
-            o1, o2, o3 = o3, o1, o2
+        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, LANES, g, a1, a2, a3)
         for c in range(w - 1, -1, -1):
             x = t[c]
             for j in range(LANES):
