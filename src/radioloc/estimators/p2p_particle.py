@@ -382,29 +382,23 @@ def _sample_motion(motion, particles, dt, rng, control):
         return motion.sample(particles, dt, rng, control=control)
     F = motion.F(dt)
     n = particles.shape[-1]
-    identity = F.shape == (n, n) and np.array_equal(F, np.eye(n))
-    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
-    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = _standard_normal(rng, particles.shape)
-    if identity and factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        # F = I (random walk), diagonal noise: (x + u) + diag(factor) z, the product's
-        # values, into the array of the draws
-        z *= np.diagonal(factor)
-        if control is None:
-            z += particles
-        else:
-            mean = particles.copy()
-            mean[..., : motion.dim] += control
-            z += mean
-        return z
-    if identity:
-        mean = particles.copy()
+    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):
+        # F = I (random walk): the product is the identity, skip it (the same result)
+        mean = particles
         if control is not None:
+            mean = particles.copy()
             mean[..., : motion.dim] += control
     else:
         mean = motion.predict(particles, dt, control=control)
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    z = _standard_normal(rng, mean.shape)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        return mean + z * np.diagonal(factor)               # diagonal: the product's values
+        # diagonal noise: mean + diag(factor) z, the product's values, into the array of
+        # the draws
+        z *= np.diagonal(factor)
+        z += mean
+        return z
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
     return mean + np.einsum("...ij,...j->...i", factor, z)
