@@ -65,6 +65,13 @@ def anchor_phrase(indices) -> str:
     return "anchors " + ", ".join(str(int(i)) for i in indices)
 
 
+def _pick(mask, new, old):
+    """The fit (a result of ``solve_nlls``) taking ``new``'s fields where ``mask`` (...) is
+    True and ``old``'s elsewhere."""
+    return type(new)(**{k: np.where(mask.reshape(mask.shape + (1,) * (np.ndim(v) - mask.ndim)),
+                                     v, getattr(old, k)) for k, v in vars(new).items()})
+
+
 def _anchor_frame(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centroid ``(..., D)``, singular values ``(..., D)`` and right singular vectors
     ``(..., D, D)`` of the used anchors (centred)."""
@@ -190,14 +197,12 @@ class Multilateration(SnapshotEstimator):
                 best = sub
             else:
                 take = sub.cost < best.cost
-                best = type(sub)(**{k: np.where(take.reshape(take.shape + (1,) * (np.ndim(v) - take.ndim)),
-                                                v, getattr(best, k)) for k, v in vars(sub).items()})
+                best = _pick(take, sub, best)
         keep = best.cost < fit.cost[saddle]
         out = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
-        for k, val in vars(best).items():
-            dst = getattr(out, k)
-            dst[saddle] = np.where(keep.reshape(keep.shape + (1,) * (np.ndim(val) - keep.ndim)),
-                                   val, dst[saddle])
+        kept = _pick(keep, best, type(fit)(**{k: v[saddle] for k, v in vars(out).items()}))
+        for k, val in vars(kept).items():
+            getattr(out, k)[saddle] = val
         return out, self._saddles(out, r, a, w)[0]
 
     @staticmethod
