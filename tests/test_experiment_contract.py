@@ -20,8 +20,27 @@ from radioloc.experiments.base import registry
 EXPERIMENTS = sorted(registry())
 
 
+def _forbid(*args, **kwargs):
+    raise _Forbidden("summarize() may only read the results table: it simulated or estimated")
+
+
+class _Forbidden(AssertionError):
+    pass
+
+
 @pytest.mark.parametrize("exp_id", EXPERIMENTS)
-def test_run_block_is_deterministic_and_tidy(exp_id):
+def test_run_block_is_deterministic_and_summarize_only_reads_the_table(exp_id, tmp_path,
+                                                                         monkeypatch):
+    """The same block with the same seed gives the same tidy frame; then ``summarize()`` on
+    that frame runs with every simulation, random draw and estimator entry point replaced
+    by a function that fails: every metric and claim comes from the rows the blocks wrote.
+    (One test, so that the table is computed twice rather than three times.)"""
+    import sys
+    import warnings
+
+    import radioloc.core.rng as rng_mod
+    from radioloc.estimators import ESTIMATORS
+
     exp = registry()[exp_id]
     try:
         exp.check_available()
@@ -41,32 +60,6 @@ def test_run_block_is_deterministic_and_tidy(exp_id):
     timing = list(exp.timing_columns)
     pd.testing.assert_frame_equal(a.drop(columns=timing), b.drop(columns=timing))
 
-
-class _Forbidden(AssertionError):
-    pass
-
-
-def _forbid(*args, **kwargs):
-    raise _Forbidden("summarize() may only read the results table: it simulated or estimated")
-
-
-@pytest.mark.parametrize("exp_id", EXPERIMENTS)
-def test_summarize_only_reads_the_table(exp_id, tmp_path, monkeypatch):
-    """No side simulation, random draw or estimator run inside ``summarize()``: every metric
-    and claim comes from the rows the blocks wrote."""
-    import radioloc.core.rng as rng_mod
-    from radioloc.estimators import ESTIMATORS
-
-    exp = registry()[exp_id]
-    try:
-        exp.check_available()
-    except DataUnavailable as exc:
-        pytest.skip(str(exc))
-    cfg = exp.config(False)
-    n = min(2, cfg.runs, cfg.block_size)
-    cfg = dataclasses.replace(cfg, runs=n)
-    table = exp.run_block(cfg, np.arange(n), block_generator(0, 0))
-    import sys
     originals = {id(np.random.default_rng), id(rng_mod.stream), id(rng_mod.block_generator)}
     for mod in [m for name, m in list(sys.modules.items())
                 if name.startswith("radioloc") and m is not None] + [np.random, rng_mod]:
@@ -77,8 +70,7 @@ def test_summarize_only_reads_the_table(exp_id, tmp_path, monkeypatch):
         for name in ("run", "locate", "step", "init"):
             if name in vars(cls):
                 monkeypatch.setattr(cls, name, _forbid)
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")          # tiny tables: empty means are expected
-        summary = exp.summarize(cfg, table, tmp_path)
+        summary = exp.summarize(cfg, a, tmp_path)
     assert summary.metrics
