@@ -271,30 +271,30 @@ def _horiz_blocks(blk, coef, tails, eps, rows):
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         tail = tails[b]
         t = blk[b, k]
-        st = np.zeros((3, LANES))
-        tb = np.zeros((tail, LANES))
-        acc = np.zeros(LANES)
+        st = np.zeros((3, L))
+        tb = np.zeros((tail, L))
+        acc = np.zeros(L)
         o1 = st[0]
         o2 = st[1]
         o3 = st[2]
         for c in range(w):                                   # causal
             x = t[c]
-            for j in range(LANES):
+            for j in range(L):
                 y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 x[j] = y
             o1, o2, o3 = o3, o1, o2
-        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, LANES, g, a1, a2, a3)
+        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, L, g, a1, a2, a3)
         for c in range(w - 1, -1, -1):
             x = t[c]
-            for j in range(LANES):
+            for j in range(L):
                 y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 x[j] = y
                 acc[j] += max(x[j] - eps, 0.0)     # the stored value (rounded if float32)
             o1, o2, o3 = o3, o1, o2
-        r0 = k * LANES
-        for j in range(min(LANES, h - r0)):
+        r0 = k * L
+        for j in range(min(L, h - r0)):
             rows[b, r0 + j] = acc[j]
 
 
@@ -486,12 +486,73 @@ def _trapezoid_rows(p, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
         rows[b, r] = acc
 
 
+def _zones(mu, tau, sig):
+    """Squared-distance bounds of the trapezoid's flat parts, per run: ``(zin, olo, ohi,
+    zout)``. ``d2 <= zin`` or ``d2 >= zout``: the likelihood is exactly 0; ``olo <= d2 <=
+    ohi``: exactly 1. A margin of ``1e-9 R^2`` (``R = mu + tau + sigma``) keeps every cell
+    whose class rounding could change on the full formula's side (see _trapezoid)."""
+    R = mu + tau + sig
+    m = 1e-9 * R * R
+    lo0 = mu - tau - sig
+    lo1 = mu - tau
+    zin = np.where(lo0 > 0.0, lo0 * lo0 - m, -1.0)
+    olo = np.where(lo1 > 0.0, lo1 * lo1 + m, -1.0)
+    ohi = (mu + tau) ** 2 - m
+    zout = R * R + m
+    return np.stack([zin, olo, ohi, zout], axis=-1)
+
+
+@njit(inline="always")
+def _zone(lo, hi, zin, olo, ohi, zout):
+    # the class shared by every cell whose squared distance lies in [lo, hi]: 0 (likelihood
+    # 0), 1 (likelihood 1) or 2 (mixed or on a ramp: the full formula)
+    if hi <= zin or lo >= zout:
+        return 0
+    if lo >= olo and hi <= ohi:
+        return 1
+    return 2
+
+
+@njit(inline="always")
+def _block_rows(ys, py, r0, h, dy2):
+    # dy^2 of the LANES rows of a block (the lanes past the last row repeat it) and its range
+    lo, hi = np.inf, -np.inf
+    for j in range(dy2.size):
+        dy = ys[min(r0 + j, h - 1)] - py
+        d = dy * dy
+        dy2[j] = d
+        lo = min(lo, d)
+        hi = max(hi, d)
+    return lo, hi
+
+
+@njit(inline="always")
+def _block_column(x, vals, z, dx2, dy2, m, t, s, mode, c, eps, k):
+    # the unnormalised posterior max(prior L, eps) of the cells of one block column into
+    # vals; one loop per class, so the square root runs only where a cell needs it. The
+    # lane count is read at run time: with the constant LANES, LLVM unrolls the loops into
+    # scalar code before its loop vectoriser sees them (numba runs no SLP vectoriser)
+    L = vals.size
+    if z == 0:                                   # L = 0: max(prior 0, eps)
+        for j in range(L):
+            vals[j] = eps
+    elif z == 1:                                 # L = 1: max(prior, eps)
+        for j in range(L):
+            vals[j] = max(_floored(x[j], mode, c, eps, k), eps)
+    else:
+        for j in range(L):
+            lik = _trapezoid(dx2 + dy2[j], m, t, s)
+            vals[j] = max(_floored(x[j], mode, c, eps, k) * lik, eps)
+
+
 @njit(parallel=True, cache=True, fastmath=_FM)
-def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
-    """:func:`_trapezoid_rows` reading the block layout: the ``LANES`` rows of a block are
-    the SIMD lanes (row sums in the same order, cell by cell along the row)."""
+def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, zones, eps, out, rows, fmode, fc):
+    """The unnormalised posterior ``max(prior L, eps)`` of each cell from the block layout
+    (the ``LANES`` rows of a block are the SIMD lanes), written in the grid's layout, with
+    its row sums (cell by cell along each row). Each block column is classed by its cells'
+    squared distances (:func:`_zone`): likelihood 0 and 1 need no square root."""
     B, h, w = out.shape
-    nb = blk.shape[1]
+    nb, L = blk.shape[1], blk.shape[3]
     k = h * w
     for job in prange(B * nb):
         b = job // nb
@@ -501,23 +562,20 @@ def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc)
         px, py = pos[b, 0], pos[b, 1]
         m, t, s = mu[b], tau[b], sig[b]
         mode, c = fmode[b], fc[b]
-        dy2 = np.empty(LANES)
-        for j in range(LANES):
-            dy = ys[min(r0 + j, h - 1)] - py
-            dy2[j] = dy * dy
-        acc = np.zeros(LANES)
-        vals = np.empty(LANES)
+        zin, olo, ohi, zout = zones[b, 0], zones[b, 1], zones[b, 2], zones[b, 3]
+        dy2 = np.empty(L)
+        ylo, yhi = _block_rows(ys, py, r0, h, dy2)
+        acc = np.zeros(L)
+        vals = np.empty(L)
         src = blk[b, q]
         ob = out[b]
         for col in range(w):
             dx = xs[col] - px
             dx2 = dx * dx
-            x = src[col]
-            for j in range(LANES):
-                lik = _trapezoid(dx2 + dy2[j], m, t, s)
-                v = max(_floored(x[j], mode, c, eps, k) * lik, eps)
-                vals[j] = v
-                acc[j] += v
+            z = _zone(dx2 + ylo, dx2 + yhi, zin, olo, ohi, zout)
+            _block_column(src[col], vals, z, dx2, dy2, m, t, s, mode, c, eps, k)
+            for j in range(L):
+                acc[j] += vals[j]
             for j in range(nl):
                 ob[r0 + j, col] = vals[j]
         for j in range(nl):
@@ -615,12 +673,13 @@ def trapezoid_update_blocks(blk: np.ndarray, shape: tuple[int, int, int], x: np.
     ndarray, shape (B, h, w)
         Posterior grids ``max(p L, eps) / sum`` (float64).
     """
+    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    x, y, xy, mu, tau, sigma = f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma)
+    zones = _zones(mu, tau, sigma)
+    mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
     out = np.empty(shape)
     rows = np.empty(shape[:2])
-    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
-    _trapezoid_blocks(blk, f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma),
-                      float(epsilon), out, rows, mode, c)
+    _trapezoid_blocks(blk, x, y, xy, mu, tau, sigma, zones, float(epsilon), out, rows, mode, c)
     _scale_rows(out, rows.sum(axis=1))
     return out
 
