@@ -26,11 +26,60 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 __all__ = ["trapezoid_update", "trapezoid_update_blocks", "weighted_update",
            "floor_normalise_into", "yvv_coefficients", "recursive_gaussian", "gaussian_blocks",
            "grids_in_range", "RECURSIVE_MIN_SIGMA", "LANES"]
+
+@intrinsic
+def _transpose4(typingctx, src, i, j, dst, r, c):
+    """``dst[r + k, c + l] = src[i + l, j + k]`` for ``k, l < 4`` (2-D C arrays, float64
+    source, float64 or float32 destination converted with round to nearest): four vector
+    loads, eight shuffles, four vector stores (numba runs no SLP vectoriser, and LLVM's loop
+    vectoriser leaves a transposition as scalar loads and stores)."""
+    sig = types.void(src, i, j, dst, r, c)
+
+    def codegen(context, builder, signature, args):
+        sty, _, _, dty, _, _ = signature.args
+        s, i, j, d, r, c = args
+        sa = context.make_array(sty)(context, builder, s)
+        da = context.make_array(dty)(context, builder, d)
+        i64 = ir.IntType(64)
+        vin = ir.VectorType(context.get_data_type(sty.dtype), 4)
+        vout = ir.VectorType(context.get_data_type(dty.dtype), 4)
+        sshape = cgutils.unpack_tuple(builder, sa.shape)
+        sstr = cgutils.unpack_tuple(builder, sa.strides)
+        dshape = cgutils.unpack_tuple(builder, da.shape)
+        dstr = cgutils.unpack_tuple(builder, da.strides)
+        rows = []
+        for k in range(4):
+            p = cgutils.get_item_pointer2(context, builder, sa.data, sshape, sstr, sty.layout,
+                                          [builder.add(i, ir.Constant(i64, k)), j])
+            rows.append(builder.load(builder.bitcast(p, vin.as_pointer()), align=8))
+        a, b, cc, dd = rows
+        m = lambda *ix: ir.Constant(ir.VectorType(ir.IntType(32), 4), list(ix))
+        lo01 = builder.shuffle_vector(a, b, m(0, 4, 2, 6))
+        hi01 = builder.shuffle_vector(a, b, m(1, 5, 3, 7))
+        lo23 = builder.shuffle_vector(cc, dd, m(0, 4, 2, 6))
+        hi23 = builder.shuffle_vector(cc, dd, m(1, 5, 3, 7))
+        outs = [builder.shuffle_vector(lo01, lo23, m(0, 1, 4, 5)),
+                builder.shuffle_vector(hi01, hi23, m(0, 1, 4, 5)),
+                builder.shuffle_vector(lo01, lo23, m(2, 3, 6, 7)),
+                builder.shuffle_vector(hi01, hi23, m(2, 3, 6, 7))]
+        for k in range(4):
+            v = outs[k]
+            if vout != vin:
+                v = builder.fptrunc(v, vout)
+            p = cgutils.get_item_pointer2(context, builder, da.data, dshape, dstr, dty.layout,
+                                          [builder.add(r, ir.Constant(i64, k)), c])
+            builder.store(v, builder.bitcast(p, vout.as_pointer()), align=4)
+        return context.get_dummy_value()
+    return sig, codegen
+
 
 RECURSIVE_MIN_SIGMA = 2.0
 """Smallest standard deviation, in cells, blurred by the recursive Gaussian (below it the
@@ -248,10 +297,13 @@ def _vert_blocks(p, blk, coef, tails, limit, bad):
             if r % LANES == 0:                   # a block of rows done: store it transposed
                 dst = bb[r // LANES, c0:c1]
                 if r + LANES <= h:
-                    for j in range(n):
-                        d = dst[j]
+                    n4 = n - n % 4
+                    for j in range(0, n4, 4):
+                        for i in range(0, LANES, 4):
+                            _transpose4(buf, r + i, j, dst, j, i)
+                    for j in range(n4, n):
                         for i in range(LANES):
-                            d[i] = buf[r + i, j]
+                            dst[j, i] = buf[r + i, j]
                 else:
                     for j in range(n):
                         for i in range(h - r):
@@ -566,18 +618,28 @@ def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, zones, eps, out, rows, fmo
         dy2 = np.empty(L)
         ylo, yhi = _block_rows(ys, py, r0, h, dy2)
         acc = np.zeros(L)
-        vals = np.empty(L)
+        tile = np.empty((4, L))
         src = blk[b, q]
-        ob = out[b]
-        for col in range(w):
-            dx = xs[col] - px
-            dx2 = dx * dx
-            z = _zone(dx2 + ylo, dx2 + yhi, zin, olo, ohi, zout)
-            _block_column(src[col], vals, z, dx2, dy2, m, t, s, mode, c, eps, k)
-            for j in range(L):
-                acc[j] += vals[j]
-            for j in range(nl):
-                ob[r0 + j, col] = vals[j]
+        ob = out[b, r0:r0 + nl]
+        whole = nl == LANES
+        for c0 in range(0, w, 4):
+            nc = min(4, w - c0)
+            for i in range(nc):
+                col = c0 + i
+                dx = xs[col] - px
+                dx2 = dx * dx
+                z = _zone(dx2 + ylo, dx2 + yhi, zin, olo, ohi, zout)
+                vals = tile[i]
+                _block_column(src[col], vals, z, dx2, dy2, m, t, s, mode, c, eps, k)
+                for j in range(L):
+                    acc[j] += vals[j]
+            if whole and nc == 4:
+                for j in range(0, LANES, 4):
+                    _transpose4(tile, 0, j, ob, j, c0)
+            else:
+                for i in range(nc):
+                    for j in range(nl):
+                        ob[j, c0 + i] = tile[i, j]
         for j in range(nl):
             rows[b, r0 + j] = acc[j]
 
