@@ -589,8 +589,16 @@ def _block_column(x, vals, z, dx2, dy2, m, t, s, mode, c, eps, k):
         for j in range(L):
             vals[j] = eps
     elif z == 1:                                 # L = 1: max(prior, eps)
+        if mode == 1:                            # (the floor's branch out of the loop)
+            for j in range(L):
+                vals[j] = max(_floored(x[j], 1, c, eps, k), eps)
+        else:
+            for j in range(L):
+                vals[j] = max(_floored(x[j], mode, c, eps, k), eps)
+    elif mode == 1:
         for j in range(L):
-            vals[j] = max(_floored(x[j], mode, c, eps, k), eps)
+            lik = _trapezoid(dx2 + dy2[j], m, t, s)
+            vals[j] = max(_floored(x[j], 1, c, eps, k) * lik, eps)
     else:
         for j in range(L):
             lik = _trapezoid(dx2 + dy2[j], m, t, s)
