@@ -9,7 +9,10 @@ batch. The plain NumPy functions of :mod:`radioloc.estimators.grid` are the refe
 
 * :func:`trapezoid_update` - Algorithm 1 with the trapezoid likelihood computed in the loop:
   ``p_i <- max(p_i L(|l_i - s_a|), eps) / sum``.
-* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step).
+* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step);
+  each block column is classed by its cells' squared distances (likelihood exactly 0,
+  exactly 1, or the ramps' full formula), so the square root and division run only on the
+  ramps, and the block is transposed back into rows in registers (:func:`_transpose4`).
 * :func:`weighted_update` - the same with a likelihood grid given by the caller (any model).
 * :func:`floor_normalise_into` - ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``.
 * :func:`recursive_gaussian` - separable recursive Gaussian of Young & van Vliet (1995):
