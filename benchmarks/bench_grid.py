@@ -4,7 +4,8 @@ ProbabilityUpdate).
 Prints cell-updates per second of radioloc's batched filter step with the recursive blur
 (``GridFilter(blur="recursive")``: Young-van Vliet recursions, columns then rows on blocks of
 32 rows, with the input check fused into the column pass, then the fused numba
-floor-and-normalise and trapezoid update reading the blocks) and with the exact FFT blur, and of a peer measured in
+floor-and-normalise and trapezoid update reading the blocks, the square root only in the
+block columns on the trapezoid's ramps) and with the exact FFT blur, and of a peer measured in
 the same process: the NumPy update followed by ``scipy.ndimage.gaussian_filter`` (one call per
 grid, the usual way to blur a single grid) and a renormalisation. Ratios are taken within the
 run (the machine is shared: absolute numbers vary with the load). Run:
@@ -81,9 +82,11 @@ def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0, seed: int = 0) ->
           f"peer {cells / c_peer:,.0f} cell-updates/s, ratio {c_peer / c_fast:.1f}x")
     peer_name = "scipy.ndimage update + gaussian_filter"
     # the least work of a step: read the prior and write the posterior once (16 bytes per
-    # cell in float64); 28 flops of the four third-order recursions, about 12 for the
-    # trapezoid update, floor and normalisation
-    work = {"bytes_per_unit": 16.0, "flops_per_unit": 40.0}
+    # cell in float64); flops as implemented: 28 of the four third-order recursions, 2 of the
+    # floor's excess sum, and the update by class of block column (likelihood 0: 2, sum and
+    # scaling; 1: 5, floor, sum, scaling; the ramps: 12 with the square root and division),
+    # 5.3 per cell for this workload's mix (39 / 40 / 21 % of the cells)
+    work = {"bytes_per_unit": 16.0, "flops_per_unit": 35.0}
     return [{"workload": f"grid update + blur {n}x{n} (recursive)", "throughput": cells / t_fast,
              "unit": "cell-updates/s", "peer": peer_name, "peer_throughput": cells / t_peer,
              "ratio": t_peer / t_fast, **work},

@@ -9,7 +9,10 @@ batch. The plain NumPy functions of :mod:`radioloc.estimators.grid` are the refe
 
 * :func:`trapezoid_update` - Algorithm 1 with the trapezoid likelihood computed in the loop:
   ``p_i <- max(p_i L(|l_i - s_a|), eps) / sum``.
-* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step).
+* :func:`trapezoid_update_blocks` - the same reading the block layout (the recursive step);
+  each block column is classed by its cells' squared distances (likelihood exactly 0,
+  exactly 1, or the ramps' full formula), so the square root and division run only on the
+  ramps, and the block is transposed back into rows in registers (:func:`_transpose4`).
 * :func:`weighted_update` - the same with a likelihood grid given by the caller (any model).
 * :func:`floor_normalise_into` - ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``.
 * :func:`recursive_gaussian` - separable recursive Gaussian of Young & van Vliet (1995):
@@ -26,11 +29,60 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 __all__ = ["trapezoid_update", "trapezoid_update_blocks", "weighted_update",
            "floor_normalise_into", "yvv_coefficients", "recursive_gaussian", "gaussian_blocks",
            "grids_in_range", "RECURSIVE_MIN_SIGMA", "LANES"]
+
+@intrinsic
+def _transpose4(typingctx, src, i, j, dst, r, c):
+    """``dst[r + k, c + l] = src[i + l, j + k]`` for ``k, l < 4`` (2-D C arrays, float64
+    source, float64 or float32 destination converted with round to nearest): four vector
+    loads, eight shuffles, four vector stores (numba runs no SLP vectoriser, and LLVM's loop
+    vectoriser leaves a transposition as scalar loads and stores)."""
+    sig = types.void(src, i, j, dst, r, c)
+
+    def codegen(context, builder, signature, args):
+        sty, _, _, dty, _, _ = signature.args
+        s, i, j, d, r, c = args
+        sa = context.make_array(sty)(context, builder, s)
+        da = context.make_array(dty)(context, builder, d)
+        i64 = ir.IntType(64)
+        vin = ir.VectorType(context.get_data_type(sty.dtype), 4)
+        vout = ir.VectorType(context.get_data_type(dty.dtype), 4)
+        sshape = cgutils.unpack_tuple(builder, sa.shape)
+        sstr = cgutils.unpack_tuple(builder, sa.strides)
+        dshape = cgutils.unpack_tuple(builder, da.shape)
+        dstr = cgutils.unpack_tuple(builder, da.strides)
+        rows = []
+        for k in range(4):
+            p = cgutils.get_item_pointer2(context, builder, sa.data, sshape, sstr, sty.layout,
+                                          [builder.add(i, ir.Constant(i64, k)), j])
+            rows.append(builder.load(builder.bitcast(p, vin.as_pointer()), align=8))
+        a, b, cc, dd = rows
+        m = lambda *ix: ir.Constant(ir.VectorType(ir.IntType(32), 4), list(ix))
+        lo01 = builder.shuffle_vector(a, b, m(0, 4, 2, 6))
+        hi01 = builder.shuffle_vector(a, b, m(1, 5, 3, 7))
+        lo23 = builder.shuffle_vector(cc, dd, m(0, 4, 2, 6))
+        hi23 = builder.shuffle_vector(cc, dd, m(1, 5, 3, 7))
+        outs = [builder.shuffle_vector(lo01, lo23, m(0, 1, 4, 5)),
+                builder.shuffle_vector(hi01, hi23, m(0, 1, 4, 5)),
+                builder.shuffle_vector(lo01, lo23, m(2, 3, 6, 7)),
+                builder.shuffle_vector(hi01, hi23, m(2, 3, 6, 7))]
+        for k in range(4):
+            v = outs[k]
+            if vout != vin:
+                v = builder.fptrunc(v, vout)
+            p = cgutils.get_item_pointer2(context, builder, da.data, dshape, dstr, dty.layout,
+                                          [builder.add(r, ir.Constant(i64, k)), c])
+            builder.store(v, builder.bitcast(p, vout.as_pointer()), align=4)
+        return context.get_dummy_value()
+    return sig, codegen
+
 
 RECURSIVE_MIN_SIGMA = 2.0
 """Smallest standard deviation, in cells, blurred by the recursive Gaussian (below it the
@@ -248,10 +300,13 @@ def _vert_blocks(p, blk, coef, tails, limit, bad):
             if r % LANES == 0:                   # a block of rows done: store it transposed
                 dst = bb[r // LANES, c0:c1]
                 if r + LANES <= h:
-                    for j in range(n):
-                        d = dst[j]
+                    n4 = n - n % 4
+                    for j in range(0, n4, 4):
+                        for i in range(0, LANES, 4):
+                            _transpose4(buf, r + i, j, dst, j, i)
+                    for j in range(n4, n):
                         for i in range(LANES):
-                            d[i] = buf[r + i, j]
+                            dst[j, i] = buf[r + i, j]
                 else:
                     for j in range(n):
                         for i in range(h - r):
@@ -271,30 +326,30 @@ def _horiz_blocks(blk, coef, tails, eps, rows):
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         tail = tails[b]
         t = blk[b, k]
-        st = np.zeros((3, LANES))
-        tb = np.zeros((tail, LANES))
-        acc = np.zeros(LANES)
+        st = np.zeros((3, L))
+        tb = np.zeros((tail, L))
+        acc = np.zeros(L)
         o1 = st[0]
         o2 = st[1]
         o3 = st[2]
         for c in range(w):                                   # causal
             x = t[c]
-            for j in range(LANES):
+            for j in range(L):
                 y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 x[j] = y
             o1, o2, o3 = o3, o1, o2
-        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, LANES, g, a1, a2, a3)
+        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, L, g, a1, a2, a3)
         for c in range(w - 1, -1, -1):
             x = t[c]
-            for j in range(LANES):
+            for j in range(L):
                 y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
                 x[j] = y
                 acc[j] += max(x[j] - eps, 0.0)     # the stored value (rounded if float32)
             o1, o2, o3 = o3, o1, o2
-        r0 = k * LANES
-        for j in range(min(LANES, h - r0)):
+        r0 = k * L
+        for j in range(min(L, h - r0)):
             rows[b, r0 + j] = acc[j]
 
 
@@ -486,12 +541,81 @@ def _trapezoid_rows(p, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
         rows[b, r] = acc
 
 
+def _zones(mu, tau, sig):
+    """Squared-distance bounds of the trapezoid's flat parts, per run: ``(zin, olo, ohi,
+    zout)``. ``d2 <= zin`` or ``d2 >= zout``: the likelihood is exactly 0; ``olo <= d2 <=
+    ohi``: exactly 1. A margin of ``1e-9 R^2`` (``R = mu + tau + sigma``) keeps every cell
+    whose class rounding could change on the full formula's side (see _trapezoid)."""
+    R = mu + tau + sig
+    m = 1e-9 * R * R
+    lo0 = mu - tau - sig
+    lo1 = mu - tau
+    zin = np.where(lo0 > 0.0, lo0 * lo0 - m, -1.0)
+    olo = np.where(lo1 > 0.0, lo1 * lo1 + m, -1.0)
+    ohi = (mu + tau) ** 2 - m
+    zout = R * R + m
+    return np.stack([zin, olo, ohi, zout], axis=-1)
+
+
+@njit(inline="always")
+def _zone(lo, hi, zin, olo, ohi, zout):
+    # the class shared by every cell whose squared distance lies in [lo, hi]: 0 (likelihood
+    # 0), 1 (likelihood 1) or 2 (mixed or on a ramp: the full formula)
+    if hi <= zin or lo >= zout:
+        return 0
+    if lo >= olo and hi <= ohi:
+        return 1
+    return 2
+
+
+@njit(inline="always")
+def _block_rows(ys, py, r0, h, dy2):
+    # dy^2 of the LANES rows of a block (the lanes past the last row repeat it) and its range
+    lo, hi = np.inf, -np.inf
+    for j in range(dy2.size):
+        dy = ys[min(r0 + j, h - 1)] - py
+        d = dy * dy
+        dy2[j] = d
+        lo = min(lo, d)
+        hi = max(hi, d)
+    return lo, hi
+
+
+@njit(inline="always")
+def _block_column(x, vals, z, dx2, dy2, m, t, s, mode, c, eps, k):
+    # the unnormalised posterior max(prior L, eps) of the cells of one block column into
+    # vals; one loop per class, so the square root runs only where a cell needs it. The
+    # lane count is read at run time: with the constant LANES, LLVM unrolls the loops into
+    # scalar code before its loop vectoriser sees them (numba runs no SLP vectoriser)
+    L = vals.size
+    if z == 0:                                   # L = 0: max(prior 0, eps)
+        for j in range(L):
+            vals[j] = eps
+    elif z == 1:                                 # L = 1: max(prior, eps)
+        if mode == 1:                            # (the floor's branch out of the loop)
+            for j in range(L):
+                vals[j] = max(_floored(x[j], 1, c, eps, k), eps)
+        else:
+            for j in range(L):
+                vals[j] = max(_floored(x[j], mode, c, eps, k), eps)
+    elif mode == 1:
+        for j in range(L):
+            lik = _trapezoid(dx2 + dy2[j], m, t, s)
+            vals[j] = max(_floored(x[j], 1, c, eps, k) * lik, eps)
+    else:
+        for j in range(L):
+            lik = _trapezoid(dx2 + dy2[j], m, t, s)
+            vals[j] = max(_floored(x[j], mode, c, eps, k) * lik, eps)
+
+
 @njit(parallel=True, cache=True, fastmath=_FM)
-def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc):
-    """:func:`_trapezoid_rows` reading the block layout: the ``LANES`` rows of a block are
-    the SIMD lanes (row sums in the same order, cell by cell along the row)."""
+def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, zones, eps, out, rows, fmode, fc):
+    """The unnormalised posterior ``max(prior L, eps)`` of each cell from the block layout
+    (the ``LANES`` rows of a block are the SIMD lanes), written in the grid's layout, with
+    its row sums (cell by cell along each row). Each block column is classed by its cells'
+    squared distances (:func:`_zone`): likelihood 0 and 1 need no square root."""
     B, h, w = out.shape
-    nb = blk.shape[1]
+    nb, L = blk.shape[1], blk.shape[3]
     k = h * w
     for job in prange(B * nb):
         b = job // nb
@@ -501,25 +625,32 @@ def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, eps, out, rows, fmode, fc)
         px, py = pos[b, 0], pos[b, 1]
         m, t, s = mu[b], tau[b], sig[b]
         mode, c = fmode[b], fc[b]
-        dy2 = np.empty(LANES)
-        for j in range(LANES):
-            dy = ys[min(r0 + j, h - 1)] - py
-            dy2[j] = dy * dy
-        acc = np.zeros(LANES)
-        vals = np.empty(LANES)
+        zin, olo, ohi, zout = zones[b, 0], zones[b, 1], zones[b, 2], zones[b, 3]
+        dy2 = np.empty(L)
+        ylo, yhi = _block_rows(ys, py, r0, h, dy2)
+        acc = np.zeros(L)
+        tile = np.empty((4, L))
         src = blk[b, q]
-        ob = out[b]
-        for col in range(w):
-            dx = xs[col] - px
-            dx2 = dx * dx
-            x = src[col]
-            for j in range(LANES):
-                lik = _trapezoid(dx2 + dy2[j], m, t, s)
-                v = max(_floored(x[j], mode, c, eps, k) * lik, eps)
-                vals[j] = v
-                acc[j] += v
-            for j in range(nl):
-                ob[r0 + j, col] = vals[j]
+        ob = out[b, r0:r0 + nl]
+        whole = nl == LANES
+        for c0 in range(0, w, 4):
+            nc = min(4, w - c0)
+            for i in range(nc):
+                col = c0 + i
+                dx = xs[col] - px
+                dx2 = dx * dx
+                z = _zone(dx2 + ylo, dx2 + yhi, zin, olo, ohi, zout)
+                vals = tile[i]
+                _block_column(src[col], vals, z, dx2, dy2, m, t, s, mode, c, eps, k)
+                for j in range(L):
+                    acc[j] += vals[j]
+            if whole and nc == 4:
+                for j in range(0, LANES, 4):
+                    _transpose4(tile, 0, j, ob, j, c0)
+            else:
+                for i in range(nc):
+                    for j in range(nl):
+                        ob[j, c0 + i] = tile[i, j]
         for j in range(nl):
             rows[b, r0 + j] = acc[j]
 
@@ -615,12 +746,13 @@ def trapezoid_update_blocks(blk: np.ndarray, shape: tuple[int, int, int], x: np.
     ndarray, shape (B, h, w)
         Posterior grids ``max(p L, eps) / sum`` (float64).
     """
+    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    x, y, xy, mu, tau, sigma = f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma)
+    zones = _zones(mu, tau, sigma)
+    mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
     out = np.empty(shape)
     rows = np.empty(shape[:2])
-    f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
-    _trapezoid_blocks(blk, f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma),
-                      float(epsilon), out, rows, mode, c)
+    _trapezoid_blocks(blk, x, y, xy, mu, tau, sigma, zones, float(epsilon), out, rows, mode, c)
     _scale_rows(out, rows.sum(axis=1))
     return out
 
