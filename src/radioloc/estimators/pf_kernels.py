@@ -84,6 +84,8 @@ _MANT = (1 << 52) - 1
 _ONE_BITS = 1023 << 52
 _TINY = 1e-150        # below: evaluate the link in the log domain
 _SUM_OK = 1e-200      # a detection sum above this is resolved in the linear domain
+_U_SKIP = 8.5        # u = z - lam s at or above this: the NLOS term needs no erfcx
+_ROWS = 8            # scratch rows of a chunk before the link posteriors
 
 
 @intrinsic
@@ -240,27 +242,50 @@ def _gauss_link(buf, m, nx, ny, th, inv_s):
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
-def _mixture_link(buf, m, nx, ny, th, s, lam, ls2, half_c, big_d1, c11, c10, c01, c00):
-    """LOS/NLOS link of every particle of a chunk, vectorised over the particles: prior
-    ``pi_1 = c11 q + c10 (1 - q)``, ``pi_0 = c01 q + c00 (1 - q)`` from the carried
-    posterior in row 6; new posterior into row 6 (-1 where ``tot <= 1e-150``: log domain),
-    ``E_0``, ``E_1`` terms into rows 4, 5, running product rows 2, 3. Returns the number of
-    log-domain particles."""
-    nbad = 0
+def _residuals(buf, m, nx, ny, th, s, ls2):
+    """Range residual ``e`` into row 4, ``z = e / s`` into row 5 and the ``erfcx``
+    argument ``|u| / sqrt 2`` into row 6 of every particle of a chunk. Returns how many
+    particles have ``u = z - lam s < 8.5`` (the ones whose NLOS term needs ``erfcx``)."""
+    need = 0
     for i in range(m):
         dx = buf[0, i] - nx
         dy = buf[1, i] - ny
         e = th - math.sqrt(dx * dx + dy * dy)
         z = e / s
-        q = buf[6, i]
+        u = z - ls2
+        buf[4, i] = e
+        buf[5, i] = z
+        buf[6, i] = abs(u) * _SQRT1_2
+        need += 1 if u < _U_SKIP else 0
+    return need
+
+
+@njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
+def _erfcx_row(buf, m):
+    """``erfcx`` of row 6 in place (a loop of its own: a short body that the core overlaps)."""
+    for i in range(m):
+        buf[6, i] = verfcx(buf[6, i])
+
+
+@njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
+def _mixture_link(buf, m, r, lam, ls2, hc, big_d1, c11, c10, c01, c00):
+    """LOS/NLOS link of every particle of a chunk, vectorised over the particles, from the
+    residuals of :func:`_residuals` (rows 4, 5) and ``erfcx`` values (row 6; ``hc = 0``
+    where none is needed): prior ``pi_1 = c11 q + c10 (1 - q)``, ``pi_0 = c01 q + c00 (1 -
+    q)`` from the carried posterior in row ``r``; new posterior into row ``r`` (-1 where
+    ``tot <= 1e-150``: log domain), ``E_0``, ``E_1`` terms into rows 4, 5, running product
+    rows 2, 3. Returns the number of log-domain particles."""
+    nbad = 0
+    for i in range(m):
+        e = buf[4, i]
+        z = buf[5, i]
+        q = buf[r, i]
         pi1 = q * c11 + (1.0 - q) * c10
         pi0 = q * c01 + (1.0 - q) * c00
-        h = -0.5 * z * z
-        e1 = vexp(h)
-        u = z - ls2
-        g = half_c * verfcx(abs(u) * _SQRT1_2) * e1
+        e1 = vexp(-0.5 * z * z)
+        g = hc * buf[6, i] * e1
         e0 = vexp(min(-lam * e, 0.0))
-        a0 = pi0 * (g if u < 0.0 else e0 - g)
+        a0 = pi0 * (g if z - ls2 < 0.0 else e0 - g)
         a1 = pi1 * big_d1 * e1
         tot = a0 + a1
         ok = tot > _TINY
@@ -270,7 +295,7 @@ def _mixture_link(buf, m, nx, ny, th, s, lam, ls2, half_c, big_d1, c11, c10, c01
         # conversion in AVX2)
         buf[3, i] += _i64_as_f64((bits >> 52) | _TWO52_BITS) - (_TWO52 + 1023.0)
         buf[2, i] = _i64_as_f64((bits & _MANT) | _ONE_BITS)
-        buf[6, i] = a1 / tot if ok else -1.0
+        buf[r, i] = a1 / tot if ok else -1.0
         buf[4, i] = a0 if ok else 0.0
         buf[5, i] = a1 if ok else 0.0
         nbad += 0 if ok else 1
@@ -371,15 +396,23 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
         i1 = min(nk, i0 + chunk)
         m = i1 - i0
         # scratch rows: 0 x, 1 y, 2 running product, 3 its binary exponent, 4 / 5 the
-        # link's E_0 / E_1 terms, 6 LOS posterior (carried in, new out; -1 marks a
-        # log-domain link), 7 log-domain sum. One array, so the vector loops below need
-        # no runtime alias checks.
-        buf = np.zeros((8, m))
+        # link's residual e / z, then its E_0 / E_1 terms, 6 erfcx, 7 log-domain sum,
+        # _ROWS + j the LOS posterior of link slot j (carried in, new out; -1 marks a
+        # log-domain link). One array, so the vector loops below need no runtime alias
+        # checks; the posteriors are transposed in and out once per chunk, so every loop
+        # over the particles of a link reads and writes contiguous memory.
+        buf = np.zeros((_ROWS + nl, m))
         for i in range(m):
             buf[0, i] = particles[b, i0 + i, 0]
             buf[1, i] = particles[b, i0 + i, 1]
             buf[2, i] = 1.0
         gs = gauss[b]
+        if not gs:
+            for i in range(m):
+                ip = (i0 + i) * qs
+                for j in range(nl):
+                    jp = where_prev[b, j]
+                    buf[_ROWS + j, i] = prev_q[b, ip, jp] if jp >= 0 else 1.0
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
@@ -391,10 +424,10 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             part_s[b, c, j, 1] = 0.0
             part_l[b, c, j, 0] = -np.inf
             part_l[b, c, j, 1] = -np.inf
+            r = _ROWS + j
             if not valid[b, j]:
-                if not gs:
-                    for i in range(i0, i1):
-                        q_new[b, i, j] = 0.0
+                for i in range(m):
+                    buf[r, i] = 0.0
                 continue
             nvalid += 1
             nx = node_xy[b, j, 0]
@@ -406,20 +439,20 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                 part_l[b, c, j, 1] = 0.0
             else:
                 if jp >= 0:
-                    for i in range(m):
-                        buf[6, i] = prev_q[b, (i0 + i) * qs, jp]
                     c11, c10, c01, c00 = t11, t01, t10, t00
                 else:
-                    for i in range(m):
-                        buf[6, i] = 1.0
                     c11, c10, c01, c00 = a, 0.0, 1.0 - a, 0.0
-                nbad = _mixture_link(buf, m, nx, ny, th, s, lam, ls2, half_c, big_d1,
-                                     c11, c10, c01, c00)
+                # erfcx only for a link with a particle at u < 8.5 (see _residuals)
+                hc = 0.0
+                if _residuals(buf, m, nx, ny, th, s, ls2) > 0:
+                    _erfcx_row(buf, m)
+                    hc = half_c
+                nbad = _mixture_link(buf, m, r, lam, ls2, hc, big_d1, c11, c10, c01, c00)
                 part_s[b, c, j, 0] = _vsum(buf[4], m)
                 part_s[b, c, j, 1] = _vsum(buf[5], m)
                 if nbad > 0:                                # log domain
                     for i in range(m):
-                        if buf[6, i] >= 0.0:
+                        if buf[r, i] >= 0.0:
                             continue
                         dx = buf[0, i] - nx
                         dy = buf[1, i] - ny
@@ -437,21 +470,23 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                         A0 = l0 + math.log(pi0) if pi0 > 0.0 else -np.inf
                         A1 = l1 + math.log(pi1) if pi1 > 0.0 else -np.inf
                         lse = _logaddexp(A0, A1)
-                        buf[6, i] = math.exp(A1 - lse)
+                        buf[r, i] = math.exp(A1 - lse)
                         buf[7, i] += lse
                         part_l[b, c, j, 0] = _logaddexp(part_l[b, c, j, 0], A0 + ce)
                         part_l[b, c, j, 1] = _logaddexp(part_l[b, c, j, 1], A1 + ce)
-                for i in range(m):
-                    q_new[b, i0 + i, j] = buf[6, i]
             if em:
                 for i in range(m):
-                    qn = 1.0 if gs else q_new[b, i0 + i, j]
+                    qn = 1.0 if gs else buf[r, i]
                     dx = buf[0, i] - nx
                     dy = buf[1, i] - ny
                     e = th - math.sqrt(dx * dx + dy * dy)
                     em_pp[b, i0 + i, 0] += qn
                     em_pp[b, i0 + i, 1] += qn * e * e
                     em_pp[b, i0 + i, 2] += (1.0 - qn) * e
+        if not gs:
+            for i in range(m):
+                for j in range(nl):
+                    q_new[b, i0 + i, j] = buf[_ROWS + j, i]
         if gs:
             for i in range(m):
                 log_w[b, i0 + i] = nvalid * cg + buf[7, i]
