@@ -245,8 +245,10 @@ def _gauss_link(buf, m, nx, ny, th, inv_s):
 def _residuals(buf, m, nx, ny, th, s, ls2):
     """Range residual ``e`` into row 4, ``z = e / s`` into row 5 and the ``erfcx``
     argument ``|u| / sqrt 2`` into row 6 of every particle of a chunk. Returns how many
-    particles have ``u = z - lam s < 8.5`` (the ones whose NLOS term needs ``erfcx``)."""
+    particles have ``u = z - lam s < 8.5`` (the ones whose NLOS term needs ``erfcx``) and
+    how many have ``-z^2 / 2 >= -745.2`` (the ones whose ``E_1`` is not exactly 0)."""
     need = 0
+    los = 0
     for i in range(m):
         dx = buf[0, i] - nx
         dy = buf[1, i] - ny
@@ -257,7 +259,8 @@ def _residuals(buf, m, nx, ny, th, s, ls2):
         buf[5, i] = z
         buf[6, i] = abs(u) * _SQRT1_2
         need += 1 if u < _U_SKIP else 0
-    return need
+        los += 1 if -0.5 * z * z >= _EXP_LO else 0
+    return need, los
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
@@ -298,6 +301,29 @@ def _mixture_link(buf, m, r, lam, ls2, hc, big_d1, c11, c10, c01, c00):
         buf[r, i] = a1 / tot if ok else -1.0
         buf[4, i] = a0 if ok else 0.0
         buf[5, i] = a1 if ok else 0.0
+        nbad += 0 if ok else 1
+    return nbad
+
+
+@njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
+def _nlos_link(buf, m, r, lam, c01, c00):
+    """:func:`_mixture_link` of a link where every particle has ``E_1 = 0`` exactly
+    (``-z^2 / 2 < -745.2``: ``vexp`` returns 0) and ``u >= 8.5`` (``E_0 = exp(-lam e)``):
+    the same values with ``a1 = 0``, so no ``E_1`` exponential and no division."""
+    nbad = 0
+    for i in range(m):
+        e = buf[4, i]
+        q = buf[r, i]
+        pi0 = q * c01 + (1.0 - q) * c00
+        a0 = pi0 * vexp(min(-lam * e, 0.0))
+        ok = a0 > _TINY
+        f = buf[2, i] * (a0 if ok else 1.0)
+        bits = _f64_as_i64(f)
+        buf[3, i] += _i64_as_f64((bits >> 52) | _TWO52_BITS) - (_TWO52 + 1023.0)
+        buf[2, i] = _i64_as_f64((bits & _MANT) | _ONE_BITS)
+        buf[r, i] = 0.0 if ok else -1.0
+        buf[4, i] = a0 if ok else 0.0
+        buf[5, i] = 0.0
         nbad += 0 if ok else 1
     return nbad
 
@@ -408,11 +434,23 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             buf[2, i] = 1.0
         gs = gauss[b]
         if not gs:
-            for i in range(m):
-                ip = (i0 + i) * qs
-                for j in range(nl):
-                    jp = where_prev[b, j]
-                    buf[_ROWS + j, i] = prev_q[b, ip, jp] if jp >= 0 else 1.0
+            # carried posteriors of the links that existed at t - 1, in tiles of 8
+            # particles (their rows of prev_q stay in the L1 cache)
+            rows = np.empty(nl, dtype=np.int64)
+            cols = np.empty(nl, dtype=np.int64)
+            n_old = 0
+            for j in range(nl):
+                if valid[b, j] and where_prev[b, j] >= 0:
+                    rows[n_old] = _ROWS + j
+                    cols[n_old] = where_prev[b, j]
+                    n_old += 1
+            for t0 in range(0, m, 8):
+                t1 = min(m, t0 + 8)
+                for t in range(n_old):
+                    r = rows[t]
+                    jp = cols[t]
+                    for i in range(t0, t1):
+                        buf[r, i] = prev_q[b, (i0 + i) * qs, jp]
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
@@ -442,12 +480,19 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     c11, c10, c01, c00 = t11, t01, t10, t00
                 else:
                     c11, c10, c01, c00 = a, 0.0, 1.0 - a, 0.0
+                    for i in range(m):
+                        buf[r, i] = 1.0
                 # erfcx only for a link with a particle at u < 8.5 (see _residuals)
-                hc = 0.0
-                if _residuals(buf, m, nx, ny, th, s, ls2) > 0:
-                    _erfcx_row(buf, m)
-                    hc = half_c
-                nbad = _mixture_link(buf, m, r, lam, ls2, hc, big_d1, c11, c10, c01, c00)
+                need, los = _residuals(buf, m, nx, ny, th, s, ls2)
+                if need == 0 and los == 0:
+                    nbad = _nlos_link(buf, m, r, lam, c01, c00)
+                else:
+                    hc = 0.0
+                    if need > 0:
+                        _erfcx_row(buf, m)
+                        hc = half_c
+                    nbad = _mixture_link(buf, m, r, lam, ls2, hc, big_d1, c11, c10, c01,
+                                         c00)
                 part_s[b, c, j, 0] = _vsum(buf[4], m)
                 part_s[b, c, j, 1] = _vsum(buf[5], m)
                 if nbad > 0:                                # log domain
