@@ -427,11 +427,13 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
         # log-domain link). One array, so the vector loops below need no runtime alias
         # checks; the posteriors are transposed in and out once per chunk, so every loop
         # over the particles of a link reads and writes contiguous memory.
-        buf = np.zeros((_ROWS + nl, m))
+        buf = np.empty((_ROWS + nl, m))
         for i in range(m):
             buf[0, i] = particles[b, i0 + i, 0]
             buf[1, i] = particles[b, i0 + i, 1]
             buf[2, i] = 1.0
+            buf[3, i] = 0.0
+            buf[7, i] = 0.0
         gs = gauss[b]
         if not gs:
             # carried posteriors of the links that existed at t - 1, in tiles of 8
@@ -529,9 +531,11 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     em_pp[b, i0 + i, 1] += qn * e * e
                     em_pp[b, i0 + i, 2] += (1.0 - qn) * e
         if not gs:
-            for i in range(m):
-                for j in range(nl):
-                    q_new[b, i0 + i, j] = buf[_ROWS + j, i]
+            for t0 in range(0, m, 8):
+                t1 = min(m, t0 + 8)
+                for i in range(t0, t1):
+                    for j in range(nl):
+                        q_new[b, i0 + i, j] = buf[_ROWS + j, i]
         if gs:
             for i in range(m):
                 log_w[b, i0 + i] = nvalid * cg + buf[7, i]
