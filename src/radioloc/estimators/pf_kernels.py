@@ -465,8 +465,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             buf[7, i] = 0.0
         gs = gauss[b]
         if not gs:
-            # carried posteriors of the links that existed at t - 1, in tiles of 8
-            # particles (their rows of prev_q stay in the L1 cache)
+            # carried posteriors of the links that existed at t - 1, in tiles of 4
+            # particles (four loads, then four stores: their rows of prev_q stay in the L1
+            # cache)
             rows = np.empty(nl, dtype=np.int64)
             cols = np.empty(nl, dtype=np.int64)
             n_old = 0
@@ -475,13 +476,23 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     rows[n_old] = _ROWS + j
                     cols[n_old] = where_prev[b, j]
                     n_old += 1
-            for t0 in range(0, m, 8):
-                t1 = min(m, t0 + 8)
+            m4 = m - m % 4
+            for t0 in range(0, m4, 4):
+                p0 = (i0 + t0) * qs
                 for t in range(n_old):
                     r = rows[t]
                     jp = cols[t]
-                    for i in range(t0, t1):
-                        buf[r, i] = prev_q[b, (i0 + i) * qs, jp]
+                    v0 = prev_q[b, p0, jp]
+                    v1 = prev_q[b, p0 + qs, jp]
+                    v2 = prev_q[b, p0 + 2 * qs, jp]
+                    v3 = prev_q[b, p0 + 3 * qs, jp]
+                    buf[r, t0] = v0
+                    buf[r, t0 + 1] = v1
+                    buf[r, t0 + 2] = v2
+                    buf[r, t0 + 3] = v3
+            for t in range(n_old):
+                for i in range(m4, m):
+                    buf[rows[t], i] = prev_q[b, (i0 + i) * qs, cols[t]]
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
