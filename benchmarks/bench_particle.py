@@ -221,7 +221,7 @@ def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[d
                       "particle-link updates/s", "per-vehicle/per-link NumPy loop", rate_slow),
                  **work),
             dict(_row("P2P particle-link update kernel (link_weights)", kernel_rate,
-                      "particle-link updates per CPU-s"), **work)]
+                      "particle-link updates/CPU-s"), **work)]
 
 
 def _threads() -> int:
