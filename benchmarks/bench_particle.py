@@ -93,6 +93,49 @@ def _row(workload, rate, unit, peer=None, peer_rate=None):
             "ratio": None if peer_rate is None else float(rate / peer_rate)}
 
 
+# floating-point operations of one particle-link update as pf_kernels.link_weights
+# implements it (integer and bit operations, compares and loads not counted): the residual
+# pass (distance, e, z, u, the erfcx argument, -z^2 / 2: 12), the two sums of the link's
+# terms (2); erfcx where a particle of the link has u < 8.5 (Chebyshev series of 24 terms
+# by Clenshaw's recurrence plus the change of variable: 81); then either the full loop (two
+# exponentials of 42 each with their arguments, priors, terms, product and exponent,
+# posterior division: 107) or, where every particle has E_1 = 0, the NLOS-only loop (one
+# exponential, prior, product: 52)
+LINK_FLOPS = {"residual": 12, "sums": 2, "erfcx": 81, "full": 107, "nlos": 52}
+
+
+def link_work(particles, node_xy, th, valid, los_std, nlos_mean):
+    """Flops and least memory traffic (bytes) of one particle-link update on these inputs.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (..., K, 2+)
+    node_xy : ndarray, shape (..., L, 2)
+    th : ndarray, shape (..., L)
+    valid : ndarray of bool, shape (..., L)
+    los_std, nlos_mean : float
+
+    Returns
+    -------
+    flops : float
+        Mean over the particle-link updates, with each link's class (erfcx or not, full
+        or NLOS-only loop) decided by the kernel's rule (every chunk is one filter here).
+    bytes : float
+        The carried and the new LOS posterior (16 bytes) plus the particle's position
+        read and its log weight written once per step, shared by its links.
+    """
+    e = th[..., None, :] - np.linalg.norm(particles[..., :, None, :2] - node_xy[..., None, :, :],
+                                          axis=-1)                        # (..., K, L)
+    z = e / los_std
+    need = np.any(z - los_std / nlos_mean < 8.5, axis=-2)[valid]            # per link
+    los = np.any(-0.5 * z * z >= -745.2, axis=-2)[valid]
+    f = LINK_FLOPS
+    per_link = (f["residual"] + f["sums"] + need * f["erfcx"]
+                + np.where(need | los, f["full"], f["nlos"]))
+    links_per_filter = valid.sum(-1).mean()
+    return float(per_link.mean()), 16.0 + 24.0 / float(links_per_filter)
+
+
 def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[dict]:
     """The P2P filter step and its link kernel on highway data.
 
@@ -170,10 +213,15 @@ def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[d
     print(f"batched P2PParticleFilter.step ({runs} runs x {steps} steps): {rate_fast / 1e6:8.2f} M particle-link updates/s")
     print(f"per-vehicle/per-link loop (1 run x {loop_steps} steps): {rate_slow / 1e6:8.2f} M particle-link updates/s")
     print(f"link kernel alone: {kernel_rate / 1e6:8.2f} M particle-link updates per CPU second")
-    return [_row("P2P particle filter step, highway N=20 M=26 K=900", rate_fast,
-                 "particle-link updates/s", "per-vehicle/per-link NumPy loop", rate_slow),
-            _row("P2P particle-link update kernel (link_weights)", kernel_rate,
-                 "particle-link updates per CPU-s")]
+    flops, nbytes = link_work(st.particles, node_xy, th, valid, 0.05, 5.0)
+    print(f"link update work on these inputs: {flops:.0f} flops, {nbytes:.1f} bytes per update")
+    work = {"flops_per_unit": flops, "bytes_per_unit": nbytes}
+    # the step row counts the link update's work only (a lower bound of the step's)
+    return [dict(_row("P2P particle filter step, highway N=20 M=26 K=900", rate_fast,
+                      "particle-link updates/s", "per-vehicle/per-link NumPy loop", rate_slow),
+                 **work),
+            dict(_row("P2P particle-link update kernel (link_weights)", kernel_rate,
+                      "particle-link updates/CPU-s"), **work)]
 
 
 def _threads() -> int:
