@@ -11,7 +11,8 @@ Rows (returned by :func:`main`):
 * range-only bootstrap PF, 4 anchors, 2-D random walk, N = 10^5 particles, systematic
   resampling at every step (particle-steps/s): ``P2PParticleFilter(RandomWalk(q),
   LosNlosRange(s, 1, alpha=1))`` with anchors only (alpha = 1: every link LOS, so the
-  likelihood is the Gaussian range likelihood; the link kernel takes its Gaussian case) against Stone Soup's ``ParticlePredictor`` /
+  likelihood is the Gaussian range likelihood; the filter takes its fused bootstrap step,
+  ``pf_bootstrap.bootstrap_step``) against Stone Soup's ``ParticlePredictor`` /
   ``ParticleUpdater`` + ``SystematicResampler`` and against ``particles`` (Chopin)
   ``SMC(Bootstrap)`` with ``ESSrmin=1`` (resampling at every step), same model and N.
 
@@ -305,6 +306,33 @@ def particles_bootstrap(n, steps, q, sigma, x, y):
     return n * steps / dt, float(np.linalg.norm(np.array(est) - x[1:steps + 1], axis=-1).mean())
 
 
+#: Least memory traffic of one bootstrap particle-step: read the particle (16 bytes), write the
+#: resampled particle (16) and its ancestor index (8).
+BOOTSTRAP_BYTES = 40.0
+
+
+def bootstrap_flops(links: int = 4) -> float:
+    """Floating-point operations of one particle-step of the fused bootstrap kernel as
+    implemented (``pf_bootstrap.bootstrap_step``).
+
+    Box-Muller pair 81 (own logarithm 30, square root, the quarter-turn reduction, sine and
+    cosine polynomials of 8 terms each, signs, scaling), motion 6, 11 per link (difference,
+    squared distance, square root, scaled residual, square and sum), weight 39 (shift and
+    ``vexp``), moment sums 18, resampling 9 (cumulative weight, the count estimate, two
+    comparisons, the position).
+
+    Parameters
+    ----------
+    links : int
+        Links (anchors) per particle.
+
+    Returns
+    -------
+    float
+    """
+    return 153.0 + 11.0 * links
+
+
 def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int = 5) -> list[dict]:
     """The range-only bootstrap PF (4 anchors, 2-D random walk) against Stone Soup and
     ``particles``.
@@ -335,8 +363,10 @@ def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int = 5) -> li
             continue
         print(f"  {name}: {rate / 1e6:.3f} M particle-steps/s (mean error {perr:.2f} m), "
               f"ratio {ours / rate:.1f}x")
-        rows.append(_row("range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5", ours,
-                         "particle-steps/s", name, rate))
+        row = _row("range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5", ours,
+                   "particle-steps/s", name, rate)
+        row.update(bytes_per_unit=BOOTSTRAP_BYTES, flops_per_unit=bootstrap_flops(4))
+        rows.append(row)
     return rows
 
 

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from radioloc.estimators.pf_kernels import _gauss_link, _moment_sums, vexp
+from radioloc.estimators.pf_kernels import _gauss_link, vexp
 from radioloc.estimators.pf_random import pairs_into
 
 __all__ = ["bootstrap_step"]
@@ -68,13 +68,39 @@ def _count_below_table(cdf, u, nk, pos, f0, f1):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
-def _weigh_chunk(v, pred, b, i0, i1, mx, sums):
-    """``v = exp(v - mx)`` over particles ``i0..i1`` of filter ``b`` and their moment sums
-    (:func:`radioloc.estimators.pf_kernels._moment_sums`; sums reassociated, so that they
-    vectorise: the chunks are fixed, so the result does not depend on the threads)."""
-    for i in range(i0, i1):
-        v[b, i] = vexp(v[b, i] - mx)
-    _moment_sums(v, pred, b, i0, i1, sums)
+def _buf_moments(buf, m, rx, ry, sums):
+    """``sums = (sum v, sum v^2, sum v dx, sum v dy, sum v dx^2, sum v dy dx, sum v dy^2)``
+    over the ``m`` particles of a chunk (rows 0, 1 of ``buf`` the position, row 7 ``v``),
+    ``dx``, ``dy`` relative to ``(rx, ry)`` (so that the covariance does not lose the digits
+    of a large position). Sums reassociated, so that they vectorise (the chunks are fixed:
+    the result does not depend on the threads); a function of its own because ``vexp`` must
+    not be reassociated (its rounding to an integer, ``(x + 1.5 2^52) - 1.5 2^52``, would
+    fold away)."""
+    s0 = 0.0
+    sq = 0.0
+    sx = 0.0
+    sy = 0.0
+    sxx = 0.0
+    syx = 0.0
+    syy = 0.0
+    for i in range(m):
+        w = buf[7, i]
+        dx = buf[0, i] - rx
+        dy = buf[1, i] - ry
+        s0 += w
+        sq += w * w
+        sx += w * dx
+        sy += w * dy
+        sxx += w * dx * dx
+        syx += w * dy * dx
+        syy += w * dy * dy
+    sums[0] = s0
+    sums[1] = sq
+    sums[2] = sx
+    sums[3] = sy
+    sums[4] = sxx
+    sums[5] = syx
+    sums[6] = syy
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
@@ -130,7 +156,8 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
     sx, sy = sd[0], sd[1]
     cmax = np.empty((nb, nc))
     sums = np.empty((nb, nc, 7))
-    # pass 1: draw, move, Gaussian log-likelihood
+    # pass 1: draw, move, Gaussian log-likelihood, weights relative to the chunk's largest,
+    # the chunk's moment sums
     for task in prange(nb * nc):
         b = task // nc
         c = task - b * nc
@@ -150,45 +177,49 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
                 _gauss_link(buf, m, node_xy[b, j, 0], node_xy[b, j, 1], theta[b, j], inv_s[b])
         mx = -np.inf
         for i in range(m):
+            mx = max(mx, buf[7, i])
+        for i in range(m):
+            buf[7, i] = vexp(buf[7, i] - mx)
+        cmax[b, c] = mx
+        for i in range(m):
             pred[b, i0 + i, 0] = buf[0, i]
             pred[b, i0 + i, 1] = buf[1, i]
             v[b, i0 + i] = buf[7, i]
-            mx = max(mx, buf[7, i])
-        cmax[b, c] = mx
-    # pass 2: unnormalised weights and the chunk's moment sums
-    for task in prange(nb * nc):
-        b = task // nc
-        c = task - b * nc
-        mx = cmax[b, 0]
-        for cc in range(1, nc):
-            mx = max(mx, cmax[b, cc])
-        i0 = c * chunk
-        _weigh_chunk(v, pred, b, i0, min(nk, i0 + chunk), mx, sums[b, c])
-    # moments; where each ancestor chunk's part of the cumulative weight starts; the first
-    # new particle of each chunk
+        # relative to the filter's first particle moved without noise (known to every task)
+        _buf_moments(buf, m, particles[b, 0, 0] + ux, particles[b, 0, 1] + uy, sums[b, c])
+    # moments; the weight factor of each chunk; where each ancestor chunk's part of the
+    # cumulative weight starts; the first new particle of each chunk
     start = np.empty((nb, nc + 1))
     first = np.empty((nb, nc + 1), dtype=np.int64)
-    inv_tot = np.empty(nb)
+    factor = np.empty((nb, nc))
     for b in range(nb):
+        mx = cmax[b, 0]
+        for c in range(1, nc):
+            mx = max(mx, cmax[b, c])
         tot = np.zeros(7)
         for c in range(nc):
-            for t in range(7):
-                tot[t] += sums[b, c, t]
+            e = math.exp(cmax[b, c] - mx)       # chunk c's weights are v e
+            factor[b, c] = e
+            tot[0] += sums[b, c, 0] * e
+            tot[1] += sums[b, c, 1] * (e * e)
+            for t in range(2, 7):
+                tot[t] += sums[b, c, t] * e
         inv = 1.0 / tot[0]
-        inv_tot[b] = inv
         ess[b] = tot[0] * tot[0] / tot[1]
         mdx = tot[2] * inv
         mdy = tot[3] * inv
-        mean[b, 0] = pred[b, 0, 0] + mdx
-        mean[b, 1] = pred[b, 0, 1] + mdy
+        mean[b, 0] = (particles[b, 0, 0] + shift[b, 0]) + mdx
+        mean[b, 1] = (particles[b, 0, 1] + shift[b, 1]) + mdy
         cov[b, 0, 0] = tot[4] * inv - mdx * mdx
         cxy = tot[5] * inv - mdy * mdx
         cov[b, 0, 1] = cxy
         cov[b, 1, 0] = cxy
         cov[b, 1, 1] = tot[6] * inv - mdy * mdy
+        for c in range(nc):
+            factor[b, c] *= inv                 # normalised weight = v factor
         start[b, 0] = 0.0
         for c in range(nc):
-            start[b, c + 1] = start[b, c] + sums[b, c, 0] * inv
+            start[b, c + 1] = start[b, c] + sums[b, c, 0] * factor[b, c]
         first[b, 0] = 0
         for c in range(1, nc):
             first[b, c] = min(_count_below(start[b, c], u[b], nk), nk)
@@ -219,12 +250,12 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
             jf += 1.0
         for s in range(f0 + c, f1 + c + 1):
             mark[b, s] = -1
-        inv = inv_tot[b]
+        f = factor[b, c]
         cdf = start[b, c]
         prev = f0
         cnt = 0
         for i in range(i0, i1 - 1):
-            cdf += v[b, i] * inv
+            cdf += v[b, i] * f
             n_i = max(_count_below_table(cdf, ub, nk, pos, f0, f1), prev)
             mark[b, prev + c] = i
             cnt += n_i > prev
