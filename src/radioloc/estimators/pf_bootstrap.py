@@ -226,10 +226,9 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         first[b, nc] = nk
         for c in range(1, nc):                  # monotone whatever the rounding
             first[b, c] = max(first[b, c], first[b, c - 1])
-    # pass 3: systematic resampling and the gather, per ancestor chunk. Slot s of `mark`
-    # (offset by c so that the tasks' ranges [first_c + c, first_{c+1} + c] are disjoint)
-    # gets the last ancestor i with N_{i-1} = s: the one whose offspring start at s.
-    mark = np.empty((nb, nk + nc), dtype=np.int64)
+    # pass 3: systematic resampling and the gather, per ancestor chunk. Slot s of idx (in
+    # the task's own range [first_c, first_{c+1})) first gets the last ancestor i with
+    # N_{i-1} = s, the one whose offspring start at s; a running maximum fills the rest.
     counts = np.zeros((nb, nc), dtype=np.int64)
     for task in prange(nb * nc):
         b = task // nc
@@ -248,8 +247,7 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         for j in range(f0, f1):
             pos[j] = (ub + jf) / nk
             jf += 1.0
-        for s in range(f0 + c, f1 + c + 1):
-            mark[b, s] = -1
+            idx[b, j] = -1
         f = factor[b, c]
         cdf = start[b, c]
         prev = f0
@@ -257,15 +255,17 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         for i in range(i0, i1 - 1):
             cdf += v[b, i] * f
             n_i = max(_count_below_table(cdf, ub, nk, pos, f0, f1), prev)
-            mark[b, prev + c] = i
+            if prev < f1:                       # false only for empty ancestors at the end
+                idx[b, prev] = i
             cnt += n_i > prev
             prev = n_i
-        mark[b, prev + c] = i1 - 1              # the last ancestor takes the rest
-        cnt += f1 > prev
+        if prev < f1:                           # the last ancestor takes the rest
+            idx[b, prev] = i1 - 1
+            cnt += 1
         counts[b, c] = cnt
         a = -1
         for j in range(f0, f1):
-            a = max(a, mark[b, j + c])
+            a = max(a, idx[b, j])
             idx[b, j] = a
             out_particles[b, j, 0] = pred[b, a, 0]
             out_particles[b, j, 1] = pred[b, a, 1]
