@@ -520,7 +520,13 @@ class P2PParticleFilter(RecursiveEstimator):
         posterior.
     kernel : {"numba", "numpy"}
         Fused compiled particle-link update, or the same maths as array expressions (the
-        reference the kernel is tested against).
+        reference the kernel is tested against). In the plain bootstrap case (systematic
+        resampling, no online EM, a random-walk or input-driven motion of 2-D positions,
+        alpha = 1 with every carried LOS posterior 1) the compiled step is one kernel
+        (:func:`radioloc.estimators.pf_bootstrap.bootstrap_step`) whose motion noise comes
+        from the counter-based generator of :mod:`radioloc.estimators.pf_random` keyed by
+        ``rng`` (other values than ``rng.standard_normal``, the same distribution);
+        ``"numpy"`` draws the same values there.
     messages : {"previous", "extrapolated", "given"}
         How vehicle ``k`` places neighbour ``m`` at step ``t`` in :meth:`run`:
         ``"previous"`` its estimate of step ``t - 1`` (the paper, Fig. 3);

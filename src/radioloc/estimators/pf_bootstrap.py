@@ -5,23 +5,25 @@ for the filters whose range model is Gaussian (LOS fraction alpha = 1 and every 
 posterior 1: the "Gaussian case" of :func:`radioloc.estimators.pf_kernels.link_weights`)
 under a motion model ``x' = x + u + diag(sd) z`` (random walk, or the input-driven model;
 2-D position states) with systematic resampling: the plain range-only bootstrap particle
-filter. Three parallel passes over (filter, chunk of particles) tasks touch each particle
-instead of the seven of the general path:
+filter. Two parallel passes over (filter, chunk of particles) tasks touch each particle
+instead of the seven of the general path (draws, motion, link weights, weights and
+moments, resampling indices, gather):
 
 1. the motion noise ``z`` is drawn in the pass (:func:`radioloc.estimators.pf_random.
    pairs_into`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
    d`` of the step's key for coordinate ``d`` of particle ``i`` of filter ``b``: the draws
    of ``pf_random.standard_normal(shape=(B, K, 2))`` with the same key), the particle moved
    and its Gaussian range log-likelihood summed over the links
-   (:func:`radioloc.estimators.pf_kernels._gauss_link`);
-2. ``v = exp(log w - max)`` and the chunk's sums for the weights' total, the ESS, the mean
-   and the covariance (:func:`radioloc.estimators.pf_kernels._moment_sums`);
-3. systematic resampling (line 12) and the gather: per ancestor chunk, where its part of the
-   cumulative weight starts (from the chunk totals of pass 2), the number ``N_i`` of new
-   positions ``(U + j) / K`` below each cumulative weight ``c_i`` (the new particles
-   ``N_{i-1} .. N_i - 1`` descend from ``i``; a running maximum over the slots ``N_{i-1}``
-   marked with ``i`` assigns them without a data-dependent branch), then the copy of the
-   ancestors.
+   (:func:`radioloc.estimators.pf_kernels._gauss_link`); then ``v = exp(log w - m_c)``
+   relative to the chunk's largest log-likelihood ``m_c`` and the chunk's sums for the
+   total, the ESS, the mean and the covariance (relative to the filter's first particle
+   moved without noise). The chunks' factors ``exp(m_c - max) / total`` make the weights;
+2. systematic resampling (line 12) and the gather: per ancestor chunk, where its part of the
+   cumulative weight starts (from the chunk totals), the number ``N_i`` of new positions
+   ``(U + j) / K`` below each cumulative weight ``c_i`` (the new particles ``N_{i-1} ..
+   N_i - 1`` descend from ``i``; ancestor ``i`` is written at slot ``N_{i-1}`` and a
+   running maximum fills the other slots, without a data-dependent branch), then the copy
+   of the ancestors.
 
 The plain NumPy form of the same maths is ``P2PParticleFilter(kernel="numpy")`` with the
 same draws (:func:`radioloc.estimators.pf_random.standard_normal_numpy`); the tests compare
