@@ -180,3 +180,34 @@ def test_carried_non_los_posterior_leaves_the_bootstrap_case():
     import dataclasses
     mixed = dataclasses.replace(state, link_los=q)
     assert pf._bootstrap_noise(mixed, params, valid, slots, 1.0) is None
+
+
+def test_position_counts_at_ties_and_neighbours():
+    """The count of positions (u + j) / K below a cumulative weight, at the positions
+    themselves and one ulp either side (where the estimate ceil(K c - u) rounds the wrong
+    way), equals the definition (searchsorted on the positions)."""
+    from numba import njit
+
+    @njit
+    def counts(cdf, u, nk, pos, f0, f1):
+        out = np.empty((2, cdf.size), dtype=np.int64)
+        for i in range(cdf.size):
+            out[0, i] = min(max(bs._count_below(cdf[i], u, nk), f0), f1)
+            out[1, i] = max(bs._count_below_table(cdf[i], u, nk, pos, f0, f1), f0)
+        return out
+
+    rng = np.random.default_rng(17)
+    wrong = 0
+    for nk in (7, 1000, 99_991):
+        for u in (0.0, rng.random(), 1 - 2.0 ** -53):
+            pos = (u + np.arange(nk)) / nk
+            f0, f1 = nk // 3, nk - nk // 5
+            at = pos[f0:f1]
+            cdf = np.concatenate([at, np.nextafter(at, 2.0), np.nextafter(at, -1.0)])
+            cdf = cdf[cdf >= pos[f0 - 1]] if f0 else cdf
+            ref = np.clip(np.searchsorted(pos, cdf, side="left"), f0, f1)
+            got = counts(cdf, u, nk, pos, f0, f1)
+            np.testing.assert_array_equal(got[0], ref)
+            np.testing.assert_array_equal(got[1], ref)
+            wrong += np.sum(np.ceil(cdf * nk - u).astype(np.int64) != ref)
+    assert wrong > 0            # the corrections were needed somewhere
