@@ -45,8 +45,10 @@ from radioloc.core.links import gather_packed, pack_mask, scatter_packed
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
                                       check_probability)
+from radioloc.estimators import pf_bootstrap as _bs
 from radioloc.estimators import pf_kernels as _k
 from radioloc.estimators.base import RecursiveEstimator
+from radioloc.estimators.pf_random import draw_key, standard_normal_numpy
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf
 from radioloc.models.motion import InputDriven, MotionModel
@@ -404,6 +406,53 @@ def _sample_motion(motion, particles, dt, rng, control):
     return mean + np.einsum("...ij,...j->...i", factor, z)
 
 
+def _walk_noise(motion, n, dt):
+    """``sd`` (n,) when ``motion`` moves a state by ``x + u + diag(sd) z`` with ``z`` standard
+    normal and one ``sd`` for every filter (the input-driven model; a linear-Gaussian model
+    with ``F = I`` and a diagonal factor of ``Q``, the random walk), else None. The factor is
+    the one :func:`_sample_motion` uses, so both draw the same values from the same ``z``."""
+    if isinstance(motion, InputDriven) and n == motion.dim:
+        std = np.asarray(motion.std_m, dtype=float)
+        return np.full(n, float(std)) if std.ndim == 0 else None
+    if type(motion).sample is not MotionModel.sample:
+        return None
+    F = np.asarray(motion.F(dt))
+    if F.shape != (n, n) or not np.array_equal(F, np.eye(n)):
+        return None
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    if factor.shape != (n, n) or not np.array_equal(factor, np.diag(np.diagonal(factor))):
+        return None
+    return np.diagonal(factor).copy()
+
+
+def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng):
+    """The fused bootstrap step (:func:`radioloc.estimators.pf_bootstrap.bootstrap_step`):
+    resampled particles, ancestors, mean, covariance, ESS and distinct ancestors. Its motion
+    draws are ``pf_random.standard_normal(shape=particles.shape, key=key)``; the resampling
+    uniform is ``rng.random(batch + (1,))``, the draw of ``resampling.systematic``."""
+    batch, k = particles.shape[:-2], particles.shape[-2]
+    b = int(np.prod(batch, dtype=int))
+    width = node_xy.shape[-2]
+    u01 = rng.random(batch + (1,))
+    shift = np.zeros((b, 2)) if control is None else \
+        np.ascontiguousarray(np.broadcast_to(control, batch + (1, 2)).reshape(b, 2))
+    out = np.empty((b, k, 2))
+    idx = np.empty((b, k), dtype=np.int64)
+    mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
+    distinct = np.empty(b, dtype=np.int64)
+    _bs.bootstrap_step(np.ascontiguousarray(particles.reshape(b, k, 2)), shift,
+                       np.ascontiguousarray(sd, dtype=float), key,
+                       np.ascontiguousarray(node_xy.reshape(b, width, 2)),
+                       np.ascontiguousarray(th.reshape(b, width)),
+                       np.ascontiguousarray(valid.reshape(b, width)),
+                       np.ascontiguousarray(1.0 / params[..., 0].reshape(b)),
+                       u01.reshape(b), CHUNK, out, idx, mean, cov, ess, distinct,
+                       np.empty((b, k, 2)), np.empty((b, k)))
+    return (out.reshape(batch + (k, 2)), idx.reshape(batch + (k,)), mean.reshape(batch + (2,)),
+            cov.reshape(batch + (2, 2)), ess.reshape(batch), distinct.reshape(batch))
+
+
 def _gather(particles, q, idx, kernel):
     """Resampled particles and link posteriors, and the number of distinct ancestors."""
     if kernel == "numpy":
@@ -471,7 +520,13 @@ class P2PParticleFilter(RecursiveEstimator):
         posterior.
     kernel : {"numba", "numpy"}
         Fused compiled particle-link update, or the same maths as array expressions (the
-        reference the kernel is tested against).
+        reference the kernel is tested against). In the plain bootstrap case (systematic
+        resampling, no online EM, a random-walk or input-driven motion of 2-D positions,
+        alpha = 1 with every carried LOS posterior 1) the compiled step is one kernel
+        (:func:`radioloc.estimators.pf_bootstrap.bootstrap_step`) whose motion noise comes
+        from the counter-based generator of :mod:`radioloc.estimators.pf_random` keyed by
+        ``rng`` (other values than ``rng.standard_normal``, the same distribution);
+        ``"numpy"`` draws the same values there.
     messages : {"previous", "extrapolated", "given"}
         How vehicle ``k`` places neighbour ``m`` at step ``t`` in :meth:`run`:
         ``"previous"`` its estimate of step ``t - 1`` (the paper, Fig. 3);
@@ -537,6 +592,7 @@ class P2PParticleFilter(RecursiveEstimator):
         self.online_em = online_em or None
         self._init_std = std
         self._input_driven = type(motion).__name__ == "InputDriven"
+        self._walk_sd = {}          # dt -> the bootstrap case's noise std (see _walk_noise)
 
     # ---- contract -------------------------------------------------------------------
     def init(self, initial, rng: np.random.Generator, time: float | np.ndarray = 0.0
@@ -640,44 +696,65 @@ class P2PParticleFilter(RecursiveEstimator):
             raise InputError("control: the input-driven motion model needs the displacement "
                              "reading of every step")
 
-        # line 3: propagate every particle through the motion model
-        particles = _sample_motion(self.motion, state.particles, dt, rng, u)
-
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)
         th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
         where_prev = _previous_slots(state.links, links, mask.shape[-1])
         params = self._params(state)
         em = self.online_em is not None
-        # lines 6, 8, 11: link posteriors and weights
-        log_w, q, post, em_pp, gauss = _link_update(particles, node_xy, th, valid, where_prev,
-                                                    state.link_los, params, self.kernel, em)
-        # line 14: weighted mean; weighted covariance and effective sample size
-        w, mean, cov, ess = _moments(log_w, particles, self.kernel)
+        sd = self._bootstrap_noise(state, params, valid, where_prev, dt)
+        if sd is not None and self.kernel == "numba":
+            # the bootstrap case: lines 3, 11, 14 and 12 in one compiled kernel
+            particles, idx, mean, cov, ess, distinct = _bootstrap_step(
+                state.particles, u, sd, draw_key(rng), node_xy, th, valid, params, rng)
+            # every link LOS with probability 1 (see _link_update's Gaussian case)
+            q = np.broadcast_to(valid[..., None, :].astype(float), batch + (k, valid.shape[-1]))
+            post = None
+            los_detected = mask.copy()
+            w = em_pp = None
+        else:
+            # line 3: propagate every particle through the motion model
+            if sd is not None:              # the bootstrap case's draws (see _bootstrap_step)
+                z = standard_normal_numpy(rng, state.particles.shape)
+                z *= sd
+                z += state.particles if u is None else state.particles + u
+                particles = z
+            else:
+                particles = _sample_motion(self.motion, state.particles, dt, rng, u)
+            # lines 6, 8, 11: link posteriors and weights
+            log_w, q, post, em_pp, gauss = _link_update(particles, node_xy, th, valid,
+                                                        where_prev, state.link_los, params,
+                                                        self.kernel, em)
+            # line 14: weighted mean; weighted covariance and effective sample size
+            w, mean, cov, ess = _moments(log_w, particles, self.kernel)
 
-        # line 12: resample; detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0); carry the
-        # normalised link posterior of each surviving particle
-        if self.resampling == "systematic" and self.kernel == "numba":
-            u01 = rng.random(batch + (1,))          # the draw of resampling.systematic
-            idx = np.empty(w.shape, dtype=np.int64)
-            _k.systematic_indices(w.reshape(-1, k), u01.reshape(-1),
-                                  idx.reshape(-1, k), CHUNK)
-        else:
-            idx = get_scheme(self.resampling)(w, rng)                         # (..., N, K)
-        los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
-                                      mask.shape[-1]) & mask
-        if q.strides[-2] == 0:                  # shared by every particle (Gaussian case)
-            particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel)
-        else:
-            particles, q, distinct = _gather(particles, q, idx, self.kernel)
+            # line 12: resample; carry the normalised link posterior of each surviving
+            # particle
+            if self.resampling == "systematic" and self.kernel == "numba":
+                u01 = rng.random(batch + (1,))          # the draw of resampling.systematic
+                idx = np.empty(w.shape, dtype=np.int64)
+                _k.systematic_indices(w.reshape(-1, k), u01.reshape(-1),
+                                      idx.reshape(-1, k), CHUNK)
+            else:
+                idx = get_scheme(self.resampling)(w, rng)                     # (..., N, K)
+            if q.strides[-2] == 0:                  # shared by every particle (Gaussian case)
+                particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel)
+            else:
+                particles, q, distinct = _gather(particles, q, idx, self.kernel)
+            # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0)
+            los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
+                                          mask.shape[-1]) & mask
 
         # reset on degeneracy: few distinct ancestors
         reset = distinct < self.reset_fraction * k
         if np.any(reset):
             particles[reset, :, :D] = mean[reset][:, None, :D] + self.reset_std_m * \
                 rng.standard_normal((int(reset.sum()), k, D))
-            with np.errstate(invalid="ignore"):
-                mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
+            if post is None:                    # the bootstrap case: every link LOS
+                mean_post = valid.astype(float)
+            else:
+                with np.errstate(invalid="ignore"):
+                    mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
             if not q.flags.writeable:
                 q = q.copy()
             q[reset] = np.where(valid, np.nan_to_num(mean_post), 0.0)[reset][:, None, :]
@@ -690,6 +767,38 @@ class P2PParticleFilter(RecursiveEstimator):
                              resets=state.resets + reset, time=state.time + dt,
                              ancestors=idx, params=params, em_stats=em_stats,
                              em_steps=em_steps)
+
+    def _bootstrap_noise(self, state, params, valid, where_prev, dt):
+        """Per-coordinate noise std ``sd`` (2,) when this step is the plain bootstrap filter,
+        else None: systematic resampling, no online EM, 2-D position states moved by ``x +
+        u + diag(sd) z`` (:func:`_walk_noise`), and every filter in the Gaussian case (alpha
+        = 1 and every carried LOS posterior of a current link 1, as ``link_weights`` tests
+        it)."""
+        if self.resampling != "systematic" or self.online_em is not None:
+            return None
+        if state.particles.shape[-1] != 2 or not np.all(params[..., 2] == 1.0):
+            return None
+        if np.ndim(dt) == 0:                    # sd depends on the motion model and dt only
+            key = float(dt)
+            if key not in self._walk_sd:
+                if len(self._walk_sd) > 64:
+                    self._walk_sd.clear()
+                self._walk_sd[key] = _walk_noise(self.motion, 2, dt)
+            sd = self._walk_sd[key]
+        else:
+            sd = _walk_noise(self.motion, 2, dt)
+        if sd is None:
+            return None
+        q = state.link_los
+        if q.shape[-1] and valid.shape[-1]:
+            if q.strides[-2] == 0:                      # one row shared by every particle
+                q = q[..., :1, :]
+            carried = np.broadcast_to((valid & (where_prev >= 0))[..., None, :],
+                                      q.shape[:-1] + valid.shape[-1:])
+            slot = np.broadcast_to(np.maximum(where_prev, 0)[..., None, :], carried.shape)
+            if not np.all(np.take_along_axis(q, slot, axis=-1)[carried] == 1.0):
+                return None
+        return sd
 
     def _params(self, state: ParticleState) -> np.ndarray:
         """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
