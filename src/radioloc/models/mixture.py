@@ -788,38 +788,55 @@ def _logdet(t, d, c):  # pragma: no cover - compiled
     return acc
 
 
+@njit(cache=True)
+def _set_logdet(t, d, c):  # pragma: no cover - compiled
+    """Rows ``LD`` (:func:`_logdet`), ``AB`` (the weight times its magnitude) and ``IV``
+    (the inverse of the product of the variances) of column ``c`` of the scratch ``t``."""
+    ld = _logdet(t, d, c)
+    p = 1.0
+    for e in range(d):
+        p *= t[1 + d + e, c]
+    t[2 * d + 1, c] = ld
+    t[2 * d + 2, c] = t[0, c] * abs(ld)
+    t[2 * d + 3, c] = 1.0 / p
+
+
 @njit(cache=True, error_model="numpy")
-def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
+def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
     """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
-    and 2 and the tie set); returns ``(j, cost, scale)``. Uses the scratch rows of ``t``
-    from the bound to the tie set."""
+    and 2 and the tie set); returns ``(j, cost, scale)``. ``amax``: the largest
+    ``w |log|P||`` of the columns. Uses the scratch rows of ``t`` from the bound to the
+    tie set."""
     LD = 2 * d + 1
-    AB = LD + 1
-    LB = LD + 2
-    CO = LD + 3
-    SC = LD + 4
-    TS = LD + 5
+    IV = LD + 2
+    LB = LD + 3
+    CO = LD + 4
+    SC = LD + 5
+    TS = LD + 6
     wi = t[0, i]
     ldi = t[LD, i]
-    # pass 1: the bounds
-    amax = 0.0
+    ali = abs(ldi)
+    # pass 1: the bounds (branch-free, vectorisable); the exact product of the merged
+    # variances is kept in row CO for pass 2
     if d == 2:
         mi0 = t[1, i]
         mi1 = t[2, i]
         vi0 = t[3, i]
         vi1 = t[4, i]
-        wiinv = 1.0 / wi
         for c in range(cnt):
             wc = t[0, c]
-            rho = wc * wiinv
+            ws = wi + wc
+            inv = 1.0 / ws
+            a1 = wi * inv
+            a2 = wc * inv
+            a12 = a1 * a2
             dm0 = mi0 - t[1, c]
             dm1 = mi1 - t[2, c]
-            a0 = rho * dm0 * dm0
-            a1 = rho * dm1 * dm1
-            t0 = 2.0 * (1.0 + rho) * (vi0 + rho * t[3, c]) + a0
-            t1 = 2.0 * (1.0 + rho) * (vi1 + rho * t[4, c]) + a1
-            t[LB, c] = (wi + wc) * (a0 * t1 + a1 * t0) / (t0 * t1)
-            amax = max(amax, t[AB, c])
+            s0 = a1 * vi0 + a2 * t[3, c]
+            s1 = a1 * vi1 + a2 * t[4, c]
+            prod = (s0 + a12 * dm0 * dm0) * (s1 + a12 * dm1 * dm1)
+            t[CO, c] = prod
+            t[LB, c] = _cost_bound(prod, t[IV, c], t[LD, c], wi, wc, ws, ldi, ali)
     else:
         for c in range(cnt):
             wc = t[0, c]
@@ -827,22 +844,22 @@ def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
             inv = 1.0 / ws
             a1 = wi * inv
             a2 = wc * inv
-            lb = 0.0
+            a12 = a1 * a2
+            prod = 1.0
             for e in range(d):
                 dm = t[1 + e, i] - t[1 + e, c]
-                s = a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c]
-                q = a1 * a2 * dm * dm
-                lb += q / (2.0 * s + q)
-            t[LB, c] = ws * lb
-            amax = max(amax, t[AB, c])
+                prod *= a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c] + a12 * dm * dm
+            t[CO, c] = prod
+            t[LB, c] = _cost_bound(prod, t[IV, c], t[LD, c], wi, wc, ws, ldi, ali)
     t[LB, i] = np.inf
     c0 = 0
     for c in range(1, cnt):
         if t[LB, c] < t[LB, c0]:
             c0 = c
     # pass 2: exact costs where the bound allows a win or a tie
-    slack = 4.0 * (wi * abs(ldi) + amax)
+    slack = 4.0 * (wi * ali + amax)
     best = np.inf
+    ne = 0                               # the candidates with exact costs: row TS
     for step in range(cnt + 1):
         if step == 0:
             c = c0
@@ -850,39 +867,61 @@ def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
             c = step - 1
             if c == c0:
                 continue
-            if c == i or \
-                    t[LB, c] * (1.0 - 2.0 * tie) > best + tie * (2.0 * abs(best) + slack):
-                t[CO, c] = np.inf
-                t[SC, c] = 0.0
+            lb = t[LB, c]
+            if c == i or (lb > 0.0 and
+                          lb * (1.0 - 2.0 * tie) > best + tie * (2.0 * abs(best) + slack)):
                 continue
         wc = t[0, c]
         ws = wi + wc
-        inv = 1.0 / ws
-        a1 = wi * inv
-        a2 = wc * inv
-        a12 = a1 * a2
-        if d == 2:
-            dm0 = t[1, i] - t[1, c]
-            dm1 = t[2, i] - t[2, c]
-            s0 = a1 * t[3, i] + a2 * t[3, c]
-            s1 = a1 * t[4, i] + a2 * t[4, c]
-            prod = (s0 + a12 * dm0 * dm0) * (s1 + a12 * dm1 * dm1)
-        else:
-            prod = 1.0
-            for e in range(d):
-                dm = t[1 + e, i] - t[1 + e, c]
-                prod *= a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c] + a12 * dm * dm
-        ld = math.log(prod)
+        ld = math.log(t[CO, c])
         ldc = t[LD, c]
         cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
-        t[SC, c] = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
+        t[SC, c] = 0.5 * (ws * abs(ld) + wi * ali + wc * abs(ldc))
         t[CO, c] = cost
+        t[TS, ne] = c
+        ne += 1
         best = min(best, cost)
     # the tie set and the canonical choice in it
-    for c in range(cnt):
-        t[TS, c] = 0.0 if t[CO, c] <= best + 2.0 * tie * t[SC, c] else -1.0
-    j = _pick(t, d, cnt, TS)
+    j = -1
+    many = False
+    for q in range(ne):
+        c = np.int64(t[TS, q])
+        if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
+            if j < 0:
+                j = c
+            else:
+                many = True
+    if many:
+        for c in range(cnt):
+            t[LB, c] = -1.0
+        for q in range(ne):
+            c = np.int64(t[TS, q])
+            if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
+                t[LB, c] = 0.0
+        j = _pick(t, d, cnt, LB)
     return j, t[CO, j], t[SC, j]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cost_bound(prod, ivc, ldc, wi, wc, ws, ldi, ali):  # pragma: no cover - compiled
+    """A lower bound of Runnalls' cost ``0.5 (ws log(prod) - wi ldi - wc ldc)`` without a
+    logarithm: ``log(prod) = ldc + log(x)`` with ``x = prod / |P_c|`` (``ivc = 1 / |P_c|``,
+    ``ldc = log |P_c|``), and with ``z = (x - 1) / (x + 1)``,
+    ``log x = 2 (z + z^3 / 3 + z^5 / 5 + ...)`` (``atanh``): the first three terms bound it
+    from below for ``z >= 0``; for ``-0.61 <= z < 0`` the tail's magnitude is at most
+    ``2 |z|^7 / (7 (1 - z^2)) <= 0.46 |z|^7``. Below ``z = -0.61`` (``x < 0.243``; a merge
+    into a heavier component has ``x >= 1/4`` in 2-D) the bound is ``-inf``. The cost is
+    ``0.5 (wi (ldc - ldi) + ws log x)``; ``1e-14 ws (|ldc| + |log x| + |ldi| + 1)`` (about
+    45 ulps of the cost's terms, and 20 ulps of ``log x`` for the rounding of ``x``) is
+    subtracted for rounding (a NaN bound excludes nothing)."""
+    x = prod * ivc
+    z = (x - 1.0) / (x + 1.0)
+    z2 = z * z
+    zn = min(z, 0.0)
+    zn2 = zn * zn
+    lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * zn2 * zn2 * zn2
+    lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * ws * (abs(ldc) + abs(lx) + ali + 1.0)
+    return lb if z >= -0.61 else -np.inf
 
 
 @njit(cache=True, error_model="numpy")
@@ -890,69 +929,64 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
-    ``t`` (``2 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
+    ``t`` (``2 D + 11`` rows, at least ``n`` columns) holds one component per column: row 0
     the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
-    log-determinant, weight times its absolute value, the cost bound, the cost, the cost's
-    rounding scale, the tie set, the best cost, its scale and its partner per tied lowest weight). Returns the component count; the survivors are the first columns, in
-    no particular order (the rule never reads positions).
+    log-determinant, weight times its absolute value, the inverse of the product of the
+    variances, the cost bound, the cost, the cost's rounding scale, the tie set, the best
+    cost, its scale and its partner per tied lowest weight). Returns the component count;
+    the survivors are the first columns, in no particular order (the rule never reads
+    positions).
 
     - ``i``: the lowest weight. Weights ``w`` with ``w (1 - tie) <= w_min`` tie with it; of
       tied ones, the one whose best merge (below) is cheapest, cost ties by :func:`_pick`
       (equal weights are common: data points, the disk cells).
-    - Pass 1 computes, for every candidate ``c``, a logarithm-free lower bound of Runnalls'
-      cost (vectorisable, no branch): with ``s_e = a1 v_ie + a2 v_ce`` and
-      ``q_e = a1 a2 dm_e^2``, concavity of the logarithm gives
-      ``cost >= 0.5 ws sum_e log(1 + q_e / s_e) >= ws sum_e q_e / (2 s_e + q_e)``, which in
-      2-D is ``ws (A0 T1 + A1 T0) / (T0 T1)`` with ``r = wc / wi``, ``A_e = r dm_e^2`` and
-      ``T_e = 2 (1 + r) (v_ie + r v_ce) + A_e`` (one division; ``r >= 1 - tie``, so no
-      underflow; an overflow gives NaN, which skips nothing).
+    - Pass 1 computes, for every candidate ``c``, the product of the merged variances and
+      a logarithm-free lower bound of Runnalls' cost from it (:func:`_cost_bound`;
+      vectorised, no branch).
     - Pass 2 takes the exact cost (one logarithm) of the candidate with the lowest bound,
       then of every candidate whose bound does not exclude it from the tie set below.
     - ``j``: with ``best`` the lowest exact cost, the candidates with
       ``cost <= best + 2 tie scale`` (``scale``: the magnitude of the cancelling terms of
       the cost, its rounding scale) tie and :func:`_pick` chooses among them.
-      A candidate is skipped when ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
+      A candidate is skipped when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
       ``B`` bounding ``wi |log|P_i|| + wc |log|P_c||`` (then it cannot tie:
       ``scale <= |cost| + B``).
     - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
     """
-    d = (t.shape[0] - 10) // 2
+    d = (t.shape[0] - 11) // 2
     LD = 2 * d + 1
     AB = LD + 1
-    LB = LD + 2
-    CO = LD + 3
-    SC = LD + 4
-    TS = LD + 5
-    IC = LD + 6
-    IS = LD + 7
-    IJ = LD + 8
+    IV = LD + 2
+    TS = LD + 6
+    IC = LD + 7
+    IS = LD + 8
+    IJ = LD + 9
     for c in range(n):
-        ld = _logdet(t, d, c)
-        t[LD, c] = ld
-        t[AB, c] = t[0, c] * abs(ld)
+        _set_logdet(t, d, c)
     cnt = n
     while cnt > kmax:
-        wmin = t[0, 0]
-        for c in range(1, cnt):
-            wmin = min(wmin, t[0, c])
+        amax = 0.0
+        wmin = np.inf
         for c in range(cnt):
-            t[IC, c] = 0.0 if t[0, c] * (1.0 - tie) <= wmin else -1.0
+            amax = max(amax, t[AB, c])
+            wmin = min(wmin, t[0, c])
         first = -1
         many = False
         for c in range(cnt):
-            if t[IC, c] >= 0.0:
-                many = first >= 0
+            if t[0, c] * (1.0 - tie) <= wmin:
                 if first < 0:
                     first = c
+                else:
+                    many = True
         if not many:
             i = first
-            j, _, _ = _partner(t, d, cnt, i, tie)
+            j, _, _ = _partner(t, d, cnt, i, tie, amax)
         else:
             # tied lowest weights: the one with the cheapest merge, ties by _pick
             bi = np.inf
             for c in range(cnt):
-                if t[IC, c] >= 0.0:
-                    jj, co, sc = _partner(t, d, cnt, c, tie)
+                if t[0, c] * (1.0 - tie) <= wmin:
+                    jj, co, sc = _partner(t, d, cnt, c, tie, amax)
                     t[IC, c] = co
                     t[IS, c] = sc
                     t[IJ, c] = jj
@@ -978,12 +1012,10 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
             t[1 + e, j] = mm
             t[1 + d + e, j] = vv
         t[0, j] = ws
-        ld = _logdet(t, d, j)
-        t[LD, j] = ld
-        t[AB, j] = ws * abs(ld)
+        _set_logdet(t, d, j)
         cnt -= 1
         if i != cnt:
-            for r in range(AB + 1):
+            for r in range(IV + 1):
                 t[r, i] = t[r, cnt]
     return cnt
 
@@ -991,7 +1023,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
     """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
-    ``2 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
+    ``2 D + 11`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
     count. The output is in the canonical order of :func:`compact`: decreasing weight,
     equal weights by means, then variances (an insertion sort; the mixtures are small)."""
     d = m.shape[1]
@@ -1036,7 +1068,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        t = np.empty((2 * d + 10, k))
+        t = np.empty((2 * d + 11, k))
         cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
     return ow, om, ov, cnt
 
