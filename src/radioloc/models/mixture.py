@@ -519,10 +519,11 @@ def _canonical_first(mask: np.ndarray, w: np.ndarray, m: np.ndarray, v: np.ndarr
     return first
 
 
-def _partners(wr, mr, vr, ldr, act, i):
+def _partners(wr, mr, vr, ivr, ldr, act, i):
     """For each row, the partner ``j`` of component ``i`` under the rule of :func:`reduce`
     (lowest Runnalls cost, the tie rule of :func:`_canonical_first`) with the kernel's
-    arithmetic; returns ``(j, cost, scale)`` (``scale``: the cost's rounding scale)."""
+    arithmetic (:func:`_partner`); ``ivr = 1 / vr``; returns ``(j, cost, scale)``
+    (``scale``: the cost's rounding scale)."""
     n = np.arange(wr.shape[0])
     d = mr.shape[-1]
     wi, ldi = wr[n, i][:, None], ldr[n, i][:, None]
@@ -532,14 +533,14 @@ def _partners(wr, mr, vr, ldr, act, i):
         a1, a2 = wi * inv, wr * inv
         a12 = a1 * a2
         dm = mr[n, i][:, None, :] - mr
-        terms = a1[..., None] * vr[n, i][:, None, :] + a2[..., None] * vr \
-            + a12[..., None] * dm * dm
-        prod = terms[..., 0]
+        r = (a1[..., None] * (vr[n, i][:, None, :] - vr) + a12[..., None] * dm * dm) * ivr
+        y, ay = r[..., 0], np.abs(r[..., 0])
         for e in range(1, d):
-            prod = prod * terms[..., e]
-        lm = np.log(prod)
-        cost = 0.5 * (ws * lm - wi * ldi - wr * ldr)
-        scale = 0.5 * (ws * np.abs(lm) + wi * np.abs(ldi) + wr * np.abs(ldr))
+            y = y + r[..., e] + y * r[..., e]
+            ay = ay + np.abs(r[..., e]) + ay * np.abs(r[..., e])
+        lp = np.log1p(y)
+        cost = 0.5 * (wi * (ldr - ldi) + ws * lp)
+        scale = 0.5 * (wi * (np.abs(ldr) + np.abs(ldi)) + ws * ay + ws * np.abs(lp))
     cand = act.copy()
     cand[n, i] = False
     cost = np.where(cand, cost, np.inf)
@@ -577,6 +578,7 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
     m = mix.means.reshape(-1, k, d).astype(float)
     v = mix.variances.reshape(-1, k, d).astype(float)
     ld = _logdet_np(v)
+    iv = 1.0 / v
     rows = np.arange(w.shape[0])
     while True:
         active = w > 0
@@ -584,7 +586,10 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
         if r.size == 0:
             break
         n = np.arange(r.size)
-        wr, mr, vr, ldr, act = w[r], m[r], v[r], ld[r], active[r]
+        if r.size == w.shape[0]:         # every row still merges: views, no copies
+            wr, mr, vr, ivr, ldr, act = w, m, v, iv, ld, active
+        else:
+            wr, mr, vr, ivr, ldr, act = w[r], m[r], v[r], iv[r], ld[r], active[r]
         wmin = np.min(np.where(act, wr, np.inf), axis=-1, keepdims=True)
         tied = act & (wr * (1.0 - _TIE) <= wmin)
         i = np.argmax(tied, axis=-1)
@@ -595,15 +600,16 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
             nq = q.size
             rep = np.repeat(q, k)
             ii = np.tile(np.arange(k), nq)
-            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ldr[rep], act[rep], ii)
+            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ivr[rep], ldr[rep], act[rep], ii)
             co = np.where(tied[q].reshape(-1), co, np.inf).reshape(nq, k)
             sc = sc.reshape(nq, k)
             bi = np.min(co, axis=-1, keepdims=True)
             i[q] = _canonical_first(co <= bi + 2.0 * _TIE * sc, wr[q], mr[q], vr[q])
-        j, _, _ = _partners(wr, mr, vr, ldr, act, i)
+        j, _, _ = _partners(wr, mr, vr, ivr, ldr, act, i)
         wj, mj, vj = merge_moments(wr[n, i], mr[n, i], vr[n, i], wr[n, j], mr[n, j], vr[n, j])
         w[r, j], m[r, j], v[r, j] = wj, mj, vj
         ld[r, j] = _logdet_np(vj)
+        iv[r, j] = 1.0 / vj
         w[r, i] = 0.0
     out = compact(DiagMixture(w, m, v))
     kk = out.n_components
@@ -790,34 +796,36 @@ def _logdet(t, d, c):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _set_logdet(t, d, c):  # pragma: no cover - compiled
-    """Rows ``LD`` (:func:`_logdet`), ``AB`` (the weight times its magnitude) and ``IV``
-    (the inverse of the product of the variances) of column ``c`` of the scratch ``t``."""
-    ld = _logdet(t, d, c)
-    p = 1.0
+    """Rows ``2 D + 1 .. 3 D`` (the inverse variances) and ``3 D + 1`` (the
+    log-determinant, :func:`_logdet`) of column ``c`` of the scratch ``t``."""
     for e in range(d):
-        p *= t[1 + d + e, c]
-    t[2 * d + 1, c] = ld
-    t[2 * d + 2, c] = t[0, c] * abs(ld)
-    t[2 * d + 3, c] = 1.0 / p
+        t[2 * d + 1 + e, c] = 1.0 / t[1 + d + e, c]
+    t[3 * d + 1, c] = _logdet(t, d, c)
 
 
 @njit(cache=True, error_model="numpy")
-def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
+def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
     """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
-    and 2 and the tie set); returns ``(j, cost, scale)``. ``amax``: the largest
-    ``w |log|P||`` of the columns. Uses the scratch rows of ``t`` from the bound to the
-    tie set."""
-    LD = 2 * d + 1
-    IV = LD + 2
-    LB = LD + 3
-    CO = LD + 4
-    SC = LD + 5
-    TS = LD + 6
+    and 2 and the tie set); returns ``(j, cost, scale)``. Uses the scratch rows of ``t``
+    from the bound to the tie set.
+
+    Runnalls' cost of merging ``i`` into ``c`` is computed without cancellation as
+    ``0.5 (wi (log|P_c| - log|P_i|) + ws log1p(y))``, ``1 + y = |P_ic| / |P_c|`` the
+    product over the coordinates of ``1 + r_e``,
+    ``r_e = (a1 (v_ie - v_ce) + a1 a2 dm_e^2) / v_ce`` (``a1 = wi / ws``, ``a2 = wc / ws``);
+    its rounding scale is
+    ``0.5 (wi (|log|P_c|| + |log|P_i||) + ws (ay + |log1p(y)|))``, ``ay`` the same product
+    of ``1 + |r_e|`` minus one."""
+    IVB = 2 * d + 1
+    LD = 3 * d + 1
+    LB = LD + 1
+    CO = LD + 2
+    SC = LD + 3
+    TS = LD + 4
     wi = t[0, i]
     ldi = t[LD, i]
     ali = abs(ldi)
-    # pass 1: the bounds (branch-free, vectorisable); the exact product of the merged
-    # variances is kept in row CO for pass 2
+    # pass 1: y, the bound and the scale's part known before the logarithm (row SC)
     if d == 2:
         mi0 = t[1, i]
         mi1 = t[2, i]
@@ -832,11 +840,16 @@ def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
             a12 = a1 * a2
             dm0 = mi0 - t[1, c]
             dm1 = mi1 - t[2, c]
-            s0 = a1 * vi0 + a2 * t[3, c]
-            s1 = a1 * vi1 + a2 * t[4, c]
-            prod = (s0 + a12 * dm0 * dm0) * (s1 + a12 * dm1 * dm1)
-            t[CO, c] = prod
-            t[LB, c] = _cost_bound(prod, t[IV, c], t[LD, c], wi, wc, ws, ldi, ali)
+            r0 = (a1 * (vi0 - t[3, c]) + a12 * dm0 * dm0) * t[5, c]
+            r1 = (a1 * (vi1 - t[4, c]) + a12 * dm1 * dm1) * t[6, c]
+            y = r0 + r1 + r0 * r1
+            b0 = abs(r0)
+            b1 = abs(r1)
+            ay = b0 + b1 + b0 * b1
+            ldc = t[LD, c]
+            t[CO, c] = y
+            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
+            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
     else:
         for c in range(cnt):
             wc = t[0, c]
@@ -845,19 +858,27 @@ def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
             a1 = wi * inv
             a2 = wc * inv
             a12 = a1 * a2
-            prod = 1.0
+            y = 0.0
+            ay = 0.0
             for e in range(d):
                 dm = t[1 + e, i] - t[1 + e, c]
-                prod *= a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c] + a12 * dm * dm
-            t[CO, c] = prod
-            t[LB, c] = _cost_bound(prod, t[IV, c], t[LD, c], wi, wc, ws, ldi, ali)
+                r = (a1 * (t[1 + d + e, i] - t[1 + d + e, c]) + a12 * dm * dm) * t[IVB + e, c]
+                if e == 0:
+                    y = r
+                    ay = abs(r)
+                else:
+                    y = y + r + y * r
+                    ay = ay + abs(r) + ay * abs(r)
+            ldc = t[LD, c]
+            t[CO, c] = y
+            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
+            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
     t[LB, i] = np.inf
     c0 = 0
     for c in range(1, cnt):
         if t[LB, c] < t[LB, c0]:
             c0 = c
     # pass 2: exact costs where the bound allows a win or a tie
-    slack = 4.0 * (wi * ali + amax)
     best = np.inf
     ne = 0                               # the candidates with exact costs: row TS
     for step in range(cnt + 1):
@@ -868,15 +889,13 @@ def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
             if c == c0:
                 continue
             lb = t[LB, c]
-            if c == i or (lb > 0.0 and
-                          lb * (1.0 - 2.0 * tie) > best + tie * (2.0 * abs(best) + slack)):
+            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
+                          > best + tie * (2.0 * abs(best) + 4.0 * t[SC, c])):
                 continue
-        wc = t[0, c]
-        ws = wi + wc
-        ld = math.log(t[CO, c])
-        ldc = t[LD, c]
-        cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
-        t[SC, c] = 0.5 * (ws * abs(ld) + wi * ali + wc * abs(ldc))
+        ws = wi + t[0, c]
+        lp = math.log1p(t[CO, c])
+        cost = 0.5 * (wi * (t[LD, c] - ldi) + ws * lp)
+        t[SC, c] = 0.5 * (t[SC, c] + ws * abs(lp))
         t[CO, c] = cost
         t[TS, ne] = c
         ne += 1
@@ -903,24 +922,21 @@ def _partner(t, d, cnt, i, tie, amax):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _cost_bound(prod, ivc, ldc, wi, wc, ws, ldi, ali):  # pragma: no cover - compiled
-    """A lower bound of Runnalls' cost ``0.5 (ws log(prod) - wi ldi - wc ldc)`` without a
-    logarithm: ``log(prod) = ldc + log(x)`` with ``x = prod / |P_c|`` (``ivc = 1 / |P_c|``,
-    ``ldc = log |P_c|``), and with ``z = (x - 1) / (x + 1)``,
-    ``log x = 2 (z + z^3 / 3 + z^5 / 5 + ...)`` (``atanh``): the first three terms bound it
-    from below for ``z >= 0``; for ``-0.61 <= z < 0`` the tail's magnitude is at most
-    ``2 |z|^7 / (7 (1 - z^2)) <= 0.46 |z|^7``. Below ``z = -0.61`` (``x < 0.243``; a merge
-    into a heavier component has ``x >= 1/4`` in 2-D) the bound is ``-inf``. The cost is
-    ``0.5 (wi (ldc - ldi) + ws log x)``; ``1e-14 ws (|ldc| + |log x| + |ldi| + 1)`` (about
-    45 ulps of the cost's terms, and 20 ulps of ``log x`` for the rounding of ``x``) is
+def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
+    """A lower bound of Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))``
+    (:func:`_partner`) without a logarithm: with ``z = y / (y + 2)``,
+    ``log(1 + y) = 2 (z + z^3 / 3 + z^5 / 5 + ...)`` (``atanh``); the first three terms
+    bound it from below for ``z >= 0``; for ``-0.61 <= z < 0`` the tail's magnitude is at
+    most ``2 |z|^7 / (7 (1 - z^2)) <= 0.46 |z|^7``. Below ``z = -0.61`` (``y < -0.757``;
+    a merge into a heavier component has ``y >= -3/4`` in 2-D) the bound is ``-inf``.
+    ``1e-14 (wi (|ldc| + |ldi|) + ws |log(1 + y)|)`` (about 45 ulps of the cost's terms) is
     subtracted for rounding (a NaN bound excludes nothing)."""
-    x = prod * ivc
-    z = (x - 1.0) / (x + 1.0)
+    z = y / (y + 2.0)
     z2 = z * z
     zn = min(z, 0.0)
     zn2 = zn * zn
     lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * zn2 * zn2 * zn2
-    lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * ws * (abs(ldc) + abs(lx) + ali + 1.0)
+    lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * (wi * (abs(ldc) + ali) + ws * abs(lx))
     return lb if z >= -0.61 else -np.inf
 
 
@@ -929,7 +945,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
-    ``t`` (``2 D + 11`` rows, at least ``n`` columns) holds one component per column: row 0
+    ``t`` (``3 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
     the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
     log-determinant, weight times its absolute value, the inverse of the product of the
     variances, the cost bound, the cost, the cost's rounding scale, the tie set, the best
@@ -953,22 +969,18 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
       ``scale <= |cost| + B``).
     - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
     """
-    d = (t.shape[0] - 11) // 2
-    LD = 2 * d + 1
-    AB = LD + 1
-    IV = LD + 2
-    TS = LD + 6
-    IC = LD + 7
-    IS = LD + 8
-    IJ = LD + 9
+    d = (t.shape[0] - 10) // 3
+    LD = 3 * d + 1
+    TS = LD + 4
+    IC = LD + 5
+    IS = LD + 6
+    IJ = LD + 7
     for c in range(n):
         _set_logdet(t, d, c)
     cnt = n
     while cnt > kmax:
-        amax = 0.0
         wmin = np.inf
         for c in range(cnt):
-            amax = max(amax, t[AB, c])
             wmin = min(wmin, t[0, c])
         first = -1
         many = False
@@ -980,13 +992,13 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
                     many = True
         if not many:
             i = first
-            j, _, _ = _partner(t, d, cnt, i, tie, amax)
+            j, _, _ = _partner(t, d, cnt, i, tie)
         else:
             # tied lowest weights: the one with the cheapest merge, ties by _pick
             bi = np.inf
             for c in range(cnt):
                 if t[0, c] * (1.0 - tie) <= wmin:
-                    jj, co, sc = _partner(t, d, cnt, c, tie, amax)
+                    jj, co, sc = _partner(t, d, cnt, c, tie)
                     t[IC, c] = co
                     t[IS, c] = sc
                     t[IJ, c] = jj
@@ -1015,7 +1027,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
         _set_logdet(t, d, j)
         cnt -= 1
         if i != cnt:
-            for r in range(IV + 1):
+            for r in range(LD + 1):
                 t[r, i] = t[r, cnt]
     return cnt
 
@@ -1023,7 +1035,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
     """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
-    ``2 D + 11`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
+    ``3 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
     count. The output is in the canonical order of :func:`compact`: decreasing weight,
     equal weights by means, then variances (an insertion sort; the mixtures are small)."""
     d = m.shape[1]
@@ -1068,7 +1080,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        t = np.empty((2 * d + 11, k))
+        t = np.empty((3 * d + 10, k))
         cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
     return ow, om, ov, cnt
 
