@@ -932,8 +932,9 @@ def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
     ``1e-14 (wi (|ldc| + |ldi|) + ws |log(1 + y)|)`` (about 45 ulps of the cost's terms) is
     subtracted for rounding (a NaN bound excludes nothing)."""
     z = y / (y + 2.0)
-    z2 = z * z
-    zn = min(z, 0.0)
+    zc = z if abs(z) > 1e-100 else 0.0   # no subnormal powers (slow)
+    z2 = zc * zc
+    zn = min(zc, 0.0)
     zn2 = zn * zn
     lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * zn2 * zn2 * zn2
     lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * (wi * (abs(ldc) + ali) + ws * abs(lx))
