@@ -662,7 +662,10 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     mixture. One compiled kernel, the mixtures of the batch in parallel
     (:func:`_reduce_batch`).
 
-    Weights, and merge costs, that agree to a relative ``1e-9`` count as tied, and ties are
+    Weights that agree to a relative ``1e-9``, and merge costs that agree to ``1e-9`` of
+    their rounding scale (Runnalls' cost is computed without cancellation, see
+    :func:`_partner`, so the scale is about the cost's own size: a negligible component
+    goes to its cheapest partner), count as tied, and ties are
     broken by the components' contents, never their position (see :func:`reduce_reference`:
     of tied lowest weights the one with the cheapest best merge; of tied partners the one
     nearest the mixture mean, then counter-clockwise about it, then the lexicographic order
@@ -963,10 +966,10 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     - Pass 2 takes the exact cost (one logarithm) of the candidate with the lowest bound,
       then of every candidate whose bound does not exclude it from the tie set below.
     - ``j``: with ``best`` the lowest exact cost, the candidates with
-      ``cost <= best + 2 tie scale`` (``scale``: the magnitude of the cancelling terms of
-      the cost, its rounding scale) tie and :func:`_pick` chooses among them.
-      A candidate is skipped when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
-      ``B`` bounding ``wi |log|P_i|| + wc |log|P_c||`` (then it cannot tie:
+      ``cost <= best + 2 tie scale`` (``scale``: the cost's rounding scale,
+      :func:`_partner`) tie and :func:`_pick` chooses among them. A candidate is skipped
+      when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
+      ``B = wi (|log|P_c|| + |log|P_i||) + ws ay`` (then it cannot tie:
       ``scale <= |cost| + B``).
     - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
     """
@@ -980,17 +983,19 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
         _set_logdet(t, d, c)
     cnt = n
     while cnt > kmax:
+        # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
         wmin = np.inf
-        for c in range(cnt):
-            wmin = min(wmin, t[0, c])
+        w2 = np.inf
         first = -1
-        many = False
         for c in range(cnt):
-            if t[0, c] * (1.0 - tie) <= wmin:
-                if first < 0:
-                    first = c
-                else:
-                    many = True
+            wc = t[0, c]
+            if wc < wmin:
+                w2 = wmin
+                wmin = wc
+                first = c
+            elif wc < w2:
+                w2 = wc
+        many = w2 * (1.0 - tie) <= wmin
         if not many:
             i = first
             j, _, _ = _partner(t, d, cnt, i, tie)
