@@ -27,6 +27,7 @@ import numpy as np
 
 from radioloc.estimators.mixture_localization import MixtureLocalizer
 from radioloc.models.mixture import DiagMixture
+from bench_mixture import localization_flops
 from timing import best_of
 
 
@@ -64,12 +65,14 @@ def main(rows: int = 2000, seed: int = 0) -> list[dict]:
     t_ref = best_of(lambda: loc.density_reference(rss), repeat=1)
     out.append(_row("mixture localization, 6 stations x 16 components (eq. (2), kmax 8)",
                     t_ours, "same maths, NumPy operations per station", t_ref, rows))
+    out[-1]["flops_per_unit"] = localization_flops(6, 16, 8)
     cal_pos = rng.uniform(0, 20, (4104, 2))
     cal = rng.normal(0, 3, (4104, 6))
     knn = KNeighborsRegressor(n_neighbors=6, weights="distance").fit(cal, cal_pos)
     t_knn = best_of(lambda: knn.predict(rss))
     out.append(_row("mixture localization, 6 stations x 16 components (eq. (2), kmax 8)",
                     t_ours, "weighted kNN (scikit-learn, 4,104 fingerprints)", t_knn, rows))
+    out[-1]["flops_per_unit"] = localization_flops(6, 16, 8)
 
     root = Path(os.environ.get("RADIOLOC_DATA", "/work/shared/data")) / "ujiindoorloc"
     if (root / "trainingData.csv").is_file():

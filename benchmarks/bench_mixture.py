@@ -20,6 +20,48 @@ from radioloc.models.motion import UniformDisk
 from radioloc.models.progressive_bayes import progressive_reduce
 from timing import best_of
 
+#: floating-point operations per candidate partner of one West/Runnalls merge in 2-D: pass 1
+#: of ``models.mixture._partner`` (the ratio ``y`` 18, its magnitude and the scale's part 10,
+#: the logarithm-free bound 26); pass 2 adds about one ``log1p`` per merge, not counted
+FLOPS_PER_CANDIDATE = 54
+
+
+def reduction_flops(k: int, kmax: int) -> float:
+    """Pass-1 floating-point operations of one West/Runnalls reduction ``k -> kmax`` in 2-D.
+
+    Parameters
+    ----------
+    k, kmax : int
+        Components before and after (every merge at ``n`` components reads ``n``
+        candidates, ``n = k, k - 1, ..., kmax + 1``).
+
+    Returns
+    -------
+    float
+        ``FLOPS_PER_CANDIDATE * sum(n)`` (2044 candidates for 64 -> 8).
+    """
+    return float(FLOPS_PER_CANDIDATE * sum(range(kmax + 1, k + 1)))
+
+
+def localization_flops(stations: int = 6, k: int = 16, kmax: int = 8) -> float:
+    """Floating-point operations of one row of eq. (2) in 2-D: per station the conditioning
+    (about 12 per component) and its reduction ``k -> kmax``; per product after the first
+    the ``kmax^2`` pairs (about 27 each) and their reduction ``kmax^2 -> kmax``.
+
+    Parameters
+    ----------
+    stations, k, kmax : int
+        Stations received, components per station model, the bound.
+
+    Returns
+    -------
+    float
+        Operations per row (about 5.9e5 for 6 x 16 -> 8).
+    """
+    pairs = kmax * min(k, kmax)
+    return stations * (12.0 * k + reduction_flops(k, kmax)) \
+        + (stations - 1) * (27.0 * pairs + reduction_flops(pairs, kmax))
+
 
 def main(batch: int = 500, seed: int = 0) -> list[dict]:
     """Time the reductions and the localizer and print the throughputs.
@@ -48,10 +90,12 @@ def main(batch: int = 500, seed: int = 0) -> list[dict]:
     c_numpy = best_of(lambda: reduce_reference(prod, 8), repeat=2, clock=time.process_time)
     print(f"mixture reduction per CPU second: kernel {b / c_kernel:,.0f}, NumPy "
           f"{b / c_numpy:,.0f} mixtures/s, ratio {c_numpy / c_kernel:.2f}x")
+    flops = reduction_flops(64, 8)
     rows = [{"workload": "mixture reduction 64 -> 8 (West/Runnalls, 2-D)",
              "throughput": b / t_kernel, "unit": "mixtures/s",
              "peer": "NumPy (same greedy rule, vectorised over the batch)",
-             "peer_throughput": b / t_numpy, "ratio": t_numpy / t_kernel}]
+             "peer_throughput": b / t_numpy, "ratio": t_numpy / t_kernel,
+             "flops_per_unit": flops}]
     # without exact ties (a product of two different mixtures): the reference's tie handling,
     # which evaluates every tied row, does not inflate the ratio here
     a2 = DiagMixture.create(rng.uniform(0.1, 1, (b, k)), rng.normal(0, 3, (b, k, d)),
@@ -62,7 +106,12 @@ def main(batch: int = 500, seed: int = 0) -> list[dict]:
     rows.append({"workload": "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties",
                  "throughput": b / t_kernel2, "unit": "mixtures/s",
                  "peer": "NumPy (same greedy rule, vectorised over the batch)",
-                 "peer_throughput": b / t_numpy2, "ratio": t_numpy2 / t_kernel2})
+                 "peer_throughput": b / t_numpy2, "ratio": t_numpy2 / t_kernel2,
+                 "flops_per_unit": flops})
+    c_kernel2 = best_of(lambda: reduce(prod2, 8), repeat=5, clock=time.process_time)
+    c_numpy2 = best_of(lambda: reduce_reference(prod2, 8), repeat=2, clock=time.process_time)
+    print(f"mixture reduction, no exact ties, per CPU second: kernel {b / c_kernel2:,.0f}, "
+          f"NumPy {b / c_numpy2:,.0f} mixtures/s, ratio {c_numpy2 / c_kernel2:.2f}x")
     nb = max(1, b // 10)
     sub = prod[:nb]
     progressive_reduce(sub[:2], 8)                         # compile

@@ -825,7 +825,7 @@ def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover 
         xw = np.empty(big)
         xm = np.empty((big, d))
         xv = np.empty((big, d))
-        t = np.empty((2 * d + 10, big))
+        t = np.empty((3 * d + 10, big))
         pn = 0
         have = False
         started = False

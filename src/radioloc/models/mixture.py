@@ -519,10 +519,11 @@ def _canonical_first(mask: np.ndarray, w: np.ndarray, m: np.ndarray, v: np.ndarr
     return first
 
 
-def _partners(wr, mr, vr, ldr, act, i):
+def _partners(wr, mr, vr, ivr, ldr, act, i):
     """For each row, the partner ``j`` of component ``i`` under the rule of :func:`reduce`
     (lowest Runnalls cost, the tie rule of :func:`_canonical_first`) with the kernel's
-    arithmetic; returns ``(j, cost, scale)`` (``scale``: the cost's rounding scale)."""
+    arithmetic (:func:`_partner`); ``ivr = 1 / vr``; returns ``(j, cost, scale)``
+    (``scale``: the cost's rounding scale)."""
     n = np.arange(wr.shape[0])
     d = mr.shape[-1]
     wi, ldi = wr[n, i][:, None], ldr[n, i][:, None]
@@ -532,14 +533,14 @@ def _partners(wr, mr, vr, ldr, act, i):
         a1, a2 = wi * inv, wr * inv
         a12 = a1 * a2
         dm = mr[n, i][:, None, :] - mr
-        terms = a1[..., None] * vr[n, i][:, None, :] + a2[..., None] * vr \
-            + a12[..., None] * dm * dm
-        prod = terms[..., 0]
+        r = (a1[..., None] * (vr[n, i][:, None, :] - vr) + a12[..., None] * dm * dm) * ivr
+        y, ay = r[..., 0], np.abs(r[..., 0])
         for e in range(1, d):
-            prod = prod * terms[..., e]
-        lm = np.log(prod)
-        cost = 0.5 * (ws * lm - wi * ldi - wr * ldr)
-        scale = 0.5 * (ws * np.abs(lm) + wi * np.abs(ldi) + wr * np.abs(ldr))
+            y = y + r[..., e] + y * r[..., e]
+            ay = ay + np.abs(r[..., e]) + ay * np.abs(r[..., e])
+        lp = np.log1p(y)
+        cost = 0.5 * (wi * (ldr - ldi) + ws * lp)
+        scale = 0.5 * (wi * (np.abs(ldr) + np.abs(ldi)) + ws * ay + ws * np.abs(lp))
     cand = act.copy()
     cand[n, i] = False
     cost = np.where(cand, cost, np.inf)
@@ -577,6 +578,7 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
     m = mix.means.reshape(-1, k, d).astype(float)
     v = mix.variances.reshape(-1, k, d).astype(float)
     ld = _logdet_np(v)
+    iv = 1.0 / v
     rows = np.arange(w.shape[0])
     while True:
         active = w > 0
@@ -584,7 +586,10 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
         if r.size == 0:
             break
         n = np.arange(r.size)
-        wr, mr, vr, ldr, act = w[r], m[r], v[r], ld[r], active[r]
+        if r.size == w.shape[0]:         # every row still merges: views, no copies
+            wr, mr, vr, ivr, ldr, act = w, m, v, iv, ld, active
+        else:
+            wr, mr, vr, ivr, ldr, act = w[r], m[r], v[r], iv[r], ld[r], active[r]
         wmin = np.min(np.where(act, wr, np.inf), axis=-1, keepdims=True)
         tied = act & (wr * (1.0 - _TIE) <= wmin)
         i = np.argmax(tied, axis=-1)
@@ -595,15 +600,16 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
             nq = q.size
             rep = np.repeat(q, k)
             ii = np.tile(np.arange(k), nq)
-            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ldr[rep], act[rep], ii)
+            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ivr[rep], ldr[rep], act[rep], ii)
             co = np.where(tied[q].reshape(-1), co, np.inf).reshape(nq, k)
             sc = sc.reshape(nq, k)
             bi = np.min(co, axis=-1, keepdims=True)
             i[q] = _canonical_first(co <= bi + 2.0 * _TIE * sc, wr[q], mr[q], vr[q])
-        j, _, _ = _partners(wr, mr, vr, ldr, act, i)
+        j, _, _ = _partners(wr, mr, vr, ivr, ldr, act, i)
         wj, mj, vj = merge_moments(wr[n, i], mr[n, i], vr[n, i], wr[n, j], mr[n, j], vr[n, j])
         w[r, j], m[r, j], v[r, j] = wj, mj, vj
         ld[r, j] = _logdet_np(vj)
+        iv[r, j] = 1.0 / vj
         w[r, i] = 0.0
     out = compact(DiagMixture(w, m, v))
     kk = out.n_components
@@ -656,7 +662,10 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     mixture. One compiled kernel, the mixtures of the batch in parallel
     (:func:`_reduce_batch`).
 
-    Weights, and merge costs, that agree to a relative ``1e-9`` count as tied, and ties are
+    Weights that agree to a relative ``1e-9``, and merge costs that agree to ``1e-9`` of
+    their rounding scale (Runnalls' cost is computed without cancellation, see
+    :func:`_partner`, so the scale is about the cost's own size: a negligible component
+    goes to its cheapest partner), count as tied, and ties are
     broken by the components' contents, never their position (see :func:`reduce_reference`:
     of tied lowest weights the one with the cheapest best merge; of tied partners the one
     nearest the mixture mean, then counter-clockwise about it, then the lexicographic order
@@ -788,38 +797,62 @@ def _logdet(t, d, c):  # pragma: no cover - compiled
     return acc
 
 
+@njit(cache=True)
+def _set_logdet(t, d, c):  # pragma: no cover - compiled
+    """Rows ``2 D + 1 .. 3 D`` (the inverse variances) and ``3 D + 1`` (the
+    log-determinant, :func:`_logdet`) of column ``c`` of the scratch ``t``."""
+    for e in range(d):
+        t[2 * d + 1 + e, c] = 1.0 / t[1 + d + e, c]
+    t[3 * d + 1, c] = _logdet(t, d, c)
+
+
 @njit(cache=True, error_model="numpy")
 def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
     """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
     and 2 and the tie set); returns ``(j, cost, scale)``. Uses the scratch rows of ``t``
-    from the bound to the tie set."""
-    LD = 2 * d + 1
-    AB = LD + 1
-    LB = LD + 2
-    CO = LD + 3
-    SC = LD + 4
-    TS = LD + 5
+    from the bound to the tie set.
+
+    Runnalls' cost of merging ``i`` into ``c`` is computed without cancellation as
+    ``0.5 (wi (log|P_c| - log|P_i|) + ws log1p(y))``, ``1 + y = |P_ic| / |P_c|`` the
+    product over the coordinates of ``1 + r_e``,
+    ``r_e = (a1 (v_ie - v_ce) + a1 a2 dm_e^2) / v_ce`` (``a1 = wi / ws``, ``a2 = wc / ws``);
+    its rounding scale is
+    ``0.5 (wi (|log|P_c|| + |log|P_i||) + ws (ay + |log1p(y)|))``, ``ay`` the same product
+    of ``1 + |r_e|`` minus one."""
+    IVB = 2 * d + 1
+    LD = 3 * d + 1
+    LB = LD + 1
+    CO = LD + 2
+    SC = LD + 3
+    TS = LD + 4
     wi = t[0, i]
     ldi = t[LD, i]
-    # pass 1: the bounds
-    amax = 0.0
+    ali = abs(ldi)
+    # pass 1: y, the bound and the scale's part known before the logarithm (row SC)
     if d == 2:
         mi0 = t[1, i]
         mi1 = t[2, i]
         vi0 = t[3, i]
         vi1 = t[4, i]
-        wiinv = 1.0 / wi
         for c in range(cnt):
             wc = t[0, c]
-            rho = wc * wiinv
+            ws = wi + wc
+            inv = 1.0 / ws
+            a1 = wi * inv
+            a2 = wc * inv
+            a12 = a1 * a2
             dm0 = mi0 - t[1, c]
             dm1 = mi1 - t[2, c]
-            a0 = rho * dm0 * dm0
-            a1 = rho * dm1 * dm1
-            t0 = 2.0 * (1.0 + rho) * (vi0 + rho * t[3, c]) + a0
-            t1 = 2.0 * (1.0 + rho) * (vi1 + rho * t[4, c]) + a1
-            t[LB, c] = (wi + wc) * (a0 * t1 + a1 * t0) / (t0 * t1)
-            amax = max(amax, t[AB, c])
+            r0 = (a1 * (vi0 - t[3, c]) + a12 * dm0 * dm0) * t[5, c]
+            r1 = (a1 * (vi1 - t[4, c]) + a12 * dm1 * dm1) * t[6, c]
+            y = r0 + r1 + r0 * r1
+            b0 = abs(r0)
+            b1 = abs(r1)
+            ay = b0 + b1 + b0 * b1
+            ldc = t[LD, c]
+            t[CO, c] = y
+            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
+            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
     else:
         for c in range(cnt):
             wc = t[0, c]
@@ -827,22 +860,30 @@ def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
             inv = 1.0 / ws
             a1 = wi * inv
             a2 = wc * inv
-            lb = 0.0
+            a12 = a1 * a2
+            y = 0.0
+            ay = 0.0
             for e in range(d):
                 dm = t[1 + e, i] - t[1 + e, c]
-                s = a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c]
-                q = a1 * a2 * dm * dm
-                lb += q / (2.0 * s + q)
-            t[LB, c] = ws * lb
-            amax = max(amax, t[AB, c])
+                r = (a1 * (t[1 + d + e, i] - t[1 + d + e, c]) + a12 * dm * dm) * t[IVB + e, c]
+                if e == 0:
+                    y = r
+                    ay = abs(r)
+                else:
+                    y = y + r + y * r
+                    ay = ay + abs(r) + ay * abs(r)
+            ldc = t[LD, c]
+            t[CO, c] = y
+            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
+            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
     t[LB, i] = np.inf
     c0 = 0
     for c in range(1, cnt):
         if t[LB, c] < t[LB, c0]:
             c0 = c
     # pass 2: exact costs where the bound allows a win or a tie
-    slack = 4.0 * (wi * abs(ldi) + amax)
     best = np.inf
+    ne = 0                               # the candidates with exact costs: row TS
     for step in range(cnt + 1):
         if step == 0:
             c = c0
@@ -850,39 +891,57 @@ def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
             c = step - 1
             if c == c0:
                 continue
-            if c == i or \
-                    t[LB, c] * (1.0 - 2.0 * tie) > best + tie * (2.0 * abs(best) + slack):
-                t[CO, c] = np.inf
-                t[SC, c] = 0.0
+            lb = t[LB, c]
+            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
+                          > best + tie * (2.0 * abs(best) + 4.0 * t[SC, c])):
                 continue
-        wc = t[0, c]
-        ws = wi + wc
-        inv = 1.0 / ws
-        a1 = wi * inv
-        a2 = wc * inv
-        a12 = a1 * a2
-        if d == 2:
-            dm0 = t[1, i] - t[1, c]
-            dm1 = t[2, i] - t[2, c]
-            s0 = a1 * t[3, i] + a2 * t[3, c]
-            s1 = a1 * t[4, i] + a2 * t[4, c]
-            prod = (s0 + a12 * dm0 * dm0) * (s1 + a12 * dm1 * dm1)
-        else:
-            prod = 1.0
-            for e in range(d):
-                dm = t[1 + e, i] - t[1 + e, c]
-                prod *= a1 * t[1 + d + e, i] + a2 * t[1 + d + e, c] + a12 * dm * dm
-        ld = math.log(prod)
-        ldc = t[LD, c]
-        cost = 0.5 * (ws * ld - wi * ldi - wc * ldc)
-        t[SC, c] = 0.5 * (ws * abs(ld) + wi * abs(ldi) + wc * abs(ldc))
+        ws = wi + t[0, c]
+        lp = math.log1p(t[CO, c])
+        cost = 0.5 * (wi * (t[LD, c] - ldi) + ws * lp)
+        t[SC, c] = 0.5 * (t[SC, c] + ws * abs(lp))
         t[CO, c] = cost
+        t[TS, ne] = c
+        ne += 1
         best = min(best, cost)
     # the tie set and the canonical choice in it
-    for c in range(cnt):
-        t[TS, c] = 0.0 if t[CO, c] <= best + 2.0 * tie * t[SC, c] else -1.0
-    j = _pick(t, d, cnt, TS)
+    j = -1
+    many = False
+    for q in range(ne):
+        c = np.int64(t[TS, q])
+        if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
+            if j < 0:
+                j = c
+            else:
+                many = True
+    if many:
+        for c in range(cnt):
+            t[LB, c] = -1.0
+        for q in range(ne):
+            c = np.int64(t[TS, q])
+            if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
+                t[LB, c] = 0.0
+        j = _pick(t, d, cnt, LB)
     return j, t[CO, j], t[SC, j]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
+    """A lower bound of Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))``
+    (:func:`_partner`) without a logarithm: with ``z = y / (y + 2)``,
+    ``log(1 + y) = 2 (z + z^3 / 3 + z^5 / 5 + ...)`` (``atanh``); the first three terms
+    bound it from below for ``z >= 0``; for ``-0.61 <= z < 0`` the tail's magnitude is at
+    most ``2 |z|^7 / (7 (1 - z^2)) <= 0.46 |z|^7``. Below ``z = -0.61`` (``y < -0.757``;
+    a merge into a heavier component has ``y >= -3/4`` in 2-D) the bound is ``-inf``.
+    ``1e-14 (wi (|ldc| + |ldi|) + ws |log(1 + y)|)`` (about 45 ulps of the cost's terms) is
+    subtracted for rounding (a NaN bound excludes nothing)."""
+    z = y / (y + 2.0)
+    zc = z if abs(z) > 1e-100 else 0.0   # no subnormal powers (slow)
+    z2 = zc * zc
+    zn = min(zc, 0.0)
+    zn2 = zn * zn
+    lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * zn2 * zn2 * zn2
+    lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * (wi * (abs(ldc) + ali) + ws * abs(lx))
+    return lb if z >= -0.61 else -np.inf
 
 
 @njit(cache=True, error_model="numpy")
@@ -890,60 +949,53 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
-    ``t`` (``2 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
+    ``t`` (``3 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
     the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
-    log-determinant, weight times its absolute value, the cost bound, the cost, the cost's
-    rounding scale, the tie set, the best cost, its scale and its partner per tied lowest weight). Returns the component count; the survivors are the first columns, in
-    no particular order (the rule never reads positions).
+    log-determinant, weight times its absolute value, the inverse of the product of the
+    variances, the cost bound, the cost, the cost's rounding scale, the tie set, the best
+    cost, its scale and its partner per tied lowest weight). Returns the component count;
+    the survivors are the first columns, in no particular order (the rule never reads
+    positions).
 
     - ``i``: the lowest weight. Weights ``w`` with ``w (1 - tie) <= w_min`` tie with it; of
       tied ones, the one whose best merge (below) is cheapest, cost ties by :func:`_pick`
       (equal weights are common: data points, the disk cells).
-    - Pass 1 computes, for every candidate ``c``, a logarithm-free lower bound of Runnalls'
-      cost (vectorisable, no branch): with ``s_e = a1 v_ie + a2 v_ce`` and
-      ``q_e = a1 a2 dm_e^2``, concavity of the logarithm gives
-      ``cost >= 0.5 ws sum_e log(1 + q_e / s_e) >= ws sum_e q_e / (2 s_e + q_e)``, which in
-      2-D is ``ws (A0 T1 + A1 T0) / (T0 T1)`` with ``r = wc / wi``, ``A_e = r dm_e^2`` and
-      ``T_e = 2 (1 + r) (v_ie + r v_ce) + A_e`` (one division; ``r >= 1 - tie``, so no
-      underflow; an overflow gives NaN, which skips nothing).
+    - Pass 1 computes, for every candidate ``c``, the product of the merged variances and
+      a logarithm-free lower bound of Runnalls' cost from it (:func:`_cost_bound`;
+      vectorised, no branch).
     - Pass 2 takes the exact cost (one logarithm) of the candidate with the lowest bound,
       then of every candidate whose bound does not exclude it from the tie set below.
     - ``j``: with ``best`` the lowest exact cost, the candidates with
-      ``cost <= best + 2 tie scale`` (``scale``: the magnitude of the cancelling terms of
-      the cost, its rounding scale) tie and :func:`_pick` chooses among them.
-      A candidate is skipped when ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
-      ``B`` bounding ``wi |log|P_i|| + wc |log|P_c||`` (then it cannot tie:
+      ``cost <= best + 2 tie scale`` (``scale``: the cost's rounding scale,
+      :func:`_partner`) tie and :func:`_pick` chooses among them. A candidate is skipped
+      when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
+      ``B = wi (|log|P_c|| + |log|P_i||) + ws ay`` (then it cannot tie:
       ``scale <= |cost| + B``).
     - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
     """
-    d = (t.shape[0] - 10) // 2
-    LD = 2 * d + 1
-    AB = LD + 1
-    LB = LD + 2
-    CO = LD + 3
-    SC = LD + 4
-    TS = LD + 5
-    IC = LD + 6
-    IS = LD + 7
-    IJ = LD + 8
+    d = (t.shape[0] - 10) // 3
+    LD = 3 * d + 1
+    TS = LD + 4
+    IC = LD + 5
+    IS = LD + 6
+    IJ = LD + 7
     for c in range(n):
-        ld = _logdet(t, d, c)
-        t[LD, c] = ld
-        t[AB, c] = t[0, c] * abs(ld)
+        _set_logdet(t, d, c)
     cnt = n
     while cnt > kmax:
-        wmin = t[0, 0]
-        for c in range(1, cnt):
-            wmin = min(wmin, t[0, c])
-        for c in range(cnt):
-            t[IC, c] = 0.0 if t[0, c] * (1.0 - tie) <= wmin else -1.0
+        # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
+        wmin = np.inf
+        w2 = np.inf
         first = -1
-        many = False
         for c in range(cnt):
-            if t[IC, c] >= 0.0:
-                many = first >= 0
-                if first < 0:
-                    first = c
+            wc = t[0, c]
+            if wc < wmin:
+                w2 = wmin
+                wmin = wc
+                first = c
+            elif wc < w2:
+                w2 = wc
+        many = w2 * (1.0 - tie) <= wmin
         if not many:
             i = first
             j, _, _ = _partner(t, d, cnt, i, tie)
@@ -951,7 +1003,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
             # tied lowest weights: the one with the cheapest merge, ties by _pick
             bi = np.inf
             for c in range(cnt):
-                if t[IC, c] >= 0.0:
+                if t[0, c] * (1.0 - tie) <= wmin:
                     jj, co, sc = _partner(t, d, cnt, c, tie)
                     t[IC, c] = co
                     t[IS, c] = sc
@@ -978,12 +1030,10 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
             t[1 + e, j] = mm
             t[1 + d + e, j] = vv
         t[0, j] = ws
-        ld = _logdet(t, d, j)
-        t[LD, j] = ld
-        t[AB, j] = ws * abs(ld)
+        _set_logdet(t, d, j)
         cnt -= 1
         if i != cnt:
-            for r in range(AB + 1):
+            for r in range(LD + 1):
                 t[r, i] = t[r, cnt]
     return cnt
 
@@ -991,7 +1041,7 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
     """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
-    ``2 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
+    ``3 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
     count. The output is in the canonical order of :func:`compact`: decreasing weight,
     equal weights by means, then variances (an insertion sort; the mixtures are small)."""
     d = m.shape[1]
@@ -1036,7 +1086,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
     for b in prange(nb):
-        t = np.empty((2 * d + 10, k))
+        t = np.empty((3 * d + 10, k))
         cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
     return ow, om, ov, cnt
 
