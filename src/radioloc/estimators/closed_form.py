@@ -222,14 +222,12 @@ def _dense_gram(m, n, dx, dy, ex, c, sks, printed, sv, sx, keep, Z, M, ur, G):
     return True
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=_FM, inline="always")
 def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
-                     sb, wb, F, U, lb, li, qv, zz, P, H, X, G):
+                     sb, wb, F, U, lb, li, qv, zz, P, H, X, G, rc, r):
     """``G = [L^{-1} Z']' [L^{-1} Z']`` with ``W = S Sigma S' = L L'`` built and factorised
     in O(n) from its structure (derivation in the comment block above). False on a
     non-positive pivot (the caller then uses :func:`_dense_gram`)."""
-    rc = gu.shape[1]
-    r = F.shape[1]
     # band of Sigma' = 4 (Dx C Dx + Dy C Dy) + diag(e): sb[p, d] = Sigma'_{p, p+d}, d <= 6
     for p in range(n):
         for d in range(7):
@@ -373,8 +371,9 @@ def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
 @njit(cache=True, fastmath=_FM)
 def _gls_one(b, r, s, xi, mean, st, c, sks, gu, gv, tv, kap, printed, var, ols_only,
              structured, ws, out_beta, out_cov):
-    """Steps 1-2 and one GLS step (3b-3c, ``Sigma`` at the state ``st``; OLS, step 3a, with
-    ``ols_only``) of track ``b``, by :func:`_structured_gram` (``structured``; the dense
+    """Steps 1-2 and the OLS start (step 3a, ``ols_only``), or one GLS step (3b-3c,
+    ``Sigma`` at the state ``st``, reusing the differenced rows of the track's OLS call) of
+    track ``b``, by :func:`_structured_gram` (``structured``; the dense
     :func:`_dense_gram` if a pivot fails) or by :func:`_dense_gram`. Returns the criterion,
     or NaN when a matrix is not positive definite, and whether the dense path ran."""
     dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, sb, wb, F, U, lb, li, qv, zz, P, H, X = ws
@@ -382,30 +381,34 @@ def _gls_one(b, r, s, xi, mean, st, c, sks, gu, gv, tv, kap, printed, var, ols_o
     m = n - 3
     sb_ = b if s.shape[0] > 1 else 0
     xb = b if xi.shape[0] > 1 else 0
-    bx, by, bvx, bvy = st[0], st[1], st[2], st[3]
-    for i in range(n):
-        ai = s[sb_, i, 0]
-        bi = s[sb_, i, 1]
-        dx[i] = bx + tv[i] * bvx - ai
-        dy[i] = by + tv[i] * bvy - bi
-        x = xi[xb, i]
-        ex[i] = 4.0 * x * (dx[i] * dx[i] + dy[i] * dy[i] + 2.0 * c[i, i]) + (2.0 + kap) * x * x
-        if printed:
-            ex[i] += 4.0 * x * var[i]
-        y[i] = r[b, i] * r[b, i] - ai * ai - bi * bi - mean[xb, i]          # step 1
-        am[i, 0] = -2.0 * ai
-        am[i, 1] = -2.0 * bi
-        am[i, 2] = -2.0 * tv[i] * ai
-        am[i, 3] = -2.0 * tv[i] * bi
-    for row in range(m):                                                    # step 2
-        ok = not (math.isnan(y[row]) or math.isnan(y[row + 1]) or math.isnan(y[row + 2])
-                  or math.isnan(y[row + 3]))
-        keep[row] = ok
-        for q in range(4):
-            Z[q, row] = (_S0 * am[row, q] + _S1 * am[row + 1, q] + _S2 * am[row + 2, q]
-                         + _S3 * am[row + 3, q]) if ok else 0.0
-        Z[4, row] = (_S0 * y[row] + _S1 * y[row + 1] + _S2 * y[row + 2]
-                     + _S3 * y[row + 3]) if ok else 0.0
+    if ols_only:                  # steps 1-2, kept in ``ws`` for the track's BLUE steps
+        for i in range(n):
+            ai = s[sb_, i, 0]
+            bi = s[sb_, i, 1]
+            y[i] = r[b, i] * r[b, i] - ai * ai - bi * bi - mean[xb, i]      # step 1
+            am[i, 0] = -2.0 * ai
+            am[i, 1] = -2.0 * bi
+            am[i, 2] = -2.0 * tv[i] * ai
+            am[i, 3] = -2.0 * tv[i] * bi
+        for row in range(m):                                                # step 2
+            ok = not (math.isnan(y[row]) or math.isnan(y[row + 1]) or math.isnan(y[row + 2])
+                      or math.isnan(y[row + 3]))
+            keep[row] = ok
+            for q in range(4):
+                Z[q, row] = (_S0 * am[row, q] + _S1 * am[row + 1, q] + _S2 * am[row + 2, q]
+                             + _S3 * am[row + 3, q]) if ok else 0.0
+            Z[4, row] = (_S0 * y[row] + _S1 * y[row + 1] + _S2 * y[row + 2]
+                         + _S3 * y[row + 3]) if ok else 0.0
+    else:                         # the offsets d_n and the diagonal e_n at the state ``st``
+        bx, by, bvx, bvy = st[0], st[1], st[2], st[3]
+        for i in range(n):
+            dx[i] = bx + tv[i] * bvx - s[sb_, i, 0]
+            dy[i] = by + tv[i] * bvy - s[sb_, i, 1]
+            x = xi[xb, i]
+            ex[i] = (4.0 * x * (dx[i] * dx[i] + dy[i] * dy[i] + 2.0 * c[i, i])
+                     + (2.0 + kap) * x * x)
+            if printed:
+                ex[i] += 4.0 * x * var[i]
     dense = False
     if ols_only:
         for p in range(5):
@@ -423,8 +426,13 @@ def _gls_one(b, r, s, xi, mean, st, c, sks, gu, gv, tv, kap, printed, var, ols_o
                            + _S3 * xi[xb, row + 3])
         ok = False
         if structured:                                                      # step 3b
-            ok = _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
-                                  sb, wb, F, U, lb, li, qv, zz, P, H, X, G)
+            if gu.shape[1] == 2 and not printed:    # the common width, unrolled
+                ok = _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep,
+                                      Z, sb, wb, F, U, lb, li, qv, zz, P, H, X, G, 2, 4)
+            else:
+                ok = _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep,
+                                      Z, sb, wb, F, U, lb, li, qv, zz, P, H, X, G, gu.shape[1],
+                                      F.shape[1])
         if not ok:
             dense = True
             if not _dense_gram(m, n, dx, dy, ex, c, sks, printed, sv, sx, keep, Z, M, ur, G):
