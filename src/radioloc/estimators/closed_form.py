@@ -89,11 +89,36 @@ def _ols(sa: np.ndarray, sy: np.ndarray) -> np.ndarray:
 # ---- compiled iterative BLUE ---------------------------------------------------------
 # One track at a time per thread (prange over chunks of tracks), each track iterated to
 # its own stop inside the kernel (one launch per call); the same maths as _gls, with
-# S Sigma S' built from its parts and factorised by Cholesky instead of LU:
+# W = S Sigma S' (eq. (11), eq. (14)) built from its parts and factorised by Cholesky:
 #   Sigma_ij = 4 c_ij (d_i . d_j) + 2 c2_ij + delta_ij e_i (+ the printed eq. (14) terms),
 #   d_i = p_k + t_i v_k - s_i, e_i = 4 xi_i (|d_i|^2 + 2 c_ii) + (2 + kappa) xi_i^2,
 # with S (2 c2) S' computed once per call. tests/test_closed_form_kernels.py compares it
 # with the NumPy path on random inputs.
+#
+# Structure of W (used by _structured_gram; tests/test_blue_structured.py):
+# * The motion noise eps_n = T^2 sum_m c_{n,m} G_m of eq. (4) has c_{n,m} linear in n on
+#   each side of k, so c_pq (p < q) is linear in q for k <= p and linear in p for q <= k
+#   (and 0 across k): c_pq = gu_p . gv_q with two generator columns per non-empty side
+#   (_noise_generators; eq. (5) is its diagonal). The square term c2_pq = 2 c_pq^2 (+ the
+#   kurtosis term) is quadratic there, and the third difference S of eq. (10) annihilates
+#   polynomials of degree <= 2: S (2 c2) S' is a band, W_ij = 0 for |i - j| > 3 in that
+#   term. The diagonal e_i adds to the band only.
+# * The state-dependent term 4 c_pq (dx_p dx_q + dy_p dy_q) is not polynomial (the sensor
+#   path s_n is arbitrary), but for j >= i + 4 every pair of the two windows of S has
+#   p < q, so W_ij = F_i . U_j with F_i = 4 sum_a S_a [dx, dy]_{i+a} (x) gu_{i+a} and
+#   U_j = sum_b S_b [dx, dy]_{j+b} (x) gv_{j+b}: width r = 2 rc (rc = 2 generator columns
+#   when k is the first or last sample, else 4), plus 2 for the rank-2 printed eq. (14)
+#   terms -2 (S var)_i (S xi)_j - 2 (S xi)_i (S var)_j.
+# So W = band of half-width 3 (computed exactly from Sigma's band of half-width 6) plus a
+# semiseparable part F U' beyond the band. Its Cholesky factor has the same form:
+# L_ij = U_i . q_j for i >= j + 4, with q_j = (F_j - P_{j-3} U_j - sum_{band} L_jk q_k) / L_jj
+# and P_t = sum_{l < t} q_l q_l' (r x r); the band of L and the forward solve L^{-1} Z'
+# follow row by row in O(r^2 + 5 r) flops: O(n r^2) per GLS step instead of O(n^3). A
+# dropped row (missing range) gets zero generators and a unit diagonal. Rounding: the
+# structured and the dense factorisation differ by about as much as the dense Cholesky
+# and an LU solve of the same W (measured on random and near-degenerate tracks, see
+# tests/test_blue_structured.py); a non-positive structured pivot falls back to the dense
+# factorisation (_dense_gram) for that step.
 _FM = {"contract"}
 _S0, _S1, _S2, _S3 = 1.0, -3.0, 3.0, -1.0          # a row of S, eq. (10)
 _PARALLEL_MIN_TRACKS = 16                           # fewer tracks: no parallel launch
@@ -223,70 +248,82 @@ def _dense_gram(m, n, dx, dy, ex, c, sks, printed, sv, sx, keep, Z, M, ur, G):
 
 
 @njit(cache=True, fastmath=_FM, inline="always")
-def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
-                     sb, wb, F, U, lb, li, qv, zz, P, H, X, G, rc, r):
+def _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep, Z,
+                     sb, R, wb, F, U, lb, li, qv, zz, P, H, X, G, rc, r):
     """``G = [L^{-1} Z']' [L^{-1} Z']`` with ``W = S Sigma S' = L L'`` built and factorised
-    in O(n) from its structure (derivation in the comment block above). False on a
-    non-positive pivot (the caller then uses :func:`_dense_gram`)."""
-    # band of Sigma' = 4 (Dx C Dx + Dy C Dy) + diag(e): sb[p, d] = Sigma'_{p, p+d}, d <= 6
+    in O(n r^2) from its structure (the comment block "Structure of W" above).
+
+    ``W`` (eq. (11), eq. (14), S of eq. (10)) is a band of half-width 3 (``wb``: the
+    motion term's near pairs, ``S diag(e) S'`` and ``S (2 c2) S'``, which the third
+    difference makes banded) plus, for ``j >= i + 4``, ``W_ij = F_i . U_j`` with generators
+    of width ``r`` (2 per axis and side of k of the motion-noise covariance of eq. (4),
+    eq. (5), plus 2 for the printed eq. (14) terms). The Cholesky factor keeps the form
+    ``L_ij = U_i . qv_j`` beyond the band. False on a non-positive pivot (the caller then
+    uses :func:`_dense_gram`). Arrays are stored transposed (band or generator index
+    first) so that the loops over rows vectorise."""
+    # band of Sigma' = 4 (Dx C Dx + Dy C Dy) + diag(e): sb[d, p] = Sigma'_{p, p+d}, d <= 6
+    for d in range(7):
+        cd = cb[d]
+        sd = sb[d]
+        for p in range(n - d):
+            sd[p] = 4.0 * (dx[p] * dx[p + d] + dy[p] * dy[p + d]) * cd[p]
+        for p in range(n - d, n):
+            sd[p] = 0.0
     for p in range(n):
-        for d in range(7):
-            if p + d < n:
-                q = p + d
-                sb[p, d] = 4.0 * (dx[p] * dx[q] + dy[p] * dy[q]) * c[p, q]
-        sb[p, 0] += ex[p]
-    # band of W: wb[j, l] = W_{j, j+l}, l <= 3, as S (Sigma' band) S' + S (2 C2) S' (sks)
-    R = np.empty(7)
-    for j in range(m):
-        for qq in range(7):
-            if j + qq < n:
-                acc = 0.0
-                for a in range(4):
-                    s_a = _S0 if a == 0 else (_S1 if a == 1 else (_S2 if a == 2 else _S3))
-                    d = qq - a
-                    if d >= 0:
-                        acc += s_a * sb[j + a, d]
-                    else:
-                        acc += s_a * sb[j + qq, -d]
-                R[qq] = acc
-        for l in range(4):
-            if j + l < m:
-                w = (sks[j, j + l] + _S0 * R[l] + _S1 * R[l + 1] + _S2 * R[l + 2]
-                     + _S3 * R[l + 3])
-                if printed:
-                    w -= 2.0 * (sv[j] * sx[j + l] + sx[j] * sv[j + l])
-                wb[_PAD + j, l] = w
-    # generators: W_ij = F_j . U_i for i >= j + 4 (F: row side, U: column side)
-    for j in range(m):
-        for t in range(r):
-            F[j, t] = 0.0
-            U[j, t] = 0.0
+        sb[0, p] += ex[p]
+    # R = S Sigma' on the band: R[qq, j] = sum_a s_a Sigma'_{j+a, j+qq}, qq <= 6
+    for qq in range(7):
+        rq = R[qq]
+        top = min(m, n - qq)
+        for j in range(top):
+            rq[j] = 0.0
         for a in range(4):
             s_a = _S0 if a == 0 else (_S1 if a == 1 else (_S2 if a == 2 else _S3))
-            p = j + a
-            fx = 4.0 * s_a * dx[p]
-            fy = 4.0 * s_a * dy[p]
-            ux = s_a * dx[p]
-            uy = s_a * dy[p]
-            for t in range(rc):
-                F[j, t] += fx * gu[p, t]
-                F[j, rc + t] += fy * gu[p, t]
-                U[j, t] += ux * gv[p, t]
-                U[j, rc + t] += uy * gv[p, t]
+            d = qq - a
+            if d >= 0:
+                src = sb[d, a:]
+            else:
+                src = sb[-d, qq:]
+            for j in range(top):
+                rq[j] += s_a * src[j]
+    # band of W: wb[_PAD + j, l] = W_{j, j+l}, l <= 3: R S' plus S (2 C2) S' (sksb)
+    for l in range(4):
+        sk = sksb[l]
+        r0, r1, r2, r3 = R[l], R[l + 1], R[l + 2], R[l + 3]
+        for j in range(m - l):
+            wb[l, _PAD + j] = sk[j] + _S0 * r0[j] + _S1 * r1[j] + _S2 * r2[j] + _S3 * r3[j]
         if printed:
-            F[j, 2 * rc] = -2.0 * sv[j]
-            F[j, 2 * rc + 1] = -2.0 * sx[j]
-            U[j, 2 * rc] = sx[j]
-            U[j, 2 * rc + 1] = sv[j]
+            for j in range(m - l):
+                wb[l, _PAD + j] -= 2.0 * (sv[j] * sx[j + l] + sx[j] * sv[j + l])
+    # generators: W_ij = F_j . U_i for i >= j + 4 (F: row side, U: column side)
+    for t in range(rc):
+        g = gu[t]
+        h = gv[t]
+        fx, fy, ux, uy = F[t], F[rc + t], U[t], U[rc + t]
+        for j in range(m):
+            fx[j] = 4.0 * (_S0 * dx[j] * g[j] + _S1 * dx[j + 1] * g[j + 1]
+                           + _S2 * dx[j + 2] * g[j + 2] + _S3 * dx[j + 3] * g[j + 3])
+            fy[j] = 4.0 * (_S0 * dy[j] * g[j] + _S1 * dy[j + 1] * g[j + 1]
+                           + _S2 * dy[j + 2] * g[j + 2] + _S3 * dy[j + 3] * g[j + 3])
+            ux[j] = (_S0 * dx[j] * h[j] + _S1 * dx[j + 1] * h[j + 1]
+                     + _S2 * dx[j + 2] * h[j + 2] + _S3 * dx[j + 3] * h[j + 3])
+            uy[j] = (_S0 * dy[j] * h[j] + _S1 * dy[j + 1] * h[j + 1]
+                     + _S2 * dy[j + 2] * h[j + 2] + _S3 * dy[j + 3] * h[j + 3])
+    if printed:
+        for j in range(m):
+            F[2 * rc, j] = -2.0 * sv[j]
+            F[2 * rc + 1, j] = -2.0 * sx[j]
+            U[2 * rc, j] = sx[j]
+            U[2 * rc + 1, j] = sv[j]
     for j in range(m):                              # a dropped row: unit diagonal, decoupled
         if not keep[j]:
             for l in range(4):
-                wb[_PAD + j, l] = 0.0
-                wb[_PAD + j - l, l] = 0.0
-            wb[_PAD + j, 0] = 1.0
+                wb[l, _PAD + j] = 0.0
+                wb[l, _PAD + j - l] = 0.0
+            wb[0, _PAD + j] = 1.0
             for t in range(r):
-                F[j, t] = 0.0
-                U[j, t] = 0.0
+                F[t, j] = 0.0
+                U[t, j] = 0.0
     # Cholesky W = L L' with L_ij = U_i . qv_j for i >= j + 4 and the band
     # lb[j, l] = L_{j, j-l} (li[j] = 1 / L_jj); P = sum_{l <= j-4} qv_l qv_l', zz_j = P U_j;
     # the forward solve X = L^{-1} Z' alongside (H = sum_{l <= j-4} qv_l X_l'). Rows are
@@ -299,7 +336,7 @@ def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
     for i in range(_PAD):
         for l in range(4):
             lb[i, l] = 0.0
-            wb[i, l] = 0.0
+            wb[l, i] = 0.0
         lb[i, 0] = 1.0
         li[i] = 1.0
         for t in range(r):
@@ -318,15 +355,15 @@ def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
         e4 = 0.0
         e5 = 0.0
         e6 = 0.0
-        a3 = wb[j - 3, 3]
-        a2 = wb[j - 2, 2]
-        a1 = wb[j - 1, 1]
-        piv = wb[j, 0]
+        a3 = wb[3, j - 3]
+        a2 = wb[2, j - 2]
+        a1 = wb[1, j - 1]
+        piv = wb[0, j]
         for t in range(r):
-            ut = U[jr, t]
+            ut = U[t, jr]
             acc = 0.0
             for t2 in range(r):
-                acc += P[t, t2] * U[jr, t2]
+                acc += P[t, t2] * U[t2, jr]
             zz[j, t] = acc
             piv -= ut * acc
             e4 += ut * qv[j - 4, t]
@@ -349,12 +386,12 @@ def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
         lb[j, 3] = e3
         li[j] = inv
         for t in range(r):
-            qv[j, t] = (F[jr, t] - zz[j, t] - e1 * qv[j - 1, t] - e2 * qv[j - 2, t]
+            qv[j, t] = (F[t, jr] - zz[j, t] - e1 * qv[j - 1, t] - e2 * qv[j - 2, t]
                         - e3 * qv[j - 3, t]) * inv
         for q in range(5):
             v = Z[q, jr] - e1 * X[q, j - 1] - e2 * X[q, j - 2] - e3 * X[q, j - 3]
             for t in range(r):
-                v -= U[jr, t] * H[t, q]
+                v -= U[t, jr] * H[t, q]
             X[q, j] = v * inv
     for p in range(5):                              # the Gram X' X
         for q in range(p + 1):
@@ -369,14 +406,14 @@ def _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep, Z,
 
 
 @njit(cache=True, fastmath=_FM)
-def _gls_one(b, r, s, xi, mean, st, c, sks, gu, gv, tv, kap, printed, var, ols_only,
+def _gls_one(b, r, s, xi, mean, st, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, ols_only,
              structured, ws, out_beta, out_cov):
     """Steps 1-2 and the OLS start (step 3a, ``ols_only``), or one GLS step (3b-3c,
     ``Sigma`` at the state ``st``, reusing the differenced rows of the track's OLS call) of
     track ``b``, by :func:`_structured_gram` (``structured``; the dense
     :func:`_dense_gram` if a pivot fails) or by :func:`_dense_gram`. Returns the criterion,
     or NaN when a matrix is not positive definite, and whether the dense path ran."""
-    dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, sb, wb, F, U, lb, li, qv, zz, P, H, X = ws
+    dx, dy, ex, y, am, keep, Z, M, ur, sv, sx, G, sb, R, wb, F, U, lb, li, qv, zz, P, H, X = ws
     n = r.shape[1]
     m = n - 3
     sb_ = b if s.shape[0] > 1 else 0
@@ -426,13 +463,13 @@ def _gls_one(b, r, s, xi, mean, st, c, sks, gu, gv, tv, kap, printed, var, ols_o
                            + _S3 * xi[xb, row + 3])
         ok = False
         if structured:                                                      # step 3b
-            if gu.shape[1] == 2 and not printed:    # the common width, unrolled
-                ok = _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep,
-                                      Z, sb, wb, F, U, lb, li, qv, zz, P, H, X, G, 2, 4)
+            if gu.shape[0] == 2 and not printed:    # the common width, unrolled
+                ok = _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep,
+                                      Z, sb, R, wb, F, U, lb, li, qv, zz, P, H, X, G, 2, 4)
             else:
-                ok = _structured_gram(m, n, dx, dy, ex, c, sks, gu, gv, printed, sv, sx, keep,
-                                      Z, sb, wb, F, U, lb, li, qv, zz, P, H, X, G, gu.shape[1],
-                                      F.shape[1])
+                ok = _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep,
+                                      Z, sb, R, wb, F, U, lb, li, qv, zz, P, H, X, G,
+                                      gu.shape[0], F.shape[0])
         if not ok:
             dense = True
             if not _dense_gram(m, n, dx, dy, ex, c, sks, printed, sv, sx, keep, Z, M, ur, G):
@@ -457,13 +494,14 @@ def _gls_workspace(n, r):
     return (np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty((n, 4)),
             np.empty(m, np.bool_), np.empty((5, m)), np.empty((m, m + 5)), np.empty(n),
             np.empty(m), np.empty(m), np.empty((5, 5)),
-            np.empty((n, 7)), np.empty((m + _PAD, 4)), np.empty((m, r)), np.empty((m, r)),
+            np.zeros((7, n)), np.zeros((7, m)), np.zeros((4, m + _PAD)), np.empty((r, m)),
+            np.empty((r, m)),
             np.empty((m + _PAD, 4)), np.empty(m + _PAD), np.empty((m + _PAD, r)),
             np.empty((m + _PAD, r)), np.empty((r, r)), np.empty((r, 5)), np.empty((5, m + _PAD)))
 
 
 @njit(cache=True)
-def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, gu, gv, tv, kap, printed, var, tol,
+def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol,
                        max_iter, crit_stop, structured, out_ols, out_beta, out_cov, out_it,
                        out_flags):
     """Steps 1-3d for the tracks ``a0 <= b < a1``, each iterated to its own stop (the
@@ -471,14 +509,14 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, gu, gv, tv, kap, printed,
     stalled (criterion stopping), bit 2 a matrix not positive definite, bit 3 the dense
     factorisation ran at least once (a structured pivot failed, or not ``structured``)."""
     n = r.shape[1]
-    ws = _gls_workspace(n, 2 * gu.shape[1] + (2 if printed else 0))
+    ws = _gls_workspace(n, 2 * gu.shape[0] + (2 if printed else 0))
     zero = np.zeros(4)
     new = np.empty(4)
     new_cov = np.empty((4, 4))
     for b in range(a0, a1):
         beta = out_beta[b]
         cov = out_cov[b]
-        crit, _ = _gls_one(b, r, s, xi, mean, zero, c, sks, gu, gv, tv, kap, printed, var,
+        crit, _ = _gls_one(b, r, s, xi, mean, zero, c, sks, cb, sksb, gu, gv, tv, kap, printed, var,
                            True, structured, ws, out_ols[b], new_cov)
         flags = 4 if math.isnan(crit) else 0                               # step 3a
         beta[:] = out_ols[b]
@@ -487,7 +525,7 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, gu, gv, tv, kap, printed,
         it = 0
         if flags == 0:
             for _ in range(max_iter):
-                crit, dense = _gls_one(b, r, s, xi, mean, beta, c, sks, gu, gv, tv, kap,
+                crit, dense = _gls_one(b, r, s, xi, mean, beta, c, sks, cb, sksb, gu, gv, tv, kap,
                                        printed, var, False, structured, ws, new, new_cov)
                 if dense:
                     flags |= 8
@@ -513,21 +551,21 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, gu, gv, tv, kap, printed,
 
 
 @njit(parallel=True, cache=True)
-def _blue_tracks(r, s, xi, mean, c, sks, gu, gv, tv, kap, printed, var, tol, max_iter,
+def _blue_tracks(r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol, max_iter,
                  crit_stop, structured, out_ols, out_beta, out_cov, out_it, out_flags):
     """:func:`_blue_tracks_range` for every track, in parallel over chunks of tracks that
     share one workspace."""
     B = r.shape[0]
     nch = min(B, 64)
     for ch in prange(nch):
-        _blue_tracks_range(ch * B // nch, (ch + 1) * B // nch, r, s, xi, mean, c, sks, gu, gv,
+        _blue_tracks_range(ch * B // nch, (ch + 1) * B // nch, r, s, xi, mean, c, sks, cb, sksb, gu, gv,
                            tv, kap, printed, var, tol, max_iter, crit_stop, structured,
                            out_ols, out_beta, out_cov, out_it, out_flags)
 
 
 def _noise_generators(n: int, k: int, T: float, accel_var: float):
     """Generators of the motion-noise covariance ``c`` (eq. (4), eq. (5)):
-    ``c_pq = gu_p . gv_q`` for ``p < q``.
+    ``c_pq = gu[:, p] . gv[:, q]`` for ``p < q``.
 
     With ``d = p - k`` after the reference sample and ``e = k - q`` before it (sums of
     ``c_{p,m} c_{q,m}`` over the shared accelerations, ``T^4 delta_g^2`` factored out)::
@@ -538,7 +576,7 @@ def _noise_generators(n: int, k: int, T: float, accel_var: float):
 
     Returns
     -------
-    gu, gv : ndarray, shape (n, rc)
+    gu, gv : ndarray, shape (rc, n)
         ``rc = 4``, or 2 when k is the first or last sample (one side is empty).
     """
     idx = np.arange(n, dtype=float)
@@ -552,7 +590,7 @@ def _noise_generators(n: int, k: int, T: float, accel_var: float):
     parts = [pr for pr, keep in ((after, k < n - 1), (before, k > 0)) if keep]
     gu = np.concatenate([pr[0] for pr in parts], -1)
     gv = np.concatenate([pr[1] for pr in parts], -1)
-    return np.ascontiguousarray(gu), np.ascontiguousarray(gv)
+    return np.ascontiguousarray(gu.T), np.ascontiguousarray(gv.T)
 
 
 class ClosedFormTracker(SnapshotEstimator):
@@ -798,7 +836,13 @@ class ClosedFormTracker(SnapshotEstimator):
         iterations = np.empty(B, dtype=np.int64)
         flags = np.empty(B, dtype=np.int64)
         gu, gv = _noise_generators(n, k, T, self.accel_var)
-        args = (rr, ss, xi, mean, model.c, sks, gu, gv, tv, self.range_excess_kurtosis,
+        cb = np.zeros((7, n))                                       # c_{p, p+d}, d <= 6
+        sksb = np.zeros((4, n - 3))                                 # (S 2 C2 S')_{j, j+l}
+        for d in range(7):
+            cb[d, :n - d] = np.diagonal(model.c, d)
+            if d < 4:
+                sksb[d, :n - 3 - d] = np.diagonal(sks, d)
+        args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
                 _STRUCTURED, ols, beta, cov, iterations, flags)
         if B >= _PARALLEL_MIN_TRACKS:                               # steps 3a-3d
