@@ -593,6 +593,15 @@ def _noise_generators(n: int, k: int, T: float, accel_var: float):
     return np.ascontiguousarray(gu.T), np.ascontiguousarray(gv.T)
 
 
+def _run_blue_kernel(B: int, args: tuple) -> None:
+    """Run :func:`_blue_tracks` (``B >= _PARALLEL_MIN_TRACKS``) or one thread of
+    :func:`_blue_tracks_range` over the ``B`` tracks; outputs are written into ``args``."""
+    if B >= _PARALLEL_MIN_TRACKS:
+        _blue_tracks(*args)
+    else:
+        _blue_tracks_range(0, B, *args)
+
+
 class ClosedFormTracker(SnapshotEstimator):
     """The closed-form tracker of paper 002: the iterative BLUE of the differenced model.
 
@@ -845,10 +854,7 @@ class ClosedFormTracker(SnapshotEstimator):
         args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
                 _STRUCTURED, ols, beta, cov, iterations, flags)
-        if B >= _PARALLEL_MIN_TRACKS:                               # steps 3a-3d
-            _blue_tracks(*args)
-        else:
-            _blue_tracks_range(0, B, *args)
+        _run_blue_kernel(B, args)                                   # steps 3a-3d
         if np.any(flags & 4):
             raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
                                 "and channel noise variances cannot both be zero for the BLUE")
