@@ -46,14 +46,18 @@ def data(runs, n, rng):
     return r, sensor, truth + rng.normal(0, 1, truth.shape)
 
 
-def blue_flops(n: int, iterations: float) -> float:
-    """Floating-point operations of one track: steps 1-2 and the OLS start, then per BLUE
-    iteration the rows of ``S Sigma`` (22 per entry of its upper part), ``S Sigma S'`` (8 per
-    entry), the augmented Cholesky (``m^3 / 3 + 5 m^2``) and the 5 x 5 Gram (``30 m``)."""
+def blue_flops(n: int, iterations: float, width: int = 4) -> float:
+    """Floating-point operations of one track as implemented (closed_form._gls_one with
+    _structured_gram): steps 1-2 and the OLS start (``40 n + 30 m``), then per BLUE
+    iteration the offsets and diagonal (``12 n``), the band of Sigma (``42 n``), of
+    ``S Sigma`` and ``S Sigma S'`` (``56 m + 32 m``), the generators (``24 width m``), the
+    structured Cholesky with the forward solve of the 5 columns alongside (per row
+    ``4 width^2 + 39 width + 81``: 303 for the default width 4), the 5 x 5 Gram (``30 m``) and
+    the 4 x 4 solve (about 200); ``width`` is 4 with k at an end of the window, 8 otherwise,
+    plus 2 with the printed eq. (14) terms."""
     m = n - 3
-    upper_u = sum(n - row for row in range(m))
-    upper_w = m * (m + 1) // 2
-    per_iter = 22 * upper_u + 8 * upper_w + m**3 / 3 + 5 * m * m + 30 * m
+    row = 4 * width * width + 39 * width + 81
+    per_iter = 54 * n + (88 + 24 * width + row + 30) * m + 200
     return 40 * n + 30 * m + iterations * per_iter
 
 
