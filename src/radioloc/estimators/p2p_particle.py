@@ -489,6 +489,13 @@ def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.
     return np.take_along_axis(pos_prev, links, axis=-1)
 
 
+def _check_nodes(mask, nodes):
+    """InputError unless every node with a range (``mask`` (..., J)) has a finite position
+    (``nodes`` (..., J, 2))."""
+    if np.any(mask & ~np.all(np.isfinite(nodes), axis=-1)):
+        raise InputError("node_positions: non-finite position of a node with a range")
+
+
 class P2PParticleFilter(RecursiveEstimator):
     """Peer-to-peer particle filter of paper 001 (Algorithm 2), one filter per vehicle.
 
@@ -619,7 +626,10 @@ class P2PParticleFilter(RecursiveEstimator):
             v0 = np.concatenate([v0, np.zeros(v0.shape[:-1] + (n - D,))], axis=-1)
         k = self.particles
         batch = v0.shape[:-1]
-        particles = v0[..., None, :] + self._init_std * rng.standard_normal(batch + (k, n))
+        # v0 + init_std z, computed in the array of the draws (the same values)
+        particles = rng.standard_normal(batch + (k, n))
+        particles *= self._init_std
+        particles += v0[..., None, :]
         cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
                               batch + (n, n)).copy()
         m = self.measurement
@@ -684,8 +694,7 @@ class P2PParticleFilter(RecursiveEstimator):
         except ValueError:
             raise InputError(f"node_positions: shape {nodes.shape} does not fit ranges "
                              f"{theta.shape}") from None
-        if np.any(mask & ~np.all(np.isfinite(nodes), axis=-1)):
-            raise InputError("node_positions: non-finite position of a node with a range")
+        _check_nodes(mask, nodes)
         u = None
         if control is not None:
             u = as_float_array(control, "control", last_dim=D)
@@ -695,7 +704,15 @@ class P2PParticleFilter(RecursiveEstimator):
         elif self._input_driven:
             raise InputError("control: the input-driven motion model needs the displacement "
                              "reading of every step")
+        return self._step(state, theta, mask, nodes, rng, u, dt)
 
+    def _step(self, state, theta, mask, nodes, rng, u, dt):
+        """:meth:`step` on checked inputs: ``theta`` (..., N, J) finite or NaN, ``mask`` its
+        finite entries, ``nodes`` (..., N, J, 2) finite where ``mask``, ``u`` (..., N, 1, D)
+        or None."""
+        D = self.motion.dim
+        batch = state.batch_shape
+        k = state.particles.shape[-2]
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)
         th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
@@ -778,15 +795,7 @@ class P2PParticleFilter(RecursiveEstimator):
             return None
         if state.particles.shape[-1] != 2 or not np.all(params[..., 2] == 1.0):
             return None
-        if np.ndim(dt) == 0:                    # sd depends on the motion model and dt only
-            key = float(dt)
-            if key not in self._walk_sd:
-                if len(self._walk_sd) > 64:
-                    self._walk_sd.clear()
-                self._walk_sd[key] = _walk_noise(self.motion, 2, dt)
-            sd = self._walk_sd[key]
-        else:
-            sd = _walk_noise(self.motion, 2, dt)
+        sd = self._walk_sd_of(dt)
         if sd is None:
             return None
         q = state.link_los
@@ -799,6 +808,18 @@ class P2PParticleFilter(RecursiveEstimator):
             if not np.all(np.take_along_axis(q, slot, axis=-1)[carried] == 1.0):
                 return None
         return sd
+
+    def _walk_sd_of(self, dt):
+        """:func:`_walk_noise` of the motion model over ``dt`` (2-D states), cached per scalar
+        ``dt`` (it depends on the motion model and ``dt`` only)."""
+        if np.ndim(dt) != 0:
+            return _walk_noise(self.motion, 2, dt)
+        key = float(dt)
+        if key not in self._walk_sd:
+            if len(self._walk_sd) > 64:
+                self._walk_sd.clear()
+            self._walk_sd[key] = _walk_noise(self.motion, 2, dt)
+        return self._walk_sd[key]
 
     def _params(self, state: ParticleState) -> np.ndarray:
         """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
@@ -902,6 +923,7 @@ class P2PParticleFilter(RecursiveEstimator):
             u = as_float_array(controls, "controls", min_ndim=3, last_dim=2)
             if u.shape[-2] != T:
                 raise InputError(f"controls: expected {T} steps on axis -2, got {u.shape}")
+        given = None
         if self.messages == "given":
             if given_positions is None:
                 raise InputError("given_positions: required when messages='given'")
@@ -918,16 +940,129 @@ class P2PParticleFilter(RecursiveEstimator):
         except ValueError:
             raise InputError(f"anchors: batch shape {a.shape[:-2]} does not broadcast with the "
                              f"runs' {batch}") from None
+        # checks of step, once for every step (the nodes built below are checked per step
+        # only where they can be non-finite: the peers' positions)
+        if r.shape[:-2] != state.batch_shape:
+            raise InputError(f"ranges: leading shape {r.shape[:-2]} differs from the "
+                             f"filter's {state.batch_shape}")
+        if np.any(np.isinf(r)):
+            raise InputError("ranges: infinite value (NaN marks an absent link)")
+        if u is None and self._input_driven:
+            raise InputError("control: the input-driven motion model needs the displacement "
+                             "reading of every step")
+        sds = self._bootstrap_run_sd(state, dts)
+        if sds is not None:
+            return self._run_bootstrap(r, state, anchors_b, dts, u, given, t, sds, rng)
+        mask_all = ~np.isnan(r)
         estimates = []
         for k in range(T):
             uk = None if u is None else u[..., k, :]
-            if self.messages == "previous":
-                peers = state.mean[..., : self.motion.dim]
-            elif self.messages == "extrapolated":
-                peers = self.motion.predict(state.mean, dts[k], control=uk)[..., : self.motion.dim]
-            else:
-                peers = given[..., k, :]
+            peers = self._peers(state.mean, dts[k], uk, given, k)
             nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b], axis=-2)
-            state = self.step(state, r[..., k, :], nodes, rng, control=uk, dt=dts[k])
+            mask = mask_all[..., k, :]
+            nodes = np.broadcast_to(nodes[..., None, :, :], mask.shape + (2,))
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask, nodes)
+            state = self._step(state, r[..., k, :], mask, nodes, rng,
+                               None if uk is None else uk[..., None, :], dts[k])
             estimates.append(self.estimate(state))
         return track_from_steps(estimates, t)
+
+    def _peers(self, mean, dt, control, given, k):
+        """Positions vehicle ``k`` uses for its neighbours at step ``k`` of :meth:`run` (see
+        ``messages``), from the estimates ``mean`` (..., N, n) of the previous step."""
+        if self.messages == "previous":
+            return mean[..., : self.motion.dim]
+        if self.messages == "extrapolated":
+            return self.motion.predict(mean, dt, control=control)[..., : self.motion.dim]
+        return given[..., k, :]
+
+    def _bootstrap_run_sd(self, state, dts):
+        """The noise std of every step when every step of :meth:`run` from ``state`` (from
+        :meth:`init`) is the plain bootstrap filter, else None.
+
+        :meth:`step` takes its bootstrap case when ``_bootstrap_noise`` finds one; in a run
+        without online EM the parameters do not change, the first step carries no link, and
+        every bootstrap step leaves every carried LOS posterior 1 (a reset sets the mean
+        posterior, 1 on every link), so the case holds at every step when it holds at the
+        first and ``sd`` exists for every ``dt``."""
+        if (self.kernel != "numba" or self.resampling != "systematic"
+                or self.online_em is not None or state.particles.shape[-1] != 2
+                or state.link_los.shape[-1] != 0 or not np.all(self._params(state)[..., 2] == 1.0)):
+            return None
+        sds = []
+        for dt in dts:
+            sd = self._walk_sd_of(dt)
+            if sd is None:
+                return None
+            sds.append(np.ascontiguousarray(sd, dtype=float))
+        return sds
+
+    def _run_bootstrap(self, r, state, anchors_b, dts, u, given, t, sds, rng):
+        """:meth:`run` when every step is the plain bootstrap filter (see
+        :meth:`_bootstrap_run_sd`): the fused kernel of :func:`_bootstrap_step` on work
+        arrays reused across steps, the links packed once for every step, the results of
+        each step written into the track's arrays. The same draws in the same order and
+        the same values as :meth:`step` step by step (the width of the packed links does
+        not enter the kernel's arithmetic: it skips the padding)."""
+        D = 2
+        batch_v = state.batch_shape                             # (..., N)
+        batch = batch_v[:-1]
+        n_veh, T, J = r.shape[-3:]
+        k = state.particles.shape[-2]
+        b = int(np.prod(batch_v, dtype=int))
+        nb = int(np.prod(batch, dtype=int))
+        nbd = len(batch_v)
+        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
+        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        width = links.shape[-1]
+        th = gather_packed(np.where(mask_all, r, 0.0), links)
+
+        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
+
+        links_t = time_first(links).reshape(T, nb, n_veh, width)
+        valid_t, th_t = time_first(valid), time_first(th)
+        shift_t = np.zeros((T, b, 2)) if u is None else time_first(u)
+        rows = np.arange(nb)[:, None, None]
+        inv_s = np.ascontiguousarray(1.0 / self._params(state)[..., 0].reshape(b))
+        mean_t, cov_t, ess_t = np.empty((T, b, 2)), np.empty((T, b, 2, 2)), np.empty((T, b))
+        resets_t = np.empty((T,) + batch_v, dtype=np.int64)
+        bufs = (np.empty((b, k, 2)), np.empty((b, k, 2)))       # particles, alternately
+        idx, pred, v = np.empty((b, k), dtype=np.int64), np.empty((b, k, 2)), np.empty((b, k))
+        distinct = np.empty(b, dtype=np.int64)
+        parts = np.ascontiguousarray(state.particles.reshape(b, k, 2))
+        mean, resets = state.mean, state.resets
+        for s in range(T):
+            uk = None if u is None else u[..., s, :]
+            peers = self._peers(mean, dts[s], uk, given, s)
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
+                                   axis=-2)                     # (..., J, 2)
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask_all[..., s, :],
+                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            node_xy = nodes.reshape(nb, J, 2)[rows, links_t[s]].reshape(b, width, 2)
+            key = draw_key(rng)
+            u01 = rng.random(batch_v + (1,))    # the draw of resampling.systematic
+            out = bufs[s % 2]
+            _bs.bootstrap_step(parts, shift_t[s], sds[s], key, node_xy, th_t[s], valid_t[s],
+                               inv_s, u01.reshape(b), CHUNK, out, idx, mean_t[s], cov_t[s],
+                               ess_t[s], distinct, pred, v)
+            parts = out
+            mean = mean_t[s].reshape(batch_v + (2,))
+            # reset on degeneracy, as in step
+            reset = (distinct < self.reset_fraction * k).reshape(batch_v)
+            if np.any(reset):
+                parts.reshape(batch_v + (k, 2))[reset, :, :D] = mean[reset][:, None, :D] + \
+                    self.reset_std_m * rng.standard_normal((int(reset.sum()), k, D))
+            resets = resets + reset
+            resets_t[s] = resets
+
+        def track_axes(a):                                      # (T, b, *x) -> (..., N, T, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((T,) + batch_v + a.shape[2:]),
+                                                    0, nbd))
+
+        diag = {"ess": track_axes(ess_t), "los_detected": mask_all.copy(),
+                "resets": np.ascontiguousarray(np.moveaxis(resets_t, 0, nbd)),
+                "state": track_axes(mean_t), "state_covariance": track_axes(cov_t)}
+        return Track(track_axes(mean_t), track_axes(cov_t), t, diag)
