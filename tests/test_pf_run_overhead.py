@@ -166,3 +166,44 @@ def test_run_nonfinite_peer_raises(bootstrap):
     with pytest.raises(InputError, match="given_positions: non-finite"):
         pf.run(r, truth[:, :, 0], np.random.default_rng(0), anchors=ANCHORS,
                given_positions=given)
+
+
+@pytest.mark.parametrize("alpha", [1.0, 0.6])
+def test_step_leaves_earlier_states_alone(alpha):
+    """step keeps work arrays between calls; the states it returned are not among them: a
+    later step (and a run) changes no earlier state, and the same step repeated from the
+    same state and generator state gives the same state."""
+    truth, r = scene(vehicles=2, steps=4, seed=8)
+    pf = P2PParticleFilter(RandomWalk(0.25), LosNlosRange(0.2, 1.0, alpha), particles=300)
+    nodes = np.concatenate([truth[:, :, 1], np.broadcast_to(ANCHORS, (2, 4, 2))], axis=1)
+    st0 = pf.init(truth[:, :, 0], np.random.default_rng(1))
+    st1 = pf.step(st0, r[:, :, 0], nodes, np.random.default_rng(2))
+    kept = {f: np.array(getattr(st1, f), copy=True) for f in ("particles", "link_los", "mean",
+                                                               "ancestors")}
+    again = pf.step(st0, r[:, :, 0], nodes, np.random.default_rng(2))
+    st2 = pf.step(st1, r[:, :, 1], nodes, np.random.default_rng(3))
+    pf.run(r, truth[:, :, 0], np.random.default_rng(4), anchors=ANCHORS)
+    for f, v in kept.items():
+        assert np.array_equal(getattr(st1, f), v), f
+        assert np.array_equal(getattr(again, f), v), f
+    assert not np.shares_memory(st2.particles, st1.particles)
+
+
+def test_runs_repeat():
+    """Two runs from the same generator state give the same track (work arrays reused)."""
+    truth, r = scene(seed=9)
+    pf = P2PParticleFilter(RandomWalk(0.25), LosNlosRange(0.05, 1.0, 1.0), particles=700)
+    a = pf.run(r, truth[:, :, 0], np.random.default_rng(5), anchors=ANCHORS)
+    pf.run(r[:1, :2, :3, :6], truth[:1, :2, 0], np.random.default_rng(6), anchors=ANCHORS)
+    b = pf.run(r, truth[:, :, 0], np.random.default_rng(5), anchors=ANCHORS)
+    assert_same_track(a, b)
+
+
+def test_large_draws_into_work_array():
+    """The motion draws into the work array are the draws of a fresh array, on the
+    sequential and on the parallel (spawned parts) path."""
+    for shape in [(3, 500, 2), (2, 3, 12000, 2)]:
+        a = pp._standard_normal(np.random.default_rng(np.random.SeedSequence(3)), shape)
+        b = pp._standard_normal(np.random.default_rng(np.random.SeedSequence(3)), shape,
+                                scratch=True)
+        assert b.shape == shape and np.array_equal(a, b)

@@ -35,6 +35,7 @@ The parameters of the range model can be estimated inside the filter by online E
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -268,10 +269,41 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     return log_w, q_new, post, em_pp, None
 
 
-def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em):
+#: Work arrays of :meth:`P2PParticleFilter.step` kept between calls, per thread (see
+#: :func:`_scratch`).
+_SCRATCH = threading.local()
+#: Larger work arrays are not kept.
+_SCRATCH_MAX_BYTES = 1 << 28
+
+
+def _scratch(name, shape, dtype=np.float64):
+    """A C-contiguous work array of ``shape`` (contents undefined), the same memory on every
+    call of this thread with this ``name`` while it is large enough: the arrays a step uses
+    and drops (the predicted particles, the new link posteriors before the gather) are not
+    fresh memory every step (the kernel's first touch of fresh pages, and their zeroing,
+    cost system time)."""
+    cache = getattr(_SCRATCH, "arrays", None)
+    if cache is None:
+        cache = _SCRATCH.arrays = {}
+    size = int(np.prod(shape, dtype=np.int64))
+    dtype = np.dtype(dtype)
+    if size * dtype.itemsize > _SCRATCH_MAX_BYTES:
+        cache.pop((name, dtype), None)
+        return np.empty(shape, dtype=dtype)
+    a = cache.get((name, dtype))
+    if a is None or a.size < size:
+        a = np.empty(max(size, 1), dtype=dtype)
+        cache[(name, dtype)] = a
+    return a[:size].reshape(shape)
+
+
+def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
+                 scratch=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
+    ``scratch``: the new link posteriors in this thread's work array (see :func:`_scratch`;
+    valid until the next scratch call).
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
@@ -282,7 +314,7 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     b = int(np.prod(batch, dtype=int))
     nc = _k.n_chunks(k, CHUNK)
     log_w = np.empty((b, k))
-    q_new = np.empty((b, k, width))
+    q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
@@ -347,16 +379,21 @@ _DRAW_PART = 1 << 16
 _POOL = None
 
 
-def _standard_normal(rng, shape):
+def _standard_normal(rng, shape, scratch=False):
     """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
-    filled in parallel (see ``_DRAW_PARALLEL``)."""
+    filled in parallel (see ``_DRAW_PARALLEL``). ``scratch``: into this thread's work array
+    (see :func:`_scratch`)."""
     global _POOL
     size = int(np.prod(shape, dtype=np.int64))
+    out = _scratch("draws", (size,)) if scratch else None
     if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
-        return rng.standard_normal(shape)
+        if out is None:
+            return rng.standard_normal(shape)
+        return rng.standard_normal(out=out).reshape(shape)
     import numba
     from concurrent.futures import ThreadPoolExecutor
-    out = np.empty(size)
+    if out is None:
+        out = np.empty(size)
     parts = -(-size // _DRAW_PART)
     children = rng.spawn(parts)
     if _POOL is None:
@@ -368,15 +405,16 @@ def _standard_normal(rng, shape):
     return out.reshape(shape)
 
 
-def _sample_motion(motion, particles, dt, rng, control):
+def _sample_motion(motion, particles, dt, rng, control, scratch=False):
     """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
     is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
-    same maths; draws through :func:`_standard_normal`)."""
+    same maths; draws through :func:`_standard_normal`, into its work array when
+    ``scratch``)."""
     if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
         # InputDriven.sample without its identity product: (x + u) + std z, the same
         # floating-point result, into the array of the draws
-        z = _standard_normal(rng, particles.shape)
+        z = _standard_normal(rng, particles.shape, scratch)
         z *= motion.std_m
         z += particles if control is None else particles + control
         return z
@@ -394,7 +432,7 @@ def _sample_motion(motion, particles, dt, rng, control):
         mean = motion.predict(particles, dt, control=control)
     vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = _standard_normal(rng, mean.shape)
+    z = _standard_normal(rng, mean.shape, scratch)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
         # diagonal noise: mean + diag(factor) z, the product's values, into the array of
         # the draws
@@ -448,7 +486,7 @@ def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng
                        np.ascontiguousarray(valid.reshape(b, width)),
                        np.ascontiguousarray(1.0 / params[..., 0].reshape(b)),
                        u01.reshape(b), CHUNK, out, idx, mean, cov, ess, distinct,
-                       np.empty((b, k, 2)), np.empty((b, k)))
+                       _scratch("pred", (b, k, 2)), _scratch("v", (b, k)))
     return (out.reshape(batch + (k, 2)), idx.reshape(batch + (k,)), mean.reshape(batch + (2,)),
             cov.reshape(batch + (2, 2)), ess.reshape(batch), distinct.reshape(batch))
 
@@ -620,6 +658,11 @@ class P2PParticleFilter(RecursiveEstimator):
         -------
         ParticleState
         """
+        return self._init(initial, rng, time)
+
+    def _init(self, initial, rng, time, scratch=False):
+        """:meth:`init`; ``scratch``: the particles in this thread's work array (see
+        :func:`_scratch`; :meth:`run` only reads them, at its first step)."""
         n, D = self.motion.state_dim, self.motion.dim
         v0 = as_float_array(initial, "initial", min_ndim=1, last_dim=tuple({D, n}))
         if v0.shape[-1] < n:
@@ -627,7 +670,10 @@ class P2PParticleFilter(RecursiveEstimator):
         k = self.particles
         batch = v0.shape[:-1]
         # v0 + init_std z, computed in the array of the draws (the same values)
-        particles = rng.standard_normal(batch + (k, n))
+        if scratch:
+            particles = rng.standard_normal(out=_scratch("run_init", batch + (k, n)))
+        else:
+            particles = rng.standard_normal(batch + (k, n))
         particles *= self._init_std
         particles += v0[..., None, :]
         cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
@@ -737,11 +783,12 @@ class P2PParticleFilter(RecursiveEstimator):
                 z += state.particles if u is None else state.particles + u
                 particles = z
             else:
-                particles = _sample_motion(self.motion, state.particles, dt, rng, u)
+                particles = _sample_motion(self.motion, state.particles, dt, rng, u,
+                                           scratch=self.kernel == "numba")
             # lines 6, 8, 11: link posteriors and weights
             log_w, q, post, em_pp, gauss = _link_update(particles, node_xy, th, valid,
                                                         where_prev, state.link_los, params,
-                                                        self.kernel, em)
+                                                        self.kernel, em, scratch=True)
             # line 14: weighted mean; weighted covariance and effective sample size
             w, mean, cov, ess = _moments(log_w, particles, self.kernel)
 
@@ -928,7 +975,7 @@ class P2PParticleFilter(RecursiveEstimator):
             if given_positions is None:
                 raise InputError("given_positions: required when messages='given'")
             given = as_float_array(given_positions, "given_positions", min_ndim=3, last_dim=2)
-        state = self.init(initial, rng, time=t[0])
+        state = self._init(initial, rng, t[0], scratch=self.kernel == "numba")
         if state.batch_shape[-1] != n_veh:
             raise InputError(f"initial: {state.batch_shape[-1]} vehicles, ranges have {n_veh}")
         batch = state.batch_shape[:-1]
@@ -1028,8 +1075,10 @@ class P2PParticleFilter(RecursiveEstimator):
         inv_s = np.ascontiguousarray(1.0 / self._params(state)[..., 0].reshape(b))
         mean_t, cov_t, ess_t = np.empty((T, b, 2)), np.empty((T, b, 2, 2)), np.empty((T, b))
         resets_t = np.empty((T,) + batch_v, dtype=np.int64)
-        bufs = (np.empty((b, k, 2)), np.empty((b, k, 2)))       # particles, alternately
-        idx, pred, v = np.empty((b, k), dtype=np.int64), np.empty((b, k, 2)), np.empty((b, k))
+        # work arrays of this thread, kept between runs (see _scratch)
+        bufs = (_scratch("run_a", (b, k, 2)), _scratch("run_b", (b, k, 2)))   # alternately
+        idx = _scratch("run_idx", (b, k), np.int64)
+        pred, v = _scratch("pred", (b, k, 2)), _scratch("v", (b, k))
         distinct = np.empty(b, dtype=np.int64)
         parts = np.ascontiguousarray(state.particles.reshape(b, k, 2))
         mean, resets = state.mean, state.resets
