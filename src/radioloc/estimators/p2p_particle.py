@@ -491,8 +491,10 @@ def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng
             cov.reshape(batch + (2, 2)), ess.reshape(batch), distinct.reshape(batch))
 
 
-def _gather(particles, q, idx, kernel):
-    """Resampled particles and link posteriors, and the number of distinct ancestors."""
+def _gather(particles, q, idx, kernel, slot=None):
+    """Resampled particles and link posteriors, and the number of distinct ancestors;
+    ``slot`` (:meth:`P2PParticleFilter.run`): the outputs in this thread's work arrays of
+    that name (see :func:`_scratch`)."""
     if kernel == "numpy":
         s = np.sort(idx, axis=-1)
         distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
@@ -500,11 +502,14 @@ def _gather(particles, q, idx, kernel):
                 np.take_along_axis(q, idx[..., None], axis=-2), distinct)
     batch, (k, n), width = particles.shape[:-2], particles.shape[-2:], q.shape[-1]
     b = int(np.prod(batch, dtype=int))
-    out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    if slot is None:
+        out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    else:
+        out_p, out_q = _scratch(f"{slot}_p", (b, k, n)), _scratch(f"{slot}_q", (b, k, width))
     distinct = np.empty(b, dtype=np.int64)
     _k.gather_resampled(particles.reshape(b, k, n), q.reshape(b, k, width),
                         np.ascontiguousarray(idx.reshape(b, k)), out_p, out_q, distinct,
-                        np.empty((b, k), dtype=bool), CHUNK)
+                        _scratch("seen", (b, k), np.bool_), CHUNK)
     return (out_p.reshape(particles.shape), out_q.reshape(q.shape), distinct.reshape(batch))
 
 
@@ -752,10 +757,12 @@ class P2PParticleFilter(RecursiveEstimator):
                              "reading of every step")
         return self._step(state, theta, mask, nodes, rng, u, dt)
 
-    def _step(self, state, theta, mask, nodes, rng, u, dt):
+    def _step(self, state, theta, mask, nodes, rng, u, dt, slot=None):
         """:meth:`step` on checked inputs: ``theta`` (..., N, J) finite or NaN, ``mask`` its
         finite entries, ``nodes`` (..., N, J, 2) finite where ``mask``, ``u`` (..., N, 1, D)
-        or None."""
+        or None. ``slot``: the new particles and link posteriors in this thread's work
+        arrays of that name (:meth:`run`, which alternates two: a step reads the previous
+        step's and writes the other)."""
         D = self.motion.dim
         batch = state.batch_shape
         k = state.particles.shape[-2]
@@ -802,9 +809,9 @@ class P2PParticleFilter(RecursiveEstimator):
             else:
                 idx = get_scheme(self.resampling)(w, rng)                     # (..., N, K)
             if q.strides[-2] == 0:                  # shared by every particle (Gaussian case)
-                particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel)
+                particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel, slot)
             else:
-                particles, q, distinct = _gather(particles, q, idx, self.kernel)
+                particles, q, distinct = _gather(particles, q, idx, self.kernel, slot)
             # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0)
             los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
                                           mask.shape[-1]) & mask
@@ -1011,7 +1018,8 @@ class P2PParticleFilter(RecursiveEstimator):
             if not np.all(np.isfinite(peers)):
                 _check_nodes(mask, nodes)
             state = self._step(state, r[..., k, :], mask, nodes, rng,
-                               None if uk is None else uk[..., None, :], dts[k])
+                               None if uk is None else uk[..., None, :], dts[k],
+                               slot=f"run{k % 2}")
             estimates.append(self.estimate(state))
         return track_from_steps(estimates, t)
 
