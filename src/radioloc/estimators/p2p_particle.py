@@ -302,8 +302,8 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
-    ``scratch``: the new link posteriors in this thread's work array (see :func:`_scratch`;
-    valid until the next scratch call).
+    ``scratch``: ``log w`` and the new link posteriors in this thread's work arrays (see
+    :func:`_scratch`; valid until the next scratch call).
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
@@ -313,7 +313,7 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
     b = int(np.prod(batch, dtype=int))
     nc = _k.n_chunks(k, CHUNK)
-    log_w = np.empty((b, k))
+    log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
     q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
@@ -352,8 +352,9 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     return out + ((em_pp.reshape(batch + (k, 3)) if em else None), gauss.reshape(batch))
 
 
-def _moments(log_w, particles, kernel):
-    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n), ESS."""
+def _moments(log_w, particles, kernel, scratch=False):
+    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n), ESS;
+    ``scratch``: the weights in this thread's work array (see :func:`_scratch`)."""
     if kernel == "numpy":
         w = np.exp(log_w - log_w.max(axis=-1, keepdims=True))
         w /= w.sum(axis=-1, keepdims=True)
@@ -363,7 +364,8 @@ def _moments(log_w, particles, kernel):
         return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
-    w, mean, cov, ess = np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+    w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
+    mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
     _k.weights_moments(np.ascontiguousarray(log_w.reshape(b, k)),
                        np.ascontiguousarray(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
@@ -797,7 +799,7 @@ class P2PParticleFilter(RecursiveEstimator):
                                                         where_prev, state.link_los, params,
                                                         self.kernel, em, scratch=True)
             # line 14: weighted mean; weighted covariance and effective sample size
-            w, mean, cov, ess = _moments(log_w, particles, self.kernel)
+            w, mean, cov, ess = _moments(log_w, particles, self.kernel, scratch=True)
 
             # line 12: resample; carry the normalised link posterior of each surviving
             # particle
