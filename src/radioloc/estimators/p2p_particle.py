@@ -35,6 +35,7 @@ The parameters of the range model can be estimated inside the filter by online E
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -268,10 +269,41 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     return log_w, q_new, post, em_pp, None
 
 
-def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em):
+#: Work arrays of :meth:`P2PParticleFilter.step` kept between calls, per thread (see
+#: :func:`_scratch`).
+_SCRATCH = threading.local()
+#: Larger work arrays are not kept.
+_SCRATCH_MAX_BYTES = 1 << 28
+
+
+def _scratch(name, shape, dtype=np.float64):
+    """A C-contiguous work array of ``shape`` (contents undefined), the same memory on every
+    call of this thread with this ``name`` while it is large enough: the arrays a step uses
+    and drops (the predicted particles, the new link posteriors before the gather) are not
+    fresh memory every step (the kernel's first touch of fresh pages, and their zeroing,
+    cost system time)."""
+    cache = getattr(_SCRATCH, "arrays", None)
+    if cache is None:
+        cache = _SCRATCH.arrays = {}
+    size = int(np.prod(shape, dtype=np.int64))
+    dtype = np.dtype(dtype)
+    if size * dtype.itemsize > _SCRATCH_MAX_BYTES:
+        cache.pop((name, dtype), None)
+        return np.empty(shape, dtype=dtype)
+    a = cache.get((name, dtype))
+    if a is None or a.size < size:
+        a = np.empty(max(size, 1), dtype=dtype)
+        cache[(name, dtype)] = a
+    return a[:size].reshape(shape)
+
+
+def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
+                 scratch=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
+    ``scratch``: ``log w`` and the new link posteriors in this thread's work arrays (see
+    :func:`_scratch`; valid until the next scratch call).
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
@@ -281,8 +313,8 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
     b = int(np.prod(batch, dtype=int))
     nc = _k.n_chunks(k, CHUNK)
-    log_w = np.empty((b, k))
-    q_new = np.empty((b, k, width))
+    log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
+    q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
@@ -320,8 +352,9 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     return out + ((em_pp.reshape(batch + (k, 3)) if em else None), gauss.reshape(batch))
 
 
-def _moments(log_w, particles, kernel):
-    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n), ESS."""
+def _moments(log_w, particles, kernel, scratch=False):
+    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n), ESS;
+    ``scratch``: the weights in this thread's work array (see :func:`_scratch`)."""
     if kernel == "numpy":
         w = np.exp(log_w - log_w.max(axis=-1, keepdims=True))
         w /= w.sum(axis=-1, keepdims=True)
@@ -331,7 +364,8 @@ def _moments(log_w, particles, kernel):
         return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
-    w, mean, cov, ess = np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+    w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
+    mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
     _k.weights_moments(np.ascontiguousarray(log_w.reshape(b, k)),
                        np.ascontiguousarray(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
@@ -347,16 +381,21 @@ _DRAW_PART = 1 << 16
 _POOL = None
 
 
-def _standard_normal(rng, shape):
+def _standard_normal(rng, shape, scratch=False):
     """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
-    filled in parallel (see ``_DRAW_PARALLEL``)."""
+    filled in parallel (see ``_DRAW_PARALLEL``). ``scratch``: into this thread's work array
+    (see :func:`_scratch`)."""
     global _POOL
     size = int(np.prod(shape, dtype=np.int64))
+    out = _scratch("draws", (size,)) if scratch else None
     if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
-        return rng.standard_normal(shape)
+        if out is None:
+            return rng.standard_normal(shape)
+        return rng.standard_normal(out=out).reshape(shape)
     import numba
     from concurrent.futures import ThreadPoolExecutor
-    out = np.empty(size)
+    if out is None:
+        out = np.empty(size)
     parts = -(-size // _DRAW_PART)
     children = rng.spawn(parts)
     if _POOL is None:
@@ -368,15 +407,16 @@ def _standard_normal(rng, shape):
     return out.reshape(shape)
 
 
-def _sample_motion(motion, particles, dt, rng, control):
+def _sample_motion(motion, particles, dt, rng, control, scratch=False):
     """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
     is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
-    same maths; draws through :func:`_standard_normal`)."""
+    same maths; draws through :func:`_standard_normal`, into its work array when
+    ``scratch``)."""
     if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
         # InputDriven.sample without its identity product: (x + u) + std z, the same
         # floating-point result, into the array of the draws
-        z = _standard_normal(rng, particles.shape)
+        z = _standard_normal(rng, particles.shape, scratch)
         z *= motion.std_m
         z += particles if control is None else particles + control
         return z
@@ -394,7 +434,7 @@ def _sample_motion(motion, particles, dt, rng, control):
         mean = motion.predict(particles, dt, control=control)
     vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = _standard_normal(rng, mean.shape)
+    z = _standard_normal(rng, mean.shape, scratch)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
         # diagonal noise: mean + diag(factor) z, the product's values, into the array of
         # the draws
@@ -448,13 +488,15 @@ def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng
                        np.ascontiguousarray(valid.reshape(b, width)),
                        np.ascontiguousarray(1.0 / params[..., 0].reshape(b)),
                        u01.reshape(b), CHUNK, out, idx, mean, cov, ess, distinct,
-                       np.empty((b, k, 2)), np.empty((b, k)))
+                       _scratch("pred", (b, k, 2)), _scratch("v", (b, k)))
     return (out.reshape(batch + (k, 2)), idx.reshape(batch + (k,)), mean.reshape(batch + (2,)),
             cov.reshape(batch + (2, 2)), ess.reshape(batch), distinct.reshape(batch))
 
 
-def _gather(particles, q, idx, kernel):
-    """Resampled particles and link posteriors, and the number of distinct ancestors."""
+def _gather(particles, q, idx, kernel, slot=None):
+    """Resampled particles and link posteriors, and the number of distinct ancestors;
+    ``slot`` (:meth:`P2PParticleFilter.run`): the outputs in this thread's work arrays of
+    that name (see :func:`_scratch`)."""
     if kernel == "numpy":
         s = np.sort(idx, axis=-1)
         distinct = 1 + np.count_nonzero(np.diff(s, axis=-1), axis=-1)
@@ -462,11 +504,14 @@ def _gather(particles, q, idx, kernel):
                 np.take_along_axis(q, idx[..., None], axis=-2), distinct)
     batch, (k, n), width = particles.shape[:-2], particles.shape[-2:], q.shape[-1]
     b = int(np.prod(batch, dtype=int))
-    out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    if slot is None:
+        out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    else:
+        out_p, out_q = _scratch(f"{slot}_p", (b, k, n)), _scratch(f"{slot}_q", (b, k, width))
     distinct = np.empty(b, dtype=np.int64)
     _k.gather_resampled(particles.reshape(b, k, n), q.reshape(b, k, width),
                         np.ascontiguousarray(idx.reshape(b, k)), out_p, out_q, distinct,
-                        np.empty((b, k), dtype=bool), CHUNK)
+                        _scratch("seen", (b, k), np.bool_), CHUNK)
     return (out_p.reshape(particles.shape), out_q.reshape(q.shape), distinct.reshape(batch))
 
 
@@ -487,6 +532,13 @@ def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.
         slot0 = first.min(axis=-1)
         pos_prev[..., 0] = np.where(slot0 < width_prev, slot0, -1)
     return np.take_along_axis(pos_prev, links, axis=-1)
+
+
+def _check_nodes(mask, nodes):
+    """InputError unless every node with a range (``mask`` (..., J)) has a finite position
+    (``nodes`` (..., J, 2))."""
+    if np.any(mask & ~np.all(np.isfinite(nodes), axis=-1)):
+        raise InputError("node_positions: non-finite position of a node with a range")
 
 
 class P2PParticleFilter(RecursiveEstimator):
@@ -613,13 +665,24 @@ class P2PParticleFilter(RecursiveEstimator):
         -------
         ParticleState
         """
+        return self._init(initial, rng, time)
+
+    def _init(self, initial, rng, time, scratch=False):
+        """:meth:`init`; ``scratch``: the particles in this thread's work array (see
+        :func:`_scratch`; :meth:`run` only reads them, at its first step)."""
         n, D = self.motion.state_dim, self.motion.dim
         v0 = as_float_array(initial, "initial", min_ndim=1, last_dim=tuple({D, n}))
         if v0.shape[-1] < n:
             v0 = np.concatenate([v0, np.zeros(v0.shape[:-1] + (n - D,))], axis=-1)
         k = self.particles
         batch = v0.shape[:-1]
-        particles = v0[..., None, :] + self._init_std * rng.standard_normal(batch + (k, n))
+        # v0 + init_std z, computed in the array of the draws (the same values)
+        if scratch:
+            particles = rng.standard_normal(out=_scratch("run_init", batch + (k, n)))
+        else:
+            particles = rng.standard_normal(batch + (k, n))
+        particles *= self._init_std
+        particles += v0[..., None, :]
         cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
                               batch + (n, n)).copy()
         m = self.measurement
@@ -684,8 +747,7 @@ class P2PParticleFilter(RecursiveEstimator):
         except ValueError:
             raise InputError(f"node_positions: shape {nodes.shape} does not fit ranges "
                              f"{theta.shape}") from None
-        if np.any(mask & ~np.all(np.isfinite(nodes), axis=-1)):
-            raise InputError("node_positions: non-finite position of a node with a range")
+        _check_nodes(mask, nodes)
         u = None
         if control is not None:
             u = as_float_array(control, "control", last_dim=D)
@@ -695,7 +757,17 @@ class P2PParticleFilter(RecursiveEstimator):
         elif self._input_driven:
             raise InputError("control: the input-driven motion model needs the displacement "
                              "reading of every step")
+        return self._step(state, theta, mask, nodes, rng, u, dt)
 
+    def _step(self, state, theta, mask, nodes, rng, u, dt, slot=None):
+        """:meth:`step` on checked inputs: ``theta`` (..., N, J) finite or NaN, ``mask`` its
+        finite entries, ``nodes`` (..., N, J, 2) finite where ``mask``, ``u`` (..., N, 1, D)
+        or None. ``slot``: the new particles and link posteriors in this thread's work
+        arrays of that name (:meth:`run`, which alternates two: a step reads the previous
+        step's and writes the other)."""
+        D = self.motion.dim
+        batch = state.batch_shape
+        k = state.particles.shape[-2]
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)
         th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
@@ -720,13 +792,14 @@ class P2PParticleFilter(RecursiveEstimator):
                 z += state.particles if u is None else state.particles + u
                 particles = z
             else:
-                particles = _sample_motion(self.motion, state.particles, dt, rng, u)
+                particles = _sample_motion(self.motion, state.particles, dt, rng, u,
+                                           scratch=self.kernel == "numba")
             # lines 6, 8, 11: link posteriors and weights
             log_w, q, post, em_pp, gauss = _link_update(particles, node_xy, th, valid,
                                                         where_prev, state.link_los, params,
-                                                        self.kernel, em)
+                                                        self.kernel, em, scratch=True)
             # line 14: weighted mean; weighted covariance and effective sample size
-            w, mean, cov, ess = _moments(log_w, particles, self.kernel)
+            w, mean, cov, ess = _moments(log_w, particles, self.kernel, scratch=True)
 
             # line 12: resample; carry the normalised link posterior of each surviving
             # particle
@@ -738,9 +811,9 @@ class P2PParticleFilter(RecursiveEstimator):
             else:
                 idx = get_scheme(self.resampling)(w, rng)                     # (..., N, K)
             if q.strides[-2] == 0:                  # shared by every particle (Gaussian case)
-                particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel)
+                particles, _, distinct = _gather(particles, q[..., :0], idx, self.kernel, slot)
             else:
-                particles, q, distinct = _gather(particles, q, idx, self.kernel)
+                particles, q, distinct = _gather(particles, q, idx, self.kernel, slot)
             # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0)
             los_detected = scatter_packed(valid & (post[..., 1] > post[..., 0]), links, valid,
                                           mask.shape[-1]) & mask
@@ -778,15 +851,7 @@ class P2PParticleFilter(RecursiveEstimator):
             return None
         if state.particles.shape[-1] != 2 or not np.all(params[..., 2] == 1.0):
             return None
-        if np.ndim(dt) == 0:                    # sd depends on the motion model and dt only
-            key = float(dt)
-            if key not in self._walk_sd:
-                if len(self._walk_sd) > 64:
-                    self._walk_sd.clear()
-                self._walk_sd[key] = _walk_noise(self.motion, 2, dt)
-            sd = self._walk_sd[key]
-        else:
-            sd = _walk_noise(self.motion, 2, dt)
+        sd = self._walk_sd_of(dt)
         if sd is None:
             return None
         q = state.link_los
@@ -799,6 +864,18 @@ class P2PParticleFilter(RecursiveEstimator):
             if not np.all(np.take_along_axis(q, slot, axis=-1)[carried] == 1.0):
                 return None
         return sd
+
+    def _walk_sd_of(self, dt):
+        """:func:`_walk_noise` of the motion model over ``dt`` (2-D states), cached per scalar
+        ``dt`` (it depends on the motion model and ``dt`` only)."""
+        if np.ndim(dt) != 0:
+            return _walk_noise(self.motion, 2, dt)
+        key = float(dt)
+        if key not in self._walk_sd:
+            if len(self._walk_sd) > 64:
+                self._walk_sd.clear()
+            self._walk_sd[key] = _walk_noise(self.motion, 2, dt)
+        return self._walk_sd[key]
 
     def _params(self, state: ParticleState) -> np.ndarray:
         """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
@@ -902,11 +979,12 @@ class P2PParticleFilter(RecursiveEstimator):
             u = as_float_array(controls, "controls", min_ndim=3, last_dim=2)
             if u.shape[-2] != T:
                 raise InputError(f"controls: expected {T} steps on axis -2, got {u.shape}")
+        given = None
         if self.messages == "given":
             if given_positions is None:
                 raise InputError("given_positions: required when messages='given'")
             given = as_float_array(given_positions, "given_positions", min_ndim=3, last_dim=2)
-        state = self.init(initial, rng, time=t[0])
+        state = self._init(initial, rng, t[0], scratch=self.kernel == "numba")
         if state.batch_shape[-1] != n_veh:
             raise InputError(f"initial: {state.batch_shape[-1]} vehicles, ranges have {n_veh}")
         batch = state.batch_shape[:-1]
@@ -918,16 +996,132 @@ class P2PParticleFilter(RecursiveEstimator):
         except ValueError:
             raise InputError(f"anchors: batch shape {a.shape[:-2]} does not broadcast with the "
                              f"runs' {batch}") from None
+        # checks of step, once for every step (the nodes built below are checked per step
+        # only where they can be non-finite: the peers' positions)
+        if r.shape[:-2] != state.batch_shape:
+            raise InputError(f"ranges: leading shape {r.shape[:-2]} differs from the "
+                             f"filter's {state.batch_shape}")
+        if np.any(np.isinf(r)):
+            raise InputError("ranges: infinite value (NaN marks an absent link)")
+        if u is None and self._input_driven:
+            raise InputError("control: the input-driven motion model needs the displacement "
+                             "reading of every step")
+        sds = self._bootstrap_run_sd(state, dts)
+        if sds is not None:
+            return self._run_bootstrap(r, state, anchors_b, dts, u, given, t, sds, rng)
+        mask_all = ~np.isnan(r)
         estimates = []
         for k in range(T):
             uk = None if u is None else u[..., k, :]
-            if self.messages == "previous":
-                peers = state.mean[..., : self.motion.dim]
-            elif self.messages == "extrapolated":
-                peers = self.motion.predict(state.mean, dts[k], control=uk)[..., : self.motion.dim]
-            else:
-                peers = given[..., k, :]
+            peers = self._peers(state.mean, dts[k], uk, given, k)
             nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b], axis=-2)
-            state = self.step(state, r[..., k, :], nodes, rng, control=uk, dt=dts[k])
+            mask = mask_all[..., k, :]
+            nodes = np.broadcast_to(nodes[..., None, :, :], mask.shape + (2,))
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask, nodes)
+            state = self._step(state, r[..., k, :], mask, nodes, rng,
+                               None if uk is None else uk[..., None, :], dts[k],
+                               slot=f"run{k % 2}")
             estimates.append(self.estimate(state))
         return track_from_steps(estimates, t)
+
+    def _peers(self, mean, dt, control, given, k):
+        """Positions vehicle ``k`` uses for its neighbours at step ``k`` of :meth:`run` (see
+        ``messages``), from the estimates ``mean`` (..., N, n) of the previous step."""
+        if self.messages == "previous":
+            return mean[..., : self.motion.dim]
+        if self.messages == "extrapolated":
+            return self.motion.predict(mean, dt, control=control)[..., : self.motion.dim]
+        return given[..., k, :]
+
+    def _bootstrap_run_sd(self, state, dts):
+        """The noise std of every step when every step of :meth:`run` from ``state`` (from
+        :meth:`init`) is the plain bootstrap filter, else None.
+
+        :meth:`step` takes its bootstrap case when ``_bootstrap_noise`` finds one; in a run
+        without online EM the parameters do not change, the first step carries no link, and
+        every bootstrap step leaves every carried LOS posterior 1 (a reset sets the mean
+        posterior, 1 on every link), so the case holds at every step when it holds at the
+        first and ``sd`` exists for every ``dt``."""
+        if (self.kernel != "numba" or self.resampling != "systematic"
+                or self.online_em is not None or state.particles.shape[-1] != 2
+                or state.link_los.shape[-1] != 0 or not np.all(self._params(state)[..., 2] == 1.0)):
+            return None
+        sds = []
+        for dt in dts:
+            sd = self._walk_sd_of(dt)
+            if sd is None:
+                return None
+            sds.append(np.ascontiguousarray(sd, dtype=float))
+        return sds
+
+    def _run_bootstrap(self, r, state, anchors_b, dts, u, given, t, sds, rng):
+        """:meth:`run` when every step is the plain bootstrap filter (see
+        :meth:`_bootstrap_run_sd`): the fused kernel of :func:`_bootstrap_step` on work
+        arrays reused across steps, the links packed once for every step, the results of
+        each step written into the track's arrays. The same draws in the same order and
+        the same values as :meth:`step` step by step (the width of the packed links does
+        not enter the kernel's arithmetic: it skips the padding)."""
+        D = 2
+        batch_v = state.batch_shape                             # (..., N)
+        batch = batch_v[:-1]
+        n_veh, T, J = r.shape[-3:]
+        k = state.particles.shape[-2]
+        b = int(np.prod(batch_v, dtype=int))
+        nb = int(np.prod(batch, dtype=int))
+        nbd = len(batch_v)
+        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
+        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        width = links.shape[-1]
+        th = gather_packed(np.where(mask_all, r, 0.0), links)
+
+        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
+
+        links_t = time_first(links).reshape(T, nb, n_veh, width)
+        valid_t, th_t = time_first(valid), time_first(th)
+        shift_t = np.zeros((T, b, 2)) if u is None else time_first(u)
+        rows = np.arange(nb)[:, None, None]
+        inv_s = np.ascontiguousarray(1.0 / self._params(state)[..., 0].reshape(b))
+        mean_t, cov_t, ess_t = np.empty((T, b, 2)), np.empty((T, b, 2, 2)), np.empty((T, b))
+        resets_t = np.empty((T,) + batch_v, dtype=np.int64)
+        # work arrays of this thread, kept between runs (see _scratch)
+        bufs = (_scratch("run_a", (b, k, 2)), _scratch("run_b", (b, k, 2)))   # alternately
+        idx = _scratch("run_idx", (b, k), np.int64)
+        pred, v = _scratch("pred", (b, k, 2)), _scratch("v", (b, k))
+        distinct = np.empty(b, dtype=np.int64)
+        parts = np.ascontiguousarray(state.particles.reshape(b, k, 2))
+        mean, resets = state.mean, state.resets
+        for s in range(T):
+            uk = None if u is None else u[..., s, :]
+            peers = self._peers(mean, dts[s], uk, given, s)
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
+                                   axis=-2)                     # (..., J, 2)
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask_all[..., s, :],
+                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            node_xy = nodes.reshape(nb, J, 2)[rows, links_t[s]].reshape(b, width, 2)
+            key = draw_key(rng)
+            u01 = rng.random(batch_v + (1,))    # the draw of resampling.systematic
+            out = bufs[s % 2]
+            _bs.bootstrap_step(parts, shift_t[s], sds[s], key, node_xy, th_t[s], valid_t[s],
+                               inv_s, u01.reshape(b), CHUNK, out, idx, mean_t[s], cov_t[s],
+                               ess_t[s], distinct, pred, v)
+            parts = out
+            mean = mean_t[s].reshape(batch_v + (2,))
+            # reset on degeneracy, as in step
+            reset = (distinct < self.reset_fraction * k).reshape(batch_v)
+            if np.any(reset):
+                parts.reshape(batch_v + (k, 2))[reset, :, :D] = mean[reset][:, None, :D] + \
+                    self.reset_std_m * rng.standard_normal((int(reset.sum()), k, D))
+            resets = resets + reset
+            resets_t[s] = resets
+
+        def track_axes(a):                                      # (T, b, *x) -> (..., N, T, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((T,) + batch_v + a.shape[2:]),
+                                                    0, nbd))
+
+        diag = {"ess": track_axes(ess_t), "los_detected": mask_all.copy(),
+                "resets": np.ascontiguousarray(np.moveaxis(resets_t, 0, nbd)),
+                "state": track_axes(mean_t), "state_covariance": track_axes(cov_t)}
+        return Track(track_axes(mean_t), track_axes(cov_t), t, diag)
