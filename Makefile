@@ -50,7 +50,7 @@ demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
 test: $(STAMP_DEV) browser rt
-	$(BIN)/python -m pytest -n 2 --dist loadgroup --durations=20
+	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=20
 
 docs: $(STAMP_DOCS)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict

@@ -32,10 +32,6 @@ from library_harness import (
 from radioloc.estimators import LocalML, Multilateration, Ransac
 from radioloc.models import LosNlosRange
 
-# One xdist worker takes the whole module (`make test` runs `--dist loadgroup`), so the
-# compile-everything fixture below runs once per test session rather than once per worker.
-pytestmark = pytest.mark.xdist_group("fuzz-library")
-
 
 def _run(case: Case, mutation) -> None:
     spec = case.fields[mutation.field]
