@@ -510,6 +510,7 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap
     factorisation ran at least once (a structured pivot failed, or not ``structured``)."""
     n = r.shape[1]
     ws = _gls_workspace(n, 2 * gu.shape[0] + (2 if printed else 0))
+    ols_step = a0 <= a1     # a run-time bool, not a literal: one compiled _gls_one for both calls
     zero = np.zeros(4)
     new = np.empty(4)
     new_cov = np.empty((4, 4))
@@ -517,7 +518,7 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap
         beta = out_beta[b]
         cov = out_cov[b]
         crit, _ = _gls_one(b, r, s, xi, mean, zero, c, sks, cb, sksb, gu, gv, tv, kap, printed, var,
-                           True, structured, ws, out_ols[b], new_cov)
+                           ols_step, structured, ws, out_ols[b], new_cov)
         flags = 4 if math.isnan(crit) else 0                               # step 3a
         beta[:] = out_ols[b]
         cov[:] = 0.0
@@ -526,7 +527,7 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap
         if flags == 0:
             for _ in range(max_iter):
                 crit, dense = _gls_one(b, r, s, xi, mean, beta, c, sks, cb, sksb, gu, gv, tv, kap,
-                                       printed, var, False, structured, ws, new, new_cov)
+                                       printed, var, not ols_step, structured, ws, new, new_cov)
                 if dense:
                     flags |= 8
                 if math.isnan(crit):                                       # steps 3b-3c
@@ -851,6 +852,9 @@ class ClosedFormTracker(SnapshotEstimator):
             cb[d, :n - d] = np.diagonal(model.c, d)
             if d < 4:
                 sksb[d, :n - 3 - d] = np.diagonal(sks, d)
+        # one array type per argument (C-contiguous, writeable float64): a read-only view
+        # (e.g. a broadcast) would otherwise compile the kernels once more
+        rr, ss, xi = (np.require(x, np.float64, ("C", "W")) for x in (rr, ss, xi))
         args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
                 _STRUCTURED, ols, beta, cov, iterations, flags)
