@@ -10,7 +10,9 @@ unit as ``"bytes_per_unit"`` (minimum bytes that must cross the memory bus) and/
 ``FLOPS_PER_UNIT`` dicts keyed by workload; ``limit = min(bandwidth / bytes_per_unit,
 peak_flops / flops_per_unit)`` with the bandwidth and the peak measured below by wall clock
 (by CPU time, ``time.process_time`` over all threads, for a row per CPU second: unit ending
-in ``/CPU-s``). A module whose
+in ``/CPU-s``). Rows with a target in ``targets.py`` also get ``target`` and
+``meets_target``; those below target are listed under the table with what bounds them.
+A module whose
 ``main()`` returns ``None`` (or fails) is listed and skipped. Run:
 ``PYTHONPATH=src python benchmarks/collect.py [module ...]``.
 """
@@ -30,6 +32,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 from numba import njit, prange  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import targets  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 MODULES = ("bench_grid", "bench_network", "bench_closed_form", "bench_particle", "bench_channel",
@@ -126,6 +131,12 @@ def _rows_of(name: str) -> list[dict] | None:
     return out
 
 
+def _verdict(row: dict) -> str:
+    if "meets_target" not in row:
+        return "-"
+    return "yes" if row["meets_target"] else "**no**"
+
+
 def main(modules=MODULES) -> list[dict]:
     """Run the benchmarks and write ``results.json`` and ``RESULTS.md``.
 
@@ -168,6 +179,10 @@ def main(modules=MODULES) -> list[dict]:
             for extra in ("bytes_per_unit", "flops_per_unit", "note"):
                 if r.get(extra) is not None:
                     row[extra] = r[extra]
+            target = targets.target_of(row)
+            if target is not None:
+                row["target"] = target
+                row["meets_target"] = targets.meets(row, target)
             rows.append(row)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     (HERE / "results.json").write_text(json.dumps(rows, indent=1) + "\n")
@@ -179,13 +194,25 @@ def main(modules=MODULES) -> list[dict]:
              f"({limits['peak_flops_per_cpu_s'] / 1e9:.1f} GFLOP per CPU second); see README.md "
              "for `limit`.", "",
              "| workload | throughput | unit | peer | peer throughput | ratio | limit | "
-             "fraction of limit |", "|---|---|---|---|---|---|---|---|"]
+             "fraction of limit | target | meets |", "|---|---|---|---|---|---|---|---|---|---|"]
     fmt = lambda v, f: "-" if v is None else format(v, f)     # noqa: E731
     for r in rows:
         lines.append(f"| {r['workload']} | {r['throughput']:,.0f} | {r['unit']} | "
                      f"{r['peer'] or '-'} | {fmt(r['peer_throughput'], ',.0f')} | "
                      f"{fmt(r['ratio'], '.1f')}{'' if r['ratio'] is None else 'x'} | "
-                     f"{fmt(r['limit'], ',.3g')} | {fmt(r['limit_fraction'], '.1%')} |")
+                     f"{fmt(r['limit'], ',.3g')} | {fmt(r['limit_fraction'], '.1%')} | "
+                     f"{targets.describe(r['target']) if 'target' in r else '-'} | "
+                     f"{_verdict(r)} |")
+    missed = [r for r in rows if r.get("meets_target") is False]
+    if missed:
+        lines += ["", "Below target, and what bounds each (README.md, \"Where the time goes\", "
+                  "has the measurements):"]
+        for r in missed:
+            frac = ("no declared work" if r["limit_fraction"] is None
+                    else f"{r['limit_fraction']:.1%} of this machine's limit")
+            lines.append(f"- {r['workload']} (vs {r['peer'] or 'its target'}): "
+                         f"{targets.BOUNDS.get(r['workload'], 'not yet analysed.')} "
+                         f"Measured: {frac}.")
     notes = [f"- {r['workload']}: {r['note']}" for r in rows if r.get("note")]
     if notes:
         lines += ["", "Notes:", *notes]
