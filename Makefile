@@ -6,50 +6,54 @@ STAMP  := $(VENV)/.installed
 STAMP_DEV := $(VENV)/.installed-dev
 STAMP_DOCS := $(VENV)/.installed-docs
 
-.PHONY: demo test full bench docs browser rt clean
+.PHONY: demo test full bench docs system browser rt clean
+
+# Packages install with uv (PyPI's `uv`, put into the venv first: on a fresh machine it
+# installs the dev set in under a minute where pip took several); pip is the fallback.
+PIP := $(BIN)/python -m uv pip install -q --python $(BIN)/python
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q uv
 
 $(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install -q -e .
+	$(PIP) -e . || $(BIN)/python -m pip install -q -e .
 	touch $@
 
 $(STAMP_DEV): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(PIP) -e ".[dev]" || $(BIN)/python -m pip install -q -e ".[dev]"
 	touch $(STAMP) $@
 
 $(STAMP_DOCS): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install -q -e ".[docs]"
+	$(PIP) -e ".[docs]" || $(BIN)/python -m pip install -q -e ".[docs]"
 	touch $(STAMP) $@
 
-# Headless Chromium for the report's browser test (Debian's package). Installed when absent
-# and this is root (or sudo works); otherwise the test is skipped and says why.
-browser:
-	@if command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1; then :; \
-	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install chromium to run the report's browser test"; \
-	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
-	    --no-install-recommends chromium fonts-dejavu-core \
-	  || echo "chromium could not be installed: the report's browser test will be skipped"; fi
-
-# Sionna RT (the optional 3-D channel provider, extra `rt`) and Debian's LLVM library for its
-# CPU back end. Installed when possible (apt-get as root or with sudo); otherwise the Sionna
-# test is skipped and says why.
-rt: $(STAMP_DEV)
-	@$(BIN)/python -m pip install -q -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
-	@if ls /usr/lib/*/libLLVM-1*.so /usr/lib/llvm-1*/lib/libLLVM*.so >/dev/null 2>&1; then :; \
-	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install libLLVM (e.g. libllvm19) to run the Sionna RT test"; \
+# Debian packages the tests use: headless Chromium for the report's browser test, and LLVM's
+# shared library for Sionna RT's CPU back end. One apt-get call for whichever is absent, when
+# this is root (or sudo works); otherwise the tests that need them are skipped and say why.
+SYSTEM_PKGS = $(shell command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || echo chromium fonts-dejavu-core) \
+              $(shell ls /usr/lib/*/libLLVM-1*.so /usr/lib/llvm-1*/lib/libLLVM*.so >/dev/null 2>&1 || echo libllvm19)
+system:
+	@if [ -z "$(strip $(SYSTEM_PKGS))" ]; then :; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install $(strip $(SYSTEM_PKGS)) to run the browser / Sionna RT tests"; \
 	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
 	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
-	    --no-install-recommends libllvm19 \
-	  || echo "libllvm19 could not be installed: the Sionna RT test will be skipped"; fi
+	    --no-install-recommends $(SYSTEM_PKGS) \
+	  || echo "$(strip $(SYSTEM_PKGS)) could not be installed: the browser / Sionna RT tests will be skipped"; fi
+
+browser: system
+
+# Sionna RT (the optional 3-D channel provider, extra `rt`); its LLVM library comes from
+# `system`. Installed when possible; otherwise the Sionna test is skipped and says why.
+rt: $(STAMP_DEV)
+	@$(PIP) -e ".[rt]" || $(BIN)/python -m pip install -q -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
 
 demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
-test: $(STAMP_DEV) browser rt
+# The Debian packages and the Python ones install side by side (two jobs), then the tests run.
+test:
+	@$(MAKE) --no-print-directory -j2 system rt
 	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=20
 
 docs: $(STAMP_DOCS)
@@ -61,7 +65,7 @@ full: $(STAMP)
 # `particles` (a benchmark peer) pins numpy<2 in its metadata although it runs on numpy 2;
 # it is installed without its dependencies so that pip keeps the project's numpy.
 bench: $(STAMP_DEV)
-	$(BIN)/python -c "import particles" 2>/dev/null || $(BIN)/python -m pip install -q --no-deps particles
+	$(BIN)/python -c "import particles" 2>/dev/null || $(PIP) --no-deps particles || $(BIN)/python -m pip install -q --no-deps particles
 	$(BIN)/python benchmarks/collect.py
 
 clean:
