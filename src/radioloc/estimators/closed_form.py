@@ -502,12 +502,15 @@ def _gls_workspace(n, r):
 
 @njit(cache=True)
 def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol,
-                       max_iter, crit_stop, structured, out_ols, out_beta, out_cov, out_it,
-                       out_flags):
+                       max_iter, crit_stop, structured, out_ols, out_beta, out_cov, out_traj,
+                       out_it, out_flags):
     """Steps 1-3d for the tracks ``a0 <= b < a1``, each iterated to its own stop (the
     rule of :meth:`ClosedFormTracker.locate`); ``out_flags[b]``: bit 0 converged, bit 1
     stalled (criterion stopping), bit 2 a matrix not positive definite, bit 3 the dense
-    factorisation ran at least once (a structured pivot failed, or not ``structured``)."""
+    factorisation ran at least once (a structured pivot failed, or not ``structured``).
+    ``out_traj[b]`` (n, 2): the straight track ``p_k + tv_i v_k`` at the final state, the
+    arithmetic of :func:`~radioloc.models.single_sensor.trajectory` (no contraction here, so
+    the same values bit for bit)."""
     n = r.shape[1]
     ws = _gls_workspace(n, 2 * gu.shape[0] + (2 if printed else 0))
     ols_step = a0 <= a1     # a run-time bool, not a literal: one compiled _gls_one for both calls
@@ -549,11 +552,15 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap
                     break
         out_it[b] = it
         out_flags[b] = flags
+        traj = out_traj[b]
+        for i in range(n):
+            traj[i, 0] = beta[0] + tv[i] * beta[2]
+            traj[i, 1] = beta[1] + tv[i] * beta[3]
 
 
 @njit(parallel=True, cache=True)
 def _blue_tracks(r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol, max_iter,
-                 crit_stop, structured, out_ols, out_beta, out_cov, out_it, out_flags):
+                 crit_stop, structured, out_ols, out_beta, out_cov, out_traj, out_it, out_flags):
     """:func:`_blue_tracks_range` for every track, in parallel over chunks of tracks that
     share one workspace."""
     B = r.shape[0]
@@ -561,7 +568,7 @@ def _blue_tracks(r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var
     for ch in prange(nch):
         _blue_tracks_range(ch * B // nch, (ch + 1) * B // nch, r, s, xi, mean, c, sks, cb, sksb, gu, gv,
                            tv, kap, printed, var, tol, max_iter, crit_stop, structured,
-                           out_ols, out_beta, out_cov, out_it, out_flags)
+                           out_ols, out_beta, out_cov, out_traj, out_it, out_flags)
 
 
 def _noise_generators(n: int, k: int, T: float, accel_var: float):
@@ -843,6 +850,7 @@ class ClosedFormTracker(SnapshotEstimator):
         ols = np.empty((B, 4))
         beta = np.empty((B, 4))
         cov = np.empty((B, 4, 4))
+        traj = np.empty((B, n, 2))
         iterations = np.empty(B, dtype=np.int64)
         flags = np.empty(B, dtype=np.int64)
         gu, gv = _noise_generators(n, k, T, self.accel_var)
@@ -857,7 +865,7 @@ class ClosedFormTracker(SnapshotEstimator):
         rr, ss, xi = (np.require(x, np.float64, ("C", "W")) for x in (rr, ss, xi))
         args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
-                _STRUCTURED, ols, beta, cov, iterations, flags)
+                _STRUCTURED, ols, beta, cov, traj, iterations, flags)
         _run_blue_kernel(B, args)                                   # steps 3a-3d
         if np.any(flags & 4):
             raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
@@ -868,7 +876,7 @@ class ClosedFormTracker(SnapshotEstimator):
         shape = lambda a, tail: a.reshape(batch + tail)             # noqa: E731
         return self._estimate(shape(beta, (4,)), shape(cov, (4, 4)), shape(ols, (4,)), n, T, k,
                               t_k, shape(iterations, ()), shape(converged, ()),
-                              shape(stalled, ()), shape(keep, (n - 3,)))
+                              shape(stalled, ()), shape(keep, (n - 3,)), shape(traj, (n, 2)))
 
     @staticmethod
     def _differenced_system(r, s, k, model):
@@ -888,9 +896,13 @@ class ClosedFormTracker(SnapshotEstimator):
         return sa, sy, keep
 
     @staticmethod
-    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled,
-                  keep) -> Estimate:
-        diag = {"state": beta, "state_covariance": cov, "trajectory": trajectory(beta, n, T, k),
+    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled, keep,
+                  traj=None) -> Estimate:
+        """The Estimate of :meth:`ClosedFormTracker.locate`; ``traj``: the trajectory
+        diagnostic when the kernel wrote it (else computed here)."""
+        if traj is None:
+            traj = trajectory(beta, n, T, k)
+        diag = {"state": beta, "state_covariance": cov, "trajectory": traj,
                 "ols_state": ols, "iterations": iterations, "converged": converged,
                 "stalled": stalled, "used_differences": np.sum(keep, axis=-1)}
         return Estimate(beta[..., :2], cov[..., :2, :2], t_k, diag)
