@@ -52,11 +52,13 @@ def blue_flops(n: int, iterations: float, width: int = 4) -> float:
     iteration the offsets and diagonal (``12 n``), the band of Sigma (``42 n``), of
     ``S Sigma`` and ``S Sigma S'`` (``56 m + 32 m``), the generators (``24 width m``), the
     structured Cholesky with the forward solve of the 5 columns alongside (per row
-    ``4 width^2 + 39 width + 81``: 303 for the default width 4), the 5 x 5 Gram (``30 m``) and
-    the 4 x 4 solve (about 200); ``width`` is 4 with k at an end of the window, 8 otherwise,
-    plus 2 with the printed eq. (14) terms."""
+    ``4 width^2 + 39 width + 81``; for width 4, ``_factor_solve4`` updates only the upper
+    triangle of the symmetric ``P``: ``3 width^2 + 40 width + 81`` = 289), the 5 x 5 Gram
+    (``30 m``) and the 4 x 4 solve (about 200); ``width`` is 4 with k at an end of the
+    window, 8 otherwise, plus 2 with the printed eq. (14) terms."""
     m = n - 3
-    row = 4 * width * width + 39 * width + 81
+    row = (3 * width * width + 40 * width + 81 if width == 4
+           else 4 * width * width + 39 * width + 81)
     per_iter = 54 * n + (88 + 24 * width + row + 30) * m + 200
     return 40 * n + 30 * m + iterations * per_iter
 

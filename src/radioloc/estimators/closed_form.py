@@ -247,6 +247,180 @@ def _dense_gram(m, n, dx, dy, ex, c, sks, printed, sv, sx, keep, Z, M, ur, G):
     return True
 
 
+@njit(cache=True, fastmath=_FM)
+def _gram5(X, lo, hi, G):
+    """``G = X[:, lo:hi] X[:, lo:hi]'`` for ``X`` of 5 rows: the 15 sums in one pass over the
+    columns (15 independent accumulators instead of 15 serial dot products; each sum is
+    accumulated in the same order, so the same values)."""
+    g00 = g01 = g02 = g03 = g04 = g11 = g12 = g13 = g14 = 0.0
+    g22 = g23 = g24 = g33 = g34 = g44 = 0.0
+    x0, x1, x2, x3, x4 = X[0], X[1], X[2], X[3], X[4]
+    for j in range(lo, hi):
+        a0, a1, a2, a3, a4 = x0[j], x1[j], x2[j], x3[j], x4[j]
+        g00 += a0 * a0
+        g01 += a0 * a1
+        g02 += a0 * a2
+        g03 += a0 * a3
+        g04 += a0 * a4
+        g11 += a1 * a1
+        g12 += a1 * a2
+        g13 += a1 * a3
+        g14 += a1 * a4
+        g22 += a2 * a2
+        g23 += a2 * a3
+        g24 += a2 * a4
+        g33 += a3 * a3
+        g34 += a3 * a4
+        g44 += a4 * a4
+    G[0, 0], G[1, 1], G[2, 2], G[3, 3], G[4, 4] = g00, g11, g22, g33, g44
+    G[0, 1] = G[1, 0] = g01
+    G[0, 2] = G[2, 0] = g02
+    G[0, 3] = G[3, 0] = g03
+    G[0, 4] = G[4, 0] = g04
+    G[1, 2] = G[2, 1] = g12
+    G[1, 3] = G[3, 1] = g13
+    G[1, 4] = G[4, 1] = g14
+    G[2, 3] = G[3, 2] = g23
+    G[2, 4] = G[4, 2] = g24
+    G[3, 4] = G[4, 3] = g34
+
+
+@njit(cache=True, fastmath=_FM)
+def _factor_solve4(m, wb, F, U, Z, lb, li, qv, zz, X):
+    """The Cholesky recursion and forward solve of :func:`_structured_gram` for generator
+    width r = 4 (k at an end of the window, no printed eq. (14) terms): the same operations
+    in the same order as its general loop, with ``P`` (r x r, symmetric) and ``H`` (r x 5)
+    held in local scalars instead of work arrays, so the compiler keeps them out of the
+    aliasing of the arrays written each row. Rows ``_PAD..m + _PAD - 1`` of ``lb``, ``li``,
+    ``qv``, ``zz`` and ``X`` are written (the ``_PAD`` rows before them must hold the
+    identity block). False on a non-positive pivot."""
+    p00 = p01 = p02 = p03 = p11 = p12 = p13 = p22 = p23 = p33 = 0.0
+    h00 = h01 = h02 = h03 = h04 = h10 = h11 = h12 = h13 = h14 = 0.0
+    h20 = h21 = h22 = h23 = h24 = h30 = h31 = h32 = h33 = h34 = 0.0
+    for j in range(_PAD, m + _PAD):
+        jr = j - _PAD
+        o0, o1, o2, o3 = qv[j - 4, 0], qv[j - 4, 1], qv[j - 4, 2], qv[j - 4, 3]
+        x0, x1, x2, x3, x4 = X[0, j - 4], X[1, j - 4], X[2, j - 4], X[3, j - 4], X[4, j - 4]
+        p00 += o0 * o0; p01 += o0 * o1; p02 += o0 * o2; p03 += o0 * o3
+        p11 += o1 * o1; p12 += o1 * o2; p13 += o1 * o3
+        p22 += o2 * o2; p23 += o2 * o3
+        p33 += o3 * o3
+        h00 += o0 * x0; h01 += o0 * x1; h02 += o0 * x2; h03 += o0 * x3; h04 += o0 * x4
+        h10 += o1 * x0; h11 += o1 * x1; h12 += o1 * x2; h13 += o1 * x3; h14 += o1 * x4
+        h20 += o2 * x0; h21 += o2 * x1; h22 += o2 * x2; h23 += o2 * x3; h24 += o2 * x4
+        h30 += o3 * x0; h31 += o3 * x1; h32 += o3 * x2; h33 += o3 * x3; h34 += o3 * x4
+        u0, u1, u2, u3 = U[0, jr], U[1, jr], U[2, jr], U[3, jr]
+        z0 = p00 * u0 + p01 * u1 + p02 * u2 + p03 * u3
+        z1 = p01 * u0 + p11 * u1 + p12 * u2 + p13 * u3
+        z2 = p02 * u0 + p12 * u1 + p22 * u2 + p23 * u3
+        z3 = p03 * u0 + p13 * u1 + p23 * u2 + p33 * u3
+        zz[j, 0] = z0; zz[j, 1] = z1; zz[j, 2] = z2; zz[j, 3] = z3
+        piv = wb[0, j] - u0 * z0 - u1 * z1 - u2 * z2 - u3 * z3
+        e4 = u0 * qv[j - 4, 0] + u1 * qv[j - 4, 1] + u2 * qv[j - 4, 2] + u3 * qv[j - 4, 3]
+        e5 = u0 * qv[j - 5, 0] + u1 * qv[j - 5, 1] + u2 * qv[j - 5, 2] + u3 * qv[j - 5, 3]
+        e6 = u0 * qv[j - 6, 0] + u1 * qv[j - 6, 1] + u2 * qv[j - 6, 2] + u3 * qv[j - 6, 3]
+        a3 = (wb[3, j - 3] - u0 * zz[j - 3, 0] - u1 * zz[j - 3, 1] - u2 * zz[j - 3, 2]
+              - u3 * zz[j - 3, 3])
+        a2 = (wb[2, j - 2] - u0 * zz[j - 2, 0] - u1 * zz[j - 2, 1] - u2 * zz[j - 2, 2]
+              - u3 * zz[j - 2, 3])
+        a1 = (wb[1, j - 1] - u0 * zz[j - 1, 0] - u1 * zz[j - 1, 1] - u2 * zz[j - 1, 2]
+              - u3 * zz[j - 1, 3])
+        e3 = (a3 - e4 * lb[j - 3, 1] - e5 * lb[j - 3, 2] - e6 * lb[j - 3, 3]) * li[j - 3]
+        e2 = (a2 - e3 * lb[j - 2, 1] - e4 * lb[j - 2, 2] - e5 * lb[j - 2, 3]) * li[j - 2]
+        e1 = (a1 - e2 * lb[j - 1, 1] - e3 * lb[j - 1, 2] - e4 * lb[j - 1, 3]) * li[j - 1]
+        piv -= e1 * e1 + e2 * e2 + e3 * e3
+        if not piv > 0.0:
+            return False
+        dj = math.sqrt(piv)
+        inv = 1.0 / dj
+        lb[j, 0] = dj
+        lb[j, 1] = e1
+        lb[j, 2] = e2
+        lb[j, 3] = e3
+        li[j] = inv
+        qv[j, 0] = (F[0, jr] - z0 - e1 * qv[j - 1, 0] - e2 * qv[j - 2, 0]
+                    - e3 * qv[j - 3, 0]) * inv
+        qv[j, 1] = (F[1, jr] - z1 - e1 * qv[j - 1, 1] - e2 * qv[j - 2, 1]
+                    - e3 * qv[j - 3, 1]) * inv
+        qv[j, 2] = (F[2, jr] - z2 - e1 * qv[j - 1, 2] - e2 * qv[j - 2, 2]
+                    - e3 * qv[j - 3, 2]) * inv
+        qv[j, 3] = (F[3, jr] - z3 - e1 * qv[j - 1, 3] - e2 * qv[j - 2, 3]
+                    - e3 * qv[j - 3, 3]) * inv
+        X[0, j] = (Z[0, jr] - e1 * X[0, j - 1] - e2 * X[0, j - 2] - e3 * X[0, j - 3]
+                   - u0 * h00 - u1 * h10 - u2 * h20 - u3 * h30) * inv
+        X[1, j] = (Z[1, jr] - e1 * X[1, j - 1] - e2 * X[1, j - 2] - e3 * X[1, j - 3]
+                   - u0 * h01 - u1 * h11 - u2 * h21 - u3 * h31) * inv
+        X[2, j] = (Z[2, jr] - e1 * X[2, j - 1] - e2 * X[2, j - 2] - e3 * X[2, j - 3]
+                   - u0 * h02 - u1 * h12 - u2 * h22 - u3 * h32) * inv
+        X[3, j] = (Z[3, jr] - e1 * X[3, j - 1] - e2 * X[3, j - 2] - e3 * X[3, j - 3]
+                   - u0 * h03 - u1 * h13 - u2 * h23 - u3 * h33) * inv
+        X[4, j] = (Z[4, jr] - e1 * X[4, j - 1] - e2 * X[4, j - 2] - e3 * X[4, j - 3]
+                   - u0 * h04 - u1 * h14 - u2 * h24 - u3 * h34) * inv
+    return True
+
+
+@njit(cache=True, fastmath=_FM)
+def _factor_solve(m, r, wb, F, U, Z, lb, li, qv, zz, P, H, X):
+    """The Cholesky recursion and forward solve of :func:`_structured_gram` for any
+    generator width ``r`` (``P`` r x r and ``H`` r x 5 in work arrays); see
+    :func:`_factor_solve4` for the width-4 case. False on a non-positive pivot."""
+    for t in range(r):
+        for t2 in range(r):
+            P[t, t2] = 0.0
+        for q in range(5):
+            H[t, q] = 0.0
+    for j in range(_PAD, m + _PAD):
+        jr = j - _PAD
+        for t in range(r):
+            ot = qv[j - 4, t]
+            for t2 in range(r):
+                P[t, t2] += ot * qv[j - 4, t2]
+            for q in range(5):
+                H[t, q] += ot * X[q, j - 4]
+        e4 = 0.0
+        e5 = 0.0
+        e6 = 0.0
+        a3 = wb[3, j - 3]
+        a2 = wb[2, j - 2]
+        a1 = wb[1, j - 1]
+        piv = wb[0, j]
+        for t in range(r):
+            ut = U[t, jr]
+            acc = 0.0
+            for t2 in range(r):
+                acc += P[t, t2] * U[t2, jr]
+            zz[j, t] = acc
+            piv -= ut * acc
+            e4 += ut * qv[j - 4, t]
+            e5 += ut * qv[j - 5, t]
+            e6 += ut * qv[j - 6, t]
+            a3 -= ut * zz[j - 3, t]
+            a2 -= ut * zz[j - 2, t]
+            a1 -= ut * zz[j - 1, t]
+        e3 = (a3 - e4 * lb[j - 3, 1] - e5 * lb[j - 3, 2] - e6 * lb[j - 3, 3]) * li[j - 3]
+        e2 = (a2 - e3 * lb[j - 2, 1] - e4 * lb[j - 2, 2] - e5 * lb[j - 2, 3]) * li[j - 2]
+        e1 = (a1 - e2 * lb[j - 1, 1] - e3 * lb[j - 1, 2] - e4 * lb[j - 1, 3]) * li[j - 1]
+        piv -= e1 * e1 + e2 * e2 + e3 * e3
+        if not piv > 0.0:
+            return False
+        dj = math.sqrt(piv)
+        inv = 1.0 / dj
+        lb[j, 0] = dj
+        lb[j, 1] = e1
+        lb[j, 2] = e2
+        lb[j, 3] = e3
+        li[j] = inv
+        for t in range(r):
+            qv[j, t] = (F[t, jr] - zz[j, t] - e1 * qv[j - 1, t] - e2 * qv[j - 2, t]
+                        - e3 * qv[j - 3, t]) * inv
+        for q in range(5):
+            v = Z[q, jr] - e1 * X[q, j - 1] - e2 * X[q, j - 2] - e3 * X[q, j - 3]
+            for t in range(r):
+                v -= U[t, jr] * H[t, q]
+            X[q, j] = v * inv
+    return True
+
+
 @njit(cache=True, fastmath=_FM, inline="always")
 def _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep, Z,
                      sb, R, wb, F, U, lb, li, qv, zz, P, H, X, G, rc, r):
@@ -328,11 +502,6 @@ def _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep, 
     # lb[j, l] = L_{j, j-l} (li[j] = 1 / L_jj); P = sum_{l <= j-4} qv_l qv_l', zz_j = P U_j;
     # the forward solve X = L^{-1} Z' alongside (H = sum_{l <= j-4} qv_l X_l'). Rows are
     # stored from _PAD on: the _PAD rows before them are an identity block (no branches).
-    for t in range(r):
-        for t2 in range(r):
-            P[t, t2] = 0.0
-        for q in range(5):
-            H[t, q] = 0.0
     for i in range(_PAD):
         for l in range(4):
             lb[i, l] = 0.0
@@ -344,64 +513,13 @@ def _structured_gram(m, n, dx, dy, ex, cb, sksb, gu, gv, printed, sv, sx, keep, 
             zz[i, t] = 0.0
         for q in range(5):
             X[q, i] = 0.0
-    for j in range(_PAD, m + _PAD):
-        jr = j - _PAD
-        for t in range(r):
-            ot = qv[j - 4, t]
-            for t2 in range(r):
-                P[t, t2] += ot * qv[j - 4, t2]
-            for q in range(5):
-                H[t, q] += ot * X[q, j - 4]
-        e4 = 0.0
-        e5 = 0.0
-        e6 = 0.0
-        a3 = wb[3, j - 3]
-        a2 = wb[2, j - 2]
-        a1 = wb[1, j - 1]
-        piv = wb[0, j]
-        for t in range(r):
-            ut = U[t, jr]
-            acc = 0.0
-            for t2 in range(r):
-                acc += P[t, t2] * U[t2, jr]
-            zz[j, t] = acc
-            piv -= ut * acc
-            e4 += ut * qv[j - 4, t]
-            e5 += ut * qv[j - 5, t]
-            e6 += ut * qv[j - 6, t]
-            a3 -= ut * zz[j - 3, t]
-            a2 -= ut * zz[j - 2, t]
-            a1 -= ut * zz[j - 1, t]
-        e3 = (a3 - e4 * lb[j - 3, 1] - e5 * lb[j - 3, 2] - e6 * lb[j - 3, 3]) * li[j - 3]
-        e2 = (a2 - e3 * lb[j - 2, 1] - e4 * lb[j - 2, 2] - e5 * lb[j - 2, 3]) * li[j - 2]
-        e1 = (a1 - e2 * lb[j - 1, 1] - e3 * lb[j - 1, 2] - e4 * lb[j - 1, 3]) * li[j - 1]
-        piv -= e1 * e1 + e2 * e2 + e3 * e3
-        if not piv > 0.0:
+    if r == 4:
+        if not _factor_solve4(m, wb, F, U, Z, lb, li, qv, zz, X):
             return False
-        dj = math.sqrt(piv)
-        inv = 1.0 / dj
-        lb[j, 0] = dj
-        lb[j, 1] = e1
-        lb[j, 2] = e2
-        lb[j, 3] = e3
-        li[j] = inv
-        for t in range(r):
-            qv[j, t] = (F[t, jr] - zz[j, t] - e1 * qv[j - 1, t] - e2 * qv[j - 2, t]
-                        - e3 * qv[j - 3, t]) * inv
-        for q in range(5):
-            v = Z[q, jr] - e1 * X[q, j - 1] - e2 * X[q, j - 2] - e3 * X[q, j - 3]
-            for t in range(r):
-                v -= U[t, jr] * H[t, q]
-            X[q, j] = v * inv
-    for p in range(5):                              # the Gram X' X
-        for q in range(p + 1):
-            acc = 0.0
-            xp = X[p]
-            xq = X[q]
-            for j in range(_PAD, m + _PAD):
-                acc += xp[j] * xq[j]
-            G[p, q] = acc
-            G[q, p] = acc
+    else:
+        if not _factor_solve(m, r, wb, F, U, Z, lb, li, qv, zz, P, H, X):
+            return False
+    _gram5(X, _PAD, m + _PAD, G)                    # the Gram X' X
     return True
 
 
@@ -448,13 +566,7 @@ def _gls_one(b, r, s, xi, mean, st, c, sks, cb, sksb, gu, gv, tv, kap, printed, 
                 ex[i] += 4.0 * x * var[i]
     dense = False
     if ols_only:
-        for p in range(5):
-            for q in range(p + 1):
-                acc = 0.0
-                for k in range(m):
-                    acc += Z[p, k] * Z[q, k]
-                G[p, q] = acc
-                G[q, p] = acc
+        _gram5(Z, 0, m, G)
     else:
         if printed:
             for row in range(m):
@@ -502,12 +614,15 @@ def _gls_workspace(n, r):
 
 @njit(cache=True)
 def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol,
-                       max_iter, crit_stop, structured, out_ols, out_beta, out_cov, out_it,
-                       out_flags):
+                       max_iter, crit_stop, structured, out_ols, out_beta, out_cov, out_traj,
+                       out_it, out_flags):
     """Steps 1-3d for the tracks ``a0 <= b < a1``, each iterated to its own stop (the
     rule of :meth:`ClosedFormTracker.locate`); ``out_flags[b]``: bit 0 converged, bit 1
     stalled (criterion stopping), bit 2 a matrix not positive definite, bit 3 the dense
-    factorisation ran at least once (a structured pivot failed, or not ``structured``)."""
+    factorisation ran at least once (a structured pivot failed, or not ``structured``).
+    ``out_traj[b]`` (n, 2): the straight track ``p_k + tv_i v_k`` at the final state, the
+    arithmetic of :func:`~radioloc.models.single_sensor.trajectory` (no contraction here, so
+    the same values bit for bit)."""
     n = r.shape[1]
     ws = _gls_workspace(n, 2 * gu.shape[0] + (2 if printed else 0))
     ols_step = a0 <= a1     # a run-time bool, not a literal: one compiled _gls_one for both calls
@@ -549,11 +664,15 @@ def _blue_tracks_range(a0, a1, r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap
                     break
         out_it[b] = it
         out_flags[b] = flags
+        traj = out_traj[b]
+        for i in range(n):
+            traj[i, 0] = beta[0] + tv[i] * beta[2]
+            traj[i, 1] = beta[1] + tv[i] * beta[3]
 
 
 @njit(parallel=True, cache=True)
 def _blue_tracks(r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var, tol, max_iter,
-                 crit_stop, structured, out_ols, out_beta, out_cov, out_it, out_flags):
+                 crit_stop, structured, out_ols, out_beta, out_cov, out_traj, out_it, out_flags):
     """:func:`_blue_tracks_range` for every track, in parallel over chunks of tracks that
     share one workspace."""
     B = r.shape[0]
@@ -561,7 +680,7 @@ def _blue_tracks(r, s, xi, mean, c, sks, cb, sksb, gu, gv, tv, kap, printed, var
     for ch in prange(nch):
         _blue_tracks_range(ch * B // nch, (ch + 1) * B // nch, r, s, xi, mean, c, sks, cb, sksb, gu, gv,
                            tv, kap, printed, var, tol, max_iter, crit_stop, structured,
-                           out_ols, out_beta, out_cov, out_it, out_flags)
+                           out_ols, out_beta, out_cov, out_traj, out_it, out_flags)
 
 
 def _noise_generators(n: int, k: int, T: float, accel_var: float):
@@ -843,6 +962,7 @@ class ClosedFormTracker(SnapshotEstimator):
         ols = np.empty((B, 4))
         beta = np.empty((B, 4))
         cov = np.empty((B, 4, 4))
+        traj = np.empty((B, n, 2))
         iterations = np.empty(B, dtype=np.int64)
         flags = np.empty(B, dtype=np.int64)
         gu, gv = _noise_generators(n, k, T, self.accel_var)
@@ -857,7 +977,7 @@ class ClosedFormTracker(SnapshotEstimator):
         rr, ss, xi = (np.require(x, np.float64, ("C", "W")) for x in (rr, ss, xi))
         args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
-                _STRUCTURED, ols, beta, cov, iterations, flags)
+                _STRUCTURED, ols, beta, cov, traj, iterations, flags)
         _run_blue_kernel(B, args)                                   # steps 3a-3d
         if np.any(flags & 4):
             raise GeometryError("S Sigma S^T is singular (not positive definite); the motion "
@@ -868,7 +988,7 @@ class ClosedFormTracker(SnapshotEstimator):
         shape = lambda a, tail: a.reshape(batch + tail)             # noqa: E731
         return self._estimate(shape(beta, (4,)), shape(cov, (4, 4)), shape(ols, (4,)), n, T, k,
                               t_k, shape(iterations, ()), shape(converged, ()),
-                              shape(stalled, ()), shape(keep, (n - 3,)))
+                              shape(stalled, ()), shape(keep, (n - 3,)), shape(traj, (n, 2)))
 
     @staticmethod
     def _differenced_system(r, s, k, model):
@@ -888,9 +1008,13 @@ class ClosedFormTracker(SnapshotEstimator):
         return sa, sy, keep
 
     @staticmethod
-    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled,
-                  keep) -> Estimate:
-        diag = {"state": beta, "state_covariance": cov, "trajectory": trajectory(beta, n, T, k),
+    def _estimate(beta, cov, ols, n, T, k, t_k, iterations, converged, stalled, keep,
+                  traj=None) -> Estimate:
+        """The Estimate of :meth:`ClosedFormTracker.locate`; ``traj``: the trajectory
+        diagnostic when the kernel wrote it (else computed here)."""
+        if traj is None:
+            traj = trajectory(beta, n, T, k)
+        diag = {"state": beta, "state_covariance": cov, "trajectory": traj,
                 "ols_state": ols, "iterations": iterations, "converged": converged,
                 "stalled": stalled, "used_differences": np.sum(keep, axis=-1)}
         return Estimate(beta[..., :2], cov[..., :2, :2], t_k, diag)
