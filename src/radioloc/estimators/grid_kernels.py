@@ -13,6 +13,9 @@ batch. The plain NumPy functions of :mod:`radioloc.estimators.grid` are the refe
   each block column is classed by its cells' squared distances (likelihood exactly 0,
   exactly 1, or the ramps' full formula), so the square root and division run only on the
   ramps, and the block is transposed back into rows in registers (:func:`_transpose4`).
+* :func:`trapezoid_posterior_blocks` - the same without the normalisation pass: the
+  unnormalised posterior and its factor ``1 / sum``, which the next step's column pass
+  applies as it reads the grid (``gaussian_blocks(..., scale=...)``).
 * :func:`weighted_update` - the same with a likelihood grid given by the caller (any model).
 * :func:`floor_normalise_into` - ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``.
 * :func:`recursive_gaussian` - separable recursive Gaussian of Young & van Vliet (1995):
@@ -34,7 +37,8 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["trapezoid_update", "trapezoid_update_blocks", "weighted_update",
+__all__ = ["trapezoid_update", "trapezoid_update_blocks", "trapezoid_posterior_blocks",
+           "weighted_update",
            "floor_normalise_into", "yvv_coefficients", "recursive_gaussian", "gaussian_blocks",
            "grids_in_range", "RECURSIVE_MIN_SIGMA", "LANES"]
 
@@ -255,11 +259,14 @@ def _through_border(tb, st, o1, o2, o3, n, g, a1, a2, a3):
 
 
 @njit(parallel=True, cache=True, fastmath=_FM)
-def _vert_blocks(p, blk, coef, tails, limit, bad):
-    """Column recursions ``anti(causal(p))`` along the rows' axis, streamed over whole rows of
-    a chunk of ``_COL_CHUNK`` columns (contiguous vectors, float64 state and buffer), written
-    into the block layout ``blk[b, r // LANES, c, r % LANES]``. ``bad[job]`` counts the cells
-    of the chunk that are not in ``[0, limit]`` (NaN included): the input check, fused."""
+def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
+    """Column recursions ``anti(causal(scale p))`` along the rows' axis, streamed over whole
+    rows of a chunk of ``_COL_CHUNK`` columns (contiguous vectors, float64 state and buffer),
+    written into the block layout ``blk[b, r // LANES, c, r % LANES]``. ``scale[b]``
+    multiplies each cell of grid ``b`` as it is read (in float64: the same rounding as a
+    scaling pass writing ``scale p`` first; ``p`` float64 or float32). ``bad[job]`` counts the
+    cells of the chunk (scaled) that are not in ``[0, limit]`` (NaN included): the input
+    check, fused."""
     B, h, w = p.shape
     nch = (w + _COL_CHUNK - 1) // _COL_CHUNK
     for job in prange(B * nch):
@@ -268,6 +275,7 @@ def _vert_blocks(p, blk, coef, tails, limit, bad):
         c1 = min(w, c0 + _COL_CHUNK)
         n = c1 - c0
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
+        sc = scale[b]
         tail = tails[b]
         pb = p[b]
         bb = blk[b]
@@ -282,7 +290,7 @@ def _vert_blocks(p, blk, coef, tails, limit, bad):
             x = pb[r, c0:c1]
             o = buf[r]
             for j in range(n):
-                v = x[j]
+                v = np.float64(x[j]) * sc
                 nbad += 0 if (v >= 0.0 and v <= limit) else 1    # NaN fails both tests
                 y = _yvv(v, o1[j], o2[j], o3[j], g, a1, a2, a3)
                 o3[j] = y
@@ -367,14 +375,14 @@ def _from_blocks(blk, out):
 
 
 def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0,
-                    dtype=np.float32, limit: float = np.inf
+                    dtype=np.float32, limit: float = np.inf, scale: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, int]:
     """The recursive Gaussian of :func:`recursive_gaussian` in the block layout.
 
     Parameters
     ----------
     p : ndarray, shape (B, h, w)
-        Grids (float64).
+        Grids (float64, or float32 read as it is; converted otherwise).
     sigma_cells : ndarray, shape (B,)
         Standard deviation of each run's blur, cells (``>= 0.5``).
     epsilon : float
@@ -382,7 +390,11 @@ def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0
     dtype : {numpy.float32, numpy.float64}
         Storage of the blurred grids.
     limit : float
-        Cells of ``p`` outside ``[0, limit]`` (or NaN) are counted (the input check).
+        Cells of ``scale p`` outside ``[0, limit]`` (or NaN) are counted (the input check).
+    scale : ndarray, shape (B,), optional
+        Factor of each grid, applied (in float64) as each cell is read: the blur of
+        ``scale[b] p[b]``, bit for bit the blur of that product stored in float64 first
+        (default 1).
 
     Returns
     -------
@@ -394,9 +406,10 @@ def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0
     bad : int
         Number of cells of ``p`` outside ``[0, limit]``.
     """
-    p = np.ascontiguousarray(p, dtype=np.float64)
+    p = _grid_array(p)
     B, h, w = p.shape
     s = np.asarray(sigma_cells, dtype=np.float64).reshape(B)
+    sc = np.ones(B) if scale is None else np.ascontiguousarray(scale, dtype=np.float64).reshape(B)
     if np.dtype(dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
         raise ValueError(f"dtype: float64 or float32, got {dtype}")
     coef = yvv_coefficients(s)
@@ -407,7 +420,7 @@ def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0
     if h % LANES:
         blk[:, -1, :, h % LANES:] = 0.0
     bad = np.empty(B * ((w + _COL_CHUNK - 1) // _COL_CHUNK), np.int64)
-    _vert_blocks(p, blk, coef, tails, float(limit), bad)
+    _vert_blocks(p, sc, blk, coef, tails, float(limit), bad)
     rows = np.empty((B, h))
     _horiz_blocks(blk, coef, tails, float(epsilon), rows)
     return blk, rows.sum(axis=1), int(bad.sum())
@@ -675,14 +688,19 @@ def _weighted_rows(p, lik, eps, out, rows, fmode, fc):
 
 
 @njit(parallel=True, cache=True)
-def _scale_rows(out, total):
+def _scale_rows_by(out, scale):
     B, h, w = out.shape
     for job in prange(B * h):
         b = job // h
         r = job - b * h
-        c = 1.0 / total[b]
+        c = scale[b]
         for j in range(w):
             out[b, r, j] *= c
+
+
+def _scale_rows(out: np.ndarray, total: np.ndarray) -> None:
+    # out *= 1 / total per grid (the reciprocal in float64, then one product per cell)
+    _scale_rows_by(out, 1.0 / total)
 
 
 def trapezoid_update(p: np.ndarray, x: np.ndarray, y: np.ndarray, tracker_xy: np.ndarray,
@@ -746,15 +764,48 @@ def trapezoid_update_blocks(blk: np.ndarray, shape: tuple[int, int, int], x: np.
     ndarray, shape (B, h, w)
         Posterior grids ``max(p L, eps) / sum`` (float64).
     """
+    out, scale = trapezoid_posterior_blocks(blk, shape, x, y, tracker_xy, mu, tau, sigma,
+                                            epsilon, prior_excess)
+    _scale_rows_by(out, scale)
+    return out
+
+
+def trapezoid_posterior_blocks(blk: np.ndarray, shape: tuple[int, int, int], x: np.ndarray,
+                               y: np.ndarray, tracker_xy: np.ndarray, mu: np.ndarray,
+                               tau: np.ndarray, sigma: np.ndarray, epsilon: float,
+                               prior_excess: np.ndarray, dtype=np.float64
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`trapezoid_update_blocks` without its normalisation pass: the unnormalised
+    posterior ``max(p L, eps)`` and the factor ``1 / sum`` that normalises it (the
+    posterior of :func:`trapezoid_update_blocks` is ``raw * scale[:, None, None]``, bit for
+    bit with ``dtype`` float64). The next step applies the factor as it reads the grid
+    (``gaussian_blocks(..., scale=scale)``), which saves a read and a write of every cell.
+
+    Parameters
+    ----------
+    blk, shape, x, y, tracker_xy, mu, tau, sigma, epsilon, prior_excess
+        As in :func:`trapezoid_update_blocks`.
+    dtype : {numpy.float64, numpy.float32}
+        Storage of the unnormalised posterior. float32 rounds each cell once (relative
+        error at most ``2**-24``); the sum is taken before the rounding, in float64.
+
+    Returns
+    -------
+    raw : ndarray, shape (B, h, w)
+        ``max(p L, eps)`` of each cell, of ``dtype``.
+    scale : ndarray, shape (B,)
+        ``1 / sum(max(p L, eps))`` of each grid (float64).
+    """
     f = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     x, y, xy, mu, tau, sigma = f(x), f(y), f(tracker_xy), f(mu), f(tau), f(sigma)
+    if np.dtype(dtype) not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ValueError(f"dtype: float64 or float32, got {dtype}")
     zones = _zones(mu, tau, sigma)
     mode, c = _floor_args(shape[0], shape[1] * shape[2], float(epsilon), prior_excess)
-    out = np.empty(shape)
+    out = np.empty(shape, dtype)
     rows = np.empty(shape[:2])
     _trapezoid_blocks(blk, x, y, xy, mu, tau, sigma, zones, float(epsilon), out, rows, mode, c)
-    _scale_rows(out, rows.sum(axis=1))
-    return out
+    return out, 1.0 / rows.sum(axis=1)
 
 
 def weighted_update(p: np.ndarray, likelihood: np.ndarray, epsilon: float,
