@@ -17,7 +17,7 @@ def _run(blk, shape, x, y, xy, mu, tau, sig, eps, excess, zones):
     mode, c = gk._floor_args(B, h * w, eps, excess)
     out = np.empty(shape)
     rows = np.empty((B, h))
-    gk._trapezoid_blocks(blk, x, y, xy, mu, tau, sig, zones, eps, out, rows, mode, c)
+    gk._trapezoid_blocks(blk, x, y, xy, mu, tau, sig, zones, eps, out, rows, mode, c, False)
     return out, rows
 
 
@@ -62,3 +62,27 @@ def test_classes_change_no_bit_on_the_corners():
     blk = np.random.default_rng(4).random((3, 1, w, gk.LANES)).astype(np.float32) + 0.1
     zones = _check(blk, (3, h, w), x, y, xy, mu, tau, sig, 1e-9)
     assert zones[1, 1] < 0 and zones[2, 0] < 0 and zones[0, 0] > 0
+
+
+def test_nontemporal_stores_write_the_same_posterior():
+    # the posterior tiles written with non-temporal stores (large float64 grids) equal the
+    # ordinary stores bit for bit: whole tiles, the columns past the last whole tile of 16,
+    # and a partial last block of rows (ordinary stores there)
+    rng = np.random.default_rng(2)
+    B, h, w = 2, 2 * gk.LANES + 7, 140
+    blk = (rng.random((B, -(-h // gk.LANES), w, gk.LANES)) ** 3).astype(np.float32)
+    x = np.arange(w) * 0.25 - 18.0
+    y = np.arange(h) * 0.25 - 9.0
+    xy = rng.uniform(-5, 5, (B, 2))
+    mu, tau, sig = rng.uniform(2, 15, B), rng.uniform(0.1, 6, B), rng.uniform(0.2, 5, B)
+    zones = gk._zones(mu, tau, sig)
+    mode, c = gk._floor_args(B, h * w, 1e-9, np.full(B, 0.7))
+    outs = []
+    for nt in (False, True):
+        out = gk._aligned_empty((B, h, w), np.float64)
+        assert out.ctypes.data % 64 == 0
+        rows = np.empty((B, h))
+        gk._trapezoid_blocks(blk, x, y, xy, mu, tau, sig, zones, 1e-9, out, rows, mode, c, nt)
+        outs.append((out, rows))
+    np.testing.assert_array_equal(outs[1][0], outs[0][0])
+    np.testing.assert_array_equal(outs[1][1], outs[0][1])
