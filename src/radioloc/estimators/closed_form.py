@@ -30,6 +30,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_finite_output,
@@ -974,7 +975,7 @@ class ClosedFormTracker(SnapshotEstimator):
                 sksb[d, :n - 3 - d] = np.diagonal(sks, d)
         # one array type per argument (C-contiguous, writeable float64): a read-only view
         # (e.g. a broadcast) would otherwise compile the kernels once more
-        rr, ss, xi = (np.require(x, np.float64, ("C", "W")) for x in (rr, ss, xi))
+        rr, ss, xi = (kernel_array(x) for x in (rr, ss, xi))
         args = (rr, ss, xi, mean, model.c, sks, cb, sksb, gu, gv, tv, self.range_excess_kurtosis,
                 self.printed_eq14, var, self.tol, self.max_iter, self.stopping == "criterion",
                 _STRUCTURED, ols, beta, cov, traj, iterations, flags)

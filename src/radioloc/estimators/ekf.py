@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import check_finite_output, check_positive
@@ -768,8 +769,8 @@ class NetworkEKF(RecursiveEstimator):
         shared = R > 0 and bool(np.all(masters == masters[:1]))
         kernel = _packets if not shared else (_packets_shared6 if state.nodes == _K6
                                               else _packets_shared)
-        kernel(mean, cov, np.ascontiguousarray(masters[0] if shared else masters, dtype=np.int64),
-               np.ascontiguousarray(rho, dtype=float), np.ascontiguousarray(valid),
+        kernel(mean, cov, kernel_array(masters[0] if shared else masters, np.int64),
+               kernel_array(rho), kernel_array(valid, np.bool_),
                self.range_var_m2, nis, used, err)
         if np.any(err[:, 0] >= 0):
             hit = np.flatnonzero(err[:, 0] >= 0)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
@@ -240,11 +241,10 @@ class MixtureLocalizer(SnapshotEstimator):
         kmax = self.max_components
         # a station density has at most kc = min(k, kmax) components after its reduction
         kc = min(k, kmax)
-        ow, om, ov, ok = _product_kernel(np.ascontiguousarray(w, dtype=float),
-                                         np.ascontiguousarray(mu, dtype=float),
-                                         np.ascontiguousarray(var, dtype=float),
-                                         np.ascontiguousarray(m, dtype=float),
-                                         _station_order(m), kmax, kc, _TIE)
+        ow, om, ov, ok = _product_kernel(kernel_array(w), kernel_array(mu), kernel_array(var),
+                                         kernel_array(m),
+                                         kernel_array(_station_order(m), np.int64), kmax, kc,
+                                         _TIE)
         if not np.all(ok):
             raise InputError("weights: a mixture lost all its mass (disjoint densities)")
         post = compact(DiagMixture(ow, om, ov))

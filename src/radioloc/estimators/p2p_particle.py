@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
+from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.links import gather_packed, pack_mask, scatter_packed
 from radioloc.core.results import Estimate, Track, track_from_steps
@@ -326,14 +327,14 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
         prev_q = prev_q[..., :1, :]
     gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
-    _k.link_weights(np.ascontiguousarray(particles.reshape(b, k, n)),
-                    np.ascontiguousarray(node_xy.reshape(b, width, 2)),
-                    np.ascontiguousarray(th.reshape(b, width)),
-                    np.ascontiguousarray(valid.reshape(b, width)),
-                    np.ascontiguousarray(wp.reshape(b, width)),
-                    np.ascontiguousarray(prev_q.reshape((b,) + prev_q.shape[-2:])),
-                    np.ascontiguousarray(p[:, 0]), np.ascontiguousarray(p[:, 1]),
-                    np.ascontiguousarray(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
+    _k.link_weights(kernel_array(particles.reshape(b, k, n)),
+                    kernel_array(node_xy.reshape(b, width, 2)),
+                    kernel_array(th.reshape(b, width)),
+                    kernel_array(valid.reshape(b, width), np.bool_),
+                    kernel_array(wp.reshape(b, width), np.int64),
+                    kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
+                    kernel_array(p[:, 0]), kernel_array(p[:, 1]),
+                    kernel_array(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
     ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
