@@ -75,6 +75,18 @@ def test_kernel_equals_numpy_of_the_same_maths(chunk):
     np.testing.assert_array_equal(distinct, [len(np.unique(r)) for r in idx])
 
 
+def test_kernel_draws_are_the_reference_draws_bit_for_bit():
+    """The motion noise drawn inside the kernel (compiled with contraction) is
+    ``standard_normal_numpy`` under the step's key, bit for bit: with unit noise std, no
+    shift and particles at 0 the predicted particles are the draws themselves."""
+    args = list(_kernel_inputs(b=2, k=3000, seed=11))
+    args[0] = np.zeros_like(args[0])
+    args[1] = np.zeros_like(args[1])
+    args[2] = np.ones(2)
+    pred = _run_kernel(tuple(args), 64)[6]
+    np.testing.assert_array_equal(pred, R.standard_normal_numpy(None, pred.shape, key=args[3]))
+
+
 def test_kernel_reading_through_ancestors_equals_the_gathered_particles():
     """``carried``: the particles read as ``particles[b, anc[b, i]]`` (the previous step's
     gather done in this step's first pass) give the same step, bit for bit, as the gathered

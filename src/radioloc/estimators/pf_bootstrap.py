@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit, prange
 
 from radioloc.estimators.pf_kernels import _gauss_link, vexp
-from radioloc.estimators.pf_random import pairs_into
+from radioloc.estimators.pf_random import pairs_block
 
 __all__ = ["bootstrap_step"]
 
@@ -190,7 +190,7 @@ def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, vali
         i1 = min(nk, i0 + chunk)
         m = i1 - i0
         buf = np.empty((8, m))                  # rows 0, 1: x, y; row 7: log-likelihood
-        pairs_into(buf, b * nk + i0, m, k0, k1, c2, c3)
+        pairs_block(buf, b * nk + i0, m, k0, k1, c2, c3)   # no contraction: the reference's draws
         ux = shift[b, 0]
         uy = shift[b, 1]
         # slices, so that the loops index from 0 (a loop over ``i0 + i`` does not vectorise:
@@ -296,25 +296,26 @@ def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, vali
         hi_n = float(f1)
         for i in range(m):
             vr[i] = _count_below_div(vr[i], ub, nk, lo_n, hi_n)
-        ir = idx[b, f0:f1]
-        for j in range(nf):
-            ir[j] = -1
+        # slot N_{i-1} (relative to f0) of mk gets ancestor i: the last one written, the one
+        # whose offspring start there; slot nf is a sink for the ancestors without offspring
+        # at the chunk's end (no branch)
+        mk = np.empty(nf + 1, dtype=np.int64)
+        for j in range(nf + 1):
+            mk[j] = -1
         prev = f0
-        cnt = 0
-        for i in range(m - 1):
-            n_i = max(int(vr[i]), prev)
-            if prev < f1:                       # false only for empty ancestors at the end
-                ir[prev - f0] = i0 + i
-            cnt += n_i > prev
-            prev = n_i
-        if prev < f1:                           # the last ancestor takes the rest
-            ir[prev - f0] = i1 - 1
-            cnt += 1
-        counts[b, c] = cnt
+        for i in range(m):
+            mk[prev - f0] = i0 + i
+            prev = max(int(vr[i]), prev)
+        # a running maximum fills the slots between; each marked slot is a distinct ancestor
+        ir = idx[b, f0:f1]
         a = -1
+        cnt = 0
         for j in range(nf):
-            a = max(a, ir[j])
+            x = mk[j]
+            cnt += x >= 0
+            a = max(a, x)
             ir[j] = a
+        counts[b, c] = cnt
         if gather:
             op = out_particles[b, f0:f1]
             pp = pred[b]
