@@ -10,7 +10,7 @@ instead of the seven of the general path (draws, motion, link weights, weights a
 moments, resampling indices, gather):
 
 1. the motion noise ``z`` is drawn in the pass (:func:`radioloc.estimators.pf_random.
-   pairs_into`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
+   pairs_block`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
    d`` of the step's key for coordinate ``d`` of particle ``i`` of filter ``b``: the draws
    of ``pf_random.standard_normal(shape=(B, K, 2))`` with the same key), the particle moved
    and its Gaussian range log-likelihood summed over the links
@@ -112,6 +112,17 @@ def _row_max(row, m):
     for i in range(m):
         mx = max(mx, row[i])
     return mx
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc"})
+def _row_sum(row, a, b):
+    """``sum(row[a:b])``, reassociated so that it vectorises (the same value for the same
+    ``row``, ``a``, ``b``: the chunks are fixed, so it does not depend on the threads)."""
+    s = 0.0
+    seg = row[a:b]
+    for i in range(b - a):
+        s += seg[i]
+    return s
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
@@ -288,10 +299,29 @@ def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, vali
         m = i1 - i0
         nf = f1 - f0
         vr = v[b, i0:i1]                        # slices: loops from 0 (see pass 1)
-        cdf = start[b, c]
-        for i in range(m):
-            cdf += vr[i] * f
-            vr[i] = cdf
+        # cumulative weights in four quarters of the chunk at once (four independent chains
+        # of adds instead of one), each from the start given by the sums of the ones before
+        q = m // 4
+        c0 = start[b, c]
+        c1 = c0 + _row_sum(vr, 0, q) * f
+        c2 = c1 + _row_sum(vr, q, 2 * q) * f
+        c3 = c2 + _row_sum(vr, 2 * q, 3 * q) * f
+        v0 = vr[0:q]
+        v1 = vr[q:2 * q]
+        v2 = vr[2 * q:3 * q]
+        v3 = vr[3 * q:m]
+        for i in range(q):
+            c0 += v0[i] * f
+            v0[i] = c0
+            c1 += v1[i] * f
+            v1[i] = c1
+            c2 += v2[i] * f
+            v2[i] = c2
+            c3 += v3[i] * f
+            v3[i] = c3
+        for i in range(q, m - 3 * q):
+            c3 += v3[i] * f
+            v3[i] = c3
         lo_n = float(f0)
         hi_n = float(f1)
         for i in range(m):
