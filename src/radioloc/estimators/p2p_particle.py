@@ -1065,9 +1065,11 @@ class P2PParticleFilter(RecursiveEstimator):
         """:meth:`run` when every step is the plain bootstrap filter (see
         :meth:`_bootstrap_run_sd`): the fused kernel of :func:`_bootstrap_step` on work
         arrays reused across steps, the links packed once for every step, the results of
-        each step written into the track's arrays. The same draws in the same order and
-        the same values as :meth:`step` step by step (the width of the packed links does
-        not enter the kernel's arithmetic: it skips the padding)."""
+        each step written into the track's arrays, and the resampling's gather left to the
+        next step (each step's predicted particles and ancestors carried; the next reads
+        the particles through the ancestors). The same draws in the same order and the
+        same values as :meth:`step` step by step (the width of the packed links does not
+        enter the kernel's arithmetic: it skips the padding; the gather only copies)."""
         D = 2
         batch_v = state.batch_shape                             # (..., N)
         batch = batch_v[:-1]

@@ -12,18 +12,20 @@ moments, resampling indices, gather):
 1. the motion noise ``z`` is drawn in the pass (:func:`radioloc.estimators.pf_random.
    pairs_block`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
    d`` of the step's key for coordinate ``d`` of particle ``i`` of filter ``b``: the draws
-   of ``pf_random.standard_normal(shape=(B, K, 2))`` with the same key), the particle moved
-   and its Gaussian range log-likelihood summed over the links
-   (:func:`radioloc.estimators.pf_kernels._gauss_link`); then ``v = exp(log w - m_c)``
-   relative to the chunk's largest log-likelihood ``m_c`` and the chunk's sums for the
-   total, the ESS, the mean and the covariance (relative to the filter's first particle
+   of ``pf_random.standard_normal_numpy(shape=(B, K, 2))`` with the same key, bit for bit),
+   the particle moved (read through the previous step's ancestors when they are carried:
+   the previous step's gather done here) and its Gaussian range log-likelihood summed over
+   the links (:func:`radioloc.estimators.pf_kernels._gauss_link`); then ``v = exp(log w -
+   m_c)`` relative to the chunk's largest log-likelihood ``m_c`` and the chunk's sums for
+   the total, the ESS, the mean and the covariance (relative to the filter's first particle
    moved without noise). The chunks' factors ``exp(m_c - max) / total`` make the weights;
-2. systematic resampling (line 12) and the gather: per ancestor chunk, where its part of the
-   cumulative weight starts (from the chunk totals), the number ``N_i`` of new positions
-   ``(U + j) / K`` below each cumulative weight ``c_i`` (the new particles ``N_{i-1} ..
-   N_i - 1`` descend from ``i``; ancestor ``i`` is written at slot ``N_{i-1}`` and a
-   running maximum fills the other slots, without a data-dependent branch), then the copy
-   of the ancestors.
+2. systematic resampling (line 12): per ancestor chunk, where its part of the cumulative
+   weight starts (from the chunk totals), the cumulative weights ``c_i`` (four quarters of
+   the chunk at once), the number ``N_i`` of new positions ``(U + j) / K`` below each ``c_i``
+   (an estimate corrected by the two positions either side, in a loop that vectorises; the
+   new particles ``N_{i-1} .. N_i - 1`` descend from ``i``), ancestor ``i`` written at slot
+   ``N_{i-1}`` and a running maximum filling the other slots, without a data-dependent
+   branch; then, if asked, the gather of the resampled particles.
 
 The plain NumPy form of the same maths is ``P2PParticleFilter(kernel="numpy")`` with the
 same draws (:func:`radioloc.estimators.pf_random.standard_normal_numpy`); the tests compare
