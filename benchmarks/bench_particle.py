@@ -16,7 +16,9 @@ Rows (returned by :func:`main`):
   ``ParticleUpdater`` + ``SystematicResampler`` and against ``particles`` (Chopin)
   ``SMC(Bootstrap)`` with ``ESSrmin=1`` (resampling at every step), same model and N.
   Ours is timed through ``run`` (its bootstrap loop: inputs checked once, the kernel's work
-  arrays kept between steps and runs), including the prior's draws.
+  arrays kept between steps and runs, the predicted particles and their ancestors carried
+  into the next step, whose first pass reads them through the ancestors: the gather of the
+  resampling), including the prior's draws.
 
 Ours: best of 3 (wall clock; the CPU-second rate is printed too); peers: one run.
 
@@ -366,7 +368,9 @@ def particles_bootstrap(n, steps, q, sigma, x, y):
 
 
 #: Least memory traffic of one bootstrap particle-step: read the particle (16 bytes), write the
-#: resampled particle (16) and its ancestor index (8).
+#: resampled particle (16) and its ancestor index (8). (``run``'s kernel reads the previous
+#: predicted particle through its ancestor, 24, and writes the predicted particle and the new
+#: ancestor, 24: 48; its weights and counts stay in the cache at N = 1e5.)
 BOOTSTRAP_BYTES = 40.0
 
 
@@ -376,9 +380,11 @@ def bootstrap_flops(links: int = 4) -> float:
 
     Box-Muller pair 81 (own logarithm 30, square root, the quarter-turn reduction, sine and
     cosine polynomials of 8 terms each, signs, scaling), motion 6, 11 per link (difference,
-    squared distance, square root, scaled residual, square and sum), weight 39 (shift and
-    ``vexp``), moment sums 18, resampling 9 (cumulative weight, the count estimate, two
-    comparisons, the position).
+    squared distance, square root, scaled residual, square and sum), weight 40 (the chunk's
+    maximum, shift and ``vexp``), moment sums 18, resampling 17 (cumulative weight 2, its
+    quarter's sum 1, the count estimate 3, the two positions either side 4 with their two
+    divisions, two comparisons and their corrections 4, the clip to the chunk's slots 2,
+    the running maximum 1).
 
     Parameters
     ----------
@@ -389,7 +395,7 @@ def bootstrap_flops(links: int = 4) -> float:
     -------
     float
     """
-    return 153.0 + 11.0 * links
+    return 162.0 + 11.0 * links
 
 
 def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int = 5) -> list[dict]:

@@ -40,7 +40,8 @@ def _run_kernel(args, chunk):
     mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
     distinct = np.empty(b, dtype=np.int64)
     pred, v = np.empty((b, k, 2)), np.empty((b, k))
-    bs.bootstrap_step(*args, chunk, out, idx, mean, cov, ess, distinct, pred, v)
+    bs.bootstrap_step(args[0], pp._NO_ANCESTORS, False, *args[1:], chunk, True, out, idx, mean, cov,
+                      ess, distinct, pred, v)
     return out, idx, mean, cov, ess, distinct, pred, v
 
 
@@ -72,6 +73,43 @@ def test_kernel_equals_numpy_of_the_same_maths(chunk):
     assert np.all(np.diff(idx, axis=-1) >= 0)
     np.testing.assert_array_equal(out, np.take_along_axis(pred, idx[..., None], axis=1))
     np.testing.assert_array_equal(distinct, [len(np.unique(r)) for r in idx])
+
+
+def test_kernel_draws_are_the_reference_draws_bit_for_bit():
+    """The motion noise drawn inside the kernel (compiled with contraction) is
+    ``standard_normal_numpy`` under the step's key, bit for bit: with unit noise std, no
+    shift and particles at 0 the predicted particles are the draws themselves."""
+    args = list(_kernel_inputs(b=2, k=3000, seed=11))
+    args[0] = np.zeros_like(args[0])
+    args[1] = np.zeros_like(args[1])
+    args[2] = np.ones(2)
+    pred = _run_kernel(tuple(args), 64)[6]
+    np.testing.assert_array_equal(pred, R.standard_normal_numpy(None, pred.shape, key=args[3]))
+
+
+def test_kernel_reading_through_ancestors_equals_the_gathered_particles():
+    """``carried``: the particles read as ``particles[b, anc[b, i]]`` (the previous step's
+    gather done in this step's first pass) give the same step, bit for bit, as the gathered
+    array; without ``gather`` the kernel leaves ``out_particles`` alone."""
+    args = _kernel_inputs(b=2, k=700, seed=8)
+    src = args[0]
+    rng = np.random.default_rng(2)
+    anc = np.sort(rng.integers(0, 700, size=(2, 700)), axis=-1)
+    gathered = np.take_along_axis(src, anc[..., None], axis=1)
+    ref = _run_kernel((gathered,) + args[1:], 64)
+    b, k = anc.shape
+    out = np.full((b, k, 2), -7.0)
+    idx = np.empty((b, k), dtype=np.int64)
+    mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
+    distinct = np.empty(b, dtype=np.int64)
+    pred, v = np.empty((b, k, 2)), np.empty((b, k))
+    bs.bootstrap_step(src, anc, True, *args[1:], 64, False, out, idx, mean, cov, ess, distinct,
+                      pred, v)
+    for got, want in zip((idx, mean, cov, ess, distinct, pred), (ref[1], ref[2], ref[3], ref[4],
+                                                                   ref[5], ref[6])):
+        np.testing.assert_array_equal(got, want)
+    assert np.all(out == -7.0)
+    np.testing.assert_array_equal(ref[0], np.take_along_axis(pred, idx[..., None], axis=1))
 
 
 def test_kernel_with_concentrated_and_empty_chunks():
@@ -185,7 +223,7 @@ def test_carried_non_los_posterior_leaves_the_bootstrap_case():
 def test_position_counts_at_ties_and_neighbours():
     """The count of positions (u + j) / K below a cumulative weight, at the positions
     themselves and one ulp either side (where the estimate ceil(K c - u) rounds the wrong
-    way), equals the definition (searchsorted on the positions)."""
+    way), equals the definition (searchsorted on the positions), clipped to a chunk's slots."""
     from numba import njit
 
     @njit
@@ -193,7 +231,7 @@ def test_position_counts_at_ties_and_neighbours():
         out = np.empty((2, cdf.size), dtype=np.int64)
         for i in range(cdf.size):
             out[0, i] = min(max(bs._count_below(cdf[i], u, nk), f0), f1)
-            out[1, i] = max(bs._count_below_table(cdf[i], u, nk, pos, f0, f1), f0)
+            out[1, i] = int(bs._count_below_div(cdf[i], u, nk, float(f0), float(f1)))
         return out
 
     rng = np.random.default_rng(17)

@@ -467,6 +467,12 @@ def _walk_noise(motion, n, dt):
     return np.diagonal(factor).copy()
 
 
+#: ``anc`` of :func:`radioloc.estimators.pf_bootstrap.bootstrap_step` when it is not read.
+_NO_ANCESTORS = np.zeros((1, 1), dtype=np.int64)
+#: ``out_particles`` of the same kernel when it does not gather.
+_NO_PARTICLES = np.zeros((1, 1, 2))
+
+
 def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng):
     """The fused bootstrap step (:func:`radioloc.estimators.pf_bootstrap.bootstrap_step`):
     resampled particles, ancestors, mean, covariance, ESS and distinct ancestors. Its motion
@@ -482,13 +488,13 @@ def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng
     idx = np.empty((b, k), dtype=np.int64)
     mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
     distinct = np.empty(b, dtype=np.int64)
-    _bs.bootstrap_step(np.ascontiguousarray(particles.reshape(b, k, 2)), shift,
-                       np.ascontiguousarray(sd, dtype=float), key,
+    _bs.bootstrap_step(np.ascontiguousarray(particles.reshape(b, k, 2)), _NO_ANCESTORS, False,
+                       shift, np.ascontiguousarray(sd, dtype=float), key,
                        np.ascontiguousarray(node_xy.reshape(b, width, 2)),
                        np.ascontiguousarray(th.reshape(b, width)),
                        np.ascontiguousarray(valid.reshape(b, width)),
                        np.ascontiguousarray(1.0 / params[..., 0].reshape(b)),
-                       u01.reshape(b), CHUNK, out, idx, mean, cov, ess, distinct,
+                       u01.reshape(b), CHUNK, True, out, idx, mean, cov, ess, distinct,
                        _scratch("pred", (b, k, 2)), _scratch("v", (b, k)))
     return (out.reshape(batch + (k, 2)), idx.reshape(batch + (k,)), mean.reshape(batch + (2,)),
             cov.reshape(batch + (2, 2)), ess.reshape(batch), distinct.reshape(batch))
@@ -1060,9 +1066,11 @@ class P2PParticleFilter(RecursiveEstimator):
         """:meth:`run` when every step is the plain bootstrap filter (see
         :meth:`_bootstrap_run_sd`): the fused kernel of :func:`_bootstrap_step` on work
         arrays reused across steps, the links packed once for every step, the results of
-        each step written into the track's arrays. The same draws in the same order and
-        the same values as :meth:`step` step by step (the width of the packed links does
-        not enter the kernel's arithmetic: it skips the padding)."""
+        each step written into the track's arrays, and the resampling's gather left to the
+        next step (each step's predicted particles and ancestors carried; the next reads
+        the particles through the ancestors). The same draws in the same order and the
+        same values as :meth:`step` step by step (the width of the packed links does not
+        enter the kernel's arithmetic: it skips the padding; the gather only copies)."""
         D = 2
         batch_v = state.batch_shape                             # (..., N)
         batch = batch_v[:-1]
@@ -1086,12 +1094,16 @@ class P2PParticleFilter(RecursiveEstimator):
         inv_s = np.ascontiguousarray(1.0 / self._params(state)[..., 0].reshape(b))
         mean_t, cov_t, ess_t = np.empty((T, b, 2)), np.empty((T, b, 2, 2)), np.empty((T, b))
         resets_t = np.empty((T,) + batch_v, dtype=np.int64)
-        # work arrays of this thread, kept between runs (see _scratch)
-        bufs = (_scratch("run_a", (b, k, 2)), _scratch("run_b", (b, k, 2)))   # alternately
-        idx = _scratch("run_idx", (b, k), np.int64)
-        pred, v = _scratch("pred", (b, k, 2)), _scratch("v", (b, k))
+        # work arrays of this thread, kept between runs (see _scratch): the predicted
+        # particles and their ancestors, alternately written by a step and read by the next,
+        # which does the gather of the resampling (the particles of the filter after step s
+        # are preds[s % 2][b, idxs[s % 2][b, i]])
+        preds = (_scratch("run_a", (b, k, 2)), _scratch("run_b", (b, k, 2)))
+        idxs = (_scratch("run_idx", (b, k), np.int64), _scratch("run_idx_b", (b, k), np.int64))
+        v = _scratch("v", (b, k))
         distinct = np.empty(b, dtype=np.int64)
         parts = np.ascontiguousarray(state.particles.reshape(b, k, 2))
+        anc, carried = _NO_ANCESTORS, False
         mean, resets = state.mean, state.resets
         for s in range(T):
             uk = None if u is None else u[..., s, :]
@@ -1104,17 +1116,19 @@ class P2PParticleFilter(RecursiveEstimator):
             node_xy = nodes.reshape(nb, J, 2)[rows, links_t[s]].reshape(b, width, 2)
             key = draw_key(rng)
             u01 = rng.random(batch_v + (1,))    # the draw of resampling.systematic
-            out = bufs[s % 2]
-            _bs.bootstrap_step(parts, shift_t[s], sds[s], key, node_xy, th_t[s], valid_t[s],
-                               inv_s, u01.reshape(b), CHUNK, out, idx, mean_t[s], cov_t[s],
-                               ess_t[s], distinct, pred, v)
-            parts = out
+            pred, idx = preds[s % 2], idxs[s % 2]
+            _bs.bootstrap_step(parts, anc, carried, shift_t[s], sds[s], key, node_xy, th_t[s],
+                               valid_t[s], inv_s, u01.reshape(b), CHUNK, False, _NO_PARTICLES,
+                               idx, mean_t[s], cov_t[s], ess_t[s], distinct, pred, v)
+            parts, anc, carried = pred, idx, True
             mean = mean_t[s].reshape(batch_v + (2,))
-            # reset on degeneracy, as in step
+            # reset on degeneracy, as in step (a reset filter's particles are its predicted
+            # ones, each its own ancestor)
             reset = (distinct < self.reset_fraction * k).reshape(batch_v)
             if np.any(reset):
                 parts.reshape(batch_v + (k, 2))[reset, :, :D] = mean[reset][:, None, :D] + \
                     self.reset_std_m * rng.standard_normal((int(reset.sum()), k, D))
+                idx.reshape(batch_v + (k,))[reset] = np.arange(k)
             resets = resets + reset
             resets_t[s] = resets
 

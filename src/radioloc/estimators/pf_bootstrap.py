@@ -10,20 +10,22 @@ instead of the seven of the general path (draws, motion, link weights, weights a
 moments, resampling indices, gather):
 
 1. the motion noise ``z`` is drawn in the pass (:func:`radioloc.estimators.pf_random.
-   pairs_into`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
+   pairs_block`: Philox4x32-10 and Box-Muller, one block per particle, draw ``2 (b K + i) +
    d`` of the step's key for coordinate ``d`` of particle ``i`` of filter ``b``: the draws
-   of ``pf_random.standard_normal(shape=(B, K, 2))`` with the same key), the particle moved
-   and its Gaussian range log-likelihood summed over the links
-   (:func:`radioloc.estimators.pf_kernels._gauss_link`); then ``v = exp(log w - m_c)``
-   relative to the chunk's largest log-likelihood ``m_c`` and the chunk's sums for the
-   total, the ESS, the mean and the covariance (relative to the filter's first particle
+   of ``pf_random.standard_normal_numpy(shape=(B, K, 2))`` with the same key, bit for bit),
+   the particle moved (read through the previous step's ancestors when they are carried:
+   the previous step's gather done here) and its Gaussian range log-likelihood summed over
+   the links (:func:`radioloc.estimators.pf_kernels._gauss_link`); then ``v = exp(log w -
+   m_c)`` relative to the chunk's largest log-likelihood ``m_c`` and the chunk's sums for
+   the total, the ESS, the mean and the covariance (relative to the filter's first particle
    moved without noise). The chunks' factors ``exp(m_c - max) / total`` make the weights;
-2. systematic resampling (line 12) and the gather: per ancestor chunk, where its part of the
-   cumulative weight starts (from the chunk totals), the number ``N_i`` of new positions
-   ``(U + j) / K`` below each cumulative weight ``c_i`` (the new particles ``N_{i-1} ..
-   N_i - 1`` descend from ``i``; ancestor ``i`` is written at slot ``N_{i-1}`` and a
-   running maximum fills the other slots, without a data-dependent branch), then the copy
-   of the ancestors.
+2. systematic resampling (line 12): per ancestor chunk, where its part of the cumulative
+   weight starts (from the chunk totals), the cumulative weights ``c_i`` (four quarters of
+   the chunk at once), the number ``N_i`` of new positions ``(U + j) / K`` below each ``c_i``
+   (an estimate corrected by the two positions either side, in a loop that vectorises; the
+   new particles ``N_{i-1} .. N_i - 1`` descend from ``i``), ancestor ``i`` written at slot
+   ``N_{i-1}`` and a running maximum filling the other slots, without a data-dependent
+   branch; then, if asked, the gather of the resampled particles.
 
 The plain NumPy form of the same maths is ``P2PParticleFilter(kernel="numpy")`` with the
 same draws (:func:`radioloc.estimators.pf_random.standard_normal_numpy`); the tests compare
@@ -38,7 +40,7 @@ import numpy as np
 from numba import njit, prange
 
 from radioloc.estimators.pf_kernels import _gauss_link, vexp
-from radioloc.estimators.pf_random import pairs_into
+from radioloc.estimators.pf_random import pairs_block
 
 __all__ = ["bootstrap_step"]
 
@@ -56,17 +58,16 @@ def _count_below(cdf, u, nk):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _count_below_table(cdf, u, nk, pos, f0, f1):
-    """:func:`_count_below` for a ``cdf`` at or above the position ``(u + f0 - 1) / K``,
-    clipped above at ``f1``, with the positions ``pos[j] = (u + j) / K`` of ``j`` in ``[f0,
-    f1)`` read from a table: the estimate ``ceil(K cdf - u)`` (off by at most one through
-    rounding) corrected by two comparisons, without a branch."""
-    j0 = int(math.ceil(cdf * nk - u))
-    lo = pos[min(max(j0 - 1, f0), f1 - 1)]
-    hi = pos[min(max(j0, f0), f1 - 1)]
-    down = (j0 - 1 >= f0) & (lo >= cdf)
-    up = (j0 >= f0) & (j0 < f1) & (hi < cdf)
-    return min(j0 - np.int64(down) + np.int64(up), f1)
+def _count_below_div(cdf, u, nk, lo_n, hi_n):
+    """:func:`_count_below` clipped to ``[lo_n, hi_n]``, as a float, without a branch: the
+    estimate ``ceil(K cdf - u)`` (off by at most one through rounding) corrected by the two
+    positions either side of it, each ``(u + j) / K`` as in ``resampling.systematic``; the
+    ancestors' counts of a chunk in one loop without a dependence (it vectorises)."""
+    j0 = np.ceil(cdf * nk - u)                  # a float (math.ceil's int would not vectorise)
+    lo = (u + (j0 - 1.0)) / nk
+    hi = (u + j0) / nk
+    n = j0 - (1.0 if lo >= cdf else 0.0) + (1.0 if hi < cdf else 0.0)
+    return min(max(n, lo_n), hi_n)
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
@@ -105,15 +106,42 @@ def _buf_moments(buf, m, rx, ry, sums):
     sums[6] = syy
 
 
+@njit(cache=True, error_model="numpy", fastmath={"nnan", "nsz", "reassoc"})
+def _row_max(row, m):
+    """Largest of ``row[:m]`` (finite values: the flags let LLVM vectorise the reduction; the
+    largest of finite numbers does not depend on the order)."""
+    mx = -np.inf
+    for i in range(m):
+        mx = max(mx, row[i])
+    return mx
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc"})
+def _row_sum(row, a, b):
+    """``sum(row[a:b])``, reassociated so that it vectorises (the same value for the same
+    ``row``, ``a``, ``b``: the chunks are fixed, so it does not depend on the threads)."""
+    s = 0.0
+    seg = row[a:b]
+    for i in range(b - a):
+        s += seg[i]
+    return s
+
+
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, chunk,
-                   out_particles, idx, mean, cov, ess, distinct, pred, v):
+def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, valid, inv_s, u,
+                   chunk, gather, out_particles, idx, mean, cov, ess, distinct, pred, v):
     """Predict, weight, moments and systematic resampling of bootstrap filters, fused.
 
     Parameters
     ----------
-    particles : ndarray, shape (B, K, 2)
-        Particles of the previous step (positions).
+    particles : ndarray, shape (B, K', 2)
+        Particles of the previous step (positions): resampled (``carried`` false), or the
+        previous step's predicted particles, resampled here through ``anc``.
+    anc : ndarray of int64, shape (B, K)
+        With ``carried``: the ancestors of the previous step (particle ``i`` is
+        ``particles[b, anc[b, i]]``, the gather of the previous step done here); else unused.
+    carried : bool
+        Whether ``particles`` are read through ``anc``.
     shift : ndarray, shape (B, 2)
         Deterministic displacement ``u`` of the step per filter (the control; zeros
         without).
@@ -133,31 +161,39 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         Uniform in [0, 1) of the systematic resampling per filter.
     chunk : int
         Particles per parallel task.
+    gather : bool
+        Whether to write the resampled particles into ``out_particles`` (else the caller
+        carries ``pred`` and ``idx`` into the next step).
     out_particles : ndarray, shape (B, K, 2)
-        Output: resampled particles.
+        Output (with ``gather``): resampled particles.
     idx : ndarray of int64, shape (B, K)
-        Output: ancestor of each new particle (non-decreasing).
+        Output: ancestor of each new particle (non-decreasing); not ``anc``.
     mean, cov, ess : ndarray, shapes (B, 2), (B, 2, 2), (B,)
         Output: weighted mean, covariance and ``1 / sum w^2`` of the predicted particles.
     distinct : ndarray of int64, shape (B,)
         Output: number of distinct ancestors.
     pred : ndarray, shape (B, K, 2)
-        Scratch: the predicted particles.
+        Output: the predicted particles (not ``particles``).
     v : ndarray, shape (B, K)
-        Scratch: log-likelihoods, then unnormalised weights.
+        Scratch: unnormalised weights, then cumulative weights, then offspring counts.
 
     Returns
     -------
     None
         The results are written into the output arrays.
     """
-    nb, nk = particles.shape[0], particles.shape[1]
+    nb, nk = idx.shape[0], idx.shape[1]
     nl = theta.shape[1]
     nc = max(1, -(-nk // chunk))
     k0, k1, c2, c3 = key[0], key[1], key[2], key[3]
     sx, sy = sd[0], sd[1]
     cmax = np.empty((nb, nc))
     sums = np.empty((nb, nc, 7))
+    ref = np.empty((nb, 2))             # the filter's first particle moved without noise
+    for b in range(nb):
+        a0 = anc[b, 0] if carried else 0
+        ref[b, 0] = particles[b, a0, 0] + shift[b, 0]
+        ref[b, 1] = particles[b, a0, 1] + shift[b, 1]
     # pass 1: draw, move, Gaussian log-likelihood, weights relative to the chunk's largest,
     # the chunk's moment sums
     for task in prange(nb * nc):
@@ -167,28 +203,45 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         i1 = min(nk, i0 + chunk)
         m = i1 - i0
         buf = np.empty((8, m))                  # rows 0, 1: x, y; row 7: log-likelihood
-        pairs_into(buf, b * nk + i0, m, k0, k1, c2, c3)
+        pairs_block(buf, b * nk + i0, m, k0, k1, c2, c3)   # no contraction: the reference's draws
         ux = shift[b, 0]
         uy = shift[b, 1]
-        for i in range(m):
-            buf[0, i] = (particles[b, i0 + i, 0] + ux) + sx * buf[0, i]
-            buf[1, i] = (particles[b, i0 + i, 1] + uy) + sy * buf[1, i]
-            buf[7, i] = 0.0
+        # slices, so that the loops index from 0 (a loop over ``i0 + i`` does not vectorise:
+        # LLVM cannot rule out a negative, wrapped-around index)
+        pseg = pred[b, i0:i1]
+        vseg = v[b, i0:i1]
+        if carried:
+            aseg = anc[b, i0:i1]
+            src = particles[b]
+            for i in range(m):
+                a = aseg[i]
+                x = (src[a, 0] + ux) + sx * buf[0, i]
+                y = (src[a, 1] + uy) + sy * buf[1, i]
+                buf[0, i] = x
+                buf[1, i] = y
+                pseg[i, 0] = x
+                pseg[i, 1] = y
+                buf[7, i] = 0.0
+        else:
+            src = particles[b, i0:i1]
+            for i in range(m):
+                x = (src[i, 0] + ux) + sx * buf[0, i]
+                y = (src[i, 1] + uy) + sy * buf[1, i]
+                buf[0, i] = x
+                buf[1, i] = y
+                pseg[i, 0] = x
+                pseg[i, 1] = y
+                buf[7, i] = 0.0
         for j in range(nl):
             if valid[b, j]:
                 _gauss_link(buf, m, node_xy[b, j, 0], node_xy[b, j, 1], theta[b, j], inv_s[b])
-        mx = -np.inf
+        mx = _row_max(buf[7], m)
         for i in range(m):
-            mx = max(mx, buf[7, i])
-        for i in range(m):
-            buf[7, i] = vexp(buf[7, i] - mx)
+            e = vexp(buf[7, i] - mx)
+            buf[7, i] = e
+            vseg[i] = e
         cmax[b, c] = mx
-        for i in range(m):
-            pred[b, i0 + i, 0] = buf[0, i]
-            pred[b, i0 + i, 1] = buf[1, i]
-            v[b, i0 + i] = buf[7, i]
-        # relative to the filter's first particle moved without noise (known to every task)
-        _buf_moments(buf, m, particles[b, 0, 0] + ux, particles[b, 0, 1] + uy, sums[b, c])
+        _buf_moments(buf, m, ref[b, 0], ref[b, 1], sums[b, c])
     # moments; the weight factor of each chunk; where each ancestor chunk's part of the
     # cumulative weight starts; the first new particle of each chunk
     start = np.empty((nb, nc + 1))
@@ -210,8 +263,8 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         ess[b] = tot[0] * tot[0] / tot[1]
         mdx = tot[2] * inv
         mdy = tot[3] * inv
-        mean[b, 0] = (particles[b, 0, 0] + shift[b, 0]) + mdx
-        mean[b, 1] = (particles[b, 0, 1] + shift[b, 1]) + mdy
+        mean[b, 0] = ref[b, 0] + mdx
+        mean[b, 1] = ref[b, 1] + mdy
         cov[b, 0, 0] = tot[4] * inv - mdx * mdx
         cxy = tot[5] * inv - mdy * mdx
         cov[b, 0, 1] = cxy
@@ -228,9 +281,11 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         first[b, nc] = nk
         for c in range(1, nc):                  # monotone whatever the rounding
             first[b, c] = max(first[b, c], first[b, c - 1])
-    # pass 3: systematic resampling and the gather, per ancestor chunk. Slot s of idx (in
-    # the task's own range [first_c, first_{c+1})) first gets the last ancestor i with
-    # N_{i-1} = s, the one whose offspring start at s; a running maximum fills the rest.
+    # pass 2: systematic resampling (and the gather), per ancestor chunk: the cumulative
+    # weights c_i (one add per ancestor, in order), the counts N_i of positions below them
+    # (a loop without a dependence between ancestors), then slot N_{i-1} of idx (in the
+    # task's own range [first_c, first_{c+1})) gets the last ancestor i with that N_{i-1},
+    # the one whose offspring start there, and a running maximum fills the rest.
     counts = np.zeros((nb, nc), dtype=np.int64)
     for task in prange(nb * nc):
         b = task // nc
@@ -242,34 +297,63 @@ def bootstrap_step(particles, shift, sd, key, node_xy, theta, valid, inv_s, u, c
         if f1 <= f0:
             continue
         ub = u[b]
-        # the positions (u + j) / K, j in [f0, f1), in the task's own part of out_particles
-        # (entry f0 + j of the filter's flat rows; the gather overwrites them)
-        pos = out_particles[b].reshape(2 * nk)[f0:]
-        jf = float(f0)
-        for j in range(f0, f1):
-            pos[j] = (ub + jf) / nk
-            jf += 1.0
-            idx[b, j] = -1
         f = factor[b, c]
-        cdf = start[b, c]
+        m = i1 - i0
+        nf = f1 - f0
+        vr = v[b, i0:i1]                        # slices: loops from 0 (see pass 1)
+        # cumulative weights in four quarters of the chunk at once (four independent chains
+        # of adds instead of one), each from the start given by the sums of the ones before
+        q = m // 4
+        c0 = start[b, c]
+        c1 = c0 + _row_sum(vr, 0, q) * f
+        c2 = c1 + _row_sum(vr, q, 2 * q) * f
+        c3 = c2 + _row_sum(vr, 2 * q, 3 * q) * f
+        v0 = vr[0:q]
+        v1 = vr[q:2 * q]
+        v2 = vr[2 * q:3 * q]
+        v3 = vr[3 * q:m]
+        for i in range(q):
+            c0 += v0[i] * f
+            v0[i] = c0
+            c1 += v1[i] * f
+            v1[i] = c1
+            c2 += v2[i] * f
+            v2[i] = c2
+            c3 += v3[i] * f
+            v3[i] = c3
+        for i in range(q, m - 3 * q):
+            c3 += v3[i] * f
+            v3[i] = c3
+        lo_n = float(f0)
+        hi_n = float(f1)
+        for i in range(m):
+            vr[i] = _count_below_div(vr[i], ub, nk, lo_n, hi_n)
+        # slot N_{i-1} (relative to f0) of mk gets ancestor i: the last one written, the one
+        # whose offspring start there; slot nf is a sink for the ancestors without offspring
+        # at the chunk's end (no branch)
+        mk = np.empty(nf + 1, dtype=np.int64)
+        for j in range(nf + 1):
+            mk[j] = -1
         prev = f0
-        cnt = 0
-        for i in range(i0, i1 - 1):
-            cdf += v[b, i] * f
-            n_i = max(_count_below_table(cdf, ub, nk, pos, f0, f1), prev)
-            if prev < f1:                       # false only for empty ancestors at the end
-                idx[b, prev] = i
-            cnt += n_i > prev
-            prev = n_i
-        if prev < f1:                           # the last ancestor takes the rest
-            idx[b, prev] = i1 - 1
-            cnt += 1
-        counts[b, c] = cnt
+        for i in range(m):
+            mk[prev - f0] = i0 + i
+            prev = max(int(vr[i]), prev)
+        # a running maximum fills the slots between; each marked slot is a distinct ancestor
+        ir = idx[b, f0:f1]
         a = -1
-        for j in range(f0, f1):
-            a = max(a, idx[b, j])
-            idx[b, j] = a
-            out_particles[b, j, 0] = pred[b, a, 0]
-            out_particles[b, j, 1] = pred[b, a, 1]
+        cnt = 0
+        for j in range(nf):
+            x = mk[j]
+            cnt += x >= 0
+            a = max(a, x)
+            ir[j] = a
+        counts[b, c] = cnt
+        if gather:
+            op = out_particles[b, f0:f1]
+            pp = pred[b]
+            for j in range(nf):
+                a = ir[j]
+                op[j, 0] = pp[a, 0]
+                op[j, 1] = pp[a, 1]
     for b in range(nb):
         distinct[b] = counts[b].sum()

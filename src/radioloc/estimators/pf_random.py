@@ -232,6 +232,13 @@ def normal_pair(n, k0, k1, c2, c3):
 def pairs_into(buf, n0, m, k0, k1, c2, c3):
     """Rows 0 and 1 of ``buf[:, :m]``: the draw pairs of blocks ``n0 .. n0 + m - 1``.
 
+    Two loops, each vectorised by LLVM: Philox into the two uniforms (rows 0 and 1), then
+    Box-Muller in place (fewer live constants per loop than one loop doing both, so fewer
+    reloads). Inlined into the caller, so it takes the caller's floating-point flags: a
+    caller compiled with contraction (``fastmath={"contract"}``) would fuse the polynomials'
+    multiply-adds and draw other values than :func:`standard_normal_numpy`; such a caller
+    calls :func:`pairs_block` instead.
+
     Parameters
     ----------
     buf : ndarray, shape (R, >= m), R >= 2
@@ -245,13 +252,48 @@ def pairs_into(buf, n0, m, k0, k1, c2, c3):
     -------
     None
     """
+    # every word is below 2^32; saying so lets LLVM use one 32 x 32-bit multiply per product
+    # in the first round too
+    k0 = k0 & _LO32
+    k1 = k1 & _LO32
+    c2 = c2 & _LO32
+    c3 = c3 & _LO32
     for i in range(m):
-        z0, z1 = normal_pair(n0 + i, k0, k1, c2, c3)
+        c = np.uint64(n0 + i)
+        w0, w1, w2, w3 = _philox(c & _LO32, c >> _S32, c2, c3, k0, k1)
+        buf[0, i] = _uniform_open(w0, w1)
+        buf[1, i] = _quarter_turns(w2, w3)
+    for i in range(m):
+        z0, z1 = _box_muller(buf[0, i], buf[1, i])
         buf[0, i] = z0
         buf[1, i] = z1
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=False)
+def pairs_block(buf, n0, m, k0, k1, c2, c3):
+    """:func:`pairs_into` compiled as a function of its own, without contraction whatever the
+    caller's flags (the draws of :func:`standard_normal_numpy`, bit for bit). ``fastmath=False``
+    is explicit because numba passes a caller's ``fastmath`` on to a callee that does not
+    set its own (and caches the callee compiled so: the draws then depended on which kernel
+    compiled first).
+
+    Parameters
+    ----------
+    buf : ndarray, shape (R, >= m), R >= 2
+        Output rows 0 (draws ``2 n``) and 1 (draws ``2 n + 1``).
+    n0, m : int
+        First block and number of blocks.
+    k0, k1, c2, c3 : uint64
+        The words of :func:`draw_key`.
+
+    Returns
+    -------
+    None
+    """
+    pairs_into(buf, n0, m, k0, k1, c2, c3)
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath=False)
 def _fill_normal(key, out, chunk):
     """``out[e]`` = draw ``e`` of the call keyed by ``key``; parallel over chunks of
     blocks."""
