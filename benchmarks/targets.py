@@ -59,8 +59,11 @@ BOUNDS: dict[str, str] = {
         "the link kernel (two exponentials per update in the full loop, erfcx where needed) "
         "is about half of the step; motion draws, gather, moments and resampling the rest.",
     "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5":
-        "the fused kernel's CPU per particle-step (draws and likelihood in pass 1, systematic "
-        "resampling and gather in pass 2).",
+        "the fused kernel's arithmetic, about 22 ns of CPU per particle-step (Philox and "
+        "Box-Muller draws 8.9, four link square roots 3.0, exponential 2.5, resampling 3.7); "
+        "timed over the same 30 steps as ours, `particles` runs at about 400 ns per "
+        "particle-step, so 100x it needs 4 ns of wall per particle-step: below the draws alone "
+        "on two cores.",
     "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties":
         "the cost bound evaluated per candidate partner (2,044 per mixture), scalar.",
 }
