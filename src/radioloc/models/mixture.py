@@ -1113,7 +1113,7 @@ _LANE_ROWS = 11
 
 
 @njit(cache=True, error_model="numpy")
-def _west_lanes(T, cnt, kmax, tie, t):  # pragma: no cover - compiled
+def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - compiled
     """:func:`_west_soa` of ``L`` 2-D mixtures at once, one per SIMD lane, with the same
     choices, arithmetic and component order (so the same results, bit for bit).
 
@@ -1146,7 +1146,11 @@ def _west_lanes(T, cnt, kmax, tie, t):  # pragma: no cover - compiled
     ALI = 12
     BEST = 17
     NS = 18
-    while cnt > kmax:
+    ALIVE = 19
+    for ln in range(L):
+        S[ALIVE, ln] = 1.0
+    alive = L
+    while cnt > kmax and 2 * alive >= L:
         # the lowest weight (rows 0/1), the second lowest (2/3), its index (4/5)
         q = 0
         for c in range(cnt):
@@ -1233,8 +1237,17 @@ def _west_lanes(T, cnt, kmax, tie, t):  # pragma: no cover - compiled
                 S[NS, ln] += 1.0 if keep else 0.0
         last = cnt - 1
         for ln in range(L):
+            if S[ALIVE, ln] == 0.0:
+                continue
             i = np.int64(S[4 + wq, ln])
-            if S[NS, ln] == 0.0 and not S[2 + wq, ln] * (1.0 - tie) <= S[wq, ln]:
+            if S[2 + wq, ln] * (1.0 - tie) <= S[wq, ln]:
+                # tied lowest weights: this lane goes on alone (_west_soa from here)
+                S[ALIVE, ln] = 0.0
+                alive -= 1
+                if ln < nl:
+                    _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
+                continue
+            if S[NS, ln] == 0.0:
                 # the merge of i into c0 (_merge_pair on a copy of the two columns)
                 j = np.int64(S[15 + bq, ln])
                 for r in range(5):
@@ -1256,7 +1269,22 @@ def _west_lanes(T, cnt, kmax, tie, t):  # pragma: no cover - compiled
                 for r in range(LD + 1):
                     T[i, r, ln] = T[last, r, ln]
         cnt -= 1
-    return cnt
+    for ln in range(min(L, nl)):
+        if S[ALIVE, ln] != 0.0:
+            _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
+    return kmax
+
+
+@njit(cache=True, error_model="numpy")
+def _finish_lane(T, ln, cnt, kmax, tie, t, ow, om, ov):  # pragma: no cover - compiled
+    """Lane ``ln`` of :func:`_west_lanes` (``cnt`` components) copied into the scratch
+    ``t``, reduced to ``kmax`` by :func:`_west_soa` and stored by :func:`_store`."""
+    for c in range(cnt):
+        for r in range(5):
+            t[r, c] = T[c, r, ln]
+    if cnt > kmax:
+        cnt = _west_soa(t, cnt, kmax, tie)
+    _store(t, 2, cnt, ow, om, ov)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -1279,35 +1307,32 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
         t = np.empty((3 * d + 10, k))
         b0 = g * L
         nl = min(L, nb - b0)
-        same = d == 2 and nl == L
+        same = d == 2
         n0 = -1
         if same:
-            for ln in range(L):
+            for ln in range(nl):
                 c = 0
                 for r in range(k):
                     c += 1 if w[b0 + ln, r] > 0 else 0
                 if ln == 0:
                     n0 = c
                 same = same and c == n0
-            same = same and n0 > kout
+            same = same and n0 > kout and 2 * nl >= L
         if not same:
             for b in range(b0, b0 + nl):
                 cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
             continue
         T = np.empty((k, _LANE_ROWS, L))
         for ln in range(L):
-            _load(w[b0 + ln], m[b0 + ln], v[b0 + ln], k, t)
+            b = b0 + min(ln, nl - 1)         # a part group: copies of its last mixture
+            _load(w[b], m[b], v[b], k, t)
             for c in range(n0):
                 _set_logdet(t, d, c)
                 for r in range(3 * d + 2):
                     T[c, r, ln] = t[r, c]
-        _west_lanes(T, n0, kout, tie, t)
-        for ln in range(L):
-            for c in range(kout):
-                for r in range(2 * d + 1):
-                    t[r, c] = T[c, r, ln]
-            _store(t, d, kout, ow[b0 + ln], om[b0 + ln], ov[b0 + ln])
-            cnt[b0 + ln] = kout
+        _west_lanes(T, n0, kout, tie, t, ow[b0:b0 + nl], om[b0:b0 + nl], ov[b0:b0 + nl], nl)
+        for b in range(b0, b0 + nl):
+            cnt[b] = kout
     return ow, om, ov, cnt
 
 
