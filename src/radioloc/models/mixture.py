@@ -945,7 +945,7 @@ def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
+def _west_soa(t, n, kmax, tie, fresh):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
@@ -971,67 +971,63 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
       when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
       ``B = wi (|log|P_c|| + |log|P_i||) + ws ay`` (then it cannot tie:
       ``scale <= |cost| + B``).
-    - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
+    - ``i`` is merged into ``j`` (moment matching, :func:`_merge_pair`), ``i`` is
+      replaced by the last column.
+
+    ``fresh``: set rows ``2 D + 1 .. 3 D + 1`` first; ``False``: rows ``2 D + 1 .. 3 D + 1`` are already set (:func:`_set_logdet`);
+    ``_west_soa(t, n, n - 1, tie, False)`` is one merge (:func:`_west_lanes`).
     """
     d = (t.shape[0] - 10) // 3
-    for c in range(n):
-        _set_logdet(t, d, c)
-    cnt = n
-    while cnt > kmax:
-        _merge_step(t, d, cnt, tie)
-        cnt -= 1
-    return cnt
-
-
-@njit(cache=True, error_model="numpy")
-def _merge_step(t, d, cnt, tie):  # pragma: no cover - compiled
-    """One merge of :func:`_west_soa` on its scratch ``t`` with ``cnt`` components (rows up
-    to the log-determinant set): the lowest weight ``i`` (weight ties by the cheapest best
-    merge, then :func:`_pick`) into its partner ``j`` (:func:`_partner`), then column ``i``
-    replaced by column ``cnt - 1``."""
     LD = 3 * d + 1
     TS = LD + 4
     IC = LD + 5
     IS = LD + 6
     IJ = LD + 7
-    # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
-    wmin = np.inf
-    w2 = np.inf
-    first = -1
-    for c in range(cnt):
-        wc = t[0, c]
-        if wc < wmin:
-            w2 = wmin
-            wmin = wc
-            first = c
-        elif wc < w2:
-            w2 = wc
-    many = w2 * (1.0 - tie) <= wmin
-    if not many:
-        i = first
-        j, _, _ = _partner(t, d, cnt, i, tie)
-    else:
-        # tied lowest weights: the one with the cheapest merge, ties by _pick
-        bi = np.inf
+    if fresh:
+        for c in range(n):
+            _set_logdet(t, d, c)
+    cnt = n
+    while cnt > kmax:
+        # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
+        wmin = np.inf
+        w2 = np.inf
+        first = -1
         for c in range(cnt):
-            if t[0, c] * (1.0 - tie) <= wmin:
-                jj, co, sc = _partner(t, d, cnt, c, tie)
-                t[IC, c] = co
-                t[IS, c] = sc
-                t[IJ, c] = jj
-                bi = min(bi, co)
-            else:
-                t[IC, c] = np.inf
-                t[IS, c] = 0.0
-        for c in range(cnt):
-            t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
-        i = _pick(t, d, cnt, TS)
-        j = np.int64(t[IJ, i])
-    _merge_pair(t, d, i, j)
-    last = cnt - 1
-    if i != last:
-        for r in range(LD + 1):
-            t[r, i] = t[r, last]
+            wc = t[0, c]
+            if wc < wmin:
+                w2 = wmin
+                wmin = wc
+                first = c
+            elif wc < w2:
+                w2 = wc
+        many = w2 * (1.0 - tie) <= wmin
+        if not many:
+            i = first
+            j, _, _ = _partner(t, d, cnt, i, tie)
+        else:
+            # tied lowest weights: the one with the cheapest merge, ties by _pick
+            bi = np.inf
+            for c in range(cnt):
+                if t[0, c] * (1.0 - tie) <= wmin:
+                    jj, co, sc = _partner(t, d, cnt, c, tie)
+                    t[IC, c] = co
+                    t[IS, c] = sc
+                    t[IJ, c] = jj
+                    bi = min(bi, co)
+                else:
+                    t[IC, c] = np.inf
+                    t[IS, c] = 0.0
+            for c in range(cnt):
+                t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
+            i = _pick(t, d, cnt, TS)
+            j = np.int64(t[IJ, i])
+        # merge i into j (moment matching), then replace column i by the last one
+        _merge_pair(t, d, i, j)
+        cnt -= 1
+        if i != cnt:
+            for r in range(LD + 1):
+                t[r, i] = t[r, cnt]
+    return cnt
 
 
 @njit(cache=True, error_model="numpy")
@@ -1063,7 +1059,7 @@ def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - co
     d = m.shape[1]
     c = _load(w, m, v, n, t)
     if c > kmax:
-        c = _west_soa(t, c, kmax, tie)
+        c = _west_soa(t, c, kmax, tie, True)
     _store(t, d, c, ow, om, ov)
     return c
 
@@ -1121,14 +1117,17 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     ``l``, rows 0-7 as in :func:`_west_soa` (weight, mean, variances, inverse variances,
     log-determinant), then the cost bound, ``y`` and the scale's part of
     :func:`_partner`'s pass 1. Every lane has ``cnt`` components (weights > 0); returns
-    ``kmax``. The loops run over the components with the lanes innermost (a run-time trip
+    ``kmax``; lanes ``l < nl`` are stored by :func:`_store` into ``ow[l], om[l], ov[l]``
+    (the others are padding). The loops run over the components with the lanes innermost (a run-time trip
     count, no branch: LLVM vectorises them), so the lowest weight, pass 1, the lowest
     bound and the bound's skip test cost a few vector operations per candidate for ``L``
     mixtures. A lane merges its lowest weight ``i`` into the candidate ``c0`` of lowest
     bound when ``i``'s weight is not tied and the bound excludes every other candidate from
     the tie set of ``c0``'s exact cost (:func:`_partner`'s test: its pass 2 would take no
-    other logarithm); else (a tie, or a candidate to cost exactly) that lane's merge is
-    :func:`_merge_step` on a copy in the scratch ``t``."""
+    other logarithm); a candidate to cost exactly: that lane's merge is one step of
+    :func:`_west_soa` on a copy in the scratch ``t``; tied lowest weights: the lane is
+    finished alone (:func:`_finish_lane`), and when fewer than half the lanes are left
+    the others are too."""
     L = T.shape[2]
     LD = 7
     LB = 8
@@ -1260,7 +1259,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 for c in range(cnt):
                     for r in range(LD + 1):
                         t[r, c] = T[c, r, ln]
-                _merge_step(t, 2, cnt, tie)
+                _west_soa(t, cnt, last, tie, False)
                 for c in range(last):
                     for r in range(LD + 1):
                         T[c, r, ln] = t[r, c]
@@ -1283,7 +1282,7 @@ def _finish_lane(T, ln, cnt, kmax, tie, t, ow, om, ov):  # pragma: no cover - co
         for r in range(5):
             t[r, c] = T[c, r, ln]
     if cnt > kmax:
-        cnt = _west_soa(t, cnt, kmax, tie)
+        cnt = _west_soa(t, cnt, kmax, tie, True)
     _store(t, 2, cnt, ow, om, ov)
 
 
