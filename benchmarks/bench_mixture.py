@@ -3,8 +3,9 @@
 Peer: :func:`radioloc.models.mixture.reduce_reference`, the vectorised NumPy implementation
 of the same greedy West/Runnalls reduction with the same tie rule (one merge per iteration
 for the whole batch; bit for bit the kernel's results), measured in the same process against
-the compiled kernel used by :func:`radioloc.models.mixture.reduce`: wall time of the
-parallel kernel and, beside it, both per CPU second (``time.process_time``, threads counted). The Progressive Bayes reduction
+the compiled kernel used by :func:`radioloc.models.mixture.reduce` (2-D mixtures of equal
+component count reduced 32 at a time on SIMD lanes, ``models.mixture._west_lanes``): wall
+time of the parallel kernel and, beside it, both per CPU second (``time.process_time``, threads counted). The Progressive Bayes reduction
 (:func:`radioloc.models.progressive_bayes.progressive_reduce`) is timed beside the compiled
 West/Runnalls reduction it starts from (on a tenth of the batch). The tracker's continuous default (fixed-structure merges) is timed
 against its greedy West/Runnalls option.
@@ -21,8 +22,9 @@ from radioloc.models.progressive_bayes import progressive_reduce
 from timing import best_of
 
 #: floating-point operations per candidate partner of one West/Runnalls merge in 2-D: pass 1
-#: of ``models.mixture._partner`` (the ratio ``y`` 18, its magnitude and the scale's part 10,
-#: the logarithm-free bound 26); pass 2 adds about one ``log1p`` per merge, not counted
+#: of ``models.mixture._west_lanes`` / ``_partner`` (the ratio ``y`` 18, its magnitude and the
+#: scale's part 10, the logarithm-free bound 26); pass 2 adds about one ``log1p`` per merge,
+#: not counted
 FLOPS_PER_CANDIDATE = 54
 
 

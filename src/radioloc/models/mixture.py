@@ -660,7 +660,8 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     merge preserves the mass, the mean and the per-axis variances of the pair, so the whole
     reduction preserves the mass, the mean and the diagonal of the covariance of the
     mixture. One compiled kernel, the mixtures of the batch in parallel
-    (:func:`_reduce_batch`).
+    (:func:`_reduce_batch`; in 2-D, 32 mixtures of the same component count at a time on
+    SIMD lanes, :func:`_west_lanes`).
 
     Weights that agree to a relative ``1e-9``, and merge costs that agree to ``1e-9`` of
     their rounding scale (Runnalls' cost is computed without cancellation, see
@@ -945,7 +946,7 @@ def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
+def _west_soa(t, n, kmax, tie, fresh):  # pragma: no cover - compiled
     """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
     place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
 
@@ -971,7 +972,11 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
       when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
       ``B = wi (|log|P_c|| + |log|P_i||) + ws ay`` (then it cannot tie:
       ``scale <= |cost| + B``).
-    - ``i`` is merged into ``j`` (moment matching), ``i`` is replaced by the last column.
+    - ``i`` is merged into ``j`` (moment matching, :func:`_merge_pair`), ``i`` is
+      replaced by the last column.
+
+    ``fresh``: set rows ``2 D + 1 .. 3 D + 1`` first; ``False``: rows ``2 D + 1 .. 3 D + 1`` are already set (:func:`_set_logdet`);
+    ``_west_soa(t, n, n - 1, tie, False)`` is one merge (:func:`_west_lanes`).
     """
     d = (t.shape[0] - 10) // 3
     LD = 3 * d + 1
@@ -979,8 +984,9 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
     IC = LD + 5
     IS = LD + 6
     IJ = LD + 7
-    for c in range(n):
-        _set_logdet(t, d, c)
+    if fresh:
+        for c in range(n):
+            _set_logdet(t, d, c)
     cnt = n
     while cnt > kmax:
         # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
@@ -1016,21 +1022,8 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
                 t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
             i = _pick(t, d, cnt, TS)
             j = np.int64(t[IJ, i])
-        wi = t[0, i]
         # merge i into j (moment matching), then replace column i by the last one
-        wj = t[0, j]
-        ws = wi + wj
-        a1 = wi / ws
-        a2 = wj / ws
-        for e in range(d):
-            mie = t[1 + e, i]
-            mje = t[1 + e, j]
-            mm = a1 * mie + a2 * mje
-            vv = a1 * (t[1 + d + e, i] + (mie - mm) ** 2) + a2 * (t[1 + d + e, j] + (mje - mm) ** 2)
-            t[1 + e, j] = mm
-            t[1 + d + e, j] = vv
-        t[0, j] = ws
-        _set_logdet(t, d, j)
+        _merge_pair(t, d, i, j)
         cnt -= 1
         if i != cnt:
             for r in range(LD + 1):
@@ -1039,11 +1032,43 @@ def _west_soa(t, n, kmax, tie):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
+def _merge_pair(t, d, i, j):  # pragma: no cover - compiled
+    """Merge column ``i`` of the scratch ``t`` (:func:`_west_soa`) into column ``j`` by
+    moment matching (:func:`merge_moments`' arithmetic) and set ``j``'s inverse variances
+    and log-determinant (:func:`_set_logdet`); column ``i`` is left as it was."""
+    wi = t[0, i]
+    wj = t[0, j]
+    ws = wi + wj
+    a1 = wi / ws
+    a2 = wj / ws
+    for e in range(d):
+        mie = t[1 + e, i]
+        mje = t[1 + e, j]
+        mm = a1 * mie + a2 * mje
+        vv = a1 * (t[1 + d + e, i] + (mie - mm) ** 2) + a2 * (t[1 + d + e, j] + (mje - mm) ** 2)
+        t[1 + e, j] = mm
+        t[1 + d + e, j] = vv
+    t[0, j] = ws
+    _set_logdet(t, d, j)
+
+
+@njit(cache=True, error_model="numpy")
 def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
     """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
     ``3 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
-    count. The output is in the canonical order of :func:`compact`: decreasing weight,
-    equal weights by means, then variances (an insertion sort; the mixtures are small)."""
+    count. The output is in the canonical order of :func:`compact` (:func:`_store`)."""
+    d = m.shape[1]
+    c = _load(w, m, v, n, t)
+    if c > kmax:
+        c = _west_soa(t, c, kmax, tie, True)
+    _store(t, d, c, ow, om, ov)
+    return c
+
+
+@njit(cache=True)
+def _load(w, m, v, n, t):  # pragma: no cover - compiled
+    """The components of positive weight of ``w[:n], m, v`` into the columns of the scratch
+    ``t`` (:func:`_west_soa`: weight, mean, variances); returns their count."""
     d = m.shape[1]
     c = 0
     for r in range(n):
@@ -1053,8 +1078,14 @@ def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - co
                 t[1 + e, c] = m[r, e]
                 t[1 + d + e, c] = v[r, e]
             c += 1
-    if c > kmax:
-        c = _west_soa(t, c, kmax, tie)
+    return c
+
+
+@njit(cache=True)
+def _store(t, d, c, ow, om, ov):  # pragma: no cover - compiled
+    """The ``c`` components of the scratch ``t`` into ``ow, om, ov`` in the canonical order
+    of :func:`compact`: decreasing weight, equal weights by means, then variances (an
+    insertion sort; the mixtures are small)."""
     for r in range(c):                   # sorted column indices in the first slots of ow
         pos = r
         while pos > 0:
@@ -1070,24 +1101,239 @@ def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - co
             om[r, e] = t[1 + e, i]
             ov[r, e] = t[1 + d + e, i]
         ow[r] = t[0, i]
-    return c
+
+
+#: mixtures reduced together on the SIMD lanes of :func:`_west_lanes` (2-D)
+_LANES = 32
+#: rows of the lane array of :func:`_west_lanes`
+_LANE_ROWS = 11
+
+
+@njit(cache=True, error_model="numpy")
+def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - compiled
+    """:func:`_west_soa` of ``L`` 2-D mixtures at once, one per SIMD lane, with the same
+    choices, arithmetic and component order (so the same results, bit for bit).
+
+    ``T`` (``K x 11 x L``, C order): ``T[c, r, l]`` is row ``r`` of component ``c`` of lane
+    ``l``, rows 0-7 as in :func:`_west_soa` (weight, mean, variances, inverse variances,
+    log-determinant), then the cost bound, ``y`` and the scale's part of
+    :func:`_partner`'s pass 1. Every lane has ``cnt`` components (weights > 0); returns
+    ``kmax``; lanes ``l < nl`` are stored by :func:`_store` into ``ow[l], om[l], ov[l]``
+    (the others are padding). The loops run over the components with the lanes innermost (a run-time trip
+    count, no branch: LLVM vectorises them), so the lowest weight, pass 1, the lowest
+    bound and the bound's skip test cost a few vector operations per candidate for ``L``
+    mixtures. A lane merges its lowest weight ``i`` into the candidate ``c0`` of lowest
+    bound when ``i``'s weight is not tied and the bound excludes every other candidate from
+    the tie set of ``c0``'s exact cost (:func:`_partner`'s test: its pass 2 would take no
+    other logarithm); a candidate to cost exactly: that lane's merge is one step of
+    :func:`_west_soa` on a copy in the scratch ``t``; tied lowest weights: the lane is
+    finished alone (:func:`_finish_lane`), and when fewer than half the lanes are left
+    the others are too."""
+    L = T.shape[2]
+    LD = 7
+    LB = 8
+    CO = 9
+    SC = 10
+    # per-lane state, one row each (a running minimum alternates between two rows, so no
+    # store reads its own address: LLVM would make it a masked store)
+    S = np.empty((20, L))
+    WI = 6
+    MI0 = 7
+    MI1 = 8
+    VI0 = 9
+    VI1 = 10
+    LDI = 11
+    ALI = 12
+    BEST = 17
+    NS = 18
+    ALIVE = 19
+    for ln in range(L):
+        S[ALIVE, ln] = 1.0
+    alive = L
+    while cnt > kmax and 2 * alive >= L:
+        # the lowest weight (rows 0/1), the second lowest (2/3), its index (4/5)
+        q = 0
+        for c in range(cnt):
+            p = q
+            q = 1 - q
+            cf = float(c)
+            for ln in range(L):
+                wc = T[c, 0, ln]
+                mw = S[p, ln]
+                m2 = S[2 + p, ln]
+                f = S[4 + p, ln]
+                lt = (c == 0) | (wc < mw)
+                m2 = wc if wc < m2 else m2
+                S[2 + q, ln] = (np.inf if c == 0 else mw) if lt else m2
+                S[4 + q, ln] = cf if lt else f
+                S[q, ln] = wc if lt else mw
+        wq = q
+        for ln in range(L):
+            i = np.int64(S[4 + wq, ln])
+            S[WI, ln] = T[i, 0, ln]
+            S[MI0, ln] = T[i, 1, ln]
+            S[MI1, ln] = T[i, 2, ln]
+            S[VI0, ln] = T[i, 3, ln]
+            S[VI1, ln] = T[i, 4, ln]
+            S[LDI, ln] = T[i, LD, ln]
+            S[ALI, ln] = abs(T[i, LD, ln])
+        # pass 1 of _partner
+        for c in range(cnt):
+            cf = float(c)
+            for ln in range(L):
+                wi = S[WI, ln]
+                ldi = S[LDI, ln]
+                ali = S[ALI, ln]
+                wc = T[c, 0, ln]
+                ws = wi + wc
+                inv = 1.0 / ws
+                a1 = wi * inv
+                a2 = wc * inv
+                a12 = a1 * a2
+                dm0 = S[MI0, ln] - T[c, 1, ln]
+                dm1 = S[MI1, ln] - T[c, 2, ln]
+                r0 = (a1 * (S[VI0, ln] - T[c, 3, ln]) + a12 * dm0 * dm0) * T[c, 5, ln]
+                r1 = (a1 * (S[VI1, ln] - T[c, 4, ln]) + a12 * dm1 * dm1) * T[c, 6, ln]
+                y = r0 + r1 + r0 * r1
+                b0 = abs(r0)
+                b1 = abs(r1)
+                ay = b0 + b1 + b0 * b1
+                ldc = T[c, LD, ln]
+                T[c, CO, ln] = y
+                T[c, SC, ln] = wi * (abs(ldc) + ali) + ws * ay
+                lb = _cost_bound(y, ldc, wi, ws, ldi, ali)
+                T[c, LB, ln] = np.inf if cf == S[4 + wq, ln] else lb
+        # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
+        q = 0
+        for c in range(cnt):
+            p = q
+            q = 1 - q
+            cf = float(c)
+            for ln in range(L):
+                lb = T[c, LB, ln]
+                mb = S[13 + p, ln]
+                f = S[15 + p, ln]
+                lt = (c == 0) | (lb < mb)
+                S[13 + q, ln] = lb if lt else mb
+                S[15 + q, ln] = cf if lt else f
+        bq = q
+        # the exact cost of the lowest bound (pass 2's first step)
+        for ln in range(L):
+            c = np.int64(S[15 + bq, ln])
+            wi = S[WI, ln]
+            ws = wi + T[c, 0, ln]
+            lp = math.log1p(T[c, CO, ln])
+            S[BEST, ln] = 0.5 * (wi * (T[c, LD, ln] - S[LDI, ln]) + ws * lp)
+            S[NS, ln] = 0.0
+        # pass 2's skip test against it: the candidates it does not skip
+        for c in range(cnt):
+            cf = float(c)
+            for ln in range(L):
+                lb = T[c, LB, ln]
+                bb = S[BEST, ln]
+                skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
+                                     > bb + tie * (2.0 * abs(bb) + 4.0 * T[c, SC, ln]))
+                keep = (~skip) & (cf != S[15 + bq, ln]) & (cf != S[4 + wq, ln])
+                S[NS, ln] += 1.0 if keep else 0.0
+        last = cnt - 1
+        for ln in range(L):
+            if S[ALIVE, ln] == 0.0:
+                continue
+            i = np.int64(S[4 + wq, ln])
+            if S[2 + wq, ln] * (1.0 - tie) <= S[wq, ln]:
+                # tied lowest weights: this lane goes on alone (_west_soa from here)
+                S[ALIVE, ln] = 0.0
+                alive -= 1
+                if ln < nl:
+                    _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
+                continue
+            if S[NS, ln] == 0.0:
+                # the merge of i into c0 (_merge_pair on a copy of the two columns)
+                j = np.int64(S[15 + bq, ln])
+                for r in range(5):
+                    t[r, 0] = T[i, r, ln]
+                    t[r, 1] = T[j, r, ln]
+                _merge_pair(t, 2, 0, 1)
+                for r in range(LD + 1):
+                    T[j, r, ln] = t[r, 1]
+            else:
+                for c in range(cnt):
+                    for r in range(LD + 1):
+                        t[r, c] = T[c, r, ln]
+                _west_soa(t, cnt, last, tie, False)
+                for c in range(last):
+                    for r in range(LD + 1):
+                        T[c, r, ln] = t[r, c]
+                continue
+            if i != last:
+                for r in range(LD + 1):
+                    T[i, r, ln] = T[last, r, ln]
+        cnt -= 1
+    for ln in range(min(L, nl)):
+        if S[ALIVE, ln] != 0.0:
+            _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
+    return kmax
+
+
+@njit(cache=True, error_model="numpy")
+def _finish_lane(T, ln, cnt, kmax, tie, t, ow, om, ov):  # pragma: no cover - compiled
+    """Lane ``ln`` of :func:`_west_lanes` (``cnt`` components) copied into the scratch
+    ``t``, reduced to ``kmax`` by :func:`_west_soa` and stored by :func:`_store`."""
+    for c in range(cnt):
+        for r in range(5):
+            t[r, c] = T[c, r, ln]
+    if cnt > kmax:
+        cnt = _west_soa(t, cnt, kmax, tie, True)
+    _store(t, 2, cnt, ow, om, ov)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
-    """:func:`reduce` (West/Runnalls) of every mixture of ``w (B, K)``, ``m, v (B, K, D)``,
-    the mixtures in parallel; returns ``(weights (B, kmax), means, variances, counts (B,))``
-    in the canonical order (:func:`_reduce_into`) and unused slots at weight 0, mean 0,
-    variance 1."""
+    """:func:`reduce` (West/Runnalls) of every mixture of ``w (B, K)``, ``m, v (B, K, D)``;
+    returns ``(weights (B, kmax), means, variances, counts (B,))`` in the canonical order
+    (:func:`_store`) and unused slots at weight 0, mean 0, variance 1. Groups of
+    ``_LANES`` mixtures run in parallel; in 2-D a group whose mixtures all have the same
+    number of components above ``kmax`` is reduced on SIMD lanes (:func:`_west_lanes`; a
+    part group of at least three quarters of the lanes is padded with copies of its last
+    mixture), any other mixture by :func:`_reduce_into` (same results, bit for bit)."""
     nb, k, d = m.shape
     kout = min(kmax, k)
     ow = np.zeros((nb, kout))
     om = np.zeros((nb, kout, d))
     ov = np.ones((nb, kout, d))
     cnt = np.zeros(nb, dtype=np.int64)
-    for b in prange(nb):
+    L = _LANES
+    ng = (nb + L - 1) // L
+    for g in prange(ng):
         t = np.empty((3 * d + 10, k))
-        cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
+        b0 = g * L
+        nl = min(L, nb - b0)
+        same = d == 2
+        n0 = -1
+        if same:
+            for ln in range(nl):
+                c = 0
+                for r in range(k):
+                    c += 1 if w[b0 + ln, r] > 0 else 0
+                if ln == 0:
+                    n0 = c
+                same = same and c == n0
+            same = same and n0 > kout and 4 * nl >= 3 * L
+        if not same:
+            for b in range(b0, b0 + nl):
+                cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
+            continue
+        T = np.empty((k, _LANE_ROWS, L))
+        for ln in range(L):
+            b = b0 + min(ln, nl - 1)         # a part group: copies of its last mixture
+            _load(w[b], m[b], v[b], k, t)
+            for c in range(n0):
+                _set_logdet(t, d, c)
+                for r in range(3 * d + 2):
+                    T[c, r, ln] = t[r, c]
+        _west_lanes(T, n0, kout, tie, t, ow[b0:b0 + nl], om[b0:b0 + nl], ov[b0:b0 + nl], nl)
+        for b in range(b0, b0 + nl):
+            cnt[b] = kout
     return ow, om, ov, cnt
 
 
