@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit, prange
 from scipy.special import logsumexp, softmax
 
+from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
 
@@ -701,9 +702,9 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     k, d = mix.n_components, mix.dim
     if k <= max_components:
         return compact(mix)
-    w = np.ascontiguousarray(mix.weights.reshape(-1, k), dtype=float)
-    m = np.ascontiguousarray(mix.means.reshape(-1, k, d), dtype=float)
-    v = np.ascontiguousarray(mix.variances.reshape(-1, k, d), dtype=float)
+    w = kernel_array(mix.weights.reshape(-1, k))
+    m = kernel_array(mix.means.reshape(-1, k, d))
+    v = kernel_array(mix.variances.reshape(-1, k, d))
     ow, om, ov, cnt = _reduce_batch(w, m, v, int(max_components), _TIE)
     kk = max(1, int(cnt.max(initial=1)))
     return DiagMixture(ow[:, :kk].reshape(bshape + (kk,)), om[:, :kk].reshape(bshape + (kk, d)),
