@@ -51,9 +51,12 @@ rt: $(STAMP_DEV)
 demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
-# The Debian packages and the Python ones install side by side (two jobs), then the tests run.
+# The Debian packages and the Python ones install side by side (two jobs); the estimators'
+# kernels compile into numba's cache in two processes (tests/precompile.py: otherwise both
+# test workers compile the larger ones at once); then the tests run.
 test:
 	@$(MAKE) --no-print-directory -j2 system rt
+	$(BIN)/python tests/precompile.py
 	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=20
 
 docs: $(STAMP_DOCS)
