@@ -131,8 +131,10 @@ def read_scans(path: Path | str, not_detected: float | None = RSS_NOT_DETECTED_D
         ``[-200, +30]`` dBm that is not the sentinel (naming line and column).
     """
     path = Path(path)
-    try:
-        frame = pd.read_csv(path, dtype=str, keep_default_na=False)
+    try:            # numbers parse as numbers; a file with any other cell is read again as text
+        frame = pd.read_csv(path, keep_default_na=False)
+        if not all(pd.api.types.is_numeric_dtype(t) for t in frame.dtypes):
+            frame = pd.read_csv(path, dtype=str, keep_default_na=False)
     except (OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read CSV ({exc})") from None
     if frame.columns.duplicated().any() or any("." in c for c in frame.columns):
@@ -143,7 +145,11 @@ def read_scans(path: Path | str, not_detected: float | None = RSS_NOT_DETECTED_D
         raise InputError(f"{path}: missing column(s) {', '.join(missing or ['WAP001..'])}")
     if frame.empty:
         raise InputError(f"{path}: no data rows below the header")
-    values = frame[waps + list(META)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+    cols = frame[waps + list(META)]
+    if all(pd.api.types.is_numeric_dtype(t) for t in cols.dtypes):
+        values = cols.to_numpy(float)
+    else:           # text cells: converted per column, so that the first bad cell is named
+        values = cols.apply(pd.to_numeric, errors="coerce").to_numpy(float)
     bad = ~np.isfinite(values)
     if bad.any():
         i, j = (int(v) for v in np.argwhere(bad)[0])
