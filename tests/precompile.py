@@ -7,7 +7,7 @@ kernel a worker has not yet found in the cache is compiled again by the other), 
 of CPU spent twice on a cold machine. Each process solves the valid problem of a share of
 the estimators (the library fuzz's cases, the public API with the tests' array types) plus a
 few paths those problems do not take (the recursive grid blur, the bootstrap particle
-filter, the 2-D mixture reduction). A failure here is reported and skipped: the tests then
+filter, the 2-D mixture reduction, the network EKF with a master per run). A failure here is reported and skipped: the tests then
 compile what they need themselves.
 
     python tests/precompile.py            # both shares in parallel
@@ -27,7 +27,8 @@ HERE = Path(__file__).resolve().parent
 SHARES = (
     ("ClosedFormTracker", "+grid-recursive", "NetworkEKF", "+bootstrap-pf", "LocalML",
      "NetworkRLS", "Multilateration", "Ransac", "RangeEKF", "NewtonTracker"),
-    ("P2PParticleFilter", "MixtureTracker", "MixtureLocalizer", "GridFilter", "+mixture-reduce"),
+    ("P2PParticleFilter", "MixtureTracker", "MixtureLocalizer", "GridFilter", "+mixture-reduce",
+     "+ekf-step"),
 )
 
 
@@ -67,6 +68,21 @@ def _bootstrap_pf():
     pf.run(ranges, x0[None, None], rng, anchors=anchors)
 
 
+def _ekf_step():
+    import numpy as np
+
+    from radioloc.core.geometry import pairwise_distances
+    from radioloc.estimators.ekf import NetworkEKF
+
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(0, 100, (2, 6, 2))
+    ekf = NetworkEKF(range_var_m2=1.0)
+    state = ekf.init(truth + rng.normal(0, 1, truth.shape), np.ones(truth.shape))
+    masters = np.array([1, 4])
+    rho = pairwise_distances(truth)[np.arange(2), masters]          # (runs, nodes)
+    ekf.step(state, masters, rho, np.ones(rho.shape, bool))        # a master per run
+
+
 def _mixture_reduce():
     import numpy as np
 
@@ -79,7 +95,7 @@ def _mixture_reduce():
 
 
 EXTRA = {"+grid-recursive": _grid_recursive, "+bootstrap-pf": _bootstrap_pf,
-         "+mixture-reduce": _mixture_reduce}
+         "+mixture-reduce": _mixture_reduce, "+ekf-step": _ekf_step}
 
 
 def warm(names: tuple[str, ...]) -> list[str]:
