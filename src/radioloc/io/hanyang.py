@@ -39,22 +39,27 @@ def load_static(root: Path | str) -> pd.DataFrame:
     base = Path(root) / "Static_measurements"
     if not base.is_dir():
         raise DataUnavailable(f"{base}: static measurements not found")
-    frames = []
-    for f in sorted(base.glob("*/height_*cm/*m.csv")):
+    cols = {k: [] for k in ("condition", "height_cm", "distance_m", "true_range_m", "range_m",
+                            "rssi_dbm")}
+    for f in sorted(base.glob("*/height_*cm/*m.csv")):   # one frame at the end, not per file
         cond = f.parent.parent.name
         h = float(re.match(r"height_([\d.]+)cm", f.parent.name).group(1))
         dist = float(f.stem[:-1])
-        raw = pd.read_csv(f)
+        raw = pd.read_csv(f, usecols=["timestamp", "Distance", "RSSI(dBm)"])
         t = pd.to_numeric(raw["timestamp"], errors="coerce")
         raw = raw[t.notna()]
-        rng = pd.to_numeric(raw["Distance"], errors="coerce").to_numpy()
-        true = float(np.hypot(dist, (h - 100.0) / 100.0))
-        frames.append(pd.DataFrame({"condition": cond, "height_cm": h, "distance_m": dist,
-                                    "true_range_m": true, "range_m": rng, "error_m": rng - true,
-                                    "rssi_dbm": pd.to_numeric(raw["RSSI(dBm)"], errors="coerce").to_numpy()}))
-    if not frames:
+        n = len(raw)
+        cols["condition"].append(np.full(n, cond, dtype=object))
+        cols["height_cm"].append(np.full(n, h))
+        cols["distance_m"].append(np.full(n, dist))
+        cols["true_range_m"].append(np.full(n, float(np.hypot(dist, (h - 100.0) / 100.0))))
+        cols["range_m"].append(pd.to_numeric(raw["Distance"], errors="coerce").to_numpy(float))
+        cols["rssi_dbm"].append(pd.to_numeric(raw["RSSI(dBm)"], errors="coerce")
+                                .to_numpy(float))
+    if not cols["range_m"]:
         raise DataUnavailable(f"{base}: no static files")
-    out = pd.concat(frames, ignore_index=True)
+    out = pd.DataFrame({k: np.concatenate(v) for k, v in cols.items()})
+    out.insert(5, "error_m", out["range_m"] - out["true_range_m"])
     return out[np.isfinite(out.range_m)].reset_index(drop=True)
 
 
