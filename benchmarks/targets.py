@@ -64,6 +64,13 @@ BOUNDS: dict[str, str] = {
         "timed over the same 30 steps as ours, `particles` runs at about 400 ns per "
         "particle-step, so 100x it needs 4 ns of wall per particle-step: below the draws alone "
         "on two cores.",
+    "paper 000 full Monte Carlo, estimators (5000 runs x 2 noise x RLS+EKF x 50 it.)":
+        "the EKF's per-master updates (flops in README.md's work table); this row measured "
+        "1.2-2.0 s in three runs on the same quiet machine (target 2 s).",
+    "mixture localization, 6 stations x 16 components (eq. (2), kmax 8)":
+        "the product-and-reduce kernel per row (the scalar West/Runnalls merge of each "
+        "station product, 64 -> 8); this row measured 8.0-12.1 k rows/s in three runs on the "
+        "same quiet machine (target 10 k).",
     "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties":
         "pass 1 of the lane kernel (32 mixtures on SIMD lanes): two divisions and about 44 "
         "flops per candidate partner, about 4 ns per candidate per lane, 9 ns per candidate "
