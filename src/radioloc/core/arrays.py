@@ -4,8 +4,9 @@ numba compiles one machine-code specialisation per argument type, and an array's
 includes its layout and its read-only flag: a read-only view (``np.broadcast_to``, a
 ``pandas`` column, a memory-mapped file) or a strided slice given where the kernel usually
 sees a fresh C array costs a second compile of the whole kernel (tens of seconds for the
-larger ones) and a second cache entry. Every call site of a compiled kernel passes its
-arrays through :func:`kernel_array`, so each kernel has one specialisation per dtype.
+larger ones) and a second cache entry. The call sites of the larger kernels (the network
+EKF's packets, the P2P link kernel, the BLUE, the mixture product and reduction) pass their
+arrays through :func:`kernel_array`, so each of them has one specialisation per dtype.
 """
 
 from __future__ import annotations
