@@ -367,8 +367,8 @@ def _moments(log_w, particles, kernel, scratch=False):
     b = int(np.prod(batch, dtype=int))
     w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
     mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-    _k.weights_moments(np.ascontiguousarray(log_w.reshape(b, k)),
-                       np.ascontiguousarray(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
+    _k.weights_moments(kernel_array(log_w.reshape(b, k)),
+                       kernel_array(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
             ess.reshape(batch))
 
@@ -483,17 +483,17 @@ def _bootstrap_step(particles, control, sd, key, node_xy, th, valid, params, rng
     width = node_xy.shape[-2]
     u01 = rng.random(batch + (1,))
     shift = np.zeros((b, 2)) if control is None else \
-        np.ascontiguousarray(np.broadcast_to(control, batch + (1, 2)).reshape(b, 2))
+        kernel_array(np.broadcast_to(control, batch + (1, 2)).reshape(b, 2))
     out = np.empty((b, k, 2))
     idx = np.empty((b, k), dtype=np.int64)
     mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
     distinct = np.empty(b, dtype=np.int64)
-    _bs.bootstrap_step(np.ascontiguousarray(particles.reshape(b, k, 2)), _NO_ANCESTORS, False,
-                       shift, np.ascontiguousarray(sd, dtype=float), key,
-                       np.ascontiguousarray(node_xy.reshape(b, width, 2)),
-                       np.ascontiguousarray(th.reshape(b, width)),
-                       np.ascontiguousarray(valid.reshape(b, width)),
-                       np.ascontiguousarray(1.0 / params[..., 0].reshape(b)),
+    _bs.bootstrap_step(kernel_array(particles.reshape(b, k, 2)), _NO_ANCESTORS, False,
+                       shift, kernel_array(sd), key,
+                       kernel_array(node_xy.reshape(b, width, 2)),
+                       kernel_array(th.reshape(b, width)),
+                       kernel_array(valid.reshape(b, width), np.bool_),
+                       kernel_array(1.0 / params[..., 0].reshape(b)),
                        u01.reshape(b), CHUNK, True, out, idx, mean, cov, ess, distinct,
                        _scratch("pred", (b, k, 2)), _scratch("v", (b, k)))
     return (out.reshape(batch + (k, 2)), idx.reshape(batch + (k,)), mean.reshape(batch + (2,)),
@@ -1059,7 +1059,7 @@ class P2PParticleFilter(RecursiveEstimator):
             sd = self._walk_sd_of(dt)
             if sd is None:
                 return None
-            sds.append(np.ascontiguousarray(sd, dtype=float))
+            sds.append(kernel_array(sd))
         return sds
 
     def _run_bootstrap(self, r, state, anchors_b, dts, u, given, t, sds, rng):
@@ -1091,7 +1091,7 @@ class P2PParticleFilter(RecursiveEstimator):
         valid_t, th_t = time_first(valid), time_first(th)
         shift_t = np.zeros((T, b, 2)) if u is None else time_first(u)
         rows = np.arange(nb)[:, None, None]
-        inv_s = np.ascontiguousarray(1.0 / self._params(state)[..., 0].reshape(b))
+        inv_s = kernel_array(1.0 / self._params(state)[..., 0].reshape(b))
         mean_t, cov_t, ess_t = np.empty((T, b, 2)), np.empty((T, b, 2, 2)), np.empty((T, b))
         resets_t = np.empty((T,) + batch_v, dtype=np.int64)
         # work arrays of this thread, kept between runs (see _scratch): the predicted
@@ -1102,7 +1102,7 @@ class P2PParticleFilter(RecursiveEstimator):
         idxs = (_scratch("run_idx", (b, k), np.int64), _scratch("run_idx_b", (b, k), np.int64))
         v = _scratch("v", (b, k))
         distinct = np.empty(b, dtype=np.int64)
-        parts = np.ascontiguousarray(state.particles.reshape(b, k, 2))
+        parts = kernel_array(state.particles.reshape(b, k, 2))
         anc, carried = _NO_ANCESTORS, False
         mean, resets = state.mean, state.resets
         for s in range(T):
