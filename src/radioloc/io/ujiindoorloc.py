@@ -133,7 +133,8 @@ def read_scans(path: Path | str, not_detected: float | None = RSS_NOT_DETECTED_D
     path = Path(path)
     try:            # numbers parse as numbers; a file with any other cell is read again as text
         frame = pd.read_csv(path, keep_default_na=False)
-        if not all(pd.api.types.is_numeric_dtype(t) for t in frame.dtypes):
+        numeric = all(pd.api.types.is_numeric_dtype(t) for t in frame.dtypes)
+        if not numeric:
             frame = pd.read_csv(path, dtype=str, keep_default_na=False)
     except (OSError, pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read CSV ({exc})") from None
@@ -146,7 +147,7 @@ def read_scans(path: Path | str, not_detected: float | None = RSS_NOT_DETECTED_D
     if frame.empty:
         raise InputError(f"{path}: no data rows below the header")
     cols = frame[waps + list(META)]
-    if all(pd.api.types.is_numeric_dtype(t) for t in cols.dtypes):
+    if numeric:
         values = cols.to_numpy(float)
     else:           # text cells: converted per column, so that the first bad cell is named
         values = cols.apply(pd.to_numeric, errors="coerce").to_numpy(float)
