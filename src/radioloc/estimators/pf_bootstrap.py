@@ -70,6 +70,58 @@ def _count_below_div(cdf, u, nk, lo_n, hi_n):
     return min(max(n, lo_n), hi_n)
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _raise_to(vr, a, b):
+    """``vr[a:b] = max(vr[a:b], vr[a - 1])`` where ``vr[a:b]`` is non-decreasing: only a
+    prefix can be below, so the loop stops at the first that is not."""
+    fl = vr[a - 1]
+    i = a
+    while i < b and vr[i] < fl:
+        vr[i] = fl
+        i += 1
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _mark_offspring_starts(vr, m, q, mk, i0, f0):
+    """Ancestor marks of one chunk of the systematic resampling: ``mk[N_{i-1} - f0] = i0 + i``
+    in order of ``i`` (the last write to a slot wins: the ancestor whose offspring start
+    there), ``N_{i-1}`` the running maximum of the counts ``vr[:i]`` and of ``f0``.
+
+    The counts rise within each quarter ``[0, q)``, ``[q, 2q)``, ``[2q, 3q)``, ``[3q, m)`` of
+    the chunk (each a chain of adds of non-negative weights), but a quarter's cumulative
+    weights start from its own sum, which can round below the previous quarter's last: the
+    first counts of a quarter are raised to the previous one's last (in ``vr``, in place), so
+    the running maximum is the previous count and the loop over the ancestors has no
+    dependence from one to the next (a loop carrying the maximum took about three times as
+    long).
+
+    Parameters
+    ----------
+    vr : ndarray, shape (>= m,)
+        Counts (floats, integers in ``[f0, f0 + len(mk) - 1]``), non-decreasing within each
+        quarter; raised in place to their running maximum.
+    m, q : int
+        Ancestors of the chunk; quarter length (0: one run).
+    mk : ndarray of int64
+        Marks, slot 0 = new particle ``f0``.
+    i0, f0 : int
+        First ancestor and first new particle of the chunk.
+
+    Returns
+    -------
+    None
+    """
+    if q > 0:
+        _raise_to(vr, q, 2 * q)
+        _raise_to(vr, 2 * q, 3 * q)
+        _raise_to(vr, 3 * q, m)
+    if m > 0:
+        mk[0] = i0
+    vp = vr[:max(m - 1, 0)]
+    for i in range(m - 1):
+        mk[int(vp[i]) - f0] = i0 + 1 + i
+
+
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def _buf_moments(buf, m, rx, ry, sums):
     """``sums = (sum v, sum v^2, sum v dx, sum v dy, sum v dx^2, sum v dy dx, sum v dy^2)``
@@ -334,10 +386,7 @@ def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, vali
         mk = np.empty(nf + 1, dtype=np.int64)
         for j in range(nf + 1):
             mk[j] = -1
-        prev = f0
-        for i in range(m):
-            mk[prev - f0] = i0 + i
-            prev = max(int(vr[i]), prev)
+        _mark_offspring_starts(vr, m, q, mk, i0, f0)
         # a running maximum fills the slots between; each marked slot is a distinct ancestor
         ir = idx[b, f0:f1]
         a = -1
