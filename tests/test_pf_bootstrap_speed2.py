@@ -104,3 +104,29 @@ def test_marks_from_counts_that_dip_at_quarter_starts(seed):
     bs._mark_offspring_starts(raised, m, q, got, 100, f0)
     np.testing.assert_array_equal(got, ref)
     np.testing.assert_array_equal(raised, np.maximum.accumulate(np.maximum(vr, f0)))
+
+
+@pytest.mark.parametrize("chunk", [1, 5, 64, 2048])
+def test_distinct_ancestors_from_the_rises_of_the_counts(chunk):
+    """``distinct`` (counted from the rises of the raised counts, not in the fill) is the
+    number of different ancestors, with most weight on few particles (chunks without
+    offspring, ancestors whose offspring fill the chunk's last slot) and spread out."""
+    import radioloc.estimators.p2p_particle as pp
+    rng = np.random.default_rng(chunk)
+    b, k = 3, 3000
+    particles = 15.0 + rng.normal(size=(b, k, 2))
+    particles[0, 40:] += 50.0                    # filter 0: 40 particles carry the weight
+    node = np.broadcast_to(np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 30.0], [30.0, 30.0]]),
+                           (b, 4, 2)).copy()
+    theta = np.linalg.norm(node - 15.0, axis=-1)
+    out = np.empty((b, k, 2))
+    idx = np.empty((b, k), dtype=np.int64)
+    mean, cov, ess = np.empty((b, 2)), np.empty((b, 2, 2)), np.empty(b)
+    distinct = np.empty(b, dtype=np.int64)
+    pred, v = np.empty((b, k, 2)), np.empty((b, k))
+    bs.bootstrap_step(particles, pp._NO_ANCESTORS, False, np.zeros((b, 2)), np.full(2, 0.1),
+                      R.draw_key(rng), node, theta, np.ones((b, 4), dtype=bool),
+                      np.array([1 / 0.3, 1 / 0.3, 1 / 30.0]), np.array([0.0, 0.3, 0.9]),
+                      chunk, True, out, idx, mean, cov, ess, distinct, pred, v)
+    np.testing.assert_array_equal(distinct, [len(np.unique(r)) for r in idx])
+    assert distinct[0] <= 40 < distinct[2]

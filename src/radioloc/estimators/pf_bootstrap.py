@@ -122,6 +122,21 @@ def _mark_offspring_starts(vr, m, q, mk, i0, f0):
         mk[int(vp[i]) - f0] = i0 + 1 + i
 
 
+@njit(cache=True, error_model="numpy")
+def _rises_below(vr, n, first, hi):
+    """Number of ``i < n`` with ``vr[i] > vr[i - 1]`` (``vr[-1]`` read as ``first``) and
+    ``vr[i] < hi`` (a loop without a dependence: it vectorises)."""
+    cnt = 0
+    if n <= 0:
+        return 0
+    cnt += (vr[0] > first) and (vr[0] < hi)
+    cur = vr[1:n]
+    prv = vr[0:n - 1]
+    for i in range(n - 1):
+        cnt += (cur[i] > prv[i]) and (cur[i] < hi)
+    return cnt
+
+
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "contract"})
 def _buf_moments(buf, m, rx, ry, sums):
     """``sums = (sum v, sum v^2, sum v dx, sum v dy, sum v dx^2, sum v dy dx, sum v dy^2)``
@@ -387,16 +402,15 @@ def bootstrap_step(particles, anc, carried, shift, sd, key, node_xy, theta, vali
         for j in range(nf + 1):
             mk[j] = -1
         _mark_offspring_starts(vr, m, q, mk, i0, f0)
-        # a running maximum fills the slots between; each marked slot is a distinct ancestor
+        # a running maximum fills the slots between
         ir = idx[b, f0:f1]
         a = -1
-        cnt = 0
         for j in range(nf):
-            x = mk[j]
-            cnt += x >= 0
-            a = max(a, x)
+            a = max(a, mk[j])
             ir[j] = a
-        counts[b, c] = cnt
+        # each marked slot (below the sink) is a distinct ancestor: slot f0, and each rise of
+        # the raised counts N_0 .. N_{m-2} below f1
+        counts[b, c] = 1 + _rises_below(vr, m - 1, lo_n, hi_n)
         if gather:
             op = out_particles[b, f0:f1]
             pp = pred[b]
