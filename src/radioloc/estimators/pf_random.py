@@ -2,8 +2,8 @@
 
 The motion noise of the bootstrap particle filter is drawn inside the compiled step (one
 pass per particle) instead of by ``numpy.random.Generator.standard_normal`` beforehand: in
-half the CPU time (4.9 against 11 ns per draw, one thread, the shared 2-core benchmark machine
-under load), with no pass over memory of its own, and any chunk of the draws can be made by
+a third of the CPU time (3.4-3.6 against 11 ns per draw, one thread, the shared 2-core
+benchmark machine under load), with no pass over memory of its own, and any chunk of the draws can be made by
 any thread, so the values depend only on the caller's generator and the sizes, never on the
 number of threads or on the chunking.
 
