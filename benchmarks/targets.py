@@ -59,11 +59,14 @@ BOUNDS: dict[str, str] = {
         "the link kernel (two exponentials per update in the full loop, erfcx where needed) "
         "is about half of the step; motion draws, gather, moments and resampling the rest.",
     "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5":
-        "the fused kernel's arithmetic, about 22 ns of CPU per particle-step (Philox and "
-        "Box-Muller draws 8.9, four link square roots 3.0, exponential 2.5, resampling 3.7); "
-        "timed over the same 30 steps as ours, `particles` runs at about 400 ns per "
-        "particle-step, so 100x it needs 4 ns of wall per particle-step: below the draws alone "
-        "on two cores.",
+        "the fused kernel's arithmetic, about 18.7 ns of CPU per particle-step (Philox 3.4, "
+        "Box-Muller 3.5, four link square roots 2.65, exponential 2.5, motion, stores, maximum "
+        "and moments 3.4, resampling 3.1) and about 3.7 outside it (the prior's and the "
+        "reset's NumPy draws, Python); timed over the same 30 steps as ours, `particles` "
+        "takes about 380 ns of CPU per particle-step, so 100x it needs 3.8 ns of wall, 7.5-8 "
+        "ns of CPU on two free cores: the five square roots and three divisions of the same "
+        "maths alone take 4.55 ns (not pipelined here: 0.70 and 0.35 ns per element), the "
+        "Philox blocks 3.4 more.",
     "paper 000 full Monte Carlo, estimators (5000 runs x 2 noise x RLS+EKF x 50 it.)":
         "the EKF's per-master updates (flops in README.md's work table); this row measured "
         "1.2-2.0 s in three runs on the same quiet machine (target 2 s).",
