@@ -299,23 +299,31 @@ def _scratch(name, shape, dtype=np.float64):
 
 
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
-                 scratch=False):
+                 scratch=False, anc=None, q_out=None):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
     ``scratch``: ``log w`` and the new link posteriors in this thread's work arrays (see
-    :func:`_scratch`; valid until the next scratch call).
+    :func:`_scratch`; valid until the next scratch call). ``anc`` (..., K), the compiled
+    kernel only: particle ``i`` carries the posteriors of row ``anc[..., i]`` of ``prev_q``
+    (the resampling's gather done by the kernel's read; the same values as ``prev_q``
+    gathered beforehand). ``q_out`` (B, K, L): the array the new posteriors are written to.
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
     if kernel == "numpy":
+        if anc is not None and prev_q.shape[-1] and prev_q.strides[-2] != 0:
+            prev_q = np.take_along_axis(prev_q, anc[..., None], axis=-2)
         return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
     batch = particles.shape[:-2]
     k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
     b = int(np.prod(batch, dtype=int))
     nc = _k.n_chunks(k, CHUNK)
     log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
-    q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
+    if q_out is not None:
+        q_new = q_out
+    else:
+        q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
@@ -333,7 +341,8 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
                     kernel_array(valid.reshape(b, width), np.bool_),
                     kernel_array(wp.reshape(b, width), np.int64),
                     kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
-                    kernel_array(p[:, 0]), kernel_array(p[:, 1]),
+                    _NO_ANCESTORS if anc is None else kernel_array(anc.reshape(b, k), np.int64),
+                    anc is not None, kernel_array(p[:, 0]), kernel_array(p[:, 1]),
                     kernel_array(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
@@ -1016,6 +1025,8 @@ class P2PParticleFilter(RecursiveEstimator):
         sds = self._bootstrap_run_sd(state, dts)
         if sds is not None:
             return self._run_bootstrap(r, state, anchors_b, dts, u, given, t, sds, rng)
+        if self._carried_run_ok(state):
+            return self._run_carried(r, state, anchors_b, dts, u, given, t, rng)
         mask_all = ~np.isnan(r)
         estimates = []
         for k in range(T):
@@ -1030,6 +1041,111 @@ class P2PParticleFilter(RecursiveEstimator):
                                None if uk is None else uk[..., None, :], dts[k],
                                slot=f"run{k % 2}")
             estimates.append(self.estimate(state))
+        return track_from_steps(estimates, t)
+
+    def _carried_run_ok(self, state):
+        """Whether :meth:`run` from ``state`` (from :meth:`init`) can take
+        :meth:`_run_carried`: the compiled kernel, systematic resampling, no online EM, and
+        a LOS fraction below 1 in some filter (then no step is the bootstrap case of
+        :meth:`_bootstrap_noise`, whose draws differ, since the parameters do not change)."""
+        return (self.kernel == "numba" and self.resampling == "systematic"
+                and self.online_em is None
+                and not np.all(self._params(state)[..., 2] == 1.0))
+
+    def _run_carried(self, r, state, anchors_b, dts, u, given, t, rng):
+        """:meth:`run` by the steps of :meth:`_step` with the resampling's gather left to
+        the next step: each step's predicted particles, new link posteriors and resampling
+        indices (ancestors) are carried; the next step gathers the particles (``n`` numbers
+        per particle) before its prediction, and the link kernel reads the carried link
+        posteriors through the ancestors (one pass over the ``(K, L)`` posteriors per step
+        instead of three). The links are packed once for every step, the inputs checked
+        once, the previous slot of every link found for every step at once. The same draws
+        in the same order and the same values as :meth:`step` step by step (the width of
+        the packed links does not enter the kernel's arithmetic: it skips the padding; the
+        gathers only copy; tests/test_p2p_step_carried.py)."""
+        D = self.motion.dim
+        batch_v = state.batch_shape                             # (..., N)
+        batch = batch_v[:-1]
+        n_veh, T, J = r.shape[-3:]
+        k, n = state.particles.shape[-2:]
+        b = int(np.prod(batch_v, dtype=int))
+        nb = int(np.prod(batch, dtype=int))
+        nbd = len(batch_v)
+        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
+        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        width = links.shape[-1]
+        th = gather_packed(np.where(mask_all, r, 0.0), links)
+
+        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
+
+        links_t, valid_t, th_t = time_first(links), time_first(valid), time_first(th)
+        mask_t = time_first(mask_all)
+        # slot of each link in the previous step's list (-1: new link, line 8), every step
+        wp_t = np.full((T, b, width), -1, dtype=np.int64)
+        if T > 1:
+            prev = np.where(valid_t[:-1], links_t[:-1], -1)
+            wp_t[1:] = np.where(valid_t[1:], _previous_slots(prev, links_t[1:], J), -1)
+        node_rows = np.arange(nb)[:, None, None]
+        links_nodes = links_t.reshape(T, nb, n_veh, width)
+        params = kernel_array(self._params(state).reshape(b, 3))
+        ctrl = None if u is None else u.reshape(b, T, 1, u.shape[-1])
+        estimates = []
+        no_q = np.empty((b, k, 0))
+        seen = _scratch("seen", (b, k), np.bool_)
+        distinct = np.empty(b, dtype=np.int64)
+        parts = state.particles.reshape(b, k, n)
+        anc, q_prev = None, np.zeros((b, k, 0))
+        mean = state.mean
+        resets = state.resets
+        time_now = state.time
+        for s in range(T):
+            uk = None if u is None else u[..., s, :]
+            peers = self._peers(mean, dts[s], uk, given, s)
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
+                                   axis=-2)                     # (..., J, 2)
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask_all[..., s, :],
+                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            node_xy = nodes.reshape(nb, J, 2)[node_rows, links_nodes[s]].reshape(b, width, 2)
+            # line 3
+            pred = _sample_motion(self.motion, parts.reshape(batch_v + (k, n)), dts[s], rng,
+                                  None if ctrl is None else ctrl[:, s].reshape(batch_v + (1, -1)),
+                                  scratch=True).reshape(b, k, n)
+            # lines 6, 8, 11, the link posteriors read through the ancestors
+            log_w, q, post, _, gauss = _link_update(
+                pred, node_xy, th_t[s], valid_t[s], wp_t[s], q_prev, params, "numba", False,
+                scratch=True, anc=anc, q_out=_scratch(f"carried_q{s % 2}", (b, k, width)))
+            w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
+            # line 12: systematic resampling; the gather is left to the next step
+            u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
+            idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
+            _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
+            # the resampled particles (n numbers each) and the distinct ancestors; the link
+            # posteriors stay unresampled
+            out = _scratch(f"carried_p{s % 2}", (b, k, n))
+            _k.gather_resampled(pred, no_q, idx, out, no_q, distinct, seen, CHUNK)
+            los = scatter_packed(valid_t[s] & (post[..., 1] > post[..., 0]), links_t[s],
+                                 valid_t[s], J) & mask_t[s]
+            reset = distinct < self.reset_fraction * k
+            if np.any(reset):
+                # as in _step (each particle of a reset filter then its own ancestor)
+                out[reset, :, :D] = mean_f[reset][:, None, :D] + self.reset_std_m * \
+                    rng.standard_normal((int(reset.sum()), k, D))
+                idx[reset] = np.arange(k)
+                with np.errstate(invalid="ignore"):
+                    mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
+                if not q.flags.writeable:
+                    q = q.copy()
+                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, None, :]
+            parts, anc, q_prev = out, idx, q
+            mean = mean_f.reshape(batch_v + (n,))
+            cov = cov.reshape(batch_v + (n, n))
+            resets = resets + reset.reshape(batch_v)
+            time_now = time_now + dts[s]
+            diag = {"state": mean, "state_covariance": cov, "ess": ess.reshape(batch_v),
+                    "los_detected": los.reshape(batch_v + (J,)), "resets": resets}
+            estimates.append(Estimate(mean[..., :D], cov[..., :D, :D], time_now, diag))
         return track_from_steps(estimates, t)
 
     def _peers(self, mean, dt, control, given, k):

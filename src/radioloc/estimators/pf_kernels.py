@@ -360,8 +360,8 @@ def _nlos_link(buf, m, r, lam, c01, c00):
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, nlos_mean,
-                 alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp, gauss):
+def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carried, los_std,
+                 nlos_mean, alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp, gauss):
     """Particle-link update of Algorithm 2 (lines 6, 8, 11) for every filter of a batch.
 
     Parameters
@@ -379,6 +379,12 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
     prev_q : ndarray, shape (B, K, L') or (B, 1, L')
         Carried LOS posteriors ``p(z_{t-1} = 1 | .)`` of the previous step's links (one row
         shared by every particle in the second form).
+    anc : ndarray of int64, shape (B, K) (or any 2-D shape when not ``carried``)
+        With ``carried``: particle ``i`` carries the posteriors of row ``anc[b, i]`` of
+        ``prev_q`` (the resampling's ancestors, read here instead of a gather beforehand:
+        the same values as ``prev_q[b, anc[b]]`` passed without them).
+    carried : bool
+        Read ``prev_q`` through ``anc``.
     los_std, nlos_mean, alpha : ndarray, shape (B,)
         ``s_LOS``, ``s_NLOS`` and alpha of each filter (the sticky chain follows alpha).
     chunk : int
@@ -428,7 +434,7 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             jp = where_prev[b, j]
             if valid[b, j] and jp >= 0:
                 for i in range(c * chunk * qs, i1):
-                    if prev_q[b, i, jp] != 1.0:
+                    if prev_q[b, anc[b, i] * qs if carried else i, jp] != 1.0:
                         ok[b, c] = False
     for b in range(nb):
         gauss[b] = True
@@ -481,20 +487,29 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             m4 = m - m % 4
             for t0 in range(0, m4, 4):
                 p0 = (i0 + t0) * qs
+                p1 = p0 + qs
+                p2 = p0 + 2 * qs
+                p3 = p0 + 3 * qs
+                if carried:
+                    p0 = anc[b, i0 + t0] * qs
+                    p1 = anc[b, i0 + t0 + 1] * qs
+                    p2 = anc[b, i0 + t0 + 2] * qs
+                    p3 = anc[b, i0 + t0 + 3] * qs
                 for t in range(n_old):
                     r = rows[t]
                     jp = cols[t]
                     v0 = prev_q[b, p0, jp]
-                    v1 = prev_q[b, p0 + qs, jp]
-                    v2 = prev_q[b, p0 + 2 * qs, jp]
-                    v3 = prev_q[b, p0 + 3 * qs, jp]
+                    v1 = prev_q[b, p1, jp]
+                    v2 = prev_q[b, p2, jp]
+                    v3 = prev_q[b, p3, jp]
                     buf[r, t0] = v0
                     buf[r, t0 + 1] = v1
                     buf[r, t0 + 2] = v2
                     buf[r, t0 + 3] = v3
             for t in range(n_old):
                 for i in range(m4, m):
-                    buf[rows[t], i] = prev_q[b, (i0 + i) * qs, cols[t]]
+                    pi = anc[b, i0 + i] if carried else i0 + i
+                    buf[rows[t], i] = prev_q[b, pi * qs, cols[t]]
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
@@ -548,7 +563,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                         e = th - math.sqrt(dx * dx + dy * dy)
                         z = e / s
                         if jp >= 0:
-                            q = prev_q[b, (i0 + i) * qs, jp]
+                            pi = anc[b, i0 + i] if carried else i0 + i
+                            q = prev_q[b, pi * qs, jp]
                             pi1 = q * t11 + (1.0 - q) * t01
                             pi0 = q * t10 + (1.0 - q) * t00
                         else:
@@ -600,7 +616,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                 e = theta[b, j] - math.sqrt(dx * dx + dy * dy)
                 z = e / s
                 if jp >= 0:
-                    q = prev_q[b, i * qs, jp]
+                    pi = anc[b, i] if carried else i
+                    q = prev_q[b, pi * qs, jp]
                     pi1 = q * t11 + (1.0 - q) * t01
                     pi0 = q * t10 + (1.0 - q) * t00
                 else:
@@ -720,8 +737,12 @@ def weights_moments(log_w, particles, chunk, w, mean, cov, ess):
         for i in range(i0, i1):
             w[b, i] = vexp(log_w[b, i] - m)
         _moment_sums(w, particles, b, i0, i1, sums[b, c])
+    tots = np.empty((nb, ns))
     for b in range(nb):
-        tot = np.zeros(ns)
+        # explicit loops: np.zeros here would be a parallel region of its own per filter
+        tot = tots[b]
+        for t in range(ns):
+            tot[t] = 0.0
         for c in range(nc):
             for t in range(ns):
                 tot[t] += sums[b, c, t]
@@ -864,5 +885,10 @@ def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark, ch
         for i in range(c * chunk, min(nk, (c + 1) * chunk)):
             cnt += mark[b, i]
         counts[b, c] = cnt
+    # explicit loops: a NumPy reduction inside this serial loop would be a parallel region
+    # of its own per filter
     for b in range(nb):
-        distinct[b] = counts[b].sum()
+        cnt = 0
+        for c in range(nc):
+            cnt += counts[b, c]
+        distinct[b] = cnt
