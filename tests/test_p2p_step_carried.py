@@ -1,0 +1,177 @@
+"""P2PParticleFilter.run with the resampling's gather of the link posteriors left to the next
+step (``_run_carried``: the link kernel reads the carried posteriors through the ancestors)
+gives, bit for bit, what init, step and estimate give step by step; the link update read
+through ancestors equals the update of the gathered posteriors, batched and one by one; and
+a kernel reading the wrong ancestors is caught."""
+
+import numpy as np
+import pytest
+
+from radioloc.core.results import track_from_steps
+from radioloc.estimators import p2p_particle as pp
+from radioloc.estimators.p2p_particle import P2PParticleFilter, _link_update
+from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.motion import ConstantVelocity, InputDriven
+from radioloc.sim.highway import HighwayScenario, simulate
+
+
+def by_steps(pf, ranges, initial, rng, anchors, controls=None):
+    """The loop of ``run`` through the public init, step and estimate."""
+    n_veh, T = ranges.shape[-3:-1]
+    t = np.arange(T, dtype=float)
+    dts = np.diff(t, prepend=t[0])                      # as run: the first step has dt = 0
+    state = pf.init(initial, rng, time=t[0])
+    batch = state.batch_shape[:-1]
+    a = np.broadcast_to(anchors, batch + anchors.shape[-2:])
+    out = []
+    for k in range(T):
+        uk = None if controls is None else controls[..., k, :]
+        nodes = np.concatenate([np.broadcast_to(state.mean[..., :2], batch + (n_veh, 2)), a],
+                               axis=-2)
+        state = pf.step(state, ranges[..., k, :], nodes, rng, control=uk, dt=dts[k])
+        out.append(pf.estimate(state))
+    return track_from_steps(out, t)
+
+
+def same_track(a, b):
+    """Whether two tracks are equal bit for bit (arrays, dtypes, diagnostics)."""
+    if not (np.array_equal(a.position, b.position) and np.array_equal(a.covariance, b.covariance)):
+        return False
+    if sorted(a.diagnostics) != sorted(b.diagnostics):
+        return False
+    for key in a.diagnostics:
+        x, y = np.asarray(a.diagnostics[key]), np.asarray(b.diagnostics[key])
+        if x.dtype != y.dtype or x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+            return False
+    return True
+
+
+@pytest.fixture
+def carried_calls(monkeypatch):
+    """Counts the runs that took ``_run_carried`` (so an equality is not a fallback's)."""
+    calls = []
+    orig = P2PParticleFilter._run_carried
+
+    def wrapped(self, *args):
+        calls.append(1)
+        return orig(self, *args)
+    monkeypatch.setattr(P2PParticleFilter, "_run_carried", wrapped)
+    return calls
+
+
+def highway(runs=2, steps=8, seed=3):
+    model = LosNlosRange(0.05, 5.0, 0.3)
+    sc = HighwayScenario(vehicles=6, anchors=6, steps=steps, start_width_m=20.0)
+    data = simulate(sc, model, runs, np.random.default_rng(seed))
+    return sc, model, data
+
+
+def test_carried_run_equals_steps_highway(carried_calls):
+    """The paper 001 highway (InputDriven, s = 5 cm: frequent resets with 64 particles)."""
+    sc, model, data = highway()
+    pf = P2PParticleFilter(InputDriven(sc.ins_std_m), model, particles=64)
+    fast = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(1),
+                  anchors=data.anchors, controls=data.ins)
+    ref = by_steps(pf, data.ranges, data.truth[:, :, 0], np.random.default_rng(1),
+                   data.anchors, controls=data.ins)
+    assert carried_calls == [1]
+    assert fast.diagnostics["resets"][..., -1].sum() > 0          # the reset branch ran
+    assert same_track(fast, ref)
+
+
+def test_carried_run_equals_steps_velocity_state(carried_calls):
+    """A 4-D state (position and velocity): a reset keeps the resampled velocities."""
+    sc, _, data = highway(runs=1, steps=6, seed=4)
+    model = LosNlosRange(0.3, 4.0, 0.6)
+    pf = P2PParticleFilter(ConstantVelocity(0.5), model, particles=48, init_std=[1.0, 1.0, 0.5, 0.5],
+                           reset_fraction=0.5)
+    fast = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(2), anchors=data.anchors)
+    ref = by_steps(pf, data.ranges, data.truth[:, :, 0], np.random.default_rng(2), data.anchors)
+    assert carried_calls == [1]
+    assert fast.diagnostics["resets"][..., -1].sum() > 0
+    assert same_track(fast, ref)
+
+
+def test_fallbacks_do_not_take_the_carried_path(carried_calls):
+    """Online EM and other resampling schemes keep the step loop."""
+    sc, model, data = highway(runs=1, steps=3)
+    for kw in ({"online_em": True}, {"resampling": "stratified"}, {"kernel": "numpy"}):
+        pf = P2PParticleFilter(InputDriven(sc.ins_std_m), model, particles=32, **kw)
+        pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(0), anchors=data.anchors,
+               controls=data.ins)
+    assert carried_calls == []
+
+
+def _link_inputs(seed, b=(2, 3), k=40, width=6, width_prev=5):
+    rng = np.random.default_rng(seed)
+    particles = rng.normal(size=b + (k, 2)) * 3.0
+    node_xy = rng.normal(size=b + (width, 2)) * 5
+    th = rng.uniform(0, 12, size=b + (width,))
+    valid = rng.random(b + (width,)) < 0.8
+    where_prev = np.where(rng.random(b + (width,)) < 0.6,
+                          rng.integers(0, width_prev, b + (width,)), -1)
+    prev_q = rng.random(b + (k, width_prev))
+    params = np.stack([rng.uniform(0.02, 0.5, b), rng.uniform(0.5, 8.0, b),
+                       rng.uniform(0.05, 0.95, b)], -1)
+    # ancestors as systematic resampling leaves them: sorted, with repeats and gaps
+    anc = np.sort(rng.integers(0, k, b + (k,)), axis=-1)
+    return particles, node_xy, th, valid, where_prev, prev_q, params, anc
+
+
+def _same(a, b):
+    return all(np.array_equal(x, y) for x, y in zip(a, b) if x is not None)
+
+
+def test_link_update_through_ancestors_equals_gathered():
+    """The kernel's read through the ancestors is the gather: equal bit for bit to the
+    update of ``prev_q[anc]``, batched and filter by filter, and to the NumPy reference
+    given the same ancestors."""
+    p, nxy, th, valid, wp, q, params, anc = _link_inputs(7)
+    args = (p, nxy, th, valid, wp)
+    gathered = np.take_along_axis(q, anc[..., None], axis=-2)
+    ref = _link_update(*args, gathered, params, "numba", True)
+    fast = _link_update(*args, q, params, "numba", True, anc=anc)
+    assert _same(fast, ref)
+    for i in range(2):
+        for j in range(3):
+            one = _link_update(*(a[i, j] for a in args), q[i, j], params[i, j], "numba", True,
+                               anc=anc[i, j])
+            assert _same(one, tuple(None if x is None else x[i, j] for x in fast))
+    np_ref = _link_update(*args, gathered, params, "numpy", True)
+    np_anc = _link_update(*args, q, params, "numpy", True, anc=anc)
+    assert _same(np_anc, np_ref)
+
+
+def test_link_update_carried_gaussian_case():
+    """Alpha = 1 with every carried posterior 1 among the ancestors' rows (not among the
+    others): the Gaussian case is decided on the rows the ancestors point at."""
+    p, nxy, th, valid, wp, q, params, anc = _link_inputs(8, b=(3,), k=32)
+    params[:, 2] = 1.0
+    anc[:] = np.arange(0, 32, 2)[None, :].repeat(2, axis=-1)       # even rows only
+    anc.sort(axis=-1)
+    q[:, ::2, :] = 1.0                                              # odd rows stay < 1
+    gathered = np.take_along_axis(q, anc[..., None], axis=-2)
+    ref = _link_update(p, nxy, th, valid, wp, gathered, params, "numba", False)
+    fast = _link_update(p, nxy, th, valid, wp, q, params, "numba", False, anc=anc)
+    assert fast[4].all() and ref[4].all()
+    assert _same(fast, ref)
+
+
+def test_a_wrong_ancestor_read_is_caught(monkeypatch):
+    """A deliberate break (the kernel handed the ancestors of the particle next to each)
+    makes the carried run differ from the step loop: the equality above can fail."""
+    sc, model, data = highway(runs=1, steps=5)
+    pf = P2PParticleFilter(InputDriven(sc.ins_std_m), model, particles=64)
+    orig = pp._k.link_weights
+
+    def broken(*args):
+        args = list(args)
+        if args[7]:                                     # carried: shift the ancestors
+            args[6] = np.ascontiguousarray(np.roll(args[6], 1, axis=-1))
+        return orig(*args)
+    ref = by_steps(pf, data.ranges, data.truth[:, :, 0], np.random.default_rng(1),
+                   data.anchors, controls=data.ins)
+    monkeypatch.setattr(pp._k, "link_weights", broken)
+    bad = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(1),
+                 anchors=data.anchors, controls=data.ins)
+    assert not same_track(bad, ref)
