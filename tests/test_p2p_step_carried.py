@@ -175,3 +175,41 @@ def test_a_wrong_ancestor_read_is_caught(monkeypatch):
     bad = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(1),
                  anchors=data.anchors, controls=data.ins)
     assert not same_track(bad, ref)
+
+
+@pytest.mark.parametrize("carried", [False, True])
+def test_link_major_layout_equals_particle_major(carried):
+    """``link_major`` (the layout ``run`` carries: one row per link) gives the values of the
+    state's ``(K, L)`` layout, on the rows of existing links, batched and one by one."""
+    p, nxy, th, valid, wp, q, params, anc = _link_inputs(9)
+    args = (p, nxy, th, valid, wp)
+    kw = {"anc": anc} if carried else {}
+    ref = _link_update(*args, q, params, "numba", True, **kw)
+    q_lk = np.ascontiguousarray(np.swapaxes(q, -1, -2))                  # (..., L', K)
+    fast = _link_update(*args, q_lk, params, "numba", True, link_major=True, **kw)
+    assert fast[1].shape == ref[1].shape[:-2] + ref[1].shape[:-3:-1]
+    rows = np.swapaxes(fast[1], -1, -2)
+    assert np.array_equal(np.where(valid[..., None, :], rows, 0.0), ref[1])
+    assert _same(fast[:1] + fast[2:], ref[:1] + ref[2:])
+    one = _link_update(*(a[1, 2] for a in args), q_lk[1, 2], params[1, 2], "numba", True,
+                       link_major=True, **({"anc": anc[1, 2]} if carried else {}))
+    assert np.array_equal(one[0], fast[0][1, 2]) and np.array_equal(one[2], fast[2][1, 2])
+    assert np.array_equal(one[1][valid[1, 2]], fast[1][1, 2][valid[1, 2]])
+
+
+def test_link_major_shared_row_and_first_step():
+    """The broadcast row a Gaussian-case step leaves (stride 0 on the particle axis) and the
+    first step's empty posteriors, in the link-major layout."""
+    p, nxy, th, valid, wp, q, params, anc = _link_inputs(10, b=(3,), k=24)
+    row = np.random.default_rng(0).random((3, 1, 5))
+    ref = _link_update(p, nxy, th, valid, wp, np.broadcast_to(row, (3, 24, 5)), params,
+                       "numba", False, anc=anc)
+    fast = _link_update(p, nxy, th, valid, wp, np.broadcast_to(np.swapaxes(row, 1, 2), (3, 5, 24)),
+                        params, "numba", False, anc=anc, link_major=True)
+    assert _same((fast[0], fast[2]), (ref[0], ref[2]))
+    assert np.array_equal(np.swapaxes(fast[1], 1, 2)[np.broadcast_to(valid[:, None], (3, 24, 6))],
+                          ref[1][np.broadcast_to(valid[:, None], (3, 24, 6))])
+    ref0 = _link_update(p, nxy, th, valid, wp, np.zeros((3, 24, 0)), params, "numba", False)
+    fast0 = _link_update(p, nxy, th, valid, wp, np.zeros((3, 0, 24)), params, "numba", False,
+                         link_major=True)
+    assert _same((fast0[0], fast0[2]), (ref0[0], ref0[2]))

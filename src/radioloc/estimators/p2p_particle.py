@@ -299,7 +299,7 @@ def _scratch(name, shape, dtype=np.float64):
 
 
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
-                 scratch=False, anc=None, q_out=None):
+                 scratch=False, anc=None, q_out=None, link_major=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
@@ -308,10 +308,16 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     kernel only: particle ``i`` carries the posteriors of row ``anc[..., i]`` of ``prev_q``
     (the resampling's gather done by the kernel's read; the same values as ``prev_q``
     gathered beforehand). ``q_out`` (B, K, L): the array the new posteriors are written to.
+    ``link_major`` (the compiled kernel only): ``prev_q`` (..., L', K) and the new
+    posteriors (..., L, K) with the link axis before the particles (one contiguous row per
+    link; the rows of padding slots are left unwritten, so only what a later step reads,
+    the rows of existing links, is defined).
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
     if kernel == "numpy":
+        if link_major:
+            raise ValueError("link_major: the compiled kernel only")
         if anc is not None and prev_q.shape[-1] and prev_q.strides[-2] != 0:
             prev_q = np.take_along_axis(prev_q, anc[..., None], axis=-2)
         return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
@@ -320,18 +326,21 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     b = int(np.prod(batch, dtype=int))
     nc = _k.n_chunks(k, CHUNK)
     log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
+    shape = (b, width, k) if link_major else (b, k, width)
     if q_out is not None:
         q_new = q_out
     else:
-        q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
+        q_new = _scratch("q_new", shape) if scratch else np.empty(shape)
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
     wp = np.where(valid, where_prev, -1)
-    if prev_q.shape[-1] == 0:
+    if prev_q.shape[-2 if link_major else -1] == 0:
         wp = np.full_like(wp, -1)
         prev_q = np.zeros(batch + (1, 1))
-    elif prev_q.strides[-2] == 0:
+    elif link_major and prev_q.strides[-1] == 0:
+        prev_q = prev_q[..., :1]
+    elif not link_major and prev_q.strides[-2] == 0:
         prev_q = prev_q[..., :1, :]
     gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
@@ -342,7 +351,7 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
                     kernel_array(wp.reshape(b, width), np.int64),
                     kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
                     _NO_ANCESTORS if anc is None else kernel_array(anc.reshape(b, k), np.int64),
-                    anc is not None, kernel_array(p[:, 0]), kernel_array(p[:, 1]),
+                    anc is not None, link_major, kernel_array(p[:, 0]), kernel_array(p[:, 1]),
                     kernel_array(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
@@ -353,11 +362,12 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     post = _normalise_post(post)
     # the kernel leaves q_new of a Gaussian-case filter unwritten: 1 on its links; when
     # every filter is, one row broadcast over the particles (read-only, no copy)
+    rows = valid.reshape(b, width, 1) if link_major else valid.reshape(b, 1, width)
     if gauss.all():
-        q_new = np.broadcast_to(valid.reshape(b, 1, width).astype(float), (b, k, width))
+        q_new = np.broadcast_to(rows.astype(float), shape)
     elif gauss.any():
-        q_new[gauss] = valid.reshape(b, width)[gauss][:, None, :]
-    out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + (k, width)),
+        q_new[gauss] = rows[gauss]
+    out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + shape[1:]),
            post.reshape(batch + (width, 2)))
     return out + ((em_pp.reshape(batch + (k, 3)) if em else None), gauss.reshape(batch))
 
@@ -1057,8 +1067,10 @@ class P2PParticleFilter(RecursiveEstimator):
         the next step: each step's predicted particles, new link posteriors and resampling
         indices (ancestors) are carried; the next step gathers the particles (``n`` numbers
         per particle) before its prediction, and the link kernel reads the carried link
-        posteriors through the ancestors (one pass over the ``(K, L)`` posteriors per step
-        instead of three). The links are packed once for every step, the inputs checked
+        posteriors through the ancestors (one pass over the posteriors per step instead of
+        three). The carried posteriors are link-major, ``(B, L, K)``: the kernel copies the
+        rows of existing links in and out instead of transposing ``(K, L)`` tiles, and never
+        touches the padding slots. The links are packed once for every step, the inputs checked
         once, the previous slot of every link found for every step at once. The same draws
         in the same order and the same values as :meth:`step` step by step (the width of
         the packed links does not enter the kernel's arithmetic: it skips the padding; the
@@ -1095,7 +1107,7 @@ class P2PParticleFilter(RecursiveEstimator):
         seen = _scratch("seen", (b, k), np.bool_)
         distinct = np.empty(b, dtype=np.int64)
         parts = state.particles.reshape(b, k, n)
-        anc, q_prev = None, np.zeros((b, k, 0))
+        anc, q_prev = None, np.zeros((b, 0, k))        # link-major: (b, L, K)
         mean = state.mean
         resets = state.resets
         time_now = state.time
@@ -1115,7 +1127,8 @@ class P2PParticleFilter(RecursiveEstimator):
             # lines 6, 8, 11, the link posteriors read through the ancestors
             log_w, q, post, _, gauss = _link_update(
                 pred, node_xy, th_t[s], valid_t[s], wp_t[s], q_prev, params, "numba", False,
-                scratch=True, anc=anc, q_out=_scratch(f"carried_q{s % 2}", (b, k, width)))
+                scratch=True, anc=anc, q_out=_scratch(f"carried_q{s % 2}", (b, width, k)),
+                link_major=True)
             w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
             # line 12: systematic resampling; the gather is left to the next step
             u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
@@ -1137,7 +1150,7 @@ class P2PParticleFilter(RecursiveEstimator):
                     mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
                 if not q.flags.writeable:
                     q = q.copy()
-                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, None, :]
+                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, :, None]
             parts, anc, q_prev = out, idx, q
             mean = mean_f.reshape(batch_v + (n,))
             cov = cov.reshape(batch_v + (n, n))

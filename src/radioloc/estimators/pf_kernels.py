@@ -65,7 +65,9 @@ layout); each chunk transposes those of its old links into one scratch row per l
 of a link then reads and writes contiguous memory, and the new posteriors go back to
 ``(K, L)`` in tiles of 8 particles. These moves are about 3 ns of the kernel's 15-16 ns
 per particle-link update on the benchmark (16 padded slots for 9.4 links per vehicle:
-256 bytes in and out per particle).
+256 bytes in and out per particle). ``P2PParticleFilter.run`` carries them link-major
+instead (``link_major``: ``(L, K)`` per filter, read through the resampling's ancestors):
+one contiguous row per existing link is copied in and out, the padding slots untouched.
 
 Gaussian case. A filter whose LOS fraction is exactly 1 and whose carried link posteriors
 are all exactly 1 (the invariant of such a filter: ``pi_0 = 0`` for every link) has
@@ -360,8 +362,9 @@ def _nlos_link(buf, m, r, lam, c01, c00):
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carried, los_std,
-                 nlos_mean, alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp, gauss):
+def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carried,
+                 link_major, los_std, nlos_mean, alpha, chunk, em, log_w, q_new, part_s, part_l,
+                 em_pp, gauss):
     """Particle-link update of Algorithm 2 (lines 6, 8, 11) for every filter of a batch.
 
     Parameters
@@ -385,6 +388,11 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
         the same values as ``prev_q[b, anc[b]]`` passed without them).
     carried : bool
         Read ``prev_q`` through ``anc``.
+    link_major : bool
+        ``prev_q`` is ``(B, L', K)`` (or ``(B, L', 1)``) and ``q_new`` is ``(B, L, K)``:
+        one contiguous row of particles per link slot, so the posteriors are copied in
+        and out of the chunk's rows instead of transposed, and only the rows of existing
+        links are touched (``q_new``'s rows of padding slots are left unwritten).
     los_std, nlos_mean, alpha : ndarray, shape (B,)
         ``s_LOS``, ``s_NLOS`` and alpha of each filter (the sticky chain follows alpha).
     chunk : int
@@ -418,9 +426,14 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
     None
         The results are written into the output arrays.
     """
-    nb, nk, nl = q_new.shape[0], q_new.shape[1], q_new.shape[2]
+    nb = q_new.shape[0]
+    if link_major:
+        nl, nk = q_new.shape[1], q_new.shape[2]
+        qs = 1 if prev_q.shape[2] == nk else 0  # 0: one row shared by every particle
+    else:
+        nk, nl = q_new.shape[1], q_new.shape[2]
+        qs = 1 if prev_q.shape[1] == nk else 0
     nc = part_s.shape[1]
-    qs = 1 if prev_q.shape[1] == nk else 0      # 0: one row shared by every particle
     # Gaussian case: alpha = 1 and every carried LOS posterior of a link exactly 1
     ok = np.ones((nb, nc), dtype=np.bool_)
     for task in prange(nb * nc):
@@ -434,7 +447,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
             jp = where_prev[b, j]
             if valid[b, j] and jp >= 0:
                 for i in range(c * chunk * qs, i1):
-                    if prev_q[b, anc[b, i] * qs if carried else i, jp] != 1.0:
+                    pi = anc[b, i] * qs if carried else i
+                    v = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
+                    if v != 1.0:
                         ok[b, c] = False
     for b in range(nb):
         gauss[b] = True
@@ -484,7 +499,18 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
                     rows[n_old] = _ROWS + j
                     cols[n_old] = where_prev[b, j]
                     n_old += 1
-            m4 = m - m % 4
+            m4 = m - m % 4 if not link_major else 0
+            if link_major:
+                # one row per link: copy (through the ancestors) instead of transposing
+                for t in range(n_old):
+                    r = rows[t]
+                    jp = cols[t]
+                    if carried and qs:
+                        for i in range(m):
+                            buf[r, i] = prev_q[b, jp, anc[b, i0 + i]]
+                    else:
+                        for i in range(m):
+                            buf[r, i] = prev_q[b, jp, (i0 + i) * qs]
             for t0 in range(0, m4, 4):
                 p0 = (i0 + t0) * qs
                 p1 = p0 + qs
@@ -506,7 +532,7 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
                     buf[r, t0 + 1] = v1
                     buf[r, t0 + 2] = v2
                     buf[r, t0 + 3] = v3
-            for t in range(n_old):
+            for t in range(n_old if not link_major else 0):
                 for i in range(m4, m):
                     pi = anc[b, i0 + i] if carried else i0 + i
                     buf[rows[t], i] = prev_q[b, pi * qs, cols[t]]
@@ -563,8 +589,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
                         e = th - math.sqrt(dx * dx + dy * dy)
                         z = e / s
                         if jp >= 0:
-                            pi = anc[b, i0 + i] if carried else i0 + i
-                            q = prev_q[b, pi * qs, jp]
+                            pi = (anc[b, i0 + i] if carried else i0 + i) * qs
+                            q = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
                             pi1 = q * t11 + (1.0 - q) * t01
                             pi0 = q * t10 + (1.0 - q) * t00
                         else:
@@ -588,7 +614,12 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
                     em_pp[b, i0 + i, 0] += qn
                     em_pp[b, i0 + i, 1] += qn * e * e
                     em_pp[b, i0 + i, 2] += (1.0 - qn) * e
-        if not gs:
+        if not gs and link_major:
+            for j in range(nl):
+                if valid[b, j]:
+                    for i in range(m):
+                        q_new[b, j, i0 + i] = buf[_ROWS + j, i]
+        elif not gs:
             for t0 in range(0, m, 8):
                 t1 = min(m, t0 + 8)
                 for i in range(t0, t1):
@@ -616,8 +647,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
                 e = theta[b, j] - math.sqrt(dx * dx + dy * dy)
                 z = e / s
                 if jp >= 0:
-                    pi = anc[b, i] if carried else i
-                    q = prev_q[b, pi * qs, jp]
+                    pi = (anc[b, i] if carried else i) * qs
+                    q = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
                     pi1 = q * t11 + (1.0 - q) * t01
                     pi0 = q * t10 + (1.0 - q) * t00
                 else:
