@@ -213,3 +213,39 @@ def test_link_major_shared_row_and_first_step():
     fast0 = _link_update(p, nxy, th, valid, wp, np.zeros((3, 0, 24)), params, "numba", False,
                          link_major=True)
     assert _same((fast0[0], fast0[2]), (ref0[0], ref0[2]))
+
+
+@pytest.mark.parametrize("control", [False, True])
+def test_carried_run_equals_steps_random_walk(carried_calls, control):
+    """A random walk (the prediction gathers the resampled particles itself:
+    ``pf_kernels.walk_gather``), with and without a displacement control."""
+    from radioloc.models.motion import RandomWalk
+    sc, model, data = highway(runs=2, steps=6, seed=6)
+    pf = P2PParticleFilter(RandomWalk(0.4), model, particles=40)
+    ctrl = data.ins if control else None
+    fast = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(3), anchors=data.anchors,
+                  controls=ctrl)
+    ref = by_steps(pf, data.ranges, data.truth[:, :, 0], np.random.default_rng(3), data.anchors,
+                   controls=ctrl)
+    assert carried_calls == [1]
+    assert fast.diagnostics["resets"][..., -1].sum() > 0
+    assert same_track(fast, ref)
+
+
+def test_walk_gather_equals_numpy():
+    """``walk_gather`` is ``z *= sd; z += particles[anc] + shift`` bit for bit."""
+    from radioloc.estimators import pf_kernels as K
+    g = np.random.default_rng(11)
+    x = g.normal(size=(3, 50, 2)) * 1e3
+    anc = np.sort(g.integers(0, 50, (3, 50)), axis=-1)
+    shift = g.normal(size=(3, 2))
+    sd = np.array([0.3, 1.7])
+    z = g.standard_normal((3, 50, 2))
+    for gathered in (False, True):
+        for shifted in (False, True):
+            out = np.empty_like(z)
+            K.walk_gather(x, anc, gathered, shift, shifted, sd, z, out, 16)
+            src = np.take_along_axis(x, anc[..., None], axis=1) if gathered else x
+            ref = z * sd
+            ref += src + shift[:, None] if shifted else src
+            assert np.array_equal(out, ref)

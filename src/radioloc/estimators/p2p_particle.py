@@ -1106,8 +1106,13 @@ class P2PParticleFilter(RecursiveEstimator):
         no_q = np.empty((b, k, 0))
         seen = _scratch("seen", (b, k), np.bool_)
         distinct = np.empty(b, dtype=np.int64)
-        parts = state.particles.reshape(b, k, n)
+        parts = kernel_array(state.particles.reshape(b, k, n))
         anc, q_prev = None, np.zeros((b, 0, k))        # link-major: (b, L, K)
+        # random walks (x + u + diag(sd) z, see _walk_noise): the particles are gathered by
+        # the next step's prediction too, so no pass of their own
+        sds = [self._walk_sd_of(dt) if n == D else None for dt in dts]
+        walk = all(sd is not None for sd in sds)
+        no_shift = np.zeros((1, 1))
         mean = state.mean
         resets = state.resets
         time_now = state.time
@@ -1121,9 +1126,18 @@ class P2PParticleFilter(RecursiveEstimator):
                              np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
             node_xy = nodes.reshape(nb, J, 2)[node_rows, links_nodes[s]].reshape(b, width, 2)
             # line 3
-            pred = _sample_motion(self.motion, parts.reshape(batch_v + (k, n)), dts[s], rng,
-                                  None if ctrl is None else ctrl[:, s].reshape(batch_v + (1, -1)),
-                                  scratch=True).reshape(b, k, n)
+            if walk:
+                # the draws of _sample_motion (same call, same shape), then (x[anc] + u) +
+                # sd z, its roundings
+                z = _standard_normal(rng, batch_v + (k, n), scratch=True).reshape(b, k, n)
+                pred = _scratch(f"carried_p{s % 2}", (b, k, n))
+                _k.walk_gather(parts, _NO_ANCESTORS if anc is None else anc, anc is not None,
+                               no_shift if ctrl is None else kernel_array(ctrl[:, s, 0]),
+                               ctrl is not None, kernel_array(sds[s]), z, pred, CHUNK)
+            else:
+                pred = _sample_motion(self.motion, parts.reshape(batch_v + (k, n)), dts[s], rng,
+                                      None if ctrl is None else ctrl[:, s].reshape(batch_v + (1, -1)),
+                                      scratch=True).reshape(b, k, n)
             # lines 6, 8, 11, the link posteriors read through the ancestors
             log_w, q, post, _, gauss = _link_update(
                 pred, node_xy, th_t[s], valid_t[s], wp_t[s], q_prev, params, "numba", False,
@@ -1134,15 +1148,21 @@ class P2PParticleFilter(RecursiveEstimator):
             u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
             idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
             _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
-            # the resampled particles (n numbers each) and the distinct ancestors; the link
-            # posteriors stay unresampled
-            out = _scratch(f"carried_p{s % 2}", (b, k, n))
-            _k.gather_resampled(pred, no_q, idx, out, no_q, distinct, seen, CHUNK)
+            if walk:
+                # the next prediction gathers the particles; the indices are non-decreasing
+                distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
+                out = pred
+            else:
+                # the resampled particles (n numbers each) and the distinct ancestors; the
+                # link posteriors stay unresampled
+                out = _scratch(f"carried_p{s % 2}", (b, k, n))
+                _k.gather_resampled(pred, no_q, idx, out, no_q, distinct, seen, CHUNK)
             los = scatter_packed(valid_t[s] & (post[..., 1] > post[..., 0]), links_t[s],
                                  valid_t[s], J) & mask_t[s]
             reset = distinct < self.reset_fraction * k
             if np.any(reset):
-                # as in _step (each particle of a reset filter then its own ancestor)
+                # as in _step (each particle of a reset filter then its own ancestor; in the
+                # walk case, n = D, every component is reset, so no gather is needed)
                 out[reset, :, :D] = mean_f[reset][:, None, :D] + self.reset_std_m * \
                     rng.standard_normal((int(reset.sum()), k, D))
                 idx[reset] = np.arange(k)
@@ -1151,7 +1171,8 @@ class P2PParticleFilter(RecursiveEstimator):
                 if not q.flags.writeable:
                     q = q.copy()
                 q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, :, None]
-            parts, anc, q_prev = out, idx, q
+            parts, q_prev = out, q
+            anc = idx
             mean = mean_f.reshape(batch_v + (n,))
             cov = cov.reshape(batch_v + (n, n))
             resets = resets + reset.reshape(batch_v)

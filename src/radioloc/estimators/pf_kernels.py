@@ -923,3 +923,49 @@ def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark, ch
         for c in range(nc):
             cnt += counts[b, c]
         distinct[b] = cnt
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def walk_gather(particles, anc, gathered, shift, shifted, sd, z, out, chunk):
+    """Prediction of a random walk from resampled particles, the resampling's gather folded
+    in: ``out[b, i] = (particles[b, anc[b, i]] + shift[b]) + sd * z[b, i]`` (no
+    contraction: the roundings of ``z *= sd; z += particles + shift`` in NumPy).
+
+    Parameters
+    ----------
+    particles : ndarray, shape (B, K, n)
+        Particles before the gather.
+    anc : ndarray of int64, shape (B, K) (any 2-D shape when not ``gathered``)
+        Ancestor of each new particle.
+    gathered : bool
+        Read ``particles`` through ``anc`` (else ``particles[b, i]``).
+    shift : ndarray, shape (B, n) (any 2-D shape when not ``shifted``)
+        Displacement of each filter (the control).
+    shifted : bool
+        Add ``shift`` (else no addition, as NumPy without a control).
+    sd : ndarray, shape (n,)
+        Noise standard deviation per component.
+    z : ndarray, shape (B, K, n)
+        Standard normal draws.
+    out : ndarray, shape (B, K, n)
+        Output: the predicted particles.
+    chunk : int
+        Particles per parallel task.
+
+    Returns
+    -------
+    None
+        The result is written into ``out``.
+    """
+    nb, nk, n = z.shape
+    nc = max(1, -(-nk // chunk))
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            a = anc[b, i] if gathered else i
+            for d in range(n):
+                p = particles[b, a, d]
+                if shifted:
+                    p = p + shift[b, d]
+                out[b, i, d] = sd[d] * z[b, i, d] + p
