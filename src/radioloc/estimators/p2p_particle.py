@@ -35,6 +35,7 @@ The parameters of the range model can be estimated inside the filter by online E
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 
@@ -286,7 +287,7 @@ def _scratch(name, shape, dtype=np.float64):
     cache = getattr(_SCRATCH, "arrays", None)
     if cache is None:
         cache = _SCRATCH.arrays = {}
-    size = int(np.prod(shape, dtype=np.int64))
+    size = math.prod(shape)
     dtype = np.dtype(dtype)
     if size * dtype.itemsize > _SCRATCH_MAX_BYTES:
         cache.pop((name, dtype), None)
@@ -296,6 +297,15 @@ def _scratch(name, shape, dtype=np.float64):
         a = np.empty(max(size, 1), dtype=dtype)
         cache[(name, dtype)] = a
     return a[:size].reshape(shape)
+
+
+def _ka(x, dtype=np.float64):
+    """:func:`radioloc.core.arrays.kernel_array` with its no-copy case (a C-contiguous,
+    writeable array of ``dtype``) decided by the flags directly: the same array, without
+    ``np.require``'s microseconds on the per-step path."""
+    if type(x) is np.ndarray and x.dtype == dtype and x.flags.c_contiguous and x.flags.writeable:
+        return x
+    return kernel_array(x, dtype)
 
 
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
@@ -323,7 +333,7 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
         return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
     batch = particles.shape[:-2]
     k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
-    b = int(np.prod(batch, dtype=int))
+    b = math.prod(batch)
     nc = _k.n_chunks(k, CHUNK)
     log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
     shape = (b, width, k) if link_major else (b, k, width)
@@ -344,15 +354,15 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
         prev_q = prev_q[..., :1, :]
     gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
-    _k.link_weights(kernel_array(particles.reshape(b, k, n)),
-                    kernel_array(node_xy.reshape(b, width, 2)),
-                    kernel_array(th.reshape(b, width)),
-                    kernel_array(valid.reshape(b, width), np.bool_),
-                    kernel_array(wp.reshape(b, width), np.int64),
-                    kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
-                    _NO_ANCESTORS if anc is None else kernel_array(anc.reshape(b, k), np.int64),
-                    anc is not None, link_major, kernel_array(p[:, 0]), kernel_array(p[:, 1]),
-                    kernel_array(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
+    cols = p.T.copy()                               # (3, b): s_LOS, s_NLOS, alpha rows
+    _k.link_weights(_ka(particles.reshape(b, k, n)),
+                    _ka(node_xy.reshape(b, width, 2)),
+                    _ka(th.reshape(b, width)),
+                    _ka(valid.reshape(b, width), np.bool_),
+                    _ka(wp.reshape(b, width), np.int64),
+                    _ka(prev_q.reshape((b,) + prev_q.shape[-2:])),
+                    _NO_ANCESTORS if anc is None else _ka(anc.reshape(b, k), np.int64),
+                    anc is not None, link_major, cols[0], cols[1], cols[2], CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
     ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
@@ -383,11 +393,11 @@ def _moments(log_w, particles, kernel, scratch=False):
         cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
         return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
-    b = int(np.prod(batch, dtype=int))
+    b = math.prod(batch)
     w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
     mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-    _k.weights_moments(kernel_array(log_w.reshape(b, k)),
-                       kernel_array(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
+    _k.weights_moments(_ka(log_w.reshape(b, k)),
+                       _ka(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
             ess.reshape(batch))
 
@@ -1102,7 +1112,6 @@ class P2PParticleFilter(RecursiveEstimator):
         links_nodes = links_t.reshape(T, nb, n_veh, width)
         params = kernel_array(self._params(state).reshape(b, 3))
         ctrl = None if u is None else u.reshape(b, T, 1, u.shape[-1])
-        estimates = []
         no_q = np.empty((b, k, 0))
         seen = _scratch("seen", (b, k), np.bool_)
         distinct = np.empty(b, dtype=np.int64)
@@ -1113,6 +1122,8 @@ class P2PParticleFilter(RecursiveEstimator):
         sds = [self._walk_sd_of(dt) if n == D else None for dt in dts]
         walk = all(sd is not None for sd in sds)
         no_shift = np.zeros((1, 1))
+        det_t = np.empty((T, b, width), dtype=bool)
+        steps = []
         mean = state.mean
         resets = state.resets
         time_now = state.time
@@ -1157,8 +1168,8 @@ class P2PParticleFilter(RecursiveEstimator):
                 # link posteriors stay unresampled
                 out = _scratch(f"carried_p{s % 2}", (b, k, n))
                 _k.gather_resampled(pred, no_q, idx, out, no_q, distinct, seen, CHUNK)
-            los = scatter_packed(valid_t[s] & (post[..., 1] > post[..., 0]), links_t[s],
-                                 valid_t[s], J) & mask_t[s]
+            # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0), scattered after the loop
+            det_t[s] = valid_t[s] & (post[..., 1] > post[..., 0])
             reset = distinct < self.reset_fraction * k
             if np.any(reset):
                 # as in _step (each particle of a reset filter then its own ancestor; in the
@@ -1177,9 +1188,12 @@ class P2PParticleFilter(RecursiveEstimator):
             cov = cov.reshape(batch_v + (n, n))
             resets = resets + reset.reshape(batch_v)
             time_now = time_now + dts[s]
-            diag = {"state": mean, "state_covariance": cov, "ess": ess.reshape(batch_v),
-                    "los_detected": los.reshape(batch_v + (J,)), "resets": resets}
-            estimates.append(Estimate(mean[..., :D], cov[..., :D, :D], time_now, diag))
+            steps.append((mean, cov, ess.reshape(batch_v), resets, time_now))
+        los_t = (scatter_packed(det_t, links_t, valid_t, J) & mask_t).reshape((T,) + batch_v + (J,))
+        estimates = [Estimate(mean[..., :D], cov[..., :D, :D], time_now,
+                              {"state": mean, "state_covariance": cov, "ess": ess,
+                               "los_detected": los_t[s], "resets": resets})
+                     for s, (mean, cov, ess, resets, time_now) in enumerate(steps)]
         return track_from_steps(estimates, t)
 
     def _peers(self, mean, dt, control, given, k):
