@@ -249,3 +249,30 @@ def test_walk_gather_equals_numpy():
             ref = z * sd
             ref += src + shift[:, None] if shifted else src
             assert np.array_equal(out, ref)
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_moments_resample_equals_the_two_kernels(n):
+    """``moments_resample`` (one pass per filter) equals ``weights_moments`` then
+    ``systematic_indices`` bit for bit, batched and one filter at a time."""
+    from radioloc.estimators import pf_kernels as K
+    g = np.random.default_rng(12 + n)
+    b, k = 5, 300
+    log_w = g.normal(size=(b, k)) * 30.0
+    log_w[1, :] = -1e3 + g.normal(size=k)                 # far below 0: the maximum matters
+    log_w[2, :7] = -np.inf                                # zero weights
+    x = g.normal(size=(b, k, n)) * 5 + 1e4
+    u = g.random(b)
+    w, mean, cov, ess = np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+    K.weights_moments(log_w, x, 2048, w, mean, cov, ess)
+    idx = np.empty((b, k), dtype=np.int64)
+    K.systematic_indices(w, u, idx, 2048)
+    out = (np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b),
+           np.empty((b, k), dtype=np.int64))
+    K.moments_resample(log_w, x, u, *out)
+    for a, ref in zip(out, (w, mean, cov, ess, idx)):
+        assert np.array_equal(a, ref)
+    one = (np.empty((1, k)), np.empty((1, n)), np.empty((1, n, n)), np.empty(1),
+           np.empty((1, k), dtype=np.int64))
+    K.moments_resample(log_w[3:4], x[3:4], u[3:4], *one)
+    assert all(np.array_equal(a[0], ref[3]) for a, ref in zip(one, (w, mean, cov, ess, idx)))

@@ -1154,11 +1154,16 @@ class P2PParticleFilter(RecursiveEstimator):
                 pred, node_xy, th_t[s], valid_t[s], wp_t[s], q_prev, params, "numba", False,
                 scratch=True, anc=anc, q_out=_scratch(f"carried_q{s % 2}", (b, width, k)),
                 link_major=True)
-            w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
-            # line 12: systematic resampling; the gather is left to the next step
+            # line 14 and line 12 (systematic resampling; the gather is left to the next step)
             u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
             idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
-            _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
+            if k <= CHUNK:                  # one pass (the same operations as the two below)
+                w = _scratch("w", (b, k))
+                mean_f, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx)
+            else:
+                w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
+                _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
             if walk:
                 # the next prediction gathers the particles; the indices are non-decreasing
                 distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)

@@ -969,3 +969,62 @@ def walk_gather(particles, anc, gathered, shift, shifted, sd, z, out, chunk):
                 if shifted:
                     p = p + shift[b, d]
                 out[b, i, d] = sd[d] * z[b, i, d] + p
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
+def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
+    """:func:`weights_moments` then :func:`systematic_indices` in one parallel pass over the
+    filters, for filters of at most one chunk of particles (``K <= chunk``): the same
+    operations in the same order as the two kernels with one chunk, so the same values.
+
+    Parameters
+    ----------
+    log_w : ndarray, shape (B, K)
+        Log weights.
+    particles : ndarray, shape (B, K, n)
+        Particle states.
+    u : ndarray, shape (B,)
+        One uniform in [0, 1) per filter (the systematic positions ``(u + j) / K``).
+    w, mean, cov, ess : ndarray
+        Outputs of :func:`weights_moments`.
+    idx : ndarray of int64, shape (B, K)
+        Output: ancestor indices (non-decreasing), as :func:`systematic_indices`.
+
+    Returns
+    -------
+    None
+        The results are written into the output arrays.
+    """
+    nb, nk, n = particles.shape
+    ns = 2 + n + n * (n + 1) // 2
+    for b in prange(nb):
+        m = -np.inf
+        for i in range(nk):
+            m = max(m, log_w[b, i])
+        for i in range(nk):
+            w[b, i] = vexp(log_w[b, i] - m)
+        tot = np.empty(ns)
+        _moment_sums(w, particles, b, 0, nk, tot)
+        inv = 1.0 / tot[0]
+        ess[b] = tot[0] * tot[0] / tot[1]
+        t = 2 + n
+        for d in range(n):
+            md = tot[2 + d] * inv
+            mean[b, d] = particles[b, 0, d] + md
+            for g in range(d + 1):
+                cv = tot[t] * inv - md * tot[2 + g] * inv
+                cov[b, d, g] = cv
+                cov[b, g, d] = cv
+                t += 1
+        for i in range(nk):
+            w[b, i] *= inv
+        # systematic resampling (one chunk: the cumulative sum starts at 0)
+        i = 0
+        last = nk - 1
+        cdf = 0.0 + w[b, 0]
+        for j in range(nk):
+            pos = (u[b] + j) / nk
+            while cdf <= pos and i < last:
+                i += 1
+                cdf += w[b, i]
+            idx[b, j] = i
