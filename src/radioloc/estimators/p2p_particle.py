@@ -35,6 +35,7 @@ The parameters of the range model can be estimated inside the filter by online E
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 
@@ -286,7 +287,7 @@ def _scratch(name, shape, dtype=np.float64):
     cache = getattr(_SCRATCH, "arrays", None)
     if cache is None:
         cache = _SCRATCH.arrays = {}
-    size = int(np.prod(shape, dtype=np.int64))
+    size = math.prod(shape)
     dtype = np.dtype(dtype)
     if size * dtype.itemsize > _SCRATCH_MAX_BYTES:
         cache.pop((name, dtype), None)
@@ -298,43 +299,70 @@ def _scratch(name, shape, dtype=np.float64):
     return a[:size].reshape(shape)
 
 
+def _ka(x, dtype=np.float64):
+    """:func:`radioloc.core.arrays.kernel_array` with its no-copy case (a C-contiguous,
+    writeable array of ``dtype``) decided by the flags directly: the same array, without
+    ``np.require``'s microseconds on the per-step path."""
+    if type(x) is np.ndarray and x.dtype == dtype and x.flags.c_contiguous and x.flags.writeable:
+        return x
+    return kernel_array(x, dtype)
+
+
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
-                 scratch=False):
+                 scratch=False, anc=None, q_out=None, link_major=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
     normalised over ``z`` (..., L, 2), the online-EM per-particle sums (..., K, 3) and
     which filters took the Gaussian case (..., bool; see ``pf_kernels``) (lines 6-11).
     ``scratch``: ``log w`` and the new link posteriors in this thread's work arrays (see
-    :func:`_scratch`; valid until the next scratch call).
+    :func:`_scratch`; valid until the next scratch call). ``anc`` (..., K), the compiled
+    kernel only: particle ``i`` carries the posteriors of row ``anc[..., i]`` of ``prev_q``
+    (the resampling's gather done by the kernel's read; the same values as ``prev_q``
+    gathered beforehand). ``q_out`` (B, K, L): the array the new posteriors are written to.
+    ``link_major`` (the compiled kernel only): ``prev_q`` (..., L', K) and the new
+    posteriors (..., L, K) with the link axis before the particles (one contiguous row per
+    link; the rows of padding slots are left unwritten, so only what a later step reads,
+    the rows of existing links, is defined).
 
     A ``prev_q`` whose particle axis has stride 0 (the broadcast posterior a Gaussian-case
     step leaves) is passed to the kernel as one row shared by every particle."""
     if kernel == "numpy":
+        if link_major:
+            raise ValueError("link_major: the compiled kernel only")
+        if anc is not None and prev_q.shape[-1] and prev_q.strides[-2] != 0:
+            prev_q = np.take_along_axis(prev_q, anc[..., None], axis=-2)
         return _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
     batch = particles.shape[:-2]
     k, n, width = particles.shape[-2], particles.shape[-1], node_xy.shape[-2]
-    b = int(np.prod(batch, dtype=int))
+    b = math.prod(batch)
     nc = _k.n_chunks(k, CHUNK)
     log_w = _scratch("log_w", (b, k)) if scratch else np.empty((b, k))
-    q_new = _scratch("q_new", (b, k, width)) if scratch else np.empty((b, k, width))
+    shape = (b, width, k) if link_major else (b, k, width)
+    if q_out is not None:
+        q_new = q_out
+    else:
+        q_new = _scratch("q_new", shape) if scratch else np.empty(shape)
     part_s = np.empty((b, nc, width, 2))
     part_l = np.empty((b, nc, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
     wp = np.where(valid, where_prev, -1)
-    if prev_q.shape[-1] == 0:
+    if prev_q.shape[-2 if link_major else -1] == 0:
         wp = np.full_like(wp, -1)
         prev_q = np.zeros(batch + (1, 1))
-    elif prev_q.strides[-2] == 0:
+    elif link_major and prev_q.strides[-1] == 0:
+        prev_q = prev_q[..., :1]
+    elif not link_major and prev_q.strides[-2] == 0:
         prev_q = prev_q[..., :1, :]
     gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
-    _k.link_weights(kernel_array(particles.reshape(b, k, n)),
-                    kernel_array(node_xy.reshape(b, width, 2)),
-                    kernel_array(th.reshape(b, width)),
-                    kernel_array(valid.reshape(b, width), np.bool_),
-                    kernel_array(wp.reshape(b, width), np.int64),
-                    kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
-                    kernel_array(p[:, 0]), kernel_array(p[:, 1]),
-                    kernel_array(p[:, 2]), CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
+    cols = p.T.copy()                               # (3, b): s_LOS, s_NLOS, alpha rows
+    _k.link_weights(_ka(particles.reshape(b, k, n)),
+                    _ka(node_xy.reshape(b, width, 2)),
+                    _ka(th.reshape(b, width)),
+                    _ka(valid.reshape(b, width), np.bool_),
+                    _ka(wp.reshape(b, width), np.int64),
+                    _ka(prev_q.reshape((b,) + prev_q.shape[-2:])),
+                    _NO_ANCESTORS if anc is None else _ka(anc.reshape(b, k), np.int64),
+                    anc is not None, link_major, cols[0], cols[1], cols[2], CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
     ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
@@ -344,11 +372,12 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     post = _normalise_post(post)
     # the kernel leaves q_new of a Gaussian-case filter unwritten: 1 on its links; when
     # every filter is, one row broadcast over the particles (read-only, no copy)
+    rows = valid.reshape(b, width, 1) if link_major else valid.reshape(b, 1, width)
     if gauss.all():
-        q_new = np.broadcast_to(valid.reshape(b, 1, width).astype(float), (b, k, width))
+        q_new = np.broadcast_to(rows.astype(float), shape)
     elif gauss.any():
-        q_new[gauss] = valid.reshape(b, width)[gauss][:, None, :]
-    out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + (k, width)),
+        q_new[gauss] = rows[gauss]
+    out = (log_w.reshape(batch + (k,)), q_new.reshape(batch + shape[1:]),
            post.reshape(batch + (width, 2)))
     return out + ((em_pp.reshape(batch + (k, 3)) if em else None), gauss.reshape(batch))
 
@@ -364,11 +393,11 @@ def _moments(log_w, particles, kernel, scratch=False):
         cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
         return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
-    b = int(np.prod(batch, dtype=int))
+    b = math.prod(batch)
     w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
     mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-    _k.weights_moments(kernel_array(log_w.reshape(b, k)),
-                       kernel_array(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
+    _k.weights_moments(_ka(log_w.reshape(b, k)),
+                       _ka(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
             ess.reshape(batch))
 
@@ -1016,6 +1045,8 @@ class P2PParticleFilter(RecursiveEstimator):
         sds = self._bootstrap_run_sd(state, dts)
         if sds is not None:
             return self._run_bootstrap(r, state, anchors_b, dts, u, given, t, sds, rng)
+        if self._carried_run_ok(state):
+            return self._run_carried(r, state, anchors_b, dts, u, given, t, rng)
         mask_all = ~np.isnan(r)
         estimates = []
         for k in range(T):
@@ -1030,6 +1061,144 @@ class P2PParticleFilter(RecursiveEstimator):
                                None if uk is None else uk[..., None, :], dts[k],
                                slot=f"run{k % 2}")
             estimates.append(self.estimate(state))
+        return track_from_steps(estimates, t)
+
+    def _carried_run_ok(self, state):
+        """Whether :meth:`run` from ``state`` (from :meth:`init`) can take
+        :meth:`_run_carried`: the compiled kernel, systematic resampling, no online EM, and
+        a LOS fraction below 1 in some filter (then no step is the bootstrap case of
+        :meth:`_bootstrap_noise`, whose draws differ, since the parameters do not change)."""
+        return (self.kernel == "numba" and self.resampling == "systematic"
+                and self.online_em is None
+                and not np.all(self._params(state)[..., 2] == 1.0))
+
+    def _run_carried(self, r, state, anchors_b, dts, u, given, t, rng):
+        """:meth:`run` by the steps of :meth:`_step` with the resampling's gather left to
+        the next step: each step's predicted particles, new link posteriors and resampling
+        indices (ancestors) are carried; the next step gathers the particles (``n`` numbers
+        per particle) before its prediction, and the link kernel reads the carried link
+        posteriors through the ancestors (one pass over the posteriors per step instead of
+        three). The carried posteriors are link-major, ``(B, L, K)``: the kernel copies the
+        rows of existing links in and out instead of transposing ``(K, L)`` tiles, and never
+        touches the padding slots. The links are packed once for every step, the inputs checked
+        once, the previous slot of every link found for every step at once. The same draws
+        in the same order and the same values as :meth:`step` step by step (the width of
+        the packed links does not enter the kernel's arithmetic: it skips the padding; the
+        gathers only copy; tests/test_p2p_step_carried.py)."""
+        D = self.motion.dim
+        batch_v = state.batch_shape                             # (..., N)
+        batch = batch_v[:-1]
+        n_veh, T, J = r.shape[-3:]
+        k, n = state.particles.shape[-2:]
+        b = int(np.prod(batch_v, dtype=int))
+        nb = int(np.prod(batch, dtype=int))
+        nbd = len(batch_v)
+        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
+        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        width = links.shape[-1]
+        th = gather_packed(np.where(mask_all, r, 0.0), links)
+
+        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
+            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
+
+        links_t, valid_t, th_t = time_first(links), time_first(valid), time_first(th)
+        mask_t = time_first(mask_all)
+        # slot of each link in the previous step's list (-1: new link, line 8), every step
+        wp_t = np.full((T, b, width), -1, dtype=np.int64)
+        if T > 1:
+            prev = np.where(valid_t[:-1], links_t[:-1], -1)
+            wp_t[1:] = np.where(valid_t[1:], _previous_slots(prev, links_t[1:], J), -1)
+        node_rows = np.arange(nb)[:, None, None]
+        links_nodes = links_t.reshape(T, nb, n_veh, width)
+        params = kernel_array(self._params(state).reshape(b, 3))
+        ctrl = None if u is None else u.reshape(b, T, 1, u.shape[-1])
+        no_q = np.empty((b, k, 0))
+        seen = _scratch("seen", (b, k), np.bool_)
+        distinct = np.empty(b, dtype=np.int64)
+        parts = kernel_array(state.particles.reshape(b, k, n))
+        anc, q_prev = None, np.zeros((b, 0, k))        # link-major: (b, L, K)
+        # random walks (x + u + diag(sd) z, see _walk_noise): the particles are gathered by
+        # the next step's prediction too, so no pass of their own
+        sds = [self._walk_sd_of(dt) if n == D else None for dt in dts]
+        walk = all(sd is not None for sd in sds)
+        no_shift = np.zeros((1, 1))
+        det_t = np.empty((T, b, width), dtype=bool)
+        steps = []
+        mean = state.mean
+        resets = state.resets
+        time_now = state.time
+        for s in range(T):
+            uk = None if u is None else u[..., s, :]
+            peers = self._peers(mean, dts[s], uk, given, s)
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
+                                   axis=-2)                     # (..., J, 2)
+            if not np.all(np.isfinite(peers)):
+                _check_nodes(mask_all[..., s, :],
+                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            node_xy = nodes.reshape(nb, J, 2)[node_rows, links_nodes[s]].reshape(b, width, 2)
+            # line 3
+            if walk:
+                # the draws of _sample_motion (same call, same shape), then (x[anc] + u) +
+                # sd z, its roundings
+                z = _standard_normal(rng, batch_v + (k, n), scratch=True).reshape(b, k, n)
+                pred = _scratch(f"carried_p{s % 2}", (b, k, n))
+                _k.walk_gather(parts, _NO_ANCESTORS if anc is None else anc, anc is not None,
+                               no_shift if ctrl is None else kernel_array(ctrl[:, s, 0]),
+                               ctrl is not None, kernel_array(sds[s]), z, pred, CHUNK)
+            else:
+                pred = _sample_motion(self.motion, parts.reshape(batch_v + (k, n)), dts[s], rng,
+                                      None if ctrl is None else ctrl[:, s].reshape(batch_v + (1, -1)),
+                                      scratch=True).reshape(b, k, n)
+            # lines 6, 8, 11, the link posteriors read through the ancestors
+            log_w, q, post, _, gauss = _link_update(
+                pred, node_xy, th_t[s], valid_t[s], wp_t[s], q_prev, params, "numba", False,
+                scratch=True, anc=anc, q_out=_scratch(f"carried_q{s % 2}", (b, width, k)),
+                link_major=True)
+            # line 14 and line 12 (systematic resampling; the gather is left to the next step)
+            u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
+            idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
+            if k <= CHUNK:                  # one pass (the same operations as the two below)
+                w = _scratch("w", (b, k))
+                mean_f, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
+                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx)
+            else:
+                w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
+                _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
+            if walk:
+                # the next prediction gathers the particles; the indices are non-decreasing
+                distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
+                out = pred
+            else:
+                # the resampled particles (n numbers each) and the distinct ancestors; the
+                # link posteriors stay unresampled
+                out = _scratch(f"carried_p{s % 2}", (b, k, n))
+                _k.gather_resampled(pred, no_q, idx, out, no_q, distinct, seen, CHUNK)
+            # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0), scattered after the loop
+            det_t[s] = valid_t[s] & (post[..., 1] > post[..., 0])
+            reset = distinct < self.reset_fraction * k
+            if np.any(reset):
+                # as in _step (each particle of a reset filter then its own ancestor; in the
+                # walk case, n = D, every component is reset, so no gather is needed)
+                out[reset, :, :D] = mean_f[reset][:, None, :D] + self.reset_std_m * \
+                    rng.standard_normal((int(reset.sum()), k, D))
+                idx[reset] = np.arange(k)
+                with np.errstate(invalid="ignore"):
+                    mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
+                if not q.flags.writeable:
+                    q = q.copy()
+                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, :, None]
+            parts, q_prev = out, q
+            anc = idx
+            mean = mean_f.reshape(batch_v + (n,))
+            cov = cov.reshape(batch_v + (n, n))
+            resets = resets + reset.reshape(batch_v)
+            time_now = time_now + dts[s]
+            steps.append((mean, cov, ess.reshape(batch_v), resets, time_now))
+        los_t = (scatter_packed(det_t, links_t, valid_t, J) & mask_t).reshape((T,) + batch_v + (J,))
+        estimates = [Estimate(mean[..., :D], cov[..., :D, :D], time_now,
+                              {"state": mean, "state_covariance": cov, "ess": ess,
+                               "los_detected": los_t[s], "resets": resets})
+                     for s, (mean, cov, ess, resets, time_now) in enumerate(steps)]
         return track_from_steps(estimates, t)
 
     def _peers(self, mean, dt, control, given, k):

@@ -65,7 +65,9 @@ layout); each chunk transposes those of its old links into one scratch row per l
 of a link then reads and writes contiguous memory, and the new posteriors go back to
 ``(K, L)`` in tiles of 8 particles. These moves are about 3 ns of the kernel's 15-16 ns
 per particle-link update on the benchmark (16 padded slots for 9.4 links per vehicle:
-256 bytes in and out per particle).
+256 bytes in and out per particle). ``P2PParticleFilter.run`` carries them link-major
+instead (``link_major``: ``(L, K)`` per filter, read through the resampling's ancestors):
+one contiguous row per existing link is copied in and out, the padding slots untouched.
 
 Gaussian case. A filter whose LOS fraction is exactly 1 and whose carried link posteriors
 are all exactly 1 (the invariant of such a filter: ``pi_0 = 0`` for every link) has
@@ -360,8 +362,9 @@ def _nlos_link(buf, m, r, lam, c01, c00):
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, nlos_mean,
-                 alpha, chunk, em, log_w, q_new, part_s, part_l, em_pp, gauss):
+def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carried,
+                 link_major, los_std, nlos_mean, alpha, chunk, em, log_w, q_new, part_s, part_l,
+                 em_pp, gauss):
     """Particle-link update of Algorithm 2 (lines 6, 8, 11) for every filter of a batch.
 
     Parameters
@@ -379,6 +382,17 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
     prev_q : ndarray, shape (B, K, L') or (B, 1, L')
         Carried LOS posteriors ``p(z_{t-1} = 1 | .)`` of the previous step's links (one row
         shared by every particle in the second form).
+    anc : ndarray of int64, shape (B, K) (or any 2-D shape when not ``carried``)
+        With ``carried``: particle ``i`` carries the posteriors of row ``anc[b, i]`` of
+        ``prev_q`` (the resampling's ancestors, read here instead of a gather beforehand:
+        the same values as ``prev_q[b, anc[b]]`` passed without them).
+    carried : bool
+        Read ``prev_q`` through ``anc``.
+    link_major : bool
+        ``prev_q`` is ``(B, L', K)`` (or ``(B, L', 1)``) and ``q_new`` is ``(B, L, K)``:
+        one contiguous row of particles per link slot, so the posteriors are copied in
+        and out of the chunk's rows instead of transposed, and only the rows of existing
+        links are touched (``q_new``'s rows of padding slots are left unwritten).
     los_std, nlos_mean, alpha : ndarray, shape (B,)
         ``s_LOS``, ``s_NLOS`` and alpha of each filter (the sticky chain follows alpha).
     chunk : int
@@ -412,9 +426,14 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
     None
         The results are written into the output arrays.
     """
-    nb, nk, nl = q_new.shape[0], q_new.shape[1], q_new.shape[2]
+    nb = q_new.shape[0]
+    if link_major:
+        nl, nk = q_new.shape[1], q_new.shape[2]
+        qs = 1 if prev_q.shape[2] == nk else 0  # 0: one row shared by every particle
+    else:
+        nk, nl = q_new.shape[1], q_new.shape[2]
+        qs = 1 if prev_q.shape[1] == nk else 0
     nc = part_s.shape[1]
-    qs = 1 if prev_q.shape[1] == nk else 0      # 0: one row shared by every particle
     # Gaussian case: alpha = 1 and every carried LOS posterior of a link exactly 1
     ok = np.ones((nb, nc), dtype=np.bool_)
     for task in prange(nb * nc):
@@ -428,7 +447,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
             jp = where_prev[b, j]
             if valid[b, j] and jp >= 0:
                 for i in range(c * chunk * qs, i1):
-                    if prev_q[b, i, jp] != 1.0:
+                    pi = anc[b, i] * qs if carried else i
+                    v = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
+                    if v != 1.0:
                         ok[b, c] = False
     for b in range(nb):
         gauss[b] = True
@@ -478,23 +499,43 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     rows[n_old] = _ROWS + j
                     cols[n_old] = where_prev[b, j]
                     n_old += 1
-            m4 = m - m % 4
+            m4 = m - m % 4 if not link_major else 0
+            if link_major:
+                # one row per link: copy (through the ancestors) instead of transposing
+                for t in range(n_old):
+                    r = rows[t]
+                    jp = cols[t]
+                    if carried and qs:
+                        for i in range(m):
+                            buf[r, i] = prev_q[b, jp, anc[b, i0 + i]]
+                    else:
+                        for i in range(m):
+                            buf[r, i] = prev_q[b, jp, (i0 + i) * qs]
             for t0 in range(0, m4, 4):
                 p0 = (i0 + t0) * qs
+                p1 = p0 + qs
+                p2 = p0 + 2 * qs
+                p3 = p0 + 3 * qs
+                if carried:
+                    p0 = anc[b, i0 + t0] * qs
+                    p1 = anc[b, i0 + t0 + 1] * qs
+                    p2 = anc[b, i0 + t0 + 2] * qs
+                    p3 = anc[b, i0 + t0 + 3] * qs
                 for t in range(n_old):
                     r = rows[t]
                     jp = cols[t]
                     v0 = prev_q[b, p0, jp]
-                    v1 = prev_q[b, p0 + qs, jp]
-                    v2 = prev_q[b, p0 + 2 * qs, jp]
-                    v3 = prev_q[b, p0 + 3 * qs, jp]
+                    v1 = prev_q[b, p1, jp]
+                    v2 = prev_q[b, p2, jp]
+                    v3 = prev_q[b, p3, jp]
                     buf[r, t0] = v0
                     buf[r, t0 + 1] = v1
                     buf[r, t0 + 2] = v2
                     buf[r, t0 + 3] = v3
-            for t in range(n_old):
+            for t in range(n_old if not link_major else 0):
                 for i in range(m4, m):
-                    buf[rows[t], i] = prev_q[b, (i0 + i) * qs, cols[t]]
+                    pi = anc[b, i0 + i] if carried else i0 + i
+                    buf[rows[t], i] = prev_q[b, pi * qs, cols[t]]
         if em:
             for i in range(i0, i1):
                 em_pp[b, i, 0] = 0.0
@@ -548,7 +589,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                         e = th - math.sqrt(dx * dx + dy * dy)
                         z = e / s
                         if jp >= 0:
-                            q = prev_q[b, (i0 + i) * qs, jp]
+                            pi = (anc[b, i0 + i] if carried else i0 + i) * qs
+                            q = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
                             pi1 = q * t11 + (1.0 - q) * t01
                             pi0 = q * t10 + (1.0 - q) * t00
                         else:
@@ -572,7 +614,12 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                     em_pp[b, i0 + i, 0] += qn
                     em_pp[b, i0 + i, 1] += qn * e * e
                     em_pp[b, i0 + i, 2] += (1.0 - qn) * e
-        if not gs:
+        if not gs and link_major:
+            for j in range(nl):
+                if valid[b, j]:
+                    for i in range(m):
+                        q_new[b, j, i0 + i] = buf[_ROWS + j, i]
+        elif not gs:
             for t0 in range(0, m, 8):
                 t1 = min(m, t0 + 8)
                 for i in range(t0, t1):
@@ -600,7 +647,8 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, los_std, 
                 e = theta[b, j] - math.sqrt(dx * dx + dy * dy)
                 z = e / s
                 if jp >= 0:
-                    q = prev_q[b, i * qs, jp]
+                    pi = (anc[b, i] if carried else i) * qs
+                    q = prev_q[b, jp, pi] if link_major else prev_q[b, pi, jp]
                     pi1 = q * t11 + (1.0 - q) * t01
                     pi0 = q * t10 + (1.0 - q) * t00
                 else:
@@ -720,8 +768,12 @@ def weights_moments(log_w, particles, chunk, w, mean, cov, ess):
         for i in range(i0, i1):
             w[b, i] = vexp(log_w[b, i] - m)
         _moment_sums(w, particles, b, i0, i1, sums[b, c])
+    tots = np.empty((nb, ns))
     for b in range(nb):
-        tot = np.zeros(ns)
+        # explicit loops: np.zeros here would be a parallel region of its own per filter
+        tot = tots[b]
+        for t in range(ns):
+            tot[t] = 0.0
         for c in range(nc):
             for t in range(ns):
                 tot[t] += sums[b, c, t]
@@ -864,5 +916,115 @@ def gather_resampled(particles, q, idx, out_particles, out_q, distinct, mark, ch
         for i in range(c * chunk, min(nk, (c + 1) * chunk)):
             cnt += mark[b, i]
         counts[b, c] = cnt
+    # explicit loops: a NumPy reduction inside this serial loop would be a parallel region
+    # of its own per filter
     for b in range(nb):
-        distinct[b] = counts[b].sum()
+        cnt = 0
+        for c in range(nc):
+            cnt += counts[b, c]
+        distinct[b] = cnt
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def walk_gather(particles, anc, gathered, shift, shifted, sd, z, out, chunk):
+    """Prediction of a random walk from resampled particles, the resampling's gather folded
+    in: ``out[b, i] = (particles[b, anc[b, i]] + shift[b]) + sd * z[b, i]`` (no
+    contraction: the roundings of ``z *= sd; z += particles + shift`` in NumPy).
+
+    Parameters
+    ----------
+    particles : ndarray, shape (B, K, n)
+        Particles before the gather.
+    anc : ndarray of int64, shape (B, K) (any 2-D shape when not ``gathered``)
+        Ancestor of each new particle.
+    gathered : bool
+        Read ``particles`` through ``anc`` (else ``particles[b, i]``).
+    shift : ndarray, shape (B, n) (any 2-D shape when not ``shifted``)
+        Displacement of each filter (the control).
+    shifted : bool
+        Add ``shift`` (else no addition, as NumPy without a control).
+    sd : ndarray, shape (n,)
+        Noise standard deviation per component.
+    z : ndarray, shape (B, K, n)
+        Standard normal draws.
+    out : ndarray, shape (B, K, n)
+        Output: the predicted particles.
+    chunk : int
+        Particles per parallel task.
+
+    Returns
+    -------
+    None
+        The result is written into ``out``.
+    """
+    nb, nk, n = z.shape
+    nc = max(1, -(-nk // chunk))
+    for task in prange(nb * nc):
+        b = task // nc
+        c = task - b * nc
+        for i in range(c * chunk, min(nk, (c + 1) * chunk)):
+            a = anc[b, i] if gathered else i
+            for d in range(n):
+                p = particles[b, a, d]
+                if shifted:
+                    p = p + shift[b, d]
+                out[b, i, d] = sd[d] * z[b, i, d] + p
+
+
+@njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
+def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
+    """:func:`weights_moments` then :func:`systematic_indices` in one parallel pass over the
+    filters, for filters of at most one chunk of particles (``K <= chunk``): the same
+    operations in the same order as the two kernels with one chunk, so the same values.
+
+    Parameters
+    ----------
+    log_w : ndarray, shape (B, K)
+        Log weights.
+    particles : ndarray, shape (B, K, n)
+        Particle states.
+    u : ndarray, shape (B,)
+        One uniform in [0, 1) per filter (the systematic positions ``(u + j) / K``).
+    w, mean, cov, ess : ndarray
+        Outputs of :func:`weights_moments`.
+    idx : ndarray of int64, shape (B, K)
+        Output: ancestor indices (non-decreasing), as :func:`systematic_indices`.
+
+    Returns
+    -------
+    None
+        The results are written into the output arrays.
+    """
+    nb, nk, n = particles.shape
+    ns = 2 + n + n * (n + 1) // 2
+    for b in prange(nb):
+        m = -np.inf
+        for i in range(nk):
+            m = max(m, log_w[b, i])
+        for i in range(nk):
+            w[b, i] = vexp(log_w[b, i] - m)
+        tot = np.empty(ns)
+        _moment_sums(w, particles, b, 0, nk, tot)
+        inv = 1.0 / tot[0]
+        ess[b] = tot[0] * tot[0] / tot[1]
+        t = 2 + n
+        for d in range(n):
+            md = tot[2 + d] * inv
+            mean[b, d] = particles[b, 0, d] + md
+            for g in range(d + 1):
+                cv = tot[t] * inv - md * tot[2 + g] * inv
+                cov[b, d, g] = cv
+                cov[b, g, d] = cv
+                t += 1
+        for i in range(nk):
+            w[b, i] *= inv
+        # systematic resampling (one chunk: the cumulative sum starts at 0)
+        i = 0
+        last = nk - 1
+        cdf = 0.0 + w[b, 0]
+        for j in range(nk):
+            pos = (u[b] + j) / nk
+            while cdf <= pos and i < last:
+                i += 1
+                cdf += w[b, i]
+            idx[b, j] = i
