@@ -299,15 +299,6 @@ def _scratch(name, shape, dtype=np.float64):
     return a[:size].reshape(shape)
 
 
-def _ka(x, dtype=np.float64):
-    """:func:`radioloc.core.arrays.kernel_array` with its no-copy case (a C-contiguous,
-    writeable array of ``dtype``) decided by the flags directly: the same array, without
-    ``np.require``'s microseconds on the per-step path."""
-    if type(x) is np.ndarray and x.dtype == dtype and x.flags.c_contiguous and x.flags.writeable:
-        return x
-    return kernel_array(x, dtype)
-
-
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
                  scratch=False, anc=None, q_out=None, link_major=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
@@ -355,13 +346,13 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
     gauss = np.empty(b, dtype=bool)
     p = params.reshape(b, 3)
     cols = p.T.copy()                               # (3, b): s_LOS, s_NLOS, alpha rows
-    _k.link_weights(_ka(particles.reshape(b, k, n)),
-                    _ka(node_xy.reshape(b, width, 2)),
-                    _ka(th.reshape(b, width)),
-                    _ka(valid.reshape(b, width), np.bool_),
-                    _ka(wp.reshape(b, width), np.int64),
-                    _ka(prev_q.reshape((b,) + prev_q.shape[-2:])),
-                    _NO_ANCESTORS if anc is None else _ka(anc.reshape(b, k), np.int64),
+    _k.link_weights(kernel_array(particles.reshape(b, k, n)),
+                    kernel_array(node_xy.reshape(b, width, 2)),
+                    kernel_array(th.reshape(b, width)),
+                    kernel_array(valid.reshape(b, width), np.bool_),
+                    kernel_array(wp.reshape(b, width), np.int64),
+                    kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
+                    _NO_ANCESTORS if anc is None else kernel_array(anc.reshape(b, k), np.int64),
                     anc is not None, link_major, cols[0], cols[1], cols[2], CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
                     gauss)
     lam = 1.0 / p[:, 1]
@@ -396,8 +387,8 @@ def _moments(log_w, particles, kernel, scratch=False):
     b = math.prod(batch)
     w = _scratch("w", (b, k)) if scratch else np.empty((b, k))
     mean, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-    _k.weights_moments(_ka(log_w.reshape(b, k)),
-                       _ka(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
+    _k.weights_moments(kernel_array(log_w.reshape(b, k)),
+                       kernel_array(particles.reshape(b, k, n)), CHUNK, w, mean, cov, ess)
     return (w.reshape(batch + (k,)), mean.reshape(batch + (n,)), cov.reshape(batch + (n, n)),
             ess.reshape(batch))
 
