@@ -116,6 +116,105 @@ def _sfence(typingctx):
     return types.void(), codegen
 
 
+_G = 8
+"""Lanes of one register-held recursion (:func:`_yvv_lanes`): its three state vectors, the
+four coefficients and the input fit in the 16 AVX2 registers."""
+
+
+def _yvv_lanes_codegen(accumulate):
+    def codegen(context, builder, signature, args):
+        sty, dty, stty, accty = signature.args[0], signature.args[2], signature.args[11], \
+            signature.args[12]
+        (src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, acc, eps) = args
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        V = ir.VectorType(ir.DoubleType(), _G)
+        i8p = ir.IntType(8).as_pointer()
+
+        def base(aty, a, col):
+            arr = context.make_array(aty)(context, builder, a)
+            strides = cgutils.unpack_tuple(builder, arr.strides)
+            p = cgutils.get_item_pointer2(context, builder, arr.data,
+                                          cgutils.unpack_tuple(builder, arr.shape), strides,
+                                          aty.layout, [r0, col])
+            dt = context.get_data_type(aty.dtype)
+            return (builder.bitcast(p, i8p), builder.mul(strides[0], dr),
+                    ir.VectorType(dt, _G), context.get_abi_sizeof(dt))
+
+        sbase, sstep, svt, salign = base(sty, src, cs)
+        dbase, dstep, dvt, dalign = base(dty, dst, cd)
+
+        def splat(v):
+            u = ir.Constant(V, ir.Undefined)
+            return builder.shuffle_vector(builder.insert_element(u, v, ir.Constant(i32, 0)), u,
+                                          ir.Constant(ir.VectorType(i32, _G), [0] * _G))
+
+        fma = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V, [V, V, V]),
+                                             "llvm.fma.v%df64" % _G)
+        vg, va1, va2, va3, veps = splat(g), splat(a1), splat(a2), splat(a3), splat(eps)
+        zero = ir.Constant(V, [0.0] * _G)
+        stp = builder.bitcast(context.make_array(stty)(context, builder, st).data,
+                              V.as_pointer())
+        accp = builder.bitcast(context.make_array(accty)(context, builder, acc).data,
+                               V.as_pointer())
+        # the state in allocas of the entry block: promoted to registers by LLVM
+        y = [cgutils.alloca_once(builder, V) for _ in range(3)]
+        for k in range(3):
+            builder.store(builder.load(builder.gep(stp, [ir.Constant(i64, k)]), align=8), y[k])
+        av = cgutils.alloca_once(builder, V)
+        if accumulate:
+            builder.store(builder.load(accp, align=8), av)
+        with cgutils.for_range(builder, n) as loop:
+            k = loop.index
+            sp = builder.bitcast(builder.gep(sbase, [builder.mul(k, sstep)]), svt.as_pointer())
+            x = builder.load(sp, align=salign)
+            if svt != V:
+                x = builder.fpext(x, V)
+            y1, y2, y3 = (builder.load(p) for p in y)
+            # _yvv's rounding: a1 y1 + (a2 y2 + (a3 y3 + g x)) with the FMAs the compiler
+            # forms for it (fma(g, x, a3 y3) innermost; tested bit for bit)
+            t = builder.call(fma, [vg, x, builder.fmul(va3, y3)])
+            t = builder.call(fma, [va2, y2, t])
+            yn = builder.call(fma, [va1, y1, t])
+            sv = yn if dvt == V else builder.fptrunc(yn, dvt)
+            dp = builder.bitcast(builder.gep(dbase, [builder.mul(k, dstep)]), dvt.as_pointer())
+            builder.store(sv, dp, align=dalign)
+            if accumulate:                       # sum (stored - eps)_+ per lane
+                d = builder.fsub(sv if dvt == V else builder.fpext(sv, V), veps)
+                m = builder.select(builder.fcmp_ordered(">", d, zero), d, zero)
+                builder.store(builder.fadd(builder.load(av), m), av)
+            builder.store(y2, y[2])
+            builder.store(y1, y[1])
+            builder.store(yn, y[0])
+        for k in range(3):
+            builder.store(builder.load(y[k]), builder.gep(stp, [ir.Constant(i64, k)]), align=8)
+        if accumulate:
+            builder.store(builder.load(av), accp, align=8)
+        return context.get_dummy_value()
+    return codegen
+
+
+@intrinsic
+def _yvv_lanes(typingctx, src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, acc, eps):
+    """The third-order recursion :func:`_yvv` on ``_G`` lanes at once with its state in
+    registers: for ``k < n``, row ``r = r0 + k dr``: ``dst[r, cd + l] = yvv(src[r, cs + l],
+    state)`` for ``l < _G`` (2-D C arrays, float64 or float32, converted to and from float64;
+    ``src`` may be ``dst``). ``st`` (float64, ``(3, _G)``) holds the state, newest output
+    first, and receives it back. ``acc`` and ``eps`` are not used (see
+    :func:`_yvv_lanes_acc`). Explicit vectors: numba runs no SLP vectoriser, and LLVM's loop
+    vectoriser keeps the state of a recursion across columns in memory."""
+    sig = types.void(src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, acc, eps)
+    return sig, _yvv_lanes_codegen(False)
+
+
+@intrinsic
+def _yvv_lanes_acc(typingctx, src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, acc, eps):
+    """:func:`_yvv_lanes` that also adds ``max(v - eps, 0)`` of each stored value ``v``
+    (as stored: rounded if ``dst`` is float32) to ``acc[l]`` (float64, ``(_G,)``), in the
+    order of the rows."""
+    sig = types.void(src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, acc, eps)
+    return sig, _yvv_lanes_codegen(True)
+
+
 def _aligned_empty(shape: tuple[int, ...], dtype, align: int = 64) -> np.ndarray:
     # an uninitialised C array whose data start at a multiple of align bytes
     dtype = np.dtype(dtype)
@@ -275,6 +374,7 @@ _COL_CHUNK = 64           # columns of one job of the vertical pass (a 512 kB fl
 LANES = 32
 """Rows per block of the blurred grid's block layout ``(B, ceil(h / LANES), w, LANES)``: the
 row recursions run on the ``LANES`` rows of a block at once (contiguous SIMD lanes)."""
+assert LANES % _G == 0
 
 
 @njit(inline="always")
@@ -370,11 +470,14 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
                             dst[j, i] = buf[r + i, j]
 
 
-@njit(parallel=True, cache=True, fastmath=_FM)
+@njit(parallel=True, cache=True)
 def _horiz_blocks(blk, coef, tails, eps, rows):
     """Row recursions in place on each block of ``LANES`` rows (the lanes of one column are
-    contiguous: SIMD across rows, float64 state); ``rows[b, r]`` receives ``sum (v - eps)_+``
-    of row ``r`` from the stored values."""
+    contiguous), ``_G`` lanes at a time with the state in registers (:func:`_yvv_lanes`,
+    float64 state); ``rows[b, r]`` receives ``sum (v - eps)_+`` of row ``r`` from the stored
+    values. The zero border as in :func:`_through_border`: the causal recursion runs on
+    through ``tail`` zero cells (written to ``tb``), the anti-causal one back from their far
+    end with its state reset."""
     B, nb, w, L = blk.shape
     h = rows.shape[1]
     for job in prange(B * nb):
@@ -383,28 +486,18 @@ def _horiz_blocks(blk, coef, tails, eps, rows):
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         tail = tails[b]
         t = blk[b, k]
-        st = np.zeros((3, L))
-        tb = np.zeros((tail, L))
+        st = np.empty((3, _G))
+        tb = np.empty((tail, _G))
         acc = np.zeros(L)
-        o1 = st[0]
-        o2 = st[1]
-        o3 = st[2]
-        for c in range(w):                                   # causal
-            x = t[c]
-            for j in range(L):
-                y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
-                o3[j] = y
-                x[j] = y
-            o1, o2, o3 = o3, o1, o2
-        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, L, g, a1, a2, a3)
-        for c in range(w - 1, -1, -1):
-            x = t[c]
-            for j in range(L):
-                y = _yvv(x[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
-                o3[j] = y
-                x[j] = y
-                acc[j] += max(x[j] - eps, 0.0)     # the stored value (rounded if float32)
-            o1, o2, o3 = o3, o1, o2
+        for j0 in range(0, L, _G):
+            st[:] = 0.0
+            _yvv_lanes(t, j0, t, j0, 0, 1, w, g, a1, a2, a3, st, acc, eps)      # causal
+            tb[:] = 0.0
+            _yvv_lanes(tb, 0, tb, 0, 0, 1, tail, g, a1, a2, a3, st, acc, eps)
+            st[:] = 0.0
+            _yvv_lanes(tb, 0, tb, 0, tail - 1, -1, tail, g, a1, a2, a3, st, acc, eps)
+            _yvv_lanes_acc(t, j0, t, j0, w - 1, -1, w, g, a1, a2, a3, st,      # anti-causal
+                           acc[j0:j0 + _G], eps)
         r0 = k * L
         for j in range(min(L, h - r0)):
             rows[b, r0 + j] = acc[j]
