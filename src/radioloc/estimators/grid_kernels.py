@@ -423,14 +423,18 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
         c0 = (job - b * nch) * _COL_CHUNK
         c1 = min(w, c0 + _COL_CHUNK)
         n = c1 - c0
+        nw = (n + _G - 1) // _G * _G              # whole groups of _G columns (zero padded)
         g, a1, a2, a3 = coef[b, 0], coef[b, 1], coef[b, 2], coef[b, 3]
         sc = scale[b]
         tail = tails[b]
         pb = p[b]
         bb = blk[b]
-        buf = np.empty((h, n))                    # the causal outputs
-        st = np.zeros((3, n))                     # the last three outputs
-        tb = np.zeros((tail, n))                  # the causal outputs past the border
+        nb = bb.shape[0]
+        buf = np.empty((h, nw))                   # the causal outputs
+        if nw > n:
+            buf[:, n:] = 0.0
+        st = np.zeros((3, nw))                    # the last three outputs
+        tb = np.zeros((tail, nw))                 # the causal outputs past the border
         o1 = st[0]
         o2 = st[1]
         o3 = st[2]
@@ -446,28 +450,29 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
                 o[j] = y
             o1, o2, o3 = o3, o1, o2
         bad[job] = nbad
-        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, n, g, a1, a2, a3)
-        for r in range(h - 1, -1, -1):
-            o = buf[r]
-            for j in range(n):
-                y = _yvv(o[j], o1[j], o2[j], o3[j], g, a1, a2, a3)
-                o3[j] = y
-                o[j] = y
-            o1, o2, o3 = o3, o1, o2
-            if r % LANES == 0:                   # a block of rows done: store it transposed
-                dst = bb[r // LANES, c0:c1]
-                if r + LANES <= h:
-                    n4 = n - n % 4
-                    for j in range(0, n4, 4):
+        o1, o2, o3 = _through_border(tb, st, o1, o2, o3, nw, g, a1, a2, a3)
+        # anti-causal, _G columns at a time with the state in registers, a block of LANES
+        # rows at a time, each stored transposed as it is done
+        sg = np.empty((3, _G))
+        for q0 in range(0, n, _G):
+            m = min(_G, n - q0)
+            for j in range(_G):
+                sg[0, j] = o1[q0 + j]
+                sg[1, j] = o2[q0 + j]
+                sg[2, j] = o3[q0 + j]
+            for kb in range(nb - 1, -1, -1):
+                r0 = kb * LANES
+                r1 = min(h, r0 + LANES)
+                _yvv_lanes(buf, q0, buf, q0, r1 - 1, -1, r1 - r0, g, a1, a2, a3, sg, sg[0], 0.0)
+                dst = bb[kb, c0 + q0:c0 + q0 + m]
+                if r1 - r0 == LANES and m == _G:
+                    for j in range(0, _G, 4):
                         for i in range(0, LANES, 4):
-                            _transpose4(buf, r + i, j, dst, j, i)
-                    for j in range(n4, n):
-                        for i in range(LANES):
-                            dst[j, i] = buf[r + i, j]
+                            _transpose4(buf, r0 + i, q0 + j, dst, j, i)
                 else:
-                    for j in range(n):
-                        for i in range(h - r):
-                            dst[j, i] = buf[r + i, j]
+                    for j in range(m):
+                        for i in range(r1 - r0):
+                            dst[j, i] = buf[r0 + i, q0 + j]
 
 
 @njit(parallel=True, cache=True)
