@@ -215,6 +215,32 @@ def _yvv_lanes_acc(typingctx, src, cs, dst, cd, r0, dr, n, g, a1, a2, a3, st, ac
     return sig, _yvv_lanes_codegen(True)
 
 
+@intrinsic
+def _prefetch(typingctx, arr, i, j):
+    """Software prefetch of the cache line holding ``arr[i, j]`` (2-D array) into all cache
+    levels (``llvm.prefetch``, read, locality 3); a no-op on the values."""
+    def codegen(context, builder, signature, args):
+        aty = signature.args[0]
+        a, ii, jj = args
+        aa = context.make_array(aty)(context, builder, a)
+        p = cgutils.get_item_pointer2(context, builder, aa.data,
+                                      cgutils.unpack_tuple(builder, aa.shape),
+                                      cgutils.unpack_tuple(builder, aa.strides), aty.layout,
+                                      [ii, jj])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+            "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(p, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3),
+                          ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+    return types.void(arr, i, j), codegen
+
+
+_PF_ROWS = 8
+
+
 def _aligned_empty(shape: tuple[int, ...], dtype, align: int = 64) -> np.ndarray:
     # an uninitialised C array whose data start at a multiple of align bytes
     dtype = np.dtype(dtype)
@@ -439,7 +465,11 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
         o2 = st[1]
         o3 = st[2]
         nbad = 0
+        line = max(1, 64 // pb.itemsize)          # cells per 64-byte cache line
         for r in range(h):                                   # causal
+            if r + _PF_ROWS < h:                # the row _PF_ROWS ahead, line by line
+                for j in range(c0, c1, line):
+                    _prefetch(pb, r + _PF_ROWS, j)
             x = pb[r, c0:c1]
             o = buf[r]
             for j in range(n):
