@@ -239,6 +239,9 @@ def _prefetch(typingctx, arr, i, j):
 
 
 _PF_ROWS = 8
+"""Rows ahead of the column pass's causal loop whose cache lines it prefetches (measured on
+2 x 1000 x 1000 float64 grids: the pass 4.5-4.9 -> 3.3-3.8 cycles per cell of CPU; a prefetch
+starting at column c0 instead of at its line's start made unaligned grids slower, 5.0 -> 6.8)."""
 
 
 def _aligned_empty(shape: tuple[int, ...], dtype, align: int = 64) -> np.ndarray:
@@ -465,10 +468,15 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
         o2 = st[1]
         o3 = st[2]
         nbad = 0
-        line = max(1, 64 // pb.itemsize)          # cells per 64-byte cache line
+        isz = pb.itemsize
+        line = 64 // isz                          # cells per 64-byte cache line
+        rowb = pb.strides[0]
+        addr = pb.ctypes.data + c0 * isz          # (lead: cells of the row's first line
+                                                  # before column c0)
         for r in range(h):                                   # causal
-            if r + _PF_ROWS < h:                # the row _PF_ROWS ahead, line by line
-                for j in range(c0, c1, line):
+            if _PF_ROWS and r + _PF_ROWS < h:   # the row _PF_ROWS ahead, line by line
+                lead = (addr + (r + _PF_ROWS) * rowb) % 64 // isz
+                for j in range(c0 - lead, c1, line):
                     _prefetch(pb, r + _PF_ROWS, j)
             x = pb[r, c0:c1]
             o = buf[r]
