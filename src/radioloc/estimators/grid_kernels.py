@@ -779,31 +779,108 @@ def _block_rows(ys, py, r0, h, dy2):
     return lo, hi
 
 
+def _post_column_codegen(z, mode):
+    def codegen(context, builder, signature, args):
+        xty, vty, aty, dty = signature.args[:4]
+        x, vals, acc, dy2, dx2, m, t, s, c, eps, kf = args
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        V = ir.VectorType(ir.DoubleType(), _G)
+
+        def ptr(aty_, a):
+            arr = context.make_array(aty_)(context, builder, a)
+            dt = context.get_data_type(aty_.dtype)
+            return (builder.bitcast(arr.data, ir.VectorType(dt, _G).as_pointer()),
+                    cgutils.unpack_tuple(builder, arr.shape)[0],
+                    context.get_abi_sizeof(dt), ir.VectorType(dt, _G))
+
+        xp, nlanes, xal, xvt = ptr(xty, x)
+        vp = ptr(vty, vals)[0]
+        ap = ptr(aty, acc)[0]
+        dp = ptr(dty, dy2)[0]
+
+        def splat(v):
+            u = ir.Constant(V, ir.Undefined)
+            return builder.shuffle_vector(builder.insert_element(u, v, ir.Constant(i32, 0)), u,
+                                          ir.Constant(ir.VectorType(i32, _G), [0] * _G))
+
+        def vmax(a, b):                          # max(a, b) as numba's: b if b > a else a
+            return builder.select(builder.fcmp_ordered(">", b, a), b, a)
+
+        mod = builder.module
+        fma = cgutils.get_or_insert_function(mod, ir.FunctionType(V, [V, V, V]),
+                                             "llvm.fma.v%df64" % _G)
+        sqrt = cgutils.get_or_insert_function(mod, ir.FunctionType(V, [V]),
+                                              "llvm.sqrt.v%df64" % _G)
+        fabs = cgutils.get_or_insert_function(mod, ir.FunctionType(V, [V]),
+                                              "llvm.fabs.v%df64" % _G)
+        veps, zero = splat(eps), ir.Constant(V, [0.0] * _G)
+        n = builder.udiv(nlanes, ir.Constant(i64, _G))
+        with cgutils.for_range(builder, n) as loop:
+            i = loop.index
+            if z == 0:
+                v = veps
+            else:
+                if mode == 2:
+                    f = splat(builder.fdiv(ir.Constant(ir.DoubleType(), 1.0), kf))
+                else:
+                    xv = builder.load(builder.gep(xp, [i]), align=xal)
+                    if xvt != V:
+                        xv = builder.fpext(xv, V)
+                    if mode == 1:
+                        d = builder.fsub(xv, veps)
+                        f = builder.select(builder.fcmp_ordered(">", d, zero),
+                                           builder.call(fma, [splat(c), d, veps]), veps)
+                    else:
+                        f = xv
+                if z == 1:
+                    v = vmax(f, veps)
+                else:
+                    dd = builder.call(sqrt, [builder.fadd(splat(dx2), builder.load(
+                        builder.gep(dp, [i]), align=8))])
+                    e = vmax(builder.fsub(builder.call(fabs, [builder.fsub(dd, splat(m))]),
+                                          splat(t)), zero)
+                    lik = builder.fdiv(vmax(builder.fsub(splat(s), e), zero), splat(s))
+                    v = vmax(builder.fmul(f, lik), veps)
+            builder.store(v, builder.gep(vp, [i]), align=8)
+            a = builder.gep(ap, [i])
+            builder.store(builder.fadd(builder.load(a, align=8), v), a, align=8)
+        return context.get_dummy_value()
+    return codegen
+
+
+def _make_post_column(z, mode):
+    @intrinsic
+    def post(typingctx, x, vals, acc, dy2, dx2, m, t, s, c, eps, kf):
+        sig = types.void(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
+        return sig, _post_column_codegen(z, mode)
+    return post
+
+
+_post_z0 = _make_post_column(0, 0)
+_post_z1m0, _post_z1m1, _post_z1m2 = (_make_post_column(1, md) for md in range(3))
+_post_z2m0, _post_z2m1, _post_z2m2 = (_make_post_column(2, md) for md in range(3))
+
+
 @njit(inline="always")
-def _block_column(x, vals, z, dx2, dy2, m, t, s, mode, c, eps, k):
-    # the unnormalised posterior max(prior L, eps) of the cells of one block column into
-    # vals; one loop per class, so the square root runs only where a cell needs it. The
-    # lane count is read at run time: with the constant LANES, LLVM unrolls the loops into
-    # scalar code before its loop vectoriser sees them (numba runs no SLP vectoriser)
-    L = vals.size
-    if z == 0:                                   # L = 0: max(prior 0, eps)
-        for j in range(L):
-            vals[j] = eps
-    elif z == 1:                                 # L = 1: max(prior, eps)
-        if mode == 1:                            # (the floor's branch out of the loop)
-            for j in range(L):
-                vals[j] = max(_floored(x[j], 1, c, eps, k), eps)
+def _post_column(x, vals, acc, dy2, z, mode, dx2, m, t, s, c, eps, kf):
+    # the unnormalised posterior max(prior L, eps) of one block column into vals, added to
+    # acc lane by lane (the floor, the class's likelihood and the row sums in explicit vectors, no run-time
+    # alias checks; the lane count a multiple of _G)
+    if z == 0:
+        _post_z0(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
+    elif z == 1:
+        if mode == 1:
+            _post_z1m1(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
+        elif mode == 2:
+            _post_z1m2(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
         else:
-            for j in range(L):
-                vals[j] = max(_floored(x[j], mode, c, eps, k), eps)
+            _post_z1m0(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
     elif mode == 1:
-        for j in range(L):
-            lik = _trapezoid(dx2 + dy2[j], m, t, s)
-            vals[j] = max(_floored(x[j], 1, c, eps, k) * lik, eps)
+        _post_z2m1(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
+    elif mode == 2:
+        _post_z2m2(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
     else:
-        for j in range(L):
-            lik = _trapezoid(dx2 + dy2[j], m, t, s)
-            vals[j] = max(_floored(x[j], mode, c, eps, k) * lik, eps)
+        _post_z2m0(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
 
 
 @njit(parallel=True, cache=True, fastmath=_FM)
@@ -816,7 +893,7 @@ def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, zones, eps, out, rows, fmo
     == 0``, checked by the caller)."""
     B, h, w = out.shape
     nb, L = blk.shape[1], blk.shape[3]
-    k = h * w
+    kf = np.float64(h * w)
     for job in prange(B * nb):
         b = job // nb
         q = job - b * nb
@@ -840,10 +917,7 @@ def _trapezoid_blocks(blk, xs, ys, pos, mu, tau, sig, zones, eps, out, rows, fmo
                 dx = xs[col] - px
                 dx2 = dx * dx
                 z = _zone(dx2 + ylo, dx2 + yhi, zin, olo, ohi, zout)
-                vals = tile[i]
-                _block_column(src[col], vals, z, dx2, dy2, m, t, s, mode, c, eps, k)
-                for j in range(L):
-                    acc[j] += vals[j]
+                _post_column(src[col], tile[i], acc, dy2, z, mode, dx2, m, t, s, c, eps, kf)
             n4 = nc - nc % 4 if whole else 0
             if nt:
                 # each row's _TILE cells in a row: whole cache lines, written at once
