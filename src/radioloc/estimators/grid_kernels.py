@@ -444,7 +444,10 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
     multiplies each cell of grid ``b`` as it is read (in float64: the same rounding as a
     scaling pass writing ``scale p`` first; ``p`` float64 or float32). ``bad[job]`` counts the
     cells of the chunk (scaled) that are not in ``[0, limit]`` (NaN included): the input
-    check, fused."""
+    check, fused. The lanes of the last block past the grid's last row are written zero.
+    The anti-causal recursions run ``_G`` columns at a time with their state in registers
+    (:func:`_yvv_lanes`); the causal loop streams whole rows of the chunk, prefetching the
+    row ``_PF_ROWS`` ahead."""
     B, h, w = p.shape
     nch = (w + _COL_CHUNK - 1) // _COL_CHUNK
     for job in prange(B * nch):
@@ -511,6 +514,8 @@ def _vert_blocks(p, scale, blk, coef, tails, limit, bad):
                     for j in range(m):
                         for i in range(r1 - r0):
                             dst[j, i] = buf[r0 + i, q0 + j]
+                        for i in range(r1 - r0, LANES):     # the lanes past the last row
+                            dst[j, i] = 0.0
 
 
 @njit(parallel=True, cache=True)
@@ -601,9 +606,8 @@ def gaussian_blocks(p: np.ndarray, sigma_cells: np.ndarray, epsilon: float = 0.0
     # the recursions decay with the Gaussian: 6 sigma of zeros past the border lose < 1e-8
     tails = np.ceil(6.0 * s).astype(np.int64) + 3
     nb = (h + LANES - 1) // LANES
-    blk = np.empty((B, nb, w, LANES), dtype)
-    if h % LANES:
-        blk[:, -1, :, h % LANES:] = 0.0
+    blk = np.empty((B, nb, w, LANES), dtype)       # (the lanes past the last row: zeroed
+                                                   # by _vert_blocks)
     bad = np.empty(B * ((w + _COL_CHUNK - 1) // _COL_CHUNK), np.int64)
     _vert_blocks(p, sc, blk, coef, tails, float(limit), bad)
     rows = np.empty((B, h))
@@ -864,8 +868,8 @@ _post_z2m0, _post_z2m1, _post_z2m2 = (_make_post_column(2, md) for md in range(3
 @njit(inline="always")
 def _post_column(x, vals, acc, dy2, z, mode, dx2, m, t, s, c, eps, kf):
     # the unnormalised posterior max(prior L, eps) of one block column into vals, added to
-    # acc lane by lane (the floor, the class's likelihood and the row sums in explicit vectors, no run-time
-    # alias checks; the lane count a multiple of _G)
+    # acc lane by lane (the floor, the class's likelihood and the row sums in explicit
+    # vectors: no run-time alias checks; the lane count a multiple of _G)
     if z == 0:
         _post_z0(x, vals, acc, dy2, dx2, m, t, s, c, eps, kf)
     elif z == 1:
