@@ -45,12 +45,15 @@ TARGETS: dict[tuple[str, str | None], dict] = {
 # README.md, "Where the time goes"). Printed under the table only when the row misses.
 BOUNDS: dict[str, str] = {
     "grid update + blur 1000x1000 (recursive)":
-        "the arithmetic of the two blur passes: about 12 cycles per cell per thread for the "
-        "whole step (column pass 4.3 cycles from cache, 5.9 from memory; row pass 3.1-3.3), "
-        "where 500 M/s on 2 cores needs 9.8; the step moves 36 bytes per cell (60 before the "
-        "normalisation was folded into the next step).",
+        "the arithmetic of the three passes: about 7.5 cycles per cell per thread for the "
+        "whole step (column pass 3.3-3.8 with its rows prefetched, row pass 2.0-2.5 with the "
+        "recursion in registers, the update 1.8), where 500 M/s on 2 free cores needs 9.8; "
+        "the step moves 36 bytes per cell, so a busy second core or a slow memory moment "
+        "takes it below the target.",
     "grid update + blur 1000x1000 (recursive, float32 posterior)":
-        "as the float64 row: the blur passes' arithmetic (32 bytes per cell moved).",
+        "as the float64 row: the passes' arithmetic (32 bytes per cell moved); it is no "
+        "faster than float64 since the update's vector columns (0.6 ms more CPU per step "
+        "outside the kernels, not explained).",
     "paper 002 BLUE, n = 60, batched":
         "one track per core, scalar: per BLUE iteration about 3.8 us of structured Cholesky "
         "recursion (a square root and a division on each row's critical path) and 2.5 us of "
