@@ -1258,14 +1258,26 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 for r in range(LD + 1):
                     T[j, r, ln] = t[r, 1]
             else:
-                for c in range(cnt):
-                    for r in range(LD + 1):
-                        t[r, c] = T[c, r, ln]
-                _west_soa(t, cnt, last, tie, False)
-                for c in range(last):
-                    for r in range(LD + 1):
-                        T[c, r, ln] = t[r, c]
-                continue
+                # _partner's pass 2 in the lane: exact costs of the candidates the bound
+                # does not exclude (y, the bound and the scale's part are in T from pass 1)
+                j = _lane_pass2(T, ln, cnt, i, np.int64(S[15 + bq, ln]), S[WI, ln],
+                                S[LDI, ln], tie, t)
+                if j < 0:
+                    # a tie among the exact costs: one step of _west_soa on a copy
+                    for c in range(cnt):
+                        for r in range(LD + 1):
+                            t[r, c] = T[c, r, ln]
+                    _west_soa(t, cnt, last, tie, False)
+                    for c in range(last):
+                        for r in range(LD + 1):
+                            T[c, r, ln] = t[r, c]
+                    continue
+                for r in range(5):
+                    t[r, 0] = T[i, r, ln]
+                    t[r, 1] = T[j, r, ln]
+                _merge_pair(t, 2, 0, 1)
+                for r in range(LD + 1):
+                    T[j, r, ln] = t[r, 1]
             if i != last:
                 for r in range(LD + 1):
                     T[i, r, ln] = T[last, r, ln]
@@ -1274,6 +1286,77 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
         if S[ALIVE, ln] != 0.0:
             _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
     return kmax
+
+
+@njit(cache=True, error_model="numpy")
+def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
+    """The lane array ``T`` of :func:`_west_lanes` for the 2-D mixtures ``b0 .. b0 + nl - 1``
+    (``n0`` components of positive weight each; lanes from ``nl`` on: copies of the last
+    mixture): rows 0-4 through :func:`_load`, then the inverse variances and the
+    log-determinant of :func:`_set_logdet` (same arithmetic: ``1.0 * v_0 * v_1`` is
+    ``v_0 v_1``), the reciprocals and products vectorised over the lanes, the logarithms
+    one by one (libm's, as :func:`_logdet`)."""
+    L = T.shape[2]
+    k = w.shape[1]
+    for ln in range(L):
+        b = b0 + min(ln, nl - 1)
+        _load(w[b], m[b], v[b], k, t)
+        for c in range(n0):
+            for r in range(5):
+                T[c, r, ln] = t[r, c]
+    for c in range(n0):
+        for ln in range(L):
+            v0 = T[c, 3, ln]
+            v1 = T[c, 4, ln]
+            T[c, 5, ln] = 1.0 / v0
+            T[c, 6, ln] = 1.0 / v1
+            T[c, 7, ln] = v0 * v1
+        for ln in range(L):
+            T[c, 7, ln] = math.log(T[c, 7, ln])
+
+
+@njit(cache=True, error_model="numpy")
+def _lane_pass2(T, ln, cnt, i, c0, wi, ldi, tie, t):  # pragma: no cover - compiled
+    """Pass 2 of :func:`_partner` for lane ``ln`` of :func:`_west_lanes` after its pass 1
+    (rows 8-10 of ``T``: the bound, ``y``, the scale's part; ``c0`` the lowest bound, ``i``
+    the lowest weight): the same candidates costed in the same order with the same
+    arithmetic. Returns the partner ``j`` when the tie set has one member, -1 when it has
+    more (then :func:`_pick` decides: the caller runs :func:`_west_soa`). Rows 9 and 10 of
+    the costed candidates are overwritten (pass 1 sets them again); row 0 of ``t`` holds
+    the costed candidates."""
+    LD = 7
+    LB = 8
+    CO = 9
+    SC = 10
+    best = np.inf
+    ne = 0
+    for step in range(cnt + 1):
+        if step == 0:
+            c = c0
+        else:
+            c = step - 1
+            if c == c0:
+                continue
+            lb = T[c, LB, ln]
+            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
+                          > best + tie * (2.0 * abs(best) + 4.0 * T[c, SC, ln])):
+                continue
+        ws = wi + T[c, 0, ln]
+        lp = math.log1p(T[c, CO, ln])
+        cost = 0.5 * (wi * (T[c, LD, ln] - ldi) + ws * lp)
+        T[c, SC, ln] = 0.5 * (T[c, SC, ln] + ws * abs(lp))
+        T[c, CO, ln] = cost
+        t[0, ne] = c
+        ne += 1
+        best = min(best, cost)
+    j = -1
+    for q in range(ne):
+        c = np.int64(t[0, q])
+        if T[c, CO, ln] <= best + 2.0 * tie * T[c, SC, ln]:
+            if j >= 0:
+                return -1
+            j = c
+    return j
 
 
 @njit(cache=True, error_model="numpy")
@@ -1325,13 +1408,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
                 cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
             continue
         T = np.empty((k, _LANE_ROWS, L))
-        for ln in range(L):
-            b = b0 + min(ln, nl - 1)         # a part group: copies of its last mixture
-            _load(w[b], m[b], v[b], k, t)
-            for c in range(n0):
-                _set_logdet(t, d, c)
-                for r in range(3 * d + 2):
-                    T[c, r, ln] = t[r, c]
+        _load_lanes(w, m, v, b0, nl, n0, T, t)
         _west_lanes(T, n0, kout, tie, t, ow[b0:b0 + nl], om[b0:b0 + nl], ov[b0:b0 + nl], nl)
         for b in range(b0, b0 + nl):
             cnt[b] = kout
