@@ -1137,7 +1137,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     SC = 10
     # per-lane state, one row each (a running minimum alternates between two rows, so no
     # store reads its own address: LLVM would make it a masked store)
-    S = np.empty((20, L))
+    S = np.empty((40, L))
     WI = 6
     MI0 = 7
     MI1 = 8
@@ -1148,6 +1148,10 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     BEST = 17
     NS = 18
     ALIVE = 19
+    DO = 20                              # the lane merges this round
+    JR = 21                              # its partner
+    WJ = 22                              # rows 22-26: the partner's weight, mean, variances
+    NW = 27                              # rows 27-34: the merged column (rows 0-7 of T)
     for ln in range(L):
         S[ALIVE, ln] = 1.0
     alive = L
@@ -1199,10 +1203,13 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 b0 = abs(r0)
                 b1 = abs(r1)
                 ay = b0 + b1 + b0 * b1
-                ldc = T[c, LD, ln]
                 T[c, CO, ln] = y
-                T[c, SC, ln] = wi * (abs(ldc) + ali) + ws * ay
-                lb = _cost_bound(y, ldc, wi, ws, ldi, ali)
+                T[c, SC, ln] = wi * (abs(T[c, LD, ln]) + ali) + ws * ay
+            # the bound from y, a loop of its own (fewer live registers in each)
+            for ln in range(L):
+                wi = S[WI, ln]
+                ws = wi + T[c, 0, ln]
+                lb = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln], S[ALI, ln])
                 T[c, LB, ln] = np.inf if cf == S[4 + wq, ln] else lb
         # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
         q = 0
@@ -1237,7 +1244,10 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 keep = (~skip) & (cf != S[15 + bq, ln]) & (cf != S[4 + wq, ln])
                 S[NS, ln] += 1.0 if keep else 0.0
         last = cnt - 1
+        # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
         for ln in range(L):
+            S[DO, ln] = 0.0
+            S[JR, ln] = 0.0
             if S[ALIVE, ln] == 0.0:
                 continue
             i = np.int64(S[4 + wq, ln])
@@ -1249,14 +1259,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                     _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
                 continue
             if S[NS, ln] == 0.0:
-                # the merge of i into c0 (_merge_pair on a copy of the two columns)
-                j = np.int64(S[15 + bq, ln])
-                for r in range(5):
-                    t[r, 0] = T[i, r, ln]
-                    t[r, 1] = T[j, r, ln]
-                _merge_pair(t, 2, 0, 1)
-                for r in range(LD + 1):
-                    T[j, r, ln] = t[r, 1]
+                j = np.int64(S[15 + bq, ln])          # the lowest bound excludes the rest
             else:
                 # _partner's pass 2 in the lane: exact costs of the candidates the bound
                 # does not exclude (y, the bound and the scale's part are in T from pass 1)
@@ -1272,15 +1275,45 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                         for r in range(LD + 1):
                             T[c, r, ln] = t[r, c]
                     continue
-                for r in range(5):
-                    t[r, 0] = T[i, r, ln]
-                    t[r, 1] = T[j, r, ln]
-                _merge_pair(t, 2, 0, 1)
+            S[DO, ln] = 1.0
+            S[JR, ln] = float(j)
+        # the merges (_merge_pair's arithmetic), vectorised over the lanes: j's columns
+        for ln in range(L):
+            j = np.int64(S[JR, ln])
+            for r in range(5):
+                S[WJ + r, ln] = T[j, r, ln]
+        for ln in range(L):
+            wi = S[WI, ln]
+            wj = S[WJ, ln]
+            ws = wi + wj
+            a1 = wi / ws
+            a2 = wj / ws
+            mi0 = S[MI0, ln]
+            mj0 = S[WJ + 1, ln]
+            mm0 = a1 * mi0 + a2 * mj0
+            vv0 = a1 * (S[VI0, ln] + (mi0 - mm0) ** 2) + a2 * (S[WJ + 3, ln] + (mj0 - mm0) ** 2)
+            mi1 = S[MI1, ln]
+            mj1 = S[WJ + 2, ln]
+            mm1 = a1 * mi1 + a2 * mj1
+            vv1 = a1 * (S[VI1, ln] + (mi1 - mm1) ** 2) + a2 * (S[WJ + 4, ln] + (mj1 - mm1) ** 2)
+            S[NW, ln] = ws
+            S[NW + 1, ln] = mm0
+            S[NW + 2, ln] = mm1
+            S[NW + 3, ln] = vv0
+            S[NW + 4, ln] = vv1
+            S[NW + 5, ln] = 1.0 / vv0
+            S[NW + 6, ln] = 1.0 / vv1
+            S[NW + 7, ln] = vv0 * vv1
+        for ln in range(L):
+            if S[DO, ln] != 0.0:
+                S[NW + 7, ln] = math.log(S[NW + 7, ln])
+                i = np.int64(S[4 + wq, ln])
+                j = np.int64(S[JR, ln])
                 for r in range(LD + 1):
-                    T[j, r, ln] = t[r, 1]
-            if i != last:
-                for r in range(LD + 1):
-                    T[i, r, ln] = T[last, r, ln]
+                    T[j, r, ln] = S[NW + r, ln]
+                if i != last:
+                    for r in range(LD + 1):
+                        T[i, r, ln] = T[last, r, ln]
         cnt -= 1
     for ln in range(min(L, nl)):
         if S[ALIVE, ln] != 0.0:
