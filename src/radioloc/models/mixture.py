@@ -1322,6 +1322,46 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
 
 
 @njit(cache=True, error_model="numpy")
+def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
+    # pragma: no cover - compiled
+    """:func:`reduce` (West/Runnalls) of the mixtures ``l < nl`` with ``need[l]`` of a group
+    of rows: ``xw[l, :xr[l]], xm[l], xv[l]`` into ``pw[l], pm[l], pv[l]`` (canonical order,
+    :func:`_store`), their component counts into ``pn[l]``. When every row of the group
+    needs it, there are at least three quarters of ``_LANES`` rows, the mixtures are 2-D
+    and all have the same number ``n0 > kmax`` of positive weights, the group is reduced on
+    SIMD lanes (:func:`_west_lanes`, ``T``: a lane array of at least ``n0`` components),
+    else row by row (:func:`_reduce_into`): the same results bit for bit. Slots of ``xw``
+    from ``xr[l]`` on are set to 0."""
+    L = _LANES
+    d = xm.shape[2]
+    big = xw.shape[1]
+    same = d == 2 and 4 * nl >= 3 * L
+    n0 = -1
+    for ln in range(nl):
+        if not need[ln]:
+            same = False
+            continue
+        for r in range(xr[ln], big):
+            xw[ln, r] = 0.0
+        c = 0
+        for r in range(xr[ln]):
+            c += 1 if xw[ln, r] > 0 else 0
+        if n0 < 0:
+            n0 = c
+        same = same and c == n0
+    if same and n0 > kmax:
+        _load_lanes(xw, xm, xv, 0, nl, n0, T, t)
+        _west_lanes(T, n0, kmax, tie, t, pw, pm, pv, nl)
+        for ln in range(nl):
+            pn[ln] = kmax
+        return
+    for ln in range(nl):
+        if need[ln]:
+            pn[ln] = _reduce_into(xw[ln], xm[ln], xv[ln], xr[ln], kmax, tie, pw[ln], pm[ln],
+                                  pv[ln], t)
+
+
+@njit(cache=True, error_model="numpy")
 def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
     """The lane array ``T`` of :func:`_west_lanes` for the 2-D mixtures ``b0 .. b0 + nl - 1``
     (``n0`` components of positive weight each; lanes from ``nl`` on: copies of the last
