@@ -1209,8 +1209,10 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
             for ln in range(L):
                 wi = S[WI, ln]
                 ws = wi + T[c, 0, ln]
-                lb = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln], S[ALI, ln])
-                T[c, LB, ln] = np.inf if cf == S[4 + wq, ln] else lb
+                T[c, LB, ln] = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln],
+                                           S[ALI, ln])
+        for ln in range(L):
+            T[np.int64(S[4 + wq, ln]), LB, ln] = np.inf      # i is no candidate
         # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
         q = 0
         for c in range(cnt):
@@ -1225,9 +1227,11 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 S[13 + q, ln] = lb if lt else mb
                 S[15 + q, ln] = cf if lt else f
         bq = q
-        # the exact cost of the lowest bound (pass 2's first step)
+        # the exact cost of the lowest bound (pass 2's first step); its bound set to inf
+        # so that the skip test below skips it (an infinite or NaN cost skips nothing)
         for ln in range(L):
             c = np.int64(S[15 + bq, ln])
+            T[c, LB, ln] = np.inf
             wi = S[WI, ln]
             ws = wi + T[c, 0, ln]
             lp = math.log1p(T[c, CO, ln])
@@ -1241,8 +1245,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 bb = S[BEST, ln]
                 skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
                                      > bb + tie * (2.0 * abs(bb) + 4.0 * T[c, SC, ln]))
-                keep = (~skip) & (cf != S[15 + bq, ln]) & (cf != S[4 + wq, ln])
-                S[NS, ln] += 1.0 if keep else 0.0
+                S[NS, ln] += 0.0 if skip else 1.0
         last = cnt - 1
         # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
         for ln in range(L):
