@@ -1137,7 +1137,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     SC = 10
     # per-lane state, one row each (a running minimum alternates between two rows, so no
     # store reads its own address: LLVM would make it a masked store)
-    S = np.empty((40, L))
+    S = np.empty((41, L))
     WI = 6
     MI0 = 7
     MI1 = 8
@@ -1152,6 +1152,10 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     JR = 21                              # its partner
     WJ = 22                              # rows 22-26: the partner's weight, mean, variances
     NW = 27                              # rows 27-34: the merged column (rows 0-7 of T)
+    GY = 35                              # rows 35-37: y, weight and log-determinant of c0
+    GW = 36
+    GL = 37
+    Si = S.view(np.int64)                # rows 38-40: _best_above's scratch
     for ln in range(L):
         S[ALIVE, ln] = 1.0
     alive = L
@@ -1232,11 +1236,11 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
         for ln in range(L):
             c = np.int64(S[15 + bq, ln])
             T[c, LB, ln] = np.inf
-            wi = S[WI, ln]
-            ws = wi + T[c, 0, ln]
-            lp = math.log1p(T[c, CO, ln])
-            S[BEST, ln] = 0.5 * (wi * (T[c, LD, ln] - S[LDI, ln]) + ws * lp)
+            S[GY, ln] = T[c, CO, ln]
+            S[GW, ln] = T[c, 0, ln]
+            S[GL, ln] = T[c, LD, ln]
             S[NS, ln] = 0.0
+        _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST)
         # pass 2's skip test against it: the candidates it does not skip
         for c in range(cnt):
             cf = float(c)
@@ -1389,6 +1393,74 @@ def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
             T[c, 7, ln] = v0 * v1
         for ln in range(L):
             T[c, 7, ln] = math.log(T[c, 7, ln])
+
+
+# fdlibm's e_log.c: ln 2 in two parts and the coefficients of its polynomial in s^2
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+_LG1 = 6.666666666666735130e-01
+_LG2 = 3.999999999940941908e-01
+_LG3 = 2.857142874366239149e-01
+_LG4 = 2.222219843214978396e-01
+_LG5 = 1.818357216161805012e-01
+_LG6 = 1.531383769920937332e-01
+_LG7 = 1.479819860511658591e-01
+_SQRT2 = math.sqrt(2.0)
+_TWO52 = 4503599627370496.0
+_TWO52_BITS = 0x4330000000000000
+_MANT = (1 << 52) - 1
+_ONE_BITS = 1023 << 52
+#: relative margin added to the vectorised logarithm of :func:`_best_above` (its error
+#: and libm's are a few ulps, 1e-12 is about 4500)
+_LOG_MARGIN = 1e-12
+
+
+@njit(cache=True, error_model="numpy")
+def _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST):  # pragma: no cover - compiled
+    """Row ``BEST`` of the lane state ``S`` (``Si``: its int64 view): an upper bound of
+    Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))`` of :func:`_partner` with
+    ``log1p`` from libm, for ``y``, ``w_c``, ``ldc`` in rows ``GY, GW, GL``, vectorised
+    over the lanes (no call, no branch): ``log1p(y) = log(u) + (y - (u - 1)) / u`` with
+    ``u = 1 + y`` rounded (the second term is the rounding of ``u``, exact to first
+    order) and ``log(u)`` by fdlibm's ``e_log.c`` (exponent from the bits, the polynomial
+    in ``s = f / (2 + f)``; within 1 ulp). Both logarithms are within a few ulps of
+    ``log1p(y)``, so adding ``_LOG_MARGIN (wi (|ldc| + |ldi|) + ws |log1p(y)|)`` (about
+    4500 ulps of the cost's terms) puts the result above the exact cost of libm's
+    logarithm, and the skip test of :func:`_west_lanes`, increasing in it, skips no
+    candidate that the exact cost would keep (it may keep more: those are costed exactly,
+    :func:`_lane_pass2`). ``u`` not a positive normal float: ``inf`` (skips nothing).
+    Rows 38-40 of ``S`` are scratch."""
+    L = S.shape[1]
+    for ln in range(L):
+        S[38, ln] = 1.0 + S[GY, ln]
+    for ln in range(L):
+        bits = Si[38, ln]
+        Si[39, ln] = (bits >> 52) | _TWO52_BITS
+        Si[40, ln] = (bits & _MANT) | _ONE_BITS
+    for ln in range(L):
+        y = S[GY, ln]
+        u = S[38, ln]
+        k = S[39, ln] - (_TWO52 + 1023.0)
+        m = S[40, ln]                                    # [1, 2)
+        big = m > _SQRT2
+        m = m * 0.5 if big else m
+        k = k + 1.0 if big else k
+        f = m - 1.0
+        s = f / (2.0 + f)
+        z = s * s
+        w = z * z
+        t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
+        t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
+        hfsq = 0.5 * f * f
+        lg = k * _LN2_HI - ((hfsq - (s * (hfsq + (t2 + t1)) + k * _LN2_LO)) - f)
+        lp = lg + (y - (u - 1.0)) / u
+        wi = S[WI, ln]
+        ws = wi + S[GW, ln]
+        ldc = S[GL, ln]
+        bb = 0.5 * (wi * (ldc - S[LDI, ln]) + ws * lp) \
+            + _LOG_MARGIN * (wi * (abs(ldc) + S[ALI, ln]) + ws * abs(lp))
+        ok = (u >= 2.2250738585072014e-308) & (u <= 1.7976931348623157e308)
+        S[BEST, ln] = bb if ok else np.inf
 
 
 @njit(cache=True, error_model="numpy")
