@@ -1334,7 +1334,7 @@ def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
     """:func:`reduce` (West/Runnalls) of the mixtures ``l < nl`` with ``need[l]`` of a group
     of rows: ``xw[l, :xr[l]], xm[l], xv[l]`` into ``pw[l], pm[l], pv[l]`` (canonical order,
     :func:`_store`), their component counts into ``pn[l]``. When every row of the group
-    needs it, there are at least three quarters of ``_LANES`` rows, the mixtures are 2-D
+    needs it, there are more than half of ``_LANES`` rows, the mixtures are 2-D
     and all have the same number ``n0 > kmax`` of positive weights, the group is reduced on
     SIMD lanes (:func:`_west_lanes`, ``T``: a lane array of at least ``n0`` components),
     else row by row (:func:`_reduce_into`): the same results bit for bit. Slots of ``xw``
@@ -1342,7 +1342,7 @@ def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
     L = _LANES
     d = xm.shape[2]
     big = xw.shape[1]
-    same = d == 2 and 4 * nl >= 3 * L
+    same = d == 2 and 2 * nl > L
     n0 = -1
     for ln in range(nl):
         if not need[ln]:
@@ -1526,8 +1526,9 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     (:func:`_store`) and unused slots at weight 0, mean 0, variance 1. Groups of
     ``_LANES`` mixtures run in parallel; in 2-D a group whose mixtures all have the same
     number of components above ``kmax`` is reduced on SIMD lanes (:func:`_west_lanes`; a
-    part group of at least three quarters of the lanes is padded with copies of its last
-    mixture), any other mixture by :func:`_reduce_into` (same results, bit for bit)."""
+    part group of more than half the lanes is padded with copies of its last mixture: a
+    group on the lanes takes about as long as 16 mixtures one by one), any other mixture by
+    :func:`_reduce_into` (same results, bit for bit)."""
     nb, k, d = m.shape
     kout = min(kmax, k)
     ow = np.zeros((nb, kout))
@@ -1550,7 +1551,7 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
                 if ln == 0:
                     n0 = c
                 same = same and c == n0
-            same = same and n0 > kout and 4 * nl >= 3 * L
+            same = same and n0 > kout and 2 * nl > L
         if not same:
             for b in range(b0, b0 + nl):
                 cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
