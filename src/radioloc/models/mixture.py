@@ -1123,13 +1123,17 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     (the others are padding). The loops run over the components with the lanes innermost (a run-time trip
     count, no branch: LLVM vectorises them), so the lowest weight, pass 1, the lowest
     bound and the bound's skip test cost a few vector operations per candidate for ``L``
-    mixtures. A lane merges its lowest weight ``i`` into the candidate ``c0`` of lowest
-    bound when ``i``'s weight is not tied and the bound excludes every other candidate from
-    the tie set of ``c0``'s exact cost (:func:`_partner`'s test: its pass 2 would take no
-    other logarithm); a candidate to cost exactly: that lane's merge is one step of
-    :func:`_west_soa` on a copy in the scratch ``t``; tied lowest weights: the lane is
-    finished alone (:func:`_finish_lane`), and when fewer than half the lanes are left
-    the others are too."""
+    mixtures. ``c0``, the candidate of lowest bound, is costed for the skip test by
+    :func:`_best_above` (an upper bound of its exact cost, vectorised). A lane merges its
+    lowest weight ``i`` into ``c0`` when ``i``'s weight is not tied and the bound excludes
+    every other candidate from the tie set of ``c0``'s cost (:func:`_partner`'s test: its
+    pass 2 would take no other logarithm); else it takes :func:`_partner`'s pass 2 from
+    pass 1's rows (:func:`_lane_pass2`, libm's ``log1p``), and only a tie among the exact
+    costs takes one step of :func:`_west_soa` on a copy in the scratch ``t``. The merges
+    (:func:`_merge_pair`'s arithmetic) run over the lanes, the logarithm of the merged
+    determinant per lane (libm's). Tied lowest weights: the lane is finished alone
+    (:func:`_finish_lane`), and when fewer than half the lanes are left the others are
+    too."""
     L = T.shape[2]
     LD = 7
     LB = 8
