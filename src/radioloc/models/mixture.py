@@ -1376,18 +1376,28 @@ def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
 def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
     """The lane array ``T`` of :func:`_west_lanes` for the 2-D mixtures ``b0 .. b0 + nl - 1``
     (``n0`` components of positive weight each; lanes from ``nl`` on: copies of the last
-    mixture): rows 0-4 through :func:`_load`, then the inverse variances and the
-    log-determinant of :func:`_set_logdet` (same arithmetic: ``1.0 * v_0 * v_1`` is
-    ``v_0 v_1``), the reciprocals and products vectorised over the lanes, the logarithms
-    one by one (libm's, as :func:`_logdet`)."""
+    mixture): rows 0-4 (through :func:`_load` where a mixture has empty slots), then the
+    inverse variances and the log-determinant of :func:`_set_logdet` (same arithmetic:
+    ``1.0 * v_0 * v_1`` is ``v_0 v_1``), the reciprocals and products vectorised over the
+    lanes, the logarithms one by one (libm's, as :func:`_logdet`)."""
     L = T.shape[2]
     k = w.shape[1]
-    for ln in range(L):
-        b = b0 + min(ln, nl - 1)
-        _load(w[b], m[b], v[b], k, t)
-        for c in range(n0):
-            for r in range(5):
-                T[c, r, ln] = t[r, c]
+    if n0 == k:                          # no empty slot: the columns as they are
+        for c in range(k):
+            for ln in range(L):
+                b = b0 + min(ln, nl - 1)
+                T[c, 0, ln] = w[b, c]
+                T[c, 1, ln] = m[b, c, 0]
+                T[c, 2, ln] = m[b, c, 1]
+                T[c, 3, ln] = v[b, c, 0]
+                T[c, 4, ln] = v[b, c, 1]
+    else:
+        for ln in range(L):
+            b = b0 + min(ln, nl - 1)
+            _load(w[b], m[b], v[b], k, t)
+            for c in range(n0):
+                for r in range(5):
+                    T[c, r, ln] = t[r, c]
     for c in range(n0):
         for ln in range(L):
             v0 = T[c, 3, ln]
