@@ -35,7 +35,8 @@ from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (_TIE, REDUCTIONS, DiagMixture, _reduce_into,
+from radioloc.models.mixture import (_LANE_ROWS, _LANES, _TIE, REDUCTIONS, DiagMixture,
+                                     _reduce_into, _reduce_rows,
                                      check_reduction, compact, convolve, linear_predict,
                                      merge_groups, outer, pad_components, product, product_on,
                                      reduce, select, uniform_ball)
@@ -791,19 +792,85 @@ def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - comp
 
 
 
+@njit(cache=True, error_model="numpy")
+def _product_into(pw, pm, pv, pn, qw, qm, qv, qn, lp, lq, xw, xm, xv):
+    # pragma: no cover - compiled
+    """The normalised product (eq. (2), :func:`radioloc.models.mixture.product`) of the
+    running density ``pw[:pn], pm, pv`` and a station's ``qw[:qn], qm, qv`` into ``xw, xm,
+    xv`` (``i``-major); returns the number of components, -1 if all mass is lost. Unrolled
+    for one and two coordinates (one logarithm of the product of the two variance sums per
+    pair; the logarithms of the weights taken once per factor)."""
+    d = pm.shape[1]
+    for i in range(pn):
+        lp[i] = math.log(pw[i])
+    for j in range(qn):
+        lq[j] = math.log(qw[j])
+    top = -np.inf
+    r = 0
+    for i in range(pn):
+        for j in range(qn):
+            if d == 1:
+                vi = pv[i, 0]
+                vj = qv[j, 0]
+                ss = vi + vj
+                xv[r, 0] = vi * vj / ss
+                xm[r, 0] = (pm[i, 0] * vj + qm[j, 0] * vi) / ss
+                dm = pm[i, 0] - qm[j, 0]
+                lc = dm * dm / ss + math.log(ss) + _LOG2PI
+            elif d == 2:
+                vi0 = pv[i, 0]
+                vj0 = qv[j, 0]
+                vi1 = pv[i, 1]
+                vj1 = qv[j, 1]
+                s0 = vi0 + vj0
+                s1 = vi1 + vj1
+                xv[r, 0] = vi0 * vj0 / s0
+                xv[r, 1] = vi1 * vj1 / s1
+                xm[r, 0] = (pm[i, 0] * vj0 + qm[j, 0] * vi0) / s0
+                xm[r, 1] = (pm[i, 1] * vj1 + qm[j, 1] * vi1) / s1
+                dm0 = pm[i, 0] - qm[j, 0]
+                dm1 = pm[i, 1] - qm[j, 1]
+                lc = dm0 * dm0 / s0 + dm1 * dm1 / s1 + math.log(s0 * s1) \
+                    + 2.0 * _LOG2PI
+            else:
+                lc = 0.0
+                for e in range(d):
+                    vi = pv[i, e]
+                    vj = qv[j, e]
+                    ss = vi + vj
+                    xv[r, e] = vi * vj / ss
+                    xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
+                    lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
+            lw = lp[i] + lq[j] - 0.5 * lc
+            xw[r] = lw
+            if lw > top:
+                top = lw
+            r += 1
+    if not np.isfinite(top):
+        return -1
+    tot = 0.0
+    for i in range(r):
+        xw[i] = math.exp(xw[i] - top)
+        tot += xw[i]
+    for i in range(r):
+        xw[i] /= tot
+    return r
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover - compiled
     """Eq. (2) for every row: condition each station model on its reading, reduce it to
     ``kmax`` components, multiply it into the running product and reduce, exactly as
-    :meth:`MixtureLocalizer.density_reference` composes the NumPy operations.
+    :meth:`MixtureLocalizer.density_reference` composes the NumPy mixture operations.
 
     Parameters: ``w (B, S, K)``, ``mu, var (B, S, K, D + 1)``, ``rss (B, S)`` (NaN = not
     received), ``order (B, S)`` the stations of each row in the order they enter the
     product (:func:`_station_order`), ``kc = min(K, kmax)``. Returns ``(weights (B, kmax),
     means (B, kmax, D), variances (B, kmax, D), ok (B,))`` with unused slots at weight 0
-    (mean 0, variance 1). The product is unrolled for one and two coordinates (one
-    logarithm of the product of the two variance sums per pair; the logarithms of the
-    weights are taken once per factor).
+    (mean 0, variance 1). Groups of ``_LANES`` rows run in parallel; within a group, the
+    products of one step (:func:`_product_into`) are reduced together
+    (:func:`radioloc.models.mixture._reduce_rows`: on SIMD lanes in 2-D when their
+    component counts agree), the same results as row by row, bit for bit.
     """
     nb, ns, k, d1 = mu.shape
     d = d1 - 1
@@ -812,99 +879,70 @@ def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover 
     ov = np.ones((nb, kmax, d))
     ok = np.ones(nb, dtype=np.bool_)
     big = max(k, kmax * kc)      # a product: <= kmax running slots x <= kc station slots
-    for b in prange(nb):
+    L = _LANES
+    ng = (nb + L - 1) // L
+    for g in prange(ng):
+        b0 = g * L
+        nl = min(L, nb - b0)
         cw = np.empty(k)
-        pw = np.empty(kmax)
-        pm = np.empty((kmax, d))
-        pv = np.empty((kmax, d))
         qw = np.empty(kmax)
         qm = np.empty((kmax, d))
         qv = np.empty((kmax, d))
         lp = np.empty(kmax)
         lq = np.empty(kmax)
-        xw = np.empty(big)
-        xm = np.empty((big, d))
-        xv = np.empty((big, d))
+        pw = np.empty((L, kmax))
+        pm = np.empty((L, kmax, d))
+        pv = np.empty((L, kmax, d))
+        xw = np.empty((L, big))
+        xm = np.empty((L, big, d))
+        xv = np.empty((L, big, d))
         t = np.empty((3 * d + 10, big))
-        pn = 0
-        have = False
-        started = False
+        T = np.empty((big, _LANE_ROWS, L))
+        pn = np.zeros(L, dtype=np.int64)
+        xr = np.zeros(L, dtype=np.int64)
+        need = np.zeros(L, dtype=np.bool_)
+        have = np.zeros(L, dtype=np.bool_)
+        started = np.zeros(L, dtype=np.bool_)
+        live = np.ones(L, dtype=np.bool_)
         for si in range(ns):
-            s = order[b, si]
-            got = np.isfinite(rss[b, s])
-            if started and not got:
+            for ln in range(nl):
+                need[ln] = False
+                b = b0 + ln
+                if not live[ln]:
+                    continue
+                s = order[b, si]
+                got = np.isfinite(rss[b, s])
+                if started[ln] and not got:
+                    continue
+                if not _condition_into(w[b, s], mu[b, s], var[b, s], rss[b, s], got, cw):
+                    ok[b] = False
+                    live[ln] = False
+                    continue
+                qn = _reduce_into(cw, mu[b, s, :, :d], var[b, s, :, :d], k, kmax, tie,
+                                  qw, qm, qv, t)
+                if not started[ln] or not have[ln]:
+                    pw[ln, :qn] = qw[:qn]
+                    pm[ln, :qn, :] = qm[:qn, :]
+                    pv[ln, :qn, :] = qv[:qn, :]
+                    pn[ln] = qn
+                    started[ln] = True
+                    have[ln] = got
+                    continue
+                r = _product_into(pw[ln], pm[ln], pv[ln], pn[ln], qw, qm, qv, qn, lp, lq,
+                                  xw[ln], xm[ln], xv[ln])
+                if r < 0:
+                    ok[b] = False
+                    live[ln] = False
+                    continue
+                xr[ln] = r
+                need[ln] = True
+            _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t)
+        for ln in range(nl):
+            b = b0 + ln
+            if not live[ln]:
                 continue
-            if not _condition_into(w[b, s], mu[b, s], var[b, s], rss[b, s], got, cw):
-                ok[b] = False
-                break
-            qn = _reduce_into(cw, mu[b, s, :, :d], var[b, s, :, :d], k, kmax, tie,
-                              qw, qm, qv, t)
-            if not started or not have:
-                pw[:qn] = qw[:qn]
-                pm[:qn, :] = qm[:qn, :]
-                pv[:qn, :] = qv[:qn, :]
-                pn = qn
-                started = True
-                have = got
-                continue
-            # product of the running density (pn) with this station's (qn), i-major
-            for i in range(pn):
-                lp[i] = math.log(pw[i])
-            for j in range(qn):
-                lq[j] = math.log(qw[j])
-            top = -np.inf
-            r = 0
-            for i in range(pn):
-                for j in range(qn):
-                    if d == 1:
-                        vi = pv[i, 0]
-                        vj = qv[j, 0]
-                        ss = vi + vj
-                        xv[r, 0] = vi * vj / ss
-                        xm[r, 0] = (pm[i, 0] * vj + qm[j, 0] * vi) / ss
-                        dm = pm[i, 0] - qm[j, 0]
-                        lc = dm * dm / ss + math.log(ss) + _LOG2PI
-                    elif d == 2:
-                        vi0 = pv[i, 0]
-                        vj0 = qv[j, 0]
-                        vi1 = pv[i, 1]
-                        vj1 = qv[j, 1]
-                        s0 = vi0 + vj0
-                        s1 = vi1 + vj1
-                        xv[r, 0] = vi0 * vj0 / s0
-                        xv[r, 1] = vi1 * vj1 / s1
-                        xm[r, 0] = (pm[i, 0] * vj0 + qm[j, 0] * vi0) / s0
-                        xm[r, 1] = (pm[i, 1] * vj1 + qm[j, 1] * vi1) / s1
-                        dm0 = pm[i, 0] - qm[j, 0]
-                        dm1 = pm[i, 1] - qm[j, 1]
-                        lc = dm0 * dm0 / s0 + dm1 * dm1 / s1 + math.log(s0 * s1) \
-                            + 2.0 * _LOG2PI
-                    else:
-                        lc = 0.0
-                        for e in range(d):
-                            vi = pv[i, e]
-                            vj = qv[j, e]
-                            ss = vi + vj
-                            xv[r, e] = vi * vj / ss
-                            xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
-                            lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
-                    lw = lp[i] + lq[j] - 0.5 * lc
-                    xw[r] = lw
-                    if lw > top:
-                        top = lw
-                    r += 1
-            if not np.isfinite(top):
-                ok[b] = False
-                break
-            tot = 0.0
-            for i in range(r):
-                xw[i] = math.exp(xw[i] - top)
-                tot += xw[i]
-            for i in range(r):
-                xw[i] /= tot
-            pn = _reduce_into(xw, xm, xv, r, kmax, tie, pw, pm, pv, t)
-        for c in range(pn):
-            ow[b, c] = pw[c]
-            om[b, c, :] = pm[c, :]
-            ov[b, c, :] = pv[c, :]
+            for c in range(pn[ln]):
+                ow[b, c] = pw[ln, c]
+                om[b, c, :] = pm[ln, c, :]
+                ov[b, c, :] = pv[ln, c, :]
     return ow, om, ov, ok

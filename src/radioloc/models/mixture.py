@@ -1123,13 +1123,17 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     (the others are padding). The loops run over the components with the lanes innermost (a run-time trip
     count, no branch: LLVM vectorises them), so the lowest weight, pass 1, the lowest
     bound and the bound's skip test cost a few vector operations per candidate for ``L``
-    mixtures. A lane merges its lowest weight ``i`` into the candidate ``c0`` of lowest
-    bound when ``i``'s weight is not tied and the bound excludes every other candidate from
-    the tie set of ``c0``'s exact cost (:func:`_partner`'s test: its pass 2 would take no
-    other logarithm); a candidate to cost exactly: that lane's merge is one step of
-    :func:`_west_soa` on a copy in the scratch ``t``; tied lowest weights: the lane is
-    finished alone (:func:`_finish_lane`), and when fewer than half the lanes are left
-    the others are too."""
+    mixtures. ``c0``, the candidate of lowest bound, is costed for the skip test by
+    :func:`_best_above` (an upper bound of its exact cost, vectorised). A lane merges its
+    lowest weight ``i`` into ``c0`` when ``i``'s weight is not tied and the bound excludes
+    every other candidate from the tie set of ``c0``'s cost (:func:`_partner`'s test: its
+    pass 2 would take no other logarithm); else it takes :func:`_partner`'s pass 2 from
+    pass 1's rows (:func:`_lane_pass2`, libm's ``log1p``), and only a tie among the exact
+    costs takes one step of :func:`_west_soa` on a copy in the scratch ``t``. The merges
+    (:func:`_merge_pair`'s arithmetic) run over the lanes, the logarithm of the merged
+    determinant per lane (libm's). Tied lowest weights: the lane is finished alone
+    (:func:`_finish_lane`), and when fewer than half the lanes are left the others are
+    too."""
     L = T.shape[2]
     LD = 7
     LB = 8
@@ -1137,7 +1141,7 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     SC = 10
     # per-lane state, one row each (a running minimum alternates between two rows, so no
     # store reads its own address: LLVM would make it a masked store)
-    S = np.empty((20, L))
+    S = np.empty((41, L))
     WI = 6
     MI0 = 7
     MI1 = 8
@@ -1148,6 +1152,14 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     BEST = 17
     NS = 18
     ALIVE = 19
+    DO = 20                              # the lane merges this round
+    JR = 21                              # its partner
+    WJ = 22                              # rows 22-26: the partner's weight, mean, variances
+    NW = 27                              # rows 27-34: the merged column (rows 0-7 of T)
+    GY = 35                              # rows 35-37: y, weight and log-determinant of c0
+    GW = 36
+    GL = 37
+    Si = S.view(np.int64)                # rows 38-40: _best_above's scratch
     for ln in range(L):
         S[ALIVE, ln] = 1.0
     alive = L
@@ -1199,11 +1211,16 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 b0 = abs(r0)
                 b1 = abs(r1)
                 ay = b0 + b1 + b0 * b1
-                ldc = T[c, LD, ln]
                 T[c, CO, ln] = y
-                T[c, SC, ln] = wi * (abs(ldc) + ali) + ws * ay
-                lb = _cost_bound(y, ldc, wi, ws, ldi, ali)
-                T[c, LB, ln] = np.inf if cf == S[4 + wq, ln] else lb
+                T[c, SC, ln] = wi * (abs(T[c, LD, ln]) + ali) + ws * ay
+            # the bound from y, a loop of its own (fewer live registers in each)
+            for ln in range(L):
+                wi = S[WI, ln]
+                ws = wi + T[c, 0, ln]
+                T[c, LB, ln] = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln],
+                                           S[ALI, ln])
+        for ln in range(L):
+            T[np.int64(S[4 + wq, ln]), LB, ln] = np.inf      # i is no candidate
         # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
         q = 0
         for c in range(cnt):
@@ -1218,14 +1235,16 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 S[13 + q, ln] = lb if lt else mb
                 S[15 + q, ln] = cf if lt else f
         bq = q
-        # the exact cost of the lowest bound (pass 2's first step)
+        # the exact cost of the lowest bound (pass 2's first step); its bound set to inf
+        # so that the skip test below skips it (an infinite or NaN cost skips nothing)
         for ln in range(L):
             c = np.int64(S[15 + bq, ln])
-            wi = S[WI, ln]
-            ws = wi + T[c, 0, ln]
-            lp = math.log1p(T[c, CO, ln])
-            S[BEST, ln] = 0.5 * (wi * (T[c, LD, ln] - S[LDI, ln]) + ws * lp)
+            T[c, LB, ln] = np.inf
+            S[GY, ln] = T[c, CO, ln]
+            S[GW, ln] = T[c, 0, ln]
+            S[GL, ln] = T[c, LD, ln]
             S[NS, ln] = 0.0
+        _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST)
         # pass 2's skip test against it: the candidates it does not skip
         for c in range(cnt):
             cf = float(c)
@@ -1234,10 +1253,12 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                 bb = S[BEST, ln]
                 skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
                                      > bb + tie * (2.0 * abs(bb) + 4.0 * T[c, SC, ln]))
-                keep = (~skip) & (cf != S[15 + bq, ln]) & (cf != S[4 + wq, ln])
-                S[NS, ln] += 1.0 if keep else 0.0
+                S[NS, ln] += 0.0 if skip else 1.0
         last = cnt - 1
+        # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
         for ln in range(L):
+            S[DO, ln] = 0.0
+            S[JR, ln] = 0.0
             if S[ALIVE, ln] == 0.0:
                 continue
             i = np.int64(S[4 + wq, ln])
@@ -1249,31 +1270,255 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
                     _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
                 continue
             if S[NS, ln] == 0.0:
-                # the merge of i into c0 (_merge_pair on a copy of the two columns)
-                j = np.int64(S[15 + bq, ln])
-                for r in range(5):
-                    t[r, 0] = T[i, r, ln]
-                    t[r, 1] = T[j, r, ln]
-                _merge_pair(t, 2, 0, 1)
-                for r in range(LD + 1):
-                    T[j, r, ln] = t[r, 1]
+                j = np.int64(S[15 + bq, ln])          # the lowest bound excludes the rest
             else:
-                for c in range(cnt):
-                    for r in range(LD + 1):
-                        t[r, c] = T[c, r, ln]
-                _west_soa(t, cnt, last, tie, False)
-                for c in range(last):
-                    for r in range(LD + 1):
-                        T[c, r, ln] = t[r, c]
-                continue
-            if i != last:
+                # _partner's pass 2 in the lane: exact costs of the candidates the bound
+                # does not exclude (y, the bound and the scale's part are in T from pass 1)
+                j = _lane_pass2(T, ln, cnt, i, np.int64(S[15 + bq, ln]), S[WI, ln],
+                                S[LDI, ln], tie, t)
+                if j < 0:
+                    # a tie among the exact costs: one step of _west_soa on a copy
+                    for c in range(cnt):
+                        for r in range(LD + 1):
+                            t[r, c] = T[c, r, ln]
+                    _west_soa(t, cnt, last, tie, False)
+                    for c in range(last):
+                        for r in range(LD + 1):
+                            T[c, r, ln] = t[r, c]
+                    continue
+            S[DO, ln] = 1.0
+            S[JR, ln] = float(j)
+        # the merges (_merge_pair's arithmetic), vectorised over the lanes: j's columns
+        for ln in range(L):
+            j = np.int64(S[JR, ln])
+            for r in range(5):
+                S[WJ + r, ln] = T[j, r, ln]
+        for ln in range(L):
+            wi = S[WI, ln]
+            wj = S[WJ, ln]
+            ws = wi + wj
+            a1 = wi / ws
+            a2 = wj / ws
+            mi0 = S[MI0, ln]
+            mj0 = S[WJ + 1, ln]
+            mm0 = a1 * mi0 + a2 * mj0
+            vv0 = a1 * (S[VI0, ln] + (mi0 - mm0) ** 2) + a2 * (S[WJ + 3, ln] + (mj0 - mm0) ** 2)
+            mi1 = S[MI1, ln]
+            mj1 = S[WJ + 2, ln]
+            mm1 = a1 * mi1 + a2 * mj1
+            vv1 = a1 * (S[VI1, ln] + (mi1 - mm1) ** 2) + a2 * (S[WJ + 4, ln] + (mj1 - mm1) ** 2)
+            S[NW, ln] = ws
+            S[NW + 1, ln] = mm0
+            S[NW + 2, ln] = mm1
+            S[NW + 3, ln] = vv0
+            S[NW + 4, ln] = vv1
+            S[NW + 5, ln] = 1.0 / vv0
+            S[NW + 6, ln] = 1.0 / vv1
+            S[NW + 7, ln] = vv0 * vv1
+        for ln in range(L):
+            if S[DO, ln] != 0.0:
+                S[NW + 7, ln] = math.log(S[NW + 7, ln])
+                i = np.int64(S[4 + wq, ln])
+                j = np.int64(S[JR, ln])
                 for r in range(LD + 1):
-                    T[i, r, ln] = T[last, r, ln]
+                    T[j, r, ln] = S[NW + r, ln]
+                if i != last:
+                    for r in range(LD + 1):
+                        T[i, r, ln] = T[last, r, ln]
         cnt -= 1
     for ln in range(min(L, nl)):
         if S[ALIVE, ln] != 0.0:
             _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
     return kmax
+
+
+@njit(cache=True, error_model="numpy")
+def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
+    # pragma: no cover - compiled
+    """:func:`reduce` (West/Runnalls) of the mixtures ``l < nl`` with ``need[l]`` of a group
+    of rows: ``xw[l, :xr[l]], xm[l], xv[l]`` into ``pw[l], pm[l], pv[l]`` (canonical order,
+    :func:`_store`), their component counts into ``pn[l]``. When every row of the group
+    needs it, there are more than half of ``_LANES`` rows, the mixtures are 2-D
+    and all have the same number ``n0 > kmax`` of positive weights, the group is reduced on
+    SIMD lanes (:func:`_west_lanes`, ``T``: a lane array of at least ``n0`` components),
+    else row by row (:func:`_reduce_into`): the same results bit for bit. Slots of ``xw``
+    from ``xr[l]`` on are set to 0."""
+    L = _LANES
+    d = xm.shape[2]
+    big = xw.shape[1]
+    same = d == 2 and 2 * nl > L
+    n0 = -1
+    for ln in range(nl):
+        if not need[ln]:
+            same = False
+            continue
+        for r in range(xr[ln], big):
+            xw[ln, r] = 0.0
+        c = 0
+        for r in range(xr[ln]):
+            c += 1 if xw[ln, r] > 0 else 0
+        if n0 < 0:
+            n0 = c
+        same = same and c == n0
+    if same and n0 > kmax:
+        _load_lanes(xw, xm, xv, 0, nl, n0, T, t)
+        _west_lanes(T, n0, kmax, tie, t, pw, pm, pv, nl)
+        for ln in range(nl):
+            pn[ln] = kmax
+        return
+    for ln in range(nl):
+        if need[ln]:
+            pn[ln] = _reduce_into(xw[ln], xm[ln], xv[ln], xr[ln], kmax, tie, pw[ln], pm[ln],
+                                  pv[ln], t)
+
+
+@njit(cache=True, error_model="numpy")
+def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
+    """The lane array ``T`` of :func:`_west_lanes` for the 2-D mixtures ``b0 .. b0 + nl - 1``
+    (``n0`` components of positive weight each; lanes from ``nl`` on: copies of the last
+    mixture): rows 0-4 (through :func:`_load` where a mixture has empty slots), then the
+    inverse variances and the log-determinant of :func:`_set_logdet` (same arithmetic:
+    ``1.0 * v_0 * v_1`` is ``v_0 v_1``), the reciprocals and products vectorised over the
+    lanes, the logarithms one by one (libm's, as :func:`_logdet`)."""
+    L = T.shape[2]
+    k = w.shape[1]
+    if n0 == k:                          # no empty slot: the columns as they are
+        for c in range(k):
+            for ln in range(L):
+                b = b0 + min(ln, nl - 1)
+                T[c, 0, ln] = w[b, c]
+                T[c, 1, ln] = m[b, c, 0]
+                T[c, 2, ln] = m[b, c, 1]
+                T[c, 3, ln] = v[b, c, 0]
+                T[c, 4, ln] = v[b, c, 1]
+    else:
+        for ln in range(L):
+            b = b0 + min(ln, nl - 1)
+            _load(w[b], m[b], v[b], k, t)
+            for c in range(n0):
+                for r in range(5):
+                    T[c, r, ln] = t[r, c]
+    for c in range(n0):
+        for ln in range(L):
+            v0 = T[c, 3, ln]
+            v1 = T[c, 4, ln]
+            T[c, 5, ln] = 1.0 / v0
+            T[c, 6, ln] = 1.0 / v1
+            T[c, 7, ln] = v0 * v1
+        for ln in range(L):
+            T[c, 7, ln] = math.log(T[c, 7, ln])
+
+
+# fdlibm's e_log.c: ln 2 in two parts and the coefficients of its polynomial in s^2
+_LN2_HI = 6.93147180369123816490e-01
+_LN2_LO = 1.90821492927058770002e-10
+_LG1 = 6.666666666666735130e-01
+_LG2 = 3.999999999940941908e-01
+_LG3 = 2.857142874366239149e-01
+_LG4 = 2.222219843214978396e-01
+_LG5 = 1.818357216161805012e-01
+_LG6 = 1.531383769920937332e-01
+_LG7 = 1.479819860511658591e-01
+_SQRT2 = math.sqrt(2.0)
+_TWO52 = 4503599627370496.0
+_TWO52_BITS = 0x4330000000000000
+_MANT = (1 << 52) - 1
+_ONE_BITS = 1023 << 52
+#: relative margin added to the vectorised logarithm of :func:`_best_above` (its error
+#: and libm's are a few ulps, 1e-12 is about 4500)
+_LOG_MARGIN = 1e-12
+
+
+@njit(cache=True, error_model="numpy")
+def _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST):  # pragma: no cover - compiled
+    """Row ``BEST`` of the lane state ``S`` (``Si``: its int64 view): an upper bound of
+    Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))`` of :func:`_partner` with
+    ``log1p`` from libm, for ``y``, ``w_c``, ``ldc`` in rows ``GY, GW, GL``, vectorised
+    over the lanes (no call, no branch): ``log1p(y) = log(u) + (y - (u - 1)) / u`` with
+    ``u = 1 + y`` rounded (the second term is the rounding of ``u``, exact to first
+    order) and ``log(u)`` by fdlibm's ``e_log.c`` (exponent from the bits, the polynomial
+    in ``s = f / (2 + f)``; within 1 ulp). Both logarithms are within a few ulps of
+    ``log1p(y)``, so adding ``_LOG_MARGIN (wi (|ldc| + |ldi|) + ws |log1p(y)|)`` (about
+    4500 ulps of the cost's terms) puts the result above the exact cost of libm's
+    logarithm, and the skip test of :func:`_west_lanes`, increasing in it, skips no
+    candidate that the exact cost would keep (it may keep more: those are costed exactly,
+    :func:`_lane_pass2`). ``u`` not a positive normal float: ``inf`` (skips nothing).
+    Rows 38-40 of ``S`` are scratch."""
+    L = S.shape[1]
+    for ln in range(L):
+        S[38, ln] = 1.0 + S[GY, ln]
+    for ln in range(L):
+        bits = Si[38, ln]
+        Si[39, ln] = (bits >> 52) | _TWO52_BITS
+        Si[40, ln] = (bits & _MANT) | _ONE_BITS
+    for ln in range(L):
+        y = S[GY, ln]
+        u = S[38, ln]
+        k = S[39, ln] - (_TWO52 + 1023.0)
+        m = S[40, ln]                                    # [1, 2)
+        big = m > _SQRT2
+        m = m * 0.5 if big else m
+        k = k + 1.0 if big else k
+        f = m - 1.0
+        s = f / (2.0 + f)
+        z = s * s
+        w = z * z
+        t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
+        t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
+        hfsq = 0.5 * f * f
+        lg = k * _LN2_HI - ((hfsq - (s * (hfsq + (t2 + t1)) + k * _LN2_LO)) - f)
+        lp = lg + (y - (u - 1.0)) / u
+        wi = S[WI, ln]
+        ws = wi + S[GW, ln]
+        ldc = S[GL, ln]
+        bb = 0.5 * (wi * (ldc - S[LDI, ln]) + ws * lp) \
+            + _LOG_MARGIN * (wi * (abs(ldc) + S[ALI, ln]) + ws * abs(lp))
+        ok = (u >= 2.2250738585072014e-308) & (u <= 1.7976931348623157e308)
+        S[BEST, ln] = bb if ok else np.inf
+
+
+@njit(cache=True, error_model="numpy")
+def _lane_pass2(T, ln, cnt, i, c0, wi, ldi, tie, t):  # pragma: no cover - compiled
+    """Pass 2 of :func:`_partner` for lane ``ln`` of :func:`_west_lanes` after its pass 1
+    (rows 8-10 of ``T``: the bound, ``y``, the scale's part; ``c0`` the lowest bound, ``i``
+    the lowest weight): the same candidates costed in the same order with the same
+    arithmetic. Returns the partner ``j`` when the tie set has one member, -1 when it has
+    more (then :func:`_pick` decides: the caller runs :func:`_west_soa`). Rows 9 and 10 of
+    the costed candidates are overwritten (pass 1 sets them again); row 0 of ``t`` holds
+    the costed candidates."""
+    LD = 7
+    LB = 8
+    CO = 9
+    SC = 10
+    best = np.inf
+    ne = 0
+    for step in range(cnt + 1):
+        if step == 0:
+            c = c0
+        else:
+            c = step - 1
+            if c == c0:
+                continue
+            lb = T[c, LB, ln]
+            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
+                          > best + tie * (2.0 * abs(best) + 4.0 * T[c, SC, ln])):
+                continue
+        ws = wi + T[c, 0, ln]
+        lp = math.log1p(T[c, CO, ln])
+        cost = 0.5 * (wi * (T[c, LD, ln] - ldi) + ws * lp)
+        T[c, SC, ln] = 0.5 * (T[c, SC, ln] + ws * abs(lp))
+        T[c, CO, ln] = cost
+        t[0, ne] = c
+        ne += 1
+        best = min(best, cost)
+    j = -1
+    for q in range(ne):
+        c = np.int64(t[0, q])
+        if T[c, CO, ln] <= best + 2.0 * tie * T[c, SC, ln]:
+            if j >= 0:
+                return -1
+            j = c
+    return j
 
 
 @njit(cache=True, error_model="numpy")
@@ -1295,8 +1540,9 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
     (:func:`_store`) and unused slots at weight 0, mean 0, variance 1. Groups of
     ``_LANES`` mixtures run in parallel; in 2-D a group whose mixtures all have the same
     number of components above ``kmax`` is reduced on SIMD lanes (:func:`_west_lanes`; a
-    part group of at least three quarters of the lanes is padded with copies of its last
-    mixture), any other mixture by :func:`_reduce_into` (same results, bit for bit)."""
+    part group of more than half the lanes is padded with copies of its last mixture: a
+    group on the lanes takes about as long as 16 mixtures one by one), any other mixture by
+    :func:`_reduce_into` (same results, bit for bit)."""
     nb, k, d = m.shape
     kout = min(kmax, k)
     ow = np.zeros((nb, kout))
@@ -1319,19 +1565,13 @@ def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
                 if ln == 0:
                     n0 = c
                 same = same and c == n0
-            same = same and n0 > kout and 4 * nl >= 3 * L
+            same = same and n0 > kout and 2 * nl > L
         if not same:
             for b in range(b0, b0 + nl):
                 cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
             continue
         T = np.empty((k, _LANE_ROWS, L))
-        for ln in range(L):
-            b = b0 + min(ln, nl - 1)         # a part group: copies of its last mixture
-            _load(w[b], m[b], v[b], k, t)
-            for c in range(n0):
-                _set_logdet(t, d, c)
-                for r in range(3 * d + 2):
-                    T[c, r, ln] = t[r, c]
+        _load_lanes(w, m, v, b0, nl, n0, T, t)
         _west_lanes(T, n0, kout, tie, t, ow[b0:b0 + nl], om[b0:b0 + nl], ov[b0:b0 + nl], nl)
         for b in range(b0, b0 + nl):
             cnt[b] = kout
