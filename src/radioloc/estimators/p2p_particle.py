@@ -1148,16 +1148,19 @@ class P2PParticleFilter(RecursiveEstimator):
             # line 14 and line 12 (systematic resampling; the gather is left to the next step)
             u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
             idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
-            if k <= CHUNK:                  # one pass (the same operations as the two below)
+            one_pass = k <= CHUNK
+            if one_pass:                    # one pass (the same operations as the two below)
                 w = _scratch("w", (b, k))
                 mean_f, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx)
+                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx,
+                                    distinct)
             else:
                 w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
                 _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
             if walk:
                 # the next prediction gathers the particles; the indices are non-decreasing
-                distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
+                if not one_pass:
+                    distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
                 out = pred
             else:
                 # the resampled particles (n numbers each) and the distinct ancestors; the
@@ -1167,17 +1170,19 @@ class P2PParticleFilter(RecursiveEstimator):
             # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0), scattered after the loop
             det_t[s] = valid_t[s] & (post[..., 1] > post[..., 0])
             reset = distinct < self.reset_fraction * k
-            if np.any(reset):
+            n_reset = int(np.count_nonzero(reset))
+            if n_reset:
                 # as in _step (each particle of a reset filter then its own ancestor; in the
-                # walk case, n = D, every component is reset, so no gather is needed)
-                out[reset, :, :D] = mean_f[reset][:, None, :D] + self.reset_std_m * \
-                    rng.standard_normal((int(reset.sum()), k, D))
-                idx[reset] = np.arange(k)
+                # walk case, n = D, every component is reset, so no gather is needed): the
+                # draws of its rng.standard_normal((n_reset, k, D)), then the writes of its
+                # reset in one pass (pf_kernels.reset_filters)
+                z_reset = rng.standard_normal(out=_scratch("reset_z", (n_reset * k * D,)))
                 with np.errstate(invalid="ignore"):
                     mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
                 if not q.flags.writeable:
                     q = q.copy()
-                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, :, None]
+                _k.reset_filters(reset, mean_f, z_reset, float(self.reset_std_m), D, out, idx,
+                                 np.where(valid_t[s], np.nan_to_num(mean_post), 0.0), q)
             parts, q_prev = out, q
             anc = idx
             mean = mean_f.reshape(batch_v + (n,))

@@ -972,10 +972,11 @@ def walk_gather(particles, anc, gathered, shift, shifted, sd, z, out, chunk):
 
 
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
+def moments_resample(log_w, particles, u, w, mean, cov, ess, idx, distinct):
     """:func:`weights_moments` then :func:`systematic_indices` in one parallel pass over the
     filters, for filters of at most one chunk of particles (``K <= chunk``): the same
-    operations in the same order as the two kernels with one chunk, so the same values.
+    operations in the same order as the two kernels with one chunk, so the same values;
+    and the number of distinct ancestors, counted on the way.
 
     Parameters
     ----------
@@ -989,6 +990,9 @@ def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
         Outputs of :func:`weights_moments`.
     idx : ndarray of int64, shape (B, K)
         Output: ancestor indices (non-decreasing), as :func:`systematic_indices`.
+    distinct : ndarray of int64, shape (B,)
+        Output: number of distinct ancestors (one plus the number of ``j`` with
+        ``idx[b, j] != idx[b, j - 1]``, the indices being non-decreasing).
 
     Returns
     -------
@@ -1022,9 +1026,65 @@ def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
         i = 0
         last = nk - 1
         cdf = 0.0 + w[b, 0]
+        moves = 0
         for j in range(nk):
             pos = (u[b] + j) / nk
+            i0 = i
             while cdf <= pos and i < last:
                 i += 1
                 cdf += w[b, i]
+            moves += i != i0
             idx[b, j] = i
+        distinct[b] = 1 + moves - (idx[b, 0] != 0)     # the first particle's move is not a change
+
+
+@njit(cache=True, error_model="numpy")
+def reset_filters(reset, mean, z, std, dim, particles, idx, q_rows, q):
+    """Reset of degenerate filters (the writes of ``P2PParticleFilter.step``'s reset, in one
+    pass): for each filter ``b`` with ``reset[b]``, in order, ``particles[b, i, :dim] =
+    mean[b, :dim] + std * z[r, i]`` (``r``: the rank of ``b`` among the reset filters; no
+    contraction, the roundings of the NumPy expression), ``idx[b, i] = i`` and
+    ``q[b, j, :] = q_rows[b, j]`` (link-major posteriors, every slot).
+
+    Parameters
+    ----------
+    reset : ndarray of bool, shape (B,)
+        Filters to reset.
+    mean : ndarray, shape (B, n)
+        Centre of each filter's new particles (position first).
+    z : ndarray, shape (R * K * dim,) or longer
+        Standard normal draws of the reset filters, C order ``(R, K, dim)``.
+    std : float
+        Spread of the new particles.
+    dim : int
+        Components reset (the position).
+    particles : ndarray, shape (B, K, n)
+        Particles, overwritten for reset filters.
+    idx : ndarray of int64, shape (B, K)
+        Ancestor indices, the identity for reset filters.
+    q_rows : ndarray, shape (B, L)
+        The posterior each link slot of a reset filter takes.
+    q : ndarray, shape (B, L, K)
+        Link-major link posteriors, overwritten for reset filters.
+
+    Returns
+    -------
+    None
+        The results are written into ``particles``, ``idx`` and ``q``.
+    """
+    nb, nk, _ = particles.shape
+    nl = q.shape[1]
+    r = 0
+    for b in range(nb):
+        if not reset[b]:
+            continue
+        base = r * nk * dim
+        for i in range(nk):
+            for d in range(dim):
+                particles[b, i, d] = mean[b, d] + std * z[base + i * dim + d]
+            idx[b, i] = i
+        for j in range(nl):
+            v = q_rows[b, j]
+            for i in range(nk):
+                q[b, j, i] = v
+        r += 1
