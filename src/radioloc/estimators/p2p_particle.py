@@ -423,7 +423,8 @@ def _standard_normal(rng, shape, scratch=False):
         _POOL = ThreadPoolExecutor(max(1, numba.get_num_threads()))
 
     def fill(i):
-        children[i].standard_normal(out=out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
+        # children[i].standard_normal(out=...) by numba's Generator (NumPy's numbers)
+        _k.fill_standard_normal(children[i], out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
     list(_POOL.map(fill, range(parts)))
     return out.reshape(shape)
 
@@ -1176,13 +1177,15 @@ class P2PParticleFilter(RecursiveEstimator):
                 # walk case, n = D, every component is reset, so no gather is needed): the
                 # draws of its rng.standard_normal((n_reset, k, D)), then the writes of its
                 # reset in one pass (pf_kernels.reset_filters)
-                z_reset = rng.standard_normal(out=_scratch("reset_z", (n_reset * k * D,)))
+                # (numba's Generator: NumPy's numbers and state, tests/test_p2p_run_fused.py)
+                z_reset = _scratch("reset_z", (n_reset * k * D,))
+                _k.fill_standard_normal(rng, z_reset)
                 with np.errstate(invalid="ignore"):
                     mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
                 if not q.flags.writeable:
                     q = q.copy()
                 _k.reset_filters(reset, mean_f, z_reset, float(self.reset_std_m), D, out, idx,
-                                 np.where(valid_t[s], np.nan_to_num(mean_post), 0.0), q)
+                                 np.nan_to_num(mean_post), valid_t[s], q)
             parts, q_prev = out, q
             anc = idx
             mean = mean_f.reshape(batch_v + (n,))
