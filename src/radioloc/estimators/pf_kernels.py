@@ -549,8 +549,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
             part_l[b, c, j, 1] = -np.inf
             r = _ROWS + j
             if not valid[b, j]:
-                for i in range(m):
-                    buf[r, i] = 0.0
+                if not link_major:              # copied out (0 at padding); else never read
+                    for i in range(m):
+                        buf[r, i] = 0.0
                 continue
             nvalid += 1
             nx = node_xy[b, j, 0]
