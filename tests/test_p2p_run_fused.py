@@ -118,3 +118,26 @@ def test_fill_standard_normal_is_numpys():
         K.fill_standard_normal(a, out)
         assert np.array_equal(out, b.standard_normal(200_001))
         assert np.array_equal(a.random(5), b.random(5))
+
+
+def test_run_equals_steps_with_pooled_draws_and_deferred_resets(monkeypatch):
+    """With the motion draws in parts from spawned children (sizes lowered so the highway of
+    64 particles takes that path), ``run`` draws each step's reset from ``rng`` while the
+    pool fills the next step's parts, and writes it before the next prediction: the track
+    and the generator's state afterwards equal the steps' bit for bit; a reset written one
+    step late would not."""
+    from radioloc.estimators import p2p_particle as pp
+    from radioloc.estimators.p2p_particle import P2PParticleFilter
+    from radioloc.models.motion import InputDriven
+    from test_p2p_step_carried import by_steps, highway, same_track
+    monkeypatch.setattr(pp, "_DRAW_PARALLEL", 256)
+    monkeypatch.setattr(pp, "_DRAW_PART", 160)
+    sc, model, data = highway()
+    pf = P2PParticleFilter(InputDriven(sc.ins_std_m), model, particles=64)
+    r1, r2 = np.random.default_rng(1), np.random.default_rng(1)
+    fast = pf.run(data.ranges, data.truth[:, :, 0], r1, anchors=data.anchors, controls=data.ins)
+    ref = by_steps(pf, data.ranges, data.truth[:, :, 0], r2, data.anchors, controls=data.ins)
+    assert fast.diagnostics["resets"][..., -1].sum() > 0          # the reset branch ran
+    assert same_track(fast, ref)
+    assert np.array_equal(r1.random(3), r2.random(3))
+    assert np.array_equal(r1.spawn(1)[0].random(3), r2.spawn(1)[0].random(3))

@@ -402,14 +402,17 @@ _DRAW_PART = 1 << 16
 _POOL = None
 
 
-def _standard_normal(rng, shape, scratch=False):
+def _standard_normal(rng, shape, scratch=False, extra=None):
     """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
     filled in parallel (see ``_DRAW_PARALLEL``). ``scratch``: into this thread's work array
-    (see :func:`_scratch`)."""
+    (see :func:`_scratch`). ``extra``: a callable run on this thread before the draws from
+    ``rng`` (or, when the draws are the children's, while the pool fills them)."""
     global _POOL
     size = int(np.prod(shape, dtype=np.int64))
     out = _scratch("draws", (size,)) if scratch else None
     if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+        if extra is not None:
+            extra()
         if out is None:
             return rng.standard_normal(shape)
         return rng.standard_normal(out=out).reshape(shape)
@@ -425,7 +428,10 @@ def _standard_normal(rng, shape, scratch=False):
     def fill(i):
         # children[i].standard_normal(out=...) by numba's Generator (NumPy's numbers)
         _k.fill_standard_normal(children[i], out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
-    list(_POOL.map(fill, range(parts)))
+    filled = _POOL.map(fill, range(parts))
+    if extra is not None:
+        extra()
+    list(filled)
     return out.reshape(shape)
 
 
@@ -1119,6 +1125,23 @@ class P2PParticleFilter(RecursiveEstimator):
         mean = state.mean
         resets = state.resets
         time_now = state.time
+        pending = None          # a reset not yet drawn and written (see below)
+        std = float(self.reset_std_m)
+
+        def draw_reset():
+            if pending is not None:
+                _k.fill_standard_normal(rng, pending[0])
+
+        def apply_reset(drawn=False):
+            nonlocal pending
+            if pending is not None:
+                if not drawn:
+                    draw_reset()
+                z_r, reset_r, mean_r, rows_r, valid_r, out_r, idx_r, q_r = pending
+                _k.reset_filters(reset_r, mean_r, z_r, std, D, out_r, idx_r, rows_r, valid_r,
+                                 q_r)
+                pending = None
+
         for s in range(T):
             uk = None if u is None else u[..., s, :]
             peers = self._peers(mean, dts[s], uk, given, s)
@@ -1132,7 +1155,9 @@ class P2PParticleFilter(RecursiveEstimator):
             if walk:
                 # the draws of _sample_motion (same call, same shape), then (x[anc] + u) +
                 # sd z, its roundings
-                z = _standard_normal(rng, batch_v + (k, n), scratch=True).reshape(b, k, n)
+                z = _standard_normal(rng, batch_v + (k, n), scratch=True,
+                                     extra=draw_reset).reshape(b, k, n)
+                apply_reset(drawn=True)
                 pred = _scratch(f"carried_p{s % 2}", (b, k, n))
                 _k.walk_gather(parts, _NO_ANCESTORS if anc is None else anc, anc is not None,
                                no_shift if ctrl is None else kernel_array(ctrl[:, s, 0]),
@@ -1178,14 +1203,18 @@ class P2PParticleFilter(RecursiveEstimator):
                 # draws of its rng.standard_normal((n_reset, k, D)), then the writes of its
                 # reset in one pass (pf_kernels.reset_filters)
                 # (numba's Generator: NumPy's numbers and state, tests/test_p2p_run_fused.py)
-                z_reset = _scratch("reset_z", (n_reset * k * D,))
-                _k.fill_standard_normal(rng, z_reset)
+                # In the walk case both are left to the next step: its motion draws (the
+                # children's parts on the pool) and these (rng's, on this thread) are taken
+                # at once, before its walk_gather reads anything the reset writes; rng gives
+                # the same numbers, since spawning children draws nothing from it.
                 with np.errstate(invalid="ignore"):
                     mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
                 if not q.flags.writeable:
                     q = q.copy()
-                _k.reset_filters(reset, mean_f, z_reset, float(self.reset_std_m), D, out, idx,
-                                 np.nan_to_num(mean_post), valid_t[s], q)
+                pending = (_scratch("reset_z", (n_reset * k * D,)), reset, mean_f,
+                           np.nan_to_num(mean_post), valid_t[s], out, idx, q)
+                if not walk:
+                    apply_reset()
             parts, q_prev = out, q
             anc = idx
             mean = mean_f.reshape(batch_v + (n,))
@@ -1193,6 +1222,7 @@ class P2PParticleFilter(RecursiveEstimator):
             resets = resets + reset.reshape(batch_v)
             time_now = time_now + dts[s]
             steps.append((mean, cov, ess.reshape(batch_v), resets, time_now))
+        apply_reset()           # the last step's draws (rng's state as after step)
         los_t = (scatter_packed(det_t, links_t, valid_t, J) & mask_t).reshape((T,) + batch_v + (J,))
         estimates = [Estimate(mean[..., :D], cov[..., :D, :D], time_now,
                               {"state": mean, "state_covariance": cov, "ess": ess,
