@@ -141,3 +141,16 @@ def test_run_equals_steps_with_pooled_draws_and_deferred_resets(monkeypatch):
     assert same_track(fast, ref)
     assert np.array_equal(r1.random(3), r2.random(3))
     assert np.array_equal(r1.spawn(1)[0].random(3), r2.spawn(1)[0].random(3))
+
+
+def test_fill_normal_falls_back_to_numpy(monkeypatch):
+    """A generator numba cannot take is drawn by NumPy, the same numbers."""
+    from numba.core.errors import TypingError
+    from radioloc.estimators import p2p_particle as pp
+
+    def refuse(rng, out):
+        raise TypingError("no numba type")
+    monkeypatch.setattr(pp._k, "fill_standard_normal", refuse)
+    out = np.empty(50)
+    pp._fill_normal(np.random.default_rng(4), out)
+    assert np.array_equal(out, np.random.default_rng(4).standard_normal(50))

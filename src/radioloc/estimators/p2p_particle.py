@@ -427,12 +427,23 @@ def _standard_normal(rng, shape, scratch=False, extra=None):
 
     def fill(i):
         # children[i].standard_normal(out=...) by numba's Generator (NumPy's numbers)
-        _k.fill_standard_normal(children[i], out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
+        _fill_normal(children[i], out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
     filled = _POOL.map(fill, range(parts))
     if extra is not None:
         extra()
     list(filled)
     return out.reshape(shape)
+
+
+def _fill_normal(rng, out):
+    """``rng.standard_normal(out=out)``, by numba's ``Generator`` when it takes ``rng``
+    (NumPy's numbers and state, without the GIL; see ``pf_kernels.fill_standard_normal``),
+    else by NumPy."""
+    from numba.core.errors import TypingError
+    try:
+        _k.fill_standard_normal(rng, out)
+    except TypingError:
+        rng.standard_normal(out=out)
 
 
 def _sample_motion(motion, particles, dt, rng, control, scratch=False):
@@ -1130,7 +1141,7 @@ class P2PParticleFilter(RecursiveEstimator):
 
         def draw_reset():
             if pending is not None:
-                _k.fill_standard_normal(rng, pending[0])
+                _fill_normal(rng, pending[0])
 
         def apply_reset(drawn=False):
             nonlocal pending
