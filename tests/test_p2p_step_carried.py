@@ -267,12 +267,15 @@ def test_moments_resample_equals_the_two_kernels(n):
     K.weights_moments(log_w, x, 2048, w, mean, cov, ess)
     idx = np.empty((b, k), dtype=np.int64)
     K.systematic_indices(w, u, idx, 2048)
+    distinct = np.array([len(np.unique(row)) for row in idx])
+    assert distinct.min() < k and distinct.max() > 1               # some ancestors repeat
     out = (np.empty((b, k)), np.empty((b, n)), np.empty((b, n, n)), np.empty(b),
-           np.empty((b, k), dtype=np.int64))
+           np.empty((b, k), dtype=np.int64), np.empty(b, dtype=np.int64))
     K.moments_resample(log_w, x, u, *out)
-    for a, ref in zip(out, (w, mean, cov, ess, idx)):
+    for a, ref in zip(out, (w, mean, cov, ess, idx, distinct)):
         assert np.array_equal(a, ref)
     one = (np.empty((1, k)), np.empty((1, n)), np.empty((1, n, n)), np.empty(1),
-           np.empty((1, k), dtype=np.int64))
+           np.empty((1, k), dtype=np.int64), np.empty(1, dtype=np.int64))
     K.moments_resample(log_w[3:4], x[3:4], u[3:4], *one)
-    assert all(np.array_equal(a[0], ref[3]) for a, ref in zip(one, (w, mean, cov, ess, idx)))
+    assert all(np.array_equal(a[0], ref[3])
+               for a, ref in zip(one, (w, mean, cov, ess, idx, distinct)))

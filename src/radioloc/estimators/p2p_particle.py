@@ -402,14 +402,17 @@ _DRAW_PART = 1 << 16
 _POOL = None
 
 
-def _standard_normal(rng, shape, scratch=False):
+def _standard_normal(rng, shape, scratch=False, extra=None):
     """``rng.standard_normal(shape)``; large draws in fixed parts from spawned children,
     filled in parallel (see ``_DRAW_PARALLEL``). ``scratch``: into this thread's work array
-    (see :func:`_scratch`)."""
+    (see :func:`_scratch`). ``extra``: a callable run on this thread before the draws from
+    ``rng`` (or, when the draws are the children's, while the pool fills them)."""
     global _POOL
     size = int(np.prod(shape, dtype=np.int64))
     out = _scratch("draws", (size,)) if scratch else None
     if size < _DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+        if extra is not None:
+            extra()
         if out is None:
             return rng.standard_normal(shape)
         return rng.standard_normal(out=out).reshape(shape)
@@ -423,9 +426,24 @@ def _standard_normal(rng, shape, scratch=False):
         _POOL = ThreadPoolExecutor(max(1, numba.get_num_threads()))
 
     def fill(i):
-        children[i].standard_normal(out=out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
-    list(_POOL.map(fill, range(parts)))
+        # children[i].standard_normal(out=...) by numba's Generator (NumPy's numbers)
+        _fill_normal(children[i], out[i * _DRAW_PART:(i + 1) * _DRAW_PART])
+    filled = _POOL.map(fill, range(parts))
+    if extra is not None:
+        extra()
+    list(filled)
     return out.reshape(shape)
+
+
+def _fill_normal(rng, out):
+    """``rng.standard_normal(out=out)``, by numba's ``Generator`` when it takes ``rng``
+    (NumPy's numbers and state, without the GIL; see ``pf_kernels.fill_standard_normal``),
+    else by NumPy."""
+    from numba.core.errors import TypingError
+    try:
+        _k.fill_standard_normal(rng, out)
+    except TypingError:
+        rng.standard_normal(out=out)
 
 
 def _sample_motion(motion, particles, dt, rng, control, scratch=False):
@@ -1118,6 +1136,23 @@ class P2PParticleFilter(RecursiveEstimator):
         mean = state.mean
         resets = state.resets
         time_now = state.time
+        pending = None          # a reset not yet drawn and written (see below)
+        std = float(self.reset_std_m)
+
+        def draw_reset():
+            if pending is not None:
+                _fill_normal(rng, pending[0])
+
+        def apply_reset(drawn=False):
+            nonlocal pending
+            if pending is not None:
+                if not drawn:
+                    draw_reset()
+                z_r, reset_r, mean_r, rows_r, valid_r, out_r, idx_r, q_r = pending
+                _k.reset_filters(reset_r, mean_r, z_r, std, D, out_r, idx_r, rows_r, valid_r,
+                                 q_r)
+                pending = None
+
         for s in range(T):
             uk = None if u is None else u[..., s, :]
             peers = self._peers(mean, dts[s], uk, given, s)
@@ -1131,7 +1166,9 @@ class P2PParticleFilter(RecursiveEstimator):
             if walk:
                 # the draws of _sample_motion (same call, same shape), then (x[anc] + u) +
                 # sd z, its roundings
-                z = _standard_normal(rng, batch_v + (k, n), scratch=True).reshape(b, k, n)
+                z = _standard_normal(rng, batch_v + (k, n), scratch=True,
+                                     extra=draw_reset).reshape(b, k, n)
+                apply_reset(drawn=True)
                 pred = _scratch(f"carried_p{s % 2}", (b, k, n))
                 _k.walk_gather(parts, _NO_ANCESTORS if anc is None else anc, anc is not None,
                                no_shift if ctrl is None else kernel_array(ctrl[:, s, 0]),
@@ -1148,16 +1185,19 @@ class P2PParticleFilter(RecursiveEstimator):
             # line 14 and line 12 (systematic resampling; the gather is left to the next step)
             u01 = rng.random(batch_v + (1,))            # the draw of resampling.systematic
             idx = _scratch(f"carried_idx{s % 2}", (b, k), np.int64)
-            if k <= CHUNK:                  # one pass (the same operations as the two below)
+            one_pass = k <= CHUNK
+            if one_pass:                    # one pass (the same operations as the two below)
                 w = _scratch("w", (b, k))
                 mean_f, cov, ess = np.empty((b, n)), np.empty((b, n, n)), np.empty(b)
-                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx)
+                _k.moments_resample(log_w, pred, u01.reshape(-1), w, mean_f, cov, ess, idx,
+                                    distinct)
             else:
                 w, mean_f, cov, ess = _moments(log_w, pred, "numba", scratch=True)
                 _k.systematic_indices(w, u01.reshape(-1), idx, CHUNK)
             if walk:
                 # the next prediction gathers the particles; the indices are non-decreasing
-                distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
+                if not one_pass:
+                    distinct = 1 + np.count_nonzero(idx[:, 1:] != idx[:, :-1], axis=-1)
                 out = pred
             else:
                 # the resampled particles (n numbers each) and the distinct ancestors; the
@@ -1167,17 +1207,25 @@ class P2PParticleFilter(RecursiveEstimator):
             # detection rule sum_i phi^i(z=1) > sum_i phi^i(z=0), scattered after the loop
             det_t[s] = valid_t[s] & (post[..., 1] > post[..., 0])
             reset = distinct < self.reset_fraction * k
-            if np.any(reset):
+            n_reset = int(np.count_nonzero(reset))
+            if n_reset:
                 # as in _step (each particle of a reset filter then its own ancestor; in the
-                # walk case, n = D, every component is reset, so no gather is needed)
-                out[reset, :, :D] = mean_f[reset][:, None, :D] + self.reset_std_m * \
-                    rng.standard_normal((int(reset.sum()), k, D))
-                idx[reset] = np.arange(k)
+                # walk case, n = D, every component is reset, so no gather is needed): the
+                # draws of its rng.standard_normal((n_reset, k, D)), then the writes of its
+                # reset in one pass (pf_kernels.reset_filters)
+                # (numba's Generator: NumPy's numbers and state, tests/test_p2p_run_fused.py)
+                # In the walk case both are left to the next step: its motion draws (the
+                # children's parts on the pool) and these (rng's, on this thread) are taken
+                # at once, before its walk_gather reads anything the reset writes; rng gives
+                # the same numbers, since spawning children draws nothing from it.
                 with np.errstate(invalid="ignore"):
                     mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
                 if not q.flags.writeable:
                     q = q.copy()
-                q[reset] = np.where(valid_t[s], np.nan_to_num(mean_post), 0.0)[reset][:, :, None]
+                pending = (_scratch("reset_z", (n_reset * k * D,)), reset, mean_f,
+                           np.nan_to_num(mean_post), valid_t[s], out, idx, q)
+                if not walk:
+                    apply_reset()
             parts, q_prev = out, q
             anc = idx
             mean = mean_f.reshape(batch_v + (n,))
@@ -1185,6 +1233,7 @@ class P2PParticleFilter(RecursiveEstimator):
             resets = resets + reset.reshape(batch_v)
             time_now = time_now + dts[s]
             steps.append((mean, cov, ess.reshape(batch_v), resets, time_now))
+        apply_reset()           # the last step's draws (rng's state as after step)
         los_t = (scatter_packed(det_t, links_t, valid_t, J) & mask_t).reshape((T,) + batch_v + (J,))
         estimates = [Estimate(mean[..., :D], cov[..., :D, :D], time_now,
                               {"state": mean, "state_covariance": cov, "ess": ess,

@@ -549,8 +549,9 @@ def link_weights(particles, node_xy, theta, valid, where_prev, prev_q, anc, carr
             part_l[b, c, j, 1] = -np.inf
             r = _ROWS + j
             if not valid[b, j]:
-                for i in range(m):
-                    buf[r, i] = 0.0
+                if not link_major:              # copied out (0 at padding); else never read
+                    for i in range(m):
+                        buf[r, i] = 0.0
                 continue
             nvalid += 1
             nx = node_xy[b, j, 0]
@@ -971,11 +972,53 @@ def walk_gather(particles, anc, gathered, shift, shifted, sd, z, out, chunk):
                 out[b, i, d] = sd[d] * z[b, i, d] + p
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _systematic_counts(w, b, nk, u, idx, h):
+    """Systematic resampling of filter ``b`` (one chunk) without a search; returns the
+    number of distinct ancestors.
+
+    The search of :func:`systematic_indices` (``cdf`` the running sum ``((0 + w_0) + w_1)
+    + ...`` and ``pos_j = (u + j) / K``) gives ``idx_j = #{i < K - 1 : cdf_i <= pos_j}``:
+    the running sum of non-negative weights never decreases (a NaN stays NaN and compares
+    false), so the ``i`` with ``cdf_i <= pos_j`` are a prefix of ``0..K-2`` and the search
+    stops at its end (or at ``K - 1``). ``pos_j`` never decreases in ``j`` either (monotone
+    roundings), so ``cdf_i <= pos_j`` holds exactly for ``j >= M_i``, the first such ``j``
+    (``K`` if none), and ``idx_j = #{i < K - 1 : M_i <= j}``: a histogram of the ``M_i``
+    and its running sum. ``M_i`` starts at ``ceil(cdf_i K - u)`` and moves by the exact
+    comparison ``cdf_i <= pos_j``, with ``pos_j`` computed as the search computes it, so the
+    indices are the search's bit for bit (tests/test_p2p_run_fused.py, with ties)."""
+    last = nk - 1
+    for j in range(nk + 1):
+        h[j] = 0
+    c = 0.0
+    for i in range(last):
+        c += w[b, i]
+        if c == c:
+            t = c * nk - u
+            jj = nk if t >= nk else (0 if t <= 0.0 else int(math.ceil(t)))
+            while jj > 0 and c <= (u + (jj - 1)) / nk:
+                jj -= 1
+            while jj < nk and not c <= (u + jj) / nk:
+                jj += 1
+        else:
+            jj = nk
+        h[jj] += 1
+    cnt = 0
+    moves = 0
+    for j in range(nk):
+        prev = cnt
+        cnt += h[j]
+        idx[b, j] = cnt
+        moves += (cnt != prev) if j > 0 else 0
+    return 1 + moves
+
+
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
-def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
+def moments_resample(log_w, particles, u, w, mean, cov, ess, idx, distinct):
     """:func:`weights_moments` then :func:`systematic_indices` in one parallel pass over the
     filters, for filters of at most one chunk of particles (``K <= chunk``): the same
-    operations in the same order as the two kernels with one chunk, so the same values.
+    operations in the same order as the two kernels with one chunk, so the same values;
+    and the number of distinct ancestors, counted on the way.
 
     Parameters
     ----------
@@ -989,6 +1032,9 @@ def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
         Outputs of :func:`weights_moments`.
     idx : ndarray of int64, shape (B, K)
         Output: ancestor indices (non-decreasing), as :func:`systematic_indices`.
+    distinct : ndarray of int64, shape (B,)
+        Output: number of distinct ancestors (one plus the number of ``j`` with
+        ``idx[b, j] != idx[b, j - 1]``, the indices being non-decreasing).
 
     Returns
     -------
@@ -1018,13 +1064,83 @@ def moments_resample(log_w, particles, u, w, mean, cov, ess, idx):
                 t += 1
         for i in range(nk):
             w[b, i] *= inv
-        # systematic resampling (one chunk: the cumulative sum starts at 0)
-        i = 0
-        last = nk - 1
-        cdf = 0.0 + w[b, 0]
-        for j in range(nk):
-            pos = (u[b] + j) / nk
-            while cdf <= pos and i < last:
-                i += 1
-                cdf += w[b, i]
-            idx[b, j] = i
+        # systematic resampling (one chunk: the cumulative sum starts at 0), by counts
+        distinct[b] = _systematic_counts(w, b, nk, u[b], idx, np.empty(nk + 1, dtype=np.int64))
+
+
+@njit(cache=True, error_model="numpy")
+def reset_filters(reset, mean, z, std, dim, particles, idx, q_rows, valid, q):
+    """Reset of degenerate filters (the writes of ``P2PParticleFilter.step``'s reset, in one
+    pass): for each filter ``b`` with ``reset[b]``, in order, ``particles[b, i, :dim] =
+    mean[b, :dim] + std * z[r, i]`` (``r``: the rank of ``b`` among the reset filters; no
+    contraction, the roundings of the NumPy expression), ``idx[b, i] = i`` and
+    ``q[b, j, :] = q_rows[b, j]`` for the slots ``j`` of existing links (link-major
+    posteriors: the rows of padding slots are never read, see ``link_weights``).
+
+    Parameters
+    ----------
+    reset : ndarray of bool, shape (B,)
+        Filters to reset.
+    mean : ndarray, shape (B, n)
+        Centre of each filter's new particles (position first).
+    z : ndarray, shape (R * K * dim,) or longer
+        Standard normal draws of the reset filters, C order ``(R, K, dim)``.
+    std : float
+        Spread of the new particles.
+    dim : int
+        Components reset (the position).
+    particles : ndarray, shape (B, K, n)
+        Particles, overwritten for reset filters.
+    idx : ndarray of int64, shape (B, K)
+        Ancestor indices, the identity for reset filters.
+    q_rows : ndarray, shape (B, L)
+        The posterior each link slot of a reset filter takes.
+    valid : ndarray of bool, shape (B, L)
+        Which link slots exist (the others' rows are left as they are).
+    q : ndarray, shape (B, L, K)
+        Link-major link posteriors, overwritten for reset filters.
+
+    Returns
+    -------
+    None
+        The results are written into ``particles``, ``idx`` and ``q``.
+    """
+    nb, nk, _ = particles.shape
+    nl = q.shape[1]
+    r = 0
+    for b in range(nb):
+        if not reset[b]:
+            continue
+        base = r * nk * dim
+        for i in range(nk):
+            for d in range(dim):
+                particles[b, i, d] = mean[b, d] + std * z[base + i * dim + d]
+            idx[b, i] = i
+        for j in range(nl):
+            if valid[b, j]:
+                v = q_rows[b, j]
+                for i in range(nk):
+                    q[b, j, i] = v
+        r += 1
+
+
+@njit(cache=True, nogil=True)
+def fill_standard_normal(rng, out):
+    """``rng.standard_normal(out=out)`` compiled, without the GIL (numba's ``Generator``
+    follows NumPy's ziggurat: the same numbers and the same state afterwards;
+    tests/test_p2p_run_fused.py), so a thread can fill it while the caller works.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The generator drawn from.
+    out : ndarray, shape (n,)
+        Output: ``n`` standard normal draws.
+
+    Returns
+    -------
+    None
+        The draws are written into ``out``.
+    """
+    for i in range(out.size):
+        out[i] = rng.standard_normal()
