@@ -59,11 +59,12 @@ BOUNDS: dict[str, str] = {
         "recursion (a square root and a division on each row's critical path) and 2.5 us of "
         "band and generator set-up; this row's run-to-run spread is about +-15 % here.",
     "P2P particle filter step, highway N=20 M=26 K=900":
-        "about 22.8 ns of CPU per update for the whole step (`run`, carried posteriors): the "
-        "link kernel 14.5 (64 %: two exponentials per update in the full loop, erfcx where "
-        "needed), NumPy motion draws 13 %, weights, moments and resampling 7 %, the gather "
-        "2.5 %, resets and NumPy/Python 12 %; 100 M/s on 2 cores needs 20 ns of CPU per "
-        "update for all of it.",
+        "about 20 ns of CPU per update for the whole step (`run`): the link kernel 14.1 (two "
+        "exponentials per update in the full loop, erfcx where needed, the residuals' square "
+        "root and division, the posterior copies; bit for bit its reference), the normal "
+        "draws 3.1, weights, moments and resampling 1.0, the gather 0.45, NumPy/Python 1.2; "
+        "100 M/s on 2 cores needs at most 20 with both cores always busy, about 17 at the "
+        "measured 85 % occupancy.",
     "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5":
         "the fused kernel's arithmetic, about 18.7 ns of CPU per particle-step (Philox 3.4, "
         "Box-Muller 3.5, four link square roots 2.65, exponential 2.5, motion, stores, maximum "
