@@ -279,3 +279,19 @@ def test_moments_resample_equals_the_two_kernels(n):
     K.moments_resample(log_w[3:4], x[3:4], u[3:4], *one)
     assert all(np.array_equal(a[0], ref[3])
                for a, ref in zip(one, (w, mean, cov, ess, idx, distinct)))
+
+
+def test_run_names_a_non_finite_peer_position(carried_calls):
+    """``messages="given"``: a NaN neighbour position raises InputError naming the field and
+    the index, before any step; the finite ones run the compiled path."""
+    from radioloc.core.errors import InputError
+    sc, model, data = highway(runs=1, steps=4, seed=8)
+    pf = P2PParticleFilter(InputDriven(sc.ins_std_m), model, particles=32, messages="given")
+    given = np.array(data.truth[..., :2], dtype=float)          # (runs, N, T, 2)
+    tr = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(0), anchors=data.anchors,
+                controls=data.ins, given_positions=given)
+    assert np.all(np.isfinite(tr.position)) and carried_calls == [1]
+    given[:, 2, 1] = np.nan                                     # vehicle 2 at step 1
+    with pytest.raises(InputError, match=r"given_positions: .*\(0, 2, 1, 0\)"):
+        pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(0), anchors=data.anchors,
+               controls=data.ins, given_positions=given)

@@ -299,6 +299,30 @@ def _scratch(name, shape, dtype=np.float64):
     return a[:size].reshape(shape)
 
 
+def _run_layout(state, r):
+    """The links of a whole run packed once, for :meth:`P2PParticleFilter.run`'s compiled
+    paths: ``(batch_v, batch, b, nb, mask, links, valid, th, time_first)`` with the batch
+    shape of the vehicles ``(..., N)`` and of the runs ``(...)``, their sizes ``b`` and
+    ``nb``, the measured mask ``(..., N, T, J)`` of the ranges ``r``, the packed links and
+    ranges ``(..., N, T, L)`` (:func:`pack_mask`, :func:`gather_packed`), and
+    ``time_first``, which makes an ``(..., N, T, *x)`` array a C-contiguous
+    ``(T, b, *x)`` one."""
+    batch_v = state.batch_shape                             # (..., N)
+    batch = batch_v[:-1]
+    T = r.shape[-2]
+    b = int(np.prod(batch_v, dtype=int))
+    nb = int(np.prod(batch, dtype=int))
+    nbd = len(batch_v)
+    mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
+    links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+    th = gather_packed(np.where(mask_all, r, 0.0), links)
+
+    def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
+        return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
+
+    return batch_v, batch, b, nb, mask_all, links, valid, th, time_first
+
+
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kernel, em,
                  scratch=False, anc=None, q_out=None, link_major=False):
     """``log w`` (..., K), new link posteriors (..., K, L), ``log sum_i phi^i(z)``
@@ -775,7 +799,6 @@ class P2PParticleFilter(RecursiveEstimator):
         """
         D = self.motion.dim
         batch = state.batch_shape
-        k = state.particles.shape[-2]
         theta = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
         if theta.shape[:-1] != batch:
             raise InputError(f"ranges: leading shape {theta.shape[:-1]} differs from the "
@@ -1095,21 +1118,10 @@ class P2PParticleFilter(RecursiveEstimator):
         the packed links does not enter the kernel's arithmetic: it skips the padding; the
         gathers only copy; tests/test_p2p_step_carried.py)."""
         D = self.motion.dim
-        batch_v = state.batch_shape                             # (..., N)
-        batch = batch_v[:-1]
-        n_veh, T, J = r.shape[-3:]
         k, n = state.particles.shape[-2:]
-        b = int(np.prod(batch_v, dtype=int))
-        nb = int(np.prod(batch, dtype=int))
-        nbd = len(batch_v)
-        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
-        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        batch_v, batch, b, nb, mask_all, links, valid, th, time_first = _run_layout(state, r)
+        n_veh, T, J = r.shape[-3:]
         width = links.shape[-1]
-        th = gather_packed(np.where(mask_all, r, 0.0), links)
-
-        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
-            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
-
         links_t, valid_t, th_t = time_first(links), time_first(valid), time_first(th)
         mask_t = time_first(mask_all)
         # slot of each link in the previous step's list (-1: new link, line 8), every step
@@ -1155,12 +1167,7 @@ class P2PParticleFilter(RecursiveEstimator):
 
         for s in range(T):
             uk = None if u is None else u[..., s, :]
-            peers = self._peers(mean, dts[s], uk, given, s)
-            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
-                                   axis=-2)                     # (..., J, 2)
-            if not np.all(np.isfinite(peers)):
-                _check_nodes(mask_all[..., s, :],
-                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            nodes = self._run_nodes(mean, dts[s], uk, given, s, anchors_b, mask_all, batch_v)
             node_xy = nodes.reshape(nb, J, 2)[node_rows, links_nodes[s]].reshape(b, width, 2)
             # line 3
             if walk:
@@ -1241,6 +1248,20 @@ class P2PParticleFilter(RecursiveEstimator):
                      for s, (mean, cov, ess, resets, time_now) in enumerate(steps)]
         return track_from_steps(estimates, t)
 
+    def _run_nodes(self, mean, dt, control, given, s, anchors_b, mask, batch_v):
+        """Node positions ``(..., J, 2)`` of step ``s`` of :meth:`run`'s compiled paths: the
+        peers of :meth:`_peers` (vehicles), then the anchors ``anchors_b``; a non-finite
+        peer position that a measured link ``mask`` ``(..., N, T, J)`` uses raises (see
+        :func:`_check_nodes`)."""
+        peers = self._peers(mean, dt, control, given, s)
+        nodes = np.concatenate([np.broadcast_to(peers, batch_v + (2,)), anchors_b],
+                               axis=-2)                         # (..., J, 2)
+        if not np.all(np.isfinite(peers)):
+            _check_nodes(mask[..., s, :],
+                         np.broadcast_to(nodes[..., None, :, :],
+                                         batch_v + nodes.shape[-2:]))
+        return nodes
+
     def _peers(self, mean, dt, control, given, k):
         """Positions vehicle ``k`` uses for its neighbours at step ``k`` of :meth:`run` (see
         ``messages``), from the estimates ``mean`` (..., N, n) of the previous step."""
@@ -1281,21 +1302,11 @@ class P2PParticleFilter(RecursiveEstimator):
         same values as :meth:`step` step by step (the width of the packed links does not
         enter the kernel's arithmetic: it skips the padding; the gather only copies)."""
         D = 2
-        batch_v = state.batch_shape                             # (..., N)
-        batch = batch_v[:-1]
-        n_veh, T, J = r.shape[-3:]
         k = state.particles.shape[-2]
-        b = int(np.prod(batch_v, dtype=int))
-        nb = int(np.prod(batch, dtype=int))
+        batch_v, batch, b, nb, mask_all, links, valid, th, time_first = _run_layout(state, r)
         nbd = len(batch_v)
-        mask_all = ~np.isnan(r)                                 # (..., N, T, J); no inf
-        links, valid = pack_mask(mask_all)                      # (..., N, T, L)
+        n_veh, T, J = r.shape[-3:]
         width = links.shape[-1]
-        th = gather_packed(np.where(mask_all, r, 0.0), links)
-
-        def time_first(a):                                      # (..., N, T, *x) -> (T, b, *x)
-            return np.ascontiguousarray(np.moveaxis(a.reshape((b, T) + a.shape[nbd + 1:]), 1, 0))
-
         links_t = time_first(links).reshape(T, nb, n_veh, width)
         valid_t, th_t = time_first(valid), time_first(th)
         shift_t = np.zeros((T, b, 2)) if u is None else time_first(u)
@@ -1316,12 +1327,7 @@ class P2PParticleFilter(RecursiveEstimator):
         mean, resets = state.mean, state.resets
         for s in range(T):
             uk = None if u is None else u[..., s, :]
-            peers = self._peers(mean, dts[s], uk, given, s)
-            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
-                                   axis=-2)                     # (..., J, 2)
-            if not np.all(np.isfinite(peers)):
-                _check_nodes(mask_all[..., s, :],
-                             np.broadcast_to(nodes[..., None, :, :], batch_v + (J, 2)))
+            nodes = self._run_nodes(mean, dts[s], uk, given, s, anchors_b, mask_all, batch_v)
             node_xy = nodes.reshape(nb, J, 2)[rows, links_t[s]].reshape(b, width, 2)
             key = draw_key(rng)
             u01 = rng.random(batch_v + (1,))    # the draw of resampling.systematic

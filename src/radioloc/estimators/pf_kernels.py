@@ -714,6 +714,25 @@ def _moment_sums(w, particles, b, i0, i1, sums):
                 t += 1
 
 
+@njit(cache=True, inline="always", error_model="numpy", fastmath={"contract"})
+def _moments_from_sums(tot, particles, b, n, mean, cov, ess):  # pragma: no cover - compiled
+    """Filter ``b``'s ESS, mean and covariance from its moment sums ``tot`` (the layout of
+    :func:`_moment_sums`: sum of w, of w^2, of w dx per coordinate, of w dx dx' over the
+    lower triangle, dx relative to particle 0); returns ``1 / sum w``."""
+    inv = 1.0 / tot[0]
+    ess[b] = tot[0] * tot[0] / tot[1]
+    t = 2 + n
+    for d in range(n):
+        md = tot[2 + d] * inv
+        mean[b, d] = particles[b, 0, d] + md
+        for g in range(d + 1):
+            cv = tot[t] * inv - md * tot[2 + g] * inv
+            cov[b, d, g] = cv
+            cov[b, g, d] = cv
+            t += 1
+    return inv
+
+
 @njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})
 def weights_moments(log_w, particles, chunk, w, mean, cov, ess):
     """Normalised weights, weighted mean and covariance and ESS (Algorithm 2, line 14).
@@ -778,17 +797,7 @@ def weights_moments(log_w, particles, chunk, w, mean, cov, ess):
         for c in range(nc):
             for t in range(ns):
                 tot[t] += sums[b, c, t]
-        inv = 1.0 / tot[0]
-        ess[b] = tot[0] * tot[0] / tot[1]
-        t = 2 + n
-        for d in range(n):
-            md = tot[2 + d] * inv
-            mean[b, d] = particles[b, 0, d] + md
-            for g in range(d + 1):
-                cv = tot[t] * inv - md * tot[2 + g] * inv
-                cov[b, d, g] = cv
-                cov[b, g, d] = cv
-                t += 1
+        inv = _moments_from_sums(tot, particles, b, n, mean, cov, ess)
         tot[0] = inv
         sums[b, 0, 0] = inv
     for task in prange(nb * nc):
@@ -1051,17 +1060,7 @@ def moments_resample(log_w, particles, u, w, mean, cov, ess, idx, distinct):
             w[b, i] = vexp(log_w[b, i] - m)
         tot = np.empty(ns)
         _moment_sums(w, particles, b, 0, nk, tot)
-        inv = 1.0 / tot[0]
-        ess[b] = tot[0] * tot[0] / tot[1]
-        t = 2 + n
-        for d in range(n):
-            md = tot[2 + d] * inv
-            mean[b, d] = particles[b, 0, d] + md
-            for g in range(d + 1):
-                cv = tot[t] * inv - md * tot[2 + g] * inv
-                cov[b, d, g] = cv
-                cov[b, g, d] = cv
-                t += 1
+        inv = _moments_from_sums(tot, particles, b, n, mean, cov, ess)
         for i in range(nk):
             w[b, i] *= inv
         # systematic resampling (one chunk: the cumulative sum starts at 0), by counts
