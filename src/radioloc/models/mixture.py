@@ -1160,6 +1160,8 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     GW = 36
     GL = 37
     Si = S.view(np.int64)                # rows 38-40: _best_above's scratch
+    Tf = T.reshape(-1)                   # flat views (L == _LANES)
+    Sf = S.reshape(-1)
     for ln in range(L):
         S[ALIVE, ln] = 1.0
     alive = L
@@ -1190,35 +1192,38 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
             S[VI1, ln] = T[i, 4, ln]
             S[LDI, ln] = T[i, LD, ln]
             S[ALI, ln] = abs(T[i, LD, ln])
-        # pass 1 of _partner
+        # pass 1 of _partner (flat views with constant strides: one base register)
         for c in range(cnt):
-            cf = float(c)
-            for ln in range(L):
-                wi = S[WI, ln]
-                ldi = S[LDI, ln]
-                ali = S[ALI, ln]
-                wc = T[c, 0, ln]
+            o = c * (_LANE_ROWS * _LANES)
+            for ln in range(_LANES):
+                wi = Sf[WI * _LANES + ln]
+                ali = Sf[ALI * _LANES + ln]
+                wc = Tf[o + ln]
                 ws = wi + wc
                 inv = 1.0 / ws
                 a1 = wi * inv
                 a2 = wc * inv
                 a12 = a1 * a2
-                dm0 = S[MI0, ln] - T[c, 1, ln]
-                dm1 = S[MI1, ln] - T[c, 2, ln]
-                r0 = (a1 * (S[VI0, ln] - T[c, 3, ln]) + a12 * dm0 * dm0) * T[c, 5, ln]
-                r1 = (a1 * (S[VI1, ln] - T[c, 4, ln]) + a12 * dm1 * dm1) * T[c, 6, ln]
+                dm0 = Sf[MI0 * _LANES + ln] - Tf[o + _LANES + ln]
+                dm1 = Sf[MI1 * _LANES + ln] - Tf[o + 2 * _LANES + ln]
+                r0 = (a1 * (Sf[VI0 * _LANES + ln] - Tf[o + 3 * _LANES + ln]) + a12 * dm0 * dm0) \
+                    * Tf[o + 5 * _LANES + ln]
+                r1 = (a1 * (Sf[VI1 * _LANES + ln] - Tf[o + 4 * _LANES + ln]) + a12 * dm1 * dm1) \
+                    * Tf[o + 6 * _LANES + ln]
                 y = r0 + r1 + r0 * r1
                 b0 = abs(r0)
                 b1 = abs(r1)
                 ay = b0 + b1 + b0 * b1
-                T[c, CO, ln] = y
-                T[c, SC, ln] = wi * (abs(T[c, LD, ln]) + ali) + ws * ay
+                Tf[o + CO * _LANES + ln] = y
+                Tf[o + SC * _LANES + ln] = wi * (abs(Tf[o + LD * _LANES + ln]) + ali) + ws * ay
             # the bound from y, a loop of its own (fewer live registers in each)
-            for ln in range(L):
-                wi = S[WI, ln]
-                ws = wi + T[c, 0, ln]
-                T[c, LB, ln] = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln],
-                                           S[ALI, ln])
+            for ln in range(_LANES):
+                wi = Sf[WI * _LANES + ln]
+                ws = wi + Tf[o + ln]
+                Tf[o + LB * _LANES + ln] = _cost_bound(Tf[o + CO * _LANES + ln],
+                                                       Tf[o + LD * _LANES + ln], wi, ws,
+                                                       Sf[LDI * _LANES + ln],
+                                                       Sf[ALI * _LANES + ln])
         for ln in range(L):
             T[np.int64(S[4 + wq, ln]), LB, ln] = np.inf      # i is no candidate
         # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
