@@ -1252,13 +1252,13 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
         _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST)
         # pass 2's skip test against it: the candidates it does not skip
         for c in range(cnt):
-            cf = float(c)
-            for ln in range(L):
-                lb = T[c, LB, ln]
-                bb = S[BEST, ln]
+            o = c * (_LANE_ROWS * _LANES)
+            for ln in range(_LANES):
+                lb = Tf[o + LB * _LANES + ln]
+                bb = Sf[BEST * _LANES + ln]
                 skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
-                                     > bb + tie * (2.0 * abs(bb) + 4.0 * T[c, SC, ln]))
-                S[NS, ln] += 0.0 if skip else 1.0
+                                     > bb + tie * (2.0 * abs(bb) + 4.0 * Tf[o + SC * _LANES + ln]))
+                Sf[NS * _LANES + ln] += 0.0 if skip else 1.0
         last = cnt - 1
         # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
         for ln in range(L):
