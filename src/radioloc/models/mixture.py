@@ -1131,7 +1131,9 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     pass 1's rows (:func:`_lane_pass2`, libm's ``log1p``), and only a tie among the exact
     costs takes one step of :func:`_west_soa` on a copy in the scratch ``t``. The merges
     (:func:`_merge_pair`'s arithmetic) run over the lanes, the logarithm of the merged
-    determinant per lane (libm's). Tied lowest weights: the lane is finished alone
+    determinant per lane (libm's). Pass 1 and the skip test read ``T`` and the lane state
+    through flat views with constant strides (``T.shape[2] == _LANES``): each row an
+    immediate offset from one base register. Tied lowest weights: the lane is finished alone
     (:func:`_finish_lane`), and when fewer than half the lanes are left the others are
     too."""
     L = T.shape[2]
