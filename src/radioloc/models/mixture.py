@@ -1131,7 +1131,9 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     pass 1's rows (:func:`_lane_pass2`, libm's ``log1p``), and only a tie among the exact
     costs takes one step of :func:`_west_soa` on a copy in the scratch ``t``. The merges
     (:func:`_merge_pair`'s arithmetic) run over the lanes, the logarithm of the merged
-    determinant per lane (libm's). Tied lowest weights: the lane is finished alone
+    determinant per lane (libm's). Pass 1 and the skip test read ``T`` and the lane state
+    through flat views with constant strides (``T.shape[2] == _LANES``): each row an
+    immediate offset from one base register. Tied lowest weights: the lane is finished alone
     (:func:`_finish_lane`), and when fewer than half the lanes are left the others are
     too."""
     L = T.shape[2]
@@ -1160,6 +1162,8 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
     GW = 36
     GL = 37
     Si = S.view(np.int64)                # rows 38-40: _best_above's scratch
+    Tf = T.reshape(-1)                   # flat views (L == _LANES)
+    Sf = S.reshape(-1)
     for ln in range(L):
         S[ALIVE, ln] = 1.0
     alive = L
@@ -1190,35 +1194,38 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
             S[VI1, ln] = T[i, 4, ln]
             S[LDI, ln] = T[i, LD, ln]
             S[ALI, ln] = abs(T[i, LD, ln])
-        # pass 1 of _partner
+        # pass 1 of _partner (flat views with constant strides: one base register)
         for c in range(cnt):
-            cf = float(c)
-            for ln in range(L):
-                wi = S[WI, ln]
-                ldi = S[LDI, ln]
-                ali = S[ALI, ln]
-                wc = T[c, 0, ln]
+            o = c * (_LANE_ROWS * _LANES)
+            for ln in range(_LANES):
+                wi = Sf[WI * _LANES + ln]
+                ali = Sf[ALI * _LANES + ln]
+                wc = Tf[o + ln]
                 ws = wi + wc
                 inv = 1.0 / ws
                 a1 = wi * inv
                 a2 = wc * inv
                 a12 = a1 * a2
-                dm0 = S[MI0, ln] - T[c, 1, ln]
-                dm1 = S[MI1, ln] - T[c, 2, ln]
-                r0 = (a1 * (S[VI0, ln] - T[c, 3, ln]) + a12 * dm0 * dm0) * T[c, 5, ln]
-                r1 = (a1 * (S[VI1, ln] - T[c, 4, ln]) + a12 * dm1 * dm1) * T[c, 6, ln]
+                dm0 = Sf[MI0 * _LANES + ln] - Tf[o + _LANES + ln]
+                dm1 = Sf[MI1 * _LANES + ln] - Tf[o + 2 * _LANES + ln]
+                r0 = (a1 * (Sf[VI0 * _LANES + ln] - Tf[o + 3 * _LANES + ln]) + a12 * dm0 * dm0) \
+                    * Tf[o + 5 * _LANES + ln]
+                r1 = (a1 * (Sf[VI1 * _LANES + ln] - Tf[o + 4 * _LANES + ln]) + a12 * dm1 * dm1) \
+                    * Tf[o + 6 * _LANES + ln]
                 y = r0 + r1 + r0 * r1
                 b0 = abs(r0)
                 b1 = abs(r1)
                 ay = b0 + b1 + b0 * b1
-                T[c, CO, ln] = y
-                T[c, SC, ln] = wi * (abs(T[c, LD, ln]) + ali) + ws * ay
+                Tf[o + CO * _LANES + ln] = y
+                Tf[o + SC * _LANES + ln] = wi * (abs(Tf[o + LD * _LANES + ln]) + ali) + ws * ay
             # the bound from y, a loop of its own (fewer live registers in each)
-            for ln in range(L):
-                wi = S[WI, ln]
-                ws = wi + T[c, 0, ln]
-                T[c, LB, ln] = _cost_bound(T[c, CO, ln], T[c, LD, ln], wi, ws, S[LDI, ln],
-                                           S[ALI, ln])
+            for ln in range(_LANES):
+                wi = Sf[WI * _LANES + ln]
+                ws = wi + Tf[o + ln]
+                Tf[o + LB * _LANES + ln] = _cost_bound(Tf[o + CO * _LANES + ln],
+                                                       Tf[o + LD * _LANES + ln], wi, ws,
+                                                       Sf[LDI * _LANES + ln],
+                                                       Sf[ALI * _LANES + ln])
         for ln in range(L):
             T[np.int64(S[4 + wq, ln]), LB, ln] = np.inf      # i is no candidate
         # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
@@ -1247,13 +1254,13 @@ def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - com
         _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST)
         # pass 2's skip test against it: the candidates it does not skip
         for c in range(cnt):
-            cf = float(c)
-            for ln in range(L):
-                lb = T[c, LB, ln]
-                bb = S[BEST, ln]
+            o = c * (_LANE_ROWS * _LANES)
+            for ln in range(_LANES):
+                lb = Tf[o + LB * _LANES + ln]
+                bb = Sf[BEST * _LANES + ln]
                 skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
-                                     > bb + tie * (2.0 * abs(bb) + 4.0 * T[c, SC, ln]))
-                S[NS, ln] += 0.0 if skip else 1.0
+                                     > bb + tie * (2.0 * abs(bb) + 4.0 * Tf[o + SC * _LANES + ln]))
+                Sf[NS * _LANES + ln] += 0.0 if skip else 1.0
         last = cnt - 1
         # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
         for ln in range(L):
