@@ -83,9 +83,11 @@ BOUNDS: dict[str, str] = {
         "three runs on a quiet machine before the grouped rows (target 10 k), about 10.3 k "
         "rows per CPU second after.",
     "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties":
-        "pass 1 of the lane kernel (32 mixtures on SIMD lanes): two divisions and about 44 "
-        "flops per candidate, 3.3 ns per candidate and lane; 6.5 ns per candidate in the "
-        "kernel, about 7 through `reduce`, where 50x needs about 6 on two free cores.",
+        "pass 1 of the lane kernel (32 mixtures on SIMD lanes): a division for `y`, one for "
+        "the bound and about 44 flops per candidate; neither the divider nor the flops bound "
+        "it (8 flops fewer, or one division shared by two candidates, change nothing): the "
+        "rest is per lane and merge. 6.2 ns of CPU per candidate through `reduce`, where 50x "
+        "NumPy (3.1-3.75 k mixtures/s here) needs 5.2-6 on two free cores.",
 }
 
 
