@@ -46,6 +46,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from radioloc.core import fdlibm as fdl
 from radioloc.estimators.pf_kernels import _f64_as_i64, _i64_as_f64
 
 __all__ = ["draw_key", "standard_normal", "standard_normal_numpy", "philox4x32",
@@ -62,21 +63,12 @@ _S12 = np.uint64(12)
 _ONE_BITS = np.uint64(0x3FF0000000000000)
 _HALF_ULP = 2.0 ** -53
 
-# fdlibm e_log.c
-_LN2_HI = 6.93147180369123816490e-01
-_LN2_LO = 1.90821492927058770002e-10
-_LG1 = 6.666666666666735130e-01
-_LG2 = 3.999999999940941908e-01
-_LG3 = 2.857142874366239149e-01
-_LG4 = 2.222219843214978396e-01
-_LG5 = 1.818357216161805012e-01
-_LG6 = 1.531383769920937332e-01
-_LG7 = 1.479819860511658591e-01
-_SQRT2 = math.sqrt(2.0)
-_TWO52 = 4503599627370496.0
-_TWO52_BITS = 0x4330000000000000
-_MANT = (1 << 52) - 1
-_ONE_I = 1023 << 52
+# fdlibm e_log.c (radioloc.core.fdlibm)
+_LN2_HI, _LN2_LO, _SQRT2 = fdl.LN2_HI, fdl.LN2_LO, fdl.SQRT2
+_LG1, _LG2, _LG3, _LG4, _LG5, _LG6, _LG7 = (fdl.LG1, fdl.LG2, fdl.LG3, fdl.LG4, fdl.LG5,
+                                            fdl.LG6, fdl.LG7)
+_TWO52, _TWO52_BITS, _MANT, _ONE_I = fdl.TWO52, fdl.TWO52_BITS, fdl.MANT, fdl.ONE_I
+_log_poly, _log_finish = fdl.log_poly, fdl.log_finish
 
 _SHIFT = 6755399441055744.0             # 1.5 * 2^52: x + _SHIFT rounds x to an integer
 _PIO2 = math.pi / 2.0
@@ -155,23 +147,6 @@ def _log_reduce(x):
     m = m * 0.5 if big else m
     k = k + 1.0 if big else k
     return k, m - 1.0
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _log_poly(s):
-    """fdlibm's ``R(z)``, ``z = s^2``, in its two halves."""
-    z = s * s
-    w = z * z
-    t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
-    t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
-    return t2 + t1
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _log_finish(k, f, s, r):
-    """``log(2^k (1 + f))`` from ``s = f / (2 + f)`` and ``r = R(s^2)``."""
-    hfsq = 0.5 * f * f
-    return k * _LN2_HI - ((hfsq - (s * (hfsq + r) + k * _LN2_LO)) - f)
 
 
 @njit(cache=True, inline="always", error_model="numpy")

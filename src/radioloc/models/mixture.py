@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit, prange
 from scipy.special import logsumexp, softmax
 
+from radioloc.core import fdlibm as fdl
 from radioloc.core.arrays import kernel_array
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
@@ -1416,21 +1417,9 @@ def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
             T[c, 7, ln] = math.log(T[c, 7, ln])
 
 
-# fdlibm's e_log.c: ln 2 in two parts and the coefficients of its polynomial in s^2
-_LN2_HI = 6.93147180369123816490e-01
-_LN2_LO = 1.90821492927058770002e-10
-_LG1 = 6.666666666666735130e-01
-_LG2 = 3.999999999940941908e-01
-_LG3 = 2.857142874366239149e-01
-_LG4 = 2.222219843214978396e-01
-_LG5 = 1.818357216161805012e-01
-_LG6 = 1.531383769920937332e-01
-_LG7 = 1.479819860511658591e-01
-_SQRT2 = math.sqrt(2.0)
-_TWO52 = 4503599627370496.0
-_TWO52_BITS = 0x4330000000000000
-_MANT = (1 << 52) - 1
-_ONE_BITS = 1023 << 52
+# fdlibm's e_log.c (radioloc.core.fdlibm)
+_SQRT2, _TWO52, _TWO52_BITS, _MANT, _ONE_BITS = (fdl.SQRT2, fdl.TWO52, fdl.TWO52_BITS,
+                                                 fdl.MANT, fdl.ONE_I)
 #: relative margin added to the vectorised logarithm of :func:`_best_above` (its error
 #: and libm's are a few ulps, 1e-12 is about 4500)
 _LOG_MARGIN = 1e-12
@@ -1468,12 +1457,7 @@ def _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST):  # pragma: no cover - co
         k = k + 1.0 if big else k
         f = m - 1.0
         s = f / (2.0 + f)
-        z = s * s
-        w = z * z
-        t1 = w * (_LG2 + w * (_LG4 + w * _LG6))
-        t2 = z * (_LG1 + w * (_LG3 + w * (_LG5 + w * _LG7)))
-        hfsq = 0.5 * f * f
-        lg = k * _LN2_HI - ((hfsq - (s * (hfsq + (t2 + t1)) + k * _LN2_LO)) - f)
+        lg = fdl.log_finish(k, f, s, fdl.log_poly(s))
         lp = lg + (y - (u - 1.0)) / u
         wi = S[WI, ln]
         ws = wi + S[GW, ln]
