@@ -76,7 +76,8 @@ BOUNDS: dict[str, str] = {
         "Philox blocks 3.4 more.",
     "paper 000 full Monte Carlo, estimators (5000 runs x 2 noise x RLS+EKF x 50 it.)":
         "the EKF's per-master updates (flops in README.md's work table); this row measured "
-        "1.2-2.0 s in three runs on the same quiet machine (target 2 s).",
+        "1.17-1.19 s in the last three quiet runs, 1.2-2.0 s in three earlier ones while the "
+        "machine's memory bandwidth moved by 30 % (target 2 s).",
     "mixture localization, 6 stations x 16 components (eq. (2), kmax 8)":
         "the product-and-reduce kernel (rows in groups of 32, each station's products "
         "reduced together on SIMD lanes, 64 -> 8); this row measured 8.0-12.1 k rows/s in "
