@@ -84,11 +84,14 @@ BOUNDS: dict[str, str] = {
         "three runs on a quiet machine before the grouped rows (target 10 k), about 10.3 k "
         "rows per CPU second after.",
     "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties":
-        "pass 1 of the lane kernel (32 mixtures on SIMD lanes): a division for `y`, one for "
-        "the bound and about 44 flops per candidate; neither the divider nor the flops bound "
-        "it (8 flops fewer, or one division shared by two candidates, change nothing): the "
-        "rest is per lane and merge. 6.2 ns of CPU per candidate through `reduce`, where 50x "
-        "NumPy (3.1-3.75 k mixtures/s here) needs 5.2-6 on two free cores.",
+        "the greedy rule's work per candidate partner, 32 mixtures on SIMD lanes: pass 1 "
+        "3.3 ns (a division for `y`, one for the bound, about 44 flops and 11 accesses to "
+        "the 180 KB lane array in L2; neither the divider nor the flops alone bound it: 8 "
+        "flops fewer or one division shared by two candidates change nothing), the scans "
+        "and skip test 1.1, the per-merge work 1.6 (partner choice, column gather and "
+        "scatter, libm's log of the merged determinant), `reduce`'s Python 0.5: about 6.2 "
+        "ns of CPU per candidate, where 50x NumPy (3.1-3.75 k mixtures/s here) needs "
+        "5.2-6 on two free cores.",
 }
 
 
