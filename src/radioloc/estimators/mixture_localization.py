@@ -766,6 +766,18 @@ def _station_order(rss: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.argsort(key, axis=-1, kind="stable"))
 
 
+@njit(cache=True, inline="always")
+def _exp_normalise(x, n, top):  # pragma: no cover - compiled
+    """``x[:n] = exp(x[:n] - top) / sum``: weights from log weights whose finite maximum
+    is ``top``."""
+    tot = 0.0
+    for i in range(n):
+        x[i] = math.exp(x[i] - top)
+        tot += x[i]
+    for i in range(n):
+        x[i] /= tot
+
+
 @njit(cache=True)
 def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - compiled
     """Weights of one station model conditioned on its last coordinate (the section of
@@ -782,12 +794,7 @@ def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - comp
             top = lw
     if not np.isfinite(top):
         return False
-    tot = 0.0
-    for j in range(k):
-        cw[j] = math.exp(cw[j] - top)
-        tot += cw[j]
-    for j in range(k):
-        cw[j] /= tot
+    _exp_normalise(cw, k, top)
     return True
 
 
@@ -848,12 +855,7 @@ def _product_into(pw, pm, pv, pn, qw, qm, qv, qn, lp, lq, xw, xm, xv):
             r += 1
     if not np.isfinite(top):
         return -1
-    tot = 0.0
-    for i in range(r):
-        xw[i] = math.exp(xw[i] - top)
-        tot += xw[i]
-    for i in range(r):
-        xw[i] /= tot
+    _exp_normalise(xw, r, top)
     return r
 
 
