@@ -377,8 +377,8 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, kern
                     kernel_array(wp.reshape(b, width), np.int64),
                     kernel_array(prev_q.reshape((b,) + prev_q.shape[-2:])),
                     _NO_ANCESTORS if anc is None else kernel_array(anc.reshape(b, k), np.int64),
-                    anc is not None, link_major, cols[0], cols[1], cols[2], CHUNK, em, log_w, q_new, part_s, part_l, em_pp,
-                    gauss)
+                    anc is not None, link_major, cols[0], cols[1], cols[2], CHUNK, em, log_w,
+                    q_new, part_s, part_l, em_pp, gauss)
     lam = 1.0 / p[:, 1]
     ce = np.log(lam) + 0.5 * (lam * p[:, 0]) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -809,6 +809,40 @@ def _set_logdet(t, d, c):  # pragma: no cover - compiled
     t[3 * d + 1, c] = _logdet(t, d, c)
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _exact_costs(t, LD, cnt, i, c0, wi, ldi, tie, ts):  # pragma: no cover - compiled
+    """Pass 2 of :func:`_partner`: the exact Runnalls costs of component ``i``'s candidates
+    that the bound does not exclude, the lowest bound ``c0`` first, then the others in
+    order. ``t`` is ``(row, component)`` (rows ``LD`` to ``LD + 3``: log-determinant, bound,
+    ``y`` then cost, scale's part then scale); the costed candidates are listed in ``ts``.
+    Returns ``(best, ne)``: the lowest cost and the number costed."""
+    LB = LD + 1
+    CO = LD + 2
+    SC = LD + 3
+    best = np.inf
+    ne = 0
+    for step in range(cnt + 1):
+        if step == 0:
+            c = c0
+        else:
+            c = step - 1
+            if c == c0:
+                continue
+            lb = t[LB, c]
+            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
+                          > best + tie * (2.0 * abs(best) + 4.0 * t[SC, c])):
+                continue
+        ws = wi + t[0, c]
+        lp = math.log1p(t[CO, c])
+        cost = 0.5 * (wi * (t[LD, c] - ldi) + ws * lp)
+        t[SC, c] = 0.5 * (t[SC, c] + ws * abs(lp))
+        t[CO, c] = cost
+        ts[ne] = c
+        ne += 1
+        best = min(best, cost)
+    return best, ne
+
+
 @njit(cache=True, error_model="numpy")
 def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
     """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
@@ -884,28 +918,8 @@ def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
     for c in range(1, cnt):
         if t[LB, c] < t[LB, c0]:
             c0 = c
-    # pass 2: exact costs where the bound allows a win or a tie
-    best = np.inf
-    ne = 0                               # the candidates with exact costs: row TS
-    for step in range(cnt + 1):
-        if step == 0:
-            c = c0
-        else:
-            c = step - 1
-            if c == c0:
-                continue
-            lb = t[LB, c]
-            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
-                          > best + tie * (2.0 * abs(best) + 4.0 * t[SC, c])):
-                continue
-        ws = wi + t[0, c]
-        lp = math.log1p(t[CO, c])
-        cost = 0.5 * (wi * (t[LD, c] - ldi) + ws * lp)
-        t[SC, c] = 0.5 * (t[SC, c] + ws * abs(lp))
-        t[CO, c] = cost
-        t[TS, ne] = c
-        ne += 1
-        best = min(best, cost)
+    # pass 2: exact costs where the bound allows a win or a tie (costed: row TS)
+    best, ne = _exact_costs(t, LD, cnt, i, c0, wi, ldi, tie, t[TS])
     # the tie set and the canonical choice in it
     j = -1
     many = False
@@ -1477,31 +1491,9 @@ def _lane_pass2(T, ln, cnt, i, c0, wi, ldi, tie, t):  # pragma: no cover - compi
     more (then :func:`_pick` decides: the caller runs :func:`_west_soa`). Rows 9 and 10 of
     the costed candidates are overwritten (pass 1 sets them again); row 0 of ``t`` holds
     the costed candidates."""
-    LD = 7
-    LB = 8
     CO = 9
     SC = 10
-    best = np.inf
-    ne = 0
-    for step in range(cnt + 1):
-        if step == 0:
-            c = c0
-        else:
-            c = step - 1
-            if c == c0:
-                continue
-            lb = T[c, LB, ln]
-            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
-                          > best + tie * (2.0 * abs(best) + 4.0 * T[c, SC, ln])):
-                continue
-        ws = wi + T[c, 0, ln]
-        lp = math.log1p(T[c, CO, ln])
-        cost = 0.5 * (wi * (T[c, LD, ln] - ldi) + ws * lp)
-        T[c, SC, ln] = 0.5 * (T[c, SC, ln] + ws * abs(lp))
-        T[c, CO, ln] = cost
-        t[0, ne] = c
-        ne += 1
-        best = min(best, cost)
+    best, ne = _exact_costs(T[:, :, ln].T, 7, cnt, i, c0, wi, ldi, tie, t[0])
     j = -1
     for q in range(ne):
         c = np.int64(t[0, q])
