@@ -29,10 +29,16 @@ $(STAMP_DOCS): pyproject.toml | $(BIN)/python
 	touch $(STAMP) $@
 
 # Debian packages the tests use: headless Chromium for the report's browser test, and LLVM's
-# shared library for Sionna RT's CPU back end. One apt-get call for whichever is absent, when
-# this is root (or sudo works); otherwise the tests that need them are skipped and say why.
+# shared library for Sionna RT's CPU back end. Dr.Jit needs LLVM >= 19 (15 and 16 abort the
+# process, 14 is refused: see LLVM_MIN_VERSION in radioloc/channel/sionna_rt.py), so libllvm19
+# is installed whenever the newest libLLVM present is older, whatever else is there. One
+# apt-get call for whichever is absent, when this is root (or sudo works); otherwise the tests
+# that need them are skipped and say why.
+LLVM_MIN := 19
+LLVM_NEWEST := $(shell ls /usr/lib/*/libLLVM* /usr/lib/llvm-*/lib/libLLVM*.so* 2>/dev/null \
+                 | grep -oE 'libLLVM[-.](so[.])?[0-9]+' | grep -oE '[0-9]+$$' | sort -n | tail -1)
 SYSTEM_PKGS = $(shell command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || echo chromium fonts-dejavu-core) \
-              $(shell ls /usr/lib/*/libLLVM-1*.so /usr/lib/llvm-1*/lib/libLLVM*.so >/dev/null 2>&1 || echo libllvm19)
+              $(shell [ "$(or $(LLVM_NEWEST),0)" -ge $(LLVM_MIN) ] || echo libllvm$(LLVM_MIN))
 system:
 	@if [ -z "$(strip $(SYSTEM_PKGS))" ]; then :; \
 	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install $(strip $(SYSTEM_PKGS)) to run the browser / Sionna RT tests"; \
@@ -64,12 +70,15 @@ demo: $(STAMP) fresh-cache
 
 # The Debian packages and the Python ones install side by side (two jobs); the estimators'
 # kernels compile into numba's cache in two processes (tests/precompile.py: otherwise both
-# test workers compile the larger ones at once); then the tests run.
+# test workers compile the larger ones at once); then the tests run. Every test has a time
+# limit (pyproject.toml), and a worker that crashes or times out is replaced: the test fails,
+# the run goes on. `--dist worksteal` hands out single tests (a crashed worker's file is not
+# sent again to the next worker, as `loadfile` does).
 test:
 	@$(MAKE) --no-print-directory -j2 system rt
 	@$(MAKE) --no-print-directory fresh-cache
 	$(BIN)/python tests/precompile.py
-	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=20
+	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=20
 
 docs: $(STAMP_DOCS)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict

@@ -1,60 +1,67 @@
-"""Sionna RT channel provider: a small street scene traced in 3-D (skips when the optional
-``radioloc[rt]`` extra or its LLVM library cannot be loaded), and the install hint when absent."""
+"""Sionna RT channel provider: a small street scene traced in 3-D in a child process (skips
+when the optional ``radioloc[rt]`` extra or a suitable LLVM library is absent), the refusal
+of an LLVM too old for Dr.Jit, and the install hint when absent."""
 
-import sys
+import importlib.metadata
 
 import numpy as np
 import pytest
+from isolated import run_isolated
+from sionna_checks import RX, SCENE, TX
 
 from radioloc.channel import sionna_rt
-from radioloc.channel.raytrace import C_LIGHT, TraceConfig, trace_links, trace_links_cached
-from radioloc.channel.scene import Scene
+from radioloc.channel.raytrace import trace_links_cached
 from radioloc.core.errors import ConfigError
 
-OK, WHY = sionna_rt.available()
+OK, WHY = sionna_rt.check_requirements()          # loads nothing native
 needs_sionna = pytest.mark.skipif(not OK, reason=f"Sionna RT unavailable: {WHY}")
-
-# a street between two rows of buildings, and a block that hides node 2 from node 0
-SCENE = Scene.from_polygons([[[0, 5], [50, 5], [50, 30], [0, 30]],
-                             [[0, -30], [50, -30], [50, -5], [0, -5]],
-                             [[60, -20], [80, -20], [80, 20], [60, 20]]])
-TX = np.array([[-10.0, 0.0], [-10.0, 0.0], [40.0, 0.0]])
-RX = np.array([[40.0, 0.0], [100.0, 0.0], [-10.0, 0.0]])
 
 
 @needs_sionna
 def test_sionna_traces_los_reflections_and_through_wall_paths(tmp_path):
-    cfg = sionna_rt.SionnaConfig(max_depth=3, samples_per_src=20_000, max_paths_per_src=20_000)
-    ch = trace_links_cached(SCENE, TX, RX, cfg, tmp_path)
-    d = np.linalg.norm(RX - TX, axis=1)
-    # link 0: line of sight down the street, then wall reflections (d^2 + 10^2 for the walls at +-5 m)
-    assert ch.los[0] and ch.kind[0, 0] == 0
-    np.testing.assert_allclose(ch.delays[0, 0] * C_LIGHT, d[0], atol=1e-3)
-    refl = ch.delays[0][ch.kind[0] == 1] * C_LIGHT
-    assert np.min(np.abs(refl - np.hypot(d[0], 10.0))) < 1e-2
-    # the channel is reciprocal: link 2 is link 0 reversed
-    short = [np.sort(ch.delays[k][ch.delays[k] * C_LIGHT < d[0] + 15.0]) for k in (0, 2)]
-    assert short[0].size >= 5
-    np.testing.assert_allclose(short[1], short[0], atol=1e-12)
-    # link 1 crosses the block at x = 60..80: no LOS, first path through the walls at the
-    # straight-line delay; for the opaque 2-D tracer the two nodes cannot hear each other
-    assert not ch.los[1] and ch.kind[1, 0] == sionna_rt.KIND_TRANSMISSION
-    np.testing.assert_allclose(ch.delays[1, 0] * C_LIGHT, d[1], atol=1e-3)
-    assert abs(ch.gains[1, 0]) < C_LIGHT / cfg.carrier_hz / (4 * np.pi * d[1])   # walls attenuate
-    opaque = trace_links(SCENE, TX[1:2], RX[1:2], TraceConfig(max_order=3))
-    assert opaque.n_paths[0] == 0
-    # the result is cached under the provider's own key
-    assert len(list(tmp_path.glob("*.npz"))) == 1
-    again = trace_links_cached(SCENE, TX, RX, cfg, tmp_path)
-    np.testing.assert_array_equal(again.delays, ch.delays)
+    run_isolated("sionna_checks:street_scene", tmp_path)
+
+
+def test_an_abort_in_the_child_is_one_failed_test_with_its_last_lines():
+    with pytest.raises(pytest.fail.Exception, match=r"(?s)SIGABRT.*last words"):
+        run_isolated("sionna_checks:crash", "last words")
+
+
+def test_llvm_older_than_the_minimum_is_refused_naming_it(tmp_path, monkeypatch):
+    fake = tmp_path / "libLLVM-15.so"
+    fake.write_bytes(b"")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(fake))
+    assert sionna_rt.llvm_version(str(fake)) == 15
+    with pytest.raises(ConfigError, match=r"LLVM 15.*needs LLVM >= 19.*libllvm19"):
+        sionna_rt.llvm_library()
+    ok, why = sionna_rt.check_requirements()
+    assert not ok and "LLVM 15" in why
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", str(tmp_path / "absent.so"))
+    with pytest.raises(ConfigError, match="DRJIT_LIBLLVM_PATH: no file"):
+        sionna_rt.llvm_library()
+
+
+def test_llvm_version_read_from_the_library_name(tmp_path):
+    for name, version in (("libLLVM-14.0.6.so.1", 14), ("libLLVM.so.19.1", 19),
+                          ("libLLVM-16.so", 16)):
+        (tmp_path / name).write_bytes(b"")
+        assert sionna_rt.llvm_version(str(tmp_path / name)) == version
+    (tmp_path / "libLLVM.so").symlink_to(tmp_path / "libLLVM.so.19.1")
+    assert sionna_rt.llvm_version(str(tmp_path / "libLLVM.so")) == 19
 
 
 def test_missing_sionna_raises_config_error_with_install_hint(monkeypatch):
-    monkeypatch.setattr(sionna_rt, "_RT", None)
-    monkeypatch.setitem(sys.modules, "mitsuba", None)          # import mitsuba -> ImportError
+    real = importlib.metadata.version
+
+    def version(dist):
+        if dist == "sionna-rt":
+            raise importlib.metadata.PackageNotFoundError(dist)
+        return real(dist)
+
+    monkeypatch.setattr(importlib.metadata, "version", version)
+    ok, why = sionna_rt.check_requirements()
+    assert not ok and "radioloc[rt]" in why and "libllvm19" in why
     with pytest.raises(ConfigError, match=r"radioloc\[rt\]"):
-        sionna_rt.load_sionna()
-    with pytest.raises(ConfigError, match="libllvm19"):
         trace_links_cached(SCENE, TX, RX, sionna_rt.SionnaConfig(), cache_dir="/nonexistent")
 
 

@@ -17,14 +17,21 @@ with path kinds 0 (direct), ``k > 0`` (``k`` specular reflections only), -1 (at 
 diffraction) and -3 (at least one transmission through a wall, no diffraction).
 
 Sionna RT is imported lazily (the first trace). It runs on the CPU through Dr.Jit's LLVM
-back end, which needs ``libLLVM`` (Debian: ``apt-get install libllvm19``); when
-``DRJIT_LIBLLVM_PATH`` is unset, the usual Debian locations are tried.
+back end, which needs ``libLLVM`` of version :data:`LLVM_MIN_VERSION` or later (Debian:
+``apt-get install libllvm19``). :func:`llvm_library` picks the newest suitable one in the
+usual places, or checks ``DRJIT_LIBLLVM_PATH`` when it is set; an older LLVM is refused with
+a :class:`~radioloc.core.errors.ConfigError` before Dr.Jit loads it, since Dr.Jit aborts the
+whole process on LLVM 15 and 16.
 """
 
 from __future__ import annotations
 
 import glob
+import importlib.metadata
 import os
+import re
+import subprocess
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,14 +46,23 @@ from radioloc.core.validation import as_positions, check_positive
 #: Path kind of a path transmitted through at least one wall (and not diffracted).
 KIND_TRANSMISSION = -3
 
+#: The oldest LLVM whose shared library Dr.Jit runs correctly on. Found by experiment on
+#: Debian 12 (x86_64) with sionna-rt 1.x / Dr.Jit 1.x, tracing this module's test scene:
+#: LLVM 14 is refused by Dr.Jit itself; LLVM 15 and 16 abort the whole process while
+#: compiling a kernel (``LLVM ERROR: Cannot select: ... fmaximum``: their x86 back end
+#: cannot lower ``llvm.maximum``); LLVM 19 traces correctly. 17 and 18 are not packaged for
+#: Debian 12 and were not tried, so they are refused too.
+LLVM_MIN_VERSION = 19
+
 #: How to get the optional dependency.
 INSTALL_HINT = ("the 'sionna' channel provider needs Sionna RT: pip install 'radioloc[rt]' "
-                "(or pip install sionna-rt) and an LLVM shared library for its CPU back end "
-                "(Debian: apt-get install libllvm19; set DRJIT_LIBLLVM_PATH to libLLVM-19.so)")
+                "(or pip install sionna-rt) and an LLVM shared library, version "
+                f">= {LLVM_MIN_VERSION}, for its CPU back end (Debian: apt-get install "
+                f"libllvm{LLVM_MIN_VERSION}; or set DRJIT_LIBLLVM_PATH to such a libLLVM)")
 
-_LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM-1*.so", "/usr/lib/aarch64-linux-gnu/libLLVM-1*.so",
-               "/usr/lib/llvm-1*/lib/libLLVM-1*.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.1*",
-               "/usr/lib/llvm-1*/lib/libLLVM.so")
+_LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
+               "/usr/lib/llvm-*/lib/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*",
+               "/opt/homebrew/opt/llvm/lib/libLLVM*.dylib", "/usr/local/opt/llvm/lib/libLLVM*.dylib")
 
 _RT = None          # the imported sionna.rt module (lazy)
 
@@ -95,16 +111,115 @@ class SionnaConfig:
                               f"building_height_m = {self.building_height_m}")
 
 
-def _find_llvm() -> str | None:
+def llvm_version(path: str) -> int | None:
+    """The major version of the LLVM shared library at ``path``, or None if unknown.
+
+    Read from the file name after resolving links (``libLLVM-15.so``, ``libLLVM.so.19.1``,
+    ``libLLVM-14.0.6.so.1``); a name without a version is asked in a separate process
+    (``LLVMGetVersion``, LLVM 16 and later), so that loading it cannot harm this one.
+    """
+    for name in (os.path.basename(path), os.path.basename(os.path.realpath(path))):
+        m = re.match(r"libLLVM[-.](?:so\.)?(\d+)", name)
+        if m:
+            return int(m.group(1))
+    probe = ("import ctypes, sys\n"
+             "lib = ctypes.CDLL(sys.argv[1])\n"
+             "v = [ctypes.c_uint() for _ in range(3)]\n"
+             "lib.LLVMGetVersion(*[ctypes.byref(x) for x in v])\n"
+             "print(v[0].value)\n")
+    try:
+        out = subprocess.run([sys.executable, "-c", probe, path], capture_output=True,
+                             text=True, timeout=60)
+        return int(out.stdout.strip()) if out.returncode == 0 else None
+    except (OSError, ValueError, subprocess.TimeoutExpired):
+        return None
+
+
+def _installed_llvm() -> dict[str, int | None]:
+    """Every LLVM shared library found in the usual places, with its major version."""
+    found = {}
     for pattern in _LLVM_GLOBS:
-        hits = sorted(glob.glob(pattern))
-        if hits:
-            return hits[-1]
-    return None
+        for hit in glob.glob(pattern):
+            real = os.path.realpath(hit)
+            if real not in found.values() and os.path.isfile(real):
+                found[hit] = real
+    versions: dict[str, int | None] = {}
+    for hit, real in found.items():
+        if real not in versions:
+            versions[real] = llvm_version(hit)
+    return versions
+
+
+def llvm_library() -> str:
+    """The LLVM shared library that Dr.Jit is to load: the newest suitable one.
+
+    ``DRJIT_LIBLLVM_PATH``, when set, is checked rather than searched for.
+
+    Returns
+    -------
+    str
+        The library's path.
+
+    Raises
+    ------
+    ConfigError
+        ``DRJIT_LIBLLVM_PATH`` names a missing library or one older than
+        :data:`LLVM_MIN_VERSION` (or of unknown version), or no suitable library is
+        installed; the message names what was found and how to install a suitable one.
+    """
+    fix = (f"install LLVM >= {LLVM_MIN_VERSION} (Debian: apt-get install "
+           f"libllvm{LLVM_MIN_VERSION}) and set DRJIT_LIBLLVM_PATH to its libLLVM, or unset "
+           "DRJIT_LIBLLVM_PATH to let radioloc pick one")
+    given = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if given:
+        if not os.path.isfile(given):
+            raise ConfigError(f"DRJIT_LIBLLVM_PATH: no file at {given}; {fix}")
+        version = llvm_version(given)
+        if version is None or version < LLVM_MIN_VERSION:
+            what = "of unknown version" if version is None else f"LLVM {version}"
+            raise ConfigError(f"DRJIT_LIBLLVM_PATH: {given} is {what}; Dr.Jit (Sionna RT) "
+                              f"needs LLVM >= {LLVM_MIN_VERSION} (older ones abort the "
+                              f"process or are refused); {fix}")
+        return given
+    found = _installed_llvm()
+    suitable = [(v, p) for p, v in found.items() if v is not None and v >= LLVM_MIN_VERSION]
+    if suitable:
+        return max(suitable)[1]
+    seen = ", ".join(sorted({f"LLVM {v}" if v else "LLVM of unknown version"
+                             for v in found.values()})) or "none"
+    raise ConfigError(f"provider: Sionna RT needs LLVM >= {LLVM_MIN_VERSION} for its CPU "
+                      f"back end; found {seen}: {fix}")
+
+
+def check_requirements() -> tuple[bool, str]:
+    """Whether Sionna RT and a suitable LLVM are installed, without loading either.
+
+    Nothing native is loaded, so this is safe to call in any process (a test collector,
+    a command-line check); :func:`available` also imports Sionna RT.
+
+    Returns
+    -------
+    ok : bool
+    reason : str
+        Empty when ``ok``; else what is missing and how to install it.
+    """
+    for dist in ("sionna-rt", "mitsuba", "drjit"):     # metadata only: nothing is imported
+        try:
+            importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            return False, f"provider: {INSTALL_HINT} (package {dist} not installed)"
+    try:
+        llvm_library()
+    except ConfigError as exc:
+        return False, str(exc)
+    return True, ""
 
 
 def load_sionna():
     """Import Sionna RT on its CPU (LLVM) variant, once.
+
+    Dr.Jit is pointed at :func:`llvm_library` (the newest suitable libLLVM) before it is
+    imported: an older LLVM would abort the interpreter at the first trace.
 
     Returns
     -------
@@ -114,15 +229,16 @@ def load_sionna():
     Raises
     ------
     ConfigError
-        Sionna RT or the LLVM library is not installed (the message says how to install).
+        Sionna RT or a suitable LLVM library is not installed (the message says how to
+        install).
     """
     global _RT
     if _RT is not None:
         return _RT
-    if not os.environ.get("DRJIT_LIBLLVM_PATH"):
-        lib = _find_llvm()
-        if lib:
-            os.environ["DRJIT_LIBLLVM_PATH"] = lib
+    ok, why = check_requirements()
+    if not ok:
+        raise ConfigError(why)
+    os.environ["DRJIT_LIBLLVM_PATH"] = llvm_library()
     try:
         import mitsuba as mi
     except ImportError as exc:
@@ -140,13 +256,13 @@ def load_sionna():
 
 
 def available() -> tuple[bool, str]:
-    """Whether Sionna RT can be loaded here.
+    """Whether Sionna RT can be loaded here (it is imported, with a suitable LLVM).
 
     Returns
     -------
     ok : bool
     reason : str
-        Empty when ``ok``; else the install hint and the error.
+        Empty when ``ok``; else what is missing and how to install it.
     """
     try:
         load_sionna()
