@@ -2,7 +2,7 @@
 
 * Ray tracing, order 3, the 1 km synthetic city of seed 0 (568 walls), the 15 links of 6
   street nodes: the compiled tracer (image-tree walk pruned by the wall visibility lists,
-  grid blocking tests) against the NumPy/shapely reference (``engine="numpy"``, same
+  grid blocking tests) against the NumPy/shapely reference (``backend="numpy"``, same
   paths), links/s. The scene's own structures (grid, convex-footprint grid, follower and
   visibility lists) are built once per scene and cached on it, so the timed calls do not
   include them; building the scene and these is the separate "scene build and preprocessing" row (scenes/s, no peer).
@@ -46,13 +46,13 @@ def main() -> list[dict]:
     i, j = np.triu_indices(6, 1)
     cfg = TraceConfig(max_order=3)
     fast = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg), 3, warmup=True)
-    ref = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg, engine="numpy"), 1, warmup=True)
+    ref = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg, backend="numpy"), 1, warmup=True)
     rows.append(_row(f"ray tracing order 3, {len(scene.walls)} walls, 15 links",
                      i.size / fast, "links/s", "NumPy/shapely reference tracer", i.size / ref))
     # the same per CPU second (process time, both threads counted): on a shared machine
     # the wall clock mostly measures the other tenants
     fast_cpu = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg), 3, clock=time.process_time)
-    ref_cpu = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg, engine="numpy"), 1,
+    ref_cpu = best_of(lambda: trace_links(scene, pos[i], pos[j], cfg, backend="numpy"), 1,
                       clock=time.process_time)
     rows.append(_row(f"ray tracing order 3, {len(scene.walls)} walls, 15 links (per CPU second)",
                      i.size / fast_cpu, "links/CPU-s", "NumPy/shapely reference tracer",
@@ -74,13 +74,13 @@ def main() -> list[dict]:
     ci = np.tile(np.arange(U), (B, 1))
     y = received_acks(d, g, ci, cd, rng, codes)
     t_sic = best_of(lambda: omp_sic_toa(y, ci, codes, cd), 3, warmup=True)
-    t_sic_ref = best_of(lambda: omp_sic_toa(y, ci, codes, cd, engine="numpy"), 1, warmup=True)
+    t_sic_ref = best_of(lambda: omp_sic_toa(y, ci, codes, cd, backend="numpy"), 1, warmup=True)
     t_mf = best_of(lambda: matched_filter_toa(y, ci, codes, cd), 3, warmup=True)
-    t_mf_ref = best_of(lambda: matched_filter_toa(y, ci, codes, cd, engine="numpy"), 3, warmup=True)
+    t_mf_ref = best_of(lambda: matched_filter_toa(y, ci, codes, cd, backend="numpy"), 3, warmup=True)
     rows.append(_row("OMP-SIC (GSIC step), 5 users x 3 paths", B / t_sic, "ACK sets/s",
                      "NumPy OMP-SIC reference", B / t_sic_ref))
     c_sic = best_of(lambda: omp_sic_toa(y, ci, codes, cd), 3, clock=time.process_time)
-    c_mf_ref = best_of(lambda: matched_filter_toa(y, ci, codes, cd, engine="numpy"), 3,
+    c_mf_ref = best_of(lambda: matched_filter_toa(y, ci, codes, cd, backend="numpy"), 3,
                        clock=time.process_time)
     rows.append(_row("OMP-SIC (GSIC step), 5 users x 3 paths (per CPU second)", B / c_sic,
                      "ACK sets/CPU-s", "NumPy matched filter (no cancellation)", B / c_mf_ref))

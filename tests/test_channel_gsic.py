@@ -149,20 +149,20 @@ def test_compiled_kernels_equal_numpy_reference_on_random_ack_sets(cfg, noise_va
     y = received_acks(d, g, ci, CFG, rng, CODES)
     nv = CFG.noise_var if noise_var == "true" else None
     for fast, ref in ((omp_sic_toa(y, ci, CODES, CFG, cfg, nv),
-                       omp_sic_toa(y, ci, CODES, CFG, cfg, nv, engine="numpy")),
+                       omp_sic_toa(y, ci, CODES, CFG, cfg, nv, backend="numpy")),
                       (matched_filter_toa(y, ci, CODES, CFG, cfg),
-                       matched_filter_toa(y, ci, CODES, CFG, cfg, engine="numpy"))):
+                       matched_filter_toa(y, ci, CODES, CFG, cfg, backend="numpy"))):
         np.testing.assert_array_equal(fast.taps != 0, ref.taps != 0)      # same detections
         np.testing.assert_allclose(fast.taps, ref.taps, rtol=1e-8, atol=1e-9 * np.abs(ref.taps).max())
         np.testing.assert_array_equal(fast.toa_s, ref.toa_s)
         assert ref.detected.mean() > 0.5
 
 
-def test_old_names_are_aliases_and_engine_checked():
+def test_old_names_are_aliases_and_backend_checked():
     assert gsic_toa is omp_sic_toa and GSICConfig is OMPSICConfig
     y = np.zeros((1, CFG.n_samples), complex)
-    with pytest.raises(ConfigError, match="engine"):
-        omp_sic_toa(y, np.zeros((1, 1), int), CODES, CFG, engine="fortran")
+    with pytest.raises(ConfigError, match="backend"):
+        omp_sic_toa(y, np.zeros((1, 1), int), CODES, CFG, backend="fortran")
 
 
 def test_responders_detect_the_rts_with_the_same_detector(tmp_path):

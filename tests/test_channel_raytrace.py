@@ -184,7 +184,7 @@ def test_compiled_tracer_equals_numpy_reference_on_random_links(order):
         tx, rx = pts[:8], pts[8:]
         cfg = TraceConfig(max_order=order, max_excess_m=400.0)
         fast = trace_links(scene, tx, rx, cfg)
-        ref = trace_links(scene, tx, rx, cfg, engine="numpy")
+        ref = trace_links(scene, tx, rx, cfg, backend="numpy")
         np.testing.assert_array_equal(fast.n_paths, ref.n_paths)
         np.testing.assert_array_equal(fast.kind, ref.kind)
         np.testing.assert_array_equal(fast.los, ref.los)
@@ -200,8 +200,8 @@ def test_compiled_blocking_equals_shapely_on_random_segments():
         a = a[~scene.inside(a)]
         b = a + rng.normal(0, 120, a.shape)
         fast = scene.blocked(a, b)
-        ref = scene.blocked(a, b, engine="shapely")
+        ref = scene.blocked(a, b, backend="numpy")
         np.testing.assert_array_equal(fast, ref)
         assert 0.2 < ref.mean() < 0.95
-    with pytest.raises(InputError, match="engine"):
-        scene.blocked(a, b, engine="gpu")
+    with pytest.raises(ConfigError, match="backend"):
+        scene.blocked(a, b, backend="gpu")

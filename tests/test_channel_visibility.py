@@ -1,7 +1,6 @@
 """Pruning structures of the compiled ray tracer: the wall-to-wall visibility lists (a
 sub-list of the follower lists; every pair they drop is really hidden, by the shapely
-reference), the grid beam test (equal to trying every convex footprint), and the tracer on
-network links whose end points are shared (equal to the NumPy/shapely reference)."""
+reference), and the tracer on network links whose end points are shared (equal to the NumPy/shapely reference)."""
 
 import numpy as np
 import pytest
@@ -39,7 +38,7 @@ def test_hidden_pairs_have_no_clear_segment():
         W = scene.walls
         a = W[p, 0][:, None] + u * (W[p, 1] - W[p, 0])[:, None]
         b = W[w, 0][:, None] + v * (W[w, 1] - W[w, 0])[:, None]
-        assert scene.blocked(a, b, engine="shapely").all()
+        assert scene.blocked(a, b, backend="numpy").all()
 
 
 def test_two_facing_walls_with_a_block_between():
@@ -56,50 +55,6 @@ def test_two_facing_walls_with_a_block_between():
         assert ((top, bottom) not in _pairs(*scene.visible)) == hidden
 
 
-def _beam_blocked_brute(e0, e1, f0, f1, scene):
-    """One convex footprint with a wall crossing each trimmed side (every footprint tried)."""
-    from radioloc.channel.scene import _seg_hits
-    d = 0.01
-    def trim(a, b):
-        u = (b - a) / np.linalg.norm(b - a)
-        return a + u * d, b - u * d
-    if np.linalg.norm(e1 - e0) <= 4 * d or np.linalg.norm(f1 - f0) <= 4 * d:
-        return False
-    p, q = trim(e0, e1)
-    r, s = trim(f0, f1)
-    convex, start = scene.convex_buildings
-    W = scene.walls
-    for b in np.flatnonzero(convex):
-        ws = W[start[b]:start[b + 1]]
-        if any(_seg_hits(*p, *q, *w[0], *w[1]) for w in ws) and \
-                any(_seg_hits(*r, *s, *w[0], *w[1]) for w in ws):
-            return True
-    return False
-
-
-def test_compiled_beam_test_equals_trying_every_footprint():
-    from radioloc.channel.scene import _beam_blocked
-    rng = np.random.default_rng(11)
-    for scene in (city_grid(rng, size_m=500.0), _rotated_scene(rng)):
-        x0, y0, h, nx, ny, cs, cw = scene.grid
-        bbox, bcs, bcell = scene.convex_grid
-        _, bstart = scene.convex_buildings
-        A = np.ascontiguousarray(scene.walls[:, 0])
-        B = np.ascontiguousarray(scene.walls[:, 1])
-        stamp = np.zeros(len(A), np.int64)
-        got, want = [], []
-        for k in range(300):
-            e0 = rng.uniform(-260, 260, 2)
-            e1 = e0 + rng.normal(0, 100, 2)
-            f0 = e0 + rng.normal(0, 15, 2) if k % 2 else e0      # quadrilaterals and triangles
-            f1 = e1 + rng.normal(0, 15, 2)
-            got.append(_beam_blocked(*e0, *e1, *f0, *f1, A, B, bbox, bstart, x0, y0, h, nx, ny,
-                                     bcs, bcell, stamp, k + 1))
-            want.append(_beam_blocked_brute(e0, e1, f0, f1, scene))
-        assert got == want
-        assert 0.1 < np.mean(want) < 0.9
-
-
 @pytest.mark.parametrize("order", [2, 3])
 def test_compiled_tracer_equals_reference_on_network_links(order):
     # all pairs of a few nodes, both directions: end points shared between links (the
@@ -112,7 +67,7 @@ def test_compiled_tracer_equals_reference_on_network_links(order):
         i, j = np.nonzero(~np.eye(5, dtype=bool))
         cfg = TraceConfig(max_order=order, max_excess_m=300.0)
         fast = trace_links(scene, nodes[i], nodes[j], cfg)
-        ref = trace_links(scene, nodes[i], nodes[j], cfg, engine="numpy")
+        ref = trace_links(scene, nodes[i], nodes[j], cfg, backend="numpy")
         np.testing.assert_array_equal(fast.n_paths, ref.n_paths)
         np.testing.assert_array_equal(fast.kind, ref.kind)
         np.testing.assert_array_equal(fast.los, ref.los)

@@ -19,8 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from radioloc.channel import compiled
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import check_positive
 
@@ -187,31 +187,6 @@ def upsample(codes: np.ndarray, samples_per_chip: int) -> np.ndarray:
     return np.repeat(codes, samples_per_chip, axis=-1)
 
 
-@njit(cache=True)
-def _synthesize(out, delays, gains, code_idx, codes, sample_s, chip_s):
-    """Add sum_p g_p c(floor((n Ts - tau_p) / Tc)) to ``out[b]`` for every user and path."""
-    B, U, P = delays.shape
-    N = out.shape[1]
-    L = codes.shape[1]
-    for b in range(B):
-        for u in range(U):
-            c = codes[code_idx[b, u]]
-            for p in range(P):
-                g = gains[b, u, p]
-                if g == 0:
-                    continue
-                tau = delays[b, u, p]
-                n0 = int(np.ceil(tau / sample_s - 1e-9))
-                if n0 < 0:
-                    n0 = 0
-                for n in range(n0, N):
-                    m = int(np.floor((n * sample_s - tau) / chip_s + 1e-9))
-                    if m >= L:
-                        break
-                    if m >= 0:
-                        out[b, n] += g * c[m]
-
-
 def received_acks(delays: np.ndarray, gains: np.ndarray, code_idx: np.ndarray,
                   config: CDMAConfig, rng: np.random.Generator,
                   codes: np.ndarray | None = None) -> np.ndarray:
@@ -253,7 +228,7 @@ def received_acks(delays: np.ndarray, gains: np.ndarray, code_idx: np.ndarray,
     d = np.where(absent, 0.0, delays)
     B = delays.shape[0]
     y = np.zeros((B, config.n_samples), complex)
-    _synthesize(y, d, g, code_idx, codes, config.sample_s, config.chip_s)
+    compiled._synthesize(y, d, g, code_idx, codes, config.sample_s, config.chip_s)
     s = np.sqrt(config.noise_var / 2)
     y += s * (rng.standard_normal(y.shape) + 1j * rng.standard_normal(y.shape))
     return y

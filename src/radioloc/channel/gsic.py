@@ -47,7 +47,7 @@ that is linear in them, so the cancellation works in the correlation domain: rem
 tap ``a`` of user ``v`` at cell ``k`` from user ``u``'s correlator output subtracts
 ``a X_uv[d - k] / E_u`` (``X_uv`` the codes' aperiodic cross-correlation, ``E_u`` the code
 energy), and the joint refit's residual power is ``||y||^2 - 2 Re(a^H r) + a^H G a``. The
-sweeps run in a compiled kernel (numba), in parallel over ACK sets. ``engine="numpy"``
+sweeps run in a compiled kernel (numba), in parallel over ACK sets. ``backend="numpy"``
 runs the plain NumPy implementation that reconstructs and subtracts in the time domain
 (the reference the compiled kernel is tested against: same detections, amplitudes equal
 to rounding).
@@ -60,9 +60,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sp_fft
 
-from numba import njit, prange
 
+from radioloc.channel import compiled
 from radioloc.channel.cdma import CDMAConfig, upsample
+from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.links import pack_mask
 from radioloc.core.validation import check_probability
@@ -262,7 +263,7 @@ class _CodeTables:
 
 def matched_filter_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray,
                        cdma: CDMAConfig, config: OMPSICConfig | None = None,
-                       engine: str = "compiled") -> ToAResult:
+                       backend: str = "numba") -> ToAResult:
     """Single-user baseline: correlate ``y`` with each user's code, no cancellation.
 
     Each user's taps are detected by the same orthogonal matching pursuit as in
@@ -279,7 +280,7 @@ def matched_filter_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray,
     cdma : CDMAConfig
     config : OMPSICConfig, optional
         ``max_taps`` and ``false_alarm`` are used.
-    engine : {"compiled", "numpy"}
+    backend : {"numba", "numpy"}
         The compiled kernel (default) or the plain NumPy reference.
 
     Returns
@@ -289,20 +290,19 @@ def matched_filter_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray,
     """
     cfg = config or OMPSICConfig()
     y, code_idx = _check(y, code_idx, cdma)
-    _check_engine(engine)
-    if engine == "numpy":
+    if check_backend(backend) == "numpy":
         C = _Codes(code_idx, codes, cdma, y.shape[1])
         taps = estimate_taps(C.correlate(y), C.R, cfg.max_taps, _eta2(cfg, C.D))
     else:
         T = _CodeTables(y, code_idx, codes, cdma)
-        taps = _omp_batch(T.z, T.Xn, T.cidx, cfg.max_taps, _eta2(cfg, T.D))
+        taps = compiled._omp_batch(T.z, T.Xn, T.cidx, cfg.max_taps, _eta2(cfg, T.D))
     toa, det = _first_arrival(taps, cdma.sample_s)
     return ToAResult(toa, taps, det)
 
 
 def omp_sic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CDMAConfig,
                 config: OMPSICConfig | None = None, noise_var: float | None = None,
-                engine: str = "compiled") -> ToAResult:
+                backend: str = "numba") -> ToAResult:
     """Multi-user first arrivals by OMP-based successive interference cancellation.
 
     The estimator of the module docstring (in the spirit of the paper's GSIC [1], not a
@@ -322,7 +322,7 @@ def omp_sic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CD
     noise_var : float, optional
         Noise variance per sample; default: estimated from the data (the median noise
         floor during the sweeps, the final residual in the joint refit).
-    engine : {"compiled", "numpy"}
+    backend : {"numba", "numpy"}
         The compiled correlation-domain kernel (default) or the plain NumPy reference.
 
     Returns
@@ -332,11 +332,10 @@ def omp_sic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CD
     """
     cfg = config or OMPSICConfig()
     y, code_idx = _check(y, code_idx, cdma)
-    _check_engine(engine)
-    if engine == "numpy":
+    if check_backend(backend) == "numpy":
         return _omp_sic_numpy(y, code_idx, codes, cdma, cfg, noise_var)
     T = _CodeTables(y, code_idx, codes, cdma)
-    taps = _sic_batch(T.z, T.X, T.Xn, T.E, T.cidx, T.y_energy, T.N, cfg.iterations, cfg.max_taps,
+    taps = compiled._sic_batch(T.z, T.X, T.Xn, T.E, T.cidx, T.y_energy, T.N, cfg.iterations, cfg.max_taps,
                       cfg.first_sweep_taps, cfg.early_relative, bool(cfg.joint_refit),
                       _eta2(cfg, T.D), -1.0 if noise_var is None else float(noise_var))
     toa, det = _first_arrival(taps, cdma.sample_s)
@@ -345,11 +344,6 @@ def omp_sic_toa(y: np.ndarray, code_idx: np.ndarray, codes: np.ndarray, cdma: CD
 
 #: Former name of :func:`omp_sic_toa`.
 gsic_toa = omp_sic_toa
-
-
-def _check_engine(engine: str) -> None:
-    if engine not in ("compiled", "numpy"):
-        raise ConfigError(f"engine: expected 'compiled' or 'numpy', got {engine!r}")
 
 
 def _omp_sic_numpy(y, code_idx, codes, cdma, cfg, noise_var):
@@ -389,230 +383,6 @@ def _omp_sic_numpy(y, code_idx, codes, cdma, cfg, noise_var):
 
 
 # ---------------------------------------------------------------- compiled kernels
-@njit(cache=True)
-def _omp1(z, Xn, c, T, eta2, relative, floor, ks, amps):
-    """OMP of one user's correlator output ``z`` (D,) with code ``c`` (``Xn[c, c]`` its
-    normalised autocorrelation): writes the support cells ``ks`` and amplitudes ``amps``
-    (length >= T) and returns the number of taps."""
-    D = z.shape[0]
-    resid = z.copy()
-    p = np.empty(D)
-    strongest = 0.0
-    for d in range(D):
-        v = z[d].real ** 2 + z[d].imag ** 2
-        if v > strongest:
-            strongest = v
-    strongest *= relative
-    n = 0
-    for t in range(T):
-        kbest = 0
-        pbest = -1.0
-        for d in range(D):
-            v = resid[d].real ** 2 + resid[d].imag ** 2
-            p[d] = v
-            if v > pbest:
-                pbest = v
-                kbest = d
-        fl = np.median(p) / np.log(2.0) if floor < 0 else floor
-        thr = max(eta2 * fl, strongest)
-        if not pbest > thr:
-            break
-        ks[t] = kbest
-        n = t + 1
-        G = np.empty((n, n), np.complex128)
-        rhs = np.empty((n, 1), np.complex128)
-        for i in range(n):
-            for j in range(n):
-                G[i, j] = Xn[c, c, ks[i] - ks[j] + D - 1]
-            G[i, i] += 1e-9
-            rhs[i, 0] = z[ks[i]]
-        a = np.linalg.solve(G, rhs)
-        for i in range(n):
-            amps[i] = a[i, 0]
-        for d in range(D):
-            resid[d] = z[d]
-        for i in range(n):
-            a = amps[i]
-            off = D - 1 - ks[i]
-            for d in range(D):
-                resid[d] -= a * Xn[c, c, d + off]
-    return n
-
-
-@njit(cache=True, parallel=True)
-def _omp_batch(z, Xn, cidx, T, eta2):
-    """Matched filter: OMP of every user of every ACK set on ``z`` itself."""
-    B, U, D = z.shape
-    taps = np.zeros((B, U, D), np.complex128)
-    for b in prange(B):
-        ks = np.zeros(T, np.int64)
-        amps = np.zeros(T, np.complex128)
-        for u in range(U):
-            n = _omp1(z[b, u], Xn, cidx[b, u], T, eta2, 0.0, -1.0, ks, amps)
-            for i in range(n):
-                taps[b, u, ks[i]] += amps[i]
-    return taps
-
-
-@njit(cache=True)
-def _add_user(Zall, Xn, cb, v, ks, amps, n, sign):
-    """Zall[w] += sign * (correlation of user v's reconstruction with code w), w != v."""
-    U, D = Zall.shape
-    cv = cb[v]
-    for w in range(U):
-        if w == v:
-            continue
-        cw = cb[w]
-        for i in range(n):
-            a = sign * amps[i]
-            off = D - 1 - ks[i]
-            for d in range(D):
-                Zall[w, d] += a * Xn[cw, cv, d + off]
-
-
-@njit(cache=True)
-def _sic1(z, X, Xn, E, cb, y_energy, N, iterations, T, first_taps, early, joint, eta2,
-          noise_var, ks, amps, nt):
-    """The sweeps of one ACK set; taps as (ks, amps, nt) per user.
-
-    ``Zall[u]`` is user u's correlator output of ``y`` minus every *other* user's
-    reconstruction, kept up to date as users change their taps."""
-    U, D = z.shape
-    Zall = z.copy()
-    nks = np.zeros(T, np.int64)
-    namps = np.zeros(T, np.complex128)
-    done = np.zeros(U, np.bool_)
-    for u in range(U):
-        nt[u] = 0
-    for sweep in range(iterations):
-        rel = 0.0 if sweep == iterations - 1 else early
-        ntaps = first_taps if (sweep == 0 and iterations > 1) else T
-        done[:] = False
-        for _stage in range(U):
-            best = -1.0
-            ub = 0
-            for u in range(U):
-                if done[u]:
-                    continue
-                pk = 0.0
-                for d in range(D):
-                    v = Zall[u, d].real ** 2 + Zall[u, d].imag ** 2
-                    if v > pk:
-                        pk = v
-                if pk > best:
-                    best = pk
-                    ub = u
-            u = ub
-            done[u] = True
-            cu = cb[u]
-            floor = noise_var / E[cu] if noise_var >= 0 else -1.0
-            n = _omp1(Zall[u], Xn, cu, ntaps, eta2, rel, floor, nks, namps)
-            # merge duplicate cells (as the dense tap array does)
-            m = 0
-            for i in range(n):
-                found = -1
-                for j in range(m):
-                    if nks[j] == nks[i]:
-                        found = j
-                if found >= 0:
-                    namps[found] += namps[i]
-                else:
-                    nks[m] = nks[i]
-                    namps[m] = namps[i]
-                    m += 1
-            _add_user(Zall, Xn, cb, u, ks[u], amps[u], nt[u], 1.0)      # put the old back
-            _add_user(Zall, Xn, cb, u, nks, namps, m, -1.0)             # remove the new
-            nt[u] = 0
-            for i in range(m):
-                if namps[i] != 0:
-                    ks[u, nt[u]] = nks[i]
-                    amps[u, nt[u]] = namps[i]
-                    nt[u] += 1
-        if joint:
-            _joint1(z, X, E, cb, y_energy, N, T, eta2, noise_var, ks, amps, nt)
-            for u in range(U):
-                for d in range(D):
-                    Zall[u, d] = z[u, d]
-            for u in range(U):
-                _add_user(Zall, Xn, cb, u, ks[u], amps[u], nt[u], -1.0)
-
-
-@njit(cache=True)
-def _joint1(z, X, E, cb, y_energy, N, T, eta2, noise_var, ks, amps, nt):
-    """Joint least squares of every user's taps, pruning at the noise threshold, twice."""
-    U, D = z.shape
-    for _rep in range(2):
-        # taps in increasing cell order per user (the order of the dense reference)
-        n = 0
-        for u in range(U):
-            for i in range(nt[u]):
-                for j in range(nt[u] - 1 - i):
-                    if ks[u, j] > ks[u, j + 1]:
-                        k0 = ks[u, j]
-                        ks[u, j] = ks[u, j + 1]
-                        ks[u, j + 1] = k0
-                        a0 = amps[u, j]
-                        amps[u, j] = amps[u, j + 1]
-                        amps[u, j + 1] = a0
-            n += min(nt[u], T)
-        uu = np.empty(n, np.int64)
-        kk = np.empty(n, np.int64)
-        m = 0
-        for u in range(U):
-            for i in range(min(nt[u], T)):
-                uu[m] = u
-                kk[m] = ks[u, i]
-                m += 1
-        G = np.empty((n, n), np.complex128)
-        rhs = np.empty((n, 1), np.complex128)
-        for i in range(n):
-            ci = cb[uu[i]]
-            for j in range(n):
-                G[i, j] = X[ci, cb[uu[j]], kk[i] - kk[j] + D - 1]
-            G[i, i] += 1e-9
-            rhs[i, 0] = z[uu[i], kk[i]] * E[ci]
-        if n == 0:
-            return
-        a = np.linalg.solve(G, rhs)
-        if noise_var >= 0:
-            nv = noise_var
-        else:                                   # ||y - sum a_i s_i||^2 / N
-            q = y_energy
-            for i in range(n):
-                q -= 2.0 * (np.conj(a[i, 0]) * rhs[i, 0]).real
-                G[i, i] -= 1e-9
-            for i in range(n):
-                acc = 0.0 + 0.0j
-                for j in range(n):
-                    acc += G[i, j] * a[j, 0]
-                q += (np.conj(a[i, 0]) * acc).real
-            nv = q / N
-        for u in range(U):
-            nt[u] = 0
-        for i in range(n):
-            u = uu[i]
-            v = a[i, 0]
-            if v.real ** 2 + v.imag ** 2 > eta2 * nv / E[cb[u]]:
-                ks[u, nt[u]] = kk[i]
-                amps[u, nt[u]] = v
-                nt[u] += 1
-
-
-@njit(cache=True, parallel=True)
-def _sic_batch(z, X, Xn, E, cidx, y_energy, N, iterations, T, first_taps, early, joint, eta2,
-               noise_var):
-    B, U, D = z.shape
-    taps = np.zeros((B, U, D), np.complex128)
-    for b in prange(B):
-        ks = np.zeros((U, T), np.int64)
-        amps = np.zeros((U, T), np.complex128)
-        nt = np.zeros(U, np.int64)
-        _sic1(z[b], X, Xn, E, cidx[b], y_energy[b], N, iterations, T, first_taps, early, joint,
-              eta2, noise_var, ks, amps, nt)
-        for u in range(U):
-            for i in range(nt[u]):
-                taps[b, u, ks[u, i]] += amps[u, i]
-    return taps
 
 
 def _cross_table(C: _Codes) -> np.ndarray:

@@ -9,10 +9,10 @@ Paths between a transmitter and a receiver in the horizontal plane:
 * single-edge diffraction at building corners (only for links without LOS): the path
   tx -> corner -> rx with both legs clear, attenuated by the knife-edge loss J(nu).
 
-The reference engine (``engine="numpy"``) is vectorised over links and wall sequences; the
+The definition (``backend="numpy"``) is vectorised over links and wall sequences; the
 candidate walls of a link come from the wall STRtree queried with the link's ellipse ``|p -
 tx| + |p - rx| <= d + max_excess_m`` (paths longer than that are not traced). The default
-compiled engine finds the same paths by a depth-first walk of the image tree per link (in
+compiled kernel (``backend="numba"``) finds the same paths by a depth-first walk of the image tree per link (in
 parallel over links) pruned by a visibility tree: per scene, the walls each wall can see
 (:attr:`radioloc.channel.scene.Scene.visible`); per call, the walls each distinct end point
 can see; per node, the beam through the parent's lit part. Blocking tests walk a uniform
@@ -43,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 import shapely
-from numba import njit, prange
 
-from radioloc.channel.scene import Scene, _beam_blocked, _leg_blocked
+from radioloc.channel import compiled
+from radioloc.channel.scene import Scene
+from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.geometry import segment_intersections
 from radioloc.core.validation import as_positions, check_positive
@@ -173,64 +174,7 @@ def knife_edge_loss_db(nu: np.ndarray) -> np.ndarray:
     return np.where(nu > -0.78, j, 0.0)
 
 
-@njit(cache=True)
-def _extend(last_img, last_wall, link, counts, offsets, wk, A, B, N, rx, lmax):
-    """Children (parent index, wall) of every sequence: walls of the same link that face
-    the last image, differ from the last wall, lie (partly) in front of it and inside the
-    beam through it, and keep the lower bound of the path length within ``lmax``."""
-    S = last_img.shape[0]
-    total = 0
-    for s in range(S):
-        total += counts[link[s]]
-    par = np.empty(total, np.int64)
-    wal = np.empty(total, np.int64)
-    n = 0
-    for s in range(S):
-        l = link[s]
-        ix, iy = last_img[s, 0], last_img[s, 1]
-        wp = last_wall[s]
-        pax, pay = A[wp, 0], A[wp, 1]
-        pbx, pby = B[wp, 0], B[wp, 1]
-        pnx, pny = N[wp, 0], N[wp, 1]
-        # beam edges lo, hi ordered counter-clockwise around the image
-        if (pax - ix) * (pby - iy) - (pay - iy) * (pbx - ix) < 0:
-            lox, loy, hix, hiy = pbx, pby, pax, pay
-        else:
-            lox, loy, hix, hiy = pax, pay, pbx, pby
-        rxx, rxy = rx[l, 0], rx[l, 1]
-        for q in range(offsets[l], offsets[l] + counts[l]):
-            w = wk[q]
-            if w == wp:
-                continue
-            ax, ay, bx, by = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-            nx, ny = N[w, 0], N[w, 1]
-            if (ix - ax) * nx + (iy - ay) * ny <= 0.0:
-                continue
-            if (ax - pax) * pnx + (ay - pay) * pny <= 1e-9 and (bx - pax) * pnx + (by - pay) * pny <= 1e-9:
-                continue
-            c1 = (lox - ix) * (ay - iy) - (loy - iy) * (ax - ix)
-            c2 = (lox - ix) * (by - iy) - (loy - iy) * (bx - ix)
-            if c1 < 0 and c2 < 0:
-                continue
-            c1 = (ax - ix) * (hiy - iy) - (ay - iy) * (hix - ix)
-            c2 = (bx - ix) * (hiy - iy) - (by - iy) * (hix - ix)
-            if c1 < 0 and c2 < 0:
-                continue
-            dx, dy = bx - ax, by - ay
-            dd = dx * dx + dy * dy
-            t = min(max(((ix - ax) * dx + (iy - ay) * dy) / dd, 0.0), 1.0)
-            d1 = np.hypot(ax + t * dx - ix, ay + t * dy - iy)
-            t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
-            d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
-            if d1 + d2 > lmax[l]:
-                continue
-            par[n] = s
-            wal[n] = w
-            n += 1
-    return par[:n], wal[:n]
-
-
-def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "shapely"):
+def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, backend: str = "numpy"):
     """Specular paths of every link: (link, length, gain, order) arrays."""
     out = []
     if cfg.max_order == 0 or len(scene.walls) == 0:
@@ -253,7 +197,7 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "sh
     for k in range(1, cfg.max_order + 1):
         if k > 1:
             # extend every sequence by each candidate wall of its link (ragged: numba)
-            parent, w = _extend(imgs[:, -1], seq[:, -1], link, counts, offsets, wk,
+            parent, w = compiled._extend(imgs[:, -1], seq[:, -1], link, counts, offsets, wk,
                                 A, B, N, rx, lmax)
             lnk = link[parent]
             prev = imgs[parent, -1]
@@ -283,7 +227,7 @@ def _reflections(scene: Scene, tx, rx, lmax, cfg: TraceConfig, engine: str = "sh
         if idx.size == 0:
             continue
         P = pts[idx]
-        blocked = scene.blocked(P[:, :-1], P[:, 1:], engine=engine).any(axis=1)
+        blocked = scene.blocked(P[:, :-1], P[:, 1:], backend=backend).any(axis=1)
         idx, P = idx[~blocked], P[~blocked]
         if idx.size == 0:
             continue
@@ -303,15 +247,15 @@ def _distinct_points(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(np.stack([z.real, z.imag], axis=1)), inv.astype(np.int64)
 
 
-def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: str = "shapely"):
+def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, backend: str = "numpy"):
     if not cfg.diffraction or len(scene.corners) == 0 or not nlos.any():
         return []
     links = np.flatnonzero(nlos)
     C = scene.corners
-    if engine == "compiled":
+    if backend == "numba":
         x0, y0, h, nx, ny, cs, cw = scene.grid
         pts, inv = _distinct_points(np.concatenate([tx[links], rx[links]]))
-        li, ci = np.nonzero(_corner_paths(np.ascontiguousarray(tx[links]),
+        li, ci = np.nonzero(compiled._corner_paths(np.ascontiguousarray(tx[links]),
                                           np.ascontiguousarray(rx[links]),
                                           inv[:len(links)], inv[len(links):],
                                           np.ascontiguousarray(pts),
@@ -326,8 +270,8 @@ def _diffractions(scene: Scene, tx, rx, lmax, nlos, cfg: TraceConfig, engine: st
         d2 = np.linalg.norm(C[None] - rx[links, None], axis=2)
         li, ci = np.nonzero(d1 + d2 <= lmax[links, None])
         link = links[li]
-        clear = ~(scene.blocked(tx[link], C[ci], engine=engine)
-                  | scene.blocked(C[ci], rx[link], engine=engine))
+        clear = ~(scene.blocked(tx[link], C[ci], backend=backend)
+                  | scene.blocked(C[ci], rx[link], backend=backend))
         link, ci = link[clear], ci[clear]
     a = np.linalg.norm(C[ci] - tx[link], axis=1)
     b = np.linalg.norm(rx[link] - C[ci], axis=1)
@@ -359,11 +303,11 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
     # wall visibility from each distinct end point (links of a network share their nodes)
     pts, inv = _distinct_points(np.concatenate([tx, rx]))
     txi, rxi = inv[:len(tx)], inv[len(tx):]
-    pvis = _point_wall_visible(pts, hit, txi, rxi, A, B, scene.normals, bbox, bstart, x0, y0,
+    pvis = compiled._point_wall_visible(pts, hit, txi, rxi, A, B, scene.normals, bbox, bstart, x0, y0,
                                h, nx, ny, bcs, bcell)
     cap = 256
     while True:
-        ln, gm, od, n, over = _reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
+        ln, gm, od, n, over = compiled._reflect_links(np.ascontiguousarray(tx), np.ascontiguousarray(rx),
                                              np.ascontiguousarray(lmax, dtype=float), hit,
                                              A, B, scene.normals,
                                              int(cfg.max_order), float(cfg.wall_permittivity),
@@ -381,7 +325,7 @@ def _reflections_compiled(scene: Scene, tx, rx, lmax, cfg: TraceConfig):
 
 
 def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
-                config: TraceConfig | None = None, engine: str = "compiled") -> LinkChannels:
+                config: TraceConfig | None = None, backend: str = "numba") -> LinkChannels:
     """Trace every link ``tx[i] -> rx[i]``.
 
     Parameters
@@ -390,7 +334,7 @@ def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
     tx, rx : array_like, shape (L, 2)
         End points of the links; neither may lie inside a building.
     config : TraceConfig, optional
-    engine : {"compiled", "numpy"}
+    backend : {"numba", "numpy"}
         The compiled image-tree walk with grid-accelerated blocking tests (default, in
         parallel over links) or the NumPy/shapely reference (same paths).
 
@@ -412,18 +356,16 @@ def trace_links(scene: Scene, tx: np.ndarray, rx: np.ndarray,
     dist = np.linalg.norm(rx - tx, axis=1)
     if np.any(dist <= 0):
         raise InputError(f"tx, rx: link {int(np.argmin(dist))} has coincident end points")
-    if engine not in ("compiled", "numpy"):
-        raise ConfigError(f"engine: expected 'compiled' or 'numpy', got {engine!r}")
-    bl = "compiled" if engine == "compiled" else "shapely"
+    check_backend(backend)
     lmax = dist + cfg.max_excess_m
-    los = ~scene.blocked(tx, rx, engine=bl)
+    los = ~scene.blocked(tx, rx, backend=backend)
     parts = [(np.flatnonzero(los), dist[los], np.ones(los.sum(), complex),
               np.full(los.sum(), KIND_LOS))]
-    if engine == "compiled":
+    if backend == "numba":
         parts += _reflections_compiled(scene, tx, rx, lmax, cfg)
     else:
-        parts += _reflections(scene, tx, rx, lmax, cfg, bl)
-    parts += _diffractions(scene, tx, rx, lmax, ~los, cfg, bl)
+        parts += _reflections(scene, tx, rx, lmax, cfg, backend)
+    parts += _diffractions(scene, tx, rx, lmax, ~los, cfg, backend)
     link = np.concatenate([p[0] for p in parts]).astype(int)
     length = np.concatenate([p[1] for p in parts])
     coef = np.concatenate([p[2] for p in parts])
@@ -523,351 +465,3 @@ def all_pairs(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     K = len(positions)
     i, j = np.triu_indices(K, 1)
     return i, j
-
-@njit(cache=True)
-def _fresnel1(cos_t, eps):
-    root = np.sqrt(complex(eps - (1.0 - cos_t * cos_t)))
-    return (cos_t - root) / (cos_t + root)
-
-
-@njit(cache=True)
-def _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x, g0y, h, nx, ny, cstart,
-          cwalls, stamp, tagbox, pts):
-    """Trace a sequence of ``k`` walls back from the receiver; the path's length and
-    reflection coefficient, or length -1 when it is not a valid unblocked path."""
-    px, py = rxx, rxy
-    pts[k + 1, 0], pts[k + 1, 1] = rxx, rxy
-    pts[0, 0], pts[0, 1] = txx, txy
-    for m in range(k - 1, -1, -1):
-        w = seq[m]
-        ix, iy = imgs[m, 0], imgs[m, 1]
-        rx_, ry_ = px - ix, py - iy
-        sx, sy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
-        qx, qy = A[w, 0] - ix, A[w, 1] - iy
-        den = rx_ * sy - ry_ * sx
-        if den == 0.0:
-            return -1.0, 0j
-        u = (qx * sy - qy * sx) / den
-        t = (qx * ry_ - qy * rx_) / den
-        if not (np.isfinite(u) and np.isfinite(t) and u > 0 and u < 1 and t >= 0 and t <= 1):
-            return -1.0, 0j
-        px = ix + u * (px - ix)
-        py = iy + u * (py - iy)
-        pts[m + 1, 0], pts[m + 1, 1] = px, py
-    for m in range(k + 1):
-        tagbox[0] += 1
-        if _leg_blocked(pts[m, 0], pts[m, 1], pts[m + 1, 0], pts[m + 1, 1], trim, A, B, g0x, g0y,
-                        h, nx, ny, cstart, cwalls, stamp, tagbox[0]):
-            return -1.0, 0j
-    length = 0.0
-    gam = 1.0 + 0j
-    for m in range(k + 1):
-        lx, ly = pts[m + 1, 0] - pts[m, 0], pts[m + 1, 1] - pts[m, 1]
-        ln = np.sqrt(lx * lx + ly * ly)
-        length += ln
-        if m < k:
-            w = seq[m]
-            c = abs(lx / ln * N[w, 0] + ly / ln * N[w, 1])
-            gam *= _fresnel1(c, eps)
-    return length, gam
-
-
-@njit(cache=True, parallel=True)
-def _point_wall_visible(pts, hit, txi, rxi, A, B, N, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
-                        bcell):
-    """``vis[i, w]``: point ``i`` is in front of wall ``w`` and no convex footprint spans the
-    triangle point-wall (computed where ``w`` is a candidate, ``hit[l, w]``, of a link ``l``
-    that starts or ends at ``i``; False elsewhere)."""
-    P = pts.shape[0]
-    L, W = hit.shape
-    vis = np.zeros((P, W), np.bool_)
-    for i in prange(P):
-        stamp = np.zeros(W, np.int64)
-        need = np.zeros(W, np.bool_)
-        for l in range(L):
-            if txi[l] == i or rxi[l] == i:
-                for w in range(W):
-                    need[w] |= hit[l, w]
-        tag = 0
-        px, py = pts[i, 0], pts[i, 1]
-        for w in range(W):
-            if not need[w] or (px - A[w, 0]) * N[w, 0] + (py - A[w, 1]) * N[w, 1] <= 0:
-                continue
-            tag += 1
-            vis[i, w] = not _beam_blocked(px, py, A[w, 0], A[w, 1], px, py, B[w, 0], B[w, 1],
-                                          A, B, bbox, bstart, g0x, g0y, h, nx, ny, bcs,
-                                          bcell, stamp, tag)
-    return vis
-
-
-@njit(cache=True)
-def _in_wedge(ix, iy, c0x, c0y, c1x, c1y, px, py):
-    """Whether the line from the image ``i`` to ``p`` meets the lit part c0-c1 (1 um of
-    slack at both ends): the last reflection point of a valid path lies in the lit part."""
-    ux, uy = c1x - c0x, c1y - c0y
-    vx, vy = px - ix, py - iy
-    den = vx * uy - vy * ux
-    if den == 0.0:
-        return True
-    lam = ((c0x - ix) * uy - (c0y - iy) * ux) / den
-    rx_, ry_ = ix + lam * vx - c0x, iy + lam * vy - c0y
-    ln = np.sqrt(ux * ux + uy * uy)
-    s = (rx_ * ux + ry_ * uy) / ln
-    return -1e-6 <= s <= ln + 1e-6
-
-
-@njit(cache=True, parallel=True)
-def _reflect_links(tx, rx, lmax, hit, A, B, N, max_order, eps, trim,
-                   g0x, g0y, h, nx, ny, cstart, cwalls, fstart, fwalls, bbox, bcs, bcell, bstart, cap,
-                   pvis, txi, rxi):
-    """Specular paths of every link by a depth-first walk of the image tree; ``cap`` paths
-    at most per link.
-
-    The tests of :func:`_extend`, in the same order, plus pruning tests that no valid path
-    fails (a convex building that spans a beam cuts every ray of it):
-
-    * a child wall must be a visible follower of its parent (:attr:`Scene.visible`: no
-      convex building spans the quadrilaterals between the two walls' halves);
-    * it must meet the beam of its parent's *lit part* (the aperture: the part of the
-      parent wall inside the grandparent's beam, not the whole wall), and no convex
-      building may span the beam from the parent's lit part (or from the transmitter,
-      ``pvis[txi[l]]``) to the child's lit part;
-    * a wall at the last depth must be seen by the receiver (``pvis[rxi[l]]``: in front,
-      no convex building spanning the receiver-wall triangle);
-    * a sequence is traced back only when the receiver is in front of its last wall, the
-      line from its last image to the receiver meets the last lit part (:func:`_in_wedge`)
-      and no convex building spans the beam from the lit part to the receiver."""
-    L = tx.shape[0]
-    W = A.shape[0]
-    out_len = np.zeros((L, cap))
-    out_gam = np.zeros((L, cap), np.complex128)
-    out_ord = np.zeros((L, cap), np.int64)
-    out_n = np.zeros(L, np.int64)
-    overflow = np.zeros(L, np.bool_)
-    for l in prange(L):
-        stamp = np.zeros(W, np.int64)
-        tagbox = np.zeros(1, np.int64)
-        seq = np.zeros(max_order, np.int64)
-        imgs = np.zeros((max_order, 2))
-        pos = np.zeros(max_order, np.int64)          # next candidate index at each depth
-        ap = np.zeros((max_order, 4))                # lit part of the wall at each depth
-        pts = np.zeros((max_order + 2, 2))
-        txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
-        incand = hit[l]                              # the link's candidate walls
-        # lastok: candidates the receiver sees (in front, no convex footprint spanning the
-        # triangle receiver-wall); only they can be the last wall of a path
-        # (pvis: the same test for every end point, computed once per point)
-        lastok = pvis[rxi[l]]
-        txvis = pvis[txi[l]]
-        end = np.zeros(max_order, np.int64)
-        end[0] = W
-        # per-level buffers so that paths come out level by level, as in the reference
-        nlev = np.zeros(max_order + 1, np.int64)
-        lev_len = np.zeros((max_order + 1, cap))
-        lev_gam = np.zeros((max_order + 1, cap), np.complex128)
-        depth = 0
-        pos[0] = 0
-        while depth >= 0:
-            if pos[depth] >= end[depth]:
-                depth -= 1
-                continue
-            w = pos[0] if depth == 0 else fwalls[pos[depth]]
-            if not incand[w]:
-                pos[depth] += 1
-                continue
-            pos[depth] += 1
-            if depth == max_order - 1 and not lastok[w]:
-                continue
-            if depth == 0:
-                dot = (txx - A[w, 0]) * N[w, 0] + (txy - A[w, 1]) * N[w, 1]
-                ix = txx - 2 * dot * N[w, 0]
-                iy = txy - 2 * dot * N[w, 1]
-                if not (dot > 0 and np.sqrt((ix - rxx) ** 2 + (iy - rxy) ** 2) <= lmax[l]):
-                    continue
-            else:
-                wp = seq[depth - 1]
-                ix0, iy0 = imgs[depth - 1, 0], imgs[depth - 1, 1]
-                if w == wp:
-                    continue
-                ax, ay, bx, by = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-                nx_, ny_ = N[w, 0], N[w, 1]
-                if (ix0 - ax) * nx_ + (iy0 - ay) * ny_ <= 0.0:
-                    continue
-                pax, pay = A[wp, 0], A[wp, 1]
-                pbx, pby = B[wp, 0], B[wp, 1]
-                pnx, pny = N[wp, 0], N[wp, 1]
-                if (ax - pax) * pnx + (ay - pay) * pny <= 1e-9 and (bx - pax) * pnx + (by - pay) * pny <= 1e-9:
-                    continue
-                if (pax - ix0) * (pby - iy0) - (pay - iy0) * (pbx - ix0) < 0:
-                    lox, loy, hix, hiy = pbx, pby, pax, pay
-                else:
-                    lox, loy, hix, hiy = pax, pay, pbx, pby
-                # the parent's lit part (a sub-segment of the parent wall)
-                qax, qay, qbx, qby = ap[depth - 1, 0], ap[depth - 1, 1], ap[depth - 1, 2], ap[depth - 1, 3]
-                if (qax - ix0) * (qby - iy0) - (qay - iy0) * (qbx - ix0) < 0:
-                    qlx, qly, qhx, qhy = qbx, qby, qax, qay
-                else:
-                    qlx, qly, qhx, qhy = qax, qay, qbx, qby
-                c1_ = (lox - ix0) * (ay - iy0) - (loy - iy0) * (ax - ix0)
-                c2_ = (lox - ix0) * (by - iy0) - (loy - iy0) * (bx - ix0)
-                if c1_ < 0 and c2_ < 0:
-                    continue
-                c1_ = (ax - ix0) * (hiy - iy0) - (ay - iy0) * (hix - ix0)
-                c2_ = (bx - ix0) * (hiy - iy0) - (by - iy0) * (hix - ix0)
-                if c1_ < 0 and c2_ < 0:
-                    continue
-                dx, dy = bx - ax, by - ay
-                dd = dx * dx + dy * dy
-                t = min(max(((ix0 - ax) * dx + (iy0 - ay) * dy) / dd, 0.0), 1.0)
-                d1 = np.hypot(ax + t * dx - ix0, ay + t * dy - iy0)
-                t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
-                d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
-                if d1 + d2 > lmax[l]:
-                    continue
-                # lit part of w: inside the beam through the parent's lit part, ahead of it
-                t0, t1 = 0.0, 1.0
-                for e in range(3):
-                    if e == 0:
-                        f0 = (qlx - ix0) * (ay - iy0) - (qly - iy0) * (ax - ix0)
-                        f1 = (qlx - ix0) * (by - iy0) - (qly - iy0) * (bx - ix0)
-                    elif e == 1:
-                        f0 = (ax - ix0) * (qhy - iy0) - (ay - iy0) * (qhx - ix0)
-                        f1 = (bx - ix0) * (qhy - iy0) - (by - iy0) * (qhx - ix0)
-                    else:
-                        f0 = (ax - pax) * pnx + (ay - pay) * pny
-                        f1 = (bx - pax) * pnx + (by - pay) * pny
-                    tol = 1e-9 * (abs(f0) + abs(f1)) + 1e-12
-                    f0 += tol
-                    f1 += tol
-                    if f0 < 0 and f1 < 0:
-                        t0, t1 = 1.0, 0.0
-                        break
-                    if f0 < 0:
-                        t0 = max(t0, f0 / (f0 - f1))
-                    elif f1 < 0:
-                        t1 = min(t1, f0 / (f0 - f1))
-                if t0 > t1:
-                    continue
-                dot = (ix0 - ax) * nx_ + (iy0 - ay) * ny_
-                ix = ix0 - 2 * dot * nx_
-                iy = iy0 - 2 * dot * ny_
-            if depth == 0:
-                c0x, c0y, c1x, c1y = A[w, 0], A[w, 1], B[w, 0], B[w, 1]
-                if not txvis[w]:            # no convex footprint spans the triangle tx-wall
-                    continue
-            else:
-                dx, dy = B[w, 0] - A[w, 0], B[w, 1] - A[w, 1]
-                c0x, c0y = A[w, 0] + t0 * dx, A[w, 1] + t0 * dy
-                c1x, c1y = A[w, 0] + t1 * dx, A[w, 1] + t1 * dy
-                # the edge rays meet the parent wall line at q0, q1
-                den0 = (c0x - ix0) * pnx + (c0y - iy0) * pny
-                den1 = (c1x - ix0) * pnx + (c1y - iy0) * pny
-                num = (pax - ix0) * pnx + (pay - iy0) * pny
-                if den0 != 0.0 and den1 != 0.0:
-                    u0 = num / den0
-                    u1 = num / den1
-                    if 0.0 < u0 < 1.0 and 0.0 < u1 < 1.0:
-                        q0x, q0y = ix0 + u0 * (c0x - ix0), iy0 + u0 * (c0y - iy0)
-                        q1x, q1y = ix0 + u1 * (c1x - ix0), iy0 + u1 * (c1y - iy0)
-                        tagbox[0] += 1
-                        if _beam_blocked(q0x, q0y, c0x, c0y, q1x, q1y, c1x, c1y, A, B, bbox,
-                                         bstart, g0x, g0y, h, nx, ny, bcs, bcell, stamp,
-                                         tagbox[0]):
-                            continue
-            seq[depth] = w
-            imgs[depth, 0] = ix
-            imgs[depth, 1] = iy
-            ap[depth, 0], ap[depth, 1], ap[depth, 2], ap[depth, 3] = c0x, c0y, c1x, c1y
-            k = depth + 1
-            length = -1.0
-            gam = 0j
-            tagbox[0] += 1
-            if (rxx - A[w, 0]) * N[w, 0] + (rxy - A[w, 1]) * N[w, 1] > 0 and _in_wedge(
-                    ix, iy, c0x, c0y, c1x, c1y, rxx, rxy) and not _beam_blocked(
-                    c0x, c0y, rxx, rxy, c1x, c1y, rxx, rxy, A, B, bbox, bstart,
-                    g0x, g0y, h, nx, ny, bcs, bcell, stamp, tagbox[0]):
-                length, gam = _emit(k, seq, imgs, txx, txy, rxx, rxy, A, B, N, eps, trim, g0x,
-                                    g0y, h, nx, ny, cstart, cwalls, stamp, tagbox, pts)
-            if length >= 0:
-                if nlev[k] < cap:
-                    lev_len[k, nlev[k]] = length
-                    lev_gam[k, nlev[k]] = gam
-                    nlev[k] += 1
-                else:
-                    overflow[l] = True
-            if k < max_order:
-                depth += 1
-                pos[depth] = fstart[w]
-                end[depth] = fstart[w + 1]
-        n = 0
-        for k in range(1, max_order + 1):
-            for i in range(nlev[k]):
-                if n < cap:
-                    out_len[l, n] = lev_len[k, i]
-                    out_gam[l, n] = lev_gam[k, i]
-                    out_ord[l, n] = k
-                    n += 1
-                else:
-                    overflow[l] = True
-        out_n[l] = n
-    return out_len, out_gam, out_ord, out_n, overflow
-
-
-
-
-@njit(cache=True, parallel=True)
-def _corner_legs(pts, need, C, to_point, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
-    """``blocked[i, c]``: the leg point ``i`` -> corner ``c`` (``to_point``: corner -> point)
-    crosses a wall (:meth:`Scene.blocked`), computed where ``need[i, c]``."""
-    P, NC = need.shape
-    W = A.shape[0]
-    out = np.zeros((P, NC), np.bool_)
-    for i in prange(P):
-        stamp = np.zeros(W, np.int64)
-        tag = 0
-        px, py = pts[i, 0], pts[i, 1]
-        for c in range(NC):
-            if not need[i, c]:
-                continue
-            tag += 1
-            if to_point:
-                out[i, c] = _leg_blocked(C[c, 0], C[c, 1], px, py, trim, A, B, g0x, g0y, h,
-                                         nx, ny, cstart, cwalls, stamp, tag)
-            else:
-                out[i, c] = _leg_blocked(px, py, C[c, 0], C[c, 1], trim, A, B, g0x, g0y, h,
-                                         nx, ny, cstart, cwalls, stamp, tag)
-    return out
-
-
-@njit(cache=True)
-def _corner_paths(tx, rx, txi, rxi, pts, lmax, C, trim, A, B, g0x, g0y, h, nx, ny, cstart,
-                  cwalls):
-    """Diffraction corners of every link (compiled): ``ok[l, c]`` when ``|c - tx| + |c -
-    rx| <= lmax`` and both legs tx -> c and c -> rx are clear (:meth:`Scene.blocked`); the
-    legs are tested once per distinct end point (``pts``, ``txi``, ``rxi``) and corner."""
-    L = tx.shape[0]
-    NC = C.shape[0]
-    P = pts.shape[0]
-    near = np.zeros((L, NC), np.bool_)
-    need = np.zeros((P, NC), np.bool_)
-    for l in range(L):
-        txx, txy, rxx, rxy = tx[l, 0], tx[l, 1], rx[l, 0], rx[l, 1]
-        for c in range(NC):
-            cx, cy = C[c, 0], C[c, 1]
-            d1 = np.sqrt((cx - txx) * (cx - txx) + (cy - txy) * (cy - txy))
-            d2 = np.sqrt((cx - rxx) * (cx - rxx) + (cy - rxy) * (cy - rxy))
-            if d1 + d2 <= lmax[l]:
-                near[l, c] = True
-                need[txi[l], c] = True
-    first = _corner_legs(pts, need, C, False, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
-    need[:] = False
-    for l in range(L):
-        for c in range(NC):
-            if near[l, c] and not first[txi[l], c]:
-                need[rxi[l], c] = True
-    second = _corner_legs(pts, need, C, True, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls)
-    ok = np.zeros((L, NC), np.bool_)
-    for l in range(L):
-        for c in range(NC):
-            ok[l, c] = near[l, c] and not first[txi[l], c] and not second[rxi[l], c]
-    return ok

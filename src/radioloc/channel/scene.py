@@ -20,10 +20,11 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import shapely
-from numba import njit, prange
 from shapely.geometry import Polygon, box, shape
 from shapely.geometry.polygon import orient
 
+from radioloc.channel import compiled
+from radioloc.core.backend import check_backend
 from radioloc.core.errors import InputError
 from radioloc.core.rng import as_generator
 from radioloc.core.validation import as_positions, check_positive
@@ -266,7 +267,7 @@ class Scene:
         x0, y0, h, nx, ny, cs, cw = self.grid
         convex, bstart = self.convex_buildings
         bbox, bcs, bcell = self.convex_grid
-        keep = _wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
+        keep = compiled._wall_pairs_visible(np.ascontiguousarray(self.walls[:, 0]),
                                    np.ascontiguousarray(self.walls[:, 1]), fs, fw, bbox, bstart,
                                    x0, y0, h, nx, ny, bcs, bcell, 2)
         owner = np.repeat(np.arange(len(fs) - 1), np.diff(fs))
@@ -275,7 +276,7 @@ class Scene:
         return start, fw[keep]
 
     def blocked(self, a: np.ndarray, b: np.ndarray, trim_m: float = 1e-3,
-                engine: str = "compiled") -> np.ndarray:
+                backend: str = "numba") -> np.ndarray:
         """Whether the segment ``a -> b`` passes through a building.
 
         Both ends are pulled in by ``min(trim_m, L / 4)`` so that a segment ending on a wall
@@ -288,15 +289,15 @@ class Scene:
         a, b : ndarray, shape (..., 2)
         trim_m : float
             How far both ends are pulled in.
-        engine : {"compiled", "shapely"}
-            The compiled grid walk (default) or the shapely STRtree reference (which also
-            counts a segment lying wholly inside a building).
+        backend : {"numba", "numpy"}
+            The compiled grid walk (default) or the definition: shapely's STRtree
+            intersection test (which also counts a segment lying wholly inside a building).
 
         Returns
         -------
         ndarray of bool, shape (...)
         """
-        if engine == "compiled":
+        if check_backend(backend) == "numba":
             a = np.asarray(a, float)
             b = np.asarray(b, float)
             shp = np.broadcast_shapes(a.shape, b.shape)[:-1]
@@ -305,11 +306,9 @@ class Scene:
             if len(a) == 0 or not len(self.polygons):
                 return np.zeros(shp, bool)
             x0, y0, h, nx, ny, cs, cw = self.grid
-            out = _blocked_batch(a, b, float(trim_m), self.walls[:, 0].copy(), self.walls[:, 1].copy(),
+            out = compiled._blocked_batch(a, b, float(trim_m), self.walls[:, 0].copy(), self.walls[:, 1].copy(),
                                  x0, y0, h, nx, ny, cs, cw)
             return out.reshape(shp)
-        if engine != "shapely":
-            raise InputError(f"engine: expected 'compiled' or 'shapely', got {engine!r}")
         a = np.asarray(a, float)
         b = np.asarray(b, float)
         shp = np.broadcast_shapes(a.shape, b.shape)[:-1]
@@ -461,250 +460,4 @@ def street_positions(scene: Scene, n: int, rng: np.random.Generator, *, half_wid
     raise InputError(f"street_positions: found only {len(out)} of {n} free points")
 
 
-
 # ---------------------------------------------------------------- compiled tracer
-@njit(cache=True)
-def _seg_hits(px, py, qx, qy, ax, ay, bx, by):
-    """Whether the closed segments p-q and a-b intersect (touching counts)."""
-    d1 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
-    d2 = (bx - ax) * (qy - ay) - (by - ay) * (qx - ax)
-    if (d1 > 0 and d2 > 0) or (d1 < 0 and d2 < 0):
-        return False
-    d3 = (qx - px) * (ay - py) - (qy - py) * (ax - px)
-    d4 = (qx - px) * (by - py) - (qy - py) * (bx - px)
-    if (d3 > 0 and d4 > 0) or (d3 < 0 and d4 < 0):
-        return False
-    if d1 == 0 and d2 == 0 and d3 == 0 and d4 == 0:          # collinear: overlap of extents
-        if max(px, qx) < min(ax, bx) or max(ax, bx) < min(px, qx):
-            return False
-        if max(py, qy) < min(ay, by) or max(ay, by) < min(py, qy):
-            return False
-    return True
-
-
-@njit(cache=True)
-def _walk_start(px, py, ex, ey, g0x, g0y, h, nx, ny):
-    """Start of a grid walk (Amanatides-Woo) along ``p + s e``, ``s`` in [0, 1]: the segment
-    clipped to the grid box, the first cell, the steps and the parameters of the next cell
-    boundaries. ``ok`` is False when the segment misses the box."""
-    x1, y1 = g0x + nx * h, g0y + ny * h
-    s0, s1 = 0.0, 1.0
-    for k in range(2):
-        p = px if k == 0 else py
-        e = ex if k == 0 else ey
-        lo = g0x if k == 0 else g0y
-        hi = x1 if k == 0 else y1
-        if e == 0.0:
-            if p < lo or p > hi:
-                return False, s1, 0, 0, 1, 1, np.inf, np.inf, np.inf, np.inf
-        else:
-            ta = (lo - p) / e
-            tb = (hi - p) / e
-            if ta > tb:
-                ta, tb = tb, ta
-            s0 = max(s0, ta)
-            s1 = min(s1, tb)
-    if s0 > s1:
-        return False, s1, 0, 0, 1, 1, np.inf, np.inf, np.inf, np.inf
-    cx, cy = px + s0 * ex, py + s0 * ey
-    ci = min(max(int((cx - g0x) / h), 0), nx - 1)
-    cj = min(max(int((cy - g0y) / h), 0), ny - 1)
-    stepx = 1 if ex > 0 else -1
-    stepy = 1 if ey > 0 else -1
-    if ex != 0.0:
-        tmx = (g0x + (ci + (1 if ex > 0 else 0)) * h - px) / ex
-        tdx = h / abs(ex)
-    else:
-        tmx = np.inf
-        tdx = np.inf
-    if ey != 0.0:
-        tmy = (g0y + (cj + (1 if ey > 0 else 0)) * h - py) / ey
-        tdy = h / abs(ey)
-    else:
-        tmy = np.inf
-        tdy = np.inf
-    return True, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy
-
-
-@njit(cache=True)
-def _leg_blocked(ax, ay, bx, by, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls, stamp, tag):
-    """Whether the leg a -> b, both ends pulled in by ``min(trim, L / 4)``, crosses a wall.
-
-    Walls are found with a uniform grid (cell side ``h``, origin ``g0``) walked along the
-    leg (Amanatides-Woo); ``stamp``/``tag`` avoid testing a wall twice."""
-    dx, dy = bx - ax, by - ay
-    L = np.sqrt(dx * dx + dy * dy)
-    if L <= 0:
-        return False
-    ux, uy = dx / max(L, 1e-12), dy / max(L, 1e-12)
-    t = min(trim, 0.25 * L)
-    px, py = ax + ux * t, ay + uy * t
-    qx, qy = bx - ux * t, by - uy * t
-    ex, ey = qx - px, qy - py
-    ok, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy = _walk_start(px, py, ex, ey, g0x, g0y, h,
-                                                                   nx, ny)
-    if not ok:
-        return False
-    for _ in range(nx + ny + 2):
-        c = ci * ny + cj
-        for q in range(cstart[c], cstart[c + 1]):
-            w = cwalls[q]
-            if stamp[w] == tag:
-                continue
-            stamp[w] = tag
-            if _seg_hits(px, py, qx, qy, A[w, 0], A[w, 1], B[w, 0], B[w, 1]):
-                return True
-        if min(tmx, tmy) > s1:
-            break
-        if tmx < tmy:
-            ci += stepx
-            tmx += tdx
-        else:
-            cj += stepy
-            tmy += tdy
-        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
-            break
-    return False
-
-
-@njit(cache=True, parallel=True)
-def _blocked_batch(a, b, trim, A, B, g0x, g0y, h, nx, ny, cstart, cwalls):
-    """:meth:`Scene.blocked` for many legs (compiled, grid-accelerated)."""
-    n = a.shape[0]
-    out = np.zeros(n, np.bool_)
-    W = A.shape[0]
-    nchunk = 64
-    for c in prange(nchunk):
-        stamp = np.zeros(W, np.int64)
-        tag = 0
-        for i in range(c, n, nchunk):
-            tag += 1
-            out[i] = _leg_blocked(a[i, 0], a[i, 1], b[i, 0], b[i, 1], trim, A, B, g0x, g0y, h,
-                                  nx, ny, cstart, cwalls, stamp, tag)
-    return out
-
-
-@njit(cache=True)
-def _beam_blocked(e0x, e0y, e1x, e1y, f0x, f0y, f1x, f1y, A, B, bbox, bstart,
-                  g0x, g0y, h, nx, ny, bcs, bcell, stamp, tag):
-    """Whether one convex building spans the beam between the edges e0 -> e1 and f0 -> f1
-    (the two sides of a convex quadrilateral or triangle of rays): it then meets both sides
-    (1 cm or more from their ends), and every ray between them crosses it.
-
-    The convex buildings come from :attr:`Scene.convex_grid` (``bbox`` their envelopes,
-    ``bcs``/``bcell`` the buildings of each cell) walked along the first side; a building
-    whose envelope misses either side is skipped before its walls are tested."""
-    dx, dy = e1x - e0x, e1y - e0y
-    L = np.sqrt(dx * dx + dy * dy)
-    gx, gy = f1x - f0x, f1y - f0y
-    M = np.sqrt(gx * gx + gy * gy)
-    d = 0.01
-    if L <= 4 * d or M <= 4 * d:
-        return False
-    px, py = e0x + dx / L * d, e0y + dy / L * d
-    qx, qy = e1x - dx / L * d, e1y - dy / L * d
-    rx_, ry_ = f0x + gx / M * d, f0y + gy / M * d
-    sx, sy = f1x - gx / M * d, f1y - gy / M * d
-    elx, ehx = min(px, qx) - 1e-7, max(px, qx) + 1e-7
-    ely, ehy = min(py, qy) - 1e-7, max(py, qy) + 1e-7
-    flx, fhx = min(rx_, sx) - 1e-7, max(rx_, sx) + 1e-7
-    fly, fhy = min(ry_, sy) - 1e-7, max(ry_, sy) + 1e-7
-    ex, ey = qx - px, qy - py
-    ok, s1, ci, cj, stepx, stepy, tmx, tmy, tdx, tdy = _walk_start(px, py, ex, ey, g0x, g0y, h,
-                                                                   nx, ny)
-    if not ok:
-        return False
-    for _ in range(nx + ny + 2):
-        c = ci * ny + cj
-        for q in range(bcs[c], bcs[c + 1]):
-            b = bcell[q]
-            if stamp[b] == tag:
-                continue
-            stamp[b] = tag
-            if (bbox[b, 0] > ehx or bbox[b, 2] < elx or bbox[b, 1] > ehy or bbox[b, 3] < ely
-                    or bbox[b, 0] > fhx or bbox[b, 2] < flx or bbox[b, 1] > fhy
-                    or bbox[b, 3] < fly):
-                continue
-            hit = False
-            for v in range(bstart[b], bstart[b + 1]):
-                if _seg_hits(px, py, qx, qy, A[v, 0], A[v, 1], B[v, 0], B[v, 1]):
-                    hit = True
-                    break
-            if not hit:
-                continue
-            for v in range(bstart[b], bstart[b + 1]):
-                if _seg_hits(rx_, ry_, sx, sy, A[v, 0], A[v, 1], B[v, 0], B[v, 1]):
-                    return True
-        if min(tmx, tmy) > s1:
-            break
-        if tmx < tmy:
-            ci += stepx
-            tmx += tdx
-        else:
-            cj += stepy
-            tmy += tdy
-        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
-            break
-    return False
-
-
-@njit(cache=True)
-def _cross(ox, oy, ax, ay, bx, by):
-    return (ax - ox) * (by - oy) - (ay - oy) * (bx - ox)
-
-
-@njit(cache=True)
-def _quad_spanned(ax, ay, bx, by, cx, cy, dx, dy, A, B, bbox, bstart, g0x, g0y, h, nx, ny,
-                  bcs, bcell, stamp, tag):
-    """Whether one convex footprint spans the quadrilateral between the segments a-b and
-    c-d (False when that quadrilateral is not strictly convex)."""
-    # pair the ends so that the sides a -> x and b -> y do not cross
-    xx, xy, yx, yy = cx, cy, dx, dy
-    if _cross(ax, ay, cx, cy, bx, by) * _cross(ax, ay, cx, cy, dx, dy) < 0 and \
-            _cross(bx, by, dx, dy, ax, ay) * _cross(bx, by, dx, dy, cx, cy) < 0:
-        xx, xy, yx, yy = dx, dy, cx, cy
-    # quadrilateral a, b, y, x strictly convex (all turns of one sign)
-    t0 = _cross(ax, ay, bx, by, yx, yy)
-    t1 = _cross(bx, by, yx, yy, xx, xy)
-    t2 = _cross(yx, yy, xx, xy, ax, ay)
-    t3 = _cross(xx, xy, ax, ay, bx, by)
-    if not ((t0 > 0 and t1 > 0 and t2 > 0 and t3 > 0)
-            or (t0 < 0 and t1 < 0 and t2 < 0 and t3 < 0)):
-        return False
-    return _beam_blocked(ax, ay, xx, xy, bx, by, yx, yy, A, B, bbox, bstart,
-                         g0x, g0y, h, nx, ny, bcs, bcell, stamp, tag)
-
-
-@njit(cache=True, parallel=True)
-def _wall_pairs_visible(A, B, fstart, fwalls, bbox, bstart, g0x, g0y, h, nx, ny, bcs, bcell,
-                        nsub):
-    """For every pair (p, w) of the follower lists, False when the two walls, cut into
-    ``nsub`` equal pieces each, have every pair of pieces spanned by a convex footprint
-    (see :attr:`Scene.visible`)."""
-    P = fstart.shape[0] - 1
-    W = A.shape[0]
-    keep = np.ones(fwalls.shape[0], np.bool_)
-    for p in prange(P):
-        stamp = np.zeros(W, np.int64)
-        tag = 0
-        ax, ay = A[p, 0], A[p, 1]
-        ux, uy = (B[p, 0] - ax) / nsub, (B[p, 1] - ay) / nsub
-        for q in range(fstart[p], fstart[p + 1]):
-            w = fwalls[q]
-            cx, cy = A[w, 0], A[w, 1]
-            vx, vy = (B[w, 0] - cx) / nsub, (B[w, 1] - cy) / nsub
-            hidden = True
-            for i in range(nsub):
-                for j in range(nsub):
-                    tag += 1
-                    if not _quad_spanned(ax + i * ux, ay + i * uy, ax + (i + 1) * ux,
-                                         ay + (i + 1) * uy, cx + j * vx, cy + j * vy,
-                                         cx + (j + 1) * vx, cy + (j + 1) * vy, A, B, bbox,
-                                         bstart, g0x, g0y, h, nx, ny, bcs, bcell, stamp,
-                                         tag):
-                        hidden = False
-                        break
-                if not hidden:
-                    break
-            keep[q] = not hidden
-    return keep

@@ -47,7 +47,7 @@ from radioloc.core.validation import as_positions, check_positive
 KIND_TRANSMISSION = -3
 
 #: The oldest LLVM whose shared library Dr.Jit runs correctly on. Found by experiment on
-#: Debian 12 (x86_64) with sionna-rt 1.x / Dr.Jit 1.x, tracing this module's test scene:
+#: Debian 12 (x86_64) with sionna-rt 2.2, Mitsuba 3.9 and Dr.Jit 1.5, tracing a street scene:
 #: LLVM 14 is refused by Dr.Jit itself; LLVM 15 and 16 abort the whole process while
 #: compiling a kernel (``LLVM ERROR: Cannot select: ... fmaximum``: their x86 back end
 #: cannot lower ``llvm.maximum``); LLVM 19 traces correctly. 17 and 18 are not packaged for
