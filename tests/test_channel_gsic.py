@@ -182,3 +182,16 @@ def test_responders_detect_the_rts_with_the_same_detector(tmp_path):
         np.testing.assert_array_less(np.abs(r.sic_m[:, off] - 300.0), 0.5 * CFG.sample_s * C_LIGHT + 1.0)
     with pytest.raises(ConfigError, match="rts_sync"):
         CDMAConfig(rts_sync="perfect")
+
+
+def test_received_acks_numba_equals_numpy_definition():
+    rng = np.random.default_rng(5)
+    B, U, P = 4, 3, 5
+    d = rng.uniform(0, 0.6 * CFG.window_s, (B, U, P))
+    d[0, 1, 2] = np.nan                                           # an absent path
+    d[1, 0, 0] = 7 * CFG.sample_s                                 # exactly on a sample
+    g = rng.normal(size=(B, U, P)) + 1j * rng.normal(size=(B, U, P))
+    ci = rng.integers(0, len(CODES), (B, U))
+    fast = received_acks(d, g, ci, CFG, np.random.default_rng(1), CODES)
+    ref = received_acks(d, g, ci, CFG, np.random.default_rng(1), CODES, backend="numpy")
+    np.testing.assert_allclose(fast, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())

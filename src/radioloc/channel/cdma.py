@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radioloc.channel import compiled
+from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import check_positive
 
@@ -187,10 +188,34 @@ def upsample(codes: np.ndarray, samples_per_chip: int) -> np.ndarray:
     return np.repeat(codes, samples_per_chip, axis=-1)
 
 
+def _synthesize(out, delays, gains, code_idx, codes, sample_s, chip_s):
+    """Add every path's delayed, chip-sampled code to ``out`` (B, N), in place.
+
+    Path ``p`` of user ``u`` in set ``b`` adds ``g c(m)`` at every sample ``n`` whose chip
+    index ``m = floor((n T_s - tau) / T_c)`` lies in the code (a 1e-9 guard keeps a delay on
+    a sample boundary on that sample). Vectorised over sets and samples.
+    """
+    B, U, P = delays.shape
+    L = codes.shape[1]
+    n = np.arange(out.shape[1])
+    for u in range(U):
+        c = codes[code_idx[:, u]]                                          # (B, L)
+        for p in range(P):
+            tau = delays[:, u, p, None]
+            m = np.floor((n * sample_s - tau) / chip_s + 1e-9).astype(np.int64)   # (B, N)
+            live = (m >= 0) & (m < L) & (n >= np.ceil(tau / sample_s - 1e-9)) \
+                & (gains[:, u, p, None] != 0)
+            chip = np.take_along_axis(c, np.clip(m, 0, L - 1), axis=1)
+            out += np.where(live, gains[:, u, p, None] * chip, 0)
+
+
 def received_acks(delays: np.ndarray, gains: np.ndarray, code_idx: np.ndarray,
                   config: CDMAConfig, rng: np.random.Generator,
-                  codes: np.ndarray | None = None) -> np.ndarray:
+                  codes: np.ndarray | None = None, backend: str = "numba") -> np.ndarray:
     """The master's baseband over the search window, for a batch of ACK sets.
+
+    ``y_b[n] = sum_u sum_p g_bup c_u(floor((n T_s - tau_bup) / T_c)) + noise``: every path
+    of every responder adds its code, delayed and sampled ``samples_per_chip`` times a chip.
 
     Parameters
     ----------
@@ -206,11 +231,14 @@ def received_acks(delays: np.ndarray, gains: np.ndarray, code_idx: np.ndarray,
         Noise (and nothing else).
     codes : ndarray, optional
         Code table (+-1 chips); default :func:`gold_codes` of ``config.code_degree``.
+    backend : {"numba", "numpy"}
+        The compiled sum (default) or its NumPy definition.
 
     Returns
     -------
     ndarray (B, config.n_samples), complex
     """
+    check_backend(backend)
     codes = gold_codes(config.code_degree) if codes is None else codes
     delays = np.asarray(delays, float)
     gains = np.asarray(gains, complex)
@@ -228,7 +256,8 @@ def received_acks(delays: np.ndarray, gains: np.ndarray, code_idx: np.ndarray,
     d = np.where(absent, 0.0, delays)
     B = delays.shape[0]
     y = np.zeros((B, config.n_samples), complex)
-    compiled._synthesize(y, d, g, code_idx, codes, config.sample_s, config.chip_s)
+    synthesize = compiled._synthesize if backend == "numba" else _synthesize
+    synthesize(y, d, g, code_idx, codes, config.sample_s, config.chip_s)
     s = np.sqrt(config.noise_var / 2)
     y += s * (rng.standard_normal(y.shape) + 1j * rng.standard_normal(y.shape))
     return y
