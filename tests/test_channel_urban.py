@@ -76,7 +76,7 @@ def test_a_run_whose_estimator_fails_gets_nan_and_the_others_keep_their_numbers(
     from types import SimpleNamespace
 
     from radioloc.core.errors import GeometryError
-    from radioloc.experiments.p000_urban import _run_or_fail
+    from radioloc.experiments.p000_urban import positions_or_nan
 
     class Fails:                                       # fails on any batch holding run 2
         def run(self, rho, prior, prior_var):
@@ -88,7 +88,7 @@ def test_a_run_whose_estimator_fails_gets_nan_and_the_others_keep_their_numbers(
     R, S, K = 5, 3, 4
     rho = np.broadcast_to(np.arange(R, dtype=float)[:, None, None, None], (R, S, K, K)).copy()
     prior = np.random.default_rng(0).normal(size=(R, K, 2))
-    out = _run_or_fail(Fails(), rho, prior, np.ones((R, K, 2)))
+    out = positions_or_nan(Fails(), rho, prior, np.ones((R, K, 2)))
     assert np.isnan(out[2]).all()
     keep = np.arange(R) != 2
     np.testing.assert_array_equal(out[keep], np.repeat(prior[keep][:, :, None], S, axis=2) + 1.0)

@@ -103,7 +103,7 @@ def test_registry_matches_the_reference_copy(name):
     if not folder.is_dir():
         pytest.skip(f"reference copy {folder} absent")
     for rel, checksum in ds.get(name).entries():
-        assert ds._matches(folder / rel, checksum), rel
+        assert ds.matches_checksum(folder / rel, checksum), rel
 
 
 def test_uji_members_match_the_reference_copy():
@@ -111,7 +111,7 @@ def test_uji_members_match_the_reference_copy():
     if not folder.is_dir():
         pytest.skip(f"reference copy {folder} absent")
     for target, checksum in ds.get("ujiindoorloc").archive[2].values():
-        assert ds._matches(folder / target, checksum)
+        assert ds.matches_checksum(folder / target, checksum)
 
 
 # ---- fetch from a local mirror -----------------------------------------------------------

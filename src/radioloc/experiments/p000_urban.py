@@ -139,7 +139,7 @@ def simulate(config: UrbanConfig, seed: int, scenario: int = 0) -> UrbanNetwork:
                                   require_paths=config.require_paths)
 
 
-def _run_or_fail(est, rho: np.ndarray, prior: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+def positions_or_nan(est, rho: np.ndarray, prior: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
     """``est.run(...).position`` of every run; a run whose estimator raises GeometryError
     (e.g. the RLS information matrix becomes singular) is taken out and gets NaN positions
     (counted as diverged by the summary)."""
@@ -216,7 +216,7 @@ class UrbanRadiolocation(Experiment):
         assisted = np.arange(K) < config.assisted
         rows = []
         for name, est in estimators.items():
-            track_pos = _run_or_fail(est, rho, prior, prior_var)
+            track_pos = positions_or_nan(est, rho, prior, prior_var)
             pos = np.concatenate([prior[:, :, None], track_pos], axis=2)       # (R, K, S+1, 2)
             err = np.linalg.norm(pos - truth[:, :, None], axis=-1)             # (R, K, S+1)
             for grp, sel in zip(GROUPS, (assisted, ~assisted)):

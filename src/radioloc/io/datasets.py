@@ -379,7 +379,9 @@ def file_digest(path: Path | str, kind: str = "sha256") -> str:
     return h.hexdigest()
 
 
-def _matches(path: Path, checksum: str | None) -> bool:
+def matches_checksum(path: Path, checksum: str | None) -> bool:
+    """Whether the file at ``path`` exists and has ``checksum`` (``"kind:hexdigest"``, the
+    registry's form; ``kind`` as :func:`file_digest` takes it). False when ``checksum`` is None."""
     if checksum is None or not path.is_file():
         return False
     kind, _, digest = checksum.partition(":")
@@ -413,7 +415,7 @@ def _download(url: str, target: Path, checksum: str | None, verify: bool) -> Non
                               "download is corrupt (--no-verify accepts it unchecked)") from None
     except OSError as exc:
         raise DataUnavailable(f"{url}: download failed ({exc})") from None
-    if verify and kind == "gitblob" and not _matches(target, checksum):
+    if verify and kind == "gitblob" and not matches_checksum(target, checksum):
         target.unlink(missing_ok=True)
         raise DataUnavailable(f"{url}: checksum mismatch (expected {checksum}); --no-verify "
                               "accepts it unchecked")
@@ -462,11 +464,11 @@ def fetch(name: str, *, dest: Path | str | None = None, verify: bool = True,
     say = log or (lambda _msg: None)
     if ds.archive is not None:
         rel, checksum, members = ds.archive
-        if all(_matches(folder / t, h) for t, h in members.values()) and verify:
+        if all(matches_checksum(folder / t, h) for t, h in members.values()) and verify:
             say(f"{ds.name}: present and verified")
         else:
             zpath = folder / ".download" / Path(rel).name
-            if not (zpath.is_file() and (not verify or _matches(zpath, checksum))):
+            if not (zpath.is_file() and (not verify or matches_checksum(zpath, checksum))):
                 say(f"download {base + rel}")
                 _download(base + urllib.parse.quote(rel), zpath, checksum, verify)
             with zipfile.ZipFile(zpath) as zf:
@@ -475,7 +477,7 @@ def fetch(name: str, *, dest: Path | str | None = None, verify: bool = True,
                     out.parent.mkdir(parents=True, exist_ok=True)
                     with zf.open(member) as src, out.open("wb") as dst:
                         shutil.copyfileobj(src, dst)
-                    if verify and not _matches(out, digest):
+                    if verify and not matches_checksum(out, digest):
                         out.unlink()
                         raise DataUnavailable(f"{ds.name}: {member} in {rel} does not match "
                                               f"{digest}")
@@ -484,7 +486,7 @@ def fetch(name: str, *, dest: Path | str | None = None, verify: bool = True,
     else:
         for rel, checksum in ds.entries():
             target = folder / rel
-            if verify and _matches(target, checksum):
+            if verify and matches_checksum(target, checksum):
                 continue
             say(f"download {rel}")
             _download(base + urllib.parse.quote(rel), target, checksum, verify)
