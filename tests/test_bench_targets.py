@@ -24,7 +24,14 @@ def test_meets_needs_every_part_of_the_target(throughput, ratio, expected):
     assert targets.meets({"throughput": throughput, "ratio": ratio}, target) is expected
 
 
+@pytest.mark.parametrize("value, expected", [(59.0, True), (60.0, True), (61.0, False),
+                                             (None, False)])
+def test_an_at_most_target_is_an_upper_bound(value, expected):
+    assert targets.meets({"throughput": value, "ratio": None}, {"at_most": 60.0}) is expected
+
+
 def test_describe_reads_as_the_issue_states_it():
+    assert targets.describe({"at_most": 2500}) == "<= 2,500"
     assert targets.describe({"throughput": 5e8, "ratio": 20.0}) == ">= 500 M/s, >= 20x"
     assert targets.describe({"throughput": 1e4}) == ">= 10 k/s"
     assert targets.describe({"throughput": 300.0}) == ">= 300/s"
