@@ -1,5 +1,5 @@
-"""Ctrl-C (a real SIGINT to a separate `radioloc reproduce` process) at several points of a
-run leaves ``OUT/<id>`` holding the previous complete run, a new complete run (when the
+"""Ctrl-C or SIGTERM (a real signal to a separate `radioloc reproduce` process) at several
+points of a run leaves ``OUT/<id>`` holding the previous complete run, a new complete run (when the
 signal arrives after the swap) or nothing: never a mixed or partial folder.
 
 The child process registers a small fake experiment and pauses at named points (during a
@@ -150,9 +150,13 @@ def _run_to_end(tmp_path, out, seed):
     assert proc.returncode == 0, err
 
 
+CASES = ([("SIGINT", pause) for pause in POINTS]
+         + [("SIGTERM", pause) for pause in ("block", "results.csv", "summary.json")])
+
+
 @pytest.mark.parametrize("previous", [True, False], ids=["after-a-run", "first-run"])
-@pytest.mark.parametrize("pause", POINTS)
-def test_sigint_leaves_previous_run_new_run_or_nothing(tmp_path, pause, previous):
+@pytest.mark.parametrize("signame, pause", CASES)
+def test_a_signal_leaves_previous_run_new_run_or_nothing(tmp_path, signame, pause, previous):
     out = tmp_path / "out"
     folder = out / EXP
     if previous:
@@ -168,15 +172,16 @@ def test_sigint_leaves_previous_run_new_run_or_nothing(tmp_path, pause, previous
             break
         seen.append(line.strip())
         if line.strip() == f"AT {pause}":
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(getattr(signal, signame))
             break
     else:  # pragma: no cover
         proc.kill()
         pytest.fail(f"the child did not reach {pause!r}: {seen}")
     assert f"AT {pause}" in seen, f"the child ended before {pause!r}: {seen}"
     _, err = proc.communicate(timeout=300)
-    assert proc.returncode == 130, (proc.returncode, err)
-    assert [ln for ln in err.splitlines() if ln.strip()] == ["interrupted"], err
+    code, word = (130, "interrupted") if signame == "SIGINT" else (143, "terminated")
+    assert proc.returncode == code, (proc.returncode, err)
+    assert [ln for ln in err.splitlines() if ln.strip()] == [word], err
     after = _snapshot(folder)
     if after and after != before:
         assert _complete(folder), f"interrupted at {pause!r}: a partial folder {sorted(after)}"

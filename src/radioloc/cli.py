@@ -55,6 +55,7 @@ from radioloc.report.tables import wide_console
 EXIT_ERROR = 2
 EXIT_INTERNAL = 3
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 REPORT_HINT = ("this is a bug in radioloc: please report it with the command and its input "
                "files (RADIOLOC_DEBUG=1 shows the traceback)")
 
@@ -83,6 +84,39 @@ def _echo_err(text: str) -> None:
     click.echo(text, err=True)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is, so that every clean-up of an interrupt runs
+    (a staging folder removed, the previous results kept)."""
+
+
+_TERM = {"received": False}
+
+
+def _terminate(signum, frame):
+    _TERM["received"] = True
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Within the command, SIGTERM ends it as Ctrl-C does (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _TERM["received"] = False
+    before = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def _stopped() -> tuple[str, int]:
+    """The message and exit code of a command stopped by a signal."""
+    return ("terminated", EXIT_TERMINATED) if _TERM["received"] else ("interrupted",
+                                                                       EXIT_INTERRUPTED)
+
+
 class OneLineErrors(TyperGroup):
     """The top-level group: every failure of every (sub)command becomes one line."""
 
@@ -95,13 +129,14 @@ class OneLineErrors(TyperGroup):
             _SIGINT_BEFORE = None
         code = 0
         try:
-            with _warnings_on_one_line() as held:
+            with _sigterm_as_interrupt(), _warnings_on_one_line() as held:
                 rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
             for text in held:              # a failure prints its error line only
                 _echo_err(text)
             code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
             if code == EXIT_INTERRUPTED:  # typer turns KeyboardInterrupt into Exit(130)
-                _echo_err("interrupted")
+                text, code = _stopped()
+                _echo_err(text)
         except _NO_ARGS as exc:
             ctx = getattr(exc, "ctx", None)
             _echo_err(ctx.get_help() if ctx is not None else exc.format_message())
@@ -112,8 +147,8 @@ class OneLineErrors(TyperGroup):
             _echo_err(f"error: {_one_line(exc.format_message())} (see '{cmd} --help')")
             code = exc.exit_code
         except _ABORT:
-            _echo_err("interrupted")
-            code = EXIT_INTERRUPTED
+            text, code = _stopped()
+            _echo_err(text)
         except RadiolocError as exc:
             if os.environ.get("RADIOLOC_DEBUG") == "1":
                 traceback.print_exc()
