@@ -15,7 +15,8 @@ algorithms:
 ``GridFilter(backend="numba")`` (the default) runs its update with a
 :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`, and its recursive blur, through the
 compiled kernels of :mod:`radioloc.estimators.grid_compiled`; ``backend="numpy"`` runs the
-definitions here. Both give the same grids to rounding (about 1e-14 relative).
+definitions here. Both give the same grids to rounding (within 1e-10 relative, held by
+``tests/test_grid_backend.py``).
 
 A grid is an array ``p`` of shape ``(B, h, w)``: ``B`` runs, ``h`` rows (y) and ``w``
 columns (x). :class:`GridGeometry` gives the cell centres ``l_i`` in the filter's frame.
@@ -645,7 +646,7 @@ class GridFilter(RecursiveEstimator):
         :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel` and the recursive blur run
         as compiled kernels (:mod:`radioloc.estimators.grid_compiled`); ``"numpy"``: every
         operation runs its NumPy definition (:func:`probability_update`,
-        :func:`blur_grid`, ...). The two agree to rounding (about 1e-14 relative).
+        :func:`blur_grid`, ...). The two agree to rounding (within 1e-10 relative).
 
     Raises
     ------
