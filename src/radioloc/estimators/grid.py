@@ -468,17 +468,22 @@ def _recursive_blur(p: np.ndarray, s: np.ndarray, epsilon: float, backend: str
     coef, tails = yvv_coefficients(s), _yvv_tails(s)
     B, h, w = p.shape
     if backend == "numba":
-        # along the rows' axis into the transposed layout, then along the columns' back;
-        # the first pass also checks the grid (the full check names a bad cell)
-        mid, out = np.empty((B, w, h)), np.empty((B, h, w))
-        excess, bad = np.empty((B, -(-w // _c.CHUNK))), np.empty((B, -(-w // _c.CHUNK)), np.int64)
-        p = np.ascontiguousarray(p)
-        _c.yvv_transposed(p, coef, tails, epsilon, MAGNITUDE_LIMIT, mid, excess, bad)
-        if bad.any():
-            as_float_array(p, "grid", nonnegative=True)
-        excess, bad = np.empty((B, -(-h // _c.CHUNK))), np.empty((B, -(-h // _c.CHUNK)), np.int64)
-        _c.yvv_transposed(mid, coef, tails, epsilon, np.inf, out, excess, bad)
-        return out, excess.sum(axis=1)
+        # one run at a time (the transposed scratch holds one grid): along the rows' axis
+        # into the transposed layout, then along the columns' back; the first pass also
+        # checks the grid (the full check names a bad cell)
+        p, out, total = np.ascontiguousarray(p), np.empty((B, h, w)), np.empty(B)
+        mid = np.empty((1, w, h))
+        for k in range(B):
+            run = slice(k, k + 1)
+            for src, dst, n, limit in ((p[run], mid, w, MAGNITUDE_LIMIT),
+                                       (mid, out[run], h, np.inf)):
+                jobs = (1, -(-n // _c.CHUNK))
+                excess, bad = np.empty(jobs), np.empty(jobs, np.int64)
+                _c.yvv_transposed(src, coef[run], tails[run], epsilon, limit, dst, excess, bad)
+                if bad.any():
+                    as_float_array(p, "grid", nonnegative=True)
+            total[k] = excess.sum()
+        return out, total
     out = np.empty_like(p)
     for si in np.unique(s):                          # the runs of one radius at once
         sel = s == si
