@@ -2,15 +2,11 @@
 ProbabilityUpdate).
 
 Prints cell-updates per second of radioloc's batched filter step with the recursive blur
-(``GridFilter(blur="recursive")``: Young-van Vliet recursions, columns then rows on blocks of
-32 rows, with the input check and the previous step's normalisation factor fused into the
-column pass, then the fused numba floor and trapezoid update reading the blocks, the square
-root only in the block columns on the trapezoid's ramps, its normalisation left to the next
-step), the same with the opt-in float32 posterior (``dtype="float32"``, a row of its own), and
-with the exact FFT blur, and of a peer measured in
-the same process: the NumPy update followed by ``scipy.ndimage.gaussian_filter`` (one call per
-grid, the usual way to blur a single grid) and a renormalisation. Ratios are taken within the
-run (the machine is shared: absolute numbers vary with the load). Run:
+(``GridFilter(blur="recursive")``, compiled kernels: the Young-van Vliet recursions along each
+axis, then the floor and the trapezoid update), with the exact FFT blur, and of a peer
+measured in the same process: the NumPy update followed by ``scipy.ndimage.gaussian_filter``
+(one call per grid, the usual way to blur a single grid) and a renormalisation. Ratios are
+taken within the run (the machine is shared: absolute numbers vary with the load). Run:
 ``PYTHONPATH=src python benchmarks/bench_grid.py``.
 """
 
@@ -51,15 +47,10 @@ def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0, seed: int = 0) ->
     geom = GridGeometry.centred(n, n, 0.2)
     eps = 1e-12
     fast = GridFilter(geom, model, epsilon=eps, blur_m=radius_m, blur="recursive")
-    fast32 = GridFilter(geom, model, epsilon=eps, blur_m=radius_m, blur="recursive",
-                        dtype="float32")
     exact = GridFilter(geom, model, epsilon=eps, blur_m=radius_m)
     pos = rng.uniform(-20, 20, (batch, 2))
     rssi = rng.integers(40, 80, batch)
-    # the filters' own states after one step (the recursive step's are unnormalised with
-    # their factor, the float32 filter's stored in float32), as within a run
     state = fast.step(fast.init(batch), pos, rssi)
-    state32 = fast32.step(fast32.init(batch), pos, rssi)
     p = state.p
 
     def peer():                                   # plain NumPy update + scipy blur
@@ -73,34 +64,25 @@ def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0, seed: int = 0) ->
 
     cells = batch * n * n
     t_fast = best_of(lambda: fast.step(state, pos, rssi), 5)
-    t_f32 = best_of(lambda: fast32.step(state32, pos, rssi), 5)
     t_peer = best_of(peer)
     t_exact = best_of(lambda: exact.step(state, pos, rssi))
     t_fast = min(t_fast, best_of(lambda: fast.step(state, pos, rssi), 5))
-    t_f32 = min(t_f32, best_of(lambda: fast32.step(state32, pos, rssi), 5))
     c_fast = best_of(lambda: fast.step(state, pos, rssi), 5, clock=time.process_time)
-    c_f32 = best_of(lambda: fast32.step(state32, pos, rssi), 5, clock=time.process_time)
     c_peer = best_of(peer, clock=time.process_time)
     print(f"grid {n} x {n}, batch {batch}, blur radius {radius_m} m ({radius_m / geom.cell_m:.0f} cells)")
     print(f"GridFilter.step, recursive blur : {cells / t_fast:,.0f} cell-updates/s ({t_fast * 1e3:.1f} ms)")
-    print(f"  float32 posterior (opt-in)    : {cells / t_f32:,.0f} cell-updates/s ({t_f32 * 1e3:.1f} ms)")
     print(f"GridFilter.step, FFT blur       : {cells / t_exact:,.0f} cell-updates/s ({t_exact * 1e3:.0f} ms)")
     print(f"update + scipy gaussian_filter  : {cells / t_peer:,.0f} cell-updates/s ({t_peer * 1e3:.0f} ms)")
     print(f"ratio recursive / scipy peer    : {t_peer / t_fast:.1f}x")
     print(f"ratio FFT / scipy peer          : {t_peer / t_exact:.2f}x")
     print(f"per CPU second (both threads counted): recursive {cells / c_fast:,.0f}, "
-          f"peer {cells / c_peer:,.0f} cell-updates/s, ratio {c_peer / c_fast:.1f}x; "
-          f"float32 posterior {cells / c_f32:,.0f} ({c_peer / c_f32:.1f}x)")
+          f"peer {cells / c_peer:,.0f} cell-updates/s, ratio {c_peer / c_fast:.1f}x")
     peer_name = "scipy.ndimage update + gaussian_filter"
     # the least work of a step: read the prior and write the posterior once (16 bytes per
     # cell in float64); flops as implemented: 28 of the four third-order recursions, 2 of the
-    # floor's excess sum, and the update by class of block column (likelihood 0: 2, sum and
-    # scaling; 1: 5, floor, sum, scaling; the ramps: 12 with the square root and division),
-    # 5.3 per cell for this workload's mix (39 / 40 / 21 % of the cells)
-    work = {"bytes_per_unit": 16.0, "flops_per_unit": 35.0}
-    # float32 posterior: the prior read and the posterior written in float32 (8 bytes per
-    # cell), the same flops
-    work32 = {"bytes_per_unit": 8.0, "flops_per_unit": 35.0}
+    # floor's excess sum, 12 of the update (floor, distance with its square root, trapezoid
+    # with its division, maximum, sum)
+    work = {"bytes_per_unit": 16.0, "flops_per_unit": 42.0}
     return [{"workload": f"grid update + blur {n}x{n} (recursive)", "throughput": cells / t_fast,
              "unit": "cell-updates/s", "peer": peer_name, "peer_throughput": cells / t_peer,
              "ratio": t_peer / t_fast, **work},
@@ -109,13 +91,7 @@ def main(n: int = 1000, batch: int = 2, radius_m: float = 3.0, seed: int = 0) ->
              "ratio": t_peer / t_exact, "bytes_per_unit": 16.0},
             {"workload": f"grid update + blur {n}x{n} (recursive), per CPU second",
              "throughput": cells / c_fast, "unit": "cell-updates/CPU-s", "peer": peer_name,
-             "peer_throughput": cells / c_peer, "ratio": c_peer / c_fast, **work},
-            {"workload": f"grid update + blur {n}x{n} (recursive, float32 posterior)",
-             "throughput": cells / t_f32, "unit": "cell-updates/s", "peer": peer_name,
-             "peer_throughput": cells / t_peer, "ratio": t_peer / t_f32, **work32},
-            {"workload": f"grid update + blur {n}x{n} (recursive, float32 posterior), per CPU second",
-             "throughput": cells / c_f32, "unit": "cell-updates/CPU-s", "peer": peer_name,
-             "peer_throughput": cells / c_peer, "ratio": c_peer / c_f32, **work32}]
+             "peer_throughput": cells / c_peer, "ratio": c_peer / c_fast, **work}]
 
 
 if __name__ == "__main__":

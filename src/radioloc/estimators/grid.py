@@ -4,12 +4,19 @@ operations of Algorithm 4), batched over independent runs.
 :class:`GridFilter` is the one grid filter of the toolkit (a recursive estimator of the
 contract in ``docs/architecture.md``): the tethering world (as its injected tracker), the
 Herald experiment and ``radioloc locate --method grid-rssi`` all run it. It is built from
-the batched grid operations below, which stay public:
+the batched grid operations below, which stay public and are the NumPy definitions of the
+algorithms:
 
 * :func:`probability_update` (Algorithm 1), :func:`get_location` (Algorithm 2),
   :func:`get_uncertainty` (Algorithm 3);
 * :func:`blur_grid` and :func:`shift_grid` (BlurGrid, ShiftGrid of Algorithm 4), with
   :func:`floor_normalise`.
+
+``GridFilter(backend="numba")`` (the default) runs its update with a
+:class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`, and its recursive blur, through the
+compiled kernels of :mod:`radioloc.estimators.grid_compiled`; ``backend="numpy"`` runs the
+definitions here. Both give the same grids to rounding (within 1e-10 relative, held by
+``tests/test_grid_backend.py``).
 
 A grid is an array ``p`` of shape ``(B, h, w)``: ``B`` runs, ``h`` rows (y) and ``w``
 columns (x). :class:`GridGeometry` gives the cell centres ``l_i`` in the filter's frame.
@@ -19,24 +26,31 @@ RSSI, blur radius, shift) have a leading batch axis.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (MAGNITUDE_LIMIT, as_float_array, check_positive,
                                       check_probability)
-from radioloc.estimators import grid_kernels as _k
+from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
 
 _BLURS = ("fft", "recursive")
 
+RECURSIVE_MIN_SIGMA = 2.0
+"""Smallest standard deviation, in cells, blurred by the recursive Gaussian (below it the
+exact blur is used: Young & van Vliet's fit holds for ``sigma >= 0.5`` and its error grows as
+``sigma`` falls)."""
+
 __all__ = ["GridGeometry", "GridState", "GridFilter", "cell_distances", "probability_update",
            "floor_normalise", "get_location", "get_uncertainty", "grid_moments", "blur_grid",
-           "shift_grid"]
+           "shift_grid", "yvv_coefficients", "RECURSIVE_MIN_SIGMA"]
 
 
 @dataclass(frozen=True)
@@ -129,13 +143,7 @@ class GridGeometry:
 
 
 def _check_grid(p, geom: GridGeometry) -> np.ndarray:
-    if (isinstance(p, np.ndarray) and p.dtype == np.float64 and p.ndim == 3 and p.size
-            and p.flags.c_contiguous and _k.grids_in_range(p, MAGNITUDE_LIMIT)):
-        # the checks of as_float_array in one compiled pass (it names the bad cell when
-        # this one finds any)
-        pass
-    else:
-        p = as_float_array(p, "grid", ndim=3, nonnegative=True)
+    p = as_float_array(p, "grid", ndim=3, nonnegative=True)
     if p.shape[1:] != (geom.h, geom.w):
         raise InputError(f"grid: expected shape (B, {geom.h}, {geom.w}), got {p.shape}")
     return p
@@ -167,7 +175,7 @@ def cell_distances(geom: GridGeometry, position) -> np.ndarray:
     pos = as_float_array(position, "position", ndim=2, last_dim=2)
     dx = geom.x[None, None, :] - pos[:, 0, None, None]
     dy = geom.y[None, :, None] - pos[:, 1, None, None]
-    return np.hypot(dx, dy)
+    return np.sqrt(dx * dx + dy * dy)
 
 
 def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: "TrapezoidModel",
@@ -199,21 +207,12 @@ def probability_update(p, geom: GridGeometry, tracker_xy, rssi, model: "Trapezoi
     check_probability(epsilon, "epsilon")
     pos = _check_batch(tracker_xy, "tracker_xy", p.shape[0], (2,))
     r = _check_batch(rssi, "rssi", p.shape[0])
-    return _update(p, geom, pos, r, model, epsilon)
-
-
-def _update(p, geom, pos, r, model, epsilon, prior_excess=None) -> np.ndarray:
-    """Algorithm 1 by the fused kernels (``prior_excess``: ``p`` is an unfloored blur)."""
-    if isinstance(model, TrapezoidModel):
-        # the trapezoid is computed inside the fused kernel (one pass, no distance grid)
-        i = as_rssi(r)
-        return _k.trapezoid_update(p, geom.x, geom.y, pos, model.mu[i], model.tau[i],
-                                   model.sigma[i], epsilon, prior_excess)
     lik = model.likelihood(cell_distances(geom, pos), r[:, None, None])
-    return _k.weighted_update(p, lik, epsilon, prior_excess)
+    post = np.maximum(p * lik, epsilon)
+    return post / post.sum(axis=(1, 2), keepdims=True)
 
 
-def floor_normalise(p: np.ndarray, epsilon: float) -> np.ndarray:
+def floor_normalise(p, epsilon: float, excess=None) -> np.ndarray:
     """Renormalise grids to sum 1 with every cell ``>= epsilon``.
 
     ``p <- eps + (1 - k eps) (p - eps)_+ / sum (p - eps)_+``; used after blur and shift, where
@@ -226,16 +225,23 @@ def floor_normalise(p: np.ndarray, epsilon: float) -> np.ndarray:
         Non-negative grids.
     epsilon : float
         Minimum cell probability (``epsilon k <= 1``).
+    excess : ndarray, shape (B,), optional
+        ``sum (p - eps)_+`` of each grid when already known.
 
     Returns
     -------
     ndarray, shape (B, h, w)
         Grids summing to 1 with every cell ``>= epsilon``.
     """
+    p = np.asarray(p, dtype=float)
     k = p.shape[1] * p.shape[2]
     if epsilon * k > 1:
         raise InputError(f"epsilon: {epsilon} x {k} cells exceeds 1")
-    return _k.floor_normalise_into(np.asarray(p, dtype=float), epsilon)
+    over = np.maximum(p - epsilon, 0.0)
+    t = over.sum(axis=(1, 2)) if excess is None else np.asarray(excess, dtype=float)
+    t = t[:, None, None]
+    share = np.where(t > 0, over / np.where(t > 0, t, 1.0), 1.0 / k)
+    return epsilon + (1.0 - k * epsilon) * share
 
 
 def get_location(p, geom: GridGeometry, *, include_peak: bool = False) -> np.ndarray:
@@ -308,22 +314,20 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0, *,
               method: str = "fft") -> np.ndarray:
     """BlurGrid: circular Gaussian blur with standard deviation ``radius_m`` per run.
 
-    The blur is applied in the Fourier domain on a grid zero-padded by ``ceil(4 radius /
-    cell_m)`` cells (so nothing wraps round the border), which lets every run use its own
-    radius in one batched FFT per distinct padding; the padding of a run depends on its own
-    radius only, so a run's result does not depend on the rest of the batch. Mass blurred
-    beyond the border is lost and the grid renormalised by :func:`floor_normalise`.
-    The paper calls the argument a radius; we use it as the Gaussian's standard deviation.
+    ``method="fft"`` (exact): the blur is applied in the Fourier domain on a grid
+    zero-padded by ``ceil(4 radius / cell_m)`` cells (so nothing wraps round the border),
+    which lets every run use its own radius in one batched FFT per distinct padding; the
+    padding of a run depends on its own radius only, so a run's result does not depend on
+    the rest of the batch. Mass blurred beyond the border is lost and the grid renormalised
+    by :func:`floor_normalise`. The paper calls the argument a radius; we use it as the
+    Gaussian's standard deviation.
 
     ``method="recursive"`` blurs the runs whose standard deviation is at least
-    ``grid_kernels.RECURSIVE_MIN_SIGMA`` cells with the separable recursive Gaussian of
-    Young & van Vliet (a third-order recursion per direction, cost independent of the
-    radius; zero outside the grid as above) and the others with the FFT. It is an
+    :data:`RECURSIVE_MIN_SIGMA` cells with the separable recursive Gaussian of Young & van
+    Vliet (a third-order causal and anti-causal recursion along each axis, cost independent
+    of the radius; zero outside the grid as above) and the others with the FFT. It is an
     approximation: its impulse response has the exact variance but departs from the
-    Gaussian by 8.5-18 % of the peak value in one dimension (18 % at 2 cells, 9 % at 15,
-    ``tests/test_grid_kernels.py`` bounds it at 20 %). Its intermediate grids are stored in
-    float32 (the recursions run in float64): a relative error below ``2 * 2**-24`` per cell,
-    five orders of magnitude under the approximation's (``tests/test_grid_fast.py``).
+    Gaussian by 8.5-18 % of the peak value in one dimension (18 % at 2 cells, 9 % at 15).
 
     Parameters
     ----------
@@ -348,43 +352,145 @@ def blur_grid(p, geom: GridGeometry, radius_m, epsilon: float = 0.0, *,
         raise InputError(f"method: expected one of {_BLURS}, got {method!r}")
     B, h, w = p.shape
     rad = np.broadcast_to(as_float_array(radius_m, "radius_m", nonnegative=True), (B,))
-    s = rad / geom.cell_m                                            # std in cells
     if epsilon * h * w > 1:
         raise InputError(f"epsilon: {epsilon} x {h * w} cells exceeds 1")
-    raw, excess = _blur_raw(p, s, float(epsilon), method)
-    return _k.floor_normalise_into(raw, epsilon, excess,
-                                   out=raw if raw.dtype == np.float64 else None)
+    raw, excess = _blur_raw(p, rad / geom.cell_m, float(epsilon), method, "numpy")
+    return floor_normalise(raw, epsilon, excess)
 
 
-def _blur_raw(p: np.ndarray, s: np.ndarray, epsilon: float, method: str
+def _blur_raw(p: np.ndarray, s: np.ndarray, epsilon: float, method: str, backend: str
               ) -> tuple[np.ndarray, np.ndarray]:
-    """The blur of :func:`blur_grid` before the floor: ``(grids, sum (grids - eps)_+)``."""
+    """The blur of :func:`blur_grid` (standard deviations ``s`` in cells) before the floor:
+    ``(grids, sum (grids - eps)_+)``; the recursive blur by ``backend``."""
     B, h, w = p.shape
-    if method == "recursive":
-        wide = s >= _k.RECURSIVE_MIN_SIGMA
-        if wide.all():
-            return _k.recursive_gaussian(p, s, epsilon, np.float32)
-        if wide.any():
-            out, excess = _blur_raw(p, s * ~wide, epsilon, "fft")
-            out[wide], excess[wide] = _k.recursive_gaussian(p[wide], s[wide], epsilon,
-                                                            np.float32)
-            return out, excess
+    wide = s >= RECURSIVE_MIN_SIGMA if method == "recursive" else np.zeros(B, bool)
+    if wide.all():
+        return _recursive_blur(p, s, epsilon, backend)
+    out, excess = np.empty_like(p), np.empty(B)
+    if wide.any():
+        out[wide], excess[wide] = _recursive_blur(p[wide], s[wide], epsilon, backend)
     # each run's padding depends on its own radius only (so a run's result does not depend
     # on the other runs of the batch); one batched FFT per distinct padding
     pads = np.minimum(np.ceil(4.0 * s).astype(np.int64), max(h, w))
-    out = np.empty_like(p)
-    for pad in np.unique(pads):
-        sel = pads == pad
+    for pad in np.unique(pads[~wide]):
+        sel = (pads == pad) & ~wide
         H, W = h + 2 * int(pad), w + 2 * int(pad)
         fy = np.fft.fftfreq(H)[:, None]
         fx = np.fft.rfftfreq(W)[None, :]
         kernel = np.exp(-2.0 * np.pi**2 * s[sel, None, None] ** 2 * (fx**2 + fy**2)[None])
         spec = np.fft.rfft2(p[sel], s=(H, W), axes=(1, 2))
-        out[sel] = np.fft.irfft2(spec * kernel, s=(H, W), axes=(1, 2))[:, :h, :w]
-    np.maximum(out, 0.0, out=out)
-    rows = np.empty((B, h))
-    _k._excess_rows(out, epsilon, rows)
-    return out, rows.sum(axis=1)
+        out[sel] = np.maximum(np.fft.irfft2(spec * kernel, s=(H, W), axes=(1, 2))[:, :h, :w], 0.0)
+        excess[sel] = np.maximum(out[sel] - epsilon, 0.0).sum(axis=(1, 2))
+    return out, excess
+
+
+@functools.lru_cache(maxsize=256)
+def _yvv_coefficients(sigma: float) -> tuple[float, float, float, float]:
+    q0 = (0.98711 * sigma - 0.96330 if sigma >= 2.5
+          else 3.97156 - 4.14554 * np.sqrt(max(1.0 - 0.26891 * sigma, 0.0)))
+    # the published q gives a response wider than sigma (about 10 %); solve for the q whose
+    # causal-times-anti-causal impulse response has variance exactly sigma^2
+    lo, hi = 1e-3, max(2.0 * q0, 1.0)
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        g, a1, a2, a3 = _yvv_from_q(mid)
+        d = 1.0 - a1 - a2 - a3
+        d1 = -(a1 + 2.0 * a2 + 3.0 * a3)
+        d2 = -(2.0 * a2 + 6.0 * a3)
+        # twice the second cumulant of 1 / D(x), D(x) = 1 - a1 x - a2 x^2 - a3 x^3, at x = 1
+        if 2.0 * (-(d2 + d1) / d + (d1 / d) ** 2) > sigma**2:
+            hi = mid
+        else:
+            lo = mid
+    return _yvv_from_q(0.5 * (lo + hi))
+
+
+def _yvv_from_q(q: float) -> tuple[float, float, float, float]:
+    b0 = 1.57825 + 2.44413 * q + 1.4281 * q**2 + 0.422205 * q**3
+    b1 = (2.44413 * q + 2.85619 * q**2 + 1.26661 * q**3) / b0
+    b2 = -(1.4281 * q**2 + 1.26661 * q**3) / b0
+    b3 = 0.422205 * q**3 / b0
+    return (1.0 - (b1 + b2 + b3), b1, b2, b3)
+
+
+def yvv_coefficients(sigma_cells) -> np.ndarray:
+    """Young & van Vliet (1995) recursion coefficients for standard deviations in cells.
+
+    ``b0 = 1.57825 + 2.44413 q + 1.4281 q^2 + 0.422205 q^3``, ``b1 = 2.44413 q + 2.85619 q^2
+    + 1.26661 q^3``, ``b2 = -(1.4281 q^2 + 1.26661 q^3)``, ``b3 = 0.422205 q^3``,
+    ``g = 1 - (b1 + b2 + b3) / b0``; ``q`` is solved (from the paper's
+    ``q = 0.98711 sigma - 0.96330`` or ``3.97156 - 4.14554 sqrt(1 - 0.26891 sigma)``) so that
+    the causal-times-anti-causal impulse response has variance exactly ``sigma^2``.
+
+    Parameters
+    ----------
+    sigma_cells : array_like, shape (B,)
+        Standard deviations in cells (``>= 0.5``).
+
+    Returns
+    -------
+    ndarray, shape (B, 4)
+        ``(g, b1 / b0, b2 / b0, b3 / b0)`` per run: ``y_n = g x_n + a1 y_{n-1} + a2 y_{n-2}
+        + a3 y_{n-3}``.
+    """
+    s = np.asarray(sigma_cells, dtype=float).reshape(-1)
+    return np.array([_yvv_coefficients(float(v)) for v in s]).reshape(-1, 4)
+
+
+def _yvv_tails(s: np.ndarray) -> np.ndarray:
+    # zero cells the recursions run through past the far border (they decay with the
+    # Gaussian: 6 sigma of zeros lose < 1e-8 of the mass)
+    return np.ceil(6.0 * s).astype(np.int64) + 3
+
+
+def _yvv_axis(x: np.ndarray, coef, tail: int) -> np.ndarray:
+    """Young & van Vliet's recursions along axis 1 of ``x`` ``(B, n, m)``: the causal
+    ``w_i = a1 w_{i-1} + (a2 w_{i-2} + (a3 w_{i-3} + g x_i))`` over the ``n`` cells and
+    ``tail`` zeros past the border, then the anti-causal ``v_i = a1 v_{i+1} + (a2 v_{i+2} +
+    (a3 v_{i+3} + g w_i))`` back from the tail's end (both started from zero)."""
+    g, a1, a2, a3 = coef
+    B, n, m = x.shape
+    wv = np.zeros((B, n + tail + 3, m))            # w_i at index i + 3
+    for i in range(n + tail):
+        xi = x[:, i] if i < n else np.zeros((B, m))
+        wv[:, i + 3] = a1 * wv[:, i + 2] + (a2 * wv[:, i + 1] + (a3 * wv[:, i] + g * xi))
+    v = np.zeros((B, n + tail + 3, m))             # v_i at index i
+    for i in range(n + tail - 1, -1, -1):
+        v[:, i] = a1 * v[:, i + 1] + (a2 * v[:, i + 2] + (a3 * v[:, i + 3] + g * wv[:, i + 3]))
+    return v[:, :n]
+
+
+def _recursive_blur(p: np.ndarray, s: np.ndarray, epsilon: float, backend: str
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The recursive Gaussian of standard deviation ``s[b]`` cells of each grid, along the
+    rows' axis then the columns' (zero outside the grid; not clipped), and its
+    ``sum (v - eps)_+``."""
+    coef, tails = yvv_coefficients(s), _yvv_tails(s)
+    B, h, w = p.shape
+    if backend == "numba":
+        # one run at a time (the transposed scratch holds one grid): along the rows' axis
+        # into the transposed layout, then along the columns' back; the first pass also
+        # checks the grid (the full check names a bad cell)
+        p, out, total = np.ascontiguousarray(p), np.empty((B, h, w)), np.empty(B)
+        mid = np.empty((1, w, h))
+        for k in range(B):
+            run = slice(k, k + 1)
+            for src, dst, n, limit in ((p[run], mid, w, MAGNITUDE_LIMIT),
+                                       (mid, out[run], h, np.inf)):
+                jobs = (1, -(-n // _c.CHUNK))
+                excess, bad = np.empty(jobs), np.empty(jobs, np.int64)
+                _c.yvv_transposed(src, coef[run], tails[run], epsilon, limit, dst, excess, bad)
+                if bad.any():
+                    as_float_array(p, "grid", nonnegative=True)
+            total[k] = excess.sum()
+        return out, total
+    out = np.empty_like(p)
+    for si in np.unique(s):                          # the runs of one radius at once
+        sel = s == si
+        b = np.flatnonzero(sel)[0]
+        cols = _yvv_axis(p[sel], coef[b], tails[b])
+        out[sel] = _yvv_axis(cols.transpose(0, 2, 1), coef[b], tails[b]).transpose(0, 2, 1)
+    return out, np.maximum(out - epsilon, 0.0).sum(axis=(1, 2))
 
 
 def shift_grid(p, geom: GridGeometry, shift_m, epsilon: float = 0.0) -> np.ndarray:
@@ -459,15 +565,9 @@ def grid_moments(p, geom: GridGeometry) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([mx, my], axis=-1), cov
 
 
+@dataclass(frozen=True, eq=False)
 class GridState:
-    """State of a batch of grid filters.
-
-    The recursive step of :class:`GridFilter` (``blur="recursive"``) leaves its posterior
-    unnormalised, ``raw``, with one factor per run, ``scale = 1 / sum(raw)``; the next step
-    applies the factor as it reads the grid, so no pass over the grid normalises it. The
-    normalised posterior :attr:`p` is computed from them when first read (``raw * scale``,
-    in float64: bit for bit the grid a normalisation pass would have written) and kept.
-    A state is immutable.
+    """State of a batch of grid filters (immutable).
 
     Parameters
     ----------
@@ -477,47 +577,13 @@ class GridState:
         Time of the state, seconds.
     """
 
-    __slots__ = ("_raw", "_scale", "_p", "time")
-
-    def __init__(self, p: np.ndarray, time: float = 0.0) -> None:
-        object.__setattr__(self, "_raw", p)
-        object.__setattr__(self, "_scale", None)
-        object.__setattr__(self, "_p", p)
-        object.__setattr__(self, "time", time)
-
-    @classmethod
-    def _unnormalised(cls, raw: np.ndarray, scale: np.ndarray, time: float) -> "GridState":
-        # a state holding raw (float64 or float32) and its per-run factor scale (B,)
-        state = cls.__new__(cls)
-        object.__setattr__(state, "_raw", raw)
-        object.__setattr__(state, "_scale", scale)
-        object.__setattr__(state, "_p", None)
-        object.__setattr__(state, "time", time)
-        return state
-
-    def __setattr__(self, name, value):
-        raise AttributeError(f"GridState is immutable (cannot set {name!r})")
-
-    def __reduce__(self):
-        if self._scale is None:
-            return (GridState, (self._p, self.time))
-        return (GridState._unnormalised, (self._raw, self._scale, self.time))
-
-    def __repr__(self) -> str:
-        return f"GridState(p=<{self.batch} grids of {self._raw.shape[1:]}>, time={self.time!r})"
-
-    @property
-    def p(self) -> np.ndarray:
-        """Posterior grid of each run, shape ``(B, h, w)``, float64 (normalised)."""
-        if self._p is None:
-            p = np.multiply(self._raw, self._scale[:, None, None], dtype=np.float64)
-            object.__setattr__(self, "_p", p)
-        return self._p
+    p: np.ndarray
+    time: float = 0.0
 
     @property
     def batch(self) -> int:
         """Number of runs B."""
-        return int(self._raw.shape[0])
+        return int(np.shape(self.p)[0])
 
     def __getitem__(self, index: Any) -> "GridState":
         """Select runs (a slice or index array keeps the batch axis).
@@ -531,17 +597,11 @@ class GridState:
         -------
         GridState
         """
-        if self._scale is None:
-            p = self._p[index]
-            return GridState(p if p.ndim == 3 else p[None], self.time)
-        raw, scale = self._raw[index], self._scale[index]
-        if raw.ndim == 2:
-            raw, scale = raw[None], np.reshape(scale, (1,))
-        return GridState._unnormalised(raw, scale, self.time)
+        p = self.p[index]
+        return GridState(p if p.ndim == 3 else p[None], self.time)
 
 
 _LOCATIONS = ("mean", "peak")
-_DTYPES = {"float64": np.float64, "float32": np.float32}
 
 
 class GridFilter(RecursiveEstimator):
@@ -586,21 +646,12 @@ class GridFilter(RecursiveEstimator):
         How BlurGrid blurs (:func:`blur_grid`'s ``method``): the exact Gaussian by FFT
         (default; the paper-003 experiments use it), or the recursive approximation, whose
         cost does not grow with the radius (wide blurs on large grids).
-    dtype : {"float64", "float32"}
-        Storage of the unnormalised posterior written by the fused recursive step
-        (``blur="recursive"`` with a :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`;
-        float32 needs both). ``"float64"`` (default) stores it exactly. ``"float32"`` halves
-        the state's memory traffic: each step rounds every cell of the posterior once to
-        float32 (relative error at most ``2**-24``, about 6e-8; the recursions, sums and
-        the normalising factor stay float64). The maps of a step (blur, likelihood product,
-        floor, normalisation) are non-negative, so a relative error per cell carries
-        through them with at most doubling by the normalisation: after ``T`` steps each
-        cell of the posterior is within ``3 T 2**-24`` relative of the float64 filter's
-        (a bound; measured: at most ``3.2 * 2**-24`` at any step of 40, the filter forgets
-        old roundings), and the sum of :attr:`GridState.p` is 1 within ``2**-23``
-        (measured 1e-8). Cells below float32's smallest normal number (1.2e-38, only with
-        ``epsilon`` below it) lose relative precision. The public posterior
-        :attr:`GridState.p` is float64 either way.
+    backend : {"numba", "numpy"}
+        ``"numba"`` (default): the update with a
+        :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel` and the recursive blur run
+        as compiled kernels (:mod:`radioloc.estimators.grid_compiled`); ``"numpy"``: every
+        operation runs its NumPy definition (:func:`probability_update`,
+        :func:`blur_grid`, ...). The two agree to rounding (within 1e-10 relative).
 
     Raises
     ------
@@ -612,7 +663,7 @@ class GridFilter(RecursiveEstimator):
 
     def __init__(self, geometry: GridGeometry, model: Any, *, epsilon: float = 1e-6,
                  blur_m: float = 0.0, motion: Any = None, location: str = "mean",
-                 blur: str = "fft", dtype: str = "float64") -> None:
+                 blur: str = "fft", backend: str = "numba") -> None:
         if not isinstance(geometry, GridGeometry):
             raise ConfigError(f"geometry: expected a GridGeometry, got {type(geometry).__name__}")
         if not callable(getattr(model, "likelihood", None)):
@@ -632,22 +683,15 @@ class GridFilter(RecursiveEstimator):
             raise ConfigError(f"location: expected one of {_LOCATIONS}, got {location!r}")
         if blur not in _BLURS:
             raise ConfigError(f"blur: expected one of {_BLURS}, got {blur!r}")
-        if dtype not in _DTYPES:
-            raise ConfigError(f"dtype: expected one of {tuple(_DTYPES)}, got {dtype!r}")
-        if dtype == "float32" and (blur != "recursive" or not isinstance(model, TrapezoidModel)):
-            raise ConfigError("dtype: 'float32' is the storage of the fused recursive step; it "
-                              "needs blur='recursive' and a TrapezoidModel")
+        check_backend(backend)
         self.geometry = geometry
         self.model = model
-        self.dtype = _DTYPES[dtype]
-        # the posterior dtypes the fused step reads as they are (a float32 grid of a user
-        # takes the checked path, which converts it)
-        self._fast_dtypes = (np.dtype(np.float64), np.dtype(self.dtype))
         self.epsilon = eps
         self.blur_m = blur_v
         self.motion = motion
         self.location = location
         self.blur = blur
+        self.backend = backend
 
     # ---- the contract -------------------------------------------------------------
     def init(self, batch: int | None = None, *, prior=None, time: float = 0.0) -> GridState:
@@ -679,11 +723,16 @@ class GridFilter(RecursiveEstimator):
         p = np.maximum(p / total, self.epsilon)
         return GridState(p / p.sum(axis=(1, 2), keepdims=True), float(time))
 
-    def _check_state(self, state: GridState) -> GridState:
+    def _check_state(self, state: GridState, cells: bool = True) -> GridState:
+        # cells=False: the shape only (the compiled recursive blur checks the cells)
         if not isinstance(state, GridState):
             raise InputError(f"state: expected a GridState, got {type(state).__name__}")
-        _check_grid(state.p, self.geometry)
-        return state
+        p = state.p
+        if cells or not (isinstance(p, np.ndarray) and p.dtype == np.float64 and p.ndim == 3):
+            p = _check_grid(p, self.geometry)
+        elif p.shape[1:] != (self.geometry.h, self.geometry.w):
+            _check_grid(p, self.geometry)
+        return GridState(np.ascontiguousarray(p), state.time)
 
     def blur_radius(self, dt: float) -> float:
         """Blur radius of the motion model over ``dt`` seconds.
@@ -733,11 +782,11 @@ class GridFilter(RecursiveEstimator):
             moved = np.any(shift != 0.0, axis=-1)
             if moved.any():
                 p = np.where(moved[:, None, None], shift_grid(p, geom, shift, self.epsilon), p)
-        radius = self._radius(B, dt, extra_blur_m)
-        blur = radius > 0
+        s = self._radius(B, dt, extra_blur_m) / geom.cell_m
+        blur = s > 0
         if blur.any():
-            p = np.where(blur[:, None, None], blur_grid(p, geom, radius, self.epsilon,
-                                                             method=self.blur), p)
+            raw, excess = _blur_raw(p, s, self.epsilon, self.blur, self.backend)
+            p = np.where(blur[:, None, None], floor_normalise(raw, self.epsilon, excess), p)
         return GridState(p, state.time + dt)
 
     def _radius(self, B: int, dt: float, extra_blur_m) -> np.ndarray:
@@ -786,11 +835,34 @@ class GridFilter(RecursiveEstimator):
         if not valid.any():
             return state
         if valid.all():
-            return GridState(probability_update(state.p, self.geometry, xy, r, self.model,
-                                                self.epsilon), state.time)
-        post = probability_update(state.p, self.geometry, np.where(valid[:, None], xy, 0.0),
-                                  np.where(valid, r, r[valid][0]), self.model, self.epsilon)
+            return GridState(self._posterior(state.p, None, xy, r), state.time)
+        post = self._posterior(state.p, None, np.where(valid[:, None], xy, 0.0),
+                               np.where(valid, r, r[valid][0]))
         return GridState(np.where(valid[:, None, None], post, state.p), state.time)
+
+    def _posterior(self, prior: np.ndarray, excess, xy: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Algorithm 1 of every run, of the prior ``floor_normalise(prior, eps, excess)``
+        (of ``prior`` itself when ``excess`` is None)."""
+        eps, geom = self.epsilon, self.geometry
+        if self.backend == "numba" and isinstance(self.model, TrapezoidModel):
+            B, k = prior.shape[0], geom.k
+            if excess is None:
+                base, scale = np.zeros(B), np.ones(B)
+            else:
+                mass = excess > 0
+                base = np.where(mass, eps, 1.0 / k)
+                scale = np.where(mass, (1.0 - k * eps) / np.where(mass, excess, 1.0), 0.0)
+            i = as_rssi(r)
+            m = self.model
+            # a blurred prior is this step's own array: the posterior is written over it
+            out, rows = np.empty(prior.shape) if excess is None else prior, np.empty(prior.shape[:2])
+            _c.trapezoid_update(prior, geom.x, geom.y, np.ascontiguousarray(xy), m.mu[i],
+                                m.tau[i], m.sigma[i], base, scale, eps, out, rows)
+            out *= (1.0 / rows.sum(axis=1))[:, None, None]
+            return out
+        if excess is not None:
+            prior = floor_normalise(prior, eps, excess)
+        return probability_update(prior, geom, xy, r, self.model, eps)
 
     def step(self, state: GridState, tracker_xy, rssi, *, dt: float = 1.0, shift_m=None,
              extra_blur_m=None) -> GridState:
@@ -817,43 +889,22 @@ class GridFilter(RecursiveEstimator):
             The new state at ``time + dt``.
         """
         if shift_m is None:
-            # every run blurred and updated: the floor of the blur is applied inside the
-            # update kernel (the same numbers as predict then update, one pass less)
+            # every run blurred and updated: the floor of the blur applied by the update
+            # (the same grids as predict then update, one pass less)
             if not isinstance(state, GridState):
                 raise InputError(f"state: expected a GridState, got {type(state).__name__}")
             dt = check_positive(dt, "dt", allow_zero=True)
-            B, geom = state.batch, self.geometry
-            radius = self._radius(B, dt, extra_blur_m)
+            B = state.batch
+            s = self._radius(B, dt, extra_blur_m) / self.geometry.cell_m
+            state = self._check_state(state, cells=not (
+                self.backend == "numba" and self.blur == "recursive"
+                and np.all(s >= RECURSIVE_MIN_SIGMA)))
             r = as_float_array(rssi, "rssi", allow_nan=True)
             xy = as_float_array(tracker_xy, "tracker_xy", allow_nan=True)
-            s = radius / geom.cell_m
-            raw, scale = state._raw, state._scale
-            if (r.shape == (B,) and xy.shape == (B, 2) and np.all(np.isfinite(r))
-                    and np.all(np.isfinite(xy)) and self.blur == "recursive"
-                    and isinstance(self.model, TrapezoidModel)
-                    and np.all(s >= _k.RECURSIVE_MIN_SIGMA) and isinstance(raw, np.ndarray)
-                    and raw.dtype in self._fast_dtypes and raw.shape == (B, geom.h, geom.w)
-                    and raw.flags.c_contiguous):
-                # the blur in the block layout, the prior's normalisation and the input
-                # check fused into its first pass (a bad cell is named by the full check),
-                # the update reading the blocks; its normalisation is left to the next step
-                # (or to the first read of the state's p)
-                blk, excess, bad = _k.gaussian_blocks(raw, s, self.epsilon, np.float32,
-                                                      MAGNITUDE_LIMIT, scale)
-                if bad:
-                    _check_grid(as_float_array(state.p, "grid", ndim=3, nonnegative=True), geom)
-                i = as_rssi(r)
-                m = self.model
-                post, c = _k.trapezoid_posterior_blocks(
-                    blk, raw.shape, geom.x, geom.y, xy, m.mu[i], m.tau[i], m.sigma[i],
-                    self.epsilon, excess, self.dtype)
-                return GridState._unnormalised(post, c, state.time + dt)
-            state = self._check_state(state)
-            if (r.shape == (B,) and xy.shape == (B, 2) and np.all(radius > 0)
+            if (r.shape == (B,) and xy.shape == (B, 2) and np.all(s > 0)
                     and np.all(np.isfinite(r)) and np.all(np.isfinite(xy))):
-                raw, excess = _blur_raw(state.p, s, self.epsilon, self.blur)
-                post = _update(raw, self.geometry, xy, r, self.model, self.epsilon, excess)
-                return GridState(post, state.time + dt)
+                raw, excess = _blur_raw(state.p, s, self.epsilon, self.blur, self.backend)
+                return GridState(self._posterior(raw, excess, xy, r), state.time + dt)
         pred = self.predict(state, dt=dt, shift_m=shift_m, extra_blur_m=extra_blur_m)
         return self.update(pred, tracker_xy, rssi)
 
