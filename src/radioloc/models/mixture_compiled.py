@@ -29,13 +29,14 @@ _LOG2PI = math.log(2.0 * math.pi)
 
 @njit(cache=True)
 def _key_less(w, m, v, a, b):  # pragma: no cover - compiled
-    """Canonical order: means, then variances, then the weight, lexicographically."""
-    for e in range(m.shape[1]):
-        if m[a, e] != m[b, e]:
-            return m[a, e] < m[b, e]
-    for e in range(v.shape[1]):
-        if v[a, e] != v[b, e]:
-            return v[a, e] < v[b, e]
+    """Canonical order of components ``a``, ``b`` (columns of ``m, v (D, K)``): means, then
+    variances, then the weight, lexicographically."""
+    for e in range(m.shape[0]):
+        if m[e, a] != m[e, b]:
+            return m[e, a] < m[e, b]
+    for e in range(v.shape[0]):
+        if v[e, a] != v[e, b]:
+            return v[e, a] < v[e, b]
     return w[a] < w[b]
 
 
@@ -44,24 +45,20 @@ def _pick(w, m, v, n, flag):  # pragma: no cover - compiled
     """The tie rule: of the flagged components ``c < n``, the nearest to the mixture mean;
     of two at the same distance (D >= 2), the one the other follows counter-clockwise;
     otherwise the lowest in the canonical order."""
-    first, count = -1, 0
-    for c in range(n):
-        if flag[c]:
-            count += 1
-            first = c if first < 0 else first
-    if count < 2:
-        return first
-    d = m.shape[1]
+    d = m.shape[0]
     mu = np.zeros(d)
     tot = 0.0
     for c in range(n):
         tot += w[c]
-        mu += w[c] * m[c]
+        for e in range(d):
+            mu[e] += w[c] * m[e, c]
     mu /= tot
     r = np.full(n, np.inf)
     for c in range(n):
         if flag[c]:
-            r[c] = np.sum((m[c] - mu) ** 2)
+            r[c] = 0.0
+            for e in range(d):
+                r[c] += (m[e, c] - mu[e]) ** 2
     lim = r.min() * (1.0 + TIE)
     a, b, n2 = -1, -1, 0
     for c in range(n):
@@ -72,7 +69,7 @@ def _pick(w, m, v, n, flag):  # pragma: no cover - compiled
             elif b < 0:
                 b = c
     if n2 == 2 and d >= 2:
-        cross = (m[a, 0] - mu[0]) * (m[b, 1] - mu[1]) - (m[a, 1] - mu[1]) * (m[b, 0] - mu[0])
+        cross = (m[0, a] - mu[0]) * (m[1, b] - mu[1]) - (m[1, a] - mu[1]) * (m[0, b] - mu[0])
         if abs(cross) > TIE * lim:
             return a if cross > 0 else b
     j = -1
@@ -83,43 +80,48 @@ def _pick(w, m, v, n, flag):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def _partner(w, m, v, iv, ld, n, i, cost, scale, flag, lb):  # pragma: no cover - compiled
-    """Runnalls' cost of merging ``i`` into the other components ``c < n`` and the partner
-    chosen (lowest cost, ties by :func:`_pick`); returns ``(j, cost, scale)`` (``iv = 1 /
-    v``, ``ld``: the log-determinants; ``cost, scale, flag, lb``: scratch).
+def _partner(w, m, v, iv, ld, n, i, s):  # pragma: no cover - compiled
+    """Runnalls' cost of merging ``i`` into the other components ``c < n`` (columns of
+    ``m, v, iv = 1 / v (D, K)``, ``ld``: log-determinants) and the partner chosen (lowest
+    cost, ties by :func:`_pick`); returns ``(j, cost, scale)``. ``s (7, K)``: scratch.
 
-    Pass 1 computes ``y`` (``1 + y = |P_ic| / |P_c|``) and a logarithm-free lower bound of
-    each cost: ``log1p(y) = 2 atanh(z)``, ``z = y / (y + 2)``, bounded below by its series'
-    first three terms for ``z >= 0`` and with the tail bounded by ``0.46 |z|^7`` for
-    ``-0.61 <= z < 0`` (below: no bound), less ``1e-14`` of the cost's terms for rounding.
-    Pass 2 takes the exact cost of the lowest bound first, then of every candidate whose
-    bound does not exclude it from the tie set (``scale <= |cost| + B``); the others cannot
-    be chosen, so the result is that of costing every candidate."""
-    d = m.shape[1]
+    Pass 1 (loops over the candidates) computes ``y`` (``1 + y = |P_ic| / |P_c|``) and a
+    logarithm-free lower bound of each cost: ``log1p(y) = 2 atanh(z)``, ``z = y / (y + 2)``,
+    bounded below by its series' first three terms for ``z >= 0`` and with the tail bounded
+    by ``0.46 |z|^7`` for ``-0.61 <= z < 0`` (below: no bound), less ``1e-14`` of the cost's
+    terms for rounding. Pass 2 takes the exact cost of the lowest bound first, then of every
+    candidate whose bound does not exclude it from the tie set (``scale <= |cost| + B``);
+    the others cannot be chosen, so the result is that of costing every candidate."""
+    a1, a12, y, ay, lb, cost, scale = s[0], s[1], s[2], s[3], s[4], s[5], s[6]
     wi, ldi = w[i], ld[i]
-    c0 = 0
+    for c in range(n):
+        inv = 1.0 / (wi + w[c])
+        a1[c] = wi * inv
+        a12[c] = a1[c] * (w[c] * inv)
+        y[c] = 0.0
+        ay[c] = 0.0
+    for e in range(m.shape[0]):
+        mie, vie = m[e, i], v[e, i]
+        for c in range(n):
+            r = (a1[c] * (vie - v[e, c]) + a12[c] * (mie - m[e, c]) ** 2) * iv[e, c]
+            y[c] = y[c] + r + y[c] * r
+            ay[c] = ay[c] + abs(r) + ay[c] * abs(r)
     for c in range(n):
         ws = wi + w[c]
-        inv = 1.0 / ws
-        a1 = wi * inv
-        a12 = a1 * (w[c] * inv)
-        y, ay = 0.0, 0.0
-        for e in range(d):
-            dm = m[i, e] - m[c, e]
-            r = (a1 * (v[i, e] - v[c, e]) + a12 * dm * dm) * iv[c, e]
-            y, ay = y + r + y * r, ay + abs(r) + ay * abs(r)
-        cost[c] = y
-        scale[c] = wi * (abs(ld[c]) + abs(ldi)) + ws * ay
-        z = y / (y + 2.0)
-        z2 = z * z if abs(z) > 1e-100 else 0.0        # no subnormal powers
-        zn = min(z, 0.0) if abs(z) > 1e-100 else 0.0
+        scale[c] = wi * (abs(ld[c]) + abs(ldi)) + ws * ay[c]
+        z = y[c] / (y[c] + 2.0)
+        small = abs(z) <= 1e-100                      # no subnormal powers
+        z2 = 0.0 if small else z * z
+        zn = 0.0 if small else min(z, 0.0)
         lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * z2 * z2 * z2
-        lb[c] = 0.5 * (wi * (ld[c] - ldi) + ws * lx) \
-            - 1e-14 * (wi * (abs(ld[c]) + abs(ldi)) + ws * abs(lx))
-        lb[c] = lb[c] if z >= -0.61 else -np.inf
-        lb[c] = np.inf if c == i else lb[c]
+        b = 0.5 * (wi * (ld[c] - ldi) + ws * lx) - 1e-14 * (wi * (abs(ld[c]) + abs(ldi))
+                                                            + ws * abs(lx))
+        lb[c] = b if z >= -0.61 else -np.inf
+        cost[c] = np.inf
+    lb[i] = np.inf
+    c0 = 0
+    for c in range(1, n):
         c0 = c if lb[c] < lb[c0] else c0
-        flag[c] = False
     best = np.inf
     for step in range(n + 1):
         c = c0 if step == 0 else step - 1
@@ -127,14 +129,14 @@ def _partner(w, m, v, iv, ld, n, i, cost, scale, flag, lb):  # pragma: no cover 
                                                > best + TIE * (2.0 * abs(best) + 4.0 * scale[c]))):
             continue
         ws = wi + w[c]
-        lp = math.log1p(cost[c])
+        lp = math.log1p(y[c])
         cost[c] = 0.5 * (wi * (ld[c] - ldi) + ws * lp)
         scale[c] = 0.5 * (scale[c] + ws * abs(lp))
-        flag[c] = True
         best = min(best, cost[c])
     j, count = -1, 0
+    flag = lb                                         # the tie set (pass 1's bounds are spent)
     for c in range(n):
-        flag[c] = flag[c] and cost[c] <= best + 2.0 * TIE * scale[c]
+        flag[c] = cost[c] <= best + 2.0 * TIE * scale[c]
         if flag[c]:
             j, count = c, count + 1
     if count > 1:
@@ -144,12 +146,12 @@ def _partner(w, m, v, iv, ld, n, i, cost, scale, flag, lb):  # pragma: no cover 
 
 @njit(cache=True, error_model="numpy")
 def _set(tw, tm, tv, iv, ld, c, w, m, v):  # pragma: no cover - compiled
-    """Component ``c`` of the scratch: weight, mean, variances, their inverses and
+    """Column ``c`` of the scratch: weight, mean, variances, their inverses and
     ``log|P| = sum(log v)``."""
     tw[c] = w
     ld[c] = 0.0
-    for e in range(tm.shape[1]):
-        tm[c, e], tv[c, e], iv[c, e] = m[e], v[e], 1.0 / v[e]
+    for e in range(tm.shape[0]):
+        tm[e, c], tv[e, c], iv[e, c] = m[e], v[e], 1.0 / v[e]
         ld[c] += math.log(v[e])
 
 
@@ -159,15 +161,15 @@ def _reduce_one(w, m, v, kmax, ow, om, ov):  # pragma: no cover - compiled
     components into ``ow, om, ov`` (canonical order: decreasing weight, then
     :func:`_key_less`); returns the component count."""
     k, d = m.shape
-    tw, tm, tv, iv, ld = np.empty(k), np.empty((k, d)), np.empty((k, d)), np.empty((k, d)), \
-        np.empty(k)
+    tw, ld, tm, tv, iv = np.empty(k), np.empty(k), np.empty((d, k)), np.empty((d, k)), \
+        np.empty((d, k))
     n = 0
     for c in range(k):                                # the components of positive weight
         if w[c] > 0:
             _set(tw, tm, tv, iv, ld, n, w[c], m[c], v[c])
             n += 1
-    cost, scale, flag, lb = np.empty(k), np.empty(k), np.empty(k, np.bool_), np.empty(k)
-    ic, isc, ij, tied = np.empty(k), np.empty(k), np.empty(k, np.int64), np.empty(k, np.bool_)
+    s = np.empty((7, k))
+    ic, isc, ij, tied = np.empty(k), np.empty(k), np.empty(k, np.int64), np.empty(k)
     mm, vv = np.empty(d), np.empty(d)
     while n > kmax:
         wmin = tw[:n].min()
@@ -177,26 +179,28 @@ def _reduce_one(w, m, v, kmax, ow, om, ov):  # pragma: no cover - compiled
             if tied[c]:
                 i, count = c, count + 1
         if count == 1:
-            j = _partner(tw, tm, tv, iv, ld, n, i, cost, scale, flag, lb)[0]
+            j = _partner(tw, tm, tv, iv, ld, n, i, s)[0]
         else:                                         # the tied one with the cheapest merge
             for c in range(n):
                 ic[c], isc[c] = np.inf, 0.0
                 if tied[c]:
-                    ij[c], ic[c], isc[c] = _partner(tw, tm, tv, iv, ld, n, c, cost, scale, flag, lb)
+                    ij[c], ic[c], isc[c] = _partner(tw, tm, tv, iv, ld, n, c, s)
             bi = ic[:n].min()
             for c in range(n):
-                flag[c] = ic[c] <= bi + 2.0 * TIE * isc[c]
-            i = _pick(tw, tm, tv, n, flag)
+                tied[c] = ic[c] <= bi + 2.0 * TIE * isc[c]
+            i = _pick(tw, tm, tv, n, tied)
             j = ij[i]
         ws = tw[i] + tw[j]                            # moment-matched merge of i into j
         a1, a2 = tw[i] / ws, tw[j] / ws
         for e in range(d):
-            mm[e] = a1 * tm[i, e] + a2 * tm[j, e]
-            vv[e] = a1 * (tv[i, e] + (tm[i, e] - mm[e]) ** 2) \
-                + a2 * (tv[j, e] + (tm[j, e] - mm[e]) ** 2)
+            mm[e] = a1 * tm[e, i] + a2 * tm[e, j]
+            vv[e] = a1 * (tv[e, i] + (tm[e, i] - mm[e]) ** 2) \
+                + a2 * (tv[e, j] + (tm[e, j] - mm[e]) ** 2)
         _set(tw, tm, tv, iv, ld, j, ws, mm, vv)
-        n -= 1
-        _set(tw, tm, tv, iv, ld, i, tw[n], tm[n], tv[n])
+        n -= 1                                        # the last column replaces i
+        tw[i], ld[i] = tw[n], ld[n]
+        for e in range(d):
+            tm[e, i], tv[e, i], iv[e, i] = tm[e, n], tv[e, n], iv[e, n]
     order = np.empty(n, np.int64)                     # insertion sort into canonical order
     for r in range(n):
         pos = r
@@ -210,7 +214,7 @@ def _reduce_one(w, m, v, kmax, ow, om, ov):  # pragma: no cover - compiled
     for r in range(n):
         ow[r] = tw[order[r]]
         for e in range(d):
-            om[r, e], ov[r, e] = tm[order[r], e], tv[order[r], e]
+            om[r, e], ov[r, e] = tm[e, order[r]], tv[e, order[r]]
     return n
 
 
@@ -234,7 +238,8 @@ def _exp_normalise(x):  # pragma: no cover - compiled
     top = x.max()
     if not np.isfinite(top):
         return False
-    x[:] = np.exp(x - top)
+    for c in range(x.size):
+        x[c] = math.exp(x[c] - top)
     x /= x.sum()
     return True
 
@@ -278,11 +283,12 @@ def product_batch(w, mu, var, rss, order, kmax):  # pragma: no cover - compiled
             r = 0
             for i in range(pn):                       # the product, pairs (i, j) i-major
                 for j in range(qn):
-                    sv = pv[i] + qv[j]
-                    xv[r] = pv[i] * qv[j] / sv
-                    xm[r] = (pm[i] * qv[j] + qm[j] * pv[i]) / sv
-                    xw[r] = math.log(pw[i]) + math.log(qw[j]) - 0.5 * np.sum(
-                        (pm[i] - qm[j]) ** 2 / sv + np.log(sv) + _LOG2PI)
+                    xw[r] = math.log(pw[i]) + math.log(qw[j])
+                    for e in range(d):
+                        sv = pv[i, e] + qv[j, e]
+                        xv[r, e] = pv[i, e] * qv[j, e] / sv
+                        xm[r, e] = (pm[i, e] * qv[j, e] + qm[j, e] * pv[i, e]) / sv
+                        xw[r] -= 0.5 * ((pm[i, e] - qm[j, e]) ** 2 / sv + math.log(sv) + _LOG2PI)
                     r += 1
             if not _exp_normalise(xw[:r]):
                 ok[b] = False
