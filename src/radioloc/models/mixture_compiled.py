@@ -259,7 +259,7 @@ def product_batch(w, mu, var, rss, order, kmax):  # pragma: no cover - compiled
         pw, pm, pv = np.empty(kmax), np.empty((kmax, d)), np.empty((kmax, d))
         qw, qm, qv = np.empty(kmax), np.empty((kmax, d)), np.empty((kmax, d))
         xw, xm, xv = np.empty(kmax * kmax), np.empty((kmax * kmax, d)), np.empty((kmax * kmax, d))
-        cw = np.empty(k)
+        cw, lq = np.empty(k), np.empty(kmax)
         pn, have = -1, False
         for si in range(ns):
             s = order[b, si]
@@ -280,10 +280,13 @@ def product_batch(w, mu, var, rss, order, kmax):  # pragma: no cover - compiled
                 pn, have = qn, got
                 pw[:qn], pm[:qn], pv[:qn] = qw[:qn], qm[:qn], qv[:qn]
                 continue
+            for j in range(qn):
+                lq[j] = math.log(qw[j])
             r = 0
             for i in range(pn):                       # the product, pairs (i, j) i-major
+                lp = math.log(pw[i])
                 for j in range(qn):
-                    xw[r] = math.log(pw[i]) + math.log(qw[j])
+                    xw[r] = lp + lq[j]
                     for e in range(d):
                         sv = pv[i, e] + qv[j, e]
                         xv[r, e] = pv[i, e] * qv[j, e] / sv
