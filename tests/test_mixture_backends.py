@@ -8,8 +8,8 @@ import pytest
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators import MixtureLocalizer, MixtureTracker
 from radioloc.models import DiagMixture, UniformDisk
-from radioloc.models.mixture import (convolve, merge_moments, pad_components, product, reduce,
-                                     uniform_ball)
+from radioloc.models.mixture import (compact, convolve, merge_moments, pad_components, product,
+                                     reduce, runnalls_cost, uniform_ball)
 
 #: relative tolerance between the backends
 RTOL = 1e-10
@@ -84,6 +84,26 @@ def test_merge_moments_preserves_the_pair():
     np.testing.assert_allclose(w, w1 + w2)
     np.testing.assert_allclose(m, mean)
     np.testing.assert_allclose(v, np.diagonal(cov, axis1=-2, axis2=-1))
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_one_merge_is_west_rule_with_runnalls_cost(backend):
+    """Known answer: the lowest weight merged into the partner of lowest textbook
+    Runnalls cost (:func:`runnalls_cost`), by moment matching."""
+    rng = np.random.default_rng(28)
+    mix = _random(rng, 200, 6, 2)
+    i = np.argmin(mix.weights, -1)
+    n = np.arange(200)
+    cost = runnalls_cost(mix.weights[n, i][:, None], mix.means[n, i][:, None],
+                         mix.variances[n, i][:, None], mix.weights, mix.means, mix.variances)
+    cost[n, i] = np.inf
+    j = np.argmin(cost, -1)
+    w, m, v = merge_moments(mix.weights[n, i], mix.means[n, i], mix.variances[n, i],
+                            mix.weights[n, j], mix.means[n, j], mix.variances[n, j])
+    want = [mix.weights.copy(), mix.means.copy(), mix.variances.copy()]
+    want[0][n, j], want[1][n, j], want[2][n, j] = w, m, v
+    want[0][n, i] = 0.0
+    _assert_close(reduce(mix, 5, backend=backend), compact(DiagMixture(*want)))
 
 
 @pytest.mark.parametrize("backend", ["numba", "numpy"])

@@ -236,7 +236,7 @@ class _Fit:
         return np.concatenate([logit[..., None], m, np.log(v)], -1).reshape(w.shape[:-1] + (-1,))
 
 
-def _chain_reference(w, g, p, q):
+def _chain_rule(w, g, p, q):
     """Raw (weight) parameters to softmax logits: gradient and Gram matrix."""
     k = w.shape[-1]
     jw = w[..., :, None] * (np.eye(k) - w[..., None, :])                # dw_k/dalpha_i: (k, i)
@@ -337,7 +337,7 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
         w, m, v = _Fit.unpack(eta_, k, d)
         g = c_ff * cross_gradient(w, m, v, w, m, v) + c_0 * cross_gradient(w, m, v, sw, sm, sv) \
             + c_t * cross_gradient(w, m, v, tw, tm, tv)
-        return _chain_reference(w, g, gram(w, m, v), q)
+        return _chain_rule(w, g, gram(w, m, v), q)
 
     def solve(p, rhs, lam):
         diag = np.diagonal(p, axis1=-2, axis2=-1)
