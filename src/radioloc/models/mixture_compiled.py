@@ -172,16 +172,17 @@ def _reduce_one(w, m, v, kmax, ow, om, ov):  # pragma: no cover - compiled
     ic, isc, ij, tied = np.empty(k), np.empty(k), np.empty(k, np.int64), np.empty(k)
     mm, vv = np.empty(d), np.empty(d)
     while n > kmax:
-        wmin = tw[:n].min()
-        i, count = -1, 0
+        i, wmin, w2 = 0, np.inf, np.inf               # the lowest weight and the second
         for c in range(n):
-            tied[c] = tw[c] * (1.0 - TIE) <= wmin
-            if tied[c]:
-                i, count = c, count + 1
-        if count == 1:
+            if tw[c] < wmin:
+                i, wmin, w2 = c, tw[c], wmin
+            else:
+                w2 = min(w2, tw[c])
+        if w2 * (1.0 - TIE) > wmin:
             j = _partner(tw, tm, tv, iv, ld, n, i, s)[0]
         else:                                         # the tied one with the cheapest merge
             for c in range(n):
+                tied[c] = tw[c] * (1.0 - TIE) <= wmin
                 ic[c], isc[c] = np.inf, 0.0
                 if tied[c]:
                     ij[c], ic[c], isc[c] = _partner(tw, tm, tv, iv, ld, n, c, s)
