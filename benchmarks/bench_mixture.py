@@ -1,14 +1,13 @@
 """Throughput of mixture reduction and localization (paper 004).
 
-Peer: :func:`radioloc.models.mixture.reduce_reference`, the vectorised NumPy implementation
-of the same greedy West/Runnalls reduction with the same tie rule (one merge per iteration
-for the whole batch; bit for bit the kernel's results), measured in the same process against
-the compiled kernel used by :func:`radioloc.models.mixture.reduce` (2-D mixtures of equal
-component count reduced 32 at a time on SIMD lanes, ``models.mixture._west_lanes``): wall
-time of the parallel kernel and, beside it, both per CPU second (``time.process_time``, threads counted). The Progressive Bayes reduction
+Peer: ``reduce(..., backend="numpy")``, the NumPy definition of the greedy West/Runnalls
+reduction (one merge per iteration for the whole batch), measured in the same process
+against the compiled kernel of :func:`radioloc.models.mixture.reduce` (the default
+``backend="numba"``, the mixtures in parallel): wall time and, beside it, both per CPU second
+(``time.process_time``, threads counted). The Progressive Bayes reduction
 (:func:`radioloc.models.progressive_bayes.progressive_reduce`) is timed beside the compiled
-West/Runnalls reduction it starts from (on a tenth of the batch). The tracker's continuous default (fixed-structure merges) is timed
-against its greedy West/Runnalls option.
+West/Runnalls reduction it starts from (on a tenth of the batch). The tracker's continuous
+default (fixed-structure merges) is timed against its greedy West/Runnalls option.
 """
 
 import time
@@ -16,15 +15,15 @@ import time
 import numpy as np
 
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
-from radioloc.models.mixture import DiagMixture, product, reduce, reduce_reference
+from radioloc.models.mixture import DiagMixture, product, reduce
 from radioloc.models.motion import UniformDisk
 from radioloc.models.progressive_bayes import progressive_reduce
 from timing import best_of
 
 #: floating-point operations per candidate partner of one West/Runnalls merge in 2-D: pass 1
-#: of ``models.mixture._west_lanes`` / ``_partner`` (the ratio ``y`` 18, its magnitude and the
-#: scale's part 10, the logarithm-free bound 26); pass 2 adds about one ``log1p`` per merge,
-#: not counted
+#: of ``models.mixture_compiled._partner`` (the ratio ``y`` 18, its magnitude and the scale's
+#: part 10, the logarithm-free bound 26); pass 2 adds about one ``log1p`` per merge, not
+#: counted
 FLOPS_PER_CANDIDATE = 54
 
 
@@ -87,9 +86,9 @@ def main(batch: int = 500, seed: int = 0) -> list[dict]:
     prod = product(a, a)                                   # 64 components each
     reduce(prod, 8)                                        # compile
     t_kernel = best_of(lambda: reduce(prod, 8), repeat=5)
-    t_numpy = best_of(lambda: reduce_reference(prod, 8))
+    t_numpy = best_of(lambda: reduce(prod, 8, backend="numpy"))
     c_kernel = best_of(lambda: reduce(prod, 8), repeat=5, clock=time.process_time)
-    c_numpy = best_of(lambda: reduce_reference(prod, 8), repeat=2, clock=time.process_time)
+    c_numpy = best_of(lambda: reduce(prod, 8, backend="numpy"), repeat=2, clock=time.process_time)
     print(f"mixture reduction per CPU second: kernel {b / c_kernel:,.0f}, NumPy "
           f"{b / c_numpy:,.0f} mixtures/s, ratio {c_numpy / c_kernel:.2f}x")
     flops = reduction_flops(64, 8)
@@ -104,14 +103,14 @@ def main(batch: int = 500, seed: int = 0) -> list[dict]:
                             rng.uniform(0.5, 2, (b, k, d)))
     prod2 = product(a, a2)
     t_kernel2 = best_of(lambda: reduce(prod2, 8), repeat=5)
-    t_numpy2 = best_of(lambda: reduce_reference(prod2, 8))
+    t_numpy2 = best_of(lambda: reduce(prod2, 8, backend="numpy"))
     rows.append({"workload": "mixture reduction 64 -> 8 (West/Runnalls, 2-D), no exact ties",
                  "throughput": b / t_kernel2, "unit": "mixtures/s",
                  "peer": "NumPy (same greedy rule, vectorised over the batch)",
                  "peer_throughput": b / t_numpy2, "ratio": t_numpy2 / t_kernel2,
                  "flops_per_unit": flops})
     c_kernel2 = best_of(lambda: reduce(prod2, 8), repeat=5, clock=time.process_time)
-    c_numpy2 = best_of(lambda: reduce_reference(prod2, 8), repeat=2, clock=time.process_time)
+    c_numpy2 = best_of(lambda: reduce(prod2, 8, backend="numpy"), repeat=2, clock=time.process_time)
     print(f"mixture reduction, no exact ties, per CPU second: kernel {b / c_kernel2:,.0f}, "
           f"NumPy {b / c_numpy2:,.0f} mixtures/s, ratio {c_numpy2 / c_kernel2:.2f}x")
     nb = max(1, b // 10)

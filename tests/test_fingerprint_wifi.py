@@ -1,6 +1,6 @@
-"""WiFi-scale fingerprinting: the UJIIndoorLoc reader, the shared-place mixture model, the
-compiled eq. (2) kernel against its NumPy composition, ``locate --method gmm -o model=places``
-and the reduced-size reproduction of ``real-wifi-fingerprint``."""
+"""WiFi-scale fingerprinting: the UJIIndoorLoc reader, the shared-place mixture model,
+``locate --method gmm -o model=places`` and the reduced-size reproduction of
+``real-wifi-fingerprint``."""
 
 import os
 import warnings
@@ -18,7 +18,7 @@ from radioloc.io.ujiindoorloc import load_split, read_scans
 from radioloc.locate.base import LocateRequest
 from radioloc.locate.gmm import locate_gmm
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import DiagMixture, pad_components
+from radioloc.models.mixture import DiagMixture
 
 HERE = Path(__file__).parent
 UJI_ROWS = HERE / "data" / "ujiindoorloc"
@@ -191,30 +191,6 @@ def test_bad_inputs_raise():
     with pytest.raises(InputError, match="fingerprint models only"):
         MixtureLocalizer(DiagMixture.create(np.ones((2, 3)), np.zeros((2, 3, 3)),
                                             np.ones((2, 3, 3))), temperature=2.0)
-
-
-# ---- compiled eq. (2) against the NumPy composition ----------------------------------------
-
-@pytest.mark.parametrize("k,kmax,lead", [(16, 8, ()), (5, 8, ()), (6, 3, (2,))])
-def test_product_kernel_equals_numpy_reference(k, kmax, lead):
-    rng = np.random.default_rng(k + kmax)
-    s = 5
-    models = DiagMixture.create(rng.uniform(0.1, 1, lead + (s, k)),
-                                rng.normal(0, 3, lead + (s, k, 3)),
-                                rng.uniform(0.5, 4, lead + (s, k, 3)))
-    rss = rng.normal(0, 3, (40,) + lead + (s,)) if lead else rng.normal(0, 3, (40, s))
-    rss[rng.random(rss.shape) < 0.3] = np.nan
-    rss[0] = np.nan                                            # a row with no station
-    loc = MixtureLocalizer(models, kmax)
-    a, ha = loc.density_and_mask(rss)
-    b, hb = loc.density_reference(rss)
-    np.testing.assert_array_equal(ha, hb)
-    kk = max(a.n_components, b.n_components)
-    a, b = pad_components(a, kk), pad_components(b, kk)
-    got = np.broadcast_to(hb, a.batch_shape)
-    np.testing.assert_allclose(a.weights[got], b.weights[got], atol=1e-12)
-    np.testing.assert_allclose(a.means[got], b.means[got], atol=1e-9)
-    np.testing.assert_allclose(a.variances[got], b.variances[got], atol=1e-9)
 
 
 # ---- locate ------------------------------------------------------------------------------

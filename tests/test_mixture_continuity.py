@@ -15,7 +15,7 @@ stations, 8 position components). Bounds and why:
   the stations by decreasing reading);
 - components of the models permuted: exact to 1e-9 (the West/Runnalls reduction of the
   measurement density breaks exact ties by the components' contents, never by position;
-  the tied grid of ``test_metamorphic`` is in ``test_mixture_fast``);
+  a tied grid is in ``test_mixture_backends``);
 - the scene rotated by a half turn (the disk mixture's 60-degree symmetry and the
   axis-aligned components map onto themselves) and translated: the estimate rotates and
   translates to 1e-8 m (measured 1.2e-9 m after 900 steps: the reductions return their

@@ -7,8 +7,7 @@ import pytest
 from radioloc.core.errors import InputError
 from radioloc.models.mixture import DiagMixture, compact, product, reduce
 from radioloc.models.mixture_calibration import progressive_calibration
-from radioloc.models.progressive_bayes import (cross_gradient, cross_gradient_fast, gram,
-                                               gram_fast, inner, inner_fast, isd,
+from radioloc.models.progressive_bayes import (cross_gradient, gram, inner, isd,
                                                progressive_reduce)
 
 
@@ -68,16 +67,6 @@ def test_gradient_and_gram_equal_finite_differences():
                       - ff(t0 - e * eye[i], t0 + e * eye[j]) + ff(t0 - e * eye[i], t0 - e * eye[j]))
                      / (4 * e * e) for j in range(n)] for i in range(n)])
     np.testing.assert_allclose(gram(a.weights, a.means, a.variances), fd2, atol=1e-7)
-
-
-def test_compiled_kernels_equal_numpy_reference():
-    rng = np.random.default_rng(4)
-    a, b = random_mixture(rng, (3, 2), k=5, d=2), random_mixture(rng, (3, 2), k=7, d=2)
-    args = (a.weights, a.means, a.variances, b.weights, b.means, b.variances)
-    np.testing.assert_allclose(inner_fast(*args), inner(*args), rtol=1e-12)
-    np.testing.assert_allclose(cross_gradient_fast(*args), cross_gradient(*args), rtol=1e-10,
-                               atol=1e-15)
-    np.testing.assert_allclose(gram_fast(*args[:3]), gram(*args[:3]), rtol=1e-10, atol=1e-15)
 
 
 @pytest.mark.parametrize("d", [1, 2])

@@ -23,23 +23,22 @@ base stations received.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 
 from radioloc.core.arrays import kernel_array
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (_LANE_ROWS, _LANES, _TIE, REDUCTIONS, DiagMixture,
-                                     _reduce_into, _reduce_rows,
-                                     check_reduction, compact, convolve, linear_predict,
-                                     merge_groups, outer, pad_components, product, product_on,
-                                     reduce, select, uniform_ball)
+from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
+                                     convolve, linear_predict, merge_groups, outer,
+                                     pad_components, product, product_on, reduce, select,
+                                     uniform_ball)
+from radioloc.models.mixture_compiled import product_batch
 from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 
 __all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture",
@@ -47,8 +46,6 @@ __all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixt
 
 #: reductions of :class:`MixtureTracker` (the first is the default)
 TRACKER_REDUCTIONS = ("continuous",) + REDUCTIONS
-
-_LOG2PI = math.log(2.0 * math.pi)
 
 #: diagnostics keys holding the posterior mixture
 MIXTURE_KEYS = ("mixture_weights", "mixture_means", "mixture_variances")
@@ -118,8 +115,9 @@ class MixtureLocalizer(SnapshotEstimator):
       written): each received station's ``D^(k)(x, y, m)`` (eq. (1)) is conditioned on its
       measurement, the ``N_r`` densities are multiplied (eq. (2)) and reduced to
       ``max_components`` after each product; stations not received (NaN) are left out.
-      Computed by one compiled kernel over the rows (:func:`_product_kernel`), equal to the
-      composition of :meth:`DiagMixture.condition`, :func:`product` and :func:`reduce`.
+      Defined by the composition of :meth:`DiagMixture.condition`, :func:`product` and
+      :func:`reduce` (``backend="numpy"``); one compiled kernel over the rows by default
+      (``radioloc.models.mixture_compiled.product_batch``, West/Runnalls only).
     - a :class:`~radioloc.models.fingerprint_mixture.FingerprintMixture` (WiFi scale:
       place components shared by all access points, "not detected" an explicit outcome;
       NaN = not detected): the place weights of every scan come from one matrix product,
@@ -144,6 +142,8 @@ class MixtureLocalizer(SnapshotEstimator):
     temperature : float
         Fingerprint models only: ``T >= 1`` tempering the product over access points
         (place weights ``∝ exp(log L / T)``); 1 = the plain product.
+    backend : str
+        ``"numba"`` (default: the compiled kernels) or ``"numpy"`` (the definition).
 
     Raises
     ------
@@ -155,7 +155,9 @@ class MixtureLocalizer(SnapshotEstimator):
     name = "mixture"
 
     def __init__(self, models: DiagMixture | FingerprintMixture, max_components: int = 16,
-                 reduction: str = "runnalls", temperature: float = 1.0) -> None:
+                 reduction: str = "runnalls", temperature: float = 1.0,
+                 backend: str = DEFAULT_BACKEND) -> None:
+        self.backend = check_backend(backend)
         if isinstance(models, FingerprintMixture):
             self.models = models
         else:
@@ -229,82 +231,46 @@ class MixtureLocalizer(SnapshotEstimator):
             raise InputError(f"rss: batch shape {rss.shape[:-1]} does not broadcast with the "
                              f"models' {models.batch_shape[:-1]}") from None
         s, k, d1 = models.batch_shape[-1], models.n_components, models.dim
-        w = np.broadcast_to(models.weights, shape + (s, k)).reshape(-1, s, k)
-        mu = np.broadcast_to(models.means, shape + (s, k, d1)).reshape(-1, s, k, d1)
-        var = np.broadcast_to(models.variances, shape + (s, k, d1)).reshape(-1, s, k, d1)
-        m = np.broadcast_to(rss, shape + (s,)).reshape(-1, s)
-        if self.reduction != "runnalls":          # the compiled kernel merges West/Runnalls
-            return self.density_reference(rss, models)
-        s, k = models.batch_shape[-1], models.n_components
-        k_eff = min(float(self.max_components), float(k) ** s)
-        check_memory(32.0 * np.prod(shape, dtype=float) * k_eff * k_eff * (2 * models.dim - 1),
-                     "max_components", "the products of the position mixtures")
         kmax = self.max_components
-        # a station density has at most kc = min(k, kmax) components after its reduction
-        kc = min(k, kmax)
-        ow, om, ov, ok = _product_kernel(kernel_array(w), kernel_array(mu), kernel_array(var),
-                                         kernel_array(m),
-                                         kernel_array(_station_order(m), np.int64), kmax, kc,
-                                         _TIE)
-        if not np.all(ok):
-            raise InputError("weights: a mixture lost all its mass (disjoint densities)")
-        post = compact(DiagMixture(ow, om, ov))
-        kk = post.n_components
-        post = DiagMixture(post.weights.reshape(shape + (kk,)),
-                           post.means.reshape(shape + (kk, d1 - 1)),
-                           post.variances.reshape(shape + (kk, d1 - 1)))
-        return post, np.broadcast_to(np.isfinite(rss).any(-1), shape)
-
-    def density_reference(self, rss: np.ndarray, models: DiagMixture | None = None
-                          ) -> tuple[DiagMixture, np.ndarray]:
-        """:meth:`density_and_mask` composed of the NumPy mixture operations
-        (:meth:`DiagMixture.condition`, :func:`product`, :func:`reduce`), one station at a
-        time: the reference the compiled kernel is tested against.
-
-        Parameters
-        ----------
-        rss : ndarray, shape (..., S)
-            Signal strengths, NaN = not received (already validated).
-        models : DiagMixture, optional
-            The station models (default: this localizer's).
-
-        Returns
-        -------
-        density : DiagMixture
-        received : ndarray of bool
-        """
-        self._require_stations("density_reference")
-        models = self.models if models is None else models
-        got = np.isfinite(rss)
-        try:
-            shape = np.broadcast_shapes(models.batch_shape[:-1], rss.shape[:-1])
-        except ValueError:
-            raise InputError(f"rss: batch shape {rss.shape[:-1]} does not broadcast with the "
-                             f"models' {models.batch_shape[:-1]}") from None
-        k = min(float(self.max_components), float(models.n_components) ** self.n_stations)
-        check_memory(32.0 * np.prod(shape, dtype=float) * k * k * (2 * models.dim - 1),
+        k_eff = min(float(kmax), float(k) ** s)
+        check_memory(32.0 * np.prod(shape, dtype=float) * k_eff * k_eff * (2 * d1 - 1),
                      "max_components", "the products of the position mixtures")
-        cond = models.condition(models.dim - 1, np.where(got, rss, 0.0), valid=got)
-        s = self.n_stations
+        got = np.broadcast_to(np.isfinite(rss), shape + (s,))
         order = _station_order(np.broadcast_to(rss, shape + (s,)))
+        if self.reduction == "runnalls" and self.backend == "numba":
+            ow, om, ov, ok = product_batch(
+                kernel_array(np.broadcast_to(models.weights, shape + (s, k)).reshape(-1, s, k)),
+                *(kernel_array(np.broadcast_to(a, shape + (s, k, d1)).reshape(-1, s, k, d1))
+                  for a in (models.means, models.variances)),
+                kernel_array(np.broadcast_to(rss, shape + (s,)).reshape(-1, s)),
+                kernel_array(order.reshape(-1, s), np.int64), kmax)
+            if not np.all(ok):
+                raise InputError("weights: a mixture lost all its mass (disjoint densities)")
+            post = compact(DiagMixture(ow, om, ov))
+            kk = post.n_components
+            post = DiagMixture(post.weights.reshape(shape + (kk,)),
+                               post.means.reshape(shape + (kk, d1 - 1)),
+                               post.variances.reshape(shape + (kk, d1 - 1)))
+            return post, got.any(-1)
+        # the definition: condition, reduce each station, multiply and reduce (eq. (2))
+        cond = models.condition(d1 - 1, np.where(np.isfinite(rss), rss, 0.0),
+                                valid=np.isfinite(rss))
         cw = np.broadcast_to(cond.weights, shape + cond.weights.shape[-2:])
         cm = np.broadcast_to(cond.means, shape + cond.means.shape[-3:])
         cv = np.broadcast_to(cond.variances, shape + cond.variances.shape[-3:])
-        got = np.broadcast_to(got, shape + (s,))
-        post = None
-        have = None
+        post = have = None
         for p in range(s):
-            k = order[..., p]
+            st = order[..., p]
             ck = DiagMixture(
-                np.take_along_axis(cw, k[..., None, None], -2)[..., 0, :],
-                np.take_along_axis(cm, k[..., None, None, None], -3)[..., 0, :, :],
-                np.take_along_axis(cv, k[..., None, None, None], -3)[..., 0, :, :])
-            ck = reduce(ck, self.max_components, self.reduction)
-            gk = np.take_along_axis(got, k[..., None], -1)[..., 0]
+                np.take_along_axis(cw, st[..., None, None], -2)[..., 0, :],
+                np.take_along_axis(cm, st[..., None, None, None], -3)[..., 0, :, :],
+                np.take_along_axis(cv, st[..., None, None, None], -3)[..., 0, :, :])
+            ck = reduce(ck, kmax, self.reduction, self.backend)
+            gk = np.take_along_axis(got, st[..., None], -1)[..., 0]
             if post is None:
                 post, have = ck, gk
                 continue
-            both = reduce(product(post, ck), self.max_components, self.reduction)
+            both = reduce(product(post, ck), kmax, self.reduction, self.backend)
             post = select(gk & have, both, select(gk, ck, post))
             have = have | gk
         return post, have
@@ -467,6 +433,9 @@ class MixtureTracker(RecursiveEstimator):
         - ``"progressive"``: the Progressive Bayes ISD homotopy of the paper's reference
           [3] for every re-approximation (started from West/Runnalls, so not continuous
           either).
+    backend : str
+        ``"numba"`` (default) or ``"numpy"``: the West/Runnalls reduction and the
+        measurement density by their compiled kernels or by their NumPy definitions.
 
     Raises
     ------
@@ -478,7 +447,9 @@ class MixtureTracker(RecursiveEstimator):
     name = "mixture-tracker"
 
     def __init__(self, models: DiagMixture, motion: UniformDisk | BoundedSpeedCV,
-                 max_components: int = 16, reduction: str = "continuous") -> None:
+                 max_components: int = 16, reduction: str = "continuous",
+                 backend: str = DEFAULT_BACKEND) -> None:
+        self.backend = check_backend(backend)
         self.models = _check_models(models)
         self.max_components = _check_max_components(max_components)
         if not isinstance(reduction, str) or reduction not in TRACKER_REDUCTIONS:
@@ -499,7 +470,8 @@ class MixtureTracker(RecursiveEstimator):
             raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
         self.motion = motion
         self.velocity = isinstance(motion, BoundedSpeedCV)
-        self._localizer = MixtureLocalizer(models, max_components, self.base_reduction)
+        self._localizer = MixtureLocalizer(models, max_components, self.base_reduction,
+                                           backend=self.backend)
 
     @property
     def dim(self) -> int:
@@ -512,7 +484,7 @@ class MixtureTracker(RecursiveEstimator):
         return 2 * self.dim if self.velocity else self.dim
 
     def _reduce(self, mix: DiagMixture) -> DiagMixture:
-        return reduce(mix, self.max_components, self.base_reduction)
+        return reduce(mix, self.max_components, self.base_reduction, self.backend)
 
     def _with_velocity(self, pos: DiagMixture) -> DiagMixture:
         """A position density extended by the velocity prior (uniform in the ball v_max);
@@ -741,8 +713,6 @@ class MixtureTracker(RecursiveEstimator):
         return track_from_steps(steps, t)
 
 
-# --- compiled eq. (2): condition, product and West/Runnalls reduction fused per row ---------
-
 def _station_order(rss: np.ndarray) -> np.ndarray:
     """The order in which the stations of each row enter the product of eq. (2): received
     stations by decreasing signal strength, then the stations not received; equal readings
@@ -764,187 +734,3 @@ def _station_order(rss: np.ndarray) -> np.ndarray:
     """
     key = np.where(np.isfinite(rss), -rss, np.inf)
     return np.ascontiguousarray(np.argsort(key, axis=-1, kind="stable"))
-
-
-@njit(cache=True, inline="always")
-def _exp_normalise(x, n, top):  # pragma: no cover - compiled
-    """``x[:n] = exp(x[:n] - top) / sum``: weights from log weights whose finite maximum
-    is ``top``."""
-    tot = 0.0
-    for i in range(n):
-        x[i] = math.exp(x[i] - top)
-        tot += x[i]
-    for i in range(n):
-        x[i] /= tot
-
-
-@njit(cache=True)
-def _condition_into(w, mu, var, value, received, cw):  # pragma: no cover - compiled
-    """Weights of one station model conditioned on its last coordinate (the section of
-    eq. (1) of Sect. 3.2, :meth:`DiagMixture.condition`); False if all mass is lost."""
-    k, d1 = mu.shape
-    top = -np.inf
-    for j in range(k):
-        lw = math.log(w[j]) if w[j] > 0 else -np.inf
-        if received:
-            vj = var[j, d1 - 1]
-            lw += -0.5 * ((value - mu[j, d1 - 1]) ** 2 / vj + math.log(vj) + _LOG2PI)
-        cw[j] = lw
-        if lw > top:
-            top = lw
-    if not np.isfinite(top):
-        return False
-    _exp_normalise(cw, k, top)
-    return True
-
-
-
-@njit(cache=True, error_model="numpy")
-def _product_into(pw, pm, pv, pn, qw, qm, qv, qn, lp, lq, xw, xm, xv):
-    # pragma: no cover - compiled
-    """The normalised product (eq. (2), :func:`radioloc.models.mixture.product`) of the
-    running density ``pw[:pn], pm, pv`` and a station's ``qw[:qn], qm, qv`` into ``xw, xm,
-    xv`` (``i``-major); returns the number of components, -1 if all mass is lost. Unrolled
-    for one and two coordinates (one logarithm of the product of the two variance sums per
-    pair; the logarithms of the weights taken once per factor)."""
-    d = pm.shape[1]
-    for i in range(pn):
-        lp[i] = math.log(pw[i])
-    for j in range(qn):
-        lq[j] = math.log(qw[j])
-    top = -np.inf
-    r = 0
-    for i in range(pn):
-        for j in range(qn):
-            if d == 1:
-                vi = pv[i, 0]
-                vj = qv[j, 0]
-                ss = vi + vj
-                xv[r, 0] = vi * vj / ss
-                xm[r, 0] = (pm[i, 0] * vj + qm[j, 0] * vi) / ss
-                dm = pm[i, 0] - qm[j, 0]
-                lc = dm * dm / ss + math.log(ss) + _LOG2PI
-            elif d == 2:
-                vi0 = pv[i, 0]
-                vj0 = qv[j, 0]
-                vi1 = pv[i, 1]
-                vj1 = qv[j, 1]
-                s0 = vi0 + vj0
-                s1 = vi1 + vj1
-                xv[r, 0] = vi0 * vj0 / s0
-                xv[r, 1] = vi1 * vj1 / s1
-                xm[r, 0] = (pm[i, 0] * vj0 + qm[j, 0] * vi0) / s0
-                xm[r, 1] = (pm[i, 1] * vj1 + qm[j, 1] * vi1) / s1
-                dm0 = pm[i, 0] - qm[j, 0]
-                dm1 = pm[i, 1] - qm[j, 1]
-                lc = dm0 * dm0 / s0 + dm1 * dm1 / s1 + math.log(s0 * s1) \
-                    + 2.0 * _LOG2PI
-            else:
-                lc = 0.0
-                for e in range(d):
-                    vi = pv[i, e]
-                    vj = qv[j, e]
-                    ss = vi + vj
-                    xv[r, e] = vi * vj / ss
-                    xm[r, e] = (pm[i, e] * vj + qm[j, e] * vi) / ss
-                    lc += (pm[i, e] - qm[j, e]) ** 2 / ss + math.log(ss) + _LOG2PI
-            lw = lp[i] + lq[j] - 0.5 * lc
-            xw[r] = lw
-            if lw > top:
-                top = lw
-            r += 1
-    if not np.isfinite(top):
-        return -1
-    _exp_normalise(xw, r, top)
-    return r
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _product_kernel(w, mu, var, rss, order, kmax, kc, tie):  # pragma: no cover - compiled
-    """Eq. (2) for every row: condition each station model on its reading, reduce it to
-    ``kmax`` components, multiply it into the running product and reduce, exactly as
-    :meth:`MixtureLocalizer.density_reference` composes the NumPy mixture operations.
-
-    Parameters: ``w (B, S, K)``, ``mu, var (B, S, K, D + 1)``, ``rss (B, S)`` (NaN = not
-    received), ``order (B, S)`` the stations of each row in the order they enter the
-    product (:func:`_station_order`), ``kc = min(K, kmax)``. Returns ``(weights (B, kmax),
-    means (B, kmax, D), variances (B, kmax, D), ok (B,))`` with unused slots at weight 0
-    (mean 0, variance 1). Groups of ``_LANES`` rows run in parallel; within a group, the
-    products of one step (:func:`_product_into`) are reduced together
-    (:func:`radioloc.models.mixture._reduce_rows`: on SIMD lanes in 2-D when their
-    component counts agree), the same results as row by row, bit for bit.
-    """
-    nb, ns, k, d1 = mu.shape
-    d = d1 - 1
-    ow = np.zeros((nb, kmax))
-    om = np.zeros((nb, kmax, d))
-    ov = np.ones((nb, kmax, d))
-    ok = np.ones(nb, dtype=np.bool_)
-    big = max(k, kmax * kc)      # a product: <= kmax running slots x <= kc station slots
-    L = _LANES
-    ng = (nb + L - 1) // L
-    for g in prange(ng):
-        b0 = g * L
-        nl = min(L, nb - b0)
-        cw = np.empty(k)
-        qw = np.empty(kmax)
-        qm = np.empty((kmax, d))
-        qv = np.empty((kmax, d))
-        lp = np.empty(kmax)
-        lq = np.empty(kmax)
-        pw = np.empty((L, kmax))
-        pm = np.empty((L, kmax, d))
-        pv = np.empty((L, kmax, d))
-        xw = np.empty((L, big))
-        xm = np.empty((L, big, d))
-        xv = np.empty((L, big, d))
-        t = np.empty((3 * d + 10, big))
-        T = np.empty((big, _LANE_ROWS, L))
-        pn = np.zeros(L, dtype=np.int64)
-        xr = np.zeros(L, dtype=np.int64)
-        need = np.zeros(L, dtype=np.bool_)
-        have = np.zeros(L, dtype=np.bool_)
-        started = np.zeros(L, dtype=np.bool_)
-        live = np.ones(L, dtype=np.bool_)
-        for si in range(ns):
-            for ln in range(nl):
-                need[ln] = False
-                b = b0 + ln
-                if not live[ln]:
-                    continue
-                s = order[b, si]
-                got = np.isfinite(rss[b, s])
-                if started[ln] and not got:
-                    continue
-                if not _condition_into(w[b, s], mu[b, s], var[b, s], rss[b, s], got, cw):
-                    ok[b] = False
-                    live[ln] = False
-                    continue
-                qn = _reduce_into(cw, mu[b, s, :, :d], var[b, s, :, :d], k, kmax, tie,
-                                  qw, qm, qv, t)
-                if not started[ln] or not have[ln]:
-                    pw[ln, :qn] = qw[:qn]
-                    pm[ln, :qn, :] = qm[:qn, :]
-                    pv[ln, :qn, :] = qv[:qn, :]
-                    pn[ln] = qn
-                    started[ln] = True
-                    have[ln] = got
-                    continue
-                r = _product_into(pw[ln], pm[ln], pv[ln], pn[ln], qw, qm, qv, qn, lp, lq,
-                                  xw[ln], xm[ln], xv[ln])
-                if r < 0:
-                    ok[b] = False
-                    live[ln] = False
-                    continue
-                xr[ln] = r
-                need[ln] = True
-            _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t)
-        for ln in range(nl):
-            b = b0 + ln
-            if not live[ln]:
-                continue
-            for c in range(pn[ln]):
-                ow[b, c] = pw[ln, c]
-                om[b, c, :] = pm[ln, c, :]
-                ov[b, c, :] = pv[ln, c, :]
-    return ow, om, ov, ok

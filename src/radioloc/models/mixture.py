@@ -24,23 +24,20 @@ exact in mass, mean and diagonal covariance, and an approximation in the off-dia
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 from scipy.special import logsumexp, softmax
 
-from radioloc.core import fdlibm as fdl
 from radioloc.core.arrays import kernel_array
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
+from radioloc.models.mixture_compiled import TIE as _TIE
+from radioloc.models.mixture_compiled import reduce_batch
 
 _LOG2PI = np.log(2.0 * np.pi)
 
-#: relative tolerance under which two weights or two merge costs count as tied in
-#: :func:`reduce` (ties broken by the components' contents, whatever the rounding).
-_TIE = 1e-9
 #: smallest variance :meth:`DiagMixture.create` accepts (squared distances over it stay
 #: far from float64 overflow)
 _VARIANCE_FLOOR = 1e-60
@@ -472,115 +469,90 @@ def compact(mix: DiagMixture) -> DiagMixture:
                        np.take_along_axis(mix.variances, order[..., None], -2))
 
 
-def _logdet_np(v: np.ndarray) -> np.ndarray:
-    """``sum(log(v), -1)`` with the kernel's arithmetic (:func:`_logdet`): one logarithm of
-    the product for up to two coordinates, a sequential sum of logarithms beyond."""
-    if v.shape[-1] <= 2:
-        return np.log(np.prod(v, axis=-1))
-    acc = np.log(v[..., 0])
-    for e in range(1, v.shape[-1]):
-        acc = acc + np.log(v[..., e])
-    return acc
+def _logdet(v: np.ndarray) -> np.ndarray:
+    """``log|P| = sum(log v)`` of axis-aligned covariances."""
+    return np.sum(np.log(v), axis=-1)
 
 
 def _canonical_first(mask: np.ndarray, w: np.ndarray, m: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Per row of ``mask (B, K)`` (the tie set; ``w > 0`` marks the mixture's components),
-    the tie rule of :func:`_pick`: the True component nearest to the mixture's mean, then
-    the lowest in the canonical order (means, then variances, then weight,
-    lexicographically: :func:`_key_less`)."""
+    """The tie rule of :func:`reduce`, per row of ``mask (B, K)`` (the tie set; ``w > 0``
+    marks the mixture's components): the member nearest to the mixture's mean (squared
+    distances within a relative ``_TIE`` count as equal); of two at the same distance (in
+    2-D or more) the one the other follows counter-clockwise about the mean; otherwise the
+    lowest in the canonical order (means, then variances, then weight, lexicographically).
+    It reads the components' contents, never their positions."""
     first = np.argmax(mask, axis=-1)
     many = np.count_nonzero(mask, axis=-1) > 1
-    if np.any(many):
-        cand = mask[many]
-        wm, mm = w[many], m[many]
-        mu = np.sum(wm[..., None] * mm, axis=-2) / np.sum(wm, axis=-1)[..., None]
-        r = np.sum((mm - mu[..., None, :]) ** 2, axis=-1)
-        rmin = np.min(np.where(cand, r, np.inf), axis=-1, keepdims=True)
-        cand = cand & (r <= rmin * (1.0 + _TIE))
-        pair = (np.count_nonzero(cand, axis=-1) == 2) & (m.shape[-1] >= 2)
-        if np.any(pair):
-            ab = np.argsort(~cand[pair], axis=-1, kind="stable")[:, :2]
-            rows = np.arange(ab.shape[0])
-            pa, pb = mm[pair][rows, ab[:, 0]], mm[pair][rows, ab[:, 1]]
-            c0 = mu[pair]
-            cross = (pa[:, 0] - c0[:, 0]) * (pb[:, 1] - c0[:, 1]) \
-                - (pa[:, 1] - c0[:, 1]) * (pb[:, 0] - c0[:, 0])
-            lim = rmin[pair][:, 0] * (1.0 + _TIE)
-            won = np.where(cross > 0, ab[:, 0], ab[:, 1])
-            sure = np.abs(cross) > _TIE * lim
-            sub = cand[pair]
-            sub[sure] = False
-            sub[np.nonzero(sure)[0], won[sure]] = True
-            cand[pair] = sub
-        keys = [m[many][..., e] for e in range(m.shape[-1])] \
-            + [v[many][..., e] for e in range(v.shape[-1])] + [w[many]]
-        for key in keys:
-            low = np.min(np.where(cand, key, np.inf), axis=-1, keepdims=True)
-            cand = cand & (key == low)
-        first[many] = np.argmax(cand, axis=-1)
+    if not np.any(many):
+        return first
+    cand, wm, mm, vm = mask[many], w[many], m[many], v[many]
+    mu = np.sum(wm[..., None] * mm, axis=-2) / np.sum(wm, axis=-1)[..., None]
+    r = np.sum((mm - mu[..., None, :]) ** 2, axis=-1)
+    lim = np.min(np.where(cand, r, np.inf), axis=-1, keepdims=True) * (1.0 + _TIE)
+    cand = cand & (r <= lim)
+    pair = (np.count_nonzero(cand, axis=-1) == 2) & (m.shape[-1] >= 2)
+    if np.any(pair):
+        ab = np.argsort(~cand[pair], axis=-1, kind="stable")[:, :2]
+        rows = np.arange(ab.shape[0])
+        pa, pb, c0 = mm[pair][rows, ab[:, 0]], mm[pair][rows, ab[:, 1]], mu[pair]
+        cross = (pa[:, 0] - c0[:, 0]) * (pb[:, 1] - c0[:, 1]) \
+            - (pa[:, 1] - c0[:, 1]) * (pb[:, 0] - c0[:, 0])
+        sure = np.abs(cross) > _TIE * lim[pair][:, 0]
+        won = np.where(cross > 0, ab[:, 0], ab[:, 1])
+        sub = cand[pair]
+        sub[sure] = False
+        sub[np.nonzero(sure)[0], won[sure]] = True
+        cand[pair] = sub
+    keys = [mm[..., e] for e in range(m.shape[-1])] + [vm[..., e] for e in range(v.shape[-1])] \
+        + [wm]
+    for key in keys:
+        cand = cand & (key == np.min(np.where(cand, key, np.inf), axis=-1, keepdims=True))
+    first[many] = np.argmax(cand, axis=-1)
     return first
 
 
-def _partners(wr, mr, vr, ivr, ldr, act, i):
-    """For each row, the partner ``j`` of component ``i`` under the rule of :func:`reduce`
-    (lowest Runnalls cost, the tie rule of :func:`_canonical_first`) with the kernel's
-    arithmetic (:func:`_partner`); ``ivr = 1 / vr``; returns ``(j, cost, scale)``
-    (``scale``: the cost's rounding scale)."""
-    n = np.arange(wr.shape[0])
-    d = mr.shape[-1]
-    wi, ldi = wr[n, i][:, None], ldr[n, i][:, None]
+def _partners(w, m, v, ld, act, i):
+    """Per row, the partner ``j`` of component ``i``: Runnalls' cost of merging ``i`` into
+    each active ``c``, the lowest cost, ties by :func:`_canonical_first`; returns
+    ``(j, cost, scale)``.
+
+    Runnalls' cost :func:`runnalls_cost` without cancellation:
+    ``0.5 (w_i (log|P_c| - log|P_i|) + (w_i + w_c) log1p(y))`` with
+    ``1 + y = |P_ic| / |P_c| = prod_e (1 + r_e)``,
+    ``r_e = (a_1 (v_ie - v_ce) + a_1 a_2 dm_e^2) / v_ce``, ``a_1 = w_i / (w_i + w_c)``,
+    ``a_2 = w_c / (w_i + w_c)``. Its rounding scale is
+    ``0.5 (w_i (|log|P_c|| + |log|P_i||) + (w_i + w_c) (ay + |log1p(y)|))`` (``ay``: the
+    same product of ``1 + |r_e|``, minus one); costs within ``2 _TIE scale`` of the lowest
+    tie."""
+    n = np.arange(w.shape[0])
+    wi, ldi = w[n, i][:, None], ld[n, i][:, None]
     with np.errstate(all="ignore"):              # empty slots: masked below
-        ws = wi + wr
-        inv = 1.0 / ws
-        a1, a2 = wi * inv, wr * inv
-        a12 = a1 * a2
-        dm = mr[n, i][:, None, :] - mr
-        r = (a1[..., None] * (vr[n, i][:, None, :] - vr) + a12[..., None] * dm * dm) * ivr
-        y, ay = r[..., 0], np.abs(r[..., 0])
-        for e in range(1, d):
-            y = y + r[..., e] + y * r[..., e]
-            ay = ay + np.abs(r[..., e]) + ay * np.abs(r[..., e])
+        ws = wi + w
+        a1, a2 = wi / ws, w / ws
+        dm = m[n, i][:, None, :] - m
+        r = (a1[..., None] * (v[n, i][:, None, :] - v) + (a1 * a2)[..., None] * dm * dm) / v
+        y, ay = np.zeros_like(ws), np.zeros_like(ws)
+        for e in range(m.shape[-1]):
+            y, ay = y + r[..., e] + y * r[..., e], ay + np.abs(r[..., e]) + ay * np.abs(r[..., e])
         lp = np.log1p(y)
-        cost = 0.5 * (wi * (ldr - ldi) + ws * lp)
-        scale = 0.5 * (wi * (np.abs(ldr) + np.abs(ldi)) + ws * ay + ws * np.abs(lp))
+        cost = 0.5 * (wi * (ld - ldi) + ws * lp)
+        scale = 0.5 * (wi * (np.abs(ld) + np.abs(ldi)) + ws * (ay + np.abs(lp)))
     cand = act.copy()
     cand[n, i] = False
     cost = np.where(cand, cost, np.inf)
     best = np.min(cost, axis=-1, keepdims=True)
-    j = _canonical_first(cand & (cost <= best + 2.0 * _TIE * scale), wr, mr, vr)
+    j = _canonical_first(cand & (cost <= best + 2.0 * _TIE * scale), w, m, v)
     return j, cost[n, j], scale[n, j]
 
 
-def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
-    """Plain NumPy West/Runnalls reduction with the rules of :func:`reduce`: one merge per
-    loop for the whole batch (the reference the compiled kernel is tested against, and the
-    benchmark's peer).
-
-    Same choices (lowest weight, lowest Runnalls cost, the order-free tie rule) and the same
-    arithmetic as the kernel, so the results agree bit for bit; every cost of a row is
-    computed here (the kernel skips candidates by a bound).
-
-    Parameters
-    ----------
-    mix : DiagMixture
-        A batch of mixtures.
-    max_components : int
-        The bound, >= 1.
-
-    Returns
-    -------
-    DiagMixture
-        As :func:`reduce` with ``method="runnalls"``.
-    """
-    kmax = int(max_components)
-    if kmax < 1:
-        raise InputError(f"max_components: must be >= 1, got {max_components}")
+def _reduce_numpy(mix: DiagMixture, kmax: int) -> DiagMixture:
+    """West's greedy rule with Runnalls' cost, one merge per loop for the whole batch (the
+    definition behind ``reduce(..., backend="numpy")``; see :func:`reduce`)."""
     k, d = mix.n_components, mix.dim
     w = mix.weights.reshape(-1, k).astype(float)
     m = mix.means.reshape(-1, k, d).astype(float)
     v = mix.variances.reshape(-1, k, d).astype(float)
-    ld = _logdet_np(v)
-    iv = 1.0 / v
+    ld = _logdet(v)
     rows = np.arange(w.shape[0])
     while True:
         active = w > 0
@@ -588,34 +560,27 @@ def reduce_reference(mix: DiagMixture, max_components: int) -> DiagMixture:
         if r.size == 0:
             break
         n = np.arange(r.size)
-        if r.size == w.shape[0]:         # every row still merges: views, no copies
-            wr, mr, vr, ivr, ldr, act = w, m, v, iv, ld, active
-        else:
-            wr, mr, vr, ivr, ldr, act = w[r], m[r], v[r], iv[r], ld[r], active[r]
+        wr, mr, vr, ldr, act = w[r], m[r], v[r], ld[r], active[r]
+        # i: the lowest weight; of weights tied with it, the one whose merge is cheapest
         wmin = np.min(np.where(act, wr, np.inf), axis=-1, keepdims=True)
         tied = act & (wr * (1.0 - _TIE) <= wmin)
         i = np.argmax(tied, axis=-1)
-        many = np.count_nonzero(tied, axis=-1) > 1
-        if np.any(many):
-            # tied lowest weights: the cheapest best merge, ties by the canonical pick
-            q = np.nonzero(many)[0]
-            nq = q.size
+        q = np.nonzero(np.count_nonzero(tied, axis=-1) > 1)[0]
+        if q.size:
             rep = np.repeat(q, k)
-            ii = np.tile(np.arange(k), nq)
-            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ivr[rep], ldr[rep], act[rep], ii)
-            co = np.where(tied[q].reshape(-1), co, np.inf).reshape(nq, k)
-            sc = sc.reshape(nq, k)
+            _, co, sc = _partners(wr[rep], mr[rep], vr[rep], ldr[rep], act[rep],
+                                  np.tile(np.arange(k), q.size))
+            co = np.where(tied[q].reshape(-1), co, np.inf).reshape(q.size, k)
             bi = np.min(co, axis=-1, keepdims=True)
-            i[q] = _canonical_first(co <= bi + 2.0 * _TIE * sc, wr[q], mr[q], vr[q])
-        j, _, _ = _partners(wr, mr, vr, ivr, ldr, act, i)
+            i[q] = _canonical_first(co <= bi + 2.0 * _TIE * sc.reshape(q.size, k),
+                                    wr[q], mr[q], vr[q])
+        # j: its partner of lowest Runnalls cost; i is merged into j by moment matching
+        j, _, _ = _partners(wr, mr, vr, ldr, act, i)
         wj, mj, vj = merge_moments(wr[n, i], mr[n, i], vr[n, i], wr[n, j], mr[n, j], vr[n, j])
-        w[r, j], m[r, j], v[r, j] = wj, mj, vj
-        ld[r, j] = _logdet_np(vj)
-        iv[r, j] = 1.0 / vj
+        w[r, j], m[r, j], v[r, j], ld[r, j] = wj, mj, vj, _logdet(vj)
         w[r, i] = 0.0
     out = compact(DiagMixture(w, m, v))
-    kk = out.n_components
-    bshape = mix.batch_shape
+    kk, bshape = out.n_components, mix.batch_shape
     return DiagMixture(out.weights.reshape(bshape + (kk,)), out.means.reshape(bshape + (kk, d)),
                        out.variances.reshape(bshape + (kk, d)))
 
@@ -647,35 +612,34 @@ def check_reduction(method: object) -> str:
     return method
 
 
-def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> DiagMixture:
+def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls",
+           backend: str = DEFAULT_BACKEND) -> DiagMixture:
     """Reduce every mixture of the batch to at most ``max_components`` components.
 
+    ``method="runnalls"`` (default): West's (1993) greedy rule. While a mixture has more
+    than ``max_components`` components, its lowest-weight component ``i`` is merged
+    (:func:`merge_moments`) into the component ``j`` for which Runnalls' (2007) cost
+    :func:`runnalls_cost` of the merge is smallest (computed without cancellation, see
+    :func:`_partners`). Each merge preserves the mass, the mean and the per-axis variances
+    of the pair, so the reduction preserves the mass, the mean and the diagonal of the
+    covariance of the mixture.
+
+    Ties: weights within a relative ``1e-9`` of the lowest, and costs within ``1e-9`` of
+    their rounding scale of the lowest, count as tied. Of tied lowest weights the one with
+    the cheapest best merge is merged; of tied partners (or tied cheapest merges) the one
+    nearest the mixture mean is chosen, then counter-clockwise about it, then the
+    lexicographic order of means, variances and weight (:func:`_canonical_first`). The rule
+    reads contents, never positions, and the result comes in the canonical order of
+    :func:`compact`: permuting the components of ``mix`` does not change it, rotating or
+    translating the means rotates or translates it. The greedy rule is still a discrete
+    choice: its result jumps where a near-tie flips (a continuous alternative for products:
+    :func:`merge_groups`).
+
     ``method="progressive"``: the Progressive Bayes re-approximation of the paper's
-    reference [3] (:func:`radioloc.models.progressive_bayes.progressive_reduce`), a homotopy
-    on the integral squared distance started from the West/Runnalls result below (its ISD to
-    ``mix`` is never larger than West/Runnalls'; mass is kept, the mean and variances are
-    not preserved exactly).
-
-    ``method="runnalls"`` (default): West's (1993) greedy rule: while a mixture has too many
-    components, its lowest-weight component is merged (:func:`merge_moments`) into the
-    component for which Runnalls' cost :func:`runnalls_cost` of the merge is smallest. Each
-    merge preserves the mass, the mean and the per-axis variances of the pair, so the whole
-    reduction preserves the mass, the mean and the diagonal of the covariance of the
-    mixture. One compiled kernel, the mixtures of the batch in parallel
-    (:func:`_reduce_batch`; in 2-D, 32 mixtures of the same component count at a time on
-    SIMD lanes, :func:`_west_lanes`).
-
-    Weights that agree to a relative ``1e-9``, and merge costs that agree to ``1e-9`` of
-    their rounding scale (Runnalls' cost is computed without cancellation, see
-    :func:`_partner`, so the scale is about the cost's own size: a negligible component
-    goes to its cheapest partner), count as tied, and ties are
-    broken by the components' contents, never their position (see :func:`reduce_reference`:
-    of tied lowest weights the one with the cheapest best merge; of tied partners the one
-    nearest the mixture mean, then counter-clockwise about it, then the lexicographic order
-    of means, variances and weight); the result comes in that canonical order, so permuting
-    the components of ``mix`` does not change it. Without a tie rule, exact ties (the symmetric cells of :func:`uniform_ball`) were broken by
-    rounding. The greedy rule is still a discrete choice: its result jumps where a near-tie
-    flips (a continuous alternative for products: :func:`merge_groups`).
+    reference [3] (:func:`radioloc.models.progressive_bayes.progressive_reduce`, NumPy), a
+    homotopy on the integral squared distance started from the West/Runnalls result (its
+    ISD to ``mix`` is never larger; mass is kept, the mean and variances are not preserved
+    exactly).
 
     Parameters
     ----------
@@ -684,881 +648,37 @@ def reduce(mix: DiagMixture, max_components: int, method: str = "runnalls") -> D
     max_components : int
         The bound, >= 1.
     method : str
-        ``"runnalls"`` (West/Runnalls greedy merging) or ``"progressive"`` (Progressive
-        Bayes ISD homotopy started from it).
+        ``"runnalls"`` or ``"progressive"``.
+    backend : str
+        ``"numba"`` (default: the compiled kernel, the mixtures in parallel) or ``"numpy"``
+        (the definition, one merge per loop for the whole batch); they agree to rounding.
 
     Returns
     -------
     DiagMixture
         At most ``max_components`` components per mixture (compacted: sorted by decreasing
-        weight, stably, no trailing empty slot).
+        weight, no trailing empty slot).
     """
-    if int(max_components) < 1:
+    backend = check_backend(backend)
+    if isinstance(max_components, bool) or int(max_components) < 1:
         raise InputError(f"max_components: must be >= 1, got {max_components}")
+    kmax = int(max_components)
     if check_reduction(method) == "progressive":
         from radioloc.models.progressive_bayes import progressive_reduce
 
-        return progressive_reduce(mix, int(max_components))
+        return progressive_reduce(mix, kmax, backend=backend)
+    if mix.n_components <= kmax:
+        return compact(mix)
+    if backend == "numpy":
+        return _reduce_numpy(mix, kmax)
     bshape = mix.batch_shape
     k, d = mix.n_components, mix.dim
-    if k <= max_components:
-        return compact(mix)
-    w = kernel_array(mix.weights.reshape(-1, k))
-    m = kernel_array(mix.means.reshape(-1, k, d))
-    v = kernel_array(mix.variances.reshape(-1, k, d))
-    ow, om, ov, cnt = _reduce_batch(w, m, v, int(max_components), _TIE)
+    ow, om, ov, cnt = reduce_batch(kernel_array(mix.weights.reshape(-1, k)),
+                                   kernel_array(mix.means.reshape(-1, k, d)),
+                                   kernel_array(mix.variances.reshape(-1, k, d)), kmax)
     kk = max(1, int(cnt.max(initial=1)))
     return DiagMixture(ow[:, :kk].reshape(bshape + (kk,)), om[:, :kk].reshape(bshape + (kk, d)),
                        ov[:, :kk].reshape(bshape + (kk, d)))
-
-
-@njit(cache=True)
-def _key_less(t, d, a, b):  # pragma: no cover - compiled
-    """The canonical order of two components ``a``, ``b`` (columns of the scratch ``t`` of
-    :func:`_west_soa`): means, then variances, then the weight, compared
-    lexicographically. It depends on the components' contents only, never on their
-    positions."""
-    for r in range(1, 2 * d + 1):
-        if t[r, a] != t[r, b]:
-            return t[r, a] < t[r, b]
-    return t[0, a] < t[0, b]
-
-
-@njit(cache=True, error_model="numpy")
-def _pick(t, d, cnt, ts):  # pragma: no cover - compiled
-    """The tie rule of :func:`reduce`: of the columns ``c < cnt`` of ``t`` flagged by
-    ``t[ts, c] >= 0`` (unflagged: -1), the one nearest to the mixture's mean (squared
-    distances within a relative ``_TIE`` of the nearest count as equal); of two at the same
-    distance (in 2-D or more) the one the other follows counter-clockwise about the mean
-    (in the first two coordinates); otherwise the lowest in the canonical order
-    (:func:`_key_less`). The first two steps are kept by rotations and translations of the
-    mixture, none reads a position. Overwrites row ``ts``."""
-    first = -1
-    many = False
-    for c in range(cnt):
-        if t[ts, c] >= 0.0:
-            if first < 0:
-                first = c
-            else:
-                many = True
-    if not many:
-        return first
-    tot = 0.0
-    for c in range(cnt):
-        tot += t[0, c]
-    mu = np.zeros(d)
-    for c in range(cnt):
-        for e in range(d):
-            mu[e] += t[0, c] * t[1 + e, c]
-    for e in range(d):
-        mu[e] /= tot
-    rmin = np.inf
-    for c in range(cnt):
-        if t[ts, c] >= 0.0:
-            r = 0.0
-            for e in range(d):
-                r += (t[1 + e, c] - mu[e]) ** 2
-            t[ts, c] = r
-            rmin = min(rmin, r)
-    lim = rmin * (1.0 + _TIE)
-    a = -1
-    b = -1
-    n2 = 0
-    for c in range(cnt):
-        if t[ts, c] >= 0.0 and t[ts, c] <= lim:
-            n2 += 1
-            if a < 0:
-                a = c
-            elif b < 0:
-                b = c
-    if n2 == 2 and d >= 2:
-        # two at the same distance: the one the other follows counter-clockwise (the sign
-        # of the cross product about the mean is kept by rotations and translations)
-        cross = (t[1, a] - mu[0]) * (t[2, b] - mu[1]) - (t[2, a] - mu[1]) * (t[1, b] - mu[0])
-        if abs(cross) > _TIE * lim:
-            return a if cross > 0 else b
-    j = -1
-    for c in range(cnt):
-        if t[ts, c] >= 0.0 and t[ts, c] <= lim and (j < 0 or _key_less(t, d, c, j)):
-            j = c
-    return j
-
-
-@njit(cache=True)
-def _logdet(t, d, c):  # pragma: no cover - compiled
-    """``sum(log(v))`` of column ``c`` of the scratch ``t``: one logarithm of the product
-    for up to two coordinates (variances floored at ``1e-60`` keep it a normal float), one
-    per coordinate beyond."""
-    if d <= 2:
-        acc = 1.0
-        for e in range(d):
-            acc *= t[1 + d + e, c]
-        return math.log(acc)
-    acc = 0.0
-    for e in range(d):
-        acc += math.log(t[1 + d + e, c])
-    return acc
-
-
-@njit(cache=True)
-def _set_logdet(t, d, c):  # pragma: no cover - compiled
-    """Rows ``2 D + 1 .. 3 D`` (the inverse variances) and ``3 D + 1`` (the
-    log-determinant, :func:`_logdet`) of column ``c`` of the scratch ``t``."""
-    for e in range(d):
-        t[2 * d + 1 + e, c] = 1.0 / t[1 + d + e, c]
-    t[3 * d + 1, c] = _logdet(t, d, c)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _exact_costs(t, LD, cnt, i, c0, wi, ldi, tie, ts):  # pragma: no cover - compiled
-    """Pass 2 of :func:`_partner`: the exact Runnalls costs of component ``i``'s candidates
-    that the bound does not exclude, the lowest bound ``c0`` first, then the others in
-    order. ``t`` is ``(row, component)`` (rows ``LD`` to ``LD + 3``: log-determinant, bound,
-    ``y`` then cost, scale's part then scale); the costed candidates are listed in ``ts``.
-    Returns ``(best, ne)``: the lowest cost and the number costed."""
-    LB = LD + 1
-    CO = LD + 2
-    SC = LD + 3
-    best = np.inf
-    ne = 0
-    for step in range(cnt + 1):
-        if step == 0:
-            c = c0
-        else:
-            c = step - 1
-            if c == c0:
-                continue
-            lb = t[LB, c]
-            if c == i or (lb > 0.0 and lb * (1.0 - 2.0 * tie)
-                          > best + tie * (2.0 * abs(best) + 4.0 * t[SC, c])):
-                continue
-        ws = wi + t[0, c]
-        lp = math.log1p(t[CO, c])
-        cost = 0.5 * (wi * (t[LD, c] - ldi) + ws * lp)
-        t[SC, c] = 0.5 * (t[SC, c] + ws * abs(lp))
-        t[CO, c] = cost
-        ts[ne] = c
-        ne += 1
-        best = min(best, cost)
-    return best, ne
-
-
-@njit(cache=True, error_model="numpy")
-def _partner(t, d, cnt, i, tie):  # pragma: no cover - compiled
-    """The partner ``j`` of component ``i`` under the rule of :func:`_west_soa` (passes 1
-    and 2 and the tie set); returns ``(j, cost, scale)``. Uses the scratch rows of ``t``
-    from the bound to the tie set.
-
-    Runnalls' cost of merging ``i`` into ``c`` is computed without cancellation as
-    ``0.5 (wi (log|P_c| - log|P_i|) + ws log1p(y))``, ``1 + y = |P_ic| / |P_c|`` the
-    product over the coordinates of ``1 + r_e``,
-    ``r_e = (a1 (v_ie - v_ce) + a1 a2 dm_e^2) / v_ce`` (``a1 = wi / ws``, ``a2 = wc / ws``);
-    its rounding scale is
-    ``0.5 (wi (|log|P_c|| + |log|P_i||) + ws (ay + |log1p(y)|))``, ``ay`` the same product
-    of ``1 + |r_e|`` minus one."""
-    IVB = 2 * d + 1
-    LD = 3 * d + 1
-    LB = LD + 1
-    CO = LD + 2
-    SC = LD + 3
-    TS = LD + 4
-    wi = t[0, i]
-    ldi = t[LD, i]
-    ali = abs(ldi)
-    # pass 1: y, the bound and the scale's part known before the logarithm (row SC)
-    if d == 2:
-        mi0 = t[1, i]
-        mi1 = t[2, i]
-        vi0 = t[3, i]
-        vi1 = t[4, i]
-        for c in range(cnt):
-            wc = t[0, c]
-            ws = wi + wc
-            inv = 1.0 / ws
-            a1 = wi * inv
-            a2 = wc * inv
-            a12 = a1 * a2
-            dm0 = mi0 - t[1, c]
-            dm1 = mi1 - t[2, c]
-            r0 = (a1 * (vi0 - t[3, c]) + a12 * dm0 * dm0) * t[5, c]
-            r1 = (a1 * (vi1 - t[4, c]) + a12 * dm1 * dm1) * t[6, c]
-            y = r0 + r1 + r0 * r1
-            b0 = abs(r0)
-            b1 = abs(r1)
-            ay = b0 + b1 + b0 * b1
-            ldc = t[LD, c]
-            t[CO, c] = y
-            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
-            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
-    else:
-        for c in range(cnt):
-            wc = t[0, c]
-            ws = wi + wc
-            inv = 1.0 / ws
-            a1 = wi * inv
-            a2 = wc * inv
-            a12 = a1 * a2
-            y = 0.0
-            ay = 0.0
-            for e in range(d):
-                dm = t[1 + e, i] - t[1 + e, c]
-                r = (a1 * (t[1 + d + e, i] - t[1 + d + e, c]) + a12 * dm * dm) * t[IVB + e, c]
-                if e == 0:
-                    y = r
-                    ay = abs(r)
-                else:
-                    y = y + r + y * r
-                    ay = ay + abs(r) + ay * abs(r)
-            ldc = t[LD, c]
-            t[CO, c] = y
-            t[SC, c] = wi * (abs(ldc) + ali) + ws * ay
-            t[LB, c] = _cost_bound(y, ldc, wi, ws, ldi, ali)
-    t[LB, i] = np.inf
-    c0 = 0
-    for c in range(1, cnt):
-        if t[LB, c] < t[LB, c0]:
-            c0 = c
-    # pass 2: exact costs where the bound allows a win or a tie (costed: row TS)
-    best, ne = _exact_costs(t, LD, cnt, i, c0, wi, ldi, tie, t[TS])
-    # the tie set and the canonical choice in it
-    j = -1
-    many = False
-    for q in range(ne):
-        c = np.int64(t[TS, q])
-        if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
-            if j < 0:
-                j = c
-            else:
-                many = True
-    if many:
-        for c in range(cnt):
-            t[LB, c] = -1.0
-        for q in range(ne):
-            c = np.int64(t[TS, q])
-            if t[CO, c] <= best + 2.0 * tie * t[SC, c]:
-                t[LB, c] = 0.0
-        j = _pick(t, d, cnt, LB)
-    return j, t[CO, j], t[SC, j]
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _cost_bound(y, ldc, wi, ws, ldi, ali):  # pragma: no cover - compiled
-    """A lower bound of Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))``
-    (:func:`_partner`) without a logarithm: with ``z = y / (y + 2)``,
-    ``log(1 + y) = 2 (z + z^3 / 3 + z^5 / 5 + ...)`` (``atanh``); the first three terms
-    bound it from below for ``z >= 0``; for ``-0.61 <= z < 0`` the tail's magnitude is at
-    most ``2 |z|^7 / (7 (1 - z^2)) <= 0.46 |z|^7``. Below ``z = -0.61`` (``y < -0.757``;
-    a merge into a heavier component has ``y >= -3/4`` in 2-D) the bound is ``-inf``.
-    ``1e-14 (wi (|ldc| + |ldi|) + ws |log(1 + y)|)`` (about 45 ulps of the cost's terms) is
-    subtracted for rounding (a NaN bound excludes nothing)."""
-    z = y / (y + 2.0)
-    zc = z if abs(z) > 1e-100 else 0.0   # no subnormal powers (slow)
-    z2 = zc * zc
-    zn = min(zc, 0.0)
-    zn2 = zn * zn
-    lx = 2.0 * z * (1.0 + z2 * (1.0 / 3.0 + 0.2 * z2)) + 0.46 * zn * zn2 * zn2 * zn2
-    lb = 0.5 * (wi * (ldc - ldi) + ws * lx) - 1e-14 * (wi * (abs(ldc) + ali) + ws * abs(lx))
-    return lb if z >= -0.61 else -np.inf
-
-
-@njit(cache=True, error_model="numpy")
-def _west_soa(t, n, kmax, tie, fresh):  # pragma: no cover - compiled
-    """West's greedy merging of ``n`` components (all weights > 0) down to ``kmax``, in
-    place, with Runnalls' cost and the order-free tie rule of :func:`reduce`.
-
-    ``t`` (``3 D + 10`` rows, at least ``n`` columns) holds one component per column: row 0
-    the weight, rows ``1..D`` the mean, ``D+1..2D`` the variances, then scratch rows (the
-    log-determinant, weight times its absolute value, the inverse of the product of the
-    variances, the cost bound, the cost, the cost's rounding scale, the tie set, the best
-    cost, its scale and its partner per tied lowest weight). Returns the component count;
-    the survivors are the first columns, in no particular order (the rule never reads
-    positions).
-
-    - ``i``: the lowest weight. Weights ``w`` with ``w (1 - tie) <= w_min`` tie with it; of
-      tied ones, the one whose best merge (below) is cheapest, cost ties by :func:`_pick`
-      (equal weights are common: data points, the disk cells).
-    - Pass 1 computes, for every candidate ``c``, the product of the merged variances and
-      a logarithm-free lower bound of Runnalls' cost from it (:func:`_cost_bound`;
-      vectorised, no branch).
-    - Pass 2 takes the exact cost (one logarithm) of the candidate with the lowest bound,
-      then of every candidate whose bound does not exclude it from the tie set below.
-    - ``j``: with ``best`` the lowest exact cost, the candidates with
-      ``cost <= best + 2 tie scale`` (``scale``: the cost's rounding scale,
-      :func:`_partner`) tie and :func:`_pick` chooses among them. A candidate is skipped
-      when ``bound > 0`` and ``bound (1 - 2 tie) > best + tie (2 |best| + 4 B)`` with
-      ``B = wi (|log|P_c|| + |log|P_i||) + ws ay`` (then it cannot tie:
-      ``scale <= |cost| + B``).
-    - ``i`` is merged into ``j`` (moment matching, :func:`_merge_pair`), ``i`` is
-      replaced by the last column.
-
-    ``fresh``: set rows ``2 D + 1 .. 3 D + 1`` first; ``False``: rows ``2 D + 1 .. 3 D + 1`` are already set (:func:`_set_logdet`);
-    ``_west_soa(t, n, n - 1, tie, False)`` is one merge (:func:`_west_lanes`).
-    """
-    d = (t.shape[0] - 10) // 3
-    LD = 3 * d + 1
-    TS = LD + 4
-    IC = LD + 5
-    IS = LD + 6
-    IJ = LD + 7
-    if fresh:
-        for c in range(n):
-            _set_logdet(t, d, c)
-    cnt = n
-    while cnt > kmax:
-        # the lowest weight and the second lowest (a tie needs w2 (1 - tie) <= wmin)
-        wmin = np.inf
-        w2 = np.inf
-        first = -1
-        for c in range(cnt):
-            wc = t[0, c]
-            if wc < wmin:
-                w2 = wmin
-                wmin = wc
-                first = c
-            elif wc < w2:
-                w2 = wc
-        many = w2 * (1.0 - tie) <= wmin
-        if not many:
-            i = first
-            j, _, _ = _partner(t, d, cnt, i, tie)
-        else:
-            # tied lowest weights: the one with the cheapest merge, ties by _pick
-            bi = np.inf
-            for c in range(cnt):
-                if t[0, c] * (1.0 - tie) <= wmin:
-                    jj, co, sc = _partner(t, d, cnt, c, tie)
-                    t[IC, c] = co
-                    t[IS, c] = sc
-                    t[IJ, c] = jj
-                    bi = min(bi, co)
-                else:
-                    t[IC, c] = np.inf
-                    t[IS, c] = 0.0
-            for c in range(cnt):
-                t[TS, c] = 0.0 if t[IC, c] <= bi + 2.0 * tie * t[IS, c] else -1.0
-            i = _pick(t, d, cnt, TS)
-            j = np.int64(t[IJ, i])
-        # merge i into j (moment matching), then replace column i by the last one
-        _merge_pair(t, d, i, j)
-        cnt -= 1
-        if i != cnt:
-            for r in range(LD + 1):
-                t[r, i] = t[r, cnt]
-    return cnt
-
-
-@njit(cache=True, error_model="numpy")
-def _merge_pair(t, d, i, j):  # pragma: no cover - compiled
-    """Merge column ``i`` of the scratch ``t`` (:func:`_west_soa`) into column ``j`` by
-    moment matching (:func:`merge_moments`' arithmetic) and set ``j``'s inverse variances
-    and log-determinant (:func:`_set_logdet`); column ``i`` is left as it was."""
-    wi = t[0, i]
-    wj = t[0, j]
-    ws = wi + wj
-    a1 = wi / ws
-    a2 = wj / ws
-    for e in range(d):
-        mie = t[1 + e, i]
-        mje = t[1 + e, j]
-        mm = a1 * mie + a2 * mje
-        vv = a1 * (t[1 + d + e, i] + (mie - mm) ** 2) + a2 * (t[1 + d + e, j] + (mje - mm) ** 2)
-        t[1 + e, j] = mm
-        t[1 + d + e, j] = vv
-    t[0, j] = ws
-    _set_logdet(t, d, j)
-
-
-@njit(cache=True, error_model="numpy")
-def _reduce_into(w, m, v, n, kmax, tie, ow, om, ov, t):  # pragma: no cover - compiled
-    """:func:`reduce` of one mixture ``w[:n]`` into ``ow, om, ov`` (``t``: scratch of
-    ``3 D + 10`` rows and at least ``n`` columns, :func:`_west_soa`); returns the component
-    count. The output is in the canonical order of :func:`compact` (:func:`_store`)."""
-    d = m.shape[1]
-    c = _load(w, m, v, n, t)
-    if c > kmax:
-        c = _west_soa(t, c, kmax, tie, True)
-    _store(t, d, c, ow, om, ov)
-    return c
-
-
-@njit(cache=True)
-def _load(w, m, v, n, t):  # pragma: no cover - compiled
-    """The components of positive weight of ``w[:n], m, v`` into the columns of the scratch
-    ``t`` (:func:`_west_soa`: weight, mean, variances); returns their count."""
-    d = m.shape[1]
-    c = 0
-    for r in range(n):
-        if w[r] > 0:
-            t[0, c] = w[r]
-            for e in range(d):
-                t[1 + e, c] = m[r, e]
-                t[1 + d + e, c] = v[r, e]
-            c += 1
-    return c
-
-
-@njit(cache=True)
-def _store(t, d, c, ow, om, ov):  # pragma: no cover - compiled
-    """The ``c`` components of the scratch ``t`` into ``ow, om, ov`` in the canonical order
-    of :func:`compact`: decreasing weight, equal weights by means, then variances (an
-    insertion sort; the mixtures are small)."""
-    for r in range(c):                   # sorted column indices in the first slots of ow
-        pos = r
-        while pos > 0:
-            p = np.int64(ow[pos - 1])
-            if t[0, p] > t[0, r] or (t[0, p] == t[0, r] and not _key_less(t, d, r, p)):
-                break
-            ow[pos] = ow[pos - 1]
-            pos -= 1
-        ow[pos] = r
-    for r in range(c):                   # slot r reads index ow[r] before writing it
-        i = np.int64(ow[r])
-        for e in range(d):
-            om[r, e] = t[1 + e, i]
-            ov[r, e] = t[1 + d + e, i]
-        ow[r] = t[0, i]
-
-
-#: mixtures reduced together on the SIMD lanes of :func:`_west_lanes` (2-D)
-_LANES = 32
-#: rows of the lane array of :func:`_west_lanes`
-_LANE_ROWS = 11
-
-
-@njit(cache=True, error_model="numpy")
-def _west_lanes(T, cnt, kmax, tie, t, ow, om, ov, nl):  # pragma: no cover - compiled
-    """:func:`_west_soa` of ``L`` 2-D mixtures at once, one per SIMD lane, with the same
-    choices, arithmetic and component order (so the same results, bit for bit).
-
-    ``T`` (``K x 11 x L``, C order): ``T[c, r, l]`` is row ``r`` of component ``c`` of lane
-    ``l``, rows 0-7 as in :func:`_west_soa` (weight, mean, variances, inverse variances,
-    log-determinant), then the cost bound, ``y`` and the scale's part of
-    :func:`_partner`'s pass 1. Every lane has ``cnt`` components (weights > 0); returns
-    ``kmax``; lanes ``l < nl`` are stored by :func:`_store` into ``ow[l], om[l], ov[l]``
-    (the others are padding). The loops run over the components with the lanes innermost (a run-time trip
-    count, no branch: LLVM vectorises them), so the lowest weight, pass 1, the lowest
-    bound and the bound's skip test cost a few vector operations per candidate for ``L``
-    mixtures. ``c0``, the candidate of lowest bound, is costed for the skip test by
-    :func:`_best_above` (an upper bound of its exact cost, vectorised). A lane merges its
-    lowest weight ``i`` into ``c0`` when ``i``'s weight is not tied and the bound excludes
-    every other candidate from the tie set of ``c0``'s cost (:func:`_partner`'s test: its
-    pass 2 would take no other logarithm); else it takes :func:`_partner`'s pass 2 from
-    pass 1's rows (:func:`_lane_pass2`, libm's ``log1p``), and only a tie among the exact
-    costs takes one step of :func:`_west_soa` on a copy in the scratch ``t``. The merges
-    (:func:`_merge_pair`'s arithmetic) run over the lanes, the logarithm of the merged
-    determinant per lane (libm's). Pass 1 and the skip test read ``T`` and the lane state
-    through flat views with constant strides (``T.shape[2] == _LANES``): each row an
-    immediate offset from one base register. Tied lowest weights: the lane is finished alone
-    (:func:`_finish_lane`), and when fewer than half the lanes are left the others are
-    too."""
-    L = T.shape[2]
-    LD = 7
-    LB = 8
-    CO = 9
-    SC = 10
-    # per-lane state, one row each (a running minimum alternates between two rows, so no
-    # store reads its own address: LLVM would make it a masked store)
-    S = np.empty((41, L))
-    WI = 6
-    MI0 = 7
-    MI1 = 8
-    VI0 = 9
-    VI1 = 10
-    LDI = 11
-    ALI = 12
-    BEST = 17
-    NS = 18
-    ALIVE = 19
-    DO = 20                              # the lane merges this round
-    JR = 21                              # its partner
-    WJ = 22                              # rows 22-26: the partner's weight, mean, variances
-    NW = 27                              # rows 27-34: the merged column (rows 0-7 of T)
-    GY = 35                              # rows 35-37: y, weight and log-determinant of c0
-    GW = 36
-    GL = 37
-    Si = S.view(np.int64)                # rows 38-40: _best_above's scratch
-    Tf = T.reshape(-1)                   # flat views (L == _LANES)
-    Sf = S.reshape(-1)
-    for ln in range(L):
-        S[ALIVE, ln] = 1.0
-    alive = L
-    while cnt > kmax and 2 * alive >= L:
-        # the lowest weight (rows 0/1), the second lowest (2/3), its index (4/5)
-        q = 0
-        for c in range(cnt):
-            p = q
-            q = 1 - q
-            cf = float(c)
-            for ln in range(L):
-                wc = T[c, 0, ln]
-                mw = S[p, ln]
-                m2 = S[2 + p, ln]
-                f = S[4 + p, ln]
-                lt = (c == 0) | (wc < mw)
-                m2 = wc if wc < m2 else m2
-                S[2 + q, ln] = (np.inf if c == 0 else mw) if lt else m2
-                S[4 + q, ln] = cf if lt else f
-                S[q, ln] = wc if lt else mw
-        wq = q
-        for ln in range(L):
-            i = np.int64(S[4 + wq, ln])
-            S[WI, ln] = T[i, 0, ln]
-            S[MI0, ln] = T[i, 1, ln]
-            S[MI1, ln] = T[i, 2, ln]
-            S[VI0, ln] = T[i, 3, ln]
-            S[VI1, ln] = T[i, 4, ln]
-            S[LDI, ln] = T[i, LD, ln]
-            S[ALI, ln] = abs(T[i, LD, ln])
-        # pass 1 of _partner (flat views with constant strides: one base register)
-        for c in range(cnt):
-            o = c * (_LANE_ROWS * _LANES)
-            for ln in range(_LANES):
-                wi = Sf[WI * _LANES + ln]
-                ali = Sf[ALI * _LANES + ln]
-                wc = Tf[o + ln]
-                ws = wi + wc
-                inv = 1.0 / ws
-                a1 = wi * inv
-                a2 = wc * inv
-                a12 = a1 * a2
-                dm0 = Sf[MI0 * _LANES + ln] - Tf[o + _LANES + ln]
-                dm1 = Sf[MI1 * _LANES + ln] - Tf[o + 2 * _LANES + ln]
-                r0 = (a1 * (Sf[VI0 * _LANES + ln] - Tf[o + 3 * _LANES + ln]) + a12 * dm0 * dm0) \
-                    * Tf[o + 5 * _LANES + ln]
-                r1 = (a1 * (Sf[VI1 * _LANES + ln] - Tf[o + 4 * _LANES + ln]) + a12 * dm1 * dm1) \
-                    * Tf[o + 6 * _LANES + ln]
-                y = r0 + r1 + r0 * r1
-                b0 = abs(r0)
-                b1 = abs(r1)
-                ay = b0 + b1 + b0 * b1
-                Tf[o + CO * _LANES + ln] = y
-                Tf[o + SC * _LANES + ln] = wi * (abs(Tf[o + LD * _LANES + ln]) + ali) + ws * ay
-            # the bound from y, a loop of its own (fewer live registers in each)
-            for ln in range(_LANES):
-                wi = Sf[WI * _LANES + ln]
-                ws = wi + Tf[o + ln]
-                Tf[o + LB * _LANES + ln] = _cost_bound(Tf[o + CO * _LANES + ln],
-                                                       Tf[o + LD * _LANES + ln], wi, ws,
-                                                       Sf[LDI * _LANES + ln],
-                                                       Sf[ALI * _LANES + ln])
-        for ln in range(L):
-            T[np.int64(S[4 + wq, ln]), LB, ln] = np.inf      # i is no candidate
-        # the lowest bound (rows 13/14), its index (15/16): the first of equal ones
-        q = 0
-        for c in range(cnt):
-            p = q
-            q = 1 - q
-            cf = float(c)
-            for ln in range(L):
-                lb = T[c, LB, ln]
-                mb = S[13 + p, ln]
-                f = S[15 + p, ln]
-                lt = (c == 0) | (lb < mb)
-                S[13 + q, ln] = lb if lt else mb
-                S[15 + q, ln] = cf if lt else f
-        bq = q
-        # the exact cost of the lowest bound (pass 2's first step); its bound set to inf
-        # so that the skip test below skips it (an infinite or NaN cost skips nothing)
-        for ln in range(L):
-            c = np.int64(S[15 + bq, ln])
-            T[c, LB, ln] = np.inf
-            S[GY, ln] = T[c, CO, ln]
-            S[GW, ln] = T[c, 0, ln]
-            S[GL, ln] = T[c, LD, ln]
-            S[NS, ln] = 0.0
-        _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST)
-        # pass 2's skip test against it: the candidates it does not skip
-        for c in range(cnt):
-            o = c * (_LANE_ROWS * _LANES)
-            for ln in range(_LANES):
-                lb = Tf[o + LB * _LANES + ln]
-                bb = Sf[BEST * _LANES + ln]
-                skip = (lb > 0.0) & (lb * (1.0 - 2.0 * tie)
-                                     > bb + tie * (2.0 * abs(bb) + 4.0 * Tf[o + SC * _LANES + ln]))
-                Sf[NS * _LANES + ln] += 0.0 if skip else 1.0
-        last = cnt - 1
-        # the partner of each lane (DO = 1: merge i into JR; DO = 0: the lane is done)
-        for ln in range(L):
-            S[DO, ln] = 0.0
-            S[JR, ln] = 0.0
-            if S[ALIVE, ln] == 0.0:
-                continue
-            i = np.int64(S[4 + wq, ln])
-            if S[2 + wq, ln] * (1.0 - tie) <= S[wq, ln]:
-                # tied lowest weights: this lane goes on alone (_west_soa from here)
-                S[ALIVE, ln] = 0.0
-                alive -= 1
-                if ln < nl:
-                    _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
-                continue
-            if S[NS, ln] == 0.0:
-                j = np.int64(S[15 + bq, ln])          # the lowest bound excludes the rest
-            else:
-                # _partner's pass 2 in the lane: exact costs of the candidates the bound
-                # does not exclude (y, the bound and the scale's part are in T from pass 1)
-                j = _lane_pass2(T, ln, cnt, i, np.int64(S[15 + bq, ln]), S[WI, ln],
-                                S[LDI, ln], tie, t)
-                if j < 0:
-                    # a tie among the exact costs: one step of _west_soa on a copy
-                    for c in range(cnt):
-                        for r in range(LD + 1):
-                            t[r, c] = T[c, r, ln]
-                    _west_soa(t, cnt, last, tie, False)
-                    for c in range(last):
-                        for r in range(LD + 1):
-                            T[c, r, ln] = t[r, c]
-                    continue
-            S[DO, ln] = 1.0
-            S[JR, ln] = float(j)
-        # the merges (_merge_pair's arithmetic), vectorised over the lanes: j's columns
-        for ln in range(L):
-            j = np.int64(S[JR, ln])
-            for r in range(5):
-                S[WJ + r, ln] = T[j, r, ln]
-        for ln in range(L):
-            wi = S[WI, ln]
-            wj = S[WJ, ln]
-            ws = wi + wj
-            a1 = wi / ws
-            a2 = wj / ws
-            mi0 = S[MI0, ln]
-            mj0 = S[WJ + 1, ln]
-            mm0 = a1 * mi0 + a2 * mj0
-            vv0 = a1 * (S[VI0, ln] + (mi0 - mm0) ** 2) + a2 * (S[WJ + 3, ln] + (mj0 - mm0) ** 2)
-            mi1 = S[MI1, ln]
-            mj1 = S[WJ + 2, ln]
-            mm1 = a1 * mi1 + a2 * mj1
-            vv1 = a1 * (S[VI1, ln] + (mi1 - mm1) ** 2) + a2 * (S[WJ + 4, ln] + (mj1 - mm1) ** 2)
-            S[NW, ln] = ws
-            S[NW + 1, ln] = mm0
-            S[NW + 2, ln] = mm1
-            S[NW + 3, ln] = vv0
-            S[NW + 4, ln] = vv1
-            S[NW + 5, ln] = 1.0 / vv0
-            S[NW + 6, ln] = 1.0 / vv1
-            S[NW + 7, ln] = vv0 * vv1
-        for ln in range(L):
-            if S[DO, ln] != 0.0:
-                S[NW + 7, ln] = math.log(S[NW + 7, ln])
-                i = np.int64(S[4 + wq, ln])
-                j = np.int64(S[JR, ln])
-                for r in range(LD + 1):
-                    T[j, r, ln] = S[NW + r, ln]
-                if i != last:
-                    for r in range(LD + 1):
-                        T[i, r, ln] = T[last, r, ln]
-        cnt -= 1
-    for ln in range(min(L, nl)):
-        if S[ALIVE, ln] != 0.0:
-            _finish_lane(T, ln, cnt, kmax, tie, t, ow[ln], om[ln], ov[ln])
-    return kmax
-
-
-@njit(cache=True, error_model="numpy")
-def _reduce_rows(xw, xm, xv, xr, need, nl, kmax, tie, pw, pm, pv, pn, T, t):
-    # pragma: no cover - compiled
-    """:func:`reduce` (West/Runnalls) of the mixtures ``l < nl`` with ``need[l]`` of a group
-    of rows: ``xw[l, :xr[l]], xm[l], xv[l]`` into ``pw[l], pm[l], pv[l]`` (canonical order,
-    :func:`_store`), their component counts into ``pn[l]``. When every row of the group
-    needs it, there are more than half of ``_LANES`` rows, the mixtures are 2-D
-    and all have the same number ``n0 > kmax`` of positive weights, the group is reduced on
-    SIMD lanes (:func:`_west_lanes`, ``T``: a lane array of at least ``n0`` components),
-    else row by row (:func:`_reduce_into`): the same results bit for bit. Slots of ``xw``
-    from ``xr[l]`` on are set to 0."""
-    L = _LANES
-    d = xm.shape[2]
-    big = xw.shape[1]
-    same = d == 2 and 2 * nl > L
-    n0 = -1
-    for ln in range(nl):
-        if not need[ln]:
-            same = False
-            continue
-        for r in range(xr[ln], big):
-            xw[ln, r] = 0.0
-        c = 0
-        for r in range(xr[ln]):
-            c += 1 if xw[ln, r] > 0 else 0
-        if n0 < 0:
-            n0 = c
-        same = same and c == n0
-    if same and n0 > kmax:
-        _load_lanes(xw, xm, xv, 0, nl, n0, T, t)
-        _west_lanes(T, n0, kmax, tie, t, pw, pm, pv, nl)
-        for ln in range(nl):
-            pn[ln] = kmax
-        return
-    for ln in range(nl):
-        if need[ln]:
-            pn[ln] = _reduce_into(xw[ln], xm[ln], xv[ln], xr[ln], kmax, tie, pw[ln], pm[ln],
-                                  pv[ln], t)
-
-
-@njit(cache=True, error_model="numpy")
-def _load_lanes(w, m, v, b0, nl, n0, T, t):  # pragma: no cover - compiled
-    """The lane array ``T`` of :func:`_west_lanes` for the 2-D mixtures ``b0 .. b0 + nl - 1``
-    (``n0`` components of positive weight each; lanes from ``nl`` on: copies of the last
-    mixture): rows 0-4 (through :func:`_load` where a mixture has empty slots), then the
-    inverse variances and the log-determinant of :func:`_set_logdet` (same arithmetic:
-    ``1.0 * v_0 * v_1`` is ``v_0 v_1``), the reciprocals and products vectorised over the
-    lanes, the logarithms one by one (libm's, as :func:`_logdet`)."""
-    L = T.shape[2]
-    k = w.shape[1]
-    if n0 == k:                          # no empty slot: the columns as they are
-        for c in range(k):
-            for ln in range(L):
-                b = b0 + min(ln, nl - 1)
-                T[c, 0, ln] = w[b, c]
-                T[c, 1, ln] = m[b, c, 0]
-                T[c, 2, ln] = m[b, c, 1]
-                T[c, 3, ln] = v[b, c, 0]
-                T[c, 4, ln] = v[b, c, 1]
-    else:
-        for ln in range(L):
-            b = b0 + min(ln, nl - 1)
-            _load(w[b], m[b], v[b], k, t)
-            for c in range(n0):
-                for r in range(5):
-                    T[c, r, ln] = t[r, c]
-    for c in range(n0):
-        for ln in range(L):
-            v0 = T[c, 3, ln]
-            v1 = T[c, 4, ln]
-            T[c, 5, ln] = 1.0 / v0
-            T[c, 6, ln] = 1.0 / v1
-            T[c, 7, ln] = v0 * v1
-        for ln in range(L):
-            T[c, 7, ln] = math.log(T[c, 7, ln])
-
-
-# fdlibm's e_log.c (radioloc.core.fdlibm)
-_SQRT2, _TWO52, _TWO52_BITS, _MANT, _ONE_BITS = (fdl.SQRT2, fdl.TWO52, fdl.TWO52_BITS,
-                                                 fdl.MANT, fdl.ONE_I)
-#: relative margin added to the vectorised logarithm of :func:`_best_above` (its error
-#: and libm's are a few ulps, 1e-12 is about 4500)
-_LOG_MARGIN = 1e-12
-
-
-@njit(cache=True, error_model="numpy")
-def _best_above(S, Si, GY, GW, GL, WI, LDI, ALI, BEST):  # pragma: no cover - compiled
-    """Row ``BEST`` of the lane state ``S`` (``Si``: its int64 view): an upper bound of
-    Runnalls' cost ``0.5 (wi (ldc - ldi) + ws log1p(y))`` of :func:`_partner` with
-    ``log1p`` from libm, for ``y``, ``w_c``, ``ldc`` in rows ``GY, GW, GL``, vectorised
-    over the lanes (no call, no branch): ``log1p(y) = log(u) + (y - (u - 1)) / u`` with
-    ``u = 1 + y`` rounded (the second term is the rounding of ``u``, exact to first
-    order) and ``log(u)`` by fdlibm's ``e_log.c`` (exponent from the bits, the polynomial
-    in ``s = f / (2 + f)``; within 1 ulp). Both logarithms are within a few ulps of
-    ``log1p(y)``, so adding ``_LOG_MARGIN (wi (|ldc| + |ldi|) + ws |log1p(y)|)`` (about
-    4500 ulps of the cost's terms) puts the result above the exact cost of libm's
-    logarithm, and the skip test of :func:`_west_lanes`, increasing in it, skips no
-    candidate that the exact cost would keep (it may keep more: those are costed exactly,
-    :func:`_lane_pass2`). ``u`` not a positive normal float: ``inf`` (skips nothing).
-    Rows 38-40 of ``S`` are scratch."""
-    L = S.shape[1]
-    for ln in range(L):
-        S[38, ln] = 1.0 + S[GY, ln]
-    for ln in range(L):
-        bits = Si[38, ln]
-        Si[39, ln] = (bits >> 52) | _TWO52_BITS
-        Si[40, ln] = (bits & _MANT) | _ONE_BITS
-    for ln in range(L):
-        y = S[GY, ln]
-        u = S[38, ln]
-        k = S[39, ln] - (_TWO52 + 1023.0)
-        m = S[40, ln]                                    # [1, 2)
-        big = m > _SQRT2
-        m = m * 0.5 if big else m
-        k = k + 1.0 if big else k
-        f = m - 1.0
-        s = f / (2.0 + f)
-        lg = fdl.log_finish(k, f, s, fdl.log_poly(s))
-        lp = lg + (y - (u - 1.0)) / u
-        wi = S[WI, ln]
-        ws = wi + S[GW, ln]
-        ldc = S[GL, ln]
-        bb = 0.5 * (wi * (ldc - S[LDI, ln]) + ws * lp) \
-            + _LOG_MARGIN * (wi * (abs(ldc) + S[ALI, ln]) + ws * abs(lp))
-        ok = (u >= 2.2250738585072014e-308) & (u <= 1.7976931348623157e308)
-        S[BEST, ln] = bb if ok else np.inf
-
-
-@njit(cache=True, error_model="numpy")
-def _lane_pass2(T, ln, cnt, i, c0, wi, ldi, tie, t):  # pragma: no cover - compiled
-    """Pass 2 of :func:`_partner` for lane ``ln`` of :func:`_west_lanes` after its pass 1
-    (rows 8-10 of ``T``: the bound, ``y``, the scale's part; ``c0`` the lowest bound, ``i``
-    the lowest weight): the same candidates costed in the same order with the same
-    arithmetic. Returns the partner ``j`` when the tie set has one member, -1 when it has
-    more (then :func:`_pick` decides: the caller runs :func:`_west_soa`). Rows 9 and 10 of
-    the costed candidates are overwritten (pass 1 sets them again); row 0 of ``t`` holds
-    the costed candidates."""
-    CO = 9
-    SC = 10
-    best, ne = _exact_costs(T[:, :, ln].T, 7, cnt, i, c0, wi, ldi, tie, t[0])
-    j = -1
-    for q in range(ne):
-        c = np.int64(t[0, q])
-        if T[c, CO, ln] <= best + 2.0 * tie * T[c, SC, ln]:
-            if j >= 0:
-                return -1
-            j = c
-    return j
-
-
-@njit(cache=True, error_model="numpy")
-def _finish_lane(T, ln, cnt, kmax, tie, t, ow, om, ov):  # pragma: no cover - compiled
-    """Lane ``ln`` of :func:`_west_lanes` (``cnt`` components) copied into the scratch
-    ``t``, reduced to ``kmax`` by :func:`_west_soa` and stored by :func:`_store`."""
-    for c in range(cnt):
-        for r in range(5):
-            t[r, c] = T[c, r, ln]
-    if cnt > kmax:
-        cnt = _west_soa(t, cnt, kmax, tie, True)
-    _store(t, 2, cnt, ow, om, ov)
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _reduce_batch(w, m, v, kmax, tie):  # pragma: no cover - compiled
-    """:func:`reduce` (West/Runnalls) of every mixture of ``w (B, K)``, ``m, v (B, K, D)``;
-    returns ``(weights (B, kmax), means, variances, counts (B,))`` in the canonical order
-    (:func:`_store`) and unused slots at weight 0, mean 0, variance 1. Groups of
-    ``_LANES`` mixtures run in parallel; in 2-D a group whose mixtures all have the same
-    number of components above ``kmax`` is reduced on SIMD lanes (:func:`_west_lanes`; a
-    part group of more than half the lanes is padded with copies of its last mixture: a
-    group on the lanes takes about as long as 16 mixtures one by one), any other mixture by
-    :func:`_reduce_into` (same results, bit for bit)."""
-    nb, k, d = m.shape
-    kout = min(kmax, k)
-    ow = np.zeros((nb, kout))
-    om = np.zeros((nb, kout, d))
-    ov = np.ones((nb, kout, d))
-    cnt = np.zeros(nb, dtype=np.int64)
-    L = _LANES
-    ng = (nb + L - 1) // L
-    for g in prange(ng):
-        t = np.empty((3 * d + 10, k))
-        b0 = g * L
-        nl = min(L, nb - b0)
-        same = d == 2
-        n0 = -1
-        if same:
-            for ln in range(nl):
-                c = 0
-                for r in range(k):
-                    c += 1 if w[b0 + ln, r] > 0 else 0
-                if ln == 0:
-                    n0 = c
-                same = same and c == n0
-            same = same and n0 > kout and 2 * nl > L
-        if not same:
-            for b in range(b0, b0 + nl):
-                cnt[b] = _reduce_into(w[b], m[b], v[b], k, kout, tie, ow[b], om[b], ov[b], t)
-            continue
-        T = np.empty((k, _LANE_ROWS, L))
-        _load_lanes(w, m, v, b0, nl, n0, T, t)
-        _west_lanes(T, n0, kout, tie, t, ow[b0:b0 + nl], om[b0:b0 + nl], ov[b0:b0 + nl], nl)
-        for b in range(b0, b0 + nl):
-            cnt[b] = kout
-    return ow, om, ov, cnt
 
 
 def uniform_ball(radius, dim: int) -> DiagMixture:

@@ -44,8 +44,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
+from radioloc.core.backend import DEFAULT_BACKEND
 from radioloc.core.errors import InputError
 from radioloc.models.mixture import DiagMixture, compact, pad_components, reduce, select
 
@@ -178,7 +178,6 @@ def gram(w, m, v) -> np.ndarray:
     return p.reshape(p.shape[:-4] + (k * q, k * q))
 
 
-# ---- compiled kernels (same formulas as inner, cross_gradient and gram above) ------------
 def _flat(shape, *arrays):
     """Broadcast to the batch ``shape`` and flatten the batch axes (contiguous float64)."""
     out = []
@@ -186,253 +185,6 @@ def _flat(shape, *arrays):
         a = np.broadcast_to(a, shape + a.shape[a.ndim - tail:])
         out.append(np.ascontiguousarray(a.reshape((-1,) + a.shape[len(shape):]), dtype=float))
     return out
-
-
-def inner_fast(a_w, a_m, a_v, b_w, b_m, b_v) -> np.ndarray:
-    """Compiled :func:`inner` (same arguments and result).
-
-    Parameters
-    ----------
-    a_w, a_m, a_v, b_w, b_m, b_v : ndarray
-        As in :func:`inner`.
-
-    Returns
-    -------
-    ndarray, shape (...)
-        ``int f_a f_b dx``.
-    """
-    shape = np.broadcast_shapes(a_w.shape[:-1], b_w.shape[:-1])
-    aw, am, av, bw, bm, bv = _flat(shape, (a_w, 1), (a_m, 2), (a_v, 2), (b_w, 1), (b_m, 2),
-                                   (b_v, 2))
-    out = np.empty(aw.shape[0])
-    for i in range(aw.shape[0]):
-        out[i] = _inner1(aw[i], am[i], av[i], bw[i], bm[i], bv[i])
-    return out.reshape(shape)
-
-
-def cross_gradient_fast(w, m, v, t_w, t_m, t_v) -> np.ndarray:
-    """Compiled :func:`cross_gradient` (same arguments and result).
-
-    Parameters
-    ----------
-    w, m, v, t_w, t_m, t_v : ndarray
-        As in :func:`cross_gradient`.
-
-    Returns
-    -------
-    ndarray, shape (..., K, 1 + 2 D)
-        The gradient.
-    """
-    shape = np.broadcast_shapes(w.shape[:-1], t_w.shape[:-1])
-    a = _flat(shape, (w, 1), (m, 2), (v, 2), (t_w, 1), (t_m, 2), (t_v, 2))
-    k, d = m.shape[-2], m.shape[-1]
-    out = np.zeros((a[0].shape[0], k, 1 + 2 * d))
-    for i in range(out.shape[0]):
-        _cross1(a[0][i], a[1][i], a[2][i], a[3][i], a[4][i], a[5][i], 1.0, out[i])
-    return out.reshape(shape + out.shape[1:])
-
-
-def gram_fast(w, m, v) -> np.ndarray:
-    """Compiled :func:`gram` (same arguments and result).
-
-    Parameters
-    ----------
-    w, m, v : ndarray
-        As in :func:`gram`.
-
-    Returns
-    -------
-    ndarray, shape (..., K (1 + 2 D), K (1 + 2 D))
-        The Gram matrix.
-    """
-    shape = w.shape[:-1]
-    a = _flat(shape, (w, 1), (m, 2), (v, 2))
-    k, d = m.shape[-2], m.shape[-1]
-    n = k * (1 + 2 * d)
-    out = np.zeros((a[0].shape[0], n, n))
-    for i in range(out.shape[0]):
-        _gram1(a[0][i], a[1][i], a[2][i], _orders(d), out[i])
-    return out.reshape(shape + (n, n))
-
-
-@njit(cache=True)
-def _inner1(aw, am, av, bw, bm, bv):  # pragma: no cover - compiled
-    ka, d = am.shape
-    kb = bm.shape[0]
-    acc = 0.0
-    for i in range(ka):
-        if aw[i] == 0.0:
-            continue
-        for j in range(kb):
-            if bw[j] == 0.0:
-                continue
-            lo = 0.0
-            for e in range(d):
-                s = av[i, e] + bv[j, e]
-                dl = am[i, e] - bm[j, e]
-                lo += dl * dl / s + np.log(s) + _LOG2PI
-            acc += aw[i] * bw[j] * np.exp(-0.5 * lo)
-    return acc
-
-
-@njit(cache=True)
-def _cross1(w, m, v, tw, tm, tv, coef, out):  # pragma: no cover - compiled
-    """``out += coef * d/dtheta int f g dx`` for one mixture."""
-    k, d = m.shape
-    nl = tm.shape[0]
-    h1 = np.empty(d)
-    h2 = np.empty(d)
-    for i in range(k):
-        g0 = 0.0
-        g1 = np.zeros(d)
-        g2 = np.zeros(d)
-        for l in range(nl):
-            if tw[l] == 0.0:
-                continue
-            lo = 0.0
-            for e in range(d):
-                s = v[i, e] + tv[l, e]
-                dl = m[i, e] - tm[l, e]
-                lo += dl * dl / s + np.log(s) + _LOG2PI
-                h1[e] = -dl / s
-                h2[e] = (dl * dl / s - 1.0) / s
-            o = tw[l] * np.exp(-0.5 * lo)
-            g0 += o
-            for e in range(d):
-                g1[e] += o * h1[e]
-                g2[e] += o * h2[e]
-        out[i, 0] += coef * g0
-        for e in range(d):
-            out[i, 1 + e] += coef * w[i] * g1[e]
-            out[i, 1 + d + e] += coef * 0.5 * w[i] * v[i, e] * g2[e]
-
-
-@njit(cache=True)
-def _gram1(w, m, v, orders, out):  # pragma: no cover - compiled
-    k, d = m.shape
-    q = 1 + 2 * d
-    h = np.empty((d, 5))
-    ca = np.empty(q)
-    cb = np.empty(q)
-    for i in range(k):
-        for j in range(k):
-            lo = 0.0
-            for e in range(d):
-                s = v[i, e] + v[j, e]
-                dl = m[i, e] - m[j, e]
-                lo += dl * dl / s + np.log(s) + _LOG2PI
-                r = 1.0 / np.sqrt(s)
-                u = dl * r
-                h[e, 0] = 1.0
-                h[e, 1] = -r * u
-                h[e, 2] = r * r * (u * u - 1.0)
-                h[e, 3] = -r * r * r * (u * u * u - 3.0 * u)
-                h[e, 4] = r * r * r * r * (u ** 4 - 6.0 * u * u + 3.0)
-            o = np.exp(-0.5 * lo)
-            ca[0] = 1.0
-            cb[0] = 1.0
-            for e in range(d):
-                ca[1 + e] = w[i]
-                cb[1 + e] = -w[j]
-                ca[1 + d + e] = 0.5 * w[i] * v[i, e]
-                cb[1 + d + e] = 0.5 * w[j] * v[j, e]
-            for a in range(q):
-                for c in range(q):
-                    hh = 1.0
-                    for e in range(d):
-                        hh *= h[e, orders[a, e] + orders[c, e]]
-                    out[i * q + a, j * q + c] = o * ca[a] * cb[c] * hh
-
-
-@njit(cache=True)
-def _unpack1(eta, k, d, w, m, v):  # pragma: no cover - compiled
-    q = 1 + 2 * d
-    mx = -np.inf
-    for i in range(k):
-        mx = max(mx, eta[i * q])
-    tot = 0.0
-    for i in range(k):
-        w[i] = np.exp(eta[i * q] - mx)
-        tot += w[i]
-    for i in range(k):
-        w[i] /= tot
-        for e in range(d):
-            m[i, e] = eta[i * q + 1 + e]
-            v[i, e] = np.exp(eta[i * q + 1 + d + e])
-
-
-@njit(cache=True)
-def _objective_kernel(eta, k, d, sw, sm, sv, tw, tm, tv, gamma):  # pragma: no cover
-    """``2 G(eta, gamma) - int t^2`` per mixture: ``int f^2 - 2 int f t_gamma``."""
-    nb = eta.shape[0]
-    out = np.empty(nb)
-    w = np.empty(k)
-    m = np.empty((k, d))
-    v = np.empty((k, d))
-    for b in range(nb):
-        _unpack1(eta[b], k, d, w, m, v)
-        ff = _inner1(w, m, v, w, m, v)
-        f0 = _inner1(w, m, v, sw[b], sm[b], sv[b])
-        ft = _inner1(w, m, v, tw[b], tm[b], tv[b])
-        out[b] = ff - 2.0 * ((1.0 - gamma) * f0 + gamma * ft)
-    return out
-
-
-@njit(cache=True)
-def _system_kernel(eta, k, d, orders, sw, sm, sv, tw, tm, tv, c_ff, c_0, c_t):  # pragma: no cover
-    """Gram matrix and gradient combination ``c_ff g(f) + c_0 g(f0) + c_t g(T)`` in the
-    softmax-logit parameters (chain rule ``dw_k/dalpha_i = w_k (delta_ki - w_i)``)."""
-    nb = eta.shape[0]
-    q = 1 + 2 * d
-    n = k * q
-    peta = np.zeros((nb, n, n))
-    geta = np.zeros((nb, n))
-    w = np.empty(k)
-    m = np.empty((k, d))
-    v = np.empty((k, d))
-    p = np.empty((n, n))
-    pt = np.empty((n, n))
-    g = np.empty((k, q))
-    jw = np.empty((k, k))
-    for b in range(nb):
-        _unpack1(eta[b], k, d, w, m, v)
-        _gram1(w, m, v, orders, p)
-        g[:] = 0.0
-        if c_ff != 0.0:
-            _cross1(w, m, v, w, m, v, c_ff, g)
-        if c_0 != 0.0:
-            _cross1(w, m, v, sw[b], sm[b], sv[b], c_0, g)
-        if c_t != 0.0:
-            _cross1(w, m, v, tw[b], tm[b], tv[b], c_t, g)
-        for a in range(k):
-            for c in range(k):
-                jw[a, c] = w[a] * ((1.0 if a == c else 0.0) - w[c])
-        gw = 0.0
-        for a in range(k):
-            gw += w[a] * g[a, 0]
-        for i in range(k):
-            geta[b, i * q] = w[i] * (g[i, 0] - gw)
-            for c in range(1, q):
-                geta[b, i * q + c] = g[i, c]
-        # pt = p T (weight columns mixed by jw), then peta = T^T pt
-        for r in range(n):
-            for c in range(n):
-                pt[r, c] = p[r, c]
-            for j in range(k):
-                acc = 0.0
-                for l in range(k):
-                    acc += p[r, l * q] * jw[l, j]
-                pt[r, j * q] = acc
-        for r in range(n):
-            for c in range(n):
-                peta[b, r, c] = pt[r, c]
-        for i in range(k):
-            for c in range(n):
-                acc = 0.0
-                for l in range(k):
-                    acc += jw[l, i] * pt[l * q, c]
-                peta[b, i * q, c] = acc
-    return geta, peta
 
 
 @dataclass(frozen=True)
@@ -484,7 +236,7 @@ class _Fit:
         return np.concatenate([logit[..., None], m, np.log(v)], -1).reshape(w.shape[:-1] + (-1,))
 
 
-def _chain_reference(w, g, p, q):
+def _chain_rule(w, g, p, q):
     """Raw (weight) parameters to softmax logits: gradient and Gram matrix."""
     k = w.shape[-1]
     jw = w[..., :, None] * (np.eye(k) - w[..., None, :])                # dw_k/dalpha_i: (k, i)
@@ -500,7 +252,8 @@ def _chain_reference(w, g, p, q):
 
 
 def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: int = 1,
-                       polish: int = 4, return_info: bool = False):
+                       polish: int = 4, return_info: bool = False,
+                       backend: str = DEFAULT_BACKEND):
     """Progressive Bayes re-approximation of mixtures by ``k`` components (ISD homotopy).
 
     Parameters
@@ -520,6 +273,9 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
         Further corrector steps at ``gamma = 1`` (>= 0).
     return_info : bool
         Also return a :class:`ProgressionInfo`.
+    backend : str
+        The backend of the default start's West/Runnalls reduction (the homotopy itself is
+        NumPy).
 
     Returns
     -------
@@ -539,7 +295,7 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     active = np.sum(tgt.weights > 0, axis=-1)
     need = active > k
     if start is None:
-        start = reduce(tgt, k)
+        start = reduce(tgt, k, backend=backend)
     start = pad_components(start, k)
     if start.n_components > k:
         start = compact(start)
@@ -566,10 +322,22 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     hi = np.maximum(hi, np.log(np.maximum(spread.max(-1), 1e-300)) + np.log(100.0))
     fit = _Fit(tgt, lo, hi)
     eta = fit.clip(fit.to_eta(sw, sm, sv), k, d)
-    orders = _orders(d)
+
+    q = 1 + 2 * d
 
     def objective(eta_, gamma):
-        return _objective_kernel(eta_, k, d, sw, sm, sv, tw, tm, tv, float(gamma))
+        """``2 G(eta, gamma) - int t^2``: ``int f^2 - 2 int f t_gamma``."""
+        w, m, v = _Fit.unpack(eta_, k, d)
+        return inner(w, m, v, w, m, v) - 2.0 * ((1.0 - gamma) * inner(w, m, v, sw, sm, sv)
+                                                + gamma * inner(w, m, v, tw, tm, tv))
+
+    def system(eta_, c_ff, c_0, c_t):
+        """Gradient ``c_ff g(f) + c_0 g(f0) + c_t g(T)`` of ``int f g`` and the Gram matrix,
+        in the softmax-logit parameters."""
+        w, m, v = _Fit.unpack(eta_, k, d)
+        g = c_ff * cross_gradient(w, m, v, w, m, v) + c_0 * cross_gradient(w, m, v, sw, sm, sv) \
+            + c_t * cross_gradient(w, m, v, tw, tm, tv)
+        return _chain_rule(w, g, gram(w, m, v), q)
 
     def solve(p, rhs, lam):
         diag = np.diagonal(p, axis1=-2, axis2=-1)
@@ -588,8 +356,7 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
 
     def correct(eta_, cur_, lam_, gamma, n_iter):
         for _ in range(n_iter):
-            geta, peta = _system_kernel(eta_, k, d, orders, sw, sm, sv, tw, tm, tv,
-                                        1.0, -(1.0 - gamma), -gamma)
+            geta, peta = system(eta_, 1.0, -(1.0 - gamma), -gamma)
             cand = fit.clip(eta_ - solve(peta, geta, lam_), k, d)
             val = objective(cand, gamma)
             ok = np.isfinite(val) & (val < cur_)
@@ -601,7 +368,7 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     for n in range(1, int(steps) + 1):
         g0, g1 = (n - 1) / steps, n / steps
         # predictor: P deta/dgamma = b, b = int (df/deta)(T - f0) dx
-        geta, peta = _system_kernel(eta, k, d, orders, sw, sm, sv, tw, tm, tv, 0.0, -1.0, 1.0)
+        geta, peta = system(eta, 0.0, -1.0, 1.0)
         pred = fit.clip(eta + (g1 - g0) * solve(peta, geta, lam), k, d)
         stay = objective(eta, g1)
         moved = objective(pred, g1)
@@ -612,9 +379,9 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     eta, cur, lam = correct(eta, cur, lam, 1.0, int(polish))
 
     w, m, v = _Fit.unpack(eta, k, d)
-    tt = inner_fast(tw, tm, tv, tw, tm, tv)
-    isd_new = inner_fast(w, m, v, w, m, v) - 2 * inner_fast(w, m, v, tw, tm, tv) + tt
-    isd_start = inner_fast(sw, sm, sv, sw, sm, sv) - 2 * inner_fast(sw, sm, sv, tw, tm, tv) + tt
+    tt = inner(tw, tm, tv, tw, tm, tv)
+    isd_new = inner(w, m, v, w, m, v) - 2 * inner(w, m, v, tw, tm, tv) + tt
+    isd_start = inner(sw, sm, sv, sw, sm, sv) - 2 * inner(sw, sm, sv, tw, tm, tv) + tt
     better = isd_new <= isd_start
     w = np.where(better[:, None], w, sw)
     m = np.where(better[:, None, None], m, sm)
