@@ -24,7 +24,7 @@ from numba import njit, prange
 __all__ = ["network_ekf_packets", "network_rls_iteration"]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def network_ekf_packets(mean, cov, masters, rho, valid, var, nis, used, err):  # pragma: no cover
     """Sequential EKF updates of every run (``prange``) by its packets ``j`` in order.
 
@@ -193,3 +193,132 @@ def network_rls_iteration(position, information, used, rho, valid, lam, cond_lim
             information[r, k, 1, 0] = b2
             information[r, k, 1, 1] = d
             used[r, k] = cnt
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max_iter,
+                    crit_stop, beta, cov, iterations, flags):  # pragma: no cover
+    """Steps 3b-3d of :meth:`ClosedFormTracker.locate` for every track (``prange``), each
+    iterated to its own stop from its OLS start ``beta (B, 4)`` (updated in place).
+
+    ``sa (B, m, 4)``, ``sy (B, m)``, ``keep (B, m)``: the differenced system (dropped rows
+    zero); ``s (1 or B, n, 2)``, ``xi (1 or B, n)``; ``c (n, n)`` the motion-noise
+    covariance, ``sks = S (2 c2) S'`` its square term differenced, ``var = diag(c)``. Per
+    step ``Sigma_pq = 4 c_pq d_p . d_q + delta_pq e_p`` (eq. (11), eq. (13); with
+    ``printed`` the eq. (14) terms), ``W = S Sigma S' + sks``, and the GLS by Cholesky of
+    ``W``. ``cov (B, 4, 4)``, ``iterations (B,)``; ``flags (B,)``: bit 0 converged,
+    bit 1 stalled (``crit_stop``), bit 2 ``W`` or the information not positive definite.
+    """
+    B, m, _ = sa.shape
+    n = m + 3
+    st = (1.0, -3.0, 3.0, -1.0)                      # a row of S, eq. (10)
+    for b in prange(B):
+        sb = min(np.int64(b), s.shape[0] - 1)         # a path shared by every track: row 0
+        xb = min(np.int64(b), xi.shape[0] - 1)
+        dx = np.empty(n)
+        dy = np.empty(n)
+        sig = np.empty((n, n))
+        t = np.empty((n, m))                          # Sigma S'
+        W = np.empty((m, m))
+        X = np.empty((m, 5))                          # L^-1 [S A, S y]
+        G = np.empty((5, 5))
+        inv = np.empty((4, 4))
+        new = np.empty(4)
+        cov[b] = 0.0
+        best = np.inf
+        it = 0
+        fl = 0
+        for _ in range(max_iter):
+            for p in range(n):                        # d_n at the current state
+                dx[p] = beta[b, 0] + tv[p] * beta[b, 2] - s[sb, p, 0]
+                dy[p] = beta[b, 1] + tv[p] * beta[b, 3] - s[sb, p, 1]
+            for p in range(n):
+                for q in range(n):
+                    sig[p, q] = 4.0 * c[p, q] * (dx[p] * dx[q] + dy[p] * dy[q])
+                    if printed:
+                        sig[p, q] -= 2.0 * (xi[xb, q] * var[p] + xi[xb, p] * var[q])
+                x = xi[xb, p]
+                sig[p, p] += (4.0 * x * (dx[p] * dx[p] + dy[p] * dy[p] + 2.0 * c[p, p])
+                              + (2.0 + kap) * x * x)
+                if printed:
+                    sig[p, p] += 4.0 * x * var[p]
+            for p in range(n):
+                for j in range(m):
+                    t[p, j] = (st[0] * sig[p, j] + st[1] * sig[p, j + 1] + st[2] * sig[p, j + 2]
+                               + st[3] * sig[p, j + 3])
+            for i in range(m):
+                for j in range(m):
+                    W[i, j] = sks[i, j] + (st[0] * t[i, j] + st[1] * t[i + 1, j]
+                                           + st[2] * t[i + 2, j] + st[3] * t[i + 3, j])
+                    if not (keep[b, i] and keep[b, j]):
+                        W[i, j] = 1.0 if i == j else 0.0
+            ok = True                                 # W = L L' in place (lower triangle)
+            for i in range(m):
+                for j in range(i + 1):
+                    v = W[i, j]
+                    for k in range(j):
+                        v -= W[i, k] * W[j, k]
+                    if i == j:
+                        if not v > 0.0:
+                            ok = False
+                            break
+                        W[i, i] = np.sqrt(v)
+                    else:
+                        W[i, j] = v / W[j, j]
+                if not ok:
+                    break
+            if ok:
+                for i in range(m):                    # X = L^-1 [S A, S y]
+                    for q in range(5):
+                        v = sa[b, i, q] if q < 4 else sy[b, i]
+                        for k in range(i):
+                            v -= W[i, k] * X[k, q]
+                        X[i, q] = v / W[i, i]
+                for p in range(5):
+                    for q in range(5):
+                        v = 0.0
+                        for i in range(m):
+                            v += X[i, p] * X[i, q]
+                        G[p, q] = v
+                for p in range(4):                    # inv = (A~' W^-1 A~)^-1, Gauss-Jordan
+                    for q in range(4):
+                        inv[p, q] = 1.0 if p == q else 0.0
+                for p in range(4):
+                    piv = G[p, p]
+                    if not piv > 0.0:
+                        ok = False
+                        break
+                    for q in range(4):
+                        G[p, q] /= piv
+                        inv[p, q] /= piv
+                    for r in range(4):
+                        if r != p:
+                            f = G[r, p]
+                            for q in range(4):
+                                G[r, q] -= f * G[p, q]
+                                inv[r, q] -= f * inv[p, q]
+            if not ok:
+                fl |= 4
+                break
+            crit = G[4, 4]                            # step 3c and r' W^-1 r
+            for p in range(4):
+                v = 0.0
+                for q in range(4):
+                    v += inv[p, q] * G[q, 4]
+                new[p] = v
+                crit -= v * G[p, 4]
+            if crit_stop and not crit < best:
+                fl |= 2
+                break
+            change = 0.0
+            for p in range(4):
+                change += (new[p] - beta[b, p]) ** 2
+                beta[b, p] = new[p]
+            cov[b] = inv
+            best = crit
+            it += 1
+            if np.sqrt(change) <= tol:                # step 3d
+                fl |= 1
+                break
+        iterations[b] = it
+        flags[b] = fl
