@@ -12,6 +12,12 @@ of another module, so numba's per-file cache cannot go stale.
 - :func:`network_rls_iteration`: :meth:`~radioloc.estimators.rls.NetworkRLS.iterate`, the
   masters ``k = 0..K-1`` of :meth:`~radioloc.estimators.rls.NetworkRLS.step` (paper 000,
   eq. (8)-eq. (11)).
+- :func:`blue_iterations`: the iterations 3b-3d of
+  :class:`~radioloc.estimators.closed_form.ClosedFormTracker` (paper 002, eq. (11)-eq. (15)).
+- :func:`snapshot_scores`: the candidate scores of
+  :class:`~radioloc.estimators.snapshot_baselines.LocalML` and ``Ransac`` (paper 001, Sect. V).
+  It calls the model's scalar log-density (:mod:`radioloc.models.los_nlos`), so it is not
+  cached: a cached kernel would keep that function's old code after its module changed.
 """
 
 from __future__ import annotations
@@ -21,7 +27,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["network_ekf_packets", "network_rls_iteration"]
+from radioloc.models.los_nlos import mixture_logpdf_scalar
+
+__all__ = ["network_ekf_packets", "network_rls_iteration", "blue_iterations", "snapshot_scores"]
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -322,3 +330,34 @@ def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max
                 break
         iterations[b] = it
         flags[b] = fl
+
+
+@njit(parallel=True, error_model="numpy")
+def snapshot_scores(kind, cand, cen, th, valid, c0, c1, c2, c3, c4, c5, out):  # pragma: no cover
+    """Scores of candidates ``cand (B, C, 2)`` against the links ``cen (B, L, 2)``,
+    ``th (B, L)``, ``valid (B, L)`` into ``out (B, C)`` (``prange`` over snapshots and
+    candidates): residuals ``e = th - ||x - cen||``, then ``kind`` 0: ``sum_m log p(e_m)``
+    of the LOS/NLOS mixture (constants ``c0..c5`` of ``LosNlosRange.mixture_constants``);
+    1: the RANSAC consensus ``n_in - sum_in e^2 / (n_in c0 + 1)`` with inliers
+    ``|e| < c1`` (``c0 = c1^2``)."""
+    nb, nc = cand.shape[0], cand.shape[1]
+    nl = th.shape[1]
+    for task in prange(nb * nc):
+        b = task // nc
+        k = task - b * nc
+        x = cand[b, k, 0]
+        y = cand[b, k, 1]
+        n_in = 0
+        acc = 0.0
+        for j in range(nl):
+            if not valid[b, j]:
+                continue
+            dx = x - cen[b, j, 0]
+            dy = y - cen[b, j, 1]
+            e = th[b, j] - math.sqrt(dx * dx + dy * dy)
+            if kind == 0:
+                acc += mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
+            elif abs(e) < c1:
+                acc += e * e
+                n_in += 1
+        out[b, k] = acc if kind == 0 else n_in - acc / (n_in * c0 + 1.0)
