@@ -16,10 +16,7 @@ the comparison lives. ``main()`` returns the rows of ``collect.py`` for n = 60.
 
 from __future__ import annotations
 
-import os
 import time
-
-os.environ.setdefault("OMP_WAIT_POLICY", "passive")   # as collect.py: no spinning threads
 
 import numpy as np
 
