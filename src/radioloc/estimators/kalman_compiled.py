@@ -203,10 +203,10 @@ def network_rls_iteration(position, information, used, rho, valid, lam, cond_lim
             used[r, k] = cnt
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max_iter,
                     crit_stop, beta, cov, iterations, flags):  # pragma: no cover
-    """Steps 3b-3d of :meth:`ClosedFormTracker.locate` for every track (``prange``), each
+    """Steps 3b-3d of :meth:`ClosedFormTracker.locate` for every track, each
     iterated to its own stop from its OLS start ``beta (B, 4)`` (updated in place).
 
     ``sa (B, m, 4)``, ``sy (B, m)``, ``keep (B, m)``: the differenced system (dropped rows
@@ -220,9 +220,9 @@ def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max
     B, m, _ = sa.shape
     n = m + 3
     st = (1.0, -3.0, 3.0, -1.0)                      # a row of S, eq. (10)
-    for b in prange(B):
-        sb = min(np.int64(b), s.shape[0] - 1)         # a path shared by every track: row 0
-        xb = min(np.int64(b), xi.shape[0] - 1)
+    for b in range(B):
+        sb = b if s.shape[0] > 1 else 0               # a path shared by every track: row 0
+        xb = b if xi.shape[0] > 1 else 0
         dx = np.empty(n)
         dy = np.empty(n)
         sig = np.empty((n, n))
@@ -332,32 +332,30 @@ def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max
         flags[b] = fl
 
 
-@njit(parallel=True, error_model="numpy")
+@njit(error_model="numpy")
 def snapshot_scores(kind, cand, cen, th, valid, c0, c1, c2, c3, c4, c5, out):  # pragma: no cover
     """Scores of candidates ``cand (B, C, 2)`` against the links ``cen (B, L, 2)``,
-    ``th (B, L)``, ``valid (B, L)`` into ``out (B, C)`` (``prange`` over snapshots and
-    candidates): residuals ``e = th - ||x - cen||``, then ``kind`` 0: ``sum_m log p(e_m)``
+    ``th (B, L)``, ``valid (B, L)`` into ``out (B, C)``: residuals ``e = th - ||x - cen||``, then ``kind`` 0: ``sum_m log p(e_m)``
     of the LOS/NLOS mixture (constants ``c0..c5`` of ``LosNlosRange.mixture_constants``);
     1: the RANSAC consensus ``n_in - sum_in e^2 / (n_in c0 + 1)`` with inliers
     ``|e| < c1`` (``c0 = c1^2``)."""
     nb, nc = cand.shape[0], cand.shape[1]
     nl = th.shape[1]
-    for task in prange(nb * nc):
-        b = task // nc
-        k = task - b * nc
-        x = cand[b, k, 0]
-        y = cand[b, k, 1]
-        n_in = 0
-        acc = 0.0
-        for j in range(nl):
-            if not valid[b, j]:
-                continue
-            dx = x - cen[b, j, 0]
-            dy = y - cen[b, j, 1]
-            e = th[b, j] - math.sqrt(dx * dx + dy * dy)
-            if kind == 0:
-                acc += mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
-            elif abs(e) < c1:
-                acc += e * e
-                n_in += 1
-        out[b, k] = acc if kind == 0 else n_in - acc / (n_in * c0 + 1.0)
+    for b in range(nb):
+        for k in range(nc):
+            x = cand[b, k, 0]
+            y = cand[b, k, 1]
+            n_in = 0
+            acc = 0.0
+            for j in range(nl):
+                if not valid[b, j]:
+                    continue
+                dx = x - cen[b, j, 0]
+                dy = y - cen[b, j, 1]
+                e = th[b, j] - math.sqrt(dx * dx + dy * dy)
+                if kind == 0:
+                    acc += mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
+                elif abs(e) < c1:
+                    acc += e * e
+                    n_in += 1
+            out[b, k] = acc if kind == 0 else n_in - acc / (n_in * c0 + 1.0)
