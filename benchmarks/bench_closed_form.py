@@ -16,10 +16,7 @@ the comparison lives. ``main()`` returns the rows of ``collect.py`` for n = 60.
 
 from __future__ import annotations
 
-import os
 import time
-
-os.environ.setdefault("OMP_WAIT_POLICY", "passive")   # as collect.py: no spinning threads
 
 import numpy as np
 
@@ -46,20 +43,14 @@ def data(runs, n, rng):
     return r, sensor, truth + rng.normal(0, 1, truth.shape)
 
 
-def blue_flops(n: int, iterations: float, width: int = 4) -> float:
-    """Floating-point operations of one track as implemented (closed_form._gls_one with
-    _structured_gram): steps 1-2 and the OLS start (``40 n + 30 m``), then per BLUE
-    iteration the offsets and diagonal (``12 n``), the band of Sigma (``42 n``), of
-    ``S Sigma`` and ``S Sigma S'`` (``56 m + 32 m``), the generators (``24 width m``), the
-    structured Cholesky with the forward solve of the 5 columns alongside (per row
-    ``4 width^2 + 39 width + 81``; for width 4, ``_factor_solve4`` updates only the upper
-    triangle of the symmetric ``P``: ``3 width^2 + 40 width + 81`` = 289), the 5 x 5 Gram
-    (``30 m``) and the 4 x 4 solve (about 200); ``width`` is 4 with k at an end of the
-    window, 8 otherwise, plus 2 with the printed eq. (14) terms."""
+def blue_flops(n: int, iterations: float) -> float:
+    """Floating-point operations of one track as implemented: steps 1-2 and the OLS start
+    (``40 n + 30 m``, m = n - 3), then per BLUE iteration of
+    ``kalman_compiled.blue_iterations`` ``Sigma`` (``6 n^2``), ``Sigma S'`` (``8 n m``),
+    ``S Sigma S'`` (``8 m^2``), its Cholesky (``m^3 / 3``), the forward solve of the five
+    columns (``5 m^2``), the 5 x 5 Gram (``50 m``) and the 4 x 4 inverse (about 200)."""
     m = n - 3
-    row = (3 * width * width + 40 * width + 81 if width == 4
-           else 4 * width * width + 39 * width + 81)
-    per_iter = 54 * n + (88 + 24 * width + row + 30) * m + 200
+    per_iter = 6 * n * n + 8 * n * m + 13 * m * m + m**3 / 3 + 50 * m + 200
     return 40 * n + 30 * m + iterations * per_iter
 
 

@@ -278,14 +278,18 @@ def test_multilateration_node_near_the_anchors_line_is_ambiguous(method, std):
 def _mirror_gap(a, truth):
     """Cost of the best fit in the mirror basin of ``truth`` (exact ranges: the truth's
     cost is 0), from the reflection of the truth across the anchors' best-fit line/plane."""
-    from radioloc.estimators.multilateration import _range_residuals
     from radioloc.estimators.nlls import solve_nlls
+    from radioloc.models.ranging import range_geometry
     c = a.mean(0)
     _, sv, vt = np.linalg.svd(a - c)
     n = vt[-1]
     mirror = truth - 2 * np.dot(truth - c, n) * n
-    fit = solve_nlls(_range_residuals(np.linalg.norm(a - truth, axis=-1), a), mirror,
-                     method="levenberg-marquardt", max_iter=500, tol=1e-13)
+    r = np.linalg.norm(a - truth, axis=-1)
+
+    def residuals(x):
+        d, J = range_geometry(x, a)
+        return r - d, J
+    fit = solve_nlls(residuals, mirror, method="levenberg-marquardt", max_iter=500, tol=1e-13)
     return float(fit.cost), float(np.linalg.norm(fit.x - truth)), float(sv[0])
 
 

@@ -1,5 +1,10 @@
 """The one batched Kalman predict and update under every Kalman filter of the toolkit.
 
+:class:`~radioloc.estimators.ekf_tracker.RangeEKF` and
+:class:`~radioloc.estimators.ekf.NetworkEKF` (``backend="numpy"``) call them;
+``NetworkEKF(backend="numba")`` runs the compiled form of the same update,
+:func:`radioloc.estimators.kalman_compiled.network_ekf_packets`.
+
 Arrays carry any leading batch axes: mean ``(..., n)``, covariance ``(..., n, n)``,
 innovation ``(..., m)``, measurement Jacobian ``(..., m, n)``, measurement noise
 ``(..., m, m)`` (or its diagonal ``(..., m)``).

@@ -27,17 +27,17 @@ That is the paper's algorithm and what :class:`NetworkRLS` does by default;
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
 
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import as_float_array, check_finite_output, check_positive
 from radioloc.estimators.base import RecursiveEstimator
+from radioloc.estimators.kalman_compiled import network_rls_iteration
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
 
@@ -129,60 +129,6 @@ def pair_rows(reference: np.ndarray, ranges: np.ndarray, valid: np.ndarray
     return A, z, w
 
 
-
-@njit(parallel=True, cache=True)
-def _iterate_kernel(position, information, used, rho, valid, lam, cond_limit, err):
-    """:meth:`NetworkRLS.iterate` compiled, parallel over runs: masters ``k = 0..K-1`` in
-    order, each from the pairs ``i < j`` of its valid ranges and the positions at the start
-    of the iteration (eq. (8)-eq. (11), the same sums as :meth:`NetworkRLS.step`).
-    ``position (R, K, 2)``, ``information (R, K, 2, 2)``, ``used (R, K)`` are updated in place;
-    ``err[r]`` receives the first master whose information matrix is singular (-1 if none;
-    the run is left as it was before that master)."""
-    R, K, _ = position.shape
-    for r in prange(R):
-        ref = position[r].copy()                        # x_i(n-1), eq. (8), eq. (9)
-        sq = np.empty(K)
-        for i in range(K):
-            sq[i] = ref[i, 0] * ref[i, 0] + ref[i, 1] * ref[i, 1]
-        for k in range(K):
-            x0, x1 = ref[k, 0], ref[k, 1]
-            a = lam * information[r, k, 0, 0]
-            b = lam * information[r, k, 0, 1]
-            b2 = lam * information[r, k, 1, 0]
-            d = lam * information[r, k, 1, 1]
-            g0 = 0.0
-            g1 = 0.0
-            cnt = 0
-            for i in range(K):
-                for j in range(i + 1, K):
-                    if not (valid[r, k, i] and valid[r, k, j]):
-                        continue
-                    ax = ref[j, 0] - ref[i, 0]
-                    ay = ref[j, 1] - ref[i, 1]
-                    z = 0.5 * (rho[r, k, i] ** 2 - rho[r, k, j] ** 2) - 0.5 * (sq[i] - sq[j])
-                    a += ax * ax
-                    b += ax * ay
-                    b2 += ay * ax
-                    d += ay * ay
-                    nu = z - (ax * x0 + ay * x1)
-                    g0 += ax * nu
-                    g1 += ay * nu
-                    cnt += 1
-            det = a * d - b * b
-            half_tr = 0.5 * (a + d)
-            disc = math.sqrt(max(half_tr * half_tr - det, 0.0))
-            if not ((half_tr - disc) * cond_limit > half_tr + disc):
-                err[r] = k
-                break
-            position[r, k, 0] = x0 + (d * g0 - b * g1) / det
-            position[r, k, 1] = x1 + (a * g1 - b * g0) / det
-            information[r, k, 0, 0] = a
-            information[r, k, 0, 1] = b
-            information[r, k, 1, 0] = b2
-            information[r, k, 1, 1] = d
-            used[r, k] = cnt
-
-
 class NetworkRLS(RecursiveEstimator):
     """Distributed RLS network positioning (Brown & Iltis, eq. (1)-eq. (12)).
 
@@ -202,6 +148,10 @@ class NetworkRLS(RecursiveEstimator):
     range_var_m2 : float, optional
         Range noise variance ``sigma_v^2`` (m^2), used only by
         ``prior_scale="transformed-noise"``.
+    backend : {"numba", "numpy"}
+        :meth:`iterate` by the compiled kernel
+        (:func:`~radioloc.estimators.kalman_compiled.network_rls_iteration`) or as ``K``
+        calls of :meth:`step` (the NumPy definition); equal to rounding.
 
     Raises
     ------
@@ -217,7 +167,7 @@ class NetworkRLS(RecursiveEstimator):
     name = "rls"
 
     def __init__(self, forgetting: float = 1.0, prior_scale: float | str = 1.0,
-                 range_var_m2: float | None = None) -> None:
+                 range_var_m2: float | None = None, backend: str = DEFAULT_BACKEND) -> None:
         if not (0 < check_positive(forgetting, "forgetting") <= 1):
             raise ConfigError(f"forgetting: must lie in (0, 1], got {forgetting!r}")
         if isinstance(prior_scale, str):
@@ -233,6 +183,7 @@ class NetworkRLS(RecursiveEstimator):
         self.forgetting = float(forgetting)
         self.prior_scale = prior_scale
         self.range_var_m2 = None if range_var_m2 is None else float(range_var_m2)
+        self.backend = check_backend(backend)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> RLSState:
         """Initial state from the priors (eq. (12)).
@@ -350,12 +301,17 @@ class NetworkRLS(RecursiveEstimator):
         if np.any(bad):
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"ranges: infinite value at (run, master, node) {idx}")
+        if self.backend == "numpy":
+            start = state.position
+            for k in range(K):
+                state = self.step(state, k, rho[:, k], valid[:, k], reference=start)
+            return state
         position = np.array(state.position, dtype=float, order="C")
         information = np.array(state.information, dtype=float, order="C")
         used = np.array(state.used, dtype=np.int64, order="C")
         err = np.full(R, -1, dtype=np.int64)
-        _iterate_kernel(position, information, used, np.where(valid, rho, 0.0), valid,
-                        float(self.forgetting), _COND_LIMIT, err)
+        network_rls_iteration(position, information, used, np.where(valid, rho, 0.0), valid,
+                              float(self.forgetting), _COND_LIMIT, err)
         if np.any(err >= 0):
             hit = np.flatnonzero(err >= 0)
             r = int(hit[np.argmin(err[hit])])                    # the first master, lowest run

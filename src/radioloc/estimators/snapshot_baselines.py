@@ -9,11 +9,9 @@ the number of links heard, not with the number of candidate nodes.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit, prange
 
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import distances
 from radioloc.core.links import gather_packed, pack_mask
@@ -21,109 +19,31 @@ from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
                                       check_positive)
 from radioloc.estimators.base import SnapshotEstimator
+from radioloc.estimators.kalman_compiled import snapshot_scores
 from radioloc.estimators.local_search import search
 from radioloc.estimators.nlls import solve_nlls
-from radioloc.models.los_nlos import LosNlosRange, mixture_logpdf_scalar
+from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.ranging import range_geometry
 
 __all__ = ["LocalML", "Ransac"]
-
-#: Candidates per parallel task of the compiled objectives.
-_CHUNK = 64
-
 
 def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """``theta - ||x_c - centre||`` for candidates ``x (..., C, 2)``: ``(..., C, L)``."""
     return ranges[..., None, :] - distances(x[..., :, None, :], centres[..., None, :, :])
 
 
-@njit(cache=True, inline="always")
-def _numpy_sum(buf, n):
-    """``np.sum`` of ``buf[:n]`` with NumPy's own order (pairwise: eight running sums from
-    eight elements on, combined as a tree), so the compiled objectives equal the array
-    expressions bit for bit."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += buf[i]
-        return res
-    r0, r1, r2, r3 = buf[0], buf[1], buf[2], buf[3]
-    r4, r5, r6, r7 = buf[4], buf[5], buf[6], buf[7]
-    i = 8
-    lim = n - n % 8
-    while i < lim:
-        r0 += buf[i]
-        r1 += buf[i + 1]
-        r2 += buf[i + 2]
-        r3 += buf[i + 3]
-        r4 += buf[i + 4]
-        r5 += buf[i + 5]
-        r6 += buf[i + 6]
-        r7 += buf[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += buf[i]
-        i += 1
-    return res
-
-
-@njit(cache=True, parallel=True)
-def _objective_kernel(kind, cand, cen, th, valid, c0, c1, c2, c3, c4, c5, out):
-    """Scores of candidates ``cand (B, C, 2)`` against the links ``cen (B, L, 2)``, ``th
-    (B, L)``, ``valid (B, L)`` into ``out (B, C)``: residuals ``e = th - ||x - cen||``,
-    then ``kind`` 0: ``sum_m log p(e_m)`` of the LOS/NLOS mixture (constants ``c0..c5`` of
-    :meth:`LosNlosRange.mixture_constants`); 1: RANSAC consensus ``n_in - sum_in e^2 /
-    (n_in c0 + 1)`` with inliers ``|e| < c1`` (``c0 = c1^2``). One pass per candidate,
-    no temporaries; padding links contribute 0 as in the array form."""
-    nb, nc = cand.shape[0], cand.shape[1]
-    nl = th.shape[1]
-    nch = (nc + _CHUNK - 1) // _CHUNK
-    for task in prange(nb * nch):
-        b = task // nch
-        k0 = (task - b * nch) * _CHUNK
-        k1 = min(nc, k0 + _CHUNK)
-        buf = np.empty(nl)
-        for k in range(k0, k1):
-            x = cand[b, k, 0]
-            y = cand[b, k, 1]
-            n_in = 0
-            for j in range(nl):
-                dx = x - cen[b, j, 0]
-                dy = y - cen[b, j, 1]
-                e = th[b, j] - math.sqrt(dx * dx + dy * dy)
-                if not valid[b, j]:
-                    buf[j] = 0.0
-                elif kind == 0:
-                    buf[j] = mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
-                elif abs(e) < c1:
-                    buf[j] = e * e
-                    n_in += 1
-                else:
-                    buf[j] = 0.0
-            if kind == 0:
-                out[b, k] = _numpy_sum(buf, nl)
-            else:
-                out[b, k] = n_in - _numpy_sum(buf, nl) / (n_in * c0 + 1.0)
-
-
 def _scores(kind: int, consts: tuple, x: np.ndarray, cen: np.ndarray, th: np.ndarray,
             valid: np.ndarray) -> np.ndarray:
-    """:func:`_objective_kernel` on candidates ``x (..., C, 2)`` of the batch of ``th``."""
+    """:func:`~radioloc.estimators.kalman_compiled.snapshot_scores` on candidates
+    ``x (..., C, 2)`` of the batch of ``th``."""
     batch, nl = th.shape[:-1], th.shape[-1]
     b = int(np.prod(batch, dtype=int))
     c = x.shape[-2]
     out = np.empty((b, c))
-    _objective_kernel(kind, np.ascontiguousarray(np.broadcast_to(x, batch + (c, 2)).reshape(b, c, 2)),
+    snapshot_scores(kind, np.ascontiguousarray(np.broadcast_to(x, batch + (c, 2)).reshape(b, c, 2)),
                       np.ascontiguousarray(cen.reshape(b, nl, 2)), np.ascontiguousarray(th.reshape(b, nl)),
                       np.ascontiguousarray(valid.reshape(b, nl)), *(float(v) for v in consts), out)
     return out.reshape(batch + (c,))
-
-
-def _check_kernel(value: str) -> str:
-    if value not in ("numba", "numpy"):
-        raise ConfigError(f"kernel: must be 'numba' or 'numpy', got {value!r}")
-    return value
 
 
 def _check_on_degenerate(value: str) -> str:
@@ -192,19 +112,20 @@ class LocalML(SnapshotEstimator):
         within ``3 los_std_m``), is ``"flag"``-ged in ``diagnostics["degenerate"]``
         (default: the highway geometry of paper 001 is nearly collinear by nature) or
         ``"raise"``-s a :class:`GeometryError` naming the first such problem.
-    kernel : {"numba", "numpy"}
-        The objective as one compiled pass per candidate (residuals, mixture log-density
-        and sum fused, in parallel over candidates), or the same maths as array
-        expressions (the reference the kernel is tested against; equal bit for bit).
+    backend : {"numba", "numpy"}
+        The objective (the sum over the links of the model's log-density of the residuals)
+        as array expressions (``"numpy"``, the definition) or one compiled pass per
+        candidate (:func:`~radioloc.estimators.kalman_compiled.snapshot_scores`); equal to
+        rounding.
     """
 
     name = "local-ml"
 
     def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21,
                  search_radius_m: float | None = None, on_degenerate: str = "flag",
-                 kernel: str = "numba") -> None:
+                 backend: str = DEFAULT_BACKEND) -> None:
         self.on_degenerate = _check_on_degenerate(on_degenerate)
-        self.kernel = _check_kernel(kernel)
+        self.backend = check_backend(backend)
         if not isinstance(measurement, LosNlosRange):
             raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
         self.measurement = measurement
@@ -251,7 +172,7 @@ class LocalML(SnapshotEstimator):
         consts = model.mixture_constants()
 
         def objective(x):
-            if self.kernel == "numpy":
+            if self.backend == "numpy":
                 e = _residuals(x, cen, th)
                 lp = model.logpdf(e, 0.0)
                 return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
@@ -286,17 +207,18 @@ class Ransac(SnapshotEstimator):
     on_degenerate : {"flag", "raise"}
         As for :class:`LocalML` (tolerance ``threshold_m``; the refit's inliers are the
         ranges checked).
-    kernel : {"numba", "numpy"}
-        The consensus as one compiled pass per hypothesis, or the same maths as array
-        expressions (equal bit for bit).
+    backend : {"numba", "numpy"}
+        The consensus as array expressions (``"numpy"``, the definition) or one compiled
+        pass per hypothesis (:func:`~radioloc.estimators.kalman_compiled.snapshot_scores`);
+        equal to rounding.
     """
 
     name = "ransac"
 
     def __init__(self, threshold_m: float, radius_m: float, max_iter: int = 50,
-                 on_degenerate: str = "flag", kernel: str = "numba") -> None:
+                 on_degenerate: str = "flag", backend: str = DEFAULT_BACKEND) -> None:
         self.on_degenerate = _check_on_degenerate(on_degenerate)
-        self.kernel = _check_kernel(kernel)
+        self.backend = check_backend(backend)
         self.threshold_m = check_positive(threshold_m, "threshold_m")
         self.radius_m = check_positive(radius_m, "radius_m")
         self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
@@ -322,7 +244,7 @@ class Ransac(SnapshotEstimator):
         thr = self.threshold_m
 
         def consensus(x):
-            if self.kernel == "numpy":
+            if self.backend == "numpy":
                 e = _residuals(x, cen, th)
                 inl = valid[..., None, :] & (np.abs(e) < thr)
                 sq = np.sum(np.where(inl, e * e, 0.0), axis=-1)
