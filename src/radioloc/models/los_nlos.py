@@ -293,6 +293,26 @@ class LosNlosRange:
         return d + np.where(los, 0.0, excess) + self.los_std_m * rng.standard_normal(d.shape)
 
 
+def sticky_transition(alpha) -> np.ndarray:
+    """Transition matrices of the sticky link chain, ``P[..., z_prev, z]``.
+
+    ``p(z_t = 1 | z_{t-1} = 0) = alpha / 2`` and, from stationarity ``alpha p(0|1) = (1 -
+    alpha) p(1|0)``, ``p(z_t = 0 | z_{t-1} = 1) = (1 - alpha) / 2`` (0 = NLOS, 1 = LOS).
+
+    Parameters
+    ----------
+    alpha : float or array_like
+        LOS fractions in [0, 1].
+
+    Returns
+    -------
+    ndarray, shape (..., 2, 2)
+    """
+    a = np.asarray(alpha, dtype=float)
+    return np.stack([np.stack([1.0 - a / 2.0, a / 2.0], axis=-1),
+                     np.stack([(1.0 - a) / 2.0, (1.0 + a) / 2.0], axis=-1)], axis=-2)
+
+
 @dataclass(frozen=True)
 class StickyLinkChain:
     """Two-state Markov chain over ``z`` (0 = NLOS, 1 = LOS) with ``p(1|0) = alpha/2``.
@@ -320,9 +340,7 @@ class StickyLinkChain:
         ndarray, shape (2, 2)
             ``P[z_prev, z]`` (0 = NLOS, 1 = LOS).
         """
-        a = self.alpha
-        return np.array([[1.0 - a / 2.0, a / 2.0],
-                         [(1.0 - a) / 2.0, (1.0 + a) / 2.0]])
+        return sticky_transition(self.alpha)
 
     @property
     def stationary(self) -> np.ndarray:
