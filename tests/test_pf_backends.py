@@ -79,6 +79,7 @@ def both(**kw):
 @pytest.mark.parametrize("case", [
     dict(particles=300),
     dict(particles=5000, reset_fraction=0.3),                     # several chunks, resets
+    dict(particles=25000, model=LosNlosRange(0.2, 1.0, 1.0)),     # parallel normal draws
     dict(particles=200, model=LosNlosRange(0.2, 1.0, 1.0)),       # alpha = 1: Gaussian ranges
     dict(particles=200, model=LosNlosRange(0.05, 1.0, 0.0)),      # alpha = 0: NLOS only
     dict(particles=200, online_em=OnlineEM(burn_in=2)),

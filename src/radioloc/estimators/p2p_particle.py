@@ -176,6 +176,9 @@ class ParticleState:
         Online EM's running statistics ``(S_1, S_q, S_qe2, S_e)`` (None without online EM).
     em_steps : ndarray of int64, shape (..., N), optional
         Online EM's count of steps with links.
+    los_certain : ndarray of bool, shape (..., N, L), optional
+        Stored links on which every particle's LOS posterior is exactly 1 (None before the
+        first step).
     """
 
     particles: np.ndarray
@@ -192,6 +195,7 @@ class ParticleState:
     params: np.ndarray | None = None
     em_stats: np.ndarray | None = None
     em_steps: np.ndarray | None = None
+    los_certain: np.ndarray | None = None
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -250,7 +254,8 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     log pi(z)``, ``pi`` the sticky chain's prediction of the carried posterior (line 6) or
     its stationary law (line 8), returns ``log w = sum_l log sum_z phi(z)`` (..., K), the new
     posteriors ``phi(1) / sum_z phi(z)`` (..., K, L) (0 on padding), ``log sum_i phi^i(z)``
-    normalised over ``z`` (..., L, 2) and the online-EM sums (..., K, 3).
+    normalised over ``z`` (..., L, 2), the online-EM sums (..., K, 3) and the links whose new
+    posterior is exactly 1 for every particle (..., L).
     """
     s, mu, a = (params[..., i][..., None, None] for i in range(3))       # (..., 1, 1)
     if prev_q.shape[-1]:
@@ -275,20 +280,30 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     ez = np.where(ok, e, 0.0)
     em_pp = np.stack([q_new.sum(-1), (q_new * ez * ez).sum(-1), ((1 - q_new) * ez).sum(-1)],
                      axis=-1)
-    return log_w, q_new, _normalise_post(post), em_pp
+    return log_w, q_new, _normalise_post(post), em_pp, np.all(q_new == 1.0, axis=-2) & valid
 
 
-def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, backend, em):
-    """:func:`_link_update_numpy` by ``backend`` (the online-EM sums None unless ``em``)."""
+def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, certain, backend,
+                 em):
+    """:func:`_link_update_numpy` by ``backend`` (the online-EM sums None unless ``em``).
+    ``certain`` (..., L'): the previous step's links whose posterior was 1 for every
+    particle (the last output; None before the first step). Where such a link is carried
+    and alpha is 1, or a new link has alpha 1, the LOS prior of every particle is 1 and the
+    pooled posterior is LOS, which the kernel then does not sum."""
     if backend == "numpy":
         out = _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
-        return out if em else out[:3] + (None,)
+        return out if em else out[:3] + (None, out[4])
     batch, (k, n), width = particles.shape[:-2], particles.shape[-2:], node_xy.shape[-2]
     b = int(np.prod(batch, dtype=int))
     nch = -(-k // CHUNK)
     log_w, q_new = np.empty((b, k)), np.empty((b, k, width))
     pmax, psum = np.empty((b, nch, width)), np.empty((b, nch, width, 2))
     em_pp = np.empty((b, k, 3) if em else (1, 1, 3))
+    uncertain = np.empty((b, nch, width), dtype=bool)
+    los_prior_one = (params[..., 2] == 1.0)[..., None] & (where_prev < 0)
+    if certain is not None and certain.shape[-1]:
+        los_prior_one |= (params[..., 2] == 1.0)[..., None] & (where_prev >= 0) & \
+            np.take_along_axis(certain, np.maximum(where_prev, 0), axis=-1)
     if prev_q.shape[-1] == 0:
         prev_q = np.zeros(batch + (k, 1))
     _c.link_update(kernel_array(particles.reshape(b, k, n)),
@@ -296,12 +311,14 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, back
                    kernel_array(valid.reshape(b, width), np.bool_),
                    kernel_array(where_prev.reshape(b, width), np.int64),
                    kernel_array(prev_q.reshape((b, k, -1))), kernel_array(params.reshape(b, 3)),
-                   CHUNK, em, log_w, q_new, pmax, psum, em_pp)
+                   kernel_array((valid & ~los_prior_one).reshape(b, width), np.bool_),
+                   CHUNK, em, log_w, q_new, pmax, psum, em_pp, uncertain)
     with np.errstate(divide="ignore"):
-        post = np.logaddexp.reduce(pmax[..., None] + np.log(psum), axis=1)
+        post = _normalise_post(np.logaddexp.reduce(pmax[..., None] + np.log(psum), axis=1))
+    post[los_prior_one.reshape(b, width)] = [-np.inf, 0.0]
     return (log_w.reshape(batch + (k,)), q_new.reshape(batch + (k, width)),
-            _normalise_post(post).reshape(batch + (width, 2)),
-            em_pp.reshape(batch + (k, 3)) if em else None)
+            post.reshape(batch + (width, 2)), em_pp.reshape(batch + (k, 3)) if em else None,
+            (valid.reshape(b, width) & ~uncertain.any(axis=1)).reshape(batch + (width,)))
 
 
 def _weighted_moments_numpy(log_w, particles):
@@ -324,9 +341,10 @@ def _weighted_moments(log_w, particles, backend):
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
     x = kernel_array(particles.reshape(b, k, n))
-    lw = kernel_array(log_w.reshape(b, k))
-    w, sums = np.empty((b, k)), np.empty((b, -(-k // CHUNK), 2 + n + n * n))
-    _c.moment_sums(lw, lw.max(axis=-1), x, CHUNK, w, sums)
+    lw = log_w.reshape(b, k)
+    w = np.exp(lw - lw.max(axis=-1, keepdims=True))
+    sums = np.empty((b, -(-k // CHUNK), 2 + n + n * n))
+    _c.moment_sums(w, x, CHUNK, sums)
     s = sums.sum(axis=1)
     total = s[:, 0]
     w /= total[:, None]
@@ -344,23 +362,47 @@ def _resample(w, particles, q, scheme, backend, rng):
     if backend == "numba" and scheme == "systematic":
         b = int(np.prod(batch, dtype=int))
         u = rng.random(batch + (1,))                    # the draw of resampling.systematic
-        idx, distinct = np.empty((b, k), dtype=np.int64), np.empty(b, dtype=np.int64)
+        idx, distinct = np.empty((b, k), dtype=np.int64), np.empty((b, -(-k // CHUNK)), np.int64)
         out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
         _c.systematic_gather(kernel_array(w.reshape(b, k)), u.reshape(b),
                              kernel_array(particles.reshape(b, k, n)),
-                             kernel_array(q.reshape(b, k, width)), idx, out_p, out_q, distinct)
+                             kernel_array(q.reshape(b, k, width)), CHUNK, np.empty((b, k)), idx,
+                             out_p, out_q, distinct)
         return (idx.reshape(batch + (k,)), out_p.reshape(particles.shape),
-                out_q.reshape(q.shape), distinct.reshape(batch))
+                out_q.reshape(q.shape), distinct.sum(axis=1).reshape(batch))
     idx = get_scheme(scheme)(w, rng)
     distinct = 1 + np.count_nonzero(np.diff(np.sort(idx, axis=-1), axis=-1), axis=-1)
     return (idx, np.take_along_axis(particles, idx[..., None], axis=-2),
             np.take_along_axis(q, idx[..., None], axis=-2), distinct)
 
 
-def _sample_motion(motion, particles, dt, rng, control):
+#: Normal draws of at least this many numbers are made in ``STREAMS`` contiguous parts, each
+#: from its own child generator of ``rng`` (``rng.spawn``), in parallel by the compiled
+#: backend; the parts depend on the size only.
+DRAW_PARALLEL = 1 << 17
+STREAMS = 16
+
+
+def _standard_normal(rng, shape, backend):
+    """``shape`` standard normal draws from ``rng`` (large draws: see ``DRAW_PARALLEL``)."""
+    size = int(np.prod(shape, dtype=np.int64))
+    if size < DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+        return rng.standard_normal(shape)
+    children, out = rng.spawn(STREAMS), np.empty(size)
+    if backend == "numba":
+        _c.standard_normal(tuple(children), out)
+    else:
+        per = -(-size // STREAMS)
+        for s, child in enumerate(children):
+            child.standard_normal(out=out[s * per:(s + 1) * per])
+    return out.reshape(shape)
+
+
+def _sample_motion(motion, particles, dt, rng, control, backend):
     """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
     models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
-    is drawn here with ``Q(dt)`` factored once per step instead of once per particle."""
+    is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
+    draws by :func:`_standard_normal`)."""
     if type(motion).sample is not MotionModel.sample:
         return motion.sample(particles, dt, rng, control=control)
     n = particles.shape[-1]
@@ -373,9 +415,11 @@ def _sample_motion(motion, particles, dt, rng, control):
         mean = motion.predict(particles, dt, control=control)
     vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = rng.standard_normal(mean.shape)
+    z = _standard_normal(rng, mean.shape, backend)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        return mean + z * np.diagonal(factor)
+        z *= np.diagonal(factor)
+        z += mean
+        return z
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
     return mean + np.einsum("...ij,...kj->...ki", factor, z)
@@ -620,10 +664,11 @@ class P2PParticleFilter(RecursiveEstimator):
         params = self._params(state)
         em = self.online_em is not None
         # line 3: propagate every particle through the motion model
-        particles = _sample_motion(self.motion, state.particles, dt, rng, u)
+        particles = _sample_motion(self.motion, state.particles, dt, rng, u, self.backend)
         # lines 6, 8, 11: link posteriors and weights
-        log_w, q, post, em_pp = _link_update(particles, node_xy, th, valid, where_prev,
-                                             state.link_los, params, self.backend, em)
+        log_w, q, post, em_pp, certain = _link_update(
+            particles, node_xy, th, valid, where_prev, state.link_los, params, state.los_certain,
+            self.backend, em)
         # line 14: weighted mean; weighted covariance and effective sample size
         w, mean, cov, ess = _weighted_moments(log_w, particles, self.backend)
         # line 12: resample; carry the normalised link posterior of each surviving particle
@@ -648,7 +693,7 @@ class P2PParticleFilter(RecursiveEstimator):
                              ess=ess, los_detected=los_detected, reset=reset,
                              resets=state.resets + reset, time=state.time + dt,
                              ancestors=idx, params=params, em_stats=em_stats,
-                             em_steps=em_steps)
+                             em_steps=em_steps, los_certain=certain)
 
     def _params(self, state: ParticleState) -> np.ndarray:
         """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
