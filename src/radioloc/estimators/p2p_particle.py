@@ -59,7 +59,7 @@ from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import (LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf,
                                       sticky_transition)
-from radioloc.models.motion import MotionModel
+from radioloc.models.motion import InputDriven, MotionModel
 
 __all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_log_phi"]
 
@@ -399,10 +399,16 @@ def _standard_normal(rng, shape, backend):
 
 
 def _sample_motion(motion, particles, dt, rng, control, backend):
-    """Line 3 through the motion model: its own ``sample``, except for the linear-Gaussian
-    models of :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))``
-    is drawn here with ``Q(dt)`` factored once per step instead of once per particle (the
-    draws by :func:`_standard_normal`)."""
+    """Line 3 through the motion model: its own ``sample``, except for the input-driven
+    model's ``x + u + std_m z`` and the linear-Gaussian models of
+    :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))`` is drawn
+    here with ``Q(dt)`` factored once per step instead of once per particle (the draws by
+    :func:`_standard_normal`)."""
+    if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
+        z = _standard_normal(rng, particles.shape, backend)
+        z *= motion.std_m
+        z += particles if control is None else particles + control
+        return z
     if type(motion).sample is not MotionModel.sample:
         return motion.sample(particles, dt, rng, control=control)
     n = particles.shape[-1]

@@ -45,6 +45,13 @@ def _log_ndtr(u):
     return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
 
 
+@njit(cache=True)
+def _exp(x):
+    """``exp(x)``; 0 at or below -745.2, where ``exp`` rounds to 0, without the C library's
+    slow underflow path."""
+    return math.exp(x) if x > -745.2 else 0.0
+
+
 @njit(cache=True, parallel=True)
 def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chunk, em,
                 log_w, q_new, pmax, psum, em_pp, uncertain):
@@ -100,10 +107,10 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
                     l0 = c0 - lam * e + _log_ndtr(z - lam * s)
                 # phi_z / exp(m) with m the larger of the two state terms
                 if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
-                    m, f0, f1 = l0, p0, p1 * math.exp(l1 - l0)
+                    m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
                 else:
                     m, f1 = l1, p1
-                    f0 = p0 * math.exp(l0 - l1) if p0 > 0.0 else 0.0
+                    f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
                 tot = f0 + f1
                 lw += m
                 prod *= tot
@@ -122,12 +129,12 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
                 # the pooled sums of the chunk, relative to their running maximum
                 if pool[b, l]:
                     if m > m_run[l]:
-                        r = math.exp(m_run[l] - m)
+                        r = _exp(m_run[l] - m)
                         s0[l] = s0[l] * r + f0
                         s1[l] = s1[l] * r + f1
                         m_run[l] = m
                     else:
-                        r = math.exp(m - m_run[l])
+                        r = _exp(m - m_run[l])
                         s0[l] += f0 * r
                         s1[l] += f1 * r
                 if em:
