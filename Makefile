@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 STAMP_DEV := $(VENV)/.installed-dev
 STAMP_DOCS := $(VENV)/.installed-docs
 
-.PHONY: demo test full bench docs system browser rt clean fresh-cache
+.PHONY: demo test test-fast full bench docs system browser rt clean
 
 # Packages install with uv (PyPI's `uv`, put into the venv first: on a fresh machine it
 # installs the dev set in under a minute where pip took several); pip is the fallback.
@@ -54,18 +54,13 @@ browser: system
 rt: $(STAMP_DEV)
 	@$(PIP) -e ".[rt]" || $(BIN)/python -m pip install -q -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
 
-# numba checks a cached kernel only against its own source file, so a kernel that inlines a
-# function of another module (pf_bootstrap <- pf_random, models.mixture <- core.fdlibm) would
-# keep stale machine code after only that module changed. The targets that run the kernels
-# drop the package's numba cache when the sources differ from those it was last dropped for.
-NUMBA_SRC := $(VENV)/.numba-src
-fresh-cache:
-	@h=$$(find src -name '*.py' | LC_ALL=C sort | xargs cat | sha1sum | cut -d' ' -f1); \
-	if [ "$$(cat $(NUMBA_SRC) 2>/dev/null)" != "$$h" ]; then \
-	  find src -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete; \
-	  mkdir -p $(VENV) && echo $$h > $(NUMBA_SRC); fi
+# numba's parallel kernels run on OpenMP threads, which spin while they wait for each other;
+# where more threads than cores are busy (two test workers, a benchmark beside its peer) the
+# spinning takes the CPU the working threads need. The targets that run kernels ask OpenMP
+# to wait passively (the library itself changes no environment).
+export OMP_WAIT_POLICY ?= passive
 
-demo: $(STAMP) fresh-cache
+demo: $(STAMP)
 	$(BIN)/radioloc reproduce all --out out
 
 # The Debian packages and the Python ones install side by side (two jobs); the estimators'
@@ -76,19 +71,18 @@ demo: $(STAMP) fresh-cache
 # sent again to the next worker, as `loadfile` does).
 test:
 	@$(MAKE) --no-print-directory -j2 system rt
-	@$(MAKE) --no-print-directory fresh-cache
 	$(BIN)/python tests/precompile.py
 	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=20
 
 docs: $(STAMP_DOCS)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
 
-full: $(STAMP) fresh-cache
+full: $(STAMP)
 	$(BIN)/radioloc reproduce all --full --workers 2 --out out-full
 
 # `particles` (a benchmark peer) pins numpy<2 in its metadata although it runs on numpy 2;
 # it is installed without its dependencies so that pip keeps the project's numpy.
-bench: $(STAMP_DEV) fresh-cache
+bench: $(STAMP_DEV)
 	$(BIN)/python -c "import particles" 2>/dev/null || $(PIP) --no-deps particles || $(BIN)/python -m pip install -q --no-deps particles
 	$(BIN)/python benchmarks/collect.py
 

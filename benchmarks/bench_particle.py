@@ -3,23 +3,17 @@ bootstrap filter, each against a peer measured in the same process.
 
 Rows (returned by :func:`main`):
 
-* highway P2P filter, the steps of ``P2PParticleFilter.run`` batched over runs, vehicles,
-  particles and links (particle-link updates/s; ``run`` carries each step's link posteriors
-  unresampled with the ancestors into the next step's kernel, the same numbers as ``step``
-  step by step), against a per-vehicle, per-link NumPy loop of the same maths;
-* the particle-link update kernel alone (``pf_kernels.link_weights``, particle-link
-  updates per CPU second; no peer);
+* highway P2P filter, the steps of ``P2PParticleFilter.run`` (a loop over ``step``) batched
+  over runs, vehicles, particles and links (particle-link updates/s), against a
+  per-vehicle, per-link NumPy loop of the same maths;
 * range-only bootstrap PF, 4 anchors, 2-D random walk, N = 10^5 particles, systematic
   resampling at every step (particle-steps/s): ``P2PParticleFilter(RandomWalk(q),
   LosNlosRange(s, 1, alpha=1))`` with anchors only (alpha = 1: every link LOS, so the
-  likelihood is the Gaussian range likelihood; the filter takes its fused bootstrap step,
-  ``pf_bootstrap.bootstrap_step``) against Stone Soup's ``ParticlePredictor`` /
-  ``ParticleUpdater`` + ``SystematicResampler`` and against ``particles`` (Chopin)
-  ``SMC(Bootstrap)`` with ``ESSrmin=1`` (resampling at every step), same model and N.
-  Ours is timed through ``run`` (its bootstrap loop: inputs checked once, the kernel's work
-  arrays kept between steps and runs, the predicted particles and their ancestors carried
-  into the next step, whose first pass reads them through the ancestors: the gather of the
-  resampling), including the prior's draws.
+  likelihood is the Gaussian range likelihood), the general filter with its default
+  ``backend="numba"``, against Stone Soup's ``ParticlePredictor`` / ``ParticleUpdater`` +
+  ``SystematicResampler`` and against ``particles`` (Chopin) ``SMC(Bootstrap)`` with
+  ``ESSrmin=1`` (resampling at every step), same model and N. Ours is timed through
+  ``run``, including the prior's draws.
 
 Ours: best of 3 (wall clock; the CPU-second rate is printed too); peers: one run.
 
@@ -99,15 +93,14 @@ def _row(workload, rate, unit, peer=None, peer_rate=None):
             "ratio": None if peer_rate is None else float(rate / peer_rate)}
 
 
-# floating-point operations of one particle-link update as pf_kernels.link_weights
-# implements it (integer and bit operations, compares and loads not counted): the residual
-# pass (distance, e, z, u, the erfcx argument, -z^2 / 2: 12), the two sums of the link's
-# terms (2); erfcx where a particle of the link has u < 8.5 (Chebyshev series of 24 terms
-# by Clenshaw's recurrence plus the change of variable: 81); then either the full loop (two
-# exponentials of 42 each with their arguments, priors, terms, product and exponent,
-# posterior division: 107) or, where every particle has E_1 = 0, the NLOS-only loop (one
-# exponential, prior, product: 52)
-LINK_FLOPS = {"residual": 12, "sums": 2, "erfcx": 81, "full": 107, "nlos": 52}
+
+#: Floating-point operations of one particle-link update as ``pf_compiled.link_update`` does
+#: it (counting a square root, exponential, logarithm or erfc as 20): the residual (12), the
+#: link prior from the carried posterior (10), the two state log-densities without the
+#: NLOS term's ``log Phi`` (8), the other state's exponential (21), the posterior's division
+#: and the weight's product (3), the pooled sums (24); ``log Phi`` (erfc and log, 42) where
+#: ``u = z - lam s < 8.5``.
+LINK_FLOPS = {"base": 78, "log_phi": 42}
 
 
 def link_work(particles, node_xy, th, valid, los_std, nlos_mean):
@@ -124,22 +117,18 @@ def link_work(particles, node_xy, th, valid, los_std, nlos_mean):
     Returns
     -------
     flops : float
-        Mean over the particle-link updates, with each link's class (erfcx or not, full
-        or NLOS-only loop) decided by the kernel's rule (every chunk is one filter here).
+        Mean over the particle-link updates.
     bytes : float
         The carried and the new LOS posterior (16 bytes) plus the particle's position
         read and its log weight written once per step, shared by its links.
     """
     e = th[..., None, :] - np.linalg.norm(particles[..., :, None, :2] - node_xy[..., None, :, :],
                                           axis=-1)                        # (..., K, L)
-    z = e / los_std
-    need = np.any(z - los_std / nlos_mean < 8.5, axis=-2)[valid]            # per link
-    los = np.any(-0.5 * z * z >= -745.2, axis=-2)[valid]
-    f = LINK_FLOPS
-    per_link = (f["residual"] + f["sums"] + need * f["erfcx"]
-                + np.where(need | los, f["full"], f["nlos"]))
+    need = e / los_std - los_std / nlos_mean < 8.5
+    ok = np.broadcast_to(valid[..., None, :], e.shape)
+    per_update = LINK_FLOPS["base"] + LINK_FLOPS["log_phi"] * need[ok].mean()
     links_per_filter = valid.sum(-1).mean()
-    return float(per_link.mean()), 16.0 + 24.0 / float(links_per_filter)
+    return float(per_update), 16.0 + 24.0 / float(links_per_filter)
 
 
 def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[dict]:
@@ -153,11 +142,8 @@ def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[d
     Returns
     -------
     list of dict
-        Two rows.
+        One row.
     """
-    from radioloc.estimators import pf_kernels
-    from radioloc.estimators.p2p_particle import _link_update
-
     rng = np.random.default_rng(0)
     model = LosNlosRange(0.05, 5.0, 0.3)
     sc = HighwayScenario(steps=steps, start_width_m=20.0)
@@ -201,42 +187,23 @@ def highway_rows(runs: int = 4, steps: int = 20, particles: int = 900) -> list[d
                              data.in_range[0, :, t], nodes, model, sc.ins_std_m, rng)
     rate_slow = int(data.in_range[0, :, :loop_steps].sum()) * particles / (time.perf_counter() - t0)
 
-    # the link kernel alone, on the last step's links, per CPU second (steadier under load)
+    print(f"highway N={sc.vehicles}, M={sc.anchors}, K={particles}, mean links/vehicle "
+          f"{data.in_range.sum(-1).mean():.1f}, numba threads {_threads()}")
+    print(f"batched P2PParticleFilter.run ({runs} runs x {steps} steps): {rate_fast / 1e6:8.2f} M particle-link updates/s")
+    print(f"per-vehicle/per-link loop (1 run x {loop_steps} steps): {rate_slow / 1e6:8.2f} M particle-link updates/s")
     mask = np.isfinite(data.ranges[:, :, -1])
     from radioloc.core.links import gather_packed, pack_mask
     lk, valid = pack_mask(mask)
     nodes = np.concatenate([st.mean[..., :2], anchors], axis=1)
     node_xy = gather_packed(np.broadcast_to(nodes[:, None], mask.shape + (2,)), lk, axis=-2)
     th = gather_packed(np.where(mask, data.ranges[:, :, -1], 0.0), lk)
-    wp = np.where(valid, np.arange(lk.shape[-1]), -1)
-    prev = np.full(st.particles.shape[:-1] + (lk.shape[-1],), 0.3)
-    params = np.broadcast_to([0.05, 5.0, 0.3], st.mean.shape[:-1] + (3,))
-    args = (st.particles, node_xy, th, valid, wp, prev, params, "numba", False)
-    _link_update(*args)
-    reps = 20
-    c0 = time.process_time()
-    for _ in range(reps):
-        _link_update(*args)
-    kernel_rate = reps * int(valid.sum()) * particles / (time.process_time() - c0)
-    for _ in range(2):                                                   # best of 3
-        c0 = time.process_time()
-        for _ in range(reps):
-            _link_update(*args)
-        kernel_rate = max(kernel_rate, reps * int(valid.sum()) * particles / (time.process_time() - c0))
-    print(f"highway N={sc.vehicles}, M={sc.anchors}, K={particles}, mean links/vehicle "
-          f"{data.in_range.sum(-1).mean():.1f}, numba threads {pf_kernels.__name__ and _threads()}")
-    print(f"batched P2PParticleFilter.run ({runs} runs x {steps} steps): {rate_fast / 1e6:8.2f} M particle-link updates/s")
-    print(f"per-vehicle/per-link loop (1 run x {loop_steps} steps): {rate_slow / 1e6:8.2f} M particle-link updates/s")
-    print(f"link kernel alone: {kernel_rate / 1e6:8.2f} M particle-link updates per CPU second")
     flops, nbytes = link_work(st.particles, node_xy, th, valid, 0.05, 5.0)
     print(f"link update work on these inputs: {flops:.0f} flops, {nbytes:.1f} bytes per update")
     work = {"flops_per_unit": flops, "bytes_per_unit": nbytes}
     # the step row counts the link update's work only (a lower bound of the step's)
     return [dict(_row("P2P particle filter step, highway N=20 M=26 K=900", rate_fast,
                       "particle-link updates/s", "per-vehicle/per-link NumPy loop", rate_slow),
-                 **work),
-            dict(_row("P2P particle-link update kernel (link_weights)", kernel_rate,
-                      "particle-link updates/CPU-s"), **work)]
+                 **work)]
 
 
 def _threads() -> int:
@@ -382,24 +349,19 @@ def particles_bootstrap(n, steps, q, sigma, x, y, repeat=3):
             n * steps / cpu)
 
 
-#: Least memory traffic of one bootstrap particle-step: read the particle (16 bytes), write the
-#: resampled particle (16) and its ancestor index (8). (``run``'s kernel reads the previous
-#: predicted particle through its ancestor, 24, and writes the predicted particle and the new
-#: ancestor, 24: 48; its weights and counts stay in the cache at N = 1e5.)
-BOOTSTRAP_BYTES = 40.0
+#: Least memory traffic of one bootstrap particle-step (4 links) through the filter's passes:
+#: the draws and the prediction (48 bytes), the link update (particle, carried and new link
+#: posteriors, log weight: 88), the weights and moments (40), the resampling (cumulative
+#: weight, the gathered particle, posteriors and ancestor: 136).
+BOOTSTRAP_BYTES = 312.0
 
 
 def bootstrap_flops(links: int = 4) -> float:
-    """Floating-point operations of one particle-step of the fused bootstrap kernel as
-    implemented (``pf_bootstrap.bootstrap_step``).
-
-    Box-Muller pair 81 (own logarithm 30, square root, the quarter-turn reduction, sine and
-    cosine polynomials of 8 terms each, signs, scaling), motion 6, 11 per link (difference,
-    squared distance, square root, scaled residual, square and sum), weight 40 (the chunk's
-    maximum, shift and ``vexp``), moment sums 18, resampling 17 (cumulative weight 2, its
-    quarter's sum 1, the count estimate 3, the two positions either side 4 with their two
-    divisions, two comparisons and their corrections 4, the clip to the chunk's slots 2,
-    the running maximum 1).
+    """Floating-point operations of one bootstrap particle-step (alpha = 1) as the filter
+    does it, counting a square root, exponential or logarithm as 20: two normal draws
+    (about 30 each), the prediction 4, per link the residual 12, prior 10, Gaussian term
+    4 and weight product 1 (no pooled sums: every link is certainly LOS), the weight's
+    exponential 21, the moment sums 12, the resampling count and copies 6.
 
     Parameters
     ----------
@@ -410,7 +372,7 @@ def bootstrap_flops(links: int = 4) -> float:
     -------
     float
     """
-    return 162.0 + 11.0 * links
+    return 103.0 + 27.0 * links
 
 
 def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int | None = None) -> list[dict]:

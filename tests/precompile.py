@@ -62,7 +62,7 @@ def _bootstrap_pf():
     x0 = np.array([10.0, 10.0])
     ranges = np.linalg.norm(x0 - anchors, axis=-1) + rng.normal(0, 0.3, (5, 4))
     ranges = np.concatenate([np.full((5, 1), np.nan), ranges], axis=-1)[None, None]
-    pf = P2PParticleFilter(RandomWalk(0.25), LosNlosRange(0.3, 1.0, 1.0), particles=2000,
+    pf = P2PParticleFilter(RandomWalk(0.25), LosNlosRange(0.3, 1.0, 1.0), particles=70_000,
                            init_std=1.0)
     pf.run(ranges, x0[None, None], rng, anchors=anchors)
 

@@ -70,19 +70,6 @@ def test_pf_types_shapes_and_xy_order():
     assert np.all(np.isfinite(track.covariance))
 
 
-def test_pf_numpy_kernel_equals_numba_kernel():
-    truth, ranges, ins = _one_vehicle(noise=0.05)
-    ranges[:, :, 3:9, 2] += 4.0                                         # an NLOS stretch
-    out = {}
-    for kernel in ("numba", "numpy"):
-        pf = _pf(kernel=kernel, particles=100)
-        out[kernel] = pf.run(ranges, truth[:, :, 0], np.random.default_rng(3), anchors=ANCHORS,
-                             controls=ins)
-    np.testing.assert_allclose(out["numpy"].position, out["numba"].position, atol=1e-9)
-    np.testing.assert_array_equal(out["numpy"].diagnostics["los_detected"],
-                                  out["numba"].diagnostics["los_detected"])
-
-
 def test_pf_nan_range_equals_masked_link():
     truth, ranges, ins = _one_vehicle()
     gone = ranges.copy()

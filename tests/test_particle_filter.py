@@ -118,8 +118,8 @@ def test_filter_bad_input():
         pf.step(state, np.ones((3, 2, 2)), np.zeros((3, 2, 2)), rng, control=np.zeros((1, 2, 2)))
     with pytest.raises(InputError, match="control"):
         pf.step(state, np.full((1, 2, 2), np.nan), np.zeros((1, 2, 2)), rng)
-    with pytest.raises(ConfigError, match="kernel"):
-        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), kernel="gpu")
+    with pytest.raises(ConfigError, match="backend"):
+        P2PParticleFilter(InputDriven(0.1), LosNlosRange(), backend="gpu")
     with pytest.raises(ConfigError, match="messages"):
         P2PParticleFilter(InputDriven(0.1), LosNlosRange(), messages="x")
     with pytest.raises(ConfigError, match="particles"):

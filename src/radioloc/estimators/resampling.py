@@ -42,6 +42,10 @@ def _inverse_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
 def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """One uniform offset per batch entry, ``u_j = (U + j) / K``.
 
+    Particle ``i`` gets the positions below its cumulative weight ``C_i`` and not below
+    ``C_{i-1}``: ``N_i - N_{i-1}`` copies with ``N_i = ceil(K C_i - U)`` (clipped to
+    ``[0, K]``, ``N_{K-1} = K``), the number of positions ``u_j < C_i``.
+
     Parameters
     ----------
     weights : array_like, shape (..., K)
@@ -56,8 +60,11 @@ def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """
     w = _check(weights)
     k = w.shape[-1]
-    u = (rng.random(w.shape[:-1] + (1,)) + np.arange(k)) / k
-    return _inverse_cdf(w, u)
+    below = np.clip(np.ceil(k * np.cumsum(w, axis=-1) - rng.random(w.shape[:-1] + (1,))), 0, k)
+    below[..., -1] = k
+    copies = np.diff(below, prepend=0.0, axis=-1).astype(np.int64)
+    return np.repeat(np.broadcast_to(np.arange(k), w.shape).ravel(),
+                     copies.ravel()).reshape(w.shape)
 
 
 def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:

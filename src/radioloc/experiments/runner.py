@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -54,6 +55,19 @@ def block_ranges(n_runs: int, block_size: int) -> list[np.ndarray]:
     return [np.arange(b * block_size, min((b + 1) * block_size, n_runs)) for b in range(n_blocks)]
 
 
+def share_cores(workers: int) -> None:
+    """In a worker process: give numba's parallel kernels this process's share of the cores.
+
+    ``workers`` processes each running numba's default of one thread per core would put
+    ``workers`` threads on every core, where OpenMP threads spin while they wait for each
+    other; each worker gets ``max(1, cores // workers)`` threads instead.
+    """
+    import numba
+
+    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS,
+                                     (os.cpu_count() or 1) // workers)))
+
+
 def run_block(exp_id: str, config: Any, seed: int, block: int, runs: np.ndarray) -> pd.DataFrame:
     """Run one block of one experiment (a top-level function so that it pickles)."""
     exp = get_experiment(exp_id)
@@ -82,7 +96,8 @@ def _iter_blocks(exp: Experiment, config: Any, seed: int, blocks: list[np.ndarra
             for fut in dask_as_completed(futures):
                 yield futures[fut], fut.result()
     elif workers > 1 and len(blocks) > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                                 initializer=share_cores, initargs=(workers,)) as pool:
             futures = {pool.submit(run_block, exp.id, config, seed, b, r): b
                        for b, r in enumerate(blocks)}
             for fut in as_completed(futures):

@@ -15,102 +15,15 @@ first two moments (:meth:`LosNlosRange.moments`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, vectorize
 from scipy.special import log_ndtr
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import check_positive, check_probability
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
-_HALF_LOG_2PI = 0.5 * _LOG_2PI
-_SQRT1_2 = math.sqrt(0.5)
-
-
-@njit(cache=True, inline="always")
-def log_ndtr_fast(u: float) -> float:
-    """``log Phi(u)`` for compiled code: erfc down to u = -20, the asymptotic series below.
-
-    Parameters
-    ----------
-    u : float
-
-    Returns
-    -------
-    float
-        ``log Phi(u)`` (relative error below 1e-10 against ``scipy.special.log_ndtr``).
-    """
-    if u > -20.0:
-        return math.log(0.5 * math.erfc(-u * _SQRT1_2))
-    r = 1.0 / (u * u)
-    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
-    return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
-
-
-@njit(cache=True, inline="always")
-def mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
-    """``log(alpha N(e; s) + (1 - alpha) EMG(e; s, mu))`` of one range error, for compiled
-    code (the constants from :meth:`LosNlosRange.mixture_constants`).
-
-    With ``l_1 = c_los - z^2 / 2`` (``z = e / s``, ``c_los = log alpha - log s - log(2 pi)/2``)
-    and ``l_0 = c_nlos - lam e + log Phi(u)`` (``u = z - lam s``, ``c_nlos = log(1 - alpha)
-    + log lam + (lam s)^2 / 2``) the result is ``l_1 + log1p(exp(l_0 - l_1))`` where
-
-    * ``u >= 8.5``: ``log Phi(u) = 0`` to 1e-17 (no ``erfc``; no ``exp`` once
-      ``l_1 - l_0 < -746``);
-    * ``-20 < u < 8.5``: ``exp(l_0 - l_1) = exp(c_nlos - c_los - lam e + z^2 / 2) Phi(u)``;
-    * ``u <= -20``: the asymptotic series of ``Phi`` makes the Gaussian tails cancel:
-      ``exp(l_0 - l_1) = k_tail series(u) / (-u)``, ``k_tail = exp(c_nlos - c_los -
-      (lam s)^2 / 2 - log(2 pi) / 2)``.
-
-    Parameters
-    ----------
-    e : float
-        Range error ``theta - d``, metres.
-    inv_std, lam, lam_std, c_los, c_nlos, k_tail : float
-        ``1 / s``, ``lam``, ``lam s`` and the three constants above.
-
-    Returns
-    -------
-    float
-        The mixture log-density.
-    """
-    z = e * inv_std
-    l1 = c_los - 0.5 * z * z
-    if c_nlos == -np.inf:
-        return l1
-    u = z - lam_std
-    if c_los == -np.inf or k_tail <= 0.0 or (u < 8.5 and u > -20.0 and (c_nlos - c_los) - lam * e + 0.5 * z * z > 700.0):
-        # alpha = 0, or so small that exp(l_0 - l_1) would overflow: plain log-sum
-        l0 = c_nlos - lam * e
-        if u < 8.5:
-            l0 += log_ndtr_fast(u)
-        if c_los == -np.inf:
-            return l0
-        if l0 > l1:
-            return l0 + math.log1p(math.exp(l1 - l0))
-        return l1 + math.log1p(math.exp(l0 - l1))
-    if u >= 8.5:
-        l0 = c_nlos - lam * e
-        if l1 > l0:
-            return l1 + math.log1p(math.exp(l0 - l1))
-        d = l1 - l0
-        return l0 + math.log1p(math.exp(d)) if d > -746.0 else l0
-    if u > -20.0:
-        x = (c_nlos - c_los) - lam * e + 0.5 * z * z
-        return l1 + math.log1p(math.exp(x) * 0.5 * math.erfc(-u * _SQRT1_2))
-    r = 1.0 / (u * u)
-    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
-    return l1 + math.log1p(k_tail * series / (-u))
-
-
-@vectorize(["float64(float64, float64, float64, float64, float64, float64, float64)"], cache=True)
-def _mixture_logpdf(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
-    """:func:`mixture_logpdf_scalar` element by element (one pass)."""
-    return mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail)
 
 
 def gaussian_logpdf(x: np.ndarray, std: float) -> np.ndarray:
@@ -227,8 +140,7 @@ class LosNlosRange:
     def logpdf(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
         """Mixture log-density ``log(alpha p_LOS + (1 - alpha) p_NLOS)``.
 
-        One compiled pass over the elements (the genie ML's objective); equal to the
-        log-sum of :meth:`logpdf_by_state` to about 1e-10.
+        The log-sum of :meth:`logpdf_by_state` weighted by ``(1 - alpha, alpha)``.
 
         Parameters
         ----------
@@ -242,11 +154,14 @@ class LosNlosRange:
         ndarray
             The log-density, broadcast shape.
         """
-        e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
-        return _mixture_logpdf(e, *self.mixture_constants())
+        with np.errstate(divide="ignore"):
+            logw = np.log([1.0 - self.alpha, self.alpha])
+        lp = self.logpdf_by_state(measured, true_ranges) + logw
+        return np.logaddexp(lp[..., 0], lp[..., 1])
 
     def mixture_constants(self) -> tuple[float, float, float, float, float, float]:
-        """Constants of the compiled mixture log-density :func:`mixture_logpdf_scalar`.
+        """Constants of the compiled mixture log-density of
+        :mod:`radioloc.estimators.snapshot_baselines` (``mixture_logpdf_scalar``).
 
         Returns
         -------
@@ -293,6 +208,26 @@ class LosNlosRange:
         return d + np.where(los, 0.0, excess) + self.los_std_m * rng.standard_normal(d.shape)
 
 
+def sticky_transition(alpha) -> np.ndarray:
+    """Transition matrices of the sticky link chain, ``P[..., z_prev, z]``.
+
+    ``p(z_t = 1 | z_{t-1} = 0) = alpha / 2`` and, from stationarity ``alpha p(0|1) = (1 -
+    alpha) p(1|0)``, ``p(z_t = 0 | z_{t-1} = 1) = (1 - alpha) / 2`` (0 = NLOS, 1 = LOS).
+
+    Parameters
+    ----------
+    alpha : float or array_like
+        LOS fractions in [0, 1].
+
+    Returns
+    -------
+    ndarray, shape (..., 2, 2)
+    """
+    a = np.asarray(alpha, dtype=float)
+    return np.stack([np.stack([1.0 - a / 2.0, a / 2.0], axis=-1),
+                     np.stack([(1.0 - a) / 2.0, (1.0 + a) / 2.0], axis=-1)], axis=-2)
+
+
 @dataclass(frozen=True)
 class StickyLinkChain:
     """Two-state Markov chain over ``z`` (0 = NLOS, 1 = LOS) with ``p(1|0) = alpha/2``.
@@ -320,9 +255,7 @@ class StickyLinkChain:
         ndarray, shape (2, 2)
             ``P[z_prev, z]`` (0 = NLOS, 1 = LOS).
         """
-        a = self.alpha
-        return np.array([[1.0 - a / 2.0, a / 2.0],
-                         [(1.0 - a) / 2.0, (1.0 + a) / 2.0]])
+        return sticky_transition(self.alpha)
 
     @property
     def stationary(self) -> np.ndarray:

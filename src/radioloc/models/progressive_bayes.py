@@ -120,7 +120,6 @@ def _orders(dim: int) -> np.ndarray:
 def _coef(w, v, sign_mean: float):
     """Factors ``A[..., i, a]`` that turn overlap derivatives into parameter derivatives:
     1 for the weight, ``sign w_i`` for a mean, ``w_i v_ip / 2`` for a log-variance."""
-    k, d = v.shape[-2], v.shape[-1]
     wb = np.broadcast_to(w[..., None], v.shape)
     return np.concatenate([np.ones(w.shape + (1,)), sign_mean * wb, 0.5 * wb * v], axis=-1)
 

@@ -1,0 +1,225 @@
+"""Compiled kernels of the peer-to-peer particle filter (``P2PParticleFilter(backend="numba")``).
+
+Each kernel computes what a NumPy function of :mod:`radioloc.estimators.p2p_particle` or
+:mod:`radioloc.estimators.resampling` defines; the backend-equivalence tests hold the two
+together (about 1e-10 relative on the same particles and draws). The draws are NumPy's
+numbers: made by NumPy before the kernels run, or, for large normal draws, by numba's
+``Generator`` from child generators that the NumPy definition draws from in the same way.
+
+* :func:`link_update`: the particle-link update of Algorithm 2, lines 6, 8 and 11
+  (``p2p_particle._link_update_numpy``), in the linear domain relative to
+  the larger of the two state terms, with the particle-pooled link posterior accumulated per
+  chunk of particles;
+* :func:`moment_sums`: the weighted sums of the particles around one of them
+  (``p2p_particle._weighted_moments_numpy``);
+* :func:`systematic_gather`: systematic resampling (``resampling.systematic``) and the
+  gather of the particles and link posteriors;
+* :func:`standard_normal`: large normal draws in parallel, each part from its own child
+  generator (``p2p_particle._standard_normal``).
+
+``prange`` runs over (filter, chunk of particles) tasks, so one filter of 10^5 particles
+uses every core as well as twenty filters of 900.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+_SQRT1_2 = math.sqrt(0.5)
+
+
+@njit(cache=True)
+def _log_ndtr(u):
+    """``log Phi(u)``: 0 at or above 8.5 (``Phi(-8.5) < 1e-17``), ``erfc`` down to -20, the
+    asymptotic series below (as ``scipy.special.log_ndtr``)."""
+    if u >= 8.5:
+        return 0.0
+    if u > -20.0:
+        return math.log(0.5 * math.erfc(-u * _SQRT1_2))
+    r = 1.0 / (u * u)
+    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
+    return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
+
+
+@njit(cache=True)
+def _exp(x):
+    """``exp(x)``; 0 at or below -745.2, where ``exp`` rounds to 0, without the C library's
+    slow underflow path."""
+    return math.exp(x) if x > -745.2 else 0.0
+
+
+@njit(cache=True, parallel=True)
+def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chunk, em,
+                log_w, q_new, pmax, psum, em_pp, uncertain):
+    """Algorithm 2, lines 6, 8 and 11, for filters ``b`` of particles ``parts (B, K, n)``.
+
+    Link ``l`` of filter ``b`` (``valid[b, l]``) is node ``node_xy[b, l]`` at measured range
+    ``th[b, l]``; its LOS prior is the sticky chain's step from the carried posterior
+    ``prev_q[b, i, where_prev[b, l]]`` (``where_prev < 0``: a new link, the stationary
+    ``alpha``). With ``phi_z = pi_z exp(l_z)`` (``l_1`` Gaussian, ``l_0`` the EMG of
+    ``params[b] = (s_LOS, s_NLOS, alpha)``) it writes ``log_w[b, i] = sum_l log(phi_0 +
+    phi_1)``, ``q_new[b, i, l] = phi_1 / (phi_0 + phi_1)`` (0 on padding), the pooled
+    ``sum_i phi_z`` of chunk ``c`` as ``exp(pmax[b, c, l]) psum[b, c, l, z]`` and, when
+    ``em``, ``em_pp[b, i] = sum_l (q', q' e^2, (1 - q') e)``. The pooled sums are left
+    alone where ``pool[b, l]`` is False (a link whose LOS prior is 1 for every particle);
+    ``uncertain[b, c, l]``: some new posterior of the chunk is not exactly 1.
+    """
+    nb, k = parts.shape[0], parts.shape[1]
+    width = th.shape[1]
+    nch = pmax.shape[1]
+    for task in prange(nb * nch):
+        b = task // nch
+        c = task - b * nch
+        s, a = params[b, 0], params[b, 2]
+        inv_s, lam = 1.0 / s, 1.0 / params[b, 1]
+        c1 = -math.log(s) - _HALF_LOG_2PI
+        c0 = math.log(lam) + 0.5 * (lam * s) ** 2
+        m_run = np.full(width, -np.inf)
+        s0 = np.zeros(width)
+        s1 = np.zeros(width)
+        unsure = np.zeros(width, dtype=np.bool_)
+        for i in range(c * chunk, min(k, (c + 1) * chunk)):
+            # log w = sum_l (m + log tot): the m summed, the tot multiplied (the product
+            # moved into the sum before it can underflow)
+            lw, prod, e0, e1, e2 = 0.0, 1.0, 0.0, 0.0, 0.0
+            for l in range(width):
+                if not valid[b, l]:
+                    q_new[b, i, l] = 0.0
+                    continue
+                j = where_prev[b, l]
+                if j >= 0:
+                    q = prev_q[b, i, j]
+                    p1 = q * (1.0 + a) * 0.5 + (1.0 - q) * a * 0.5
+                    p0 = q * (1.0 - a) * 0.5 + (1.0 - q) * (1.0 - a * 0.5)
+                else:
+                    p1, p0 = a, 1.0 - a
+                dx = parts[b, i, 0] - node_xy[b, l, 0]
+                dy = parts[b, i, 1] - node_xy[b, l, 1]
+                e = th[b, l] - math.sqrt(dx * dx + dy * dy)
+                z = e * inv_s
+                l1 = c1 - 0.5 * z * z
+                l0 = -np.inf
+                if p0 > 0.0:
+                    l0 = c0 - lam * e + _log_ndtr(z - lam * s)
+                # phi_z / exp(m) with m the larger of the two state terms
+                if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
+                    m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
+                else:
+                    m, f1 = l1, p1
+                    f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
+                tot = f0 + f1
+                lw += m
+                prod *= tot
+                if prod < 1e-200:
+                    lw += math.log(prod)
+                    prod = 1.0
+                if f0 == 0.0:
+                    qn = 1.0
+                elif f1 == 0.0:
+                    qn = 0.0
+                else:
+                    qn = f1 / tot
+                q_new[b, i, l] = qn
+                if qn != 1.0:
+                    unsure[l] = True
+                # the pooled sums of the chunk, relative to their running maximum
+                if pool[b, l]:
+                    if m > m_run[l]:
+                        r = _exp(m_run[l] - m)
+                        s0[l] = s0[l] * r + f0
+                        s1[l] = s1[l] * r + f1
+                        m_run[l] = m
+                    else:
+                        r = _exp(m - m_run[l])
+                        s0[l] += f0 * r
+                        s1[l] += f1 * r
+                if em:
+                    e0 += qn
+                    e1 += qn * e * e
+                    e2 += (1.0 - qn) * e
+            log_w[b, i] = lw + math.log(prod)
+            if em:
+                em_pp[b, i, 0] = e0
+                em_pp[b, i, 1] = e1
+                em_pp[b, i, 2] = e2
+        for l in range(width):
+            pmax[b, c, l] = m_run[l]
+            psum[b, c, l, 0] = s0[l]
+            psum[b, c, l, 1] = s1[l]
+            uncertain[b, c, l] = unsure[l]
+
+
+@njit(cache=True, parallel=True)
+def moment_sums(w, parts, chunk, sums):
+    """Per chunk ``c`` of the particles ``parts (B, K, n)`` with weights ``w (B, K)``, the sums
+    ``sums[b, c] = (sum w, sum w^2, sum w d, sum w d d^T)`` with ``d = x_i - x_0`` (the
+    deviation from the filter's first particle, which keeps the second moments free of
+    cancellation), ``n`` and ``n * n`` numbers for the last two."""
+    nb, k, n = parts.shape
+    nch = sums.shape[1]
+    for task in prange(nb * nch):
+        b = task // nch
+        c = task - b * nch
+        acc = np.zeros(sums.shape[2])
+        for i in range(c * chunk, min(k, (c + 1) * chunk)):
+            wi = w[b, i]
+            acc[0] += wi
+            acc[1] += wi * wi
+            for p in range(n):
+                dp = parts[b, i, p] - parts[b, 0, p]
+                acc[2 + p] += wi * dp
+                for r in range(n):
+                    acc[2 + n + p * n + r] += wi * dp * (parts[b, i, r] - parts[b, 0, r])
+        sums[b, c] = acc
+
+
+@njit(cache=True, parallel=True)
+def systematic_gather(w, u, parts, q, chunk, cdf, idx, out_p, out_q, distinct):
+    """Systematic resampling (``resampling.systematic``) of the normalised weights ``w (B, K)``
+    with offsets ``u (B,)`` and the gather of the particles ``parts`` and link posteriors
+    ``q``: particle ``i`` fills the new slots ``[N_{i-1}, N_i)``, ``N_i = ceil(K C_i - u)``
+    (clipped to ``[0, K]``; ``N_{K-1} = K``) the number of positions ``(u + j) / K`` below its
+    cumulative weight ``C_i`` (``cdf``, the sequential sum). ``distinct[b, c]``: the
+    particles of chunk ``c`` with at least one copy."""
+    nb, k = w.shape
+    nch = distinct.shape[1]
+    for b in prange(nb):
+        t = 0.0
+        for i in range(k):
+            t += w[b, i]
+            cdf[b, i] = t
+    for task in prange(nb * nch):
+        b = task // nch
+        c = task - b * nch
+        count = 0
+        start = 0
+        if c > 0:
+            start = min(k, max(0, math.ceil(k * cdf[b, c * chunk - 1] - u[b])))
+        for i in range(c * chunk, min(k, (c + 1) * chunk)):
+            stop = k if i == k - 1 else min(k, max(0, math.ceil(k * cdf[b, i] - u[b])))
+            if stop > start:
+                count += 1
+            for j in range(start, stop):
+                idx[b, j] = i
+                for p in range(parts.shape[2]):
+                    out_p[b, j, p] = parts[b, i, p]
+                for p in range(q.shape[2]):
+                    out_q[b, j, p] = q[b, i, p]
+            start = max(start, stop)
+        distinct[b, c] = count
+
+
+@njit(cache=True, parallel=True)
+def standard_normal(gens, out):
+    """``out`` filled with standard normal draws: part ``s`` (``ceil(size / len(gens))``
+    numbers, contiguous) by generator ``gens[s]`` (numba's ``Generator``: NumPy's numbers)."""
+    size = out.shape[0]
+    per = (size + len(gens) - 1) // len(gens)
+    for s in prange(len(gens)):
+        g = gens[s]
+        for i in range(s * per, min(size, (s + 1) * per)):
+            out[i] = g.standard_normal()
