@@ -7,7 +7,8 @@ kernel a worker has not yet found in the cache is compiled again by the other), 
 of CPU spent twice on a cold machine. Each process solves the valid problem of a share of
 the estimators (the library fuzz's cases, the public API with the tests' array types) plus a
 few paths those problems do not take (the recursive grid blur, the bootstrap particle
-filter, the 2-D mixture reduction, the network EKF with a master per run). A failure here is reported and skipped: the tests then
+filter with parallel draws, the 2-D mixture reduction, the network EKF with a master per
+run, the channel's ray tracer and GSIC ranging). A failure here is reported and skipped: the tests then
 compile what they need themselves.
 
     python tests/precompile.py            # both shares in parallel
@@ -25,10 +26,10 @@ HERE = Path(__file__).resolve().parent
 
 #: The two shares, about equal in compile time on a cold cache (largest first).
 SHARES = (
-    ("ClosedFormTracker", "+grid-recursive", "NetworkEKF", "+bootstrap-pf", "LocalML",
-     "NetworkRLS", "Multilateration", "Ransac", "RangeEKF", "NewtonTracker"),
-    ("P2PParticleFilter", "MixtureTracker", "MixtureLocalizer", "GridFilter", "+mixture-reduce",
-     "+ekf-step"),
+    ("+channel", "ClosedFormTracker", "LocalML", "NetworkRLS", "Multilateration", "Ransac",
+     "RangeEKF", "NewtonTracker"),
+    ("MixtureTracker", "P2PParticleFilter", "NetworkEKF", "+grid-recursive", "+bootstrap-pf",
+     "MixtureLocalizer", "GridFilter", "+mixture-reduce", "+ekf-step"),
 )
 
 
@@ -93,8 +94,31 @@ def _mixture_reduce():
     reduce(mix, 8)
 
 
+def _channel():
+    import numpy as np
+
+    from radioloc.channel.cdma import CDMAConfig, gold_codes, received_acks
+    from radioloc.channel.gsic import matched_filter_toa, omp_sic_toa
+    from radioloc.channel.raytrace import TraceConfig, trace_links
+    from radioloc.channel.scene import city_grid, street_positions
+
+    rng = np.random.default_rng(0)
+    scene = city_grid(rng, size_m=300.0)
+    nodes = street_positions(scene, 4, rng, half_width_m=120.0)
+    i, j = np.nonzero(~np.eye(4, dtype=bool))
+    trace_links(scene, nodes[i], nodes[j], TraceConfig(max_order=2, max_excess_m=200.0))
+    cdma = CDMAConfig()
+    codes = gold_codes(cdma.code_degree)
+    delays = rng.uniform(0, 0.5 * cdma.window_s, (2, 3, 2))
+    y = received_acks(delays, np.ones(delays.shape, complex), rng.integers(0, 5, (2, 3)), cdma,
+                      rng, codes)
+    ci = np.tile(np.arange(3), (2, 1))
+    omp_sic_toa(y, ci, codes, cdma)
+    matched_filter_toa(y, ci, codes, cdma)
+
+
 EXTRA = {"+grid-recursive": _grid_recursive, "+bootstrap-pf": _bootstrap_pf,
-         "+mixture-reduce": _mixture_reduce, "+ekf-step": _ekf_step}
+         "+mixture-reduce": _mixture_reduce, "+ekf-step": _ekf_step, "+channel": _channel}
 
 
 def warm(names: tuple[str, ...]) -> list[str]:
