@@ -74,6 +74,10 @@ test:
 	$(BIN)/python tests/precompile.py
 	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=20
 
+# The fast tier for the development loop: everything but the `slow` modules (tests/conftest.py).
+test-fast: $(STAMP_DEV)
+	$(BIN)/python -m pytest -n 2 --dist worksteal -m "not slow"
+
 docs: $(STAMP_DOCS)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
 

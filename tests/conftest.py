@@ -24,3 +24,23 @@ def _radioloc_cache_in_tmp(tmp_path_factory):
         os.environ.pop("RADIOLOC_CACHE", None)
     else:
         os.environ["RADIOLOC_CACHE"] = old
+
+
+#: Modules of the slow tier: reproductions, whole experiments, real data sets, subprocess
+#: and signal tests, the fuzz suites. `make test-fast` deselects them (marker ``slow``);
+#: `make test` runs everything.
+SLOW_MODULES = {
+    "test_experiment_contract", "test_repro_p000", "test_repro_p001", "test_repro_p002",
+    "test_repro_p003", "test_repro_p004", "test_real_uwb", "test_runner",
+    "test_reliability_interrupt", "test_datasets_tutorials", "test_particle_experiment",
+    "test_locate_trackers", "test_mixture_locate", "test_sionna_rt", "test_report_browser",
+    "test_rssi_tether", "test_channel_urban", "test_mixture_corridor_repro",
+    "test_fingerprint_wifi", "test_p000_network", "test_closed_form_bounds",
+}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        path = item.path
+        if path.stem in SLOW_MODULES or path.parent.name == "fuzz":
+            item.add_marker(pytest.mark.slow)

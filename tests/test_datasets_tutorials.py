@@ -68,5 +68,5 @@ def test_docs_site_builds_strict(tmp_path):
                          env={"PATH": "/usr/bin:/bin", "NO_MKDOCS_2_WARNING": "1",
                               "HOME": str(tmp_path)})
     assert res.returncode == 0, res.stderr[-3000:]
-    for page in ("index.html", "api/estimators/index.html", "your-own-log/hanyang/index.html"):
+    for page in ("index.html", "api/estimators.html", "your-own-log/hanyang.html"):
         assert (tmp_path / "site" / page).is_file()

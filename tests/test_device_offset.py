@@ -112,9 +112,9 @@ def test_locate_grid_rssi_device_offset(tmp_path):
 
 def test_locate_gmm_device_offset_fixed_equals_shifted_log(tmp_path):
     from radioloc.io.logs import read_measurements
-    from test_mixture_locate import _files
+    from test_mixture_locate import write_locate_files
 
-    _files(tmp_path)
+    write_locate_files(tmp_path)
     meas = read_measurements(tmp_path / "meas.csv")
     ref = run_method("gmm", LocateRequest(meas, calibration=tmp_path / "cal.csv"))
     loud = meas.assign(value=meas["value"] + 6.0)

@@ -251,15 +251,15 @@ def scene_grid():
 STATIONS = np.array([[0.0, 0.0], [12.0, 0.0], [0.0, 6.0], [12.0, 6.0]])
 
 
-def _mean_rss(p):
+def mean_rss(p):
     d = np.linalg.norm(np.asarray(p, float)[..., None, :] - STATIONS, axis=-1)
     return -40.0 - 20.0 * np.log10(np.maximum(d, 0.5))
 
 
-def _mixture_models(R, t, perm):
+def mixture_models(R, t, perm):
     gx, gy = np.meshgrid(np.arange(0.0, 12.1, 1.5), np.arange(0.0, 6.1, 1.5))
     grid = np.c_[gx.ravel(), gy.ravel()]
-    m = _mean_rss(grid)
+    m = mean_rss(grid)
     k, s = m.shape
     var = np.array([0.4, 0.3])
     quarter = abs(R[0, 1]) > 0.5
@@ -272,11 +272,11 @@ def _mixture_models(R, t, perm):
 
 def scene_mixture_localizer():
     truth = np.array([[8.0, 2.0], [3.0, 5.0]])
-    rss = _mean_rss(truth) + np.array([[0.3, -0.2, 0.1, 0.4], [-0.1, 0.2, -0.3, 0.0]])
+    rss = mean_rss(truth) + np.array([[0.3, -0.2, 0.1, 0.4], [-0.1, 0.2, -0.3, 0.0]])
 
     def solve(R, t, perm, ts):
         p = np.arange(4) if perm is None else perm
-        return _final(MixtureLocalizer(_mixture_models(R, t, perm), 200).locate(rss[:, p]))
+        return _final(MixtureLocalizer(mixture_models(R, t, perm), 200).locate(rss[:, p]))
     # the product of the stations is reduced after each factor (greedy West reduction); the
     # stations enter it by decreasing reading, so their column order changes nothing
     return Scene(solve, angle=np.pi / 2, tol_m=1e-6, permutation_tol_m=1e-9)
@@ -286,11 +286,11 @@ def scene_mixture_tracker():
     time = 0.5 * np.arange(8)
     starts = np.array([[2.0, 1.0], [3.0, 4.5]])
     truth = starts[:, None] + np.c_[1.0 * time, 0.3 * time]
-    rss = _mean_rss(truth) + 0.3 * np.sin(np.arange(truth[..., 0].size * 4)).reshape(B, 8, 4)
+    rss = mean_rss(truth) + 0.3 * np.sin(np.arange(truth[..., 0].size * 4)).reshape(B, 8, 4)
 
     def solve(R, t, perm, ts):
         p = np.arange(4) if perm is None else perm
-        trk = MixtureTracker(_mixture_models(R, t, perm), UniformDisk(1.5), max_components=8)
+        trk = MixtureTracker(mixture_models(R, t, perm), UniformDisk(1.5), max_components=8)
         return _final(trk.run(rss[..., p], time * ts))
     # default reduction "continuous" (fixed-structure merges, no cost compared): a station
     # permutation changes nothing and a half turn (a symmetry of the disk mixture's cells)
@@ -373,8 +373,8 @@ def test_mixture_tracker_is_continuous_on_a_long_uneven_walk():
     heading = np.cumsum(0.2 * rng.standard_normal(T))
     path = np.c_[6 + 4 * np.sin(0.01 * np.arange(T)), 3 + 2 * np.sin(0.013 * np.arange(T))]
     path = path + 0.1 * np.c_[np.cos(heading), np.sin(heading)]
-    rss = _mean_rss(path) + rng.normal(0, 1.0, (T, 4))
-    trk = MixtureTracker(_mixture_models(I2, ZERO, None), UniformDisk(1.5), max_components=8)
+    rss = mean_rss(path) + rng.normal(0, 1.0, (T, 4))
+    trk = MixtureTracker(mixture_models(I2, ZERO, None), UniformDisk(1.5), max_components=8)
     base = trk.run(rss, time).position
     nudged = trk.run(rss, time[0] + np.cumsum(np.diff(time, prepend=time[0]) * (1 + 1e-12))).position
     assert np.max(np.linalg.norm(nudged - base, axis=-1)) < 1e-6

@@ -31,7 +31,7 @@ from radioloc.estimators import MixtureTracker
 from radioloc.models import DiagMixture, UniformDisk
 from radioloc.models.mixture import merge_groups, product
 
-from test_metamorphic import I2, SHIFT, ZERO, _mean_rss, _mixture_models, rot
+from test_metamorphic import I2, SHIFT, ZERO, mean_rss, mixture_models, rot
 
 T = 900
 
@@ -44,14 +44,14 @@ def walk():
     heading = np.cumsum(0.2 * rng.standard_normal(T))
     path = np.c_[6 + 4 * np.sin(0.01 * np.arange(T)), 3 + 2 * np.sin(0.013 * np.arange(T))]
     path = path + 0.1 * np.c_[np.cos(heading), np.sin(heading)]
-    rss = _mean_rss(path) + rng.normal(0, 1.0, (T, 4))
+    rss = mean_rss(path) + rng.normal(0, 1.0, (T, 4))
     return time, path, rss
 
 
 def _random_models(seed=4):
     """Station models on a jittered grid with distinct weights (no exact ties)."""
     rng = np.random.default_rng(seed)
-    base = _mixture_models(I2, ZERO, None)
+    base = mixture_models(I2, ZERO, None)
     s, k = base.batch_shape[-1], base.n_components
     means = base.means.copy()
     means[..., :2] += rng.normal(0, 0.2, (k, 2))
@@ -70,12 +70,12 @@ def _moved(a, b):
 @pytest.fixture(scope="module")
 def base(walk):
     time, _, rss = walk
-    return _track(_mixture_models(I2, ZERO, None), rss, time).position
+    return _track(mixture_models(I2, ZERO, None), rss, time).position
 
 
 def test_default_is_continuous_and_tracks(walk, base):
     time, path, rss = walk
-    assert MixtureTracker(_mixture_models(I2, ZERO, None), UniformDisk(1.5)).reduction \
+    assert MixtureTracker(mixture_models(I2, ZERO, None), UniformDisk(1.5)).reduction \
         == "continuous"
     # the greedy tracker's RMSE on this walk is 0.438 m, the continuous one 0.437 m
     rmse = float(np.sqrt(np.mean(np.sum((base - path) ** 2, -1))))
@@ -85,13 +85,13 @@ def test_default_is_continuous_and_tracks(walk, base):
 def test_infinitesimal_dt_change_is_infinitesimal(walk, base):
     time, _, rss = walk
     for eps in (1e-12, 1e-9):
-        nudged = _track(_mixture_models(I2, ZERO, None), rss, time * (1 + eps)).position
+        nudged = _track(mixture_models(I2, ZERO, None), rss, time * (1 + eps)).position
         assert _moved(nudged, base) < max(1e-6, 1e4 * eps), eps
 
 
 def test_time_stamps_rounded_to_1ms_move_by_less_than_2cm(walk, base):
     time, _, rss = walk
-    rounded = _track(_mixture_models(I2, ZERO, None), rss, np.round(time, 3)).position
+    rounded = _track(mixture_models(I2, ZERO, None), rss, np.round(time, 3)).position
     assert _moved(rounded, base) < 0.02
 
 
@@ -99,7 +99,7 @@ def test_station_permutation_is_exact(walk, base):
     time, _, rss = walk
     for perm in ([2, 0, 3, 1], [3, 2, 1, 0]):
         perm = np.array(perm)
-        other = _track(_mixture_models(I2, ZERO, perm), rss[:, perm], time).position
+        other = _track(mixture_models(I2, ZERO, perm), rss[:, perm], time).position
         assert _moved(other, base) < 1e-9
 
 
@@ -119,7 +119,7 @@ def test_prior_component_permutation_is_exact(walk):
                                rng.uniform(0.5, 2, (5, 2)))
     p = np.array([3, 0, 4, 2, 1])
     other = DiagMixture(prior.weights[p], prior.means[p], prior.variances[p])
-    mod = _mixture_models(I2, ZERO, None)
+    mod = mixture_models(I2, ZERO, None)
     a = MixtureTracker(mod, UniformDisk(1.5), 8).run(rss[:100], time[:100], prior=prior).position
     b = MixtureTracker(mod, UniformDisk(1.5), 8).run(rss[:100], time[:100], prior=other).position
     assert _moved(a, b) < 1e-9
@@ -128,13 +128,13 @@ def test_prior_component_permutation_is_exact(walk):
 def test_half_turn_and_translation_move_the_estimate_with_the_scene(walk, base):
     time, _, rss = walk
     R = rot(np.pi)
-    turned = _track(_mixture_models(R, SHIFT, None), rss, time).position
+    turned = _track(mixture_models(R, SHIFT, None), rss, time).position
     assert _moved((turned - SHIFT) @ R, base) < 1e-8
 
 
 def test_greedy_option_is_kept_and_validated(walk):
     time, _, rss = walk
-    mod = _mixture_models(I2, ZERO, None)
+    mod = mixture_models(I2, ZERO, None)
     greedy = _track(mod, rss[:40], time[:40], reduction="runnalls").position
     cont = _track(mod, rss[:40], time[:40]).position
     assert np.all(np.isfinite(greedy)) and _moved(greedy, cont) > 0   # another re-approximation

@@ -4,18 +4,18 @@ Carlo bands is tests/test_repro_p004.py)."""
 import numpy as np
 import pytest
 
-from radioloc.experiments.p004_corridor import CorridorExperiment, _calibration, _pause_walk
+from radioloc.experiments.p004_corridor import CorridorExperiment, error_calibration, pause_walk
 
 
 def test_calibration_statistics_known_answers():
-    rmse, nees, cov = _calibration([1.0, -1.0, 3.0, 0.0], [1.0, 1.0, 1.0, 1.0])
+    rmse, nees, cov = error_calibration([1.0, -1.0, 3.0, 0.0], [1.0, 1.0, 1.0, 1.0])
     assert rmse == pytest.approx(np.sqrt(11 / 4)) and nees == pytest.approx(11 / 4)
     assert cov == pytest.approx(0.75)
 
 
 def test_pausing_walker_stands_still_then_walks_on():
     cfg = CorridorExperiment().config(False)
-    w = _pause_walk(cfg)
+    w = pause_walk(cfg)
     steps = np.diff(w)
     assert np.sum(steps == 0) == int(cfg.pause_s / cfg.dt_s)
     assert np.all((steps == 0) | np.isclose(steps, cfg.walk_speed * cfg.dt_s))

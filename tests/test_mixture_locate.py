@@ -18,7 +18,7 @@ from radioloc.locate.gmm import locate_gmm
 DATA = Path(os.environ.get("RADIOLOC_DATA", "/work/shared/data")) / "kolakowski-ble-fingerprints-2021"
 
 
-def _files(tmp_path, peer="ap2"):
+def write_locate_files(tmp_path, peer="ap2"):
     rng = np.random.default_rng(0)
     pos = rng.uniform(0, 10, (800, 2))
     aps = {"ap1": (0.0, 0.0), "ap2": (10.0, 0.0), "ap3": (5.0, 10.0)}
@@ -41,7 +41,7 @@ def _files(tmp_path, peer="ap2"):
 
 
 def test_locate_gmm_finds_user_and_tracks(tmp_path):
-    truth = _files(tmp_path)
+    truth = write_locate_files(tmp_path)
     req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
     out = locate_gmm(req)
     assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "stations_ignored"]
@@ -54,7 +54,7 @@ def test_locate_gmm_finds_user_and_tracks(tmp_path):
 
 
 def test_locate_gmm_unknown_station_ignored_and_counted(tmp_path):
-    truth = _files(tmp_path, peer="ap9")
+    truth = write_locate_files(tmp_path, peer="ap9")
     req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
     with pytest.warns(UserWarning, match="ap9"):
         out = locate_gmm(req)

@@ -113,7 +113,7 @@ def _walk(config: CorridorConfig) -> np.ndarray:
     return walk_positions(config.walk_start_m, config.walk_end_m, config.walk_speed, config.dt_s)
 
 
-def _pause_walk(config: CorridorConfig) -> np.ndarray:
+def pause_walk(config: CorridorConfig) -> np.ndarray:
     """Walk to ``pause_at_m``, stand ``pause_s`` seconds, walk on to ``walk_end_m``."""
     first = walk_positions(config.walk_start_m, config.pause_at_m, config.walk_speed,
                            config.dt_s)
@@ -130,7 +130,7 @@ def _modes(density: np.ndarray) -> np.ndarray:
     return peak.sum(axis=-1)
 
 
-def _calibration(err: np.ndarray, std: np.ndarray) -> tuple[float, float, float]:
+def error_calibration(err: np.ndarray, std: np.ndarray) -> tuple[float, float, float]:
     """RMSE, NEES and 2-sigma coverage of errors ``err`` with posterior stds ``std``."""
     err, std = np.asarray(err, float), np.asarray(std, float)
     return (float(np.sqrt(np.mean(err**2))), float(np.mean((err / std) ** 2)),
@@ -187,7 +187,7 @@ class CorridorExperiment(Experiment):
         """
         corridor = Corridor()
         n = runs.size
-        walks = {"tracking": _walk(config), "pause": _pause_walk(config)}
+        walks = {"tracking": _walk(config), "pause": pause_walk(config)}
         frames, later = [], []
         red, alt = config.reduction, config.alt_reduction
         k = config.position_components
@@ -343,7 +343,7 @@ class CorridorExperiment(Experiment):
             per_run = {}
             for k in (1, config.updates):
                 last = static[(static["noise_db"] == noise) & (static["step"] == k)]
-                per_run[k] = _calibration(last["x_est"] - last["x_true"], last["std_m"])
+                per_run[k] = error_calibration(last["x_est"] - last["x_true"], last["std_m"])
                 rm, nees, cov2 = per_run[k]
                 metrics += [
                     Metric(f"rmse_m_after_{k}{tag}", rm, None, "m",
@@ -363,7 +363,7 @@ class CorridorExperiment(Experiment):
                                   "m", "mean posterior standard deviation"))
             t = trk[trk["noise_db"] == noise]
             rmse = float(np.sqrt(np.mean((t["x_est"] - t["x_true"]) ** 2)))
-            _, nees_t, cov_t = _calibration(t["x_est"] - t["x_true"], t["std_m"])
+            _, nees_t, cov_t = error_calibration(t["x_est"] - t["x_true"], t["std_m"])
             metrics += [Metric(f"tracking_nees{tag}", nees_t, 1.0, "",
                                "walk: mean over runs and steps of (error / std)^2"),
                         Metric(f"tracking_coverage_2sigma{tag}", cov_t, 0.95, "",
@@ -470,7 +470,7 @@ class CorridorExperiment(Experiment):
                 f"median ratio {float(np.median(ratio)):.3f})", bool(frac_le == 1.0)))
             last = {m: sc[name][sc[name]["step"] == config.updates]
                     for m, name in ((red, "static"), (alt, f"static_{alt}"))}
-            e_rm, e_nees, e_cov = _calibration(last[alt]["x_est"] - last[alt]["x_true"],
+            e_rm, e_nees, e_cov = error_calibration(last[alt]["x_est"] - last[alt]["x_true"],
                                                last[alt]["std_m"])
             out += [Metric(f"rmse_m_after_{config.updates}_{alt}{tag}", e_rm, None, "m",
                            f"static user, {alt} reduction (labelled alternative)"),
@@ -482,7 +482,7 @@ class CorridorExperiment(Experiment):
                 trk = "tracking" if not prefix else "pause_tracking"
                 one = sc["walk_oneshot" if not prefix else "pause_oneshot"]
                 cv = sc[f"{trk}_cv"]
-                _, nees_cv, cov_cv = _calibration(cv["x_est"] - cv["x_true"], cv["std_m"])
+                _, nees_cv, cov_cv = error_calibration(cv["x_est"] - cv["x_true"], cv["std_m"])
                 out += [Metric(f"{trk}_rmse_m_{alt}{tag}", rmse(sc[f"{trk}_{alt}"]), None, "m",
                                f"{walkname}, disk model, {alt} reduction"),
                         Metric(f"{trk}_cv_rmse_m{tag}", rmse(cv), None, "m",
