@@ -1,6 +1,6 @@
 """Compiled kernels of the Gaussian-mixture family (paper 004).
 
-Two kernels, each the compiled form of a NumPy definition (the reference, selected by
+Kernels, each the compiled form of a NumPy definition (the reference, selected by
 ``backend="numpy"``):
 
 - :func:`reduce_batch`: West's greedy reduction with Runnalls' cost of every mixture of a
@@ -8,7 +8,11 @@ Two kernels, each the compiled form of a NumPy definition (the reference, select
 - :func:`product_batch`: eq. (2) per measurement row, the station models conditioned on
   their readings, multiplied and reduced after each factor,
   :meth:`radioloc.estimators.mixture_localization.MixtureLocalizer.density_and_mask`
-  (NumPy: the composition of ``DiagMixture.condition``, ``product`` and ``reduce``).
+  (NumPy: the composition of ``DiagMixture.condition``, ``product`` and ``reduce``);
+- :func:`pb_inner`, :func:`pb_cross_gradient`, :func:`pb_gram`: the overlaps, gradients and
+  Gram matrix of each step of the Progressive Bayes homotopy,
+  :func:`radioloc.models.progressive_bayes.progressive_reduce` (NumPy: ``inner``,
+  ``cross_gradient``, ``gram`` of that module).
 
 The rules (lowest weight, Runnalls' cost without cancellation, the tie tolerance and the
 order-free tie rule) are documented with the NumPy definitions; the kernels follow them step
@@ -301,3 +305,91 @@ def product_batch(w, mu, var, rss, order, kmax):  # pragma: no cover - compiled
         if ok[b]:
             ow[b, :pn], om[b, :pn], ov[b, :pn] = pw[:pn], pm[:pn], pv[:pn]
     return ow, om, ov, ok
+
+
+# --- Progressive Bayes re-approximation (radioloc.models.progressive_bayes) --------------
+# The compiled forms of ``inner``, ``cross_gradient`` and ``gram`` on flat batches (leading
+# axis B, every mixture of the batch its own partners), the per-step system of the homotopy.
+
+
+@njit(cache=True)
+def _hermite(delta, s, order, h):  # pragma: no cover - compiled
+    """``h[n] = (d^n phi / d delta^n) / phi``, ``phi = N(delta; 0, s)``, ``n = 0..order``:
+    ``h_{n+1} = -(delta / s) h_n - (n / s) h_{n-1}`` (``progressive_bayes._pair``)."""
+    h[0] = 1.0
+    h[1] = -delta / s
+    for n in range(1, order):
+        h[n + 1] = h[1] * h[n] - n / s * h[n - 1]
+
+
+@njit(cache=True)
+def _log_overlap(m1, v1, m2, v2):  # pragma: no cover - compiled
+    """``log N(m1; m2, V1 + V2)`` of two axis-aligned components."""
+    lo = 0.0
+    for e in range(m1.size):
+        s = v1[e] + v2[e]
+        lo += (m1[e] - m2[e]) ** 2 / s + math.log(s) + _LOG2PI
+    return -0.5 * lo
+
+
+@njit(cache=True)
+def pb_inner(aw, am, av, bw, bm, bv):  # pragma: no cover - compiled
+    """``int f_a f_b dx`` per mixture: ``aw (B, Ka)``, ``am, av (B, Ka, D)``, likewise b."""
+    out = np.zeros(aw.shape[0])
+    for b in range(aw.shape[0]):
+        for i in range(aw.shape[1]):
+            for j in range(bw.shape[1]):
+                out[b] += aw[b, i] * bw[b, j] * math.exp(
+                    _log_overlap(am[b, i], av[b, i], bm[b, j], bv[b, j]))
+    return out
+
+
+@njit(cache=True)
+def pb_cross_gradient(w, m, v, tw, tm, tv):  # pragma: no cover - compiled
+    """``d/dtheta int f g dx`` ``(B, K, 1 + 2 D)`` per mixture: the weight, the means and the
+    log-variances of each component of ``f``; ``g`` is ``tw, tm, tv``."""
+    nb, k, d = m.shape
+    out = np.zeros((nb, k, 1 + 2 * d))
+    h = np.empty(3)
+    for b in range(nb):
+        for i in range(k):
+            for j in range(tw.shape[1]):
+                o = tw[b, j] * math.exp(_log_overlap(m[b, i], v[b, i], tm[b, j], tv[b, j]))
+                out[b, i, 0] += o
+                for e in range(d):
+                    _hermite(m[b, i, e] - tm[b, j, e], v[b, i, e] + tv[b, j, e], 2, h)
+                    out[b, i, 1 + e] += o * w[b, i] * h[1]
+                    out[b, i, 1 + d + e] += o * 0.5 * w[b, i] * v[b, i, e] * h[2]
+    return out
+
+
+@njit(cache=True)
+def pb_gram(w, m, v):  # pragma: no cover - compiled
+    """``P = int (df/dtheta)(df/dtheta)^T dx`` ``(B, K Q, K Q)``, ``Q = 1 + 2 D``, per mixture
+    (component-major: per component the weight, the means, the log-variances)."""
+    nb, k, d = m.shape
+    q = 1 + 2 * d
+    order = np.zeros((q, d), np.int64)             # derivative order per parameter and axis
+    for e in range(d):
+        order[1 + e, e] = 1
+        order[1 + d + e, e] = 2
+    out = np.empty((nb, k * q, k * q))
+    h = np.empty((d, 5))
+    ca, cb = np.empty(q), np.empty(q)
+    for b in range(nb):
+        for i in range(k):
+            for j in range(k):
+                o = math.exp(_log_overlap(m[b, i], v[b, i], m[b, j], v[b, j]))
+                ca[0], cb[0] = 1.0, 1.0
+                for e in range(d):
+                    _hermite(m[b, i, e] - m[b, j, e], v[b, i, e] + v[b, j, e], 4, h[e])
+                    ca[1 + e], cb[1 + e] = w[b, i], -w[b, j]
+                    ca[1 + d + e] = 0.5 * w[b, i] * v[b, i, e]
+                    cb[1 + d + e] = 0.5 * w[b, j] * v[b, j, e]
+                for a in range(q):
+                    for c in range(q):
+                        hh = 1.0
+                        for e in range(d):
+                            hh *= h[e, order[a, e] + order[c, e]]
+                        out[b, i * q + a, j * q + c] = o * ca[a] * cb[c] * hh
+    return out

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radioloc.core.backend import DEFAULT_BACKEND
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import InputError
 from radioloc.models.mixture import DiagMixture, compact, pad_components, reduce, select
 
@@ -55,14 +55,21 @@ _LOG2PI = float(np.log(2.0 * np.pi))
 def _pair(m1, v1, m2, v2, order: int):
     """Log overlaps ``log N(m1_i; m2_j, V1_i + V2_j)`` ``(..., K1, K2)`` and the derivative
     ratios ``h[..., i, j, d, n] = (d^n phi / d delta^n) / phi`` of the 1-D factors,
-    ``n = 0..order``, ``delta = m1 - m2``, ``phi = N(delta; 0, s)``, ``s = v1 + v2``."""
+    ``n = 0..order``, ``delta = m1 - m2``, ``phi = N(delta; 0, s)``, ``s = v1 + v2``.
+
+    ``h_n = (-1/sqrt(s))^n He_n(delta / sqrt(s))`` (Hermite polynomials); their recurrence
+    ``He_{n+1}(u) = u He_n(u) - n He_{n-1}(u)`` gives
+    ``h_{n+1} = -(delta / s) h_n - (n / s) h_{n-1}``, ``h_0 = 1``, ``h_1 = -delta / s``."""
     delta = m1[..., :, None, :] - m2[..., None, :, :]
     s = v1[..., :, None, :] + v2[..., None, :, :]
     logo = -0.5 * np.sum(delta**2 / s + np.log(s) + _LOG2PI, axis=-1)
-    r = 1.0 / np.sqrt(s)
-    u = delta * r
-    he = [np.ones_like(u), u, u * u - 1.0, u**3 - 3.0 * u, u**4 - 6.0 * u * u + 3.0]
-    h = np.stack([(-r) ** n * he[n] for n in range(order + 1)], axis=-1)
+    inv = 1.0 / s
+    h = np.empty(delta.shape + (order + 1,))
+    h[..., 0] = 1.0
+    if order >= 1:
+        h[..., 1] = -delta * inv
+    for n in range(1, order):
+        h[..., n + 1] = h[..., 1] * h[..., n] - n * inv * h[..., n - 1]
     return logo, h
 
 
@@ -170,10 +177,10 @@ def gram(w, m, v) -> np.ndarray:
     logo, h = _pair(m, v, m, v, 4)
     idx = o[:, None, :] + o[None, :, :]                                  # (Q, Q, D)
     hh = np.prod(h[..., np.arange(d), idx], axis=-1)                     # (..., K, K, Q, Q)
-    a = _coef(w, v, 1.0)
-    b = _coef(w, v, -1.0)
-    p = np.exp(logo)[..., None, None] * a[..., :, None, :, None] * b[..., None, :, None, :] * hh
-    p = np.swapaxes(p, -3, -2)                                           # (..., i, a, j, b)
+    hh *= np.exp(logo)[..., None, None]
+    hh *= _coef(w, v, 1.0)[..., :, None, :, None]
+    hh *= _coef(w, v, -1.0)[..., None, :, None, :]
+    p = np.swapaxes(hh, -3, -2)                                          # (..., i, a, j, b)
     return p.reshape(p.shape[:-4] + (k * q, k * q))
 
 
@@ -221,7 +228,7 @@ class _Fit:
         logit = e[..., 0]
         w = np.exp(logit - logit.max(-1, keepdims=True))
         w = w / w.sum(-1, keepdims=True)
-        return w, e[..., 1:1 + d], np.exp(e[..., 1 + d:])
+        return w, np.ascontiguousarray(e[..., 1:1 + d]), np.exp(e[..., 1 + d:])
 
     def clip(self, eta, k, d):
         e = eta.reshape(eta.shape[:-1] + (k, 1 + 2 * d)).copy()
@@ -273,8 +280,10 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     return_info : bool
         Also return a :class:`ProgressionInfo`.
     backend : str
-        The backend of the default start's West/Runnalls reduction (the homotopy itself is
-        NumPy).
+        ``"numba"`` (default): the overlaps, gradients and Gram matrices of each step by the
+        compiled kernels of :mod:`radioloc.models.mixture_compiled`; ``"numpy"``:
+        :func:`inner`, :func:`cross_gradient` and :func:`gram`. Also the backend of the
+        default start's West/Runnalls reduction.
 
     Returns
     -------
@@ -290,6 +299,7 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
         if isinstance(val, bool) or int(val) != val or int(val) < low:
             raise InputError(f"{name}: must be an integer >= {low}, got {val!r}")
     k = int(k)
+    backend = check_backend(backend)
     tgt = compact(target)
     active = np.sum(tgt.weights > 0, axis=-1)
     need = active > k
@@ -323,20 +333,25 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     eta = fit.clip(fit.to_eta(sw, sm, sv), k, d)
 
     q = 1 + 2 * d
+    if backend == "numba":
+        from radioloc.models import mixture_compiled as mc
+        inner_, cross_, gram_ = mc.pb_inner, mc.pb_cross_gradient, mc.pb_gram
+    else:
+        inner_, cross_, gram_ = inner, cross_gradient, gram
 
     def objective(eta_, gamma):
         """``2 G(eta, gamma) - int t^2``: ``int f^2 - 2 int f t_gamma``."""
         w, m, v = _Fit.unpack(eta_, k, d)
-        return inner(w, m, v, w, m, v) - 2.0 * ((1.0 - gamma) * inner(w, m, v, sw, sm, sv)
-                                                + gamma * inner(w, m, v, tw, tm, tv))
+        return inner_(w, m, v, w, m, v) - 2.0 * ((1.0 - gamma) * inner_(w, m, v, sw, sm, sv)
+                                                 + gamma * inner_(w, m, v, tw, tm, tv))
 
     def system(eta_, c_ff, c_0, c_t):
         """Gradient ``c_ff g(f) + c_0 g(f0) + c_t g(T)`` of ``int f g`` and the Gram matrix,
         in the softmax-logit parameters."""
         w, m, v = _Fit.unpack(eta_, k, d)
-        g = c_ff * cross_gradient(w, m, v, w, m, v) + c_0 * cross_gradient(w, m, v, sw, sm, sv) \
-            + c_t * cross_gradient(w, m, v, tw, tm, tv)
-        return _chain_rule(w, g, gram(w, m, v), q)
+        g = sum(c * cross_(w, m, v, *other) for c, other in
+                ((c_ff, (w, m, v)), (c_0, (sw, sm, sv)), (c_t, (tw, tm, tv))) if c != 0.0)
+        return _chain_rule(w, g, gram_(w, m, v), q)
 
     def solve(p, rhs, lam):
         diag = np.diagonal(p, axis1=-2, axis2=-1)
@@ -378,9 +393,9 @@ def progressive_reduce(target, k: int, start=None, steps: int = 4, corrector: in
     eta, cur, lam = correct(eta, cur, lam, 1.0, int(polish))
 
     w, m, v = _Fit.unpack(eta, k, d)
-    tt = inner(tw, tm, tv, tw, tm, tv)
-    isd_new = inner(w, m, v, w, m, v) - 2 * inner(w, m, v, tw, tm, tv) + tt
-    isd_start = inner(sw, sm, sv, sw, sm, sv) - 2 * inner(sw, sm, sv, tw, tm, tv) + tt
+    tt = inner_(tw, tm, tv, tw, tm, tv)
+    isd_new = inner_(w, m, v, w, m, v) - 2 * inner_(w, m, v, tw, tm, tv) + tt
+    isd_start = inner_(sw, sm, sv, sw, sm, sv) - 2 * inner_(sw, sm, sv, tw, tm, tv) + tt
     better = isd_new <= isd_start
     w = np.where(better[:, None], w, sw)
     m = np.where(better[:, None, None], m, sm)
