@@ -87,11 +87,14 @@ def _mixture_reduce():
     import numpy as np
 
     from radioloc.models.mixture import DiagMixture, reduce
+    from radioloc.models.progressive_bayes import progressive_reduce
 
     rng = np.random.default_rng(0)
     mix = DiagMixture.create(rng.uniform(0.1, 1, (40, 64)), rng.normal(0, 3, (40, 64, 2)),
                              rng.uniform(0.5, 4, (40, 64, 2)))
     reduce(mix, 8)
+    progressive_reduce(DiagMixture.create(mix.weights[:2, :12], mix.means[:2, :12],
+                                          mix.variances[:2, :12]), 3, steps=1)
 
 
 def _channel():
