@@ -42,15 +42,16 @@ TARGETS: dict[tuple[str, str | None], dict] = {
 BOUNDS: dict[str, str] = {
     "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5":
         "the general particle filter's step, one kernel per part of Algorithm 2 (no fused "
-        "step): per step of 1e5 particles, 7.4 ms of wall on 2 cores, of which the link "
-        "update 1.9 ms (4 links, scalar sqrt and log per particle: about 9.6 ns per "
-        "particle-link per thread), the systematic resampling with the gather of particles "
-        "and link posteriors 1.3 ms, the 2e5 normal draws 0.8 ms (numba's Generator, 8 ns "
-        "per number per thread) plus 0.2 ms to spawn their 16 child generators, the motion "
-        "prediction in NumPy 0.6 ms, the weights' exponential and moments 0.6 ms, the rest "
-        "Python and fresh arrays. 10x Stone Soup needs about 3.8 ms per step, 10x "
-        "`particles` about 2.4 ms; the fused kernel that reached them (with a private "
-        "random generator and vector math) was removed for one NumPy definition per part.",
+        "step): 4.3 ms of wall per step of 1e5 particles on 2 cores in make bench, where 10x "
+        "Stone Soup needs about 3.0 ms and 10x `particles` about 2.3 ms. A profile of the "
+        "step (on a shared machine, 7.4 ms per step) splits it as: the link update 26 % (4 "
+        "links, a scalar sqrt per particle-link, a log per particle), the systematic "
+        "resampling with the gather of particles and link posteriors 17 %, the 2e5 normal "
+        "draws 14 % (numba's Generator, about 8 ns per number per thread) and 3 % to spawn "
+        "their 16 child generators, the motion prediction in NumPy 8 %, the weights' "
+        "exponential and moments 8 %, the rest Python and fresh arrays. The fused kernel "
+        "that met the ratios (a private random generator and vector math) was removed for "
+        "one NumPy definition per part.",
 }
 
 
