@@ -54,6 +54,18 @@ def test_cli_records_the_override(tmp_path):
     assert summary["config"]["iterations"] == 5
 
 
+def test_every_node_assisted_runs_with_finite_metrics_and_no_empty_class(tmp_path):
+    res = CliRunner().invoke(app, ["reproduce", EXP, "--runs", "20", "-o", "iterations=5",
+                                   "-o", "assisted=6", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "warning" not in res.output
+    metrics = json.loads((tmp_path / EXP / "summary.json").read_text())["metrics"]
+    values = {m["name"]: m["value"] for m in metrics}
+    assert values and all(v is not None and v == v for v in values.values())
+    assert not any("_unassisted_" in name for name in values)
+    assert any("_assisted_" in name for name in values)
+
+
 def test_cli_refuses_options_for_all_and_unknown_keys(tmp_path):
     res = CliRunner().invoke(app, ["reproduce", "all", "-o", "iterations=5", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "name the experiment" in res.output

@@ -29,6 +29,19 @@ METHODS = ("rls", "ekf", "rlsw")
 LABELS = {"rls": "RLS, eq. (12) as printed", "ekf": "EKF",
           "rlsw": "variant: RLS with noise-weighted prior"}
 CLASSES = ("assisted", "unassisted")
+
+
+def _node_mean(a: np.ndarray, nodes: np.ndarray, axis: int) -> np.ndarray:
+    """Mean of ``a`` over the ``nodes`` (a mask along ``axis``); NaN when there are none."""
+    if not np.any(nodes):
+        return np.full(np.delete(a.shape, axis), np.nan)
+    return np.compress(nodes, a, axis=axis).mean(axis)
+
+
+def class_mean(wt: dict, value):
+    """``sum_c wt[c] value(c)`` over the node classes with nodes (``wt[c] > 0``): a class with
+    no node (every node GPS-assisted, say) has NaN columns and is left out."""
+    return sum(wt[c] * value(c) for c in CLASSES if wt[c] > 0)
 COLOR = {"rls": COLORS["baseline"], "ekf": COLORS["ours"], "rlsw": COLORS["alt"]}
 STYLE = {"rls": LINESTYLES["rls"], "ekf": LINESTYLES["ekf"], "rlsw": "-."}
 
@@ -106,7 +119,7 @@ def robust_curves(rows: pd.DataFrame, wt: dict, diverged_m: float) -> dict:
         return rows[col].to_numpy(dtype=float).reshape(shape)
     per_run, kept, parts = {}, {}, []
     for m in METHODS:
-        e = sum(wt[c] * grid(f"{m}_err_{c}_m") for c in CLASSES)
+        e = class_mean(wt, lambda c: grid(f"{m}_err_{c}_m"))
         per_run[m] = e
         kept[m] = np.isfinite(e[:, -1]) & (e[:, -1] <= diverged_m)
         cols = [c for c in rows.columns if c.startswith(f"{m}_")]
@@ -114,7 +127,7 @@ def robust_curves(rows: pd.DataFrame, wt: dict, diverged_m: float) -> dict:
         parts.append(sub.groupby("iteration")[cols].mean().reindex(iters))
     crb_cols = [c for c in rows.columns if c.startswith("crb_")]
     parts.append(rows.groupby("iteration")[crb_cols].mean())
-    crb_final = np.sqrt(sum(wt[c] * grid(f"crb_{c}_m2") for c in CLASSES))[:, -1]
+    crb_final = np.sqrt(class_mean(wt, lambda c: grid(f"crb_{c}_m2")))[:, -1]
     prior = float(np.mean(per_run[METHODS[0]][:, 0]))
     return {"iterations": iters, "per_run": per_run, "kept": kept,
             "curves": pd.concat(parts, axis=1), "crb_final": crb_final, "prior_error": prior}
@@ -183,11 +196,11 @@ class P000MonteCarlo(Experiment):
                 err = np.linalg.norm(pos - truth[:, :, None], axis=-1)            # (R, K, N+1)
                 aligned = rigid_aligned_error(pos.transpose(0, 2, 1, 3), truth[:, None])
                 for c in CLASSES:
-                    data[f"{m}_err_{c}_m"] = err[:, cls[c]].mean(1).ravel()
-                    data[f"{m}_sqerr_{c}_m2"] = (err[:, cls[c]] ** 2).mean(1).ravel()
+                    data[f"{m}_err_{c}_m"] = _node_mean(err, cls[c], 1).ravel()
+                    data[f"{m}_sqerr_{c}_m2"] = _node_mean(err**2, cls[c], 1).ravel()
                 data[f"{m}_aligned_err_m"] = aligned.mean(-1).ravel()             # (R, N+1)
             for c in CLASSES:
-                data[f"crb_{c}_m2"] = crb[..., cls[c]].mean(-1).T.ravel()
+                data[f"crb_{c}_m2"] = _node_mean(crb, cls[c], crb.ndim - 1).T.ravel()
             frames.append(pd.DataFrame(data).round(4))      # 0.1 mm: keeps the CSV small
         return pd.concat(frames, ignore_index=True)
 
@@ -237,7 +250,7 @@ class P000MonteCarlo(Experiment):
                 med_final[m, rv] = float(median[-1])
                 steps[m, rv] = first_step_within(mean_kept, config.converge_tolerance)
                 med_steps[m, rv] = first_step_within(median, config.converge_tolerance)
-                sq = sum(wt[c] * cur[f"{m}_sqerr_{c}_m2"] for c in CLASSES)
+                sq = class_mean(wt, lambda c: cur[f"{m}_sqerr_{c}_m2"])
                 name = "rls_prior_weighted" if m == "rlsw" else m
                 what = LABELS[m]
                 metrics += [
@@ -272,11 +285,11 @@ class P000MonteCarlo(Experiment):
                            None, "runs", f"{what}: runs ending more than 10x the run's CRB "
                            "RMSE off (not a divergence criterion: the RLS as printed drifts)"),
                 ]
-                for c in CLASSES:
+                for c in (c for c in CLASSES if wt[c] > 0):
                     metrics.append(Metric(f"{name}_final_error_m_{c}_{tag}",
                                           float(cur[f"{m}_err_{c}_m"].iloc[-1]), None, "m",
                                           f"{what}: {c} nodes, runs that did not diverge"))
-            crb = np.sqrt(sum(wt[c] * cur[f"crb_{c}_m2"] for c in CLASSES))
+            crb = np.sqrt(class_mean(wt, lambda c: cur[f"crb_{c}_m2"]))
             metrics.append(Metric(f"crb_rmse_m_{tag}", float(crb.iloc[-1]), None, "m",
                                   "sqrt of the mean per-node trace of the Bayesian CRB after "
                                   f"{config.iterations} iterations"))
@@ -361,11 +374,13 @@ class P000MonteCarlo(Experiment):
     def _curve(cur: pd.DataFrame, prefix: str, wt: dict | None, suffix: str) -> np.ndarray:
         if wt is None:
             return cur[prefix + suffix].to_numpy()
-        return sum(wt[c] * cur[f"{prefix}{c}{suffix}"] for c in CLASSES).to_numpy()
+        return class_mean(wt, lambda c: cur[f"{prefix}{c}{suffix}"]).to_numpy()
 
     @staticmethod
     def _limit(ax, ekf: np.ndarray) -> None:
         """y range from the bound to 20x the prior error; curves beyond it are marked."""
+        if not np.isfinite(ekf).any() or not np.isfinite(ekf[0]):
+            return                                    # no EKF curve to scale by: autoscale
         lo, hi = 0.5 * np.nanmin(ekf), 20.0 * ekf[0]
         off = [ln for ln in ax.get_lines() if np.nanmax(ln.get_ydata()) > hi]
         ax.set_ylim(lo, hi)
