@@ -1,4 +1,4 @@
-"""Compiled kernels of the Kalman, network, closed-form and snapshot estimators.
+"""Compiled kernels of the Kalman, network and closed-form estimators.
 
 Each kernel is the compiled form of a NumPy definition elsewhere in the package, selected by
 that estimator's ``backend="numba"`` setting (``backend="numpy"`` runs the definition); the
@@ -14,10 +14,6 @@ of another module, so numba's per-file cache cannot go stale.
   eq. (8)-eq. (11)).
 - :func:`blue_iterations`: the iterations 3b-3d of
   :class:`~radioloc.estimators.closed_form.ClosedFormTracker` (paper 002, eq. (11)-eq. (15)).
-- :func:`snapshot_scores`: the candidate scores of
-  :class:`~radioloc.estimators.snapshot_baselines.LocalML` and ``Ransac`` (paper 001, Sect. V),
-  with :func:`mixture_logpdf_scalar`, the compiled scalar form of
-  :meth:`~radioloc.models.los_nlos.LosNlosRange.logpdf`.
 """
 
 from __future__ import annotations
@@ -28,90 +24,7 @@ import numpy as np
 from numba import njit, prange
 
 
-__all__ = ["network_ekf_packets", "network_rls_iteration", "blue_iterations", "snapshot_scores",
-           "mixture_logpdf_scalar"]
-
-_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
-_SQRT1_2 = math.sqrt(0.5)
-
-
-@njit(cache=True, inline="always")
-def log_ndtr_fast(u: float) -> float:
-    """``log Phi(u)`` for compiled code: erfc down to u = -20, the asymptotic series below.
-
-    Parameters
-    ----------
-    u : float
-
-    Returns
-    -------
-    float
-        ``log Phi(u)`` (relative error below 1e-10 against ``scipy.special.log_ndtr``).
-    """
-    if u > -20.0:
-        return math.log(0.5 * math.erfc(-u * _SQRT1_2))
-    r = 1.0 / (u * u)
-    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
-    return -0.5 * u * u - math.log(-u) - _HALF_LOG_2PI + math.log(series)
-
-
-@njit(cache=True, inline="always")
-def mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
-    """``log(alpha N(e; s) + (1 - alpha) EMG(e; s, mu))`` of one range error, for compiled
-    code (the constants from :meth:`LosNlosRange.mixture_constants`; the NumPy definition is
-    :meth:`LosNlosRange.logpdf`).
-
-    With ``l_1 = c_los - z^2 / 2`` (``z = e / s``, ``c_los = log alpha - log s - log(2 pi)/2``)
-    and ``l_0 = c_nlos - lam e + log Phi(u)`` (``u = z - lam s``, ``c_nlos = log(1 - alpha)
-    + log lam + (lam s)^2 / 2``) the result is ``l_1 + log1p(exp(l_0 - l_1))`` where
-
-    * ``u >= 8.5``: ``log Phi(u) = 0`` to 1e-17 (no ``erfc``; no ``exp`` once
-      ``l_1 - l_0 < -746``);
-    * ``-20 < u < 8.5``: ``exp(l_0 - l_1) = exp(c_nlos - c_los - lam e + z^2 / 2) Phi(u)``;
-    * ``u <= -20``: the asymptotic series of ``Phi`` makes the Gaussian tails cancel:
-      ``exp(l_0 - l_1) = k_tail series(u) / (-u)``, ``k_tail = exp(c_nlos - c_los -
-      (lam s)^2 / 2 - log(2 pi) / 2)``.
-
-    Parameters
-    ----------
-    e : float
-        Range error ``theta - d``, metres.
-    inv_std, lam, lam_std, c_los, c_nlos, k_tail : float
-        ``1 / s``, ``lam``, ``lam s`` and the three constants above.
-
-    Returns
-    -------
-    float
-        The mixture log-density.
-    """
-    z = e * inv_std
-    l1 = c_los - 0.5 * z * z
-    if c_nlos == -np.inf:
-        return l1
-    u = z - lam_std
-    if c_los == -np.inf or k_tail <= 0.0 or (u < 8.5 and u > -20.0 and (c_nlos - c_los) - lam * e + 0.5 * z * z > 700.0):
-        # alpha = 0, or so small that exp(l_0 - l_1) would overflow: plain log-sum
-        l0 = c_nlos - lam * e
-        if u < 8.5:
-            l0 += log_ndtr_fast(u)
-        if c_los == -np.inf:
-            return l0
-        if l0 > l1:
-            return l0 + math.log1p(math.exp(l1 - l0))
-        return l1 + math.log1p(math.exp(l0 - l1))
-    if u >= 8.5:
-        l0 = c_nlos - lam * e
-        if l1 > l0:
-            return l1 + math.log1p(math.exp(l0 - l1))
-        d = l1 - l0
-        return l0 + math.log1p(math.exp(d)) if d > -746.0 else l0
-    if u > -20.0:
-        x = (c_nlos - c_los) - lam * e + 0.5 * z * z
-        return l1 + math.log1p(math.exp(x) * 0.5 * math.erfc(-u * _SQRT1_2))
-    r = 1.0 / (u * u)
-    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
-    return l1 + math.log1p(k_tail * series / (-u))
-
+__all__ = ["network_ekf_packets", "network_rls_iteration", "blue_iterations"]
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def network_ekf_packets(mean, cov, masters, rho, valid, var, nis, used, err):  # pragma: no cover
@@ -411,32 +324,3 @@ def blue_iterations(sa, sy, keep, s, xi, c, sks, tv, kap, printed, var, tol, max
                 break
         iterations[b] = it
         flags[b] = fl
-
-
-@njit(cache=True, error_model="numpy")
-def snapshot_scores(kind, cand, cen, th, valid, c0, c1, c2, c3, c4, c5, out):  # pragma: no cover
-    """Scores of candidates ``cand (B, C, 2)`` against the links ``cen (B, L, 2)``,
-    ``th (B, L)``, ``valid (B, L)`` into ``out (B, C)``: residuals ``e = th - ||x - cen||``, then ``kind`` 0: ``sum_m log p(e_m)``
-    of the LOS/NLOS mixture (constants ``c0..c5`` of ``LosNlosRange.mixture_constants``);
-    1: the RANSAC consensus ``n_in - sum_in e^2 / (n_in c0 + 1)`` with inliers
-    ``|e| < c1`` (``c0 = c1^2``)."""
-    nb, nc = cand.shape[0], cand.shape[1]
-    nl = th.shape[1]
-    for b in range(nb):
-        for k in range(nc):
-            x = cand[b, k, 0]
-            y = cand[b, k, 1]
-            n_in = 0
-            acc = 0.0
-            for j in range(nl):
-                if not valid[b, j]:
-                    continue
-                dx = x - cen[b, j, 0]
-                dy = y - cen[b, j, 1]
-                e = th[b, j] - math.sqrt(dx * dx + dy * dy)
-                if kind == 0:
-                    acc += mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
-                elif abs(e) < c1:
-                    acc += e * e
-                    n_in += 1
-            out[b, k] = acc if kind == 0 else n_in - acc / (n_in * c0 + 1.0)

@@ -1,7 +1,8 @@
-"""Compiled kernels of the peer-to-peer particle filter (``P2PParticleFilter(backend="numba")``).
+"""Compiled kernels of paper 001's LOS/NLOS estimators: the peer-to-peer particle filter
+(``P2PParticleFilter(backend="numba")``) and the snapshot baselines.
 
-Each kernel computes what a NumPy function of :mod:`radioloc.estimators.p2p_particle` or
-:mod:`radioloc.estimators.resampling` defines; the backend-equivalence tests hold the two
+Each kernel computes what a NumPy function of :mod:`radioloc.estimators.p2p_particle`,
+:mod:`radioloc.estimators.resampling` or :mod:`radioloc.estimators.snapshot_baselines` defines; the backend-equivalence tests hold the two
 together (about 1e-10 relative on the same particles and draws). The draws are NumPy's
 numbers: made by NumPy before the kernels run, or, for large normal draws, by numba's
 ``Generator`` from child generators that the NumPy definition draws from in the same way.
@@ -15,7 +16,12 @@ numbers: made by NumPy before the kernels run, or, for large normal draws, by nu
 * :func:`systematic_gather`: systematic resampling (``resampling.systematic``) and the
   gather of the particles and link posteriors;
 * :func:`standard_normal`: large normal draws in parallel, each part from its own child
-  generator (``p2p_particle._standard_normal``).
+  generator (``p2p_particle._standard_normal``);
+* :func:`snapshot_scores`: the candidate scores of the paper's snapshot baselines
+  (:class:`~radioloc.estimators.snapshot_baselines.LocalML` and ``Ransac``, Sect. V), with
+  :func:`mixture_logpdf_scalar`, the scalar form of
+  :meth:`~radioloc.models.los_nlos.LosNlosRange.logpdf`; it shares :func:`_log_ndtr` with
+  :func:`link_update`.
 
 ``prange`` runs over (filter, chunk of particles) tasks, so one filter of 10^5 particles
 uses every core as well as twenty filters of 900.
@@ -223,3 +229,90 @@ def standard_normal(gens, out):
         g = gens[s]
         for i in range(s * per, min(size, (s + 1) * per)):
             out[i] = g.standard_normal()
+
+
+@njit(cache=True)
+def mixture_logpdf_scalar(e, inv_std, lam, lam_std, c_los, c_nlos, k_tail):
+    """``log(alpha N(e; s) + (1 - alpha) EMG(e; s, mu))`` of one range error, for compiled
+    code (the constants from :meth:`LosNlosRange.mixture_constants`; the NumPy definition is
+    :meth:`LosNlosRange.logpdf`).
+
+    With ``l_1 = c_los - z^2 / 2`` (``z = e / s``, ``c_los = log alpha - log s - log(2 pi)/2``)
+    and ``l_0 = c_nlos - lam e + log Phi(u)`` (``u = z - lam s``, ``c_nlos = log(1 - alpha)
+    + log lam + (lam s)^2 / 2``) the result is ``l_1 + log1p(exp(l_0 - l_1))`` where
+
+    * ``u >= 8.5``: ``log Phi(u) = 0`` to 1e-17 (no ``erfc``; no ``exp`` once
+      ``l_1 - l_0 < -746``);
+    * ``-20 < u < 8.5``: ``exp(l_0 - l_1) = exp(c_nlos - c_los - lam e + z^2 / 2) Phi(u)``;
+    * ``u <= -20``: the asymptotic series of ``Phi`` makes the Gaussian tails cancel:
+      ``exp(l_0 - l_1) = k_tail series(u) / (-u)``, ``k_tail = exp(c_nlos - c_los -
+      (lam s)^2 / 2 - log(2 pi) / 2)``.
+
+    Parameters
+    ----------
+    e : float
+        Range error ``theta - d``, metres.
+    inv_std, lam, lam_std, c_los, c_nlos, k_tail : float
+        ``1 / s``, ``lam``, ``lam s`` and the three constants above.
+
+    Returns
+    -------
+    float
+        The mixture log-density.
+    """
+    z = e * inv_std
+    l1 = c_los - 0.5 * z * z
+    if c_nlos == -np.inf:
+        return l1
+    u = z - lam_std
+    if c_los == -np.inf or k_tail <= 0.0 or (u < 8.5 and u > -20.0 and (c_nlos - c_los) - lam * e + 0.5 * z * z > 700.0):
+        # alpha = 0, or so small that exp(l_0 - l_1) would overflow: plain log-sum
+        l0 = c_nlos - lam * e
+        if u < 8.5:
+            l0 += _log_ndtr(u)
+        if c_los == -np.inf:
+            return l0
+        if l0 > l1:
+            return l0 + math.log1p(math.exp(l1 - l0))
+        return l1 + math.log1p(math.exp(l0 - l1))
+    if u >= 8.5:
+        l0 = c_nlos - lam * e
+        if l1 > l0:
+            return l1 + math.log1p(math.exp(l0 - l1))
+        d = l1 - l0
+        return l0 + math.log1p(math.exp(d)) if d > -746.0 else l0
+    if u > -20.0:
+        x = (c_nlos - c_los) - lam * e + 0.5 * z * z
+        return l1 + math.log1p(math.exp(x) * 0.5 * math.erfc(-u * _SQRT1_2))
+    r = 1.0 / (u * u)
+    series = 1.0 - r * (1.0 - r * (3.0 - r * (15.0 - 105.0 * r)))
+    return l1 + math.log1p(k_tail * series / (-u))
+
+
+@njit(cache=True, error_model="numpy")
+def snapshot_scores(kind, cand, cen, th, valid, c0, c1, c2, c3, c4, c5, out):  # pragma: no cover
+    """Scores of candidates ``cand (B, C, 2)`` against the links ``cen (B, L, 2)``,
+    ``th (B, L)``, ``valid (B, L)`` into ``out (B, C)``: residuals ``e = th - ||x - cen||``, then ``kind`` 0: ``sum_m log p(e_m)``
+    of the LOS/NLOS mixture (constants ``c0..c5`` of ``LosNlosRange.mixture_constants``);
+    1: the RANSAC consensus ``n_in - sum_in e^2 / (n_in c0 + 1)`` with inliers
+    ``|e| < c1`` (``c0 = c1^2``)."""
+    nb, nc = cand.shape[0], cand.shape[1]
+    nl = th.shape[1]
+    for b in range(nb):
+        for k in range(nc):
+            x = cand[b, k, 0]
+            y = cand[b, k, 1]
+            n_in = 0
+            acc = 0.0
+            for j in range(nl):
+                if not valid[b, j]:
+                    continue
+                dx = x - cen[b, j, 0]
+                dy = y - cen[b, j, 1]
+                e = th[b, j] - math.sqrt(dx * dx + dy * dy)
+                if kind == 0:
+                    acc += mixture_logpdf_scalar(e, c0, c1, c2, c3, c4, c5)
+                elif abs(e) < c1:
+                    acc += e * e
+                    n_in += 1
+            out[b, k] = acc if kind == 0 else n_in - acc / (n_in * c0 + 1.0)

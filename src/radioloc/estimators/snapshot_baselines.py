@@ -19,7 +19,7 @@ from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
                                       check_positive)
 from radioloc.estimators.base import SnapshotEstimator
-from radioloc.estimators.kalman_compiled import snapshot_scores
+from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.estimators.local_search import search
 from radioloc.estimators.nlls import solve_nlls
 from radioloc.models.los_nlos import LosNlosRange
@@ -34,7 +34,7 @@ def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.nda
 
 def _scores(kind: int, consts: tuple, x: np.ndarray, cen: np.ndarray, th: np.ndarray,
             valid: np.ndarray) -> np.ndarray:
-    """:func:`~radioloc.estimators.kalman_compiled.snapshot_scores` on candidates
+    """:func:`~radioloc.estimators.pf_compiled.snapshot_scores` on candidates
     ``x (..., C, 2)`` of the batch of ``th``."""
     batch, nl = th.shape[:-1], th.shape[-1]
     b = int(np.prod(batch, dtype=int))
@@ -115,7 +115,7 @@ class LocalML(SnapshotEstimator):
     backend : {"numba", "numpy"}
         The objective (the sum over the links of the model's log-density of the residuals)
         as array expressions (``"numpy"``, the definition) or one compiled pass per
-        candidate (:func:`~radioloc.estimators.kalman_compiled.snapshot_scores`); equal to
+        candidate (:func:`~radioloc.estimators.pf_compiled.snapshot_scores`); equal to
         rounding.
     """
 
@@ -209,7 +209,7 @@ class Ransac(SnapshotEstimator):
         ranges checked).
     backend : {"numba", "numpy"}
         The consensus as array expressions (``"numpy"``, the definition) or one compiled
-        pass per hypothesis (:func:`~radioloc.estimators.kalman_compiled.snapshot_scores`);
+        pass per hypothesis (:func:`~radioloc.estimators.pf_compiled.snapshot_scores`);
         equal to rounding.
     """
 

@@ -161,7 +161,7 @@ class LosNlosRange:
 
     def mixture_constants(self) -> tuple[float, float, float, float, float, float]:
         """Constants of the compiled mixture log-density of
-        :mod:`radioloc.estimators.snapshot_baselines` (``mixture_logpdf_scalar``).
+        :mod:`radioloc.estimators.pf_compiled` (``mixture_logpdf_scalar``).
 
         Returns
         -------
