@@ -274,6 +274,28 @@ def _wall_pairs_visible(A, B, fstart, fwalls, bbox, bstart, g0x, g0y, h, nx, ny,
 # --- raytrace -------------------------------------------------------------------------
 
 @njit(cache=True)
+def _in_beam_within_reach(ix, iy, lox, loy, hix, hiy, ax, ay, bx, by, rxx, rxy, lmax):
+    """Whether wall ``a -> b`` is not wholly outside the beam from image ``i`` between the
+    edges through ``lo`` and ``hi`` (counter-clockwise), and the shortest path image -> wall
+    -> receiver is at most ``lmax``."""
+    c1 = (lox - ix) * (ay - iy) - (loy - iy) * (ax - ix)
+    c2 = (lox - ix) * (by - iy) - (loy - iy) * (bx - ix)
+    if c1 < 0 and c2 < 0:
+        return False
+    c1 = (ax - ix) * (hiy - iy) - (ay - iy) * (hix - ix)
+    c2 = (bx - ix) * (hiy - iy) - (by - iy) * (hix - ix)
+    if c1 < 0 and c2 < 0:
+        return False
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    t = min(max(((ix - ax) * dx + (iy - ay) * dy) / dd, 0.0), 1.0)
+    d1 = np.hypot(ax + t * dx - ix, ay + t * dy - iy)
+    t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
+    d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
+    return not d1 + d2 > lmax          # as written: a NaN length is not out of reach
+
+
+@njit(cache=True)
 def _extend(last_img, last_wall, link, counts, offsets, wk, A, B, N, rx, lmax):
     """Children (parent index, wall) of every sequence: walls of the same link that face
     the last image, differ from the last wall, lie (partly) in front of it and inside the
@@ -308,21 +330,8 @@ def _extend(last_img, last_wall, link, counts, offsets, wk, A, B, N, rx, lmax):
                 continue
             if (ax - pax) * pnx + (ay - pay) * pny <= 1e-9 and (bx - pax) * pnx + (by - pay) * pny <= 1e-9:
                 continue
-            c1 = (lox - ix) * (ay - iy) - (loy - iy) * (ax - ix)
-            c2 = (lox - ix) * (by - iy) - (loy - iy) * (bx - ix)
-            if c1 < 0 and c2 < 0:
-                continue
-            c1 = (ax - ix) * (hiy - iy) - (ay - iy) * (hix - ix)
-            c2 = (bx - ix) * (hiy - iy) - (by - iy) * (hix - ix)
-            if c1 < 0 and c2 < 0:
-                continue
-            dx, dy = bx - ax, by - ay
-            dd = dx * dx + dy * dy
-            t = min(max(((ix - ax) * dx + (iy - ay) * dy) / dd, 0.0), 1.0)
-            d1 = np.hypot(ax + t * dx - ix, ay + t * dy - iy)
-            t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
-            d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
-            if d1 + d2 > lmax[l]:
+            if not _in_beam_within_reach(ix, iy, lox, loy, hix, hiy, ax, ay, bx, by, rxx, rxy,
+                                         lmax[l]):
                 continue
             par[n] = s
             wal[n] = w
@@ -514,21 +523,8 @@ def _reflect_links(tx, rx, lmax, hit, A, B, N, max_order, eps, trim,
                     qlx, qly, qhx, qhy = qbx, qby, qax, qay
                 else:
                     qlx, qly, qhx, qhy = qax, qay, qbx, qby
-                c1_ = (lox - ix0) * (ay - iy0) - (loy - iy0) * (ax - ix0)
-                c2_ = (lox - ix0) * (by - iy0) - (loy - iy0) * (bx - ix0)
-                if c1_ < 0 and c2_ < 0:
-                    continue
-                c1_ = (ax - ix0) * (hiy - iy0) - (ay - iy0) * (hix - ix0)
-                c2_ = (bx - ix0) * (hiy - iy0) - (by - iy0) * (hix - ix0)
-                if c1_ < 0 and c2_ < 0:
-                    continue
-                dx, dy = bx - ax, by - ay
-                dd = dx * dx + dy * dy
-                t = min(max(((ix0 - ax) * dx + (iy0 - ay) * dy) / dd, 0.0), 1.0)
-                d1 = np.hypot(ax + t * dx - ix0, ay + t * dy - iy0)
-                t = min(max(((rxx - ax) * dx + (rxy - ay) * dy) / dd, 0.0), 1.0)
-                d2 = np.hypot(ax + t * dx - rxx, ay + t * dy - rxy)
-                if d1 + d2 > lmax[l]:
+                if not _in_beam_within_reach(ix0, iy0, lox, loy, hix, hiy, ax, ay, bx, by, rxx,
+                                             rxy, lmax[l]):
                     continue
                 # lit part of w: inside the beam through the parent's lit part, ahead of it
                 t0, t1 = 0.0, 1.0
