@@ -416,6 +416,13 @@ class P000MonteCarlo(Experiment):
         axes = grid[0]
         axes[1].sharey(axes[0])
         for ax, c in zip(axes, CLASSES):
+            if not np.isfinite(cur[f"ekf_err_{c}_m"].to_numpy()).any():     # a class with no node
+                ax.text(0.5, 0.5, f"no {c} nodes\n(assisted = {config.assisted} of "
+                        f"{config.nodes})", ha="center", va="center", transform=ax.transAxes)
+                ax.tick_params(left=False, labelleft=False, bottom=False, labelbottom=False,
+                               which="both")
+                ax.grid(False)
+                continue
             for m in METHODS:
                 ax.plot(it, cur[f"{m}_err_{c}_m"], STYLE[m], color=COLOR[m], label=LABELS[m])
             ax.plot(it, np.sqrt(cur[f"crb_{c}_m2"]), LINESTYLES["bound"], color=COLORS["bound"],
@@ -431,6 +438,7 @@ class P000MonteCarlo(Experiment):
         for g in grid[1]:
             g.axis("off")
         for g, (h, lab) in zip(grid[1], handles):
-            g.legend(h, lab, loc="center", ncol=1, fontsize=8)
+            if h:
+                g.legend(h, lab, loc="center", ncol=1, fontsize=8)
         fig.suptitle(f"By node class, range noise variance {rv:g} m$^2$, {config.runs} runs")
         save(fig, path)
