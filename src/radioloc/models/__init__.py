@@ -16,7 +16,8 @@ from radioloc.models.motion import (
     UniformDisk,
     WhiteAccelerationCV,
 )
-from radioloc.models.ranging import GaussianRange, range_geometry
+from radioloc.models.measurement import Context, MeasurementModel, StateLayout
+from radioloc.models.ranging import GaussianRange, RangeModel, range_geometry
 from radioloc.models.progressive_bayes import ProgressionInfo, isd, progressive_reduce
 from radioloc.models.rssi_logdistance import LogDistanceGaussian, device_offset
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_trapezoid_model
@@ -24,7 +25,7 @@ from radioloc.models.single_sensor import SquaredRangeModel
 
 __all__ = [
     "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "InputDriven", "UniformDisk",
-    "GaussianRange", "range_geometry", "LosNlosRange", "StickyLinkChain",
+    "GaussianRange", "RangeModel", "range_geometry", "MeasurementModel", "StateLayout", "Context", "LosNlosRange", "StickyLinkChain",
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",
     "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",

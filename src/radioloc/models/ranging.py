@@ -8,15 +8,17 @@ Every range model has ``sample(true_ranges, rng)``, ``logpdf(measured, true_rang
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import check_positive
+from radioloc.models.measurement import Context, MeasurementModel
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
-__all__ = ["GaussianRange", "range_geometry"]
+__all__ = ["GaussianRange", "RangeModel", "range_geometry"]
 
 
 def range_geometry(position: np.ndarray, anchors: np.ndarray, height_m: float | None = None,
@@ -122,3 +124,109 @@ class GaussianRange:
         """
         z = (np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)) / self.std_m
         return -0.5 * z**2 - np.log(self.std_m) - 0.5 * _LOG_2PI
+
+
+@dataclass(frozen=True)
+class RangeModel(MeasurementModel):
+    """Range (time of arrival, two-way ranging, RTT) to a known point: ``h(x) = |x - a| (+ b_a)``.
+
+    The measurement function of every range estimator; the error distribution is a noise
+    model (:class:`GaussianRange`, or the LOS/NLOS mixture
+    :class:`~radioloc.models.los_nlos.LosNlosRange` of paper 001, whose discrete link state
+    a particle filter integrates exactly through :meth:`mode_logpdf`).
+
+    Parameters
+    ----------
+    std_m : float, optional
+        Standard deviation of a Gaussian range error, metres (the same as
+        ``noise=GaussianRange(std_m)``). Give this or ``noise``.
+    noise : GaussianRange or LosNlosRange, optional
+        The range-error model.
+    anchor_bias : bool
+        Whether each anchor adds an unknown constant ``b_a`` (antenna delay, RTT offset):
+        the model then reads the ``anchor_bias`` state component.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from radioloc.models.measurement import Context, StateLayout
+    >>> model = RangeModel(std_m=0.1)
+    >>> ctx = Context(points=np.array([[0.0, 0.0], [10.0, 0.0]]))
+    >>> z_hat, H = StateLayout(dim=2).measure(model, np.array([3.0, 4.0]), ctx)
+    >>> z_hat.round(3).tolist()
+    [5.0, 8.062]
+    """
+
+    std_m: float | None = None
+    noise: object | None = None
+    anchor_bias: bool = False
+
+    kind: ClassVar[str] = "range"
+
+    def __post_init__(self) -> None:
+        if (self.std_m is None) == (self.noise is None):
+            raise InputError("RangeModel: give exactly one of std_m and noise")
+        if self.noise is None:
+            object.__setattr__(self, "noise", GaussianRange(self.std_m))
+        if not hasattr(self.noise, "moments") or not hasattr(self.noise, "logpdf"):
+            raise InputError(f"noise: expected a range-error model with moments() and logpdf(), "
+                             f"got {type(self.noise).__name__}")
+
+    @property
+    def reads(self) -> tuple[str, ...]:  # type: ignore[override]
+        return ("position", "anchor_bias") if self.anchor_bias else ("position",)
+
+    @property
+    def modes(self) -> int:
+        """Discrete states of a link (2 for LOS/NLOS: index 0 NLOS, 1 LOS), 1 otherwise."""
+        return 2 if hasattr(self.noise, "logpdf_by_state") else 1
+
+    def _bias_of(self, state, context: Context) -> np.ndarray | float:
+        if not self.anchor_bias:
+            return 0.0
+        if context.index is None or np.any(context.index < 0):
+            raise InputError("context.index: a range model with anchor bias needs the anchor "
+                             "table row of every measurement")
+        return np.take(state["anchor_bias"], context.index, axis=-1)
+
+    def predict(self, state, context: Context) -> np.ndarray:
+        d, _ = range_geometry(state["position"], context.points, context.height_m)
+        return d + self._bias_of(state, context)
+
+    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
+        _, u = range_geometry(state["position"], context.points, context.height_m)
+        out = {"position": u}
+        if self.anchor_bias:
+            n_bias = np.shape(state["anchor_bias"])[-1]
+            onehot = (context.index[:, None] == np.arange(n_bias)).astype(float)
+            out["anchor_bias"] = np.broadcast_to(onehot, u.shape[:-1] + (n_bias,))
+        return out
+
+    def std(self, context: Context) -> np.ndarray:
+        return self.row_std(np.sqrt(self.noise.moments()[1]), context)
+
+    def noise_mean(self, context: Context) -> float:
+        """Mean of the range error (the LOS/NLOS mixture's mean excess; 0 for Gaussian)."""
+        return float(self.noise.moments()[0])
+
+    def logpdf(self, z, state, context: Context) -> np.ndarray:
+        z_hat = self.predict(state, context)
+        if context.std is not None or isinstance(self.noise, GaussianRange):
+            return super().logpdf(z, state, context)
+        lp = self.noise.logpdf(z, z_hat)
+        return np.where(np.isnan(lp), 0.0, lp)
+
+    def mode_logpdf(self, z, state, context: Context) -> np.ndarray:
+        """Per-row log-density under each discrete link state, ``(..., m, modes)``."""
+        z_hat = self.predict(state, context)
+        if self.modes == 1:
+            return self.logpdf(z, state, context)[..., None]
+        lp = self.noise.logpdf_by_state(z, z_hat)
+        return np.where(np.isnan(lp), 0.0, lp)
+
+    def sample(self, state, context: Context, rng: np.random.Generator) -> np.ndarray:
+        z_hat = self.predict(state, context)
+        if context.std is None and hasattr(self.noise, "logpdf_by_state"):
+            los = rng.random(z_hat.shape) < self.noise.alpha
+            return self.noise.sample(z_hat, los, rng)
+        return super().sample(state, context, rng)

@@ -1,0 +1,432 @@
+"""The measurement-model protocol: a model owns its measurement function ``h(x)``.
+
+One extended Kalman filter, one particle filter, one least-squares solver and one smoother
+serve every kind of measurement because each kind is a :class:`MeasurementModel`:
+
+- :meth:`~MeasurementModel.predict` gives the expected measurement ``h(x)``;
+- :meth:`~MeasurementModel.jacobian` its derivative (analytic in each model; the base
+  class falls back to central differences, :func:`numerical_jacobian`);
+- :meth:`~MeasurementModel.noise_cov`, :meth:`~MeasurementModel.logpdf` and
+  :meth:`~MeasurementModel.sample` its noise;
+- :meth:`~MeasurementModel.residual` the difference ``z - h(x)`` (a subtraction; an angle
+  model wraps it to ``(-pi, pi]``);
+- :attr:`~MeasurementModel.reads` the state components it depends on.
+
+The state
+---------
+A state vector is laid out by a :class:`StateLayout`: position first, then velocity (and
+acceleration), then the receiver clock (offset, drift, in metres and metres per second,
+i.e. multiplied by the speed of light), then one bias per anchor (metres). A model never
+sees the vector itself: it receives the named components of a batch of states, a dict
+``{"position": (..., D), "clock_offset": (...), "anchor_bias": (..., A), ...}``, and
+returns its Jacobian per component. The layout assembles the full ``(..., m, n)``
+Jacobian, so a model is written once for every state it may sit in.
+
+The context
+-----------
+What a measurement depends on besides the state travels in a :class:`Context`: the
+reference point(s) of each row (anchor positions, the reference anchor of a time
+difference), their indices in the anchor table (for per-anchor biases) and an optional
+per-row standard deviation. Rows are the last axis of ``z``; a NaN in ``z`` is a missing
+measurement that every estimator skips.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar, Mapping
+
+import numpy as np
+
+from radioloc.core.errors import InputError
+
+__all__ = ["COMPONENTS", "StateLayout", "Context", "MeasurementModel", "numerical_jacobian",
+           "wrap_angle", "gaussian_logpdf"]
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+#: State components a model may read, in their order in the state vector.
+COMPONENTS = ("position", "velocity", "acceleration", "clock_offset", "clock_drift",
+              "anchor_bias")
+
+States = Mapping[str, np.ndarray]
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to ``(-pi, pi]``.
+
+    Parameters
+    ----------
+    angle : array_like
+        Radians.
+
+    Returns
+    -------
+    ndarray
+    """
+    a = np.asarray(angle, dtype=float)
+    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+
+
+def gaussian_logpdf(residual: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Elementwise ``log N(residual; 0, std^2)``."""
+    z = residual / std
+    return -0.5 * z * z - np.log(std) - 0.5 * _LOG_2PI
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where each component sits in a state vector ``(..., n)``.
+
+    Parameters
+    ----------
+    dim : {2, 3}
+        Position dimension ``D``.
+    order : int
+        Motion derivatives carried: 0 position only, 1 with velocity, 2 with acceleration
+        (the order of the motion models of :mod:`radioloc.models.motion`).
+    clock : int
+        Receiver clock terms: 0 none, 1 offset, 2 offset and drift (metres, m/s).
+    n_bias : int
+        Per-anchor range biases (metres), one per anchor of the anchor table.
+
+    Examples
+    --------
+    >>> StateLayout(dim=2, order=1, n_bias=4).size
+    8
+    """
+
+    dim: int = 2
+    order: int = 0
+    clock: int = 0
+    n_bias: int = 0
+
+    def __post_init__(self) -> None:
+        if self.dim not in (2, 3):
+            raise InputError(f"dim: position dimension must be 2 or 3, got {self.dim!r}")
+        if self.order not in (0, 1, 2):
+            raise InputError(f"order: motion order must be 0, 1 or 2, got {self.order!r}")
+        if self.clock not in (0, 1, 2):
+            raise InputError(f"clock: clock terms must be 0, 1 or 2, got {self.clock!r}")
+        if int(self.n_bias) != self.n_bias or self.n_bias < 0:
+            raise InputError(f"n_bias: must be a whole number >= 0, got {self.n_bias!r}")
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """Size of each component present, in state order."""
+        d = self.dim
+        out = {"position": d}
+        if self.order >= 1:
+            out["velocity"] = d
+        if self.order >= 2:
+            out["acceleration"] = d
+        if self.clock >= 1:
+            out["clock_offset"] = 1
+        if self.clock >= 2:
+            out["clock_drift"] = 1
+        if self.n_bias:
+            out["anchor_bias"] = int(self.n_bias)
+        return out
+
+    @property
+    def slices(self) -> dict[str, slice]:
+        """Slice of each component present in the state vector."""
+        out, start = {}, 0
+        for name, size in self.sizes.items():
+            out[name] = slice(start, start + size)
+            start += size
+        return out
+
+    @property
+    def size(self) -> int:
+        """Length ``n`` of the state vector."""
+        return sum(self.sizes.values())
+
+    @property
+    def motion_size(self) -> int:
+        """Length of the kinematic part (position, velocity, acceleration)."""
+        return self.dim * (self.order + 1)
+
+    def with_model(self, model: "MeasurementModel", n_anchors: int = 0) -> "StateLayout":
+        """This layout grown to hold every component ``model`` reads.
+
+        Parameters
+        ----------
+        model : MeasurementModel
+        n_anchors : int
+            Anchors in the table (the size of ``anchor_bias`` when the model reads it).
+
+        Returns
+        -------
+        StateLayout
+        """
+        reads = set(model.reads)
+        clock = max(self.clock, 2 if "clock_drift" in reads else 1 if "clock_offset" in reads else 0)
+        order = max(self.order, 2 if "acceleration" in reads else 1 if "velocity" in reads else 0)
+        n_bias = max(self.n_bias, int(n_anchors) if "anchor_bias" in reads else 0)
+        return replace(self, clock=clock, order=order, n_bias=n_bias)
+
+    def split(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """The named components of a batch of states.
+
+        Scalar components (``clock_offset``, ``clock_drift``) come without their axis:
+        ``(...)``; the others keep it: ``(..., k)``.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., n)
+
+        Returns
+        -------
+        dict
+        """
+        x = np.asarray(state, dtype=float)
+        if x.shape[-1:] != (self.size,):
+            raise InputError(f"state: last axis must have {self.size} entries for {self}, "
+                             f"got shape {x.shape}")
+        out = {}
+        for name, sl in self.slices.items():
+            out[name] = x[..., sl.start] if name in ("clock_offset", "clock_drift") else x[..., sl]
+        return out
+
+    def join(self, components: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The state vectors ``(..., n)`` made of named components (the inverse of
+        :meth:`split`; a missing component is zero)."""
+        parts, shape = [], None
+        for name, size in self.sizes.items():
+            if name not in components:
+                parts.append(None)
+                continue
+            c = np.asarray(components[name], dtype=float)
+            if name in ("clock_offset", "clock_drift"):
+                c = c[..., None]
+            parts.append(c)
+            shape = np.broadcast_shapes(shape or c.shape[:-1], c.shape[:-1])
+        if shape is None:
+            raise InputError("components: give at least one state component")
+        out = np.zeros(shape + (self.size,))
+        for (name, sl), c in zip(self.slices.items(), parts):
+            if c is not None:
+                out[..., sl] = c
+        return out
+
+    def measure(self, model: "MeasurementModel", state: np.ndarray,
+                context: "Context") -> tuple[np.ndarray, np.ndarray]:
+        """Predicted measurements and the full Jacobian for a batch of states.
+
+        Parameters
+        ----------
+        model : MeasurementModel
+        state : ndarray, shape (..., n)
+        context : Context
+
+        Returns
+        -------
+        z_hat : ndarray, shape (..., m)
+        H : ndarray, shape (..., m, n)
+            ``d h / d x``; zero in the columns of components the model does not read.
+        """
+        self.check(model)
+        comps = self.split(state)
+        z_hat = model.predict(comps, context)
+        parts = model.jacobian(comps, context)
+        H = np.zeros(z_hat.shape + (self.size,))
+        for name, block in parts.items():
+            sl = self.slices[name]
+            H[..., sl] = block
+        return z_hat, H
+
+    def check(self, model: "MeasurementModel") -> None:
+        """Refuse a model that reads a component this layout lacks, naming both."""
+        missing = [c for c in model.reads if c not in self.sizes]
+        if missing:
+            raise InputError(f"model {type(model).__name__} reads {', '.join(missing)}, which "
+                             f"the state {self} does not hold (grow it with "
+                             "StateLayout.with_model)")
+
+
+@dataclass(frozen=True)
+class Context:
+    """What a batch of measurement rows depends on besides the state.
+
+    Rows are the last axis of every array (``m``); leading axes broadcast against the
+    state's batch axes.
+
+    Attributes
+    ----------
+    points : ndarray, shape (..., m, P)
+        The reference point of each row: the anchor a range or an angle is taken to, the
+        satellite of a pseudorange, the anchor of a time difference.
+    index : ndarray of int, shape (m,), optional
+        Row of each ``points`` entry in the anchor table (what ``anchor_bias`` is indexed
+        by); ``-1`` where the point is not an anchor of the table.
+    reference : ndarray, shape (..., m, P), optional
+        The second point of a row: the reference anchor of a time difference.
+    reference_index : ndarray of int, shape (m,), optional
+        Its row in the anchor table.
+    std : ndarray, shape (..., m), optional
+        A per-row standard deviation that overrides the model's (NaN: the model's).
+    height_m : float, optional
+        Known height of a 2-D node when the points are 3-D.
+    """
+
+    points: np.ndarray
+    index: np.ndarray | None = None
+    reference: np.ndarray | None = None
+    reference_index: np.ndarray | None = None
+    std: np.ndarray | None = None
+    height_m: float | None = None
+
+    def __post_init__(self) -> None:
+        pts = np.asarray(self.points, dtype=float)
+        if pts.ndim < 2:
+            raise InputError(f"points: expected shape (..., m, P), got {pts.shape}")
+        object.__setattr__(self, "points", pts)
+        m = pts.shape[-2]
+        for name in ("index", "reference_index"):
+            v = getattr(self, name)
+            if v is not None:
+                v = np.asarray(v)
+                if v.shape != (m,) or not np.issubdtype(v.dtype, np.integer):
+                    raise InputError(f"{name}: expected {m} integers (one per row), got "
+                                     f"{v.dtype} of shape {v.shape}")
+                object.__setattr__(self, name, v)
+        if self.reference is not None:
+            ref = np.asarray(self.reference, dtype=float)
+            if ref.shape[-2:] != pts.shape[-2:]:
+                raise InputError(f"reference: shape {ref.shape} does not match points {pts.shape}")
+            object.__setattr__(self, "reference", ref)
+        if self.std is not None:
+            s = np.asarray(self.std, dtype=float)
+            if s.shape[-1:] != (m,) or np.any(s[np.isfinite(s)] <= 0):
+                raise InputError(f"std: expected {m} positive per-row standard deviations, "
+                                 f"got shape {s.shape}")
+            object.__setattr__(self, "std", s)
+
+    @property
+    def rows(self) -> int:
+        """Number of measurement rows ``m``."""
+        return self.points.shape[-2]
+
+    def take(self, rows: np.ndarray) -> "Context":
+        """The context of a subset of rows (an index array or a boolean mask)."""
+        def sub(a, axis):
+            return None if a is None else np.take(a, rows, axis=axis) if np.asarray(rows).dtype != bool \
+                else np.compress(rows, a, axis=axis)
+
+        return Context(points=sub(self.points, -2), index=sub(self.index, 0),
+                       reference=sub(self.reference, -2),
+                       reference_index=sub(self.reference_index, 0), std=sub(self.std, -1),
+                       height_m=self.height_m)
+
+
+def numerical_jacobian(model: "MeasurementModel", state: States, context: Context,
+                       step: float = 1e-6) -> dict[str, np.ndarray]:
+    """Central-difference Jacobian of ``model.predict`` per component it reads.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    state : dict
+        Named components (see :meth:`StateLayout.split`).
+    context : Context
+    step : float
+        Relative step (scaled by ``max(1, |x|)`` per entry).
+
+    Returns
+    -------
+    dict
+        ``{component: (..., m, k)}`` for every component in ``model.reads``.
+    """
+    out = {}
+    for name in model.reads:
+        x = np.asarray(state[name], dtype=float)
+        scalar = name in ("clock_offset", "clock_drift")
+        xv = x[..., None] if scalar else x
+        cols = []
+        for j in range(xv.shape[-1]):
+            h = step * np.maximum(1.0, np.abs(xv[..., j]))
+            plus, minus = xv.copy(), xv.copy()
+            plus[..., j] += h
+            minus[..., j] -= h
+            sp, sm = dict(state), dict(state)
+            sp[name] = plus[..., 0] if scalar else plus
+            sm[name] = minus[..., 0] if scalar else minus
+            dz = model.residual(model.predict(sp, context), model.predict(sm, context))
+            cols.append(dz / (2.0 * h[..., None]))
+        out[name] = np.stack(cols, axis=-1)
+    return out
+
+
+class MeasurementModel:
+    """Base class of measurement models (see the module docstring).
+
+    A subclass sets :attr:`kind` and :attr:`reads`, implements :meth:`predict` and
+    :meth:`std` (or overrides :meth:`noise_cov` and :meth:`logpdf` for a non-Gaussian or
+    correlated noise), and should give an analytic :meth:`jacobian`.
+
+    Attributes
+    ----------
+    kind : str
+        The log-schema kind the model explains (``"range"``, ``"tdoa"``, ``"aoa"``, ...).
+    reads : tuple of str
+        State components it depends on (names of :data:`COMPONENTS`).
+    angular : bool
+        Whether residuals wrap (angles in radians).
+    """
+
+    kind: ClassVar[str] = ""
+    reads: ClassVar[tuple[str, ...]] = ("position",)
+    angular: ClassVar[bool] = False
+
+    # ---- the measurement function -------------------------------------------------------
+    def predict(self, state: States, context: Context) -> np.ndarray:  # pragma: no cover
+        """Expected measurements ``h(x)``, shape ``(..., m)``."""
+        raise NotImplementedError
+
+    def jacobian(self, state: States, context: Context) -> dict[str, np.ndarray]:
+        """``d h / d`` each component read, ``{name: (..., m, k)}`` (scalar components:
+        ``k = 1``). The base class differentiates numerically."""
+        return numerical_jacobian(self, state, context)
+
+    def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+        """``z - z_hat``, wrapped to ``(-pi, pi]`` for an angular model."""
+        r = np.asarray(z, dtype=float) - np.asarray(z_hat, dtype=float)
+        return wrap_angle(r) if self.angular else r
+
+    # ---- the noise ----------------------------------------------------------------------
+    def std(self, context: Context) -> np.ndarray:  # pragma: no cover - abstract
+        """Per-row noise standard deviation ``(..., m)`` (the context's where given)."""
+        raise NotImplementedError
+
+    def row_std(self, default: float | np.ndarray, context: Context) -> np.ndarray:
+        """``context.std`` where finite, else ``default``, broadcast to ``(..., m)``."""
+        base = np.broadcast_to(np.asarray(default, dtype=float), (context.rows,)) \
+            if np.ndim(default) == 0 else np.asarray(default, dtype=float)
+        if context.std is None:
+            return base
+        return np.where(np.isfinite(context.std), context.std, base)
+
+    def noise_mean(self, context: Context) -> np.ndarray | float:
+        """Mean of the noise (0: unbiased); an estimator subtracts it from ``z``."""
+        return 0.0
+
+    def noise_cov(self, context: Context) -> np.ndarray:
+        """Noise covariance ``(..., m, m)``: diagonal ``std^2`` unless a model correlates
+        its rows."""
+        s = self.std(context)
+        return s[..., :, None] ** 2 * np.eye(s.shape[-1])
+
+    def logpdf(self, z: np.ndarray, state: States, context: Context) -> np.ndarray:
+        """Per-row log-density ``(..., m)`` of ``z`` given the state (NaN rows give 0)."""
+        r = self.residual(z, self.predict(state, context)) - self.noise_mean(context)
+        lp = gaussian_logpdf(r, self.std(context))
+        return np.where(np.isnan(r), 0.0, lp)
+
+    def sample(self, state: States, context: Context, rng: np.random.Generator) -> np.ndarray:
+        """A draw of the measurements ``h(x) + v``, ``v ~ N(noise_mean, noise_cov)``."""
+        z_hat = self.predict(state, context)
+        L = np.linalg.cholesky(self.noise_cov(context))
+        v = np.einsum("...ij,...j->...i", L, rng.standard_normal(z_hat.shape))
+        z = z_hat + self.noise_mean(context) + v
+        return wrap_angle(z) if self.angular else z
