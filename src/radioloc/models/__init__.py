@@ -16,7 +16,7 @@ from radioloc.models.motion import (
     UniformDisk,
     WhiteAccelerationCV,
 )
-from radioloc.models.measurement import Context, MeasurementModel, StateLayout
+from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 from radioloc.models.ranging import GaussianRange, RangeModel, range_geometry
 from radioloc.models.progressive_bayes import ProgressionInfo, isd, progressive_reduce
 from radioloc.models.rssi_logdistance import LogDistanceGaussian, device_offset
@@ -25,7 +25,7 @@ from radioloc.models.single_sensor import SquaredRangeModel
 
 __all__ = [
     "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "InputDriven", "UniformDisk",
-    "GaussianRange", "RangeModel", "range_geometry", "MeasurementModel", "StateLayout", "Context", "LosNlosRange", "StickyLinkChain",
+    "GaussianRange", "RangeModel", "range_geometry", "MeasurementModel", "StateLayout", "Context", "Observation", "LosNlosRange", "StickyLinkChain",
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",
     "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",

@@ -40,7 +40,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 
-__all__ = ["COMPONENTS", "StateLayout", "Context", "MeasurementModel", "numerical_jacobian",
+__all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -430,3 +430,56 @@ class MeasurementModel:
         v = np.einsum("...ij,...j->...i", L, rng.standard_normal(z_hat.shape))
         z = z_hat + self.noise_mean(context) + v
         return wrap_angle(z) if self.angular else z
+
+
+@dataclass(frozen=True)
+class Observation:
+    """Measurements of one kind for the generic estimators: a model, its values over time
+    and the static context of its rows.
+
+    Attributes
+    ----------
+    model : MeasurementModel
+    z : ndarray, shape (..., T, m) for a filter or smoother, (..., m) for a snapshot fit
+        Measured values; NaN where a row has no measurement at that step.
+    context : Context
+        The rows' reference points (the same at every step; a moving anchor gives
+        ``points`` of shape ``(..., T, m, P)``, sliced per step by :meth:`at`).
+    std : ndarray, shape (..., T, m), optional
+        Per-row, per-step standard deviations (NaN: the model's).
+    """
+
+    model: MeasurementModel
+    z: np.ndarray
+    context: Context
+    std: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, MeasurementModel):
+            raise InputError(f"model: expected a MeasurementModel, got {type(self.model).__name__}")
+        z = np.asarray(self.z)
+        if z.dtype.kind not in "fiu":
+            raise InputError(f"z: expected real numbers, got dtype {z.dtype}")
+        z = z.astype(float)
+        if z.shape[-1:] != (self.context.rows,):
+            raise InputError(f"z: last axis has {z.shape[-1:] or 'no'} rows but the context has "
+                             f"{self.context.rows}")
+        object.__setattr__(self, "z", z)
+        if self.std is not None:
+            s = np.asarray(self.std, dtype=float)
+            object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
+
+    @property
+    def steps(self) -> int:
+        """Number of time steps ``T`` (the second-to-last axis of ``z``)."""
+        return self.z.shape[-2]
+
+    def at(self, step: int) -> tuple[np.ndarray, Context]:
+        """``(z_t, context_t)`` of one time step."""
+        ctx = self.context
+        if ctx.points.ndim >= 3 and ctx.points.shape[-3] == self.steps and ctx.points.ndim == self.z.ndim + 1:
+            ctx = replace(ctx, points=ctx.points[..., step, :, :],
+                          reference=None if ctx.reference is None else ctx.reference[..., step, :, :])
+        if self.std is not None:
+            ctx = replace(ctx, std=self.std[..., step, :])
+        return self.z[..., step, :], ctx
