@@ -13,11 +13,56 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from radioloc.core.results import Estimate, Track
 
-__all__ = ["SnapshotEstimator", "RecursiveEstimator"]
+__all__ = ["SnapshotEstimator", "RecursiveEstimator", "Tags"]
+
+
+@dataclass(frozen=True)
+class Tags:
+    """What an estimator supports (scikit-learn's estimator tags), read by the contract
+    tests and by ``radioloc methods``.
+
+    Attributes
+    ----------
+    kinds : tuple of str or None
+        Measurement kinds it takes (``"range"``, ``"tdoa"``, ``"aoa"``, ``"rss"``, ...);
+        None: any :class:`~radioloc.models.measurement.MeasurementModel`.
+    uses : {"jacobian", "logpdf"}
+        What it needs of a model: ``"jacobian"`` (Gaussian linearisation: ``predict``,
+        ``jacobian``, ``noise_cov``) or ``"logpdf"`` (any density: ``predict``,
+        ``logpdf``, ``sample``).
+    dims : tuple of int
+        Position dimensions it supports.
+    recursive : bool
+        Whether it filters over time (``run -> Track``) or fits one epoch
+        (``locate -> Estimate``).
+    missing : str
+        What a NaN measurement does: ``"skip"`` (the row is left out).
+    modes : bool
+        Whether it integrates a model's discrete per-row states (LOS/NLOS).
+    generic : bool
+        Whether it takes :class:`~radioloc.models.measurement.Observation` inputs of any
+        model it supports (the generic estimators), or only its paper's arrays.
+    """
+
+    kinds: tuple[str, ...] | None = ("range",)
+    uses: str = "jacobian"
+    dims: tuple[int, ...] = (2, 3)
+    recursive: bool = False
+    missing: str = "skip"
+    modes: bool = False
+    generic: bool = False
+
+    def accepts(self, model: Any) -> bool:
+        """Whether a measurement model fits these tags (its kind, and what it offers)."""
+        if self.kinds is not None and getattr(model, "kind", None) not in self.kinds:
+            return False
+        need = ("predict", "jacobian", "noise_cov") if self.uses == "jacobian" else ("predict", "logpdf")
+        return all(hasattr(model, n) for n in need)
 
 
 class SnapshotEstimator:
@@ -25,6 +70,8 @@ class SnapshotEstimator:
 
     #: how the estimator is named in tables and on the command line
     name: str = ""
+    #: what it supports (see :class:`Tags`)
+    tags: Tags = Tags()
 
     def locate(self, *args: Any, **kwargs: Any) -> Estimate:  # pragma: no cover - abstract
         """Estimate positions for a batch of problems.
@@ -52,6 +99,8 @@ class SnapshotEstimator:
 
 class RecursiveEstimator(SnapshotEstimator):
     """Base class of filters: ``init``, ``step``, ``estimate`` and ``run``."""
+
+    tags: Tags = Tags(recursive=True)
 
     def init(self, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover - abstract
         """The filter state before the first measurement.
