@@ -70,7 +70,7 @@ def fetch_dataset(
 
 @datasets_app.command("export")
 def export_dataset(
-    name: Annotated[str, typer.Argument(help="hanyang, kolakowski or ujiindoorloc.")],
+    name: Annotated[str, typer.Argument(help="hanyang, kolakowski, ujiindoorloc or wifi-rtt.")],
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("export"),
     fmt: Annotated[str, typer.Option("--format", help="csv or parquet (Parquet needs pyarrow).")] = "csv",
     run: Annotated[str, typer.Option(help="hanyang: run CONDITION/TRAJECTORY/CASE, e.g. LOS/A/1.")] = "LOS/A/1",
@@ -79,6 +79,9 @@ def export_dataset(
     building: Annotated[int, typer.Option(help="ujiindoorloc: BUILDINGID.")] = 0,
     floor: Annotated[int, typer.Option(help="ujiindoorloc: FLOOR.")] = 0,
     min_detections: Annotated[int, typer.Option(help="ujiindoorloc: keep access points detected at least this often.")] = 20,
+    venue: Annotated[str, typer.Option(help="wifi-rtt: Canteen, 'Conference Room' or Library.")] = "Canteen",
+    circle: Annotated[str, typer.Option(help="wifi-rtt: circle folder of the venue, e.g. 1.")] = "1",
+    rss: Annotated[bool, typer.Option("--rss", help="wifi-rtt: also write the RSS rows.")] = False,
 ) -> None:
     """Write a data set in the `radioloc locate` formats (measurements, anchors, reference,
     and a fingerprint calibration file for the fingerprint sets)."""
@@ -91,6 +94,8 @@ def export_dataset(
             opts.update(run=run, epoch_s=epoch_s, tag_height_m=tag_height)
         elif ds.name == "ujiindoorloc":
             opts.update(building=building, floor=floor, min_detections=min_detections)
+        elif ds.name == "wifi-rtt-haiyaoyu":
+            opts.update(venue=venue, circle=circle, rss=rss)
         paths = export(ds.name, out, **opts)
     except RadiolocError as exc:
         _fail(exc)

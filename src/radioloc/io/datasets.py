@@ -129,6 +129,8 @@ _HE_ORIGIN, _HE_BASE = _github("theheraldproject/herald-analysis",
                                "fb668bec0fdf6a9c3f1fa99f6ff8e29eff8c2108")
 _KO_ORIGIN, _KO_BASE = _github("marckolak/ble-rss-fingerprints-calib2021",
                                "0a69aaa7006909d3f8f9f3a14fcba9405d404fa5")
+_RTT_ORIGIN, _RTT_BASE = _github("haiyaoyu/RTT-Indoor-localization-data-set",
+                                 "2b19c6c0db0e54f07800802fdf261ea3835ca478")
 _UC_ORIGIN, _UC_BASE = _github("ShuningZhao/Character-Trajectories",
                                "0c9bfa477542c4f885370a6af05a99b45764f3af")
 
@@ -172,6 +174,13 @@ DATASETS: dict[str, DataSet] = {d.name: d for d in (
                     "validationData.csv",
                     "sha256:5f90c536648cd657b2c516d20c4e0968d4003279ea6bd5d5d5322d3f1e8905c0"),
             })),
+    DataSet("wifi-rtt-haiyaoyu",
+            "WiFi RTT (802.11mc) ranges, RSS and IMU of two phones walking loops in 3 venues "
+            "(6-8 access points), with ground truth",
+            _RTT_ORIGIN, "2b19c6c0db0e54f07800802fdf261ea3835ca478", _RTT_BASE, "MIT",
+            aliases=("wifi-rtt", "rtt"),
+            exports="locate run per circle: both phones' RTT ranges (with the phone's std) and "
+                    "RSS, anchors, reference"),
 )}
 
 
@@ -729,6 +738,64 @@ def _rss_run(out: Path, ext: str, time: np.ndarray, node: str, ids: list[str],
             "reference": write_table(reference, out / f"reference{ext}")}
 
 
+def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | int = 1,
+                    rss: bool = False, root: Path | str | None = None,
+                    fmt: str = "csv") -> dict[str, Path]:
+    """Write one circle of the WiFi RTT set in the ``radioloc locate`` schema.
+
+    Both phones go in one log, as nodes ``M1`` and ``M2`` (their clocks start at 0 together).
+    Each sample gives one ``range`` row per AP measured (``std``: the standard deviation
+    the phone reports, empty where it reports 0) and, with ``rss``, one ``rss`` row. The truth columns
+    (true distances, ground truth) are never written as measurements; the ground truth goes
+    to ``reference``. An AP written as 0 (not measured) has no row. The phone-to-phone
+    ranges are not written: their clock is not aligned with the phones' logs.
+
+    Parameters
+    ----------
+    out : path
+        Output folder.
+    venue : str
+        ``Canteen``, ``Conference Room`` or ``Library``.
+    circle : str or int
+        A circle folder of the venue.
+    rss : bool
+        Also write the RSS rows (for methods that use ``rss``).
+    root : path, optional
+        The data set folder (default :func:`require`).
+    fmt : {"csv", "parquet"}
+
+    Returns
+    -------
+    dict of str to Path
+        ``measurements``, ``anchors``, ``reference`` (``time, node, x, y``).
+    """
+    from radioloc.io.wifi_rtt import PHONES, load_anchors, load_run
+
+    ext = _ext(fmt)
+    root = Path(root) if root is not None else require("wifi-rtt-haiyaoyu")
+    rows, refs = [], []
+    for phone in PHONES:
+        run = load_run(root, venue, circle, phone)
+        n, a = run.range_m.shape
+        t = np.repeat(np.round(run.time_s, 6), a)
+        kinds = [("range", run.range_m, run.range_std_m)]
+        if rss:
+            kinds.append(("rss", run.rss_dbm, np.full_like(run.rss_dbm, np.nan)))
+        for kind, value, std in kinds:
+            rows.append(pd.DataFrame({"time": t, "node": phone, "peer": np.tile(run.ap_ids, n),
+                                      "kind": kind, "value": value.ravel(), "std": std.ravel()}))
+        refs.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
+                                  "x": run.truth_xy[:, 0], "y": run.truth_xy[:, 1]}))
+    meas = pd.concat(rows, ignore_index=True)
+    meas = meas[np.isfinite(meas["value"].to_numpy())].sort_values(["time", "node", "kind"],
+                                                                    kind="stable")
+    out = Path(out)
+    return {"measurements": write_table(meas, out / f"measurements{ext}"),
+            "anchors": write_table(load_anchors(root, venue), out / f"anchors{ext}"),
+            "reference": write_table(pd.concat(refs, ignore_index=True).sort_values(
+                ["time", "node"], kind="stable"), out / f"reference{ext}")}
+
+
 #: UJIIndoorLoc's value for "access point not detected".
 UJI_NOT_DETECTED = 100
 
@@ -825,6 +892,7 @@ EXPORTERS: dict[str, Callable[..., dict[str, Path]]] = {
     "hanyang-uwb-outdoor": export_hanyang,
     "kolakowski-ble-fingerprints-2021": export_kolakowski,
     "ujiindoorloc": export_ujiindoorloc,
+    "wifi-rtt-haiyaoyu": export_wifi_rtt,
 }
 
 
@@ -859,5 +927,5 @@ def export(name: str, out: Path | str, **options) -> dict[str, Path]:
 
 
 __all__ = ["DATASETS", "DataSet", "data_roots", "download_root", "export", "export_hanyang",
-           "export_kolakowski", "export_ujiindoorloc", "fetch", "find", "get", "hanyang_runs",
+           "export_kolakowski", "export_ujiindoorloc", "export_wifi_rtt", "fetch", "find", "get", "hanyang_runs",
            "missing_message", "read_table_text", "require", "status", "write_table"]

@@ -10,6 +10,8 @@ column      meaning
 ``peer``    id of the other end: an anchor id or another node's id (text)
 ``kind``    ``range`` (metres) or ``rss`` (dBm)
 ``value``   the measured value (number; a range must be >= 0)
+``std``     optional: the standard deviation of this measurement in the value's unit
+            (> 0; empty: the method's default), e.g. the sigma a WiFi RTT phone reports
 ==========  =======================================================================
 
 Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique.
@@ -189,6 +191,19 @@ def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     return values
 
 
+def _optional_std(frame: pd.DataFrame, path: Path | str) -> pd.Series:
+    """The ``std`` column: positive numbers, empty cells NaN (the method's default)."""
+    raw = frame["std"].astype(str).str.strip()
+    empty = (raw == "") | (raw.str.lower() == "nan")
+    filled = frame.assign(std=raw.where(~empty, "0"))
+    values = _numeric(filled, "std", path).where(~empty, np.nan)
+    v = values.to_numpy()
+    if (i := _first((v <= 0) | (v > LIMITS["range_m"]))) is not None:
+        raise InputError(f"{path}: line {_line(frame, i)}, column 'std': {raw.iloc[i]} is not a "
+                         "positive standard deviation (leave the cell empty for the default)")
+    return values
+
+
 # ids that CSV readers (pandas, R) read back as a missing value: a node called "nan" would
 # vanish from whoever reads our output, so such ids are refused (compared case-blind)
 MISSING_IDS = frozenset(v.lower() for v in (
@@ -277,7 +292,8 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     Returns
     -------
     DataFrame
-        ``time`` (float), ``node``, ``peer`` (str), ``kind`` (str), ``value`` (float), and
+        ``time`` (float), ``node``, ``peer`` (str), ``kind`` (str), ``value`` (float),
+        ``std`` (float, NaN: the method's default) when the file has that column, and
         ``line`` (the file line of each row, for later error messages).
 
     Raises
@@ -297,6 +313,8 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "value": _numeric(frame, "value", path),
         "line": frame.attrs["lines"],
     })
+    if "std" in frame.columns:
+        out["std"] = _optional_std(frame, path)
 
     def fail(i: int, message: str) -> None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}, {message}")
