@@ -308,7 +308,8 @@ def locate(
     Output: CSV with time, node, x, y and, where the method has one, uncertainty_m
     (square root of the trace of the position covariance, metres).
     """
-    from radioloc.io.logs import check_output_path, read_anchors, read_measurements, write_estimates
+    from radioloc.io.logs import (check_output_path, read_anchors, read_measurements,
+                                  subtract_anchor_bias, write_estimates)
     from radioloc.locate.base import LocateRequest, run_method
 
     check_output_path(out)
@@ -324,10 +325,44 @@ def locate(
             nd = None if nd is None else float(nd)
         except ValueError:
             raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
-        meas = read_measurements(measurements, anchors=anchor_table, not_detected=nd)
+        meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
+                                                      not_detected=nd), anchor_table)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
         estimates = run_method(method, request)
     write_estimates(estimates, out)
+    if out is not None and str(out) != "-":
+        _echo_err(f"wrote {out}")
+
+
+@app.command()
+def calibrate(
+    measurements: Annotated[Path, typer.Argument(help="Measurements CSV: anchor-to-anchor and/or tag range rows.")],
+    anchors: Annotated[Path, typer.Option(help="Anchors CSV: id, x, y[, z], std_m (prior std of a rough anchor, m; empty or 0: surveyed).")],
+    out: Annotated[Optional[Path], typer.Option(help="Calibrated anchors CSV (default: standard output).")] = None,
+    std_m: Annotated[float, typer.Option(help="Standard deviation of a range, m.")] = 0.1,
+    bias: Annotated[bool, typer.Option("--bias", help="Also estimate each anchor's range bias (antenna delay).")] = False,
+    bias_prior_std_m: Annotated[float, typer.Option(help="Prior std of a bias around 0, m.")] = 1.0,
+    loss: Annotated[str, typer.Option(help="linear, huber, soft_l1 or cauchy (robust to NLOS outliers).")] = "linear",
+) -> None:
+    """Estimate anchors' positions (and range biases) from the ranges of a log.
+
+    Output: the anchors file with the estimates, their covariance and the Cramer-Rao bound
+    (crb_std_m); `radioloc locate --anchors` reads it and subtracts bias_m from ranges.
+    """
+    from radioloc.io.logs import check_output_path, read_anchors, read_measurements, write_estimates
+    from radioloc.locate.calibrate import calibrate_log, calibration_table
+
+    check_output_path(out)
+    with numeric_errors_raise():
+        table = read_anchors(anchors)
+        meas = read_measurements(measurements)
+        result, counts = calibrate_log(meas, table, std_m=std_m, bias=bias,
+                                       bias_prior_std_m=bias_prior_std_m, loss=loss)
+    write_estimates(calibration_table(table, result), out)
+    _echo_err(f"calibrated {counts['rough_anchors']} anchor(s) from {counts['anchor_ranges']} anchor-to-anchor and "
+              f"{counts['tag_ranges']} tag range(s) ({counts['tag_epochs']} tag epochs); "
+              f"range residual rms {result.residual_rms_m:.3g} m"
+              + ("" if result.converged else "; the solver did not converge"))
     if out is not None and str(out) != "-":
         _echo_err(f"wrote {out}")
 

@@ -191,16 +191,20 @@ def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     return values
 
 
-def _optional_std(frame: pd.DataFrame, path: Path | str) -> pd.Series:
-    """The ``std`` column: positive numbers, empty cells NaN (the method's default)."""
-    raw = frame["std"].astype(str).str.strip()
+def _optional_number(frame: pd.DataFrame, column: str, path: Path | str, *,
+                     minimum: float | None = None, exclusive: bool = False) -> pd.Series:
+    """An optional number column: empty cells NaN, others finite (and above ``minimum``)."""
+    raw = frame[column].astype(str).str.strip()
     empty = (raw == "") | (raw.str.lower() == "nan")
-    filled = frame.assign(std=raw.where(~empty, "0"))
-    values = _numeric(filled, "std", path).where(~empty, np.nan)
-    v = values.to_numpy()
-    if (i := _first((v <= 0) | (v > LIMITS["range_m"]))) is not None:
-        raise InputError(f"{path}: line {_line(frame, i)}, column 'std': {raw.iloc[i]} is not a "
-                         "positive standard deviation (leave the cell empty for the default)")
+    values = _numeric(frame.assign(**{column: raw.where(~empty, "0")}), column, path)
+    values = values.where(~empty, np.nan)
+    if minimum is not None:
+        v = values.to_numpy()
+        below = (v <= minimum) if exclusive else (v < minimum)
+        if (i := _first(below)) is not None:
+            raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': {raw.iloc[i]} "
+                             f"must be {'>' if exclusive else '>='} {minimum:g} (leave the cell "
+                             "empty for the default)")
     return values
 
 
@@ -249,7 +253,10 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``.
+        Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``; and, when the
+        file has them, ``std_m`` (prior standard deviation of a rough anchor, NaN: surveyed)
+        and ``bias_m`` (a range bias that ``locate`` subtracts, written by ``radioloc
+        calibrate``).
 
     Raises
     ------
@@ -264,6 +271,11 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         if c in frame.columns:
             out[c] = _numeric(frame, c, path)
             _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"], "m", path)
+    if "std_m" in frame.columns:                     # prior std of a rough anchor (calibrate)
+        out["std_m"] = _optional_number(frame, "std_m", path, minimum=0.0)
+    if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
+        out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
+        _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
     dup = out["id"].duplicated()
     if dup.any():
         i = int(np.flatnonzero(dup.to_numpy())[0])
@@ -314,7 +326,8 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "line": frame.attrs["lines"],
     })
     if "std" in frame.columns:
-        out["std"] = _optional_std(frame, path)
+        out["std"] = _optional_number(frame, "std", path, minimum=0.0, exclusive=True)
+        _check_magnitude(frame, out["std"].fillna(0.0), "std", LIMITS["range_m"], "", path)
 
     def fail(i: int, message: str) -> None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}, {message}")
@@ -359,6 +372,28 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         if (i := _first(out["node"].isin(set(anchors["id"])))) is not None:
             fail(i, f"column 'node': {out['node'].iloc[i]!r} is an anchor id; anchors do not "
                     "need locating")
+    return out
+
+
+def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | None) -> pd.DataFrame:
+    """Ranges corrected by the anchors' ``bias_m`` (a calibrated anchors file): each range to
+    an anchor minus that anchor's bias, floored at 0. Unchanged when there is no ``bias_m``.
+
+    Parameters
+    ----------
+    measurements, anchors : DataFrame
+        As read by :func:`read_measurements` and :func:`read_anchors`.
+
+    Returns
+    -------
+    DataFrame
+    """
+    if anchors is None or "bias_m" not in anchors.columns:
+        return measurements
+    bias = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_m"])))
+    is_range = (measurements["kind"] == "range") & bias.notna()
+    out = measurements.copy()
+    out.loc[is_range, "value"] = np.maximum(out.loc[is_range, "value"] - bias[is_range], 0.0)
     return out
 
 
