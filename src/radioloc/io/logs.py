@@ -8,8 +8,13 @@ column      meaning
 ``time``    time stamp in seconds (number); rows with equal time form one epoch
 ``node``    id of the node that measured (text)
 ``peer``    id of the other end: an anchor id or another node's id (text)
-``kind``    ``range`` (metres) or ``rss`` (dBm)
+``kind``    ``range`` (metres), ``rss`` (dBm), ``tdoa`` (range difference to ``peer``
+            minus to ``reference``, metres), ``aoa`` (bearing from ``peer`` to the
+            node, radians, counter-clockwise from +x) or ``pseudorange`` (metres,
+            with the node's clock offset)
 ``value``   the measured value (number; a range must be >= 0)
+``reference`` optional: the second reference point of a ``tdoa`` row (its reference
+            anchor); empty for other kinds
 ``std``     optional: the standard deviation of this measurement in the value's unit
             (> 0; empty: the method's default), e.g. the sigma a WiFi RTT phone reports
 ==========  =======================================================================
@@ -44,11 +49,12 @@ from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
-KINDS = ("range", "rss")
+KINDS = ("range", "rss", "tdoa", "aoa", "pseudorange")
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
 LIMITS = {
     "range_m": 1e7,          # 10,000 km: beyond any terrestrial link
+    "pseudorange_m": 1e8,    # beyond any GNSS orbit plus a clock offset of ~0.2 s
     "coordinate_m": 1e7,     # |x|, |y|, |z| of an anchor (UTM northings and ECEF fit)
     "rss_max_dbm": 30.0,     # 1 W received
     "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
@@ -325,6 +331,8 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "value": _numeric(frame, "value", path),
         "line": frame.attrs["lines"],
     })
+    if "reference" in frame.columns:
+        out["reference"] = frame["reference"].astype(str).str.strip()
     if "std" in frame.columns:
         out["std"] = _optional_number(frame, "std", path, minimum=0.0, exclusive=True)
         _check_magnitude(frame, out["std"].fillna(0.0), "std", LIMITS["range_m"], "", path)
@@ -361,6 +369,21 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_rss & (value < LIMITS["rss_min_dbm"]))) is not None:
         fail(i, f"column 'value': rss {value[i]:g} dBm is below the plausible minimum of "
                 f"{LIMITS['rss_min_dbm']:g} dBm")
+    is_aoa = (out["kind"] == "aoa").to_numpy()
+    if (i := _first(is_aoa & (np.abs(value) > 2 * np.pi))) is not None:
+        fail(i, f"column 'value': angle {value[i]:g} is beyond 2 pi: aoa is in radians "
+                "(degrees?)")
+    is_pseudo = (out["kind"] == "pseudorange").to_numpy()
+    if (i := _first(is_pseudo & (np.abs(value) > LIMITS["pseudorange_m"]))) is not None:
+        fail(i, f"column 'value': pseudorange {value[i]:g} m is beyond the limit of "
+                f"{LIMITS['pseudorange_m']:g} m")
+    is_tdoa = (out["kind"] == "tdoa").to_numpy()
+    ref = out["reference"] if "reference" in out.columns else pd.Series([""] * len(out))
+    if (i := _first(is_tdoa & (ref == "").to_numpy())) is not None:
+        fail(i, "column 'reference': a tdoa row needs its reference anchor")
+    if (i := _first(is_tdoa & (np.abs(value) > LIMITS["range_m"]))) is not None:
+        fail(i, f"column 'value': range difference {value[i]:g} m is beyond the limit of "
+                f"{LIMITS['range_m']:g} m")
     if (i := _first(out["node"] == out["peer"])) is not None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")
