@@ -5,7 +5,8 @@ For measurements ``z_k = h_k(x) + v_k``, ``v_k ~ N(0, R_k)`` with ``R_k`` indepe
 
     J(x) = sum_k H_k(x)^T R_k^{-1} H_k(x),    H_k = d h_k / d x
 
-(Kay, *Fundamentals of Statistical Signal Processing I*, eq. (3.31)); ``R_k`` is the full
+(the general Gaussian case, Kay, *Fundamentals of Statistical Signal Processing I*,
+ch. 3); ``R_k`` is the full
 ``noise_cov`` of a model, so a TDoA model's correlated rows enter with their correlation.
 The bound on an unbiased estimator's covariance is ``J^{-1}``; the position block of the
 inverse (not the inverse of the position block) holds the cost of the nuisance components

@@ -73,7 +73,17 @@ class ClockModel:
         return d
 
     def F(self, dt: float | np.ndarray) -> np.ndarray:
-        """Transition ``(..., terms, terms)`` over ``dt`` seconds ``(...)``."""
+        """Transition ``(..., terms, terms)`` over ``dt`` seconds ``(...)``.
+
+        Parameters
+        ----------
+        dt : float or ndarray
+            Seconds (>= 0).
+
+        Returns
+        -------
+        ndarray, shape (..., terms, terms)
+        """
         d = self._dt(dt)
         if self.terms == 1:
             return np.ones(d.shape + (1, 1))
@@ -82,7 +92,17 @@ class ClockModel:
 
     def Q(self, dt: float | np.ndarray) -> np.ndarray:
         """Process noise ``(..., terms, terms)`` over ``dt`` seconds, m^2 (and m^2/s,
-        m^2/s^2)."""
+        m^2/s^2).
+
+        Parameters
+        ----------
+        dt : float or ndarray
+            Seconds (>= 0).
+
+        Returns
+        -------
+        ndarray, shape (..., terms, terms)
+        """
         d = self._dt(dt)
         qo, qd = self.offset_std_m**2, self.drift_std_m_per_s**2
         if self.terms == 1:
@@ -91,13 +111,37 @@ class ClockModel:
                          np.stack([qd * d**2 / 2, qd * d], -1)], -2)
 
     def predict(self, state: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
-        """Noise-free next clock state ``F x`` ``(..., terms)``."""
+        """Noise-free next clock state ``F x`` ``(..., terms)``.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., terms)
+            Offset (m) and drift (m/s).
+        dt : float or ndarray
+            Seconds.
+
+        Returns
+        -------
+        ndarray, shape (..., terms)
+        """
         x = as_float_array(state, "state", min_ndim=1, last_dim=self.terms)
         return np.einsum("...ij,...j->...i", self.F(dt), x)
 
     def sample(self, state: np.ndarray, dt: float | np.ndarray,
                rng: np.random.Generator) -> np.ndarray:
-        """A draw of the next clock state ``F x + w``, ``w ~ N(0, Q(dt))``."""
+        """A draw of the next clock state ``F x + w``, ``w ~ N(0, Q(dt))``.
+
+        Parameters
+        ----------
+        state : ndarray, shape (..., terms)
+        dt : float or ndarray
+            Seconds.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (..., terms)
+        """
         mean = self.predict(state, dt)
         q = np.broadcast_to(self.Q(dt), mean.shape + (self.terms,))
         vals, vecs = np.linalg.eigh(q)  # Q is singular at dt = 0

@@ -111,7 +111,20 @@ class TrapezoidRssModel(MeasurementModel):
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         """``log L(|x - a| | rssi)`` per row ``(..., m)`` (NaN rows give 0; ``-inf`` outside
-        the trapezoid)."""
+        the trapezoid).
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Readings, integers 0..100 (NaN: missing).
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         z = np.asarray(z, dtype=float)
         miss = np.isnan(z)
         d, _ = range_geometry(state["position"], context.points, context.height_m)

@@ -9,7 +9,7 @@ Noise
 -----
 Each arrival time carries an independent Gaussian error (in metres) ``e_a ~ N(0, s_a^2)``;
 a row is ``e_i - e_ref``. Rows that share a reference anchor share its error, so the
-differencing correlates them (eq. (2) of the TDoA literature's standard model):
+differencing correlates them:
 
     R_ij = delta_ij s_i^2 + [ref(i) == ref(j)] s_ref^2,
 
@@ -145,15 +145,43 @@ class TdoaModel(MeasurementModel):
 
     def arrival_std(self, context: Context) -> np.ndarray:
         """Standard deviation of each row's own arrival time ``s_i`` ``(..., m)``, metres
-        (``std_m`` or the context's per-row value)."""
+        (``std_m`` or the context's per-row value).
+
+        Parameters
+        ----------
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         return self.row_std(self.std_m, context)
 
     def std(self, context: Context) -> np.ndarray:
-        """Marginal standard deviation of each difference, ``sqrt(s_i^2 + std_m^2)``."""
+        """Marginal standard deviation of each difference, ``sqrt(s_i^2 + std_m^2)``.
+
+        Parameters
+        ----------
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         return np.sqrt(self.arrival_std(context) ** 2 + self.std_m**2)
 
     def noise_cov(self, context: Context) -> np.ndarray:
-        """``R_ij = delta_ij s_i^2 + [ref(i) == ref(j)] std_m^2``, ``(..., m, m)``."""
+        """``R_ij = delta_ij s_i^2 + [ref(i) == ref(j)] std_m^2``, ``(..., m, m)``.
+
+        Parameters
+        ----------
+        context : Context
+            With ``reference`` (and ``reference_index``, which says which rows share one).
+
+        Returns
+        -------
+        ndarray, shape (..., m, m)
+        """
         self._check(context)
         s = self.arrival_std(context)
         shared = shared_reference(context)
@@ -161,7 +189,20 @@ class TdoaModel(MeasurementModel):
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         """Per-row chain-rule terms of the joint Gaussian log-density ``(..., m)`` (they sum
-        to the log-density of the observed rows; a NaN row gives 0)."""
+        to the log-density of the observed rows; a NaN row gives 0).
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Measured range differences, metres (NaN: missing).
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         r = self.residual(z, self.predict(state, context))
         R = self.noise_cov(context)
         R = np.broadcast_to(R, r.shape[:-1] + R.shape[-2:]).copy()
