@@ -9,7 +9,8 @@ from radioloc.bounds.fisher import crb
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.models.measurement import Context, StateLayout, numerical_jacobian
 from radioloc.models.pseudorange import PseudorangeModel
-from radioloc.sim.measurements import observe
+from radioloc.models.clock import ClockModel
+from radioloc.sim.measurements import clock_trajectory, observe
 
 SOURCES_3D = np.array([[0.0, 0.0, 10.0], [40.0, 0.0, 15.0], [0.0, 40.0, 8.0], [40.0, 40.0, 20.0],
                        [20.0, -10.0, 30.0], [-10.0, 20.0, 5.0]])
@@ -75,3 +76,25 @@ def test_bad_input_names_the_argument():
     with pytest.raises(InputError, match="layout"):
         observe(PseudorangeModel(std_m=1.0), np.zeros((3, 2)), Context(points=SOURCES_2D),
                 np.random.default_rng(0))
+
+
+def test_observed_track_with_a_wandering_clock():
+    rng = np.random.default_rng(13)
+    steps = 25
+    model = PseudorangeModel(std_m=1e-9)
+    layout = StateLayout(dim=3).with_model(model)
+    offset = clock_trajectory(ClockModel(offset_std_m=2.0, terms=1), steps, 0.5, rng,
+                              batch_shape=(2,))[..., 0]
+    track = np.cumsum(rng.normal(size=(2, steps, 3)), axis=1)
+    x = layout.join({"position": track, "clock_offset": offset})
+    obs = observe(model, x, Context(points=SOURCES_3D), rng, layout)
+    assert obs.z.shape == (2, steps, 6) and obs.steps == steps
+    d = np.linalg.norm(track[..., None, :] - SOURCES_3D, axis=-1)
+    np.testing.assert_allclose(obs.z, d + offset[..., None], atol=1e-6)
+    # moving sources: one set per step, with the batch axes of z (what Observation.at slices)
+    moving = np.broadcast_to(SOURCES_3D + 0.1 * np.arange(steps)[:, None, None], (2, steps, 6, 3))
+    obs = observe(model, x, Context(points=moving), rng, layout)
+    d = np.linalg.norm(track[..., None, :] - moving, axis=-1)
+    np.testing.assert_allclose(obs.z, d + offset[..., None], atol=1e-6)
+    z_t, ctx_t = obs.at(4)
+    np.testing.assert_allclose(ctx_t.points, moving[:, 4])

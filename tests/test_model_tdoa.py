@@ -9,7 +9,8 @@ from radioloc.bounds.fisher import crb
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.models.measurement import Context, Observation, StateLayout, numerical_jacobian
 from radioloc.models.tdoa import TdoaModel
-from radioloc.sim.measurements import simulate_tdoa
+from radioloc.models.clock import ClockModel
+from radioloc.sim.measurements import clock_trajectory, simulate_tdoa
 
 ANCHORS_2D = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 20.0], [20.0, 20.0], [10.0, -5.0],
                        [-5.0, 10.0]])
@@ -170,3 +171,25 @@ def test_bad_input_names_the_argument():
                                    ctx_for(ANCHORS_2D))
     with pytest.raises(InputError, match="model"):
         Observation(model="tdoa", z=np.zeros(5), context=ctx_for(ANCHORS_2D))
+
+
+def test_model_explains_a_track_with_a_drifting_clock():
+    rng = np.random.default_rng(12)
+    steps, dt = 40, 0.1
+    t = dt * np.arange(steps)
+    track = np.stack([5 + 8 * np.cos(0.3 * t), 6 + 8 * np.sin(0.3 * t)], axis=-1)
+    clock = clock_trajectory(ClockModel(offset_std_m=0.5, drift_std_m_per_s=30.0), steps, dt, rng,
+                             initial=np.broadcast_to([0.0, 3000.0], (3, 2)))
+    obs = simulate_tdoa(np.broadcast_to(track, (3, steps, 2)), ANCHORS_2D, rng, std_m=1e-12,
+                        interval_s=SLOTS_S, drift_m_per_s=clock[..., 1])
+    assert obs.z.shape == (3, steps, 5)
+    layout = StateLayout(dim=2).with_model(obs.model)
+    x = layout.join({"position": np.broadcast_to(track, (3, steps, 2)),
+                     "clock_offset": clock[..., 0], "clock_drift": clock[..., 1]})
+    z_hat, _ = layout.measure(obs.model, x, obs.context)
+    # only the scale error of the range difference, (drift / c)(d_i - d_ref), is left out
+    assert np.max(np.abs(obs.z - z_hat)) < 1e-3
+    without_drift = TdoaModel(std_m=0.1).predict({"position": x[..., :2]}, obs.context)
+    assert np.max(np.abs(obs.z - without_drift)) > 1.0
+    z_t, ctx_t = obs.at(7)
+    np.testing.assert_allclose(z_t, obs.z[:, 7])

@@ -205,8 +205,14 @@ class TdoaModel(MeasurementModel):
         """
         r = self.residual(z, self.predict(state, context))
         R = self.noise_cov(context)
-        R = np.broadcast_to(R, r.shape[:-1] + R.shape[-2:]).copy()
         miss = np.isnan(r)
+        if not miss.any():
+            # one factorisation for every state of the batch (particles, runs)
+            L = np.linalg.cholesky(R)
+            w = np.einsum("...ij,...j->...i", np.linalg.inv(L), r)
+            d = np.diagonal(L, axis1=-2, axis2=-1)
+            return gaussian_logpdf(w * d, d)
+        R = np.broadcast_to(R, r.shape[:-1] + R.shape[-2:]).copy()
         # a missing row: decouple it (unit variance, no covariance) and give it residual 0,
         # which leaves the observed rows' joint density unchanged
         keep = ~(miss[..., :, None] | miss[..., None, :])

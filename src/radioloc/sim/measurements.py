@@ -40,7 +40,8 @@ def observe(model: MeasurementModel, states: np.ndarray, context: Context,
         States laid out by ``layout`` (or positions ``(..., T, D)`` when ``layout`` is None
         and the model reads only the position).
     context : Context
-        The rows' reference points (static, or ``(T, m, P)`` for moving points).
+        The rows' reference points: static ``(m, P)``, or moving ``(..., T, m, P)`` with
+        the states' batch axes (as :meth:`Observation.at` slices them).
     rng : numpy.random.Generator
     layout : StateLayout, optional
 
@@ -54,11 +55,10 @@ def observe(model: MeasurementModel, states: np.ndarray, context: Context,
         if tuple(model.reads) != ("position",):
             raise InputError(f"layout: {type(model).__name__} reads {', '.join(model.reads)}; "
                              "give the StateLayout of the states")
-        layout = StateLayout(dim=x.shape[-1]) if x.shape[-1] in (2, 3) else None
-        if layout is None:
+        if x.shape[-1] not in (2, 3):
             raise InputError(f"states: positions must have 2 or 3 coordinates, got {x.shape[-1]}")
+        layout = StateLayout(dim=x.shape[-1])
     layout.check(model)
-    # moving points (T, m, P) broadcast against the states' time axis
     z = model.sample(layout.split(x), context, rng)
     return Observation(model=model, z=z, context=context)
 
