@@ -6,6 +6,7 @@ import pytest
 
 from radioloc.bounds.fisher import crb
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.estimators.base import Tags
 from radioloc.models.measurement import Context, StateLayout, numerical_jacobian
 from radioloc.models.rss_model import RssModel, TrapezoidRssModel
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
@@ -86,6 +87,9 @@ def test_likelihood_only_model_refuses_gaussian_use_and_bad_input_names_the_argu
             call()
     with pytest.raises(ConfigError, match="models"):
         crb(model, np.zeros(2), ctx, StateLayout(dim=2))
+    assert not Tags(kinds=None, uses="jacobian").accepts(model)
+    assert Tags(kinds=None, uses="logpdf").accepts(model)
+    assert Tags(kinds=("rss",), uses="jacobian").accepts(RssModel(CHANNEL))
     with pytest.raises(InputError, match="model"):
         RssModel(trapezoids())
     with pytest.raises(InputError, match="model"):

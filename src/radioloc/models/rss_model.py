@@ -86,7 +86,8 @@ class TrapezoidRssModel(MeasurementModel):
     model: TrapezoidModel
 
     kind: ClassVar[str] = "rss"
-    #: no measurement function: only ``logpdf`` estimators take it
+    #: no measurement function to linearise: ``Tags.accepts`` gives it to ``logpdf``
+    #: estimators only
     gaussian: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
