@@ -16,7 +16,7 @@ ANCHORS_2D = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 20.0], [20.0, 20.0], [10.0
                        [-5.0, 10.0]])
 ANCHORS_3D = np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 3.0], [0.0, 20.0, 1.0], [20.0, 20.0, 4.0],
                        [10.0, -5.0, 0.5]])
-SLOTS_S = 1e-3 * np.arange(1, 6)
+SLOTS_S = 1e-3 * np.array([0.0, 1.0, 2.0, 3.0, 4.0, 5.0])  # transmission slot of each anchor
 
 
 def ctx_for(anchors, reference=0):
@@ -31,7 +31,7 @@ def ctx_for(anchors, reference=0):
 @pytest.mark.parametrize("drift", [False, True])
 def test_jacobian_equals_finite_differences(anchors, drift):
     ctx = ctx_for(anchors)
-    model = TdoaModel(std_m=0.1, interval_s=SLOTS_S[:ctx.rows] if drift else None)
+    model = TdoaModel(std_m=0.1, slot_s=SLOTS_S[:len(anchors)] if drift else None)
     dim = anchors.shape[1]
     layout = StateLayout(dim=dim, order=1).with_model(model)
     rng = np.random.default_rng(3)
@@ -110,7 +110,7 @@ def test_logpdf_rows_sum_to_the_joint_density_and_skip_missing_rows():
 def test_zero_noise_drift_data_is_fitted_exactly():
     rng = np.random.default_rng(5)
     truth = np.array([7.0, 4.0])
-    obs = simulate_tdoa(truth[None], ANCHORS_2D, rng, std_m=1e-12, interval_s=SLOTS_S,
+    obs = simulate_tdoa(truth[None], ANCHORS_2D, rng, std_m=1e-12, slot_s=SLOTS_S,
                         drift_m_per_s=np.array([250.0]))
     layout = StateLayout(dim=2).with_model(obs.model)
     x0 = layout.join({"position": truth[None] + 0.5, "clock_drift": np.zeros(1)})
@@ -125,7 +125,7 @@ def test_ml_estimate_with_clock_drift_reaches_the_crb():
     truth = np.array([7.0, 4.0])
     drift = 300.0 + 50.0 * rng.standard_normal(runs)
     obs = simulate_tdoa(np.broadcast_to(truth, (runs, 2)), ANCHORS_2D, rng, std_m=std,
-                        interval_s=SLOTS_S, drift_m_per_s=drift)
+                        slot_s=SLOTS_S, drift_m_per_s=drift)
     layout = StateLayout(dim=2).with_model(obs.model)
     x_true = layout.join({"position": np.broadcast_to(truth, (runs, 2)), "clock_drift": drift})
     x0 = x_true + np.where(np.arange(layout.size) < 2, 0.3, 0.0) * rng.standard_normal(x_true.shape)
@@ -158,16 +158,22 @@ def test_bad_input_names_the_argument():
         TdoaModel(std_m=0.0)
     with pytest.raises(InputError, match="reference"):
         TdoaModel(std_m=0.1).predict({"position": np.zeros(2)}, Context(points=ANCHORS_2D))
-    with pytest.raises(InputError, match="interval_s"):
-        TdoaModel(std_m=0.1, interval_s=np.ones(2)).predict(
+    with pytest.raises(InputError, match="context.index"):
+        TdoaModel(std_m=0.1, slot_s=np.ones(2)).predict(
             {"position": np.zeros(2), "clock_drift": np.zeros(())}, ctx_for(ANCHORS_2D))
     rng = np.random.default_rng(0)
     with pytest.raises(InputError, match="reference"):
         simulate_tdoa(np.zeros(2), ANCHORS_2D, rng, std_m=0.1, reference=6)
-    with pytest.raises(InputError, match="interval_s"):
+    with pytest.raises(InputError, match="context.reference_index"):
+        TdoaModel(std_m=0.1, slot_s=SLOTS_S).predict(
+            {"position": np.zeros(2), "clock_drift": np.zeros(())},
+            Context(points=ANCHORS_2D[1:], index=np.arange(1, 6), reference=ANCHORS_2D[[0] * 5]))
+    with pytest.raises(InputError, match="slot_s"):
+        simulate_tdoa(np.zeros(2), ANCHORS_2D, rng, std_m=0.1, slot_s=SLOTS_S[:3])
+    with pytest.raises(InputError, match="slot_s"):
         simulate_tdoa(np.zeros(2), ANCHORS_2D, rng, std_m=0.1, drift_m_per_s=np.ones(1))
     with pytest.raises(InputError, match="clock_drift"):
-        StateLayout(dim=2).measure(TdoaModel(std_m=0.1, interval_s=SLOTS_S), np.zeros(2),
+        StateLayout(dim=2).measure(TdoaModel(std_m=0.1, slot_s=SLOTS_S), np.zeros(2),
                                    ctx_for(ANCHORS_2D))
     with pytest.raises(InputError, match="model"):
         Observation(model="tdoa", z=np.zeros(5), context=ctx_for(ANCHORS_2D))
@@ -181,7 +187,7 @@ def test_model_explains_a_track_with_a_drifting_clock():
     clock = clock_trajectory(ClockModel(offset_std_m=0.5, drift_std_m_per_s=30.0), steps, dt, rng,
                              initial=np.broadcast_to([0.0, 3000.0], (3, 2)))
     obs = simulate_tdoa(np.broadcast_to(track, (3, steps, 2)), ANCHORS_2D, rng, std_m=1e-12,
-                        interval_s=SLOTS_S, drift_m_per_s=clock[..., 1])
+                        slot_s=SLOTS_S, drift_m_per_s=clock[..., 1])
     assert obs.z.shape == (3, steps, 5)
     layout = StateLayout(dim=2).with_model(obs.model)
     x = layout.join({"position": np.broadcast_to(track, (3, steps, 2)),
@@ -193,3 +199,10 @@ def test_model_explains_a_track_with_a_drifting_clock():
     assert np.max(np.abs(obs.z - without_drift)) > 1.0
     z_t, ctx_t = obs.at(7)
     np.testing.assert_allclose(z_t, obs.z[:, 7])
+    # a subset of rows (what an estimator keeps of a step with missing rows) keeps its
+    # intervals, and its noise covariance is the sub-matrix
+    rows = np.array([0, 2, 3])
+    sub = obs.context.take(rows)
+    np.testing.assert_allclose(layout.measure(obs.model, x, sub)[0], z_hat[..., rows])
+    np.testing.assert_allclose(obs.model.noise_cov(sub),
+                               obs.model.noise_cov(obs.context)[np.ix_(rows, rows)])

@@ -35,7 +35,8 @@ __all__ = ["BearingModel"]
 _KINDS = {"azimuth": "aoa", "elevation": "aoa_elevation"}
 
 
-@dataclass(frozen=True)
+# eq=False: the settings hold arrays, so instances compare and hash by identity
+@dataclass(frozen=True, eq=False)
 class BearingModel(MeasurementModel):
     """Azimuth or elevation of the tag seen from an anchor, radians (see the module
     docstring).

@@ -18,7 +18,7 @@ How an estimator uses it
 The state of :class:`~radioloc.models.measurement.StateLayout` is ``[motion, clock,
 anchor_bias]``. A filter whose layout holds a clock (``layout.clock`` 1 or 2, grown by
 ``with_model`` for a :class:`~radioloc.models.pseudorange.PseudorangeModel` or a
-:class:`~radioloc.models.tdoa.TdoaModel` with intervals) transitions the full state with the
+:class:`~radioloc.models.tdoa.TdoaModel` with slot times) transitions the full state with the
 block-diagonal ``diag(motion.F(dt), clock.F(dt), I)`` and ``diag(motion.Q(dt), clock.Q(dt),
 0)``: :func:`transition` assembles both. With ``terms=1`` (offset only) the blocks are
 ``[[1]]`` and ``[[q_o dt]]``.

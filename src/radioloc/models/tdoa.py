@@ -3,7 +3,7 @@
 A row ``i`` is the difference of two arrival times multiplied by the speed of light, the
 range difference
 
-    h_i(x) = |x - a_i| - |x - a_ref(i)|  (+ clock_drift * interval_s[i])
+    h_i(x) = |x - a_i| - |x - a_ref(i)|  (+ clock_drift * (slot_s[i] - slot_s[ref(i)]))
 
 Noise
 -----
@@ -32,8 +32,10 @@ transmit in turn, as in UWB downlink TDoA): over the known interval ``tau_i`` be
 reference's transmission and anchor ``i``'s, the tag's clock gains ``drift * tau_i`` metres
 (``drift`` is the fractional frequency error times the speed of light, m/s, the
 ``clock_drift`` state component of :class:`~radioloc.models.measurement.StateLayout`). Give
-the intervals as ``interval_s`` (seconds, one per row) and the model reads ``clock_drift``;
-evolve it with :class:`~radioloc.models.clock.ClockModel`. The scale error of the range
+each anchor's transmission time within the frame as ``slot_s`` (seconds, one per anchor of
+the anchor table, indexed by ``Context.index`` and ``Context.reference_index``, so a subset
+of rows keeps its intervals) and the model reads ``clock_drift``; evolve it with
+:class:`~radioloc.models.clock.ClockModel`. The scale error of the range
 difference itself, ``(drift / c) (d_i - d_ref)``, is below ``1e-4`` m for drifts of tens of
 ppm over tens of metres and is left out.
 """
@@ -72,7 +74,8 @@ def shared_reference(context: Context) -> np.ndarray:
     return np.all(ref[..., :, None, :] == ref[..., None, :, :], axis=-1)
 
 
-@dataclass(frozen=True)
+# eq=False: the settings hold arrays, so instances compare and hash by identity
+@dataclass(frozen=True, eq=False)
 class TdoaModel(MeasurementModel):
     """Range difference to anchor ``i`` minus the reference anchor, metres (see the module
     docstring for the correlated noise and the clock term).
@@ -82,9 +85,10 @@ class TdoaModel(MeasurementModel):
     std_m : float
         Standard deviation of one arrival time, metres (> 0); a difference has
         ``sqrt(2) std_m``.
-    interval_s : array_like, shape (m,), optional
-        Time from the reference's transmission to anchor ``i``'s, seconds, per row: with it
-        the model reads the tag's ``clock_drift`` (m/s).
+    slot_s : array_like, shape (A,), optional
+        Transmission time of each anchor of the anchor table within a frame, seconds: with
+        it a row's interval is ``slot_s[index] - slot_s[reference_index]`` and the model
+        reads the tag's ``clock_drift`` (m/s).
 
     Examples
     --------
@@ -100,27 +104,44 @@ class TdoaModel(MeasurementModel):
     """
 
     std_m: float
-    interval_s: np.ndarray | None = None
+    slot_s: np.ndarray | None = None
 
     kind: ClassVar[str] = "tdoa"
 
     def __post_init__(self) -> None:
         check_positive(self.std_m, "std_m")
-        if self.interval_s is not None:
-            tau = as_float_array(self.interval_s, "interval_s", ndim=1)
-            object.__setattr__(self, "interval_s", tau)
+        if self.slot_s is not None:
+            object.__setattr__(self, "slot_s", as_float_array(self.slot_s, "slot_s", ndim=1))
 
     @property
     def reads(self) -> tuple[str, ...]:  # type: ignore[override]
-        return ("position",) if self.interval_s is None else ("position", "clock_drift")
+        return ("position",) if self.slot_s is None else ("position", "clock_drift")
 
     def _check(self, context: Context) -> None:
         if context.reference is None:
             raise InputError("context.reference: a TDoA row needs its reference anchor "
                              "(Context(points=anchor_i, reference=anchor_ref))")
-        if self.interval_s is not None and self.interval_s.shape != (context.rows,):
-            raise InputError(f"interval_s: {self.interval_s.shape[0]} intervals for "
-                             f"{context.rows} rows")
+
+    def interval_s(self, context: Context) -> np.ndarray:
+        """Time from each row's reference transmission to its anchor's, seconds ``(m,)``.
+
+        Parameters
+        ----------
+        context : Context
+            With ``index`` and ``reference_index`` (rows of ``slot_s``).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+        """
+        A = self.slot_s.size
+        for name in ("index", "reference_index"):
+            idx = getattr(context, name)
+            if idx is None or np.any((idx < 0) | (idx >= A)):
+                raise InputError(f"context.{name}: a TDoA model with slot_s needs the anchor-"
+                                 f"table row (0..{A - 1}) of every row's "
+                                 f"{'anchor' if name == 'index' else 'reference'}")
+        return self.slot_s[context.index] - self.slot_s[context.reference_index]
 
     def predict(self, state, context: Context) -> np.ndarray:
         self._check(context)
@@ -128,8 +149,8 @@ class TdoaModel(MeasurementModel):
         d_i, _ = range_geometry(x, context.points, context.height_m)
         d_r, _ = range_geometry(x, context.reference, context.height_m)
         z = d_i - d_r
-        if self.interval_s is not None:
-            z = z + np.asarray(state["clock_drift"], dtype=float)[..., None] * self.interval_s
+        if self.slot_s is not None:
+            z = z + np.asarray(state["clock_drift"], dtype=float)[..., None] * self.interval_s(context)
         return z
 
     def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
@@ -138,8 +159,8 @@ class TdoaModel(MeasurementModel):
         _, u_i = range_geometry(x, context.points, context.height_m)
         _, u_r = range_geometry(x, context.reference, context.height_m)
         out = {"position": u_i - u_r}
-        if self.interval_s is not None:
-            out["clock_drift"] = np.broadcast_to(self.interval_s[:, None],
+        if self.slot_s is not None:
+            out["clock_drift"] = np.broadcast_to(self.interval_s(context)[:, None],
                                                  out["position"].shape[:-1] + (1,))
         return out
 

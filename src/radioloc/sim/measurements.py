@@ -98,14 +98,15 @@ def clock_trajectory(clock: ClockModel, steps: int, dt: float, rng: np.random.Ge
 
 
 def simulate_tdoa(positions: np.ndarray, anchors: np.ndarray, rng: np.random.Generator, *,
-                  std_m: float, reference: int = 0, interval_s: np.ndarray | None = None,
+                  std_m: float, reference: int = 0, slot_s: np.ndarray | None = None,
                   drift_m_per_s: np.ndarray | None = None) -> Observation:
     """Time differences of arrival against one reference anchor, drawn from independent
     arrival times.
 
     Each anchor's arrival time (in metres) is ``d_a + e_a``, ``e_a ~ N(0, std_m^2)``
-    independent; a row is the difference to the reference's. With ``interval_s`` the
-    anchors transmit in turn, ``interval_s[i]`` seconds after the reference, and the tag's
+    independent; a row is the difference to the reference's. With ``slot_s`` the
+    anchors transmit in turn, anchor ``i`` ``tau_i = slot_s[i] - slot_s[reference]`` seconds
+    after the reference, and the tag's
     clock, running fast by ``drift / c``, measures the time between the two arrivals as
     ``(1 + drift / c)`` times the true one; the known interval is then subtracted:
     ``z_i = (1 + drift / c)(d_i - d_ref + c tau_i) - c tau_i + e_i - e_ref``.
@@ -121,11 +122,10 @@ def simulate_tdoa(positions: np.ndarray, anchors: np.ndarray, rng: np.random.Gen
         Standard deviation of one arrival time, metres.
     reference : int
         Row of the reference anchor in ``anchors``.
-    interval_s : ndarray, shape (A - 1,), optional
-        Transmission time of each non-reference anchor (in ``anchors`` order) after the
-        reference's, seconds.
+    slot_s : ndarray, shape (A,), optional
+        Transmission time of each anchor within a frame, seconds.
     drift_m_per_s : ndarray, shape (..., T) or (...), optional
-        The tag clock's drift at each step (needs ``interval_s``).
+        The tag clock's drift at each step (needs ``slot_s``).
 
     Returns
     -------
@@ -139,27 +139,28 @@ def simulate_tdoa(positions: np.ndarray, anchors: np.ndarray, rng: np.random.Gen
     if int(reference) != reference or not 0 <= reference < A:
         raise InputError(f"reference: must be an anchor row 0..{A - 1}, got {reference!r}")
     others = np.array([k for k in range(A) if k != reference])
-    if drift_m_per_s is not None and interval_s is None:
-        raise InputError("interval_s: a clock drift only shows in TDoA rows of anchors that "
-                         "transmit at different times; give the intervals")
+    if drift_m_per_s is not None and slot_s is None:
+        raise InputError("slot_s: a clock drift only shows in TDoA rows of anchors that "
+                         "transmit at different times; give their slot times")
     d, _ = range_geometry(x, a)
     arrival = d + check_positive(std_m, "std_m") * rng.standard_normal(d.shape)
     z = arrival[..., others] - arrival[..., [reference]]
-    if interval_s is not None:
-        tau = as_float_array(interval_s, "interval_s", ndim=1)
-        if tau.shape != (A - 1,):
-            raise InputError(f"interval_s: expected {A - 1} intervals (one per non-reference "
-                             f"anchor), got {tau.shape[0]}")
+    if slot_s is not None:
+        slots = as_float_array(slot_s, "slot_s", ndim=1)
+        if slots.shape != (A,):
+            raise InputError(f"slot_s: expected {A} slot times (one per anchor), got "
+                             f"{slots.shape[0]}")
+        tau = slots[others] - slots[reference]
         if drift_m_per_s is not None:
             drift = as_float_array(drift_m_per_s, "drift_m_per_s")[..., None]
             true = d[..., others] - d[..., [reference]] + SPEED_OF_LIGHT_M_PER_S * tau
             z = z + drift / SPEED_OF_LIGHT_M_PER_S * true
     else:
-        tau = None
+        slots = None
     m = A - 1
     ctx = Context(points=a[others], index=others, reference=np.broadcast_to(a[reference], (m, a.shape[1])),
                   reference_index=np.full(m, int(reference)))
-    return Observation(model=TdoaModel(std_m=std_m, interval_s=tau), z=z, context=ctx)
+    return Observation(model=TdoaModel(std_m=std_m, slot_s=slots), z=z, context=ctx)
 
 
 def simulate_aoa(positions: np.ndarray, anchors: np.ndarray, rng: np.random.Generator, *,
