@@ -4,21 +4,26 @@ import numpy as np
 import pytest
 
 from radioloc.bounds.anchors import range_crb, range_fisher_information
-from radioloc.bounds.fisher import crb, fisher_information
+from estimation_helpers import draw_track, ekf_track, rmse_over_bound
+from radioloc.bounds.fisher import crb, fisher_information, tracking_crb
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.models.bearing import BearingModel
-from radioloc.models.measurement import Context, StateLayout
+from radioloc.models.clock import ClockModel, transition
+from radioloc.models.measurement import Context, Observation, StateLayout
+from radioloc.models.motion import WhiteAccelerationCV
 from radioloc.models.pseudorange import PseudorangeModel
 from radioloc.models.ranging import RangeModel
 from radioloc.models.tdoa import TdoaModel
+from radioloc.sim.measurements import observe
 
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 20.0], [20.0, 20.0], [10.0, -5.0]])
 
 
 def tdoa_context(anchors, reference=0):
     others = [k for k in range(len(anchors)) if k != reference]
-    return Context(points=anchors[others],
-                   reference=np.broadcast_to(anchors[reference], (len(others), anchors.shape[1])))
+    return Context(points=anchors[others], index=np.array(others),
+                   reference=np.broadcast_to(anchors[reference], (len(others), anchors.shape[1])),
+                   reference_index=np.full(len(others), reference))
 
 
 def test_range_bound_equals_the_closed_form():
@@ -92,3 +97,69 @@ def test_bad_input_names_the_argument():
         crb(PseudorangeModel(std_m=0.1), np.zeros(2), Context(points=ANCHORS), layout)
     with pytest.raises(InputError, match="models"):
         crb(["range"], np.zeros(2), [Context(points=ANCHORS)], layout)
+    obs = Observation(RangeModel(std_m=0.1), np.zeros((3, 5)), Context(points=ANCHORS))
+    track = np.zeros((3, 2))
+    with pytest.raises(InputError, match="observations"):
+        tracking_crb([], track, layout, np.eye(2), np.eye(2), np.eye(2))
+    with pytest.raises(InputError, match="F"):
+        tracking_crb(obs, track, layout, np.eye(3), np.eye(2), np.eye(2))
+    with pytest.raises(InputError, match="states"):
+        tracking_crb(obs, np.zeros((3, 4)), layout, np.eye(2), np.eye(2), np.eye(2))
+    with pytest.raises(InputError, match="observations"):
+        tracking_crb(obs, np.zeros((4, 2)), layout, np.eye(2), np.eye(2), np.eye(2))
+
+
+def test_tracking_bound_of_a_static_state_sums_the_snapshots():
+    model = TdoaModel(std_m=0.2)
+    ctx = tdoa_context(ANCHORS)
+    layout = StateLayout(dim=2)
+    x = np.array([6.0, 9.0])
+    steps = 4
+    z = np.zeros((steps, ctx.rows))
+    z[2, 1] = np.nan  # one row missing at one step: the rest of that step still counts
+    P0 = 4.0 * np.eye(2)
+    bound = tracking_crb(Observation(model, z, ctx), np.broadcast_to(x, (steps, 2)), layout,
+                         np.eye(2), np.zeros((2, 2)), P0)
+    full = fisher_information(model, x, ctx, layout)
+    part = fisher_information(model, x, ctx.take(np.array([0, 2, 3])), layout)
+    expected = np.linalg.inv(np.linalg.inv(P0) + 3 * full + part)
+    np.testing.assert_allclose(bound.position[-1], expected, rtol=1e-10)
+    np.testing.assert_allclose(bound.position[0], np.linalg.inv(np.linalg.inv(P0) + full), rtol=1e-10)
+    assert np.all(np.diff(bound.rmse_m) < 0)
+
+
+def _tracking_case(kind, rng, runs, steps, dt):
+    clock = ClockModel(offset_std_m=0.05, drift_std_m_per_s=0.5)
+    motion = WhiteAccelerationCV(q=0.5)
+    anchors = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 30.0], [30.0, 30.0], [15.0, -8.0]])
+    if kind == "tdoa":
+        model = TdoaModel(std_m=0.02, slot_s=1e-3 * np.arange(5.0))
+        ctx = tdoa_context(anchors)
+    elif kind == "pseudorange":
+        model, ctx = PseudorangeModel(std_m=0.02), Context(points=anchors)
+    else:
+        model, ctx = BearingModel(std_rad=2e-3), Context(points=anchors)
+    layout = StateLayout(dim=2, order=1, clock=2 if kind != "aoa" else 0).with_model(model)
+    F, Q = transition(layout, motion, dt, clock if layout.clock else None)
+    start = layout.join({"position": np.array([12.0, 14.0]), "velocity": np.array([1.0, 0.5]),
+                         "clock_offset": np.array(50.0), "clock_drift": np.array(300.0)})
+    P0 = np.diag(np.r_[np.full(2, 0.5), np.full(2, 0.3), np.full(layout.clock, 4.0)][:layout.size] ** 2)
+    x0 = start + np.einsum("ij,...j->...i", np.linalg.cholesky(P0), rng.standard_normal((runs, layout.size)))
+    truth = draw_track(F, Q, x0, steps, rng)
+    obs = observe(model, truth, ctx, rng, layout)
+    return obs, truth, layout, F, Q, P0, start
+
+
+@pytest.mark.parametrize("kind", ["tdoa", "pseudorange", "aoa"])
+def test_ekf_tracking_reaches_the_tracking_bound(kind):
+    # TDoA with a drifting tag clock, pseudoranges with the clock offset and drift as state,
+    # and bearings: an EKF at high SNR sits at the posterior bound
+    rng = np.random.default_rng({"tdoa": 31, "pseudorange": 32, "aoa": 33}[kind])
+    runs, steps = 300, 30
+    obs, truth, layout, F, Q, P0, start = _tracking_case(kind, rng, runs, steps, 0.2)
+    est = ekf_track([obs], layout, F, Q, np.broadcast_to(start, (runs, layout.size)), P0)
+    bound = tracking_crb(obs, truth, layout, F, Q, P0)
+    late = slice(steps // 2, None)
+    ratio = rmse_over_bound(est[:, late], truth[:, late], bound.rmse_m[:, late], 2)
+    print(f"EKF {kind} tracking: RMSE / tracking CRB = {ratio:.3f}")
+    assert 0.85 < ratio < 1.15, ratio

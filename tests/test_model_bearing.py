@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gauss_newton_helpers import gauss_newton, rmse_over_bound
+from estimation_helpers import gauss_newton, rmse_over_bound
 from radioloc.bounds.fisher import crb
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.models.bearing import BearingModel

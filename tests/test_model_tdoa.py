@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from gauss_newton_helpers import gauss_newton, rmse_over_bound
+from estimation_helpers import gauss_newton, rmse_over_bound
 from radioloc.bounds.fisher import crb
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.models.measurement import Context, Observation, StateLayout, numerical_jacobian
