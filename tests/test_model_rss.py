@@ -4,7 +4,8 @@ paper 003 as a likelihood on positions."""
 import numpy as np
 import pytest
 
-from radioloc.bounds.fisher import crb
+from radioloc.bounds.anchors import range_fisher_information
+from radioloc.bounds.fisher import crb, fisher_information
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.base import Tags
 from radioloc.models.measurement import Context, StateLayout, numerical_jacobian
@@ -57,6 +58,17 @@ def test_rss_bound_grows_with_the_shadowing():
     tight = crb(RssModel(CHANNEL), x, ctx, layout).rmse_m
     loose = crb(RssModel(LogDistanceGaussian(a=-40.0, n=2.5, s=8.0, d_ref_m=0.5)), x, ctx, layout).rmse_m
     assert loose == pytest.approx(2.0 * tight, rel=1e-9)
+
+
+def test_rss_information_is_that_of_ranges_with_distance_scaled_noise():
+    # d RSS / d d = -10 n / (ln 10 d): RSS is a range of std s ln 10 d / (10 n)
+    x = np.array([[5.0, 6.0], [11.0, 3.0]])
+    anchors = ANCHORS[:, :2]
+    d = np.linalg.norm(x[:, None, :] - anchors, axis=-1)
+    range_std = CHANNEL.s * np.log(10.0) * d / (10.0 * CHANNEL.n)
+    np.testing.assert_allclose(
+        fisher_information(RssModel(CHANNEL), x, Context(points=anchors), StateLayout(dim=2)),
+        range_fisher_information(x, anchors, range_std**2), rtol=1e-10)
 
 
 def test_trapezoid_likelihood_on_positions():
