@@ -1,5 +1,7 @@
 """TDoA measurement model: geometry, correlated noise of differencing, clock drift, CRB."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
@@ -60,12 +62,17 @@ def test_noise_cov_is_that_of_differenced_arrival_times():
     R = TdoaModel(std_m=0.3).noise_cov(ctx)
     np.testing.assert_allclose(R, 0.09 * (np.eye(5) + np.ones((5, 5))))
     # two references: rows share the error of their own reference only
-    two = Context(points=ANCHORS_2D[[1, 2, 4, 5]],
-                  reference=ANCHORS_2D[[0, 0, 3, 3]], std=np.array([0.1, np.nan, 0.2, np.nan]))
+    two = Context(points=ANCHORS_2D[[1, 2, 4, 5]], reference=ANCHORS_2D[[0, 0, 3, 3]])
     R2 = TdoaModel(std_m=0.3).noise_cov(two)
-    expected = np.diag([0.01, 0.09, 0.04, 0.09]) + 0.09 * np.kron(np.eye(2), np.ones((2, 2)))
-    np.testing.assert_allclose(R2, expected)
-    np.testing.assert_allclose(TdoaModel(std_m=0.3).std(two), np.sqrt(np.diag(expected)))
+    np.testing.assert_allclose(R2, 0.09 * (np.eye(4) + np.kron(np.eye(2), np.ones((2, 2)))))
+    # a per-row sigma is the std of that difference; the rows keep correlation 1/2
+    sigma = np.array([0.2, np.nan, 0.5, np.nan])
+    R3 = TdoaModel(std_m=0.3).noise_cov(replace(two, std=sigma))
+    s = np.where(np.isnan(sigma), 0.3 * np.sqrt(2), sigma)
+    np.testing.assert_allclose(np.sqrt(np.diag(R3)), s)
+    np.testing.assert_allclose(R3[0, 1], 0.5 * s[0] * s[1])
+    assert R3[0, 2] == R3[1, 3] == 0.0 and R3[2, 3] == pytest.approx(0.5 * s[2] * s[3])
+    assert np.all(np.linalg.eigvalsh(R3) > 0)
 
 
 def test_simulated_differences_have_the_model_covariance():

@@ -7,17 +7,20 @@ range difference
 
 Noise
 -----
-Each arrival time carries an independent Gaussian error (in metres) ``e_a ~ N(0, s_a^2)``;
+Each arrival time carries an independent Gaussian error (in metres) ``e_a ~ N(0, s^2)``;
 a row is ``e_i - e_ref``. Rows that share a reference anchor share its error, so the
 differencing correlates them:
 
-    R_ij = delta_ij s_i^2 + [ref(i) == ref(j)] s_ref^2,
+    R = s^2 (I + S),    S_ij = [ref(i) == ref(j)]
 
-which for one reference and equal ``s`` is ``R = s^2 (I + 1 1^T)``. ``std_m`` is ``s``, the
-standard deviation of ONE arrival time; a row's marginal standard deviation is
-``sqrt(s_i^2 + s_ref^2)`` (``sqrt(2) std_m``). A per-row ``Context.std`` replaces ``s_i``
-(the row's own anchor); the reference's ``s_ref`` stays ``std_m``. Rows share a reference when
-their ``reference_index`` is equal (or, without indices, their ``reference`` points are).
+(``R = s^2 (I + 1 1^T)`` for one reference): each difference has variance ``2 s^2`` and two
+differences with the same reference have correlation coefficient ``1/2``. ``std_m`` is ``s``,
+the standard deviation of ONE arrival time; :meth:`TdoaModel.std` is a row's, ``sqrt(2)
+std_m``. A per-row ``Context.std`` (a log's per-row sigma) is the standard deviation of that
+row's difference, ``sigma_i``; the rows keep the correlation of differencing,
+``R_ij = sigma_i sigma_j (delta_ij + (1 - delta_ij) S_ij / 2)`` (exact when the arrival errors
+of a reference's rows are equal, positive definite always). Rows share a reference when their
+``reference_index`` is equal (or, without indices, their ``reference`` points are).
 
 :meth:`TdoaModel.logpdf` is the exact joint density of the correlated rows, split into per-row
 terms by the chain rule (row ``i`` given rows ``< i``), so the terms of the observed rows sum to
@@ -164,22 +167,9 @@ class TdoaModel(MeasurementModel):
                                                  out["position"].shape[:-1] + (1,))
         return out
 
-    def arrival_std(self, context: Context) -> np.ndarray:
-        """Standard deviation of each row's own arrival time ``s_i`` ``(..., m)``, metres
-        (``std_m`` or the context's per-row value).
-
-        Parameters
-        ----------
-        context : Context
-
-        Returns
-        -------
-        ndarray, shape (..., m)
-        """
-        return self.row_std(self.std_m, context)
-
     def std(self, context: Context) -> np.ndarray:
-        """Marginal standard deviation of each difference, ``sqrt(s_i^2 + std_m^2)``.
+        """Standard deviation of each difference, ``sqrt(2) std_m`` (the context's per-row
+        value where given).
 
         Parameters
         ----------
@@ -189,10 +179,11 @@ class TdoaModel(MeasurementModel):
         -------
         ndarray, shape (..., m)
         """
-        return np.sqrt(self.arrival_std(context) ** 2 + self.std_m**2)
+        return self.row_std(np.sqrt(2.0) * self.std_m, context)
 
     def noise_cov(self, context: Context) -> np.ndarray:
-        """``R_ij = delta_ij s_i^2 + [ref(i) == ref(j)] std_m^2``, ``(..., m, m)``.
+        """``R_ij = sigma_i sigma_j (delta_ij + (1 - delta_ij) [ref(i) == ref(j)] / 2)``,
+        ``(..., m, m)`` (``std_m^2 (I + S)`` without per-row values).
 
         Parameters
         ----------
@@ -204,9 +195,9 @@ class TdoaModel(MeasurementModel):
         ndarray, shape (..., m, m)
         """
         self._check(context)
-        s = self.arrival_std(context)
-        shared = shared_reference(context)
-        return s[..., :, None] ** 2 * np.eye(context.rows) + self.std_m**2 * shared
+        s = self.std(context)
+        corr = np.where(np.eye(context.rows, dtype=bool), 1.0, 0.5 * shared_reference(context))
+        return s[..., :, None] * s[..., None, :] * corr
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         """Per-row chain-rule terms of the joint Gaussian log-density ``(..., m)`` (they sum
