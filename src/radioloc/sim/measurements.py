@@ -104,12 +104,11 @@ def simulate_tdoa(positions: np.ndarray, anchors: np.ndarray, rng: np.random.Gen
     arrival times.
 
     Each anchor's arrival time (in metres) is ``d_a + e_a``, ``e_a ~ N(0, std_m^2)``
-    independent; a row is the difference to the reference's. With ``slot_s`` the
-    anchors transmit in turn, anchor ``i`` ``tau_i = slot_s[i] - slot_s[reference]`` seconds
-    after the reference, and the tag's
-    clock, running fast by ``drift / c``, measures the time between the two arrivals as
-    ``(1 + drift / c)`` times the true one; the known interval is then subtracted:
-    ``z_i = (1 + drift / c)(d_i - d_ref + c tau_i) - c tau_i + e_i - e_ref``.
+    independent; a row is the difference to the reference's. With ``slot_s`` the anchors
+    transmit in turn, anchor ``i`` ``tau_i = slot_s[i] - slot_s[reference]`` seconds after
+    the reference, and the tag's clock, running fast by ``drift / c``, measures the time
+    between the two arrivals as ``(1 + drift / c)`` times the true one; the known interval is
+    then subtracted: ``z_i = (1 + drift / c)(d_i - d_ref + c tau_i) - c tau_i + e_i - e_ref``.
 
     Parameters
     ----------
