@@ -61,6 +61,8 @@ class Tags:
         """Whether a measurement model fits these tags (its kind, and what it offers)."""
         if self.kinds is not None and getattr(model, "kind", None) not in self.kinds:
             return False
+        if self.uses == "jacobian" and not getattr(model, "gaussian", True):
+            return False  # a likelihood-only model has no h(x) to linearise
         need = ("predict", "jacobian", "noise_cov") if self.uses == "jacobian" else ("predict", "logpdf")
         return all(hasattr(model, n) for n in need)
 

@@ -18,6 +18,11 @@ from radioloc.models.motion import (
 )
 from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 from radioloc.models.ranging import GaussianRange, RangeModel, range_geometry
+from radioloc.models.bearing import BearingModel
+from radioloc.models.clock import ClockModel
+from radioloc.models.pseudorange import PseudorangeModel
+from radioloc.models.rss_model import RssModel, TrapezoidRssModel
+from radioloc.models.tdoa import TdoaModel
 from radioloc.models.progressive_bayes import ProgressionInfo, isd, progressive_reduce
 from radioloc.models.rssi_logdistance import LogDistanceGaussian, device_offset
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_trapezoid_model
@@ -31,4 +36,5 @@ __all__ = [
     "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",
     "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS", "merge_groups",
     "progressive_reduce", "isd", "ProgressionInfo",
+    "TdoaModel", "BearingModel", "PseudorangeModel", "ClockModel", "RssModel", "TrapezoidRssModel",
 ]

@@ -191,7 +191,17 @@ class StateLayout:
 
     def join(self, components: Mapping[str, np.ndarray]) -> np.ndarray:
         """The state vectors ``(..., n)`` made of named components (the inverse of
-        :meth:`split`; a missing component is zero)."""
+        :meth:`split`; a missing component is zero).
+
+        Parameters
+        ----------
+        components : dict
+            ``{name: (..., k)}`` (scalar components ``(...)``).
+
+        Returns
+        -------
+        ndarray, shape (..., n)
+        """
         parts, shape = [], None
         for name, size in self.sizes.items():
             if name not in components:
@@ -237,7 +247,12 @@ class StateLayout:
         return z_hat, H
 
     def check(self, model: "MeasurementModel") -> None:
-        """Refuse a model that reads a component this layout lacks, naming both."""
+        """Refuse a model that reads a component this layout lacks, naming both.
+
+        Parameters
+        ----------
+        model : MeasurementModel
+        """
         missing = [c for c in model.reads if c not in self.sizes]
         if missing:
             raise InputError(f"model {type(model).__name__} reads {', '.join(missing)}, which "
@@ -309,7 +324,17 @@ class Context:
         return self.points.shape[-2]
 
     def take(self, rows: np.ndarray) -> "Context":
-        """The context of a subset of rows (an index array or a boolean mask)."""
+        """The context of a subset of rows.
+
+        Parameters
+        ----------
+        rows : ndarray
+            An index array or a boolean mask over the rows.
+
+        Returns
+        -------
+        Context
+        """
         def sub(a, axis):
             return None if a is None else np.take(a, rows, axis=axis) if np.asarray(rows).dtype != bool \
                 else np.compress(rows, a, axis=axis)
@@ -381,26 +406,81 @@ class MeasurementModel:
 
     # ---- the measurement function -------------------------------------------------------
     def predict(self, state: States, context: Context) -> np.ndarray:  # pragma: no cover
-        """Expected measurements ``h(x)``, shape ``(..., m)``."""
+        """Expected measurements ``h(x)``, shape ``(..., m)``.
+
+        Parameters
+        ----------
+        state : dict
+            Named components of a batch of states (:meth:`StateLayout.split`).
+        context : Context
+            The rows' reference points.
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         raise NotImplementedError
 
     def jacobian(self, state: States, context: Context) -> dict[str, np.ndarray]:
         """``d h / d`` each component read, ``{name: (..., m, k)}`` (scalar components:
-        ``k = 1``). The base class differentiates numerically."""
+        ``k = 1``). The base class differentiates numerically.
+
+        Parameters
+        ----------
+        state : dict
+            Named components of a batch of states (:meth:`StateLayout.split`).
+        context : Context
+            The rows' reference points.
+
+        Returns
+        -------
+        dict
+        """
         return numerical_jacobian(self, state, context)
 
     def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
-        """``z - z_hat``, wrapped to ``(-pi, pi]`` for an angular model."""
+        """``z - z_hat``, wrapped to ``(-pi, pi]`` for an angular model.
+
+        Parameters
+        ----------
+        z, z_hat : ndarray
+            Measured and predicted values (broadcast).
+
+        Returns
+        -------
+        ndarray
+        """
         r = np.asarray(z, dtype=float) - np.asarray(z_hat, dtype=float)
         return wrap_angle(r) if self.angular else r
 
     # ---- the noise ----------------------------------------------------------------------
     def std(self, context: Context) -> np.ndarray:  # pragma: no cover - abstract
-        """Per-row noise standard deviation ``(..., m)`` (the context's where given)."""
+        """Per-row noise standard deviation ``(..., m)`` (the context's where given).
+
+        Parameters
+        ----------
+        context : Context
+            The rows' reference points (and per-row ``std``).
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         raise NotImplementedError
 
     def row_std(self, default: float | np.ndarray, context: Context) -> np.ndarray:
-        """``context.std`` where finite, else ``default``, broadcast to ``(..., m)``."""
+        """``context.std`` where finite, else ``default``, broadcast to ``(..., m)``.
+
+        Parameters
+        ----------
+        default : float or ndarray
+            The model's standard deviation.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         base = np.broadcast_to(np.asarray(default, dtype=float), (context.rows,)) \
             if np.ndim(default) == 0 else np.asarray(default, dtype=float)
         if context.std is None:
@@ -408,23 +488,69 @@ class MeasurementModel:
         return np.where(np.isfinite(context.std), context.std, base)
 
     def noise_mean(self, context: Context) -> np.ndarray | float:
-        """Mean of the noise (0: unbiased); an estimator subtracts it from ``z``."""
+        """Mean of the noise (0: unbiased); an estimator subtracts it from ``z``.
+
+        Parameters
+        ----------
+        context : Context
+            The rows' reference points (and per-row ``std``).
+
+        Returns
+        -------
+        float or ndarray, shape (..., m)
+        """
         return 0.0
 
     def noise_cov(self, context: Context) -> np.ndarray:
         """Noise covariance ``(..., m, m)``: diagonal ``std^2`` unless a model correlates
-        its rows."""
+        its rows.
+
+        Parameters
+        ----------
+        context : Context
+            The rows' reference points (and per-row ``std``).
+
+        Returns
+        -------
+        ndarray, shape (..., m, m)
+        """
         s = self.std(context)
         return s[..., :, None] ** 2 * np.eye(s.shape[-1])
 
     def logpdf(self, z: np.ndarray, state: States, context: Context) -> np.ndarray:
-        """Per-row log-density ``(..., m)`` of ``z`` given the state (NaN rows give 0)."""
+        """Per-row log-density ``(..., m)`` of ``z`` given the state (NaN rows give 0).
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Measured values (NaN: missing).
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         r = self.residual(z, self.predict(state, context)) - self.noise_mean(context)
         lp = gaussian_logpdf(r, self.std(context))
         return np.where(np.isnan(r), 0.0, lp)
 
     def sample(self, state: States, context: Context, rng: np.random.Generator) -> np.ndarray:
-        """A draw of the measurements ``h(x) + v``, ``v ~ N(noise_mean, noise_cov)``."""
+        """A draw of the measurements ``h(x) + v``, ``v ~ N(noise_mean, noise_cov)``.
+
+        Parameters
+        ----------
+        state : dict
+            Named components of a batch of states (:meth:`StateLayout.split`).
+        context : Context
+            The rows' reference points.
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
         z_hat = self.predict(state, context)
         L = np.linalg.cholesky(self.noise_cov(context))
         v = np.einsum("...ij,...j->...i", L, rng.standard_normal(z_hat.shape))
@@ -475,7 +601,17 @@ class Observation:
         return self.z.shape[-2]
 
     def at(self, step: int) -> tuple[np.ndarray, Context]:
-        """``(z_t, context_t)`` of one time step."""
+        """``(z_t, context_t)`` of one time step.
+
+        Parameters
+        ----------
+        step : int
+            Index on the time axis.
+
+        Returns
+        -------
+        tuple of (ndarray, Context)
+        """
         ctx = self.context
         if ctx.points.ndim >= 3 and ctx.points.shape[-3] == self.steps and ctx.points.ndim == self.z.ndim + 1:
             ctx = replace(ctx, points=ctx.points[..., step, :, :],

@@ -206,7 +206,16 @@ class RangeModel(MeasurementModel):
         return self.row_std(np.sqrt(self.noise.moments()[1]), context)
 
     def noise_mean(self, context: Context) -> float:
-        """Mean of the range error (the LOS/NLOS mixture's mean excess; 0 for Gaussian)."""
+        """Mean of the range error (the LOS/NLOS mixture's mean excess; 0 for Gaussian).
+
+        Parameters
+        ----------
+        context : Context
+
+        Returns
+        -------
+        float
+        """
         return float(self.noise.moments()[0])
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
@@ -217,7 +226,20 @@ class RangeModel(MeasurementModel):
         return np.where(np.isnan(lp), 0.0, lp)
 
     def mode_logpdf(self, z, state, context: Context) -> np.ndarray:
-        """Per-row log-density under each discrete link state, ``(..., m, modes)``."""
+        """Per-row log-density under each discrete link state, ``(..., m, modes)``.
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Measured ranges (NaN: missing).
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m, modes)
+        """
         z_hat = self.predict(state, context)
         if self.modes == 1:
             return self.logpdf(z, state, context)[..., None]

@@ -1,0 +1,134 @@
+"""Received signal strength as a measurement model.
+
+- :class:`RssModel`: the log-distance Gaussian channel
+  (:class:`~radioloc.models.rssi_logdistance.LogDistanceGaussian`) as a Gaussian
+  measurement function ``h(x) = a - 10 n log10(max(|x - a_k|, d_ref))`` with standard
+  deviation ``s`` and the Jacobian ``-10 n / (ln 10 d) u`` (``u`` the unit vector from the
+  anchor; zero inside ``d_ref``, where the mean is flat). Any estimator takes it.
+- :class:`TrapezoidRssModel`: the data-driven trapezoids of paper 003
+  (:class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`) as a likelihood on positions,
+  ``log L(|x - a_k| | rssi)`` (Sect. III-A, normalised over the distance): it has no
+  measurement function, so only estimators that use a model's ``logpdf``
+  (``Tags.uses == "logpdf"``: particle and grid filters) take it. Outside a trapezoid the
+  log-likelihood is ``-inf``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from radioloc.core.errors import ConfigError, InputError
+from radioloc.models.measurement import Context, MeasurementModel
+from radioloc.models.ranging import range_geometry
+from radioloc.models.rssi_logdistance import LogDistanceGaussian
+from radioloc.models.rssi_trapezoid import TrapezoidModel
+
+__all__ = ["RssModel", "TrapezoidRssModel"]
+
+_LN10 = float(np.log(10.0))
+
+
+@dataclass(frozen=True)
+class RssModel(MeasurementModel):
+    """Log-distance Gaussian RSS to an anchor, in the channel model's unit (dBm or 0..100).
+
+    Parameters
+    ----------
+    model : LogDistanceGaussian
+        The channel: mean ``a - 10 n log10(max(d, d_ref_m))``, standard deviation ``s``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rss = RssModel(LogDistanceGaussian(a=-40.0, n=2.0, s=4.0))
+    >>> ctx = Context(points=np.array([[0.0, 0.0]]))
+    >>> rss.predict({"position": np.array([10.0, 0.0])}, ctx).tolist()
+    [-60.0]
+    """
+
+    model: LogDistanceGaussian
+
+    kind: ClassVar[str] = "rss"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, LogDistanceGaussian):
+            raise InputError(f"model: expected a LogDistanceGaussian, got "
+                             f"{type(self.model).__name__}")
+
+    def predict(self, state, context: Context) -> np.ndarray:
+        d, _ = range_geometry(state["position"], context.points, context.height_m)
+        return self.model.mean(d)
+
+    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
+        d, u = range_geometry(state["position"], context.points, context.height_m)
+        slope = np.where(d > self.model.d_ref_m,
+                         -10.0 * self.model.n / (_LN10 * np.maximum(d, self.model.d_ref_m)), 0.0)
+        return {"position": slope[..., None] * u}
+
+    def std(self, context: Context) -> np.ndarray:
+        return self.row_std(self.model.s, context)
+
+
+@dataclass(frozen=True)
+class TrapezoidRssModel(MeasurementModel):
+    """Likelihood-only RSS model over paper 003's trapezoids (see the module docstring).
+
+    Parameters
+    ----------
+    model : TrapezoidModel
+        Per-RSSI trapezoids; readings are integers 0..100 (map dBm with
+        :func:`~radioloc.models.rssi_trapezoid.dbm_to_rssi100`).
+    """
+
+    model: TrapezoidModel
+
+    kind: ClassVar[str] = "rss"
+    #: no measurement function to linearise: ``Tags.accepts`` gives it to ``logpdf``
+    #: estimators only
+    gaussian: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, TrapezoidModel):
+            raise InputError(f"model: expected a TrapezoidModel, got {type(self.model).__name__}")
+
+    def _refuse(self, what: str):
+        raise ConfigError(f"TrapezoidRssModel has no {what}: it is a likelihood on positions "
+                          "(logpdf only); use an estimator whose tags.uses is 'logpdf'")
+
+    def predict(self, state, context: Context) -> np.ndarray:
+        self._refuse("measurement function h(x)")
+
+    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
+        self._refuse("Jacobian")
+
+    def std(self, context: Context) -> np.ndarray:
+        self._refuse("Gaussian noise")
+
+    def sample(self, state, context: Context, rng: np.random.Generator) -> np.ndarray:
+        self._refuse("sampler of readings")
+
+    def logpdf(self, z, state, context: Context) -> np.ndarray:
+        """``log L(|x - a| | rssi)`` per row ``(..., m)`` (NaN rows give 0; ``-inf`` outside
+        the trapezoid).
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Readings, integers 0..100 (NaN: missing).
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m)
+        """
+        z = np.asarray(z, dtype=float)
+        miss = np.isnan(z)
+        d, _ = range_geometry(state["position"], context.points, context.height_m)
+        rssi = np.where(miss, 0.0, z)
+        lp = self.model.logpdf(d, rssi)
+        return np.where(miss, 0.0, lp)
