@@ -10,8 +10,9 @@ column      meaning
 ``peer``    id of the other end: an anchor id or another node's id (text)
 ``kind``    ``range`` (metres), ``rss`` (dBm), ``tdoa`` (range difference to ``peer``
             minus to ``reference``, metres), ``aoa`` (bearing from ``peer`` to the
-            node, radians, counter-clockwise from +x) or ``pseudorange`` (metres,
-            with the node's clock offset)
+            node, radians, counter-clockwise from +x), ``aoa_elevation`` (its
+            elevation, radians) or ``pseudorange`` (metres, with the node's clock
+            offset)
 ``value``   the measured value (number; a range must be >= 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
             anchor); empty for other kinds
@@ -49,7 +50,7 @@ from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
-KINDS = ("range", "rss", "tdoa", "aoa", "pseudorange")
+KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange")
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
 LIMITS = {
@@ -369,7 +370,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_rss & (value < LIMITS["rss_min_dbm"]))) is not None:
         fail(i, f"column 'value': rss {value[i]:g} dBm is below the plausible minimum of "
                 f"{LIMITS['rss_min_dbm']:g} dBm")
-    is_aoa = (out["kind"] == "aoa").to_numpy()
+    is_aoa = out["kind"].isin(("aoa", "aoa_elevation")).to_numpy()
     if (i := _first(is_aoa & (np.abs(value) > 2 * np.pi))) is not None:
         fail(i, f"column 'value': angle {value[i]:g} is beyond 2 pi: aoa is in radians "
                 "(degrees?)")

@@ -1,0 +1,127 @@
+"""The one adapter from a user's log to the generic estimators.
+
+A log (:class:`~radioloc.io.measurements.Measurements`) and an anchors table become, per
+node, the :class:`~radioloc.models.measurement.Observation` s that every generic estimator
+takes: one per measurement kind, a ``(T, S)`` array over the node's time steps and slots
+(a slot is an anchor, or an anchor and its reference anchor for a time difference), each
+with its measurement model and its anchors' positions. Which model explains which kind is
+:func:`default_models`' choice, from the method's options; a method may pass its own.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import InputError
+from radioloc.io.measurements import Measurements
+from radioloc.models.measurement import Context, MeasurementModel, Observation
+
+__all__ = ["anchor_positions", "node_observations", "default_models", "MODEL_KINDS"]
+
+#: The measurement kinds the generic estimators read, and the option naming each one's sigma.
+MODEL_KINDS = {
+    "range": "range_std_m",
+    "tdoa": "tdoa_std_m",
+    "aoa": "aoa_std_rad",
+    "aoa_elevation": "aoa_std_rad",
+    "pseudorange": "pseudorange_std_m",
+}
+
+
+def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:
+    """The anchors' coordinates ``(A, D)`` in table order (``x, y[, z]``)."""
+    dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
+    return anchors[dims].to_numpy(dtype=float)
+
+
+def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = False,
+                   range_noise=None) -> dict[str, MeasurementModel]:
+    """The measurement model of each kind.
+
+    Parameters
+    ----------
+    kinds : iterable of str
+        Kinds present in the log (others are ignored here; the method refuses them).
+    options : mapping
+        Sigmas by the names of :data:`MODEL_KINDS` (``range_std_m`` ...); defaults 0.3 m,
+        0.3 m, 0.05 rad, 5 m.
+    anchor_bias : bool
+        Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
+    range_noise : range-error model, optional
+        E.g. a :class:`~radioloc.models.los_nlos.LosNlosRange` instead of a Gaussian.
+
+    Returns
+    -------
+    dict of str to MeasurementModel
+    """
+    from radioloc.models.bearing import BearingModel
+    from radioloc.models.pseudorange import PseudorangeModel
+    from radioloc.models.ranging import RangeModel
+    from radioloc.models.tdoa import TdoaModel
+
+    def sigma(kind, default):
+        return float(options.get(MODEL_KINDS[kind], default))
+
+    out: dict[str, MeasurementModel] = {}
+    for kind in kinds:
+        if kind == "range":
+            out[kind] = (RangeModel(noise=range_noise, anchor_bias=anchor_bias) if range_noise is not None
+                         else RangeModel(std_m=sigma(kind, 0.3), anchor_bias=anchor_bias))
+        elif kind == "tdoa":
+            out[kind] = TdoaModel(std_m=sigma(kind, 0.3))
+        elif kind in ("aoa", "aoa_elevation"):
+            out[kind] = BearingModel(std_rad=sigma(kind, 0.05),
+                                     component="azimuth" if kind == "aoa" else "elevation")
+        elif kind == "pseudorange":
+            out[kind] = PseudorangeModel(std_m=sigma(kind, 5.0))
+    return out
+
+
+def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,
+                      models: Mapping[str, MeasurementModel]) -> tuple[np.ndarray, list[Observation]]:
+    """The observations of one node, one per kind that ``models`` explains.
+
+    Parameters
+    ----------
+    measurements : Measurements
+    anchors : DataFrame
+        ``id, x, y[, z]`` (as read by :func:`radioloc.io.logs.read_anchors`).
+    node : str
+    models : mapping of kind to MeasurementModel
+
+    Returns
+    -------
+    time : ndarray, shape (T,)
+        The node's time steps (over the kinds of ``models``).
+    observations : list of Observation
+        ``z`` of shape ``(T, S)``; NaN where a slot has no measurement at a step.
+
+    Raises
+    ------
+    InputError
+        A peer or reference that is not an anchor (naming it, the node and the kind).
+    """
+    points = anchor_positions(anchors)
+    index = {a: i for i, a in enumerate(anchors["id"])}
+    sel = measurements.select(kind=list(models), node=node)
+    time = sel.times(node)
+    out = []
+    for kind in sel.kinds:
+        grid = sel.grid(kind, node, times=time)
+        for what, ids in (("peer", grid.peers), ("reference", grid.references)):
+            bad = [p for p in ids if p not in index and not (what == "reference" and p == "")]
+            if bad:
+                raise InputError(f"node {node!r}, kind {kind!r}: {what} {bad[0]!r} is not an "
+                                 "anchor (this method locates from anchors only)")
+        peer_idx = np.array([index[p] for p in grid.peers], dtype=int)
+        ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
+                   if kind == "tdoa" else None)
+        ctx = Context(points=points[peer_idx], index=peer_idx,
+                      reference=None if ref_idx is None else points[ref_idx],
+                      reference_index=ref_idx)
+        std = grid.std if np.isfinite(grid.std).any() else None
+        out.append(Observation(models[kind], grid.value, ctx, std=std))
+    return time, out
