@@ -377,7 +377,10 @@ class ParticleFilter(RecursiveEstimator):
         self.n_particles = check_int(n_particles, "n_particles", minimum=1,
                                      maximum=MAX_PARTICLES)
         if isinstance(resample, str):
-            resample = get_scheme(resample)
+            try:
+                resample = get_scheme(resample)
+            except ConfigError as exc:
+                raise ConfigError(f"resample: {exc}") from None
         if not callable(resample):
             raise ConfigError(f"resample: expected a function (weights, rng) -> indices, got "
                               f"{type(resample).__name__}")

@@ -96,7 +96,8 @@ def backward_simulation(history, times, motion, trajectories: int, rng,
     if log_weights is None:
         pick = rng.integers(0, K, batch + (M,))
     else:
-        pick = _categorical(np.asarray(log_weights[-1], dtype=float)[..., None, :], rng)
+        pick = _categorical(np.broadcast_to(np.asarray(log_weights[-1], dtype=float)[..., None, :],
+                                            batch + (M, K)), rng)
     x = np.take_along_axis(last, pick[..., None], axis=-2)            # (..., M, n')
     _moments(x, mean, cov, T - 1)
     for k in range(T - 2, -1, -1):
