@@ -120,23 +120,89 @@ class RunGenerators:
         return np.stack(parts).reshape(shape) if parts else np.zeros(shape)
 
     def random(self, size=None, where=None) -> np.ndarray:
-        """Uniforms on [0, 1); runs outside ``where`` (bool, batch shape) draw nothing."""
+        """Uniforms on [0, 1).
+
+        Parameters
+        ----------
+        size : tuple of int
+            Shape of the draw, leading with the batch shape.
+        where : ndarray of bool, shape batch_shape, optional
+            Runs that draw; the others draw nothing and get zeros.
+
+        Returns
+        -------
+        ndarray
+        """
         return self._draw("random", size, where)
 
     def standard_normal(self, size=None, where=None) -> np.ndarray:
-        """Standard normal draws; runs outside ``where`` draw nothing (zeros)."""
+        """Standard normal draws (parameters as :meth:`random`).
+
+        Parameters
+        ----------
+        size : tuple of int
+        where : ndarray of bool, optional
+
+        Returns
+        -------
+        ndarray
+        """
         return self._draw("standard_normal", size, where)
 
     def normal(self, loc=0.0, scale=1.0, size=None) -> np.ndarray:
+        """``loc + scale * standard_normal(size)``.
+
+        Parameters
+        ----------
+        loc, scale : float or ndarray
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
         return loc + scale * self._draw("standard_normal", size)
 
     def uniform(self, low=0.0, high=1.0, size=None) -> np.ndarray:
+        """Uniforms on ``[low, high)``.
+
+        Parameters
+        ----------
+        low, high : float or ndarray
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
         return low + (high - low) * self._draw("random", size)
 
     def integers(self, low, high=None, size=None) -> np.ndarray:
+        """Integers on ``[low, high)`` (``[0, low)`` without ``high``).
+
+        Parameters
+        ----------
+        low, high : int
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray of int64
+        """
         return self._draw("integers", size, low=low, high=high)
 
     def exponential(self, scale=1.0, size=None) -> np.ndarray:
+        """Exponential draws of mean ``scale``.
+
+        Parameters
+        ----------
+        scale : float
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
         return self._draw("exponential", size, scale=scale)
 
 
@@ -529,7 +595,7 @@ class ParticleFilter(RecursiveEstimator):
         x = state.particles.copy()
         # predict (Algorithm 2, line 3): the kinematic part moves, the rest is held
         x[..., :ns] = sample_motion(self.motion, x[..., :ns], dt, rng, control)
-        _, _, pred_cov, _ = weighted_moments(state.log_weights, x)
+        x_pred = x
         log_w = state.log_weights
         modes, seen = list(state.modes), list(state.seen)
         degenerate = np.zeros(state.batch_shape, dtype=bool)
@@ -542,6 +608,10 @@ class ParticleFilter(RecursiveEstimator):
             zz = z[..., None, :]
             pctx = _particle_context(ctx)
             S = int(getattr(model, "modes", 1))
+            if S > 1 and not all(hasattr(model, a) for a in ("mode_logpdf", "mode_transition",
+                                                             "mode_prior")):
+                raise InputError(f"observations[{i}]: model {type(model).__name__} has {S} "
+                                 "modes but no mode_logpdf, mode_transition and mode_prior")
             if S > 1:
                 # lines 6, 8, 11: the discrete row states summed out exactly
                 lp = model.mode_logpdf(zz, comps, pctx)                  # (..., K, m, S)
@@ -579,6 +649,7 @@ class ParticleFilter(RecursiveEstimator):
                 rng.standard_normal(x.shape)
         if np.any(degenerate):
             # reset: redraw around the new estimate with the inflated predicted spread
+            _, _, pred_cov, _ = weighted_moments(state.log_weights, x_pred)
             vals, vecs = np.linalg.eigh(pred_cov)
             factor = self.reset_inflation * vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
             z = rng.standard_normal(x.shape, where=degenerate)
