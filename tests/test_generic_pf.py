@@ -280,3 +280,23 @@ def test_bad_input_names_the_argument():
         ParticleFilter(WhiteAccelerationCV(0.05), resample="bogus")
     with pytest.raises(ConfigError, match="seed"):
         ParticleFilter(WhiteAccelerationCV(0.05), seed=-1)
+
+
+def test_mode_update_is_the_exact_hmm_filter():
+    """Two steps of a two-state chain: the recursion (predict through P, multiply by the
+    likelihood, normalise; log-likelihood of the row) equals enumerating the four paths."""
+    from radioloc.estimators.particle_filter import mode_update
+
+    P = np.array([[0.9, 0.1], [0.3, 0.7]])
+    pi = np.array([0.25, 0.75])
+    lik = np.array([[0.2, 1.5], [2.0, 0.1]])            # p(z_t | state), t = 0, 1
+    ll0, post0 = mode_update(pi, np.log(lik[0]))
+    ll1, post1 = mode_update(post0 @ P, np.log(lik[1]))
+    joint = pi[:, None] * lik[0][:, None] * P * lik[1][None, :]     # (s0, s1)
+    np.testing.assert_allclose(ll0 + ll1, np.log(joint.sum()), rtol=1e-12)
+    np.testing.assert_allclose(post1, joint.sum(axis=0) / joint.sum(), rtol=1e-12)
+    # a row no state explains keeps its prior and contributes -inf, without a warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ll, post = mode_update(pi, np.array([-np.inf, -np.inf]))
+    assert ll == -np.inf and np.array_equal(post, pi)
