@@ -214,3 +214,68 @@ def test_bad_input_names_the_field():
     with pytest.raises(InputError, match="non-finite"):
         pf.run(r, truth[:, :, 0], np.random.default_rng(0), anchors=ANCHORS,
                given_positions=given)
+
+
+# ------------------------------------------------------------------ range models
+class _WrappedMixture:
+    """The LOS/NLOS mixture behind another type: a range model with two link states that
+    the filter runs through the model's mode_logpdf and chain (the generic update)."""
+
+    def __init__(self, mixture):
+        self.mixture = mixture
+
+    def moments(self):
+        return self.mixture.moments()
+
+    def logpdf(self, measured, true_ranges):
+        return self.mixture.logpdf(measured, true_ranges)
+
+    def logpdf_by_state(self, measured, true_ranges):
+        return self.mixture.logpdf_by_state(measured, true_ranges)
+
+    @property
+    def chain(self):
+        return self.mixture.chain
+
+
+def test_a_range_model_with_the_mixture_equals_the_mixture_on_both_backends():
+    from radioloc.models.ranging import RangeModel
+
+    truth, r = scene(steps=6)
+    mix = LosNlosRange(0.2, 2.0, 0.6)
+    ref = P2PParticleFilter(RandomWalk(0.25), mix, particles=300, backend="numpy").run(
+        r, truth[:, :, 0], np.random.default_rng(3), anchors=ANCHORS)
+    for backend in ("numba", "numpy"):
+        pf = P2PParticleFilter(RandomWalk(0.25), RangeModel(noise=mix), particles=300,
+                               backend=backend)
+        assert_tracks_close(pf.run(r, truth[:, :, 0], np.random.default_rng(3),
+                                   anchors=ANCHORS), ref)
+    # the generic per-state update (mode_logpdf, mode_transition) gives the same filter
+    generic = P2PParticleFilter(RandomWalk(0.25), RangeModel(noise=_WrappedMixture(mix)),
+                                particles=300, backend="numpy")
+    assert_tracks_close(generic.run(r, truth[:, :, 0], np.random.default_rng(3),
+                                    anchors=ANCHORS), ref, rtol=1e-9)
+
+
+def test_a_gaussian_range_model_tracks_on_numpy_and_numba_refuses_it():
+    from radioloc.models.ranging import RangeModel
+
+    g = np.random.default_rng(0)
+    x = 15.0 + np.cumsum(0.3 * g.standard_normal((30, 2)), axis=0)
+    d = np.linalg.norm(x[1:, None] - ANCHORS, axis=-1) + 0.05 * g.standard_normal((29, 4))
+    r = np.concatenate([np.full((29, 1), np.nan), d], axis=-1)[None, None]
+    pf = P2PParticleFilter(RandomWalk(0.09), RangeModel(std_m=0.05), particles=3000,
+                           backend="numpy")
+    tr = pf.run(r, x[None, None, 0], np.random.default_rng(1), anchors=ANCHORS)
+    assert np.linalg.norm(tr.position[0, 0] - x[1:], axis=-1)[10:].mean() < 0.1
+    assert tr.diagnostics["los_detected"][0, 0, :, 1:].all()     # one state: every link LOS
+    with pytest.raises(ConfigError, match="backend='numpy'"):
+        P2PParticleFilter(RandomWalk(0.09), RangeModel(std_m=0.05), backend="numba")
+    with pytest.raises(ConfigError, match="online_em"):
+        P2PParticleFilter(RandomWalk(0.09), RangeModel(std_m=0.05), backend="numpy",
+                          online_em=True)
+    with pytest.raises(ConfigError, match="anchor_bias"):
+        P2PParticleFilter(RandomWalk(0.09), RangeModel(std_m=0.05, anchor_bias=True),
+                          backend="numpy")
+    with pytest.raises(ConfigError, match="measurement"):
+        P2PParticleFilter(RandomWalk(0.09), "gaussian", backend="numpy")

@@ -8,6 +8,8 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 - ``NetworkRLS``, ``NetworkEKF`` (recursive): paper 000, distributed RLS and sequential EKF;
 - ``RangeEKF`` (recursive): any motion model and range model (papers 001 and 002 baselines);
 - ``P2PParticleFilter`` (recursive), ``LocalML``, ``Ransac`` (snapshot): paper 001;
+- ``ParticleFilter`` (recursive): any motion model and any measurement models
+  (``Observation`` inputs), with the discrete row states of paper 001 summed out exactly;
 - ``ClosedFormTracker``, ``NewtonTracker`` (snapshot): paper 002;
 - ``GridFilter`` (recursive): paper 003;
 - ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004.
@@ -32,6 +34,7 @@ from radioloc.estimators.multilateration import Multilateration
 from radioloc.estimators.nlls import NLLSResult, solve_nlls
 from radioloc.estimators.nlls_newton import NewtonTracker
 from radioloc.estimators.p2p_particle import OnlineEM, P2PParticleFilter
+from radioloc.estimators.particle_filter import ParticleFilter
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
@@ -44,7 +47,7 @@ ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilt
 __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
     "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
-    "MixtureTracker",
+    "MixtureTracker", "ParticleFilter",
     "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
     "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
     "GaussianState", "kalman_predict", "kalman_update", "NLLSResult", "solve_nlls",

@@ -18,15 +18,21 @@ loop over :meth:`P2PParticleFilter.step`.
 Each part of a step is defined once here in NumPy (``backend="numpy"``): the prediction
 (line 3, the motion model's draws), the particle-link update (:func:`_link_update_numpy`,
 lines 6, 8, 11, with the densities of :mod:`radioloc.models.los_nlos` and its sticky chain),
-the weighted moments (:func:`_weighted_moments_numpy`, line 14) and the resampling of
+the weighted moments (:func:`radioloc.estimators.particle_filter.weighted_moments`, line 14) and the resampling of
 :mod:`radioloc.estimators.resampling` (line 12). ``backend="numba"`` runs the kernels of
 :mod:`radioloc.estimators.pf_compiled` for the last three on the same draws.
 
 The models are arguments: the motion model (``InputDriven(s_INS)`` with the INS reading as
 control, the paper's; or ``RandomWalk``, ``ConstantVelocity`` with no INS) draws the
-prediction (line 3) through its ``sample``; the measurement model ``LosNlosRange`` gives
-the per-state likelihoods and its sticky link chain. The likelihood uses the position
-part of the state.
+prediction (line 3) through its ``sample`` (:func:`radioloc.estimators.particle_filter.sample_motion`);
+the measurement model is a :class:`~radioloc.models.ranging.RangeModel`. With the LOS/NLOS
+noise :class:`~radioloc.models.los_nlos.LosNlosRange` (the paper's) the update above runs on
+the mixture's parameters (both backends, and the online EM below); with any other noise
+(Gaussian, or another model with per-row states) ``backend="numpy"`` takes the
+per-state log-densities from the model's ``mode_logpdf`` and its chain from
+``mode_transition``/``mode_prior``, and sums the states out by the generic filter's
+:func:`radioloc.estimators.particle_filter.mode_update` (:func:`_link_update_model`). The
+likelihood uses the position part of the state.
 
 Correction of Algorithm 2 as printed: it resamples at every step (line 12) but carries the
 unnormalised ``phi_{t-1}`` forward, which would count the history of each link twice (once
@@ -56,10 +62,12 @@ from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, 
                                       check_probability)
 from radioloc.estimators import pf_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
+from radioloc.estimators.particle_filter import mode_update, sample_motion, weighted_moments
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import (LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf,
                                       sticky_transition)
-from radioloc.models.motion import InputDriven, MotionModel
+from radioloc.models.measurement import Context
+from radioloc.models.ranging import RangeModel
 
 __all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_log_phi"]
 
@@ -283,13 +291,44 @@ def _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params
     return log_w, q_new, _normalise_post(post), em_pp, np.all(q_new == 1.0, axis=-2) & valid
 
 
+def _link_update_model(model, particles, node_xy, th, valid, where_prev, prev_q):
+    """Lines 6, 8 and 11 for any :class:`~radioloc.models.ranging.RangeModel` with one or
+    two states per link (the outputs of :func:`_link_update_numpy` without the online-EM
+    sums): the per-state log-densities of ``model.mode_logpdf`` summed out by
+    :func:`radioloc.estimators.particle_filter.mode_update` under the prior of the carried
+    posterior through ``model.mode_transition()`` (line 6) or ``model.mode_prior()``
+    (line 8). A one-state model's link is LOS: its posterior is 1."""
+    S = model.modes
+    z = np.where(valid, th, np.nan)[..., None, :]                          # (..., 1, L)
+    ctx = Context(points=node_xy[..., None, :, :])                         # (..., 1, L, 2)
+    lp = model.mode_logpdf(z, {"position": particles[..., :2]}, ctx)      # (..., K, L, S)
+    prior = np.broadcast_to(model.mode_prior(), lp.shape)
+    if S > 1 and prev_q.shape[-1]:
+        q = np.take_along_axis(prev_q, np.maximum(where_prev, 0)[..., None, :], axis=-1)
+        pred = np.stack([1.0 - q, q], axis=-1) @ model.mode_transition()
+        prior = np.where((where_prev >= 0)[..., None, :, None], pred, prior)
+    row_ll, post = mode_update(prior, lp)
+    ok = valid[..., None, :]
+    log_w = np.sum(np.where(ok, row_ll, 0.0), axis=-1)
+    q_new = np.where(ok, post[..., -1], 0.0)
+    with np.errstate(divide="ignore"):
+        joint = np.where(ok[..., None], np.log(prior) + lp, -np.inf)
+    pooled = logsumexp(joint, axis=-3)                                    # (..., L, S)
+    if S == 1:
+        pooled = np.concatenate([np.full_like(pooled, -np.inf), pooled], axis=-1)
+    return log_w, q_new, _normalise_post(pooled), None, np.all(q_new == 1.0, axis=-2) & valid
+
+
 def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, certain, backend,
-                 em):
+                 em, model=None):
     """:func:`_link_update_numpy` by ``backend`` (the online-EM sums None unless ``em``).
     ``certain`` (..., L'): the previous step's links whose posterior was 1 for every
     particle (the last output; None before the first step). Where such a link is carried
     and alpha is 1, or a new link has alpha 1, the LOS prior of every particle is 1 and the
-    pooled posterior is LOS, which the kernel then does not sum."""
+    pooled posterior is LOS, which the kernel then does not sum. ``model``: a range model
+    other than the LOS/NLOS mixture, run by :func:`_link_update_model`."""
+    if model is not None:
+        return _link_update_model(model, particles, node_xy, th, valid, where_prev, prev_q)
     if backend == "numpy":
         out = _link_update_numpy(particles, node_xy, th, valid, where_prev, prev_q, params)
         return out if em else out[:3] + (None, out[4])
@@ -321,23 +360,10 @@ def _link_update(particles, node_xy, th, valid, where_prev, prev_q, params, cert
             (valid.reshape(b, width) & ~uncertain.any(axis=1)).reshape(batch + (width,)))
 
 
-def _weighted_moments_numpy(log_w, particles):
-    """Normalised weights (..., K), weighted mean (..., n), covariance (..., n, n) and
-    effective sample size ``1 / sum_i w_i^2`` of particles (..., K, n) with log weights
-    ``log_w`` (..., K) (Algorithm 2, line 14; the definition of
-    :func:`radioloc.estimators.pf_compiled.moment_sums`)."""
-    w = np.exp(log_w - log_w.max(axis=-1, keepdims=True))
-    w /= w.sum(axis=-1, keepdims=True)
-    mean = np.einsum("...k,...kd->...d", w, particles)
-    dev = particles - mean[..., None, :]
-    cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
-    return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
-
-
 def _weighted_moments(log_w, particles, backend):
-    """:func:`_weighted_moments_numpy` by ``backend``."""
+    """:func:`radioloc.estimators.particle_filter.weighted_moments` by ``backend``."""
     if backend == "numpy":
-        return _weighted_moments_numpy(log_w, particles)
+        return weighted_moments(log_w, particles)
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
     x = kernel_array(particles.reshape(b, k, n))
@@ -398,39 +424,6 @@ def _standard_normal(rng, shape, backend):
     return out.reshape(shape)
 
 
-def _sample_motion(motion, particles, dt, rng, control, backend):
-    """Line 3 through the motion model: its own ``sample``, except for the input-driven
-    model's ``x + u + std_m z`` and the linear-Gaussian models of
-    :class:`radioloc.models.motion.MotionModel`, whose ``F x + w, w ~ N(0, Q(dt))`` is drawn
-    here with ``Q(dt)`` factored once per step instead of once per particle (the draws by
-    :func:`_standard_normal`)."""
-    if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
-        z = _standard_normal(rng, particles.shape, backend)
-        z *= motion.std_m
-        z += particles if control is None else particles + control
-        return z
-    if type(motion).sample is not MotionModel.sample:
-        return motion.sample(particles, dt, rng, control=control)
-    n = particles.shape[-1]
-    F = np.asarray(motion.F(dt))
-    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):        # random walk: F = I
-        mean = particles if control is None else particles.copy()
-        if control is not None:
-            mean[..., : motion.dim] += control
-    else:
-        mean = motion.predict(particles, dt, control=control)
-    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
-    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
-    z = _standard_normal(rng, mean.shape, backend)
-    if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        z *= np.diagonal(factor)
-        z += mean
-        return z
-    if factor.ndim == 2:                                    # one Q for every particle
-        return mean + z @ factor.T
-    return mean + np.einsum("...ij,...kj->...ki", factor, z)
-
-
 def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.ndarray:
     """Slot of each current link in the previous step's link list, ``-1`` if new.
 
@@ -468,9 +461,12 @@ class P2PParticleFilter(RecursiveEstimator):
         as control is the paper's ``p(v_t | v_{t-1}) = N(v_{t-1} + u_t, s_INS^2 I)``;
         ``RandomWalk(q)`` or ``ConstantVelocity(accel_var)`` (state ``[x, y, vx, vy]``)
         track with no INS.
-    measurement : LosNlosRange
-        Range model; its sticky link chain (``measurement.chain``) carries the link
-        states from step to step.
+    measurement : RangeModel or LosNlosRange
+        Range model (a ``LosNlosRange`` is taken as ``RangeModel(noise=LosNlosRange)``).
+        With the LOS/NLOS noise its sticky link chain carries the link states from step
+        to step (both backends); any other noise (e.g. ``RangeModel(std_m=...)``) needs
+        ``backend="numpy"`` and runs through the model's ``mode_logpdf`` (see the module
+        docstring). No per-anchor bias.
     particles : int
         K particles per vehicle (paper: 900).
     resampling : {"systematic", "stratified", "multinomial", "residual"}
@@ -521,8 +517,25 @@ class P2PParticleFilter(RecursiveEstimator):
                 raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
         if motion.dim != 2:
             raise ConfigError(f"motion: the filter tracks 2-D positions, got dim={motion.dim}")
-        if not isinstance(measurement, LosNlosRange):
-            raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
+        if isinstance(measurement, LosNlosRange):
+            measurement = RangeModel(noise=measurement)
+        if not isinstance(measurement, RangeModel):
+            raise ConfigError(f"measurement: expected a RangeModel (or LosNlosRange), got "
+                              f"{type(measurement).__name__}")
+        if measurement.anchor_bias:
+            raise ConfigError("measurement: the peer-to-peer filter has no anchor-bias state; "
+                              "give a RangeModel with anchor_bias=False")
+        if measurement.modes not in (1, 2):
+            raise ConfigError(f"measurement: links with 1 or 2 discrete states, got "
+                              f"{measurement.modes}")
+        mixture = measurement.noise if isinstance(measurement.noise, LosNlosRange) else None
+        if mixture is None and backend == "numba":
+            raise ConfigError(f"measurement: backend='numba' runs the LOS/NLOS mixture "
+                              f"(RangeModel(noise=LosNlosRange)) only; for "
+                              f"{type(measurement.noise).__name__} noise use backend='numpy'")
+        if mixture is None and online_em:
+            raise ConfigError("online_em: estimates the LOS/NLOS mixture's parameters; the "
+                              f"measurement noise is {type(measurement.noise).__name__}")
         particles = check_int(particles, "particles", minimum=1, maximum=MAX_PARTICLES)
         get_scheme(resampling)
         try:
@@ -541,6 +554,7 @@ class P2PParticleFilter(RecursiveEstimator):
             raise ConfigError(f"messages: must be one of {MESSAGES}, got {messages!r}")
         self.motion = motion
         self.measurement = measurement
+        self._mixture = mixture
         self.particles = int(particles)
         self.resampling = resampling
         self.init_std = init_std
@@ -584,9 +598,7 @@ class P2PParticleFilter(RecursiveEstimator):
         particles = v0[..., None, :] + self._init_std * rng.standard_normal(batch + (k, n))
         cov = np.broadcast_to(np.diag(np.broadcast_to(self._init_std, (n,)) ** 2),
                               batch + (n, n)).copy()
-        m = self.measurement
-        params = np.broadcast_to(np.array([m.los_std_m, m.nlos_mean_m, m.alpha]),
-                                 batch + (3,)).copy()
+        params = np.broadcast_to(self._model_params(), batch + (3,)).copy()
         em = self.online_em is not None
         return ParticleState(particles=particles,
                              link_los=np.zeros(batch + (k, 0)),
@@ -670,11 +682,12 @@ class P2PParticleFilter(RecursiveEstimator):
         params = self._params(state)
         em = self.online_em is not None
         # line 3: propagate every particle through the motion model
-        particles = _sample_motion(self.motion, state.particles, dt, rng, u, self.backend)
+        particles = sample_motion(self.motion, state.particles, dt, rng, u,
+                                  normal=lambda shape: _standard_normal(rng, shape, self.backend))
         # lines 6, 8, 11: link posteriors and weights
         log_w, q, post, em_pp, certain = _link_update(
             particles, node_xy, th, valid, where_prev, state.link_los, params, state.los_certain,
-            self.backend, em)
+            self.backend, em, None if self._mixture is not None else self.measurement)
         # line 14: weighted mean; weighted covariance and effective sample size
         w, mean, cov, ess = _weighted_moments(log_w, particles, self.backend)
         # line 12: resample; carry the normalised link posterior of each surviving particle
@@ -705,9 +718,12 @@ class P2PParticleFilter(RecursiveEstimator):
         """``(s_LOS, s_NLOS, alpha)`` per filter, (..., N, 3)."""
         if state.params is not None:
             return state.params
-        m = self.measurement
-        return np.broadcast_to(np.array([m.los_std_m, m.nlos_mean_m, m.alpha]),
-                               state.batch_shape + (3,))
+        return np.broadcast_to(self._model_params(), state.batch_shape + (3,))
+
+    def _model_params(self) -> np.ndarray:
+        """The mixture's ``(s_LOS, s_NLOS, alpha)``; NaN for another noise model."""
+        m = self._mixture
+        return np.array([np.nan] * 3 if m is None else [m.los_std_m, m.nlos_mean_m, m.alpha])
 
     def _em_update(self, state, w, em_pp, valid, params):
         """One online EM step (see :class:`OnlineEM`): new statistics, counts, parameters."""

@@ -12,7 +12,7 @@ numbers: made by NumPy before the kernels run, or, for large normal draws, by nu
   the larger of the two state terms, with the particle-pooled link posterior accumulated per
   chunk of particles;
 * :func:`moment_sums`: the weighted sums of the particles around one of them
-  (``p2p_particle._weighted_moments_numpy``);
+  (``particle_filter.weighted_moments``);
 * :func:`systematic_gather`: systematic resampling (``resampling.systematic``) and the
   gather of the particles and link posteriors;
 * :func:`standard_normal`: large normal draws in parallel, each part from its own child

@@ -9,8 +9,8 @@ filter's equally weighted particle sets ``{x_k^i}`` after every step ``k`` (appr
 
 with ``p(x_{k+1} | x_k)`` the Gaussian transition density of the linear-Gaussian motion
 model, ``N(x_{k+1}; F(dt) x_k, Q(dt))``. The smoothed mean and covariance of step ``k`` are
-those of the drawn trajectories at ``k``. Every trajectory is batched: one ``(M, K)``
-log-density array per step (M trajectories, K particles), the only loop is over time.
+those of the drawn trajectories at ``k``. Every trajectory is batched: one ``(..., M, K)``
+log-density array per step (runs, M trajectories, K particles), the only loop is over time.
 
 Unlike the genealogy of the particles (a fixed-lag smoother that follows resampling
 indices back), a backward draw can jump to any particle that explains the next state,
@@ -28,27 +28,36 @@ from radioloc.core.errors import ConfigError, InputError
 __all__ = ["backward_simulation"]
 
 
-def backward_simulation(history, times, motion, trajectories: int, rng: np.random.Generator
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def backward_simulation(history, times, motion, trajectories: int, rng,
+                        log_weights=None) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed means and covariances by backward simulation over a filter's particles.
 
     Parameters
     ----------
-    history : sequence of ndarray, each shape (K, n)
-        Equally weighted particles after each of the T filter steps (state position first).
+    history : sequence of ndarray, each shape (..., K, n')
+        Particles after each of the T filter steps (state position first, the motion
+        model's ``n`` components first, ``n' >= n``); leading axes are independent runs.
     times : ndarray, shape (T,)
         Time of each step, seconds (strictly increasing).
     motion : motion model
-        The filter's linear-Gaussian model, with ``F(dt)``, ``Q(dt)`` and ``state_dim``.
+        The filter's linear-Gaussian model, with ``F(dt)``, ``Q(dt)`` and ``state_dim``
+        (``n``). Components after the first ``n`` are carried along the drawn
+        trajectories and do not enter the transition density.
     trajectories : int
-        Backward trajectories drawn (M).
+        Backward trajectories drawn per run (M).
     rng : numpy.random.Generator
+        Or any object with ``integers`` and ``random`` drawing arrays whose leading axes
+        are the runs (e.g. :class:`radioloc.estimators.particle_filter.RunGenerators`).
+    log_weights : sequence of ndarray, each shape (..., K), optional
+        Normalised log weights of each step's particles (a filter that does not resample
+        at every step); None: equally weighted sets. With weights the backward
+        probability of particle ``i`` is ``w_k^i p(x_{k+1} | x_k^i)``.
 
     Returns
     -------
-    mean : ndarray, shape (T, n)
+    mean : ndarray, shape (T, ..., n')
         Mean of the drawn trajectories at each step.
-    covariance : ndarray, shape (T, n, n)
+    covariance : ndarray, shape (T, ..., n', n')
         Their covariance.
 
     Raises
@@ -70,35 +79,55 @@ def backward_simulation(history, times, motion, trajectories: int, rng: np.rando
     if T > 1 and not np.all(np.diff(t) > 0):
         raise InputError("times: must be strictly increasing")
     n = motion.state_dim
+    shape = np.shape(history[0])
+    if len(shape) < 2 or shape[-1] < n:
+        raise InputError(f"history[0]: expected shape (..., K, {n}), got {shape}")
     for k, h in enumerate(history):
-        if np.ndim(h) != 2 or np.shape(h)[1] != n:
-            raise InputError(f"history[{k}]: expected shape (K, {n}), got {np.shape(h)}")
+        if np.shape(h) != shape:
+            raise InputError(f"history[{k}]: expected shape {shape}, got {np.shape(h)}")
+    if log_weights is not None and (len(log_weights) != T or
+                                    any(np.shape(w) != shape[:-1] for w in log_weights)):
+        raise InputError(f"log_weights: expected {T} arrays of shape {shape[:-1]}")
+    batch, K = shape[:-2], shape[-2]
     M = int(trajectories)
-    mean = np.empty((T, n))
-    cov = np.empty((T, n, n))
+    mean = np.empty((T,) + batch + shape[-1:])
+    cov = np.empty((T,) + batch + shape[-1:] * 2)
     last = np.asarray(history[-1], dtype=float)
-    x = last[rng.integers(0, last.shape[0], M)]                       # (M, n)
+    if log_weights is None:
+        pick = rng.integers(0, K, batch + (M,))
+    else:
+        pick = _categorical(np.broadcast_to(np.asarray(log_weights[-1], dtype=float)[..., None, :],
+                                            batch + (M, K)), rng)
+    x = np.take_along_axis(last, pick[..., None], axis=-2)            # (..., M, n')
     _moments(x, mean, cov, T - 1)
     for k in range(T - 2, -1, -1):
-        parts = np.asarray(history[k], dtype=float)                    # (K, n)
+        parts = np.asarray(history[k], dtype=float)                    # (..., K, n')
         dt = t[k + 1] - t[k]
         Q = np.asarray(motion.Q(dt), dtype=float)
         Q = Q + 1e-12 * max(float(np.trace(Q)), 1e-300) * np.eye(n)   # keep it invertible
         L_inv = np.linalg.inv(np.linalg.cholesky(Q))
-        pred = parts @ np.asarray(motion.F(dt), dtype=float).T         # (K, n)
-        z = (x[:, None, :] - pred[None]) @ L_inv.T                     # (M, K, n)
-        logw = -0.5 * np.sum(z * z, axis=-1)                           # (M, K)
-        logw -= logw.max(axis=-1, keepdims=True)
-        w = np.exp(logw)
-        cdf = np.cumsum(w, axis=-1)
-        u = rng.random(M) * cdf[:, -1]
-        pick = np.minimum((cdf < u[:, None]).sum(axis=-1), parts.shape[0] - 1)
-        x = parts[pick]
+        pred = parts[..., :n] @ np.asarray(motion.F(dt), dtype=float).T          # (..., K, n)
+        z = (x[..., :, None, :n] - pred[..., None, :, :]) @ L_inv.T              # (..., M, K, n)
+        logw = -0.5 * np.sum(z * z, axis=-1)                                      # (..., M, K)
+        if log_weights is not None:
+            logw = logw + np.asarray(log_weights[k], dtype=float)[..., None, :]
+        pick = _categorical(logw, rng)
+        x = np.take_along_axis(parts, pick[..., None], axis=-2)
         _moments(x, mean, cov, k)
     return mean, cov
 
 
+def _categorical(logw: np.ndarray, rng) -> np.ndarray:
+    """One draw per row of ``logw`` (..., M, K) with probabilities proportional to
+    ``exp(logw)``: indices (..., M)."""
+    logw = logw - logw.max(axis=-1, keepdims=True)
+    cdf = np.cumsum(np.exp(logw), axis=-1)
+    u = rng.random(logw.shape[:-1]) * cdf[..., -1]
+    return np.minimum((cdf < u[..., None]).sum(axis=-1), logw.shape[-1] - 1)
+
+
 def _moments(x: np.ndarray, mean: np.ndarray, cov: np.ndarray, k: int) -> None:
-    mean[k] = x.mean(axis=0)
-    dev = x - mean[k]
-    cov[k] = dev.T @ dev / x.shape[0]
+    """Mean and covariance over the trajectories (axis -2) of ``x`` (..., M, n)."""
+    mean[k] = x.mean(axis=-2)
+    dev = x - mean[k][..., None, :]
+    cov[k] = np.einsum("...mi,...mj->...ij", dev, dev) / x.shape[-2]

@@ -181,6 +181,16 @@ class RangeModel(MeasurementModel):
         """Discrete states of a link (2 for LOS/NLOS: index 0 NLOS, 1 LOS), 1 otherwise."""
         return 2 if hasattr(self.noise, "logpdf_by_state") else 1
 
+    def mode_transition(self) -> np.ndarray:
+        """Markov chain of a row's discrete state from one step to the next,
+        ``P[s_prev, s]``, shape ``(modes, modes)`` (the LOS/NLOS model's sticky chain)."""
+        return self.noise.chain.transition if self.modes > 1 else np.ones((1, 1))
+
+    def mode_prior(self) -> np.ndarray:
+        """Probabilities of a new row's discrete states, shape ``(modes,)`` (the chain's
+        stationary law)."""
+        return self.noise.chain.stationary if self.modes > 1 else np.ones(1)
+
     def _bias_of(self, state, context: Context) -> np.ndarray | float:
         if not self.anchor_bias:
             return 0.0

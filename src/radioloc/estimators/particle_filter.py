@@ -1,0 +1,748 @@
+"""A particle filter over any measurement model, with Rao-Blackwellised discrete row states.
+
+The bootstrap filter (Gordon, Salmond and Smith, 1993; paper 001, Algorithm 1) with the
+exact integration of a model's discrete per-row states of paper 001, Algorithm 2:
+
+1. predict: every particle is drawn from the motion model, ``x_t^i ~ p(x_t | x_{t-1}^i)``
+   (Algorithm 2, line 3);
+2. update: each :class:`~radioloc.models.measurement.Observation` of the step multiplies
+   the weights by its likelihood, ``log w_t^i += sum_rows log p(z_t | x_t^i)`` (the model's
+   ``logpdf``; a NaN row contributes nothing). For a model with ``modes > 1`` discrete
+   states per row (the LOS/NLOS link state of
+   :class:`~radioloc.models.ranging.RangeModel` over
+   :class:`~radioloc.models.los_nlos.LosNlosRange`), each particle carries the posterior of
+   every row's state and the states are summed out exactly (Sect. IV)::
+
+       phi_t^i(z) = p(z_t | z, x_t^i) * sum_{z'} P[z', z] q_{t-1}^i(z')   (row seen at t-1)
+       phi_t^i(z) = p(z_t | z, x_t^i) * pi(z)                              (row new)
+       log w_t^i += log sum_z phi_t^i(z),   q_t^i(z) = phi_t^i(z) / sum_z phi_t^i(z)
+
+   (lines 6, 8 and 11; ``P = model.mode_transition()``, ``pi = model.mode_prior()``; the
+   normalised posterior ``q`` is carried, which stays exact across resampling);
+3. estimate: the weighted mean and covariance of the particles (line 14);
+4. resample (line 12) when the effective sample size ``1 / sum_i w_i^2`` falls below
+   ``ess_threshold * K``, with any scheme of :mod:`radioloc.estimators.resampling`;
+   optional roughening (Gordon et al.) jitters the resampled particles.
+
+Degeneracy: when at a step every particle's likelihood of an observation is below the
+smallest normal double (``exp(-708)``: ranges that no particle explains), the weights
+still follow the log-domain update, but the resampled set is then redrawn around the
+new estimate with the predicted spread inflated (``reset_inflation``); it is counted in
+the diagnostic ``resets``. The weights are handled in the log domain throughout, so no
+step produces a NaN or an overflow.
+
+Random numbers: run ``i`` of a batch (its flat index over the batch axes) draws from its own
+generator (:class:`RunGenerators`), so a batch gives the same output as its runs filtered
+one by one with the same per-run seeds.
+
+The smoother (``run(..., smooth=True)``) is backward simulation over the stored particle
+sets and weights (:func:`radioloc.estimators.pf_smoother.backward_simulation`).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.special import logsumexp
+
+from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.results import Estimate, Track, track_from_steps
+from radioloc.core.validation import MAX_PARTICLES, as_float_array, check_int
+from radioloc.estimators.base import RecursiveEstimator, Tags
+from radioloc.estimators.pf_smoother import backward_simulation
+from radioloc.estimators.resampling import get_scheme, systematic
+from radioloc.models.measurement import Context, Observation, StateLayout
+from radioloc.models.motion import InputDriven, MotionModel
+
+__all__ = ["ParticleFilter", "ParticleFilterState", "RunGenerators", "weighted_moments",
+           "sample_motion", "mode_update"]
+
+#: ``log`` of the smallest normal double: a likelihood below ``exp(LOG_UNDERFLOW)`` for
+#: every particle is a degenerate update (see the module docstring).
+LOG_UNDERFLOW = float(np.log(np.finfo(float).tiny))
+
+
+class RunGenerators:
+    """One :class:`numpy.random.Generator` per run of a batch, drawn as one array.
+
+    A draw of shape ``batch_shape + s`` takes ``s`` values from the generator of each run,
+    so what a run draws depends on its own generator only. It offers the methods of a
+    Generator that the filter, the motion models, the resampling schemes and the smoother
+    call (``random``, ``standard_normal``, ``normal``, ``uniform``, ``integers``,
+    ``exponential``).
+
+    Parameters
+    ----------
+    seed : int or array_like of int
+        An int ``s``: run ``i`` uses the ``i``-th child of ``SeedSequence(s)``
+        (``SeedSequence(s).spawn(B)[i]``); an array of the batch shape: run ``i`` uses
+        ``default_rng(seed[i])`` (give a run its own seed to reproduce it alone).
+    batch_shape : tuple of int
+        The runs.
+    """
+
+    def __init__(self, seed, batch_shape: tuple[int, ...]) -> None:
+        self.batch_shape = tuple(int(b) for b in batch_shape)
+        count = int(np.prod(self.batch_shape, dtype=int))
+        if np.ndim(seed) == 0:
+            children = np.random.SeedSequence(int(seed)).spawn(count)
+            self.generators = [np.random.default_rng(c) for c in children]
+        else:
+            seeds = np.asarray(seed)
+            if seeds.shape != self.batch_shape:
+                raise InputError(f"seed: expected an int or one per run, shape "
+                                 f"{self.batch_shape}, got shape {seeds.shape}")
+            self.generators = [np.random.default_rng(int(s)) for s in seeds.ravel()]
+
+    def copy(self) -> "RunGenerators":
+        """Independent copies of the generators in their current states."""
+        out = copy.copy(self)
+        out.generators = [copy.deepcopy(g) for g in self.generators]
+        return out
+
+    def _draw(self, method: str, size, where=None, **kwargs) -> np.ndarray:
+        shape = (size,) if np.ndim(size) == 0 and size is not None else tuple(size or ())
+        nb = len(self.batch_shape)
+        if shape[:nb] != self.batch_shape:
+            raise InputError(f"size: a draw for runs {self.batch_shape} must lead with them, "
+                             f"got {shape}")
+        per = shape[nb:]
+        flat_where = None if where is None else np.broadcast_to(where, self.batch_shape).ravel()
+        parts = []
+        for i, g in enumerate(self.generators):
+            if flat_where is not None and not flat_where[i]:
+                parts.append(np.zeros(per))
+            else:
+                parts.append(np.asarray(getattr(g, method)(size=per, **kwargs)))
+        return np.stack(parts).reshape(shape) if parts else np.zeros(shape)
+
+    def random(self, size=None, where=None) -> np.ndarray:
+        """Uniforms on [0, 1).
+
+        Parameters
+        ----------
+        size : tuple of int
+            Shape of the draw, leading with the batch shape.
+        where : ndarray of bool, shape batch_shape, optional
+            Runs that draw; the others draw nothing and get zeros.
+
+        Returns
+        -------
+        ndarray
+        """
+        return self._draw("random", size, where)
+
+    def standard_normal(self, size=None, where=None) -> np.ndarray:
+        """Standard normal draws (parameters as :meth:`random`).
+
+        Parameters
+        ----------
+        size : tuple of int
+        where : ndarray of bool, optional
+
+        Returns
+        -------
+        ndarray
+        """
+        return self._draw("standard_normal", size, where)
+
+    def normal(self, loc=0.0, scale=1.0, size=None) -> np.ndarray:
+        """``loc + scale * standard_normal(size)``.
+
+        Parameters
+        ----------
+        loc, scale : float or ndarray
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
+        return loc + scale * self._draw("standard_normal", size)
+
+    def uniform(self, low=0.0, high=1.0, size=None) -> np.ndarray:
+        """Uniforms on ``[low, high)``.
+
+        Parameters
+        ----------
+        low, high : float or ndarray
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
+        return low + (high - low) * self._draw("random", size)
+
+    def integers(self, low, high=None, size=None) -> np.ndarray:
+        """Integers on ``[low, high)`` (``[0, low)`` without ``high``).
+
+        Parameters
+        ----------
+        low, high : int
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray of int64
+        """
+        return self._draw("integers", size, low=low, high=high)
+
+    def exponential(self, scale=1.0, size=None) -> np.ndarray:
+        """Exponential draws of mean ``scale``.
+
+        Parameters
+        ----------
+        scale : float
+        size : tuple of int
+
+        Returns
+        -------
+        ndarray
+        """
+        return self._draw("exponential", size, scale=scale)
+
+
+def weighted_moments(log_w: np.ndarray, particles: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Normalised weights, weighted mean, covariance and effective sample size.
+
+    Paper 001, Algorithm 2, line 14 (the definition of
+    :func:`radioloc.estimators.pf_compiled.moment_sums`).
+
+    Parameters
+    ----------
+    log_w : ndarray, shape (..., K)
+        Log weights (any constant offset).
+    particles : ndarray, shape (..., K, n)
+
+    Returns
+    -------
+    w : ndarray, shape (..., K)
+    mean : ndarray, shape (..., n)
+    covariance : ndarray, shape (..., n, n)
+    ess : ndarray, shape (...)
+        ``1 / sum_i w_i^2``.
+    """
+    w = np.exp(log_w - log_w.max(axis=-1, keepdims=True))
+    w /= w.sum(axis=-1, keepdims=True)
+    mean = np.einsum("...k,...kd->...d", w, particles)
+    dev = particles - mean[..., None, :]
+    cov = np.einsum("...k,...ki,...kj->...ij", w, dev, dev)
+    return w, mean, cov, 1.0 / np.sum(w * w, axis=-1)
+
+
+def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
+                  normal: Callable[[tuple[int, ...]], np.ndarray] | None = None) -> np.ndarray:
+    """The prediction step: a draw of every particle's next state from the motion model.
+
+    The model's own ``sample``, except for the input-driven model's ``x + u + std_m z`` and
+    the linear-Gaussian models of :class:`radioloc.models.motion.MotionModel`, whose
+    ``F x + w, w ~ N(0, Q(dt))`` is drawn here with ``Q(dt)`` factored once per step
+    instead of once per particle.
+
+    Parameters
+    ----------
+    motion : motion model
+    particles : ndarray, shape (..., K, n)
+    dt : float
+        Step length, seconds.
+    rng : numpy.random.Generator or RunGenerators
+    control : ndarray, shape (..., 1, D), optional
+        Displacement reading of an input-driven model.
+    normal : callable, optional
+        ``normal(shape)`` standard normal draws (default ``rng.standard_normal``).
+
+    Returns
+    -------
+    ndarray, shape (..., K, n)
+    """
+    normal = normal or rng.standard_normal
+    if isinstance(motion, InputDriven) and particles.shape[-1] == motion.dim:
+        z = normal(particles.shape)
+        z *= motion.std_m
+        z += particles if control is None else particles + control
+        return z
+    if type(motion).sample is not MotionModel.sample:
+        return motion.sample(particles, dt, rng, control=control)
+    n = particles.shape[-1]
+    F = np.asarray(motion.F(dt))
+    if F.shape == (n, n) and np.array_equal(F, np.eye(n)):        # random walk: F = I
+        mean = particles if control is None else particles.copy()
+        if control is not None:
+            mean[..., : motion.dim] += control
+    else:
+        mean = motion.predict(particles, dt, control=control)
+    vals, vecs = np.linalg.eigh(np.asarray(motion.Q(dt), dtype=float))          # (..., n, n)
+    factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+    z = normal(mean.shape)
+    if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
+        z *= np.diagonal(factor)
+        z += mean
+        return z
+    if factor.ndim == 2:                                    # one Q for every particle
+        return mean + z @ factor.T
+    return mean + np.einsum("...ij,...kj->...ki", factor, z)
+
+
+def mode_update(prior: np.ndarray, mode_loglik: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact update of discrete per-row states (paper 001, Algorithm 2, lines 6, 8 and 11).
+
+    Parameters
+    ----------
+    prior : ndarray, shape (..., m, S)
+        Predicted probabilities of each row's ``S`` states.
+    mode_loglik : ndarray, shape (..., m, S)
+        ``log p(z_row | state, x)`` (0 for a missing row).
+
+    Returns
+    -------
+    row_loglik : ndarray, shape (..., m)
+        ``log sum_s prior(s) p(z_row | s, x)``.
+    posterior : ndarray, shape (..., m, S)
+        ``prior(s) p(z_row | s, x)`` normalised over the states (the prior where every
+        state has zero likelihood).
+    """
+    with np.errstate(divide="ignore"):
+        a = np.log(prior) + mode_loglik
+    top = a.max(axis=-1, keepdims=True)
+    ok = np.isfinite(top)
+    with np.errstate(invalid="ignore"):
+        e = np.exp(np.where(ok, a - top, 0.0))
+    s = e.sum(axis=-1, keepdims=True)
+    row = np.where(ok, top + np.log(s), -np.inf)[..., 0]
+    post = np.where(ok, e / s, prior)
+    return row, post
+
+
+def _particle_context(ctx: Context) -> Context:
+    """``ctx`` with a particle axis before the rows (its batch axes then line up with the
+    particles' ``(..., K)``)."""
+    pts = ctx.points[..., None, :, :] if ctx.points.ndim > 2 else ctx.points
+    ref = ctx.reference
+    if ref is not None and ref.ndim > 2:
+        ref = ref[..., None, :, :]
+    std = ctx.std
+    if std is not None and std.ndim > 1:
+        std = std[..., None, :]
+    return replace(ctx, points=pts, reference=ref, std=std)
+
+
+@dataclass(frozen=True)
+class ParticleFilterState:
+    """State of a batch of particle filters.
+
+    Attributes
+    ----------
+    particles : ndarray, shape (..., K, n)
+        Particles of the full state (laid out by the filter's layout).
+    log_weights : ndarray, shape (..., K)
+        Normalised log weights.
+    modes : tuple of (ndarray of shape (..., K, m, S) or None)
+        Per observation (in the order given to :meth:`ParticleFilter.step`): each
+        particle's posterior of every row's discrete state; None for a model without
+        discrete states.
+    seen : tuple of (ndarray of bool, shape (..., m), or None)
+        Rows measured at the last step (a row not seen restarts from ``mode_prior``).
+    mean, covariance : ndarray, shapes (..., n), (..., n, n)
+        Weighted particle mean and covariance of the last step.
+    ess : ndarray, shape (...)
+        Effective sample size of the last update.
+    reset : ndarray of bool, shape (...)
+        Runs reset at the last step.
+    resets : ndarray of int64, shape (...)
+        Resets so far.
+    time : float
+    rng : RunGenerators
+        The runs' generators (copied by every step, so a state can be stepped again).
+    layout : StateLayout
+    """
+
+    particles: np.ndarray
+    log_weights: np.ndarray
+    modes: tuple
+    seen: tuple
+    mean: np.ndarray
+    covariance: np.ndarray
+    ess: np.ndarray
+    reset: np.ndarray
+    resets: np.ndarray
+    time: float
+    rng: RunGenerators
+    layout: StateLayout
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        """The runs' axes."""
+        return self.mean.shape[:-1]
+
+
+def _as_observations(observations) -> list[Observation]:
+    obs = [observations] if isinstance(observations, Observation) else list(observations)
+    if not obs:
+        raise InputError("observations: give at least one Observation")
+    for i, o in enumerate(obs):
+        if not isinstance(o, Observation):
+            raise InputError(f"observations[{i}]: expected an Observation, got "
+                             f"{type(o).__name__}")
+    return obs
+
+
+class ParticleFilter(RecursiveEstimator):
+    """Bootstrap particle filter over any measurement model (see the module docstring).
+
+    Parameters
+    ----------
+    motion : motion model
+        ``sample`` (or ``F``/``Q``), ``predict``, ``dim``, ``state_dim``
+        (:mod:`radioloc.models.motion`): moves the kinematic part of the state; further
+        components (clock, anchor biases) are held between steps.
+    n_particles : int
+        Particles per run, K.
+    resample : callable or str
+        ``resample(weights (..., K), rng) -> ancestors (..., K)``, a function of
+        :mod:`radioloc.estimators.resampling` (or its name).
+    ess_threshold : float
+        Resample when the effective sample size is below ``ess_threshold * K``; 1 (or
+        more): at every step.
+    seed : int or array_like of int
+        Seeds of the runs' generators (see :class:`RunGenerators`).
+    layout : StateLayout, optional
+        The state; default: the motion model's grown by every observation's model
+        (:meth:`StateLayout.with_model`).
+    roughening : float
+        Jitter of resampled particles, ``roughening * K^(-1/n)`` times each component's
+        weighted standard deviation (0: none).
+    reset_inflation : float
+        On a degenerate update (see the module docstring) the particles are redrawn from
+        ``N(estimate, reset_inflation^2 * predicted covariance)``.
+    trajectories : int
+        Backward trajectories of the smoother (``run(..., smooth=True)``).
+
+    Examples
+    --------
+    >>> from radioloc.models.motion import RandomWalk
+    >>> pf = ParticleFilter(RandomWalk(0.1), n_particles=500, seed=1)
+    """
+
+    name = "pf"
+    tags = Tags(kinds=None, uses="logpdf", dims=(2, 3), recursive=True, modes=True,
+                generic=True)
+
+    def __init__(self, motion, *, n_particles: int = 1000,
+                 resample: Callable | str = systematic, ess_threshold: float = 0.5,
+                 seed=0, layout: StateLayout | None = None, roughening: float = 0.0,
+                 reset_inflation: float = 2.0, trajectories: int = 100) -> None:
+        for attr in ("predict", "dim", "state_dim"):
+            if not hasattr(motion, attr):
+                raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
+        self.motion = motion
+        self.n_particles = check_int(n_particles, "n_particles", minimum=1,
+                                     maximum=MAX_PARTICLES)
+        if isinstance(resample, str):
+            try:
+                resample = get_scheme(resample)
+            except ConfigError as exc:
+                raise ConfigError(f"resample: {exc}") from None
+        if not callable(resample):
+            raise ConfigError(f"resample: expected a function (weights, rng) -> indices, got "
+                              f"{type(resample).__name__}")
+        self.resample = resample
+        if not np.isfinite(ess_threshold) or not 0.0 <= ess_threshold:
+            raise ConfigError(f"ess_threshold: must be a number >= 0, got {ess_threshold!r}")
+        self.ess_threshold = float(ess_threshold)
+        if np.ndim(seed) == 0 and (int(seed) != seed or seed < 0):
+            raise ConfigError(f"seed: must be an integer >= 0, got {seed!r}")
+        self.seed = seed
+        if layout is not None:
+            if not isinstance(layout, StateLayout):
+                raise ConfigError(f"layout: expected a StateLayout, got {type(layout).__name__}")
+            self._check_layout(layout)
+        self.layout = layout
+        if not np.isfinite(roughening) or roughening < 0:
+            raise ConfigError(f"roughening: must be >= 0, got {roughening!r}")
+        self.roughening = float(roughening)
+        if not np.isfinite(reset_inflation) or reset_inflation < 1:
+            raise ConfigError(f"reset_inflation: must be >= 1, got {reset_inflation!r}")
+        self.reset_inflation = float(reset_inflation)
+        self.trajectories = check_int(trajectories, "trajectories", minimum=1,
+                                      maximum=10**6)
+
+    # ---- the state ------------------------------------------------------------------
+    def _check_layout(self, layout: StateLayout) -> None:
+        if layout.dim != self.motion.dim or layout.motion_size != self.motion.state_dim:
+            raise ConfigError(f"layout: {layout} does not start with the motion model's state "
+                              f"({self.motion.dim}-D, {self.motion.state_dim} components)")
+
+    def layout_for(self, observations) -> StateLayout:
+        """The state layout for these observations: the ``layout`` given, or the motion
+        model's grown by each model (anchor biases sized by the context's anchor index).
+
+        Parameters
+        ----------
+        observations : Observation or sequence of Observation
+
+        Returns
+        -------
+        StateLayout
+        """
+        if self.layout is not None:
+            return self.layout
+        D, n = self.motion.dim, self.motion.state_dim
+        if n % D or n // D > 3 or D not in (2, 3):
+            raise ConfigError(f"motion: a {D}-D model with {n} state components has no "
+                              "StateLayout; give layout=")
+        layout = StateLayout(dim=D, order=n // D - 1)
+        for o in _as_observations(observations) if observations is not None else []:
+            idx = o.context.index
+            n_anchors = int(idx.max()) + 1 if idx is not None and idx.size else o.context.rows
+            layout = layout.with_model(o.model, n_anchors)
+        return layout
+
+    def init(self, prior_mean, prior_cov, observations=None, *, time: float = 0.0,
+             batch_shape: tuple[int, ...] | None = None) -> ParticleFilterState:
+        """Particles drawn from ``N(prior_mean, prior_cov)``, equally weighted.
+
+        Parameters
+        ----------
+        prior_mean : array_like, shape (..., n)
+            Prior mean of the full state (``n = layout.size``).
+        prior_cov : array_like, shape (..., n, n)
+            Prior covariance (positive semi-definite).
+        observations : Observation or sequence, optional
+            What the state must hold (see :meth:`layout_for`).
+        time : float
+            Time of the prior, seconds.
+        batch_shape : tuple of int, optional
+            The runs (default: the leading axes of ``prior_mean``); the prior broadcasts
+            to it.
+
+        Returns
+        -------
+        ParticleFilterState
+        """
+        layout = self.layout_for(observations)
+        n = layout.size
+        m0 = as_float_array(prior_mean, "prior_mean", min_ndim=1, last_dim=n)
+        P0 = as_float_array(prior_cov, "prior_cov", min_ndim=2)
+        if P0.shape[-2:] != (n, n):
+            raise InputError(f"prior_cov: expected shape (..., {n}, {n}) for {layout}, got "
+                             f"{P0.shape}")
+        if not np.allclose(P0, np.swapaxes(P0, -1, -2)):
+            raise InputError("prior_cov: must be symmetric")
+        vals, vecs = np.linalg.eigh(P0)
+        if np.any(vals < -1e-9 * np.maximum(1.0, np.abs(vals).max())):
+            raise InputError("prior_cov: must be positive semi-definite")
+        try:
+            batch = np.broadcast_shapes(m0.shape[:-1], P0.shape[:-2], tuple(batch_shape or ()))
+        except ValueError:
+            raise InputError(f"prior_mean: batch shape {m0.shape[:-1]} does not broadcast "
+                             f"with prior_cov {P0.shape[:-2]} and the data's "
+                             f"{tuple(batch_shape or ())}") from None
+        rng = RunGenerators(self.seed, batch)
+        K = self.n_particles
+        factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+        z = rng.standard_normal(batch + (K, n))
+        particles = np.broadcast_to(m0, batch + (n,))[..., None, :] + \
+            np.einsum("...ij,...kj->...ki", np.broadcast_to(factor, batch + (n, n)), z)
+        return ParticleFilterState(
+            particles=particles, log_weights=np.full(batch + (K,), -np.log(K)), modes=(),
+            seen=(), mean=np.broadcast_to(m0, batch + (n,)).copy(),
+            covariance=np.broadcast_to(P0, batch + (n, n)).copy(), ess=np.full(batch, float(K)),
+            reset=np.zeros(batch, dtype=bool), resets=np.zeros(batch, dtype=np.int64),
+            time=float(time), rng=rng, layout=layout)
+
+    # ---- one step -------------------------------------------------------------------
+    def step(self, state: ParticleFilterState, observations, *, dt: float = 1.0,
+             control=None) -> ParticleFilterState:
+        """Predict over ``dt`` and update with one step's observations.
+
+        Parameters
+        ----------
+        state : ParticleFilterState
+            Not modified.
+        observations : Observation or sequence of Observation
+            One step each: ``z`` of shape (..., m) (NaN: no measurement), in the same order
+            at every step.
+        dt : float
+            Seconds since the state's time (>= 0).
+        control : array_like, shape (..., D), optional
+            Displacement reading of an input-driven motion model.
+
+        Returns
+        -------
+        ParticleFilterState
+        """
+        rows = []
+        for o in _as_observations(observations):
+            ctx = o.context if o.std is None else replace(o.context, std=o.std)
+            rows.append((o.model, o.z, ctx))
+        if not np.isfinite(dt) or dt < 0:
+            raise InputError(f"dt: must be finite and >= 0 s, got {dt!r}")
+        u = None
+        if control is not None:
+            u = as_float_array(control, "control", last_dim=self.motion.dim)[..., None, :]
+        return self._step(state, rows, float(dt), u)
+
+    def _step(self, state: ParticleFilterState, rows, dt: float, control) -> ParticleFilterState:
+        """:meth:`step` on ``rows`` = [(model, z (..., m), context)] of one step."""
+        layout, K = state.layout, self.n_particles
+        rng = state.rng.copy()
+        ns = self.motion.state_dim
+        x = state.particles.copy()
+        # predict (Algorithm 2, line 3): the kinematic part moves, the rest is held
+        x[..., :ns] = sample_motion(self.motion, x[..., :ns], dt, rng, control)
+        x_pred = x
+        log_w = state.log_weights
+        modes, seen = list(state.modes), list(state.seen)
+        degenerate = np.zeros(state.batch_shape, dtype=bool)
+        comps = layout.split(x)
+        for i, (model, z, ctx) in enumerate(rows):
+            layout.check(model)
+            if i >= len(modes):
+                modes.append(None)
+                seen.append(None)
+            zz = z[..., None, :]
+            pctx = _particle_context(ctx)
+            S = int(getattr(model, "modes", 1))
+            if S > 1 and not all(hasattr(model, a) for a in ("mode_logpdf", "mode_transition",
+                                                             "mode_prior")):
+                raise InputError(f"observations[{i}]: model {type(model).__name__} has {S} "
+                                 "modes but no mode_logpdf, mode_transition and mode_prior")
+            if S > 1:
+                # lines 6, 8, 11: the discrete row states summed out exactly
+                lp = model.mode_logpdf(zz, comps, pctx)                  # (..., K, m, S)
+                full = np.broadcast_shapes(lp.shape, state.batch_shape + (K, z.shape[-1], S))
+                prior = np.broadcast_to(np.asarray(model.mode_prior(), dtype=float), full)
+                if modes[i] is not None:
+                    pred = modes[i] @ np.asarray(model.mode_transition(), dtype=float)
+                    prior = np.where(seen[i][..., None, :, None], pred, prior)
+                row_ll, post = mode_update(prior, np.broadcast_to(lp, full))
+                modes[i] = post
+                seen[i] = np.broadcast_to(np.isfinite(z), full[:-3] + (z.shape[-1],))
+            else:
+                row_ll = model.logpdf(zz, comps, pctx)                    # (..., K, m)
+            ll = np.sum(row_ll, axis=-1)
+            ll = np.broadcast_to(np.where(np.isnan(ll), -np.inf, ll), state.batch_shape + (K,))
+            best = ll.max(axis=-1)
+            degenerate |= best < LOG_UNDERFLOW
+            # a run no particle explains at all (every likelihood zero) keeps its weights
+            log_w = np.where(np.isfinite(best)[..., None], log_w + ll, log_w)
+        # line 14: the estimate
+        w, mean, cov, ess = weighted_moments(log_w, x)
+        log_w = log_w - logsumexp(log_w, axis=-1, keepdims=True)
+        # line 12: resample where the effective sample size is low (and on a reset)
+        need = (ess < self.ess_threshold * K) | (self.ess_threshold >= 1.0) | degenerate
+        idx = np.where(need[..., None], self.resample(w, rng), np.arange(K))
+        x = np.take_along_axis(x, idx[..., None], axis=-2)
+        modes = [None if q is None else np.take_along_axis(q, idx[..., None, None], axis=-3)
+                 for q in modes]
+        log_w = np.where(need[..., None], -np.log(K), log_w)
+        if self.roughening > 0:
+            n = x.shape[-1]
+            scale = self.roughening * K ** (-1.0 / n) * np.sqrt(np.maximum(
+                np.diagonal(cov, axis1=-2, axis2=-1), 0.0))
+            x = x + np.where(need[..., None, None], scale[..., None, :], 0.0) * \
+                rng.standard_normal(x.shape)
+        if np.any(degenerate):
+            # reset: redraw around the new estimate with the inflated predicted spread
+            _, _, pred_cov, _ = weighted_moments(state.log_weights, x_pred)
+            vals, vecs = np.linalg.eigh(pred_cov)
+            factor = self.reset_inflation * vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
+            z = rng.standard_normal(x.shape, where=degenerate)
+            fresh = mean[..., None, :] + np.einsum("...ij,...kj->...ki", factor, z)
+            x = np.where(degenerate[..., None, None], fresh, x)
+            cov = np.where(degenerate[..., None, None], self.reset_inflation ** 2 * pred_cov, cov)
+        return ParticleFilterState(
+            particles=x, log_weights=log_w, modes=tuple(modes), seen=tuple(seen), mean=mean,
+            covariance=cov, ess=ess, reset=degenerate, resets=state.resets + degenerate,
+            time=state.time + dt, rng=rng, layout=layout)
+
+    def estimate(self, state: ParticleFilterState) -> Estimate:
+        """The weighted particle mean and covariance of the last step.
+
+        Parameters
+        ----------
+        state : ParticleFilterState
+
+        Returns
+        -------
+        Estimate
+            ``position`` (..., D) and its covariance; diagnostics ``state``,
+            ``state_covariance`` (full state), ``ess``, ``resets`` (count so far).
+        """
+        sl = state.layout.slices["position"]
+        return Estimate(state.mean[..., sl], state.covariance[..., sl, sl], state.time,
+                        {"state": state.mean, "state_covariance": state.covariance,
+                         "ess": state.ess, "resets": state.resets})
+
+    # ---- a whole series -------------------------------------------------------------
+    def run(self, observations, time=None, *, prior_mean, prior_cov, smooth: bool = False,
+            controls=None) -> Track:
+        """Filter (or smooth) every run over the ``T`` steps of the observations.
+
+        Parameters
+        ----------
+        observations : Observation or sequence of Observation
+            ``z`` of shape (..., T, m) each (the same T); batch axes lead.
+        time : array_like, shape (T,), optional
+            Step times, seconds, non-decreasing (default ``0, 1, ..., T-1``); the prior is
+            at ``time[0]``.
+        prior_mean : array_like, shape (..., n)
+        prior_cov : array_like, shape (..., n, n)
+        smooth : bool
+            Return the backward-simulation smoother's track (``trajectories`` draws)
+            instead of the filter's.
+        controls : array_like, shape (..., T, D), optional
+            Displacement readings of an input-driven motion model.
+
+        Returns
+        -------
+        Track
+            ``position`` (..., T, D), ``covariance`` (..., T, D, D); diagnostics ``state``,
+            ``state_covariance``, ``ess``, ``resets`` (..., T).
+        """
+        obs = _as_observations(observations)
+        T = obs[0].steps if obs[0].z.ndim >= 2 else 0
+        for i, o in enumerate(obs):
+            if o.z.ndim < 2 or o.steps != T:
+                raise InputError(f"observations[{i}]: z must be (..., T, m) with the T = {T} "
+                                 f"steps of observations[0], got shape {o.z.shape}")
+        if T < 1:
+            raise InputError("observations: no time step")
+        t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
+        if t.shape != (T,) or np.any(np.diff(t) < 0):
+            raise InputError(f"time: expected {T} non-decreasing step times, got shape {t.shape}")
+        if smooth and T > 1 and not np.all(np.diff(t) > 0):
+            raise InputError("time: the smoother needs strictly increasing step times")
+        u = None
+        if controls is not None:
+            u = as_float_array(controls, "controls", min_ndim=2, last_dim=self.motion.dim)
+            if u.shape[-2] != T:
+                raise InputError(f"controls: expected {T} steps on axis -2, got {u.shape}")
+        try:
+            batch = np.broadcast_shapes(*(o.z.shape[:-2] for o in obs))
+        except ValueError:
+            raise InputError("observations: batch axes of z do not broadcast") from None
+        state = self.init(prior_mean, prior_cov, obs, time=t[0], batch_shape=batch)
+        dts = np.diff(t, prepend=t[0])
+        estimates, history, weights = [], [], []
+        for k in range(T):
+            rows = [(o.model,) + o.at(k) for o in obs]
+            state = self._step(state, rows, dts[k], None if u is None else u[..., k, None, :])
+            estimates.append(self.estimate(state))
+            if smooth:
+                history.append(state.particles)
+                weights.append(state.log_weights)
+        track = track_from_steps(estimates, t)
+        if not smooth:
+            return track
+        mean, cov = backward_simulation(history, t, self.motion, self.trajectories,
+                                        state.rng, log_weights=weights)
+        mean, cov = np.moveaxis(mean, 0, -2), np.moveaxis(cov, 0, -3)
+        sl = state.layout.slices["position"]
+        diag = dict(track.diagnostics, state=mean, state_covariance=cov)
+        return Track(mean[..., sl], cov[..., sl, sl], track.time, diag)
