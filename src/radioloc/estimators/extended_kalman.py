@@ -42,7 +42,7 @@ the covariance from the last linearisation. One iteration is the EKF.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
