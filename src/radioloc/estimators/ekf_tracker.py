@@ -20,7 +20,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import as_float_array, check_positive, check_real
+from radioloc.core.validation import as_float_array, check_positive, check_real, refuse_infinite
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.models.measurement import Context, Observation
@@ -168,7 +168,7 @@ class RangeEKF(RecursiveEstimator):
         r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
         if r.shape[-1] != a.shape[-2]:
             raise InputError(f"ranges: {r.shape[-1]} per row but {a.shape[-2]} anchors")
-        self._refuse_infinite(r)
+        refuse_infinite(r, "ranges")
         return self._filter.update(state, self._observation(r, a), ungated)
 
     def step(self, state: FilterState, ranges, dt=0.0, anchors=None, control=None
@@ -238,7 +238,7 @@ class RangeEKF(RecursiveEstimator):
             ``nis``, ``measurements_used``, ``gated`` (per step).
         """
         r = as_float_array(ranges, "ranges", min_ndim=2, allow_nan=True)
-        self._refuse_infinite(r)
+        refuse_infinite(r, "ranges")
         T, M = r.shape[-2:]
         if anchor_path is not None:
             a = as_float_array(anchor_path, "anchor_path", min_ndim=3)
@@ -273,10 +273,3 @@ class RangeEKF(RecursiveEstimator):
         """The ranges (less the constant bias) as an observation of the range model."""
         return Observation(self._model, ranges - self.range_bias_m,
                            Context(points=points, height_m=self.height_m))
-
-    @staticmethod
-    def _refuse_infinite(r: np.ndarray) -> None:
-        if np.any(np.isinf(r)):
-            idx = tuple(int(i) for i in np.argwhere(np.isinf(r))[0])
-            raise InputError(f"ranges: infinite value at index {idx} (NaN marks an absent "
-                             "range; a measured range may be slightly negative, not infinite)")

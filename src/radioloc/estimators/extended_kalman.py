@@ -41,14 +41,19 @@ the covariance from the last linearisation. One iteration is the EKF.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
 from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import as_float_array, check_finite_output, check_positive
+from radioloc.core.validation import (
+    as_float_array,
+    check_finite_output,
+    check_positive,
+    refuse_infinite,
+)
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.kalman import (
     GaussianState,
@@ -134,7 +139,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
     [3.0, 4.0]
     """
 
-    name = "ekf"
+    name = "extended-kalman"
     tags = Tags(kinds=None, uses="jacobian", dims=(2, 3), recursive=True, generic=True)
 
     def __init__(self, motion, *, gate: float | None = 16.0, gate_patience: int = 10,
@@ -368,7 +373,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         info : dict
             ``innovation`` (..., m) (the rows of every observation in order; NaN where
             absent or gated), ``innovation_covariance`` (..., m, m) (block-diagonal over
-            the observations), ``nis`` (...), ``measurements_used`` (...), ``gated`` (...).
+            the observations), ``nis`` (...) (these three at the prediction, also for
+            the iterated update), ``measurements_used`` (...), ``gated`` (...).
         """
         obs = _as_observations(observations)
         rows = []
@@ -395,12 +401,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
     def _update_one(self, mean, cov, layout: StateLayout, model: MeasurementModel, z, ctx: Context,
                     ungated, name: str):
         """One kind's rows: gate, (iterated) Kalman update, diagnostics."""
-        z = np.asarray(z, dtype=float)
-        if np.any(np.isinf(z)):
-            idx = tuple(int(i) for i in np.argwhere(np.isinf(z))[0])
-            raise InputError(f"{name}.z: infinite value at index {idx} (NaN marks an absent "
-                             "measurement)")
-        z = z - model.noise_mean(ctx)
+        z = refuse_infinite(np.asarray(z, dtype=float), f"{name}.z") - model.noise_mean(ctx)
         z_hat, H = layout.measure(model, mean, ctx)
         nu = model.residual(z, z_hat)
         R = model.noise_cov(ctx)
@@ -494,6 +495,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         for i, o in enumerate(obs):
             if o.z.ndim < 2:
                 raise InputError(f"observations[{i}].z: expected shape (..., T, m), got {o.z.shape}")
+            refuse_infinite(o.z, f"observations[{i}].z")
             if T is None:
                 T = o.steps
             elif o.steps != T:
