@@ -265,6 +265,29 @@ def test_clock_offset_is_estimated():
     assert rmse(tr.position, truth, 10) < 0.5
 
 
+def test_transition_of_the_clock_and_the_biases():
+    """Block-diagonal prediction: the motion model's block, the two-state clock
+    (offset += drift dt; white frequency noise and a drift random walk) and random-walk
+    biases, over a batch of intervals."""
+    motion = ConstantVelocity(0.3)
+    ekf = ExtendedKalmanFilter(motion, clock_offset_std_m_per_sqrt_s=2.0,
+                               clock_drift_std_m_per_s_per_sqrt_s=0.5, bias_std_m_per_sqrt_s=0.1)
+    layout = StateLayout(dim=2, order=1, clock=2, n_bias=3)
+    dt = np.array([0.1, 2.0])
+    F, Q = ekf.transition(layout, dt)
+    assert F.shape == Q.shape == (2, 9, 9)
+    np.testing.assert_array_equal(F[:, :4, :4], motion.F(dt))
+    np.testing.assert_array_equal(Q[:, :4, :4], motion.Q(dt))
+    qo, qd = 4.0, 0.25
+    for j, d in enumerate(dt):
+        np.testing.assert_allclose(F[j, 4:6, 4:6], [[1.0, d], [0.0, 1.0]])
+        np.testing.assert_allclose(Q[j, 4:6, 4:6], [[qo * d + qd * d**3 / 3, qd * d**2 / 2],
+                                                    [qd * d**2 / 2, qd * d]])
+        np.testing.assert_allclose(F[j, 6:, 6:], np.eye(3))
+        np.testing.assert_allclose(Q[j, 6:, 6:], 0.01 * d * np.eye(3))
+    assert not np.any(F[:, :4, 4:]) and not np.any(Q[:, :4, 4:]) and not np.any(Q[:, 4:6, 6:])
+
+
 def test_a_bearing_model_with_a_numerical_jacobian_tracks_across_the_wrap():
     """Sensors at the east side see the target pass behind them, where the bearing jumps
     from +pi to -pi: wrapped residuals keep the filter on track."""
