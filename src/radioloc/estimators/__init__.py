@@ -6,7 +6,9 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 
 - ``Multilateration`` (snapshot): ranges to anchors, the toolkit baseline;
 - ``NetworkRLS``, ``NetworkEKF`` (recursive): paper 000, distributed RLS and sequential EKF;
-- ``RangeEKF`` (recursive): any motion model and range model (papers 001 and 002 baselines);
+- ``ExtendedKalmanFilter`` (recursive, generic): any motion model and any measurement model
+  (``Observation`` inputs), optionally iterated, with the RTS smoother;
+- ``RangeEKF`` (recursive): a configuration of it on ranges (papers 001 and 002 baselines);
 - ``P2PParticleFilter`` (recursive), ``LocalML``, ``Ransac`` (snapshot): paper 001;
 - ``ParticleFilter`` (recursive): any motion model and any measurement models
   (``Observation`` inputs), with the discrete row states of paper 001 summed out exactly;
@@ -14,16 +16,18 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 - ``GridFilter`` (recursive): paper 003;
 - ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004.
 
-The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` (the one
-Kalman filter), :func:`solve_nlls` (the one nonlinear least-squares driver).
+The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` /
+:func:`rts_smooth` (the one Kalman filter and smoother), :func:`solve_nlls` (the one
+nonlinear least-squares driver).
 """
 
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
 from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.grid import GridFilter, GridGeometry
-from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update
+from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update, rts_smooth
 from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.mixture_localization import (
     MixtureLocalizer,
@@ -50,5 +54,6 @@ __all__ = [
     "MixtureTracker", "ParticleFilter",
     "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
     "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
-    "GaussianState", "kalman_predict", "kalman_update", "NLLSResult", "solve_nlls",
+    "ExtendedKalmanFilter",
+    "GaussianState", "kalman_predict", "kalman_update", "rts_smooth", "NLLSResult", "solve_nlls",
 ]

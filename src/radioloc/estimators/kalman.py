@@ -1,6 +1,8 @@
-"""The one batched Kalman predict and update under every Kalman filter of the toolkit.
+"""The one batched Kalman predict, update and Rauch-Tung-Striebel smoother under every
+Kalman filter of the toolkit.
 
-:class:`~radioloc.estimators.ekf_tracker.RangeEKF` and
+:class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` (and
+:class:`~radioloc.estimators.ekf_tracker.RangeEKF`, a configuration of it) and
 :class:`~radioloc.estimators.ekf.NetworkEKF` (``backend="numpy"``) call them;
 ``NetworkEKF(backend="numba")`` runs the compiled form of the same update,
 :func:`radioloc.estimators.kalman_compiled.network_ekf_packets`.
@@ -24,7 +26,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 
-__all__ = ["GaussianState", "kalman_predict", "kalman_update", "symmetrise",
+__all__ = ["GaussianState", "kalman_predict", "kalman_update", "rts_smooth", "symmetrise",
            "normalised_innovation_squared"]
 
 
@@ -142,3 +144,45 @@ def normalised_innovation_squared(innovation: np.ndarray, S: np.ndarray,
     """NIS ``nu^T S^-1 nu`` over the used measurements ``(...)`` (0 where none were used)."""
     nu = np.where(used, np.nan_to_num(innovation), 0.0)
     return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+
+
+def rts_smooth(mean: np.ndarray, cov: np.ndarray, predicted_mean: np.ndarray,
+               predicted_cov: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel backward pass over a filtered series.
+
+    From the last step back, with ``C_k = P_k F_{k+1}^T (P-_{k+1})^-1``:
+    ``x^s_k = x_k + C_k (x^s_{k+1} - x-_{k+1})``,
+    ``P^s_k = P_k + C_k (P^s_{k+1} - P-_{k+1}) C_k^T`` (symmetrised).
+
+    Parameters
+    ----------
+    mean : ndarray, shape (..., T, n)
+        Filtered means ``x_k``.
+    cov : ndarray, shape (..., T, n, n)
+        Filtered covariances ``P_k``.
+    predicted_mean : ndarray, shape (..., T, n)
+        Predicted means ``x-_k`` (the prediction that step ``k``'s update started from;
+        step 0's is not used).
+    predicted_cov : ndarray, shape (..., T, n, n)
+        Predicted covariances ``P-_k``.
+    F : ndarray, shape (..., T, n, n)
+        ``F_k``: the transition from step ``k - 1`` to step ``k`` (``F_0`` is not used).
+
+    Returns
+    -------
+    mean, cov : the smoothed moments, shaped like the filtered ones.
+    """
+    T = mean.shape[-2]
+    m_s, P_s = mean[..., T - 1, :], cov[..., T - 1, :, :]
+    out_m, out_P = [m_s], [P_s]
+    for k in range(T - 2, -1, -1):
+        P_f, P_p = cov[..., k, :, :], predicted_cov[..., k + 1, :, :]
+        # C = P_f F^T P_p^-1 = (P_p^-1 F P_f)^T for symmetric P_f, P_p
+        C = np.swapaxes(np.linalg.solve(P_p, F[..., k + 1, :, :] @ P_f), -1, -2)
+        m_s = mean[..., k, :] + np.einsum("...ij,...j->...i", C,
+                                          m_s - predicted_mean[..., k + 1, :])
+        P_s = symmetrise(P_f + C @ (P_s - P_p) @ np.swapaxes(C, -1, -2))
+        out_m.append(m_s)
+        out_P.append(P_s)
+    axis = mean.ndim - 2
+    return np.stack(out_m[::-1], axis=axis), np.stack(out_P[::-1], axis=axis)
