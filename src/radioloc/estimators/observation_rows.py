@@ -172,3 +172,21 @@ class RowStack:
             start += m
             out.append((rr - model.noise_mean(ctx)) / np.broadcast_to(model.std(ctx), batch + (m,)))
         return np.concatenate(out, axis=-1)
+
+    def modes(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """The max-mixture mode chosen for every row ``(..., M)`` (index 1 LOS, 0 NLOS for
+        a range; -1 where the row is missing or not scored by the max-mixture)."""
+        batch = r.shape[:-1]
+        out, start = [], 0
+        for (model, z, ctx, mixture), m in zip(self.items, self.sizes):
+            rr = r[..., start:start + m]
+            start += m
+            if mixture is None:
+                out.append(np.full(batch + (m,), -1))
+                continue
+            alpha = mixture.noise.alpha
+            std = np.broadcast_to(model.std(ctx), batch + (m,))
+            k = max_mixture_terms(mixture, np.broadcast_to(z, batch + (m,)), self.layout.split(x),
+                                  ctx, std, np.log([1.0 - alpha, alpha]))[3]
+            out.append(np.where(np.isfinite(rr), k, -1))
+        return np.concatenate(out, axis=-1)
