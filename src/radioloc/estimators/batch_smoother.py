@@ -114,6 +114,10 @@ class BatchSmoother(RecursiveEstimator):
         Score every range row by the max-mixture of its LOS and NLOS modes under this
         noise model (per row the smaller negative log-density of the two, each with its
         prior weight), instead of ``loss``.
+    null_hypothesis : (float, float), optional
+        ``(weight, std_m)``: a null-hypothesis mode joins the max-mixture (a zero-mean
+        Gaussian of standard deviation ``std_m`` of prior weight ``weight``: gross errors
+        of either sign). Default None: LOS and NLOS only.
     max_iterations : int
         Gauss-Newton iterations.
     tol : float
@@ -137,7 +141,8 @@ class BatchSmoother(RecursiveEstimator):
     tags = Tags(kinds=None, uses="jacobian", generic=True, recursive=True)
 
     def __init__(self, motion, *, loss: str = "linear", loss_scale: float = 1.0,
-                 los_nlos=None, max_iterations: int = 30, tol: float = 1e-6,
+                 los_nlos=None, null_hypothesis: tuple[float, float] | None = None,
+                 max_iterations: int = 30, tol: float = 1e-6,
                  extra_q: float = 1e-6, extra_prior_std: float = 100.0) -> None:
         if not (hasattr(motion, "F") and hasattr(motion, "Q") and hasattr(motion, "dim")):
             raise ConfigError(f"motion: expected a motion model with F(dt), Q(dt) and dim, got "
@@ -152,6 +157,18 @@ class BatchSmoother(RecursiveEstimator):
         if los_nlos is not None and not hasattr(los_nlos, "logpdf_by_state"):
             raise ConfigError(f"los_nlos: expected a LosNlosRange, got {type(los_nlos).__name__}")
         self.los_nlos = los_nlos
+        if null_hypothesis is not None:
+            try:
+                w, sd = (float(v) for v in null_hypothesis)
+            except (TypeError, ValueError):
+                raise ConfigError("null_hypothesis: expected (weight, std_m)") from None
+            if not (0.0 < w < 1.0 and np.isfinite(sd) and sd > 0):
+                raise ConfigError(f"null_hypothesis: weight must be in (0, 1) and std_m > 0, "
+                                  f"got {null_hypothesis!r}")
+            if los_nlos is None:
+                raise ConfigError("null_hypothesis: only with los_nlos (a max-mixture mode)")
+            null_hypothesis = (w, sd)
+        self.null_hypothesis = null_hypothesis
         self.max_iterations = check_int(max_iterations, "max_iterations", minimum=1,
                                         maximum=MAX_ITERATIONS)
         try:
@@ -322,7 +339,8 @@ class BatchSmoother(RecursiveEstimator):
         T = obs[0].steps
         layout = layout_for(obs, StateLayout(dim=self.motion.dim,
                                              order=self.motion.state_dim // self.motion.dim - 1))
-        rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos)
+        rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos,
+                        self.null_hypothesis)
         batch = rows.batch_shape((T,))[:-1]
         if any(np.any(np.isinf(o.z)) for o in obs):
             raise InputError("observations: infinite value (NaN marks a missing row)")

@@ -93,11 +93,14 @@ class RowStack:
     los_nlos : LosNlosRange, optional
         Score the rows of every ``"range"`` observation by the max-mixture of its LOS and
         NLOS modes under this noise model (the row's own model with ``noise=los_nlos``).
+    null_hypothesis : (float, float), optional
+        ``(weight, std)`` of a null-hypothesis mode added to the max-mixture.
     """
 
     def __init__(self, observations: list[Observation], layout: StateLayout, loss: str,
-                 loss_scale: float, los_nlos=None) -> None:
+                 loss_scale: float, los_nlos=None, null_hypothesis=None) -> None:
         self.layout = layout
+        self.null = null_hypothesis
         self.loss, self.loss_scale = loss, loss_scale
         self.items: list[tuple[MeasurementModel, np.ndarray, Context, MeasurementModel | None]] = []
         for o in observations:
@@ -151,10 +154,7 @@ class RowStack:
             start += m
             std = np.broadcast_to(model.std(ctx), batch + (m,))
             if mixture is not None:
-                alpha = mixture.noise.alpha
-                zz = np.broadcast_to(z, batch + (m,))
-                parts = max_mixture_terms(mixture, zz, self.layout.split(x), ctx, std,
-                                          np.log([1.0 - alpha, alpha]))[:3]
+                parts = self._mixture(mixture, z, x, ctx, std)[:3]
                 # a missing row (NaN residual) contributes nothing
                 parts = tuple(np.where(np.isfinite(rr), p, 0.0) for p in parts)
             else:
@@ -162,6 +162,17 @@ class RowStack:
             for acc, p in zip(out, parts):
                 acc.append(p)
         return tuple(np.concatenate(a, axis=-1) for a in out)
+
+    def _mixture(self, mixture, z, x, ctx, std):
+        """:func:`max_mixture_terms` of one observation's rows."""
+        alpha = mixture.noise.alpha
+        zz = np.broadcast_to(z, std.shape)
+        if self.null is None:
+            return max_mixture_terms(mixture, zz, self.layout.split(x), ctx, std,
+                                     np.log([1.0 - alpha, alpha]))
+        w, s = self.null
+        return max_mixture_terms(mixture, zz, self.layout.split(x), ctx, std,
+                                 np.log([(1.0 - w) * (1.0 - alpha), (1.0 - w) * alpha, w]), s)
 
     def standardised(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:
         """``(r - noise mean) / std`` of every row ``(..., M)`` (NaN where missing)."""
@@ -184,9 +195,7 @@ class RowStack:
             if mixture is None:
                 out.append(np.full(batch + (m,), -1))
                 continue
-            alpha = mixture.noise.alpha
             std = np.broadcast_to(model.std(ctx), batch + (m,))
-            k = max_mixture_terms(mixture, np.broadcast_to(z, batch + (m,)), self.layout.split(x),
-                                  ctx, std, np.log([1.0 - alpha, alpha]))[3]
+            k = self._mixture(mixture, z, x, ctx, std)[3]
             out.append(np.where(np.isfinite(rr), k, -1))
         return np.concatenate(out, axis=-1)

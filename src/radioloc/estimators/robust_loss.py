@@ -27,7 +27,10 @@ The *max-mixture* loss (Olson & Agarwal 2013; GTSAM, libRSF and navlie use it fo
 takes a model with discrete per-row modes (:meth:`RangeModel.mode_logpdf
 <radioloc.models.ranging.RangeModel.mode_logpdf>`, e.g. LOS and NLOS): each row's cost
 is ``min_k -2 (log p_k(r) + log pi_k)``, the mode ``k`` that explains the row best (with
-its prior weight ``pi_k``). Its Gauss-Newton system is the Newton model of the chosen
+its prior weight ``pi_k``). Optionally a null-hypothesis mode joins them (Olson & Agarwal's
+outlier component): a broad zero-mean Gaussian of weight ``pi_null`` (the LOS/NLOS
+weights scaled by ``1 - pi_null``), which explains gross errors of either sign (the
+LOS/NLOS mixture has no mode for a range much too short). Its Gauss-Newton system is the Newton model of the chosen
 mode's negative log-density in the residual: weight ``c_k = -d^2 log p_k / dr^2``
 (floored at ``1e-4 / s^2``, ``s`` the model's standard deviation) and working residual
 ``-(d log p_k / dr) / c_k`` (central differences in ``z``). For a Gaussian mode these are
@@ -42,6 +45,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError
 from radioloc.core.validation import check_positive
+from radioloc.models.measurement import gaussian_logpdf
 
 __all__ = ["LOSSES", "check_loss", "rho", "irls_weight", "row_terms", "max_mixture_terms"]
 
@@ -124,7 +128,8 @@ def row_terms(r: np.ndarray, mean: np.ndarray | float, std: np.ndarray, loss: st
 
 
 def max_mixture_terms(model, z: np.ndarray, state: dict, context, std: np.ndarray,
-                      log_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                      log_prior: np.ndarray, null_std: float | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cost term, weight, working residual and chosen mode of each row under the max-mixture loss.
 
     Parameters
@@ -139,8 +144,11 @@ def max_mixture_terms(model, z: np.ndarray, state: dict, context, std: np.ndarra
     std : ndarray, shape (..., m)
         The model's standard deviation of each row (the finite-difference step is
         ``1e-4 std`` and the weight floor ``1e-4 / std^2``).
-    log_prior : ndarray, shape (K,)
-        ``log pi_k`` of each mode.
+    log_prior : ndarray, shape (K,) or (K + 1,)
+        ``log pi_k`` of each mode (and last of the null hypothesis, with ``null_std``).
+    null_std : float, optional
+        Add a null-hypothesis mode (Olson & Agarwal's outlier component): a zero-mean
+        Gaussian of this standard deviation of the residual, mode index ``K``.
 
     Returns
     -------
@@ -152,9 +160,13 @@ def max_mixture_terms(model, z: np.ndarray, state: dict, context, std: np.ndarra
     ok = np.isfinite(z)
     zf = np.where(ok, z, 0.0)
     h = 1e-4 * std
-    lp0 = model.mode_logpdf(zf, state, context) + log_prior
-    lpp = model.mode_logpdf(zf + h, state, context) + log_prior
-    lpm = model.mode_logpdf(zf - h, state, context) + log_prior
+    def modes(zz):
+        lp = model.mode_logpdf(zz, state, context)
+        if null_std is not None:
+            r = model.residual(zz, model.predict(state, context))
+            lp = np.concatenate([lp, gaussian_logpdf(r, null_std)[..., None]], axis=-1)
+        return lp + log_prior
+    lp0, lpp, lpm = modes(zf), modes(zf + h), modes(zf - h)
     k = np.argmax(lp0, axis=-1)
 
     def pick(a):
