@@ -10,18 +10,22 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 - ``P2PParticleFilter`` (recursive), ``LocalML``, ``Ransac`` (snapshot): paper 001;
 - ``ClosedFormTracker``, ``NewtonTracker`` (snapshot): paper 002;
 - ``GridFilter`` (recursive): paper 003;
-- ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004.
+- ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004;
+- ``LeastSquares`` (snapshot), ``BatchSmoother`` (whole trajectory): any measurement model,
+  robust and max-mixture LOS/NLOS losses.
 
 The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` (the one
 Kalman filter), :func:`solve_nlls` (the one nonlinear least-squares driver).
 """
 
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
+from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.ekf_tracker import RangeEKF
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update
+from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.mixture_localization import (
     MixtureLocalizer,
@@ -44,7 +48,7 @@ ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilt
 __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
     "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
-    "MixtureTracker",
+    "MixtureTracker", "LeastSquares", "BatchSmoother",
     "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
     "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
     "GaussianState", "kalman_predict", "kalman_update", "NLLSResult", "solve_nlls",
