@@ -156,7 +156,7 @@ def test_bad_input_names_the_argument():
     with pytest.raises(ConfigError, match="loss_scale"):
         LeastSquares(loss_scale=-1.0)
     with pytest.raises(ConfigError, match="max_iterations"):
-        LeastSquares(max_iterations=0)
+        LeastSquares(max_iterations=-1)
     with pytest.raises(InputError, match="initial"):
         LeastSquares().locate(obs, initial=np.zeros(5))
     with pytest.raises(InputError, match=r"observations\[1\]"):

@@ -123,7 +123,7 @@ class LeastSquares(SnapshotEstimator):
     loss_scale : float
         The loss's scale ``c`` in units of each row's standard deviation.
     max_iterations : int
-        Iterations of the driver per problem.
+        Iterations of the driver per problem (0: the start is returned).
     tol : float
         A problem converges when its accepted step is no longer than this (state units).
     method : {"gauss-newton", "levenberg-marquardt"}
@@ -154,7 +154,7 @@ class LeastSquares(SnapshotEstimator):
                  max_iterations: int = 50, tol: float = 1e-9, method: str = "gauss-newton",
                  layout: StateLayout | None = None, los_nlos=None) -> None:
         self.loss, self.loss_scale = check_loss(loss, loss_scale)
-        self.max_iterations = check_int(max_iterations, "max_iterations", minimum=1,
+        self.max_iterations = check_int(max_iterations, "max_iterations", minimum=0,
                                         maximum=MAX_ITERATIONS)
         try:
             self.tol = check_positive(tol, "tol", allow_zero=True)
