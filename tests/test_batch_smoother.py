@@ -245,3 +245,29 @@ def test_bad_input_names_the_argument():
         sm.run(obs, t, prior_mean=x[:, 0], prior_cov=np.eye(4), initial=np.zeros((3, 2)))
     with pytest.raises(InputError, match="observations"):
         sm.run([obs, 3], t, prior_mean=x[:, 0], prior_cov=np.eye(4))
+
+
+def test_smooth_log_tracks_every_node_of_a_range_log():
+    import pandas as pd
+
+    from radioloc.locate.base import LocateRequest
+    from radioloc.locate.batch_smooth import smooth_log
+
+    motion, x, t, rng = simulate(2, 120, seed=9)
+    rows = []
+    for k, node in enumerate(("tag1", "tag2")):
+        for i in range(len(t)):
+            a = i % 4                                        # one anchor per time stamp
+            d = np.linalg.norm(x[k, i, :2] - ANCHORS[a]) + 0.05 * rng.standard_normal()
+            rows.append((t[i], node, f"A{a}", "range", d))
+    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value"])
+    anchors = pd.DataFrame({"id": [f"A{a}" for a in range(4)], "x": ANCHORS[:, 0],
+                            "y": ANCHORS[:, 1]})
+    opts = {"los_std_m": "0.05", "nlos_mean_m": "2", "alpha": "0.9"}
+    out = smooth_log(LocateRequest(meas, anchors, options=opts))
+    assert list(out.columns[:4]) == ["time", "node", "x", "y"] and len(out) == 240
+    for k, node in enumerate(("tag1", "tag2")):
+        got = out[out.node == node][["x", "y"]].to_numpy()
+        assert np.sqrt(np.mean(np.sum((got - x[k, :, :2]) ** 2, -1))) < 0.3
+    with pytest.raises(ConfigError, match="loss"):
+        smooth_log(LocateRequest(meas, anchors, options={"loss": "l1", **opts}))

@@ -184,6 +184,8 @@ class BatchSmoother(RecursiveEstimator):
         n, k = layout.size, layout.motion_size
         F = np.zeros(dt.shape + (n, n))
         Q = np.zeros(dt.shape + (n, n))
+        if dt.size == 0:                              # one step: no transition
+            return F, Q
         F[..., :k, :k] = self.motion.F(dt)
         Q[..., :k, :k] = self.motion.Q(dt)
         idx = np.arange(k, n)
