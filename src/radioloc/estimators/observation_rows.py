@@ -138,11 +138,6 @@ class RowStack:
             Js.append(np.broadcast_to(H, batch + H.shape[-2:]))
         return np.concatenate(rs, axis=-1), np.concatenate(Js, axis=-2)
 
-    def std(self, batch: tuple[int, ...]) -> np.ndarray:
-        """The model's standard deviation of every row ``(..., M)``."""
-        return np.concatenate([np.broadcast_to(m.std(c), batch + z.shape[-1:])
-                               for m, z, c, _ in self.items], axis=-1)
-
     def terms(self, x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cost term, weight and working residual of every row ``(..., M)`` at ``x``
         with residuals ``r`` (the ``row_terms`` of :func:`~radioloc.estimators.nlls.solve_nlls`)."""
