@@ -14,7 +14,9 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
   (``Observation`` inputs), with the discrete row states of paper 001 summed out exactly;
 - ``ClosedFormTracker``, ``NewtonTracker`` (snapshot): paper 002;
 - ``GridFilter`` (recursive): paper 003;
-- ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004.
+- ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004;
+- ``LeastSquares`` (snapshot), ``BatchSmoother`` (whole trajectory): any measurement model,
+  robust and max-mixture LOS/NLOS losses.
 
 The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update` /
 :func:`rts_smooth` (the one Kalman filter and smoother), :func:`solve_nlls` (the one
@@ -22,12 +24,14 @@ nonlinear least-squares driver).
 """
 
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
+from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.ekf_tracker import RangeEKF
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update, rts_smooth
+from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.mixture_localization import (
     MixtureLocalizer,
@@ -51,7 +55,7 @@ ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilt
 __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
     "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
-    "MixtureTracker", "ParticleFilter",
+    "MixtureTracker", "ParticleFilter", "LeastSquares", "BatchSmoother",
     "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
     "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
     "ExtendedKalmanFilter",

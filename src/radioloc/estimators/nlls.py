@@ -17,6 +17,13 @@ Steps (per problem; problems that have stopped are frozen):
 (k < 8) that does not increase the cost, ``"none"`` takes the full step (the plain
 Newton iteration whose divergence paper 002 studies).
 
+A robust or non-Gaussian cost goes through ``row_terms(x, r) -> (cost, W, work)``: each
+row's cost term (the cost is their sum instead of ``sum w r^2``), its weight and its
+working residual; every iteration then solves ``(J^T W J) s = J^T W work`` with the
+weights of the current iterate (iteratively reweighted least squares; the robust losses
+and the max-mixture loss of :mod:`radioloc.estimators.robust_loss`). Without it
+``W = w`` and ``work = r``.
+
 A problem *converges* when an accepted step is no longer than ``tol``; it *stalls* when no
 step decreases the cost, its system is singular or its iterate stops being finite (it then
 keeps its last finite iterate). Problems neither converged nor stalled after ``max_iter``
@@ -40,6 +47,7 @@ _HALVINGS = 8
 
 Residuals = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 Curvature = Callable[[np.ndarray], np.ndarray]
+RowTerms = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
 @dataclass
@@ -56,7 +64,8 @@ class NLLSResult:
     jacobian : ndarray, shape (..., M, n)
         ``dh/dx`` at ``x``.
     normal_matrix : ndarray, shape (..., n, n)
-        ``J^T W J`` at ``x`` (the Gauss-Newton information, for covariances).
+        ``J^T W J`` at ``x`` (the Gauss-Newton information, for covariances; with
+        ``row_terms``, its weights at ``x``).
     iterations : ndarray of int, shape (...)
         Accepted steps per problem.
     converged, stalled : ndarray of bool, shape (...)
@@ -131,7 +140,8 @@ def _solve(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | None = None,
                method: str = "gauss-newton", curvature: Curvature | None = None,
                step_control: str = "halving", max_iter: int = 50, tol: float = 1e-9,
-               ridge: float = 1e-12, lm_lambda0: float = 1e-3) -> NLLSResult:
+               ridge: float = 1e-12, lm_lambda0: float = 1e-3,
+               row_terms: RowTerms | None = None) -> NLLSResult:
     """Minimise ``sum w r(x)^2`` for every problem of a batch (see the module docstring).
 
     Parameters
@@ -158,6 +168,10 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         exactly determined problems solvable; 0 disables it).
     lm_lambda0 : float
         Initial damping of Levenberg-Marquardt.
+    row_terms : callable, optional
+        ``row_terms(x, r) -> (cost, W, work)``, each ``(..., M)``: a robust or
+        non-Gaussian cost (module docstring); ``weights`` then only marks missing rows
+        (0) and is otherwise ignored. Not with ``"newton"``.
 
     Returns
     -------
@@ -167,6 +181,8 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         raise ConfigError(f"method: must be one of {', '.join(METHODS)}, got {method!r}")
     if step_control not in ("halving", "none"):
         raise ConfigError(f"step_control: must be 'halving' or 'none', got {step_control!r}")
+    if method == "newton" and row_terms is not None:
+        raise ConfigError("method 'newton' does not take row_terms")
     if method == "newton" and curvature is None:
         raise ConfigError("method 'newton' needs the curvature callable")
     if int(max_iter) < 0:
@@ -180,10 +196,19 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
     w = np.ones(r.shape) if weights is None else np.asarray(weights, dtype=float)
     w = np.broadcast_to(w, batch + r.shape[-1:])
 
-    def cost_of(res: np.ndarray) -> np.ndarray:
-        return np.sum(w * np.where(w > 0, res, 0.0) ** 2, axis=-1)
+    def terms(xx: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cost, weight and working residual of each row."""
+        if row_terms is None:
+            used = np.where(w > 0, res, 0.0)
+            return w * used ** 2, w, used
+        c, ww, work = row_terms(xx, res)
+        return np.where(w > 0, c, 0.0), np.where(w > 0, ww, 0.0), np.where(w > 0, work, 0.0)
 
-    cost = cost_of(r)
+    def cost_of(xx: np.ndarray, res: np.ndarray) -> np.ndarray:
+        return np.sum(terms(xx, res)[0], axis=-1)
+
+    c_rows, W, work = terms(x, r)
+    cost = np.sum(c_rows, axis=-1)
     converged = np.zeros(batch, dtype=bool)
     stalled = np.zeros(batch, dtype=bool)
     iterations = np.zeros(batch, dtype=np.int64)
@@ -193,7 +218,7 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         active = ~(converged | stalled)
         if not active.any():
             break
-        A, g = _normal(J, w, np.where(w > 0, r, 0.0))
+        A, g = _normal(J, W, work)
         if method == "newton":
             A = A - np.einsum("...m,...mij->...ij", w * np.where(w > 0, r, 0.0), curvature(x))
         if method == "levenberg-marquardt":
@@ -219,7 +244,7 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
             for k in range(tries):
                 trial = x + step * 0.5**k
                 r_t, _ = residuals(trial)
-                c_t = cost_of(r_t)
+                c_t = cost_of(trial, r_t)
                 take = active & ~accepted & np.isfinite(c_t) & (c_t <= cost * (1 + 1e-12) + 1e-300)
                 new_x = np.where(take[..., None], trial, new_x)
                 accepted |= take
@@ -240,8 +265,9 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         x = new_x
         iterations += accepted
         r, J = residuals(x)
-        cost = cost_of(r)
+        c_rows, W, work = terms(x, r)
+        cost = np.sum(c_rows, axis=-1)
         converged |= accepted & (moved <= tol)
-    A, _ = _normal(J, w, np.where(w > 0, r, 0.0))
+    A, _ = _normal(J, W, work)
     return NLLSResult(x=x, cost=cost, residuals=r, jacobian=J, normal_matrix=A,
                       iterations=iterations, converged=converged, stalled=stalled)

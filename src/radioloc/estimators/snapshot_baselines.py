@@ -21,9 +21,10 @@ from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.estimators.local_search import search
-from radioloc.estimators.nlls import solve_nlls
+from radioloc.estimators.least_squares import LeastSquares
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.ranging import range_geometry
+from radioloc.models.measurement import Context, Observation
+from radioloc.models.ranging import RangeModel
 
 __all__ = ["LocalML", "Ransac"]
 
@@ -193,8 +194,8 @@ class Ransac(SnapshotEstimator):
     ranges in 2-D) and a coarse grid; the consensus of a hypothesis is the number of ranges
     with ``|residual| < threshold_m`` (ties: smaller squared residual over the inliers).
     The best hypothesis is refitted by Gauss-Newton least squares on its inlier set
-    (:func:`radioloc.estimators.nlls.solve_nlls`, outliers weighted 0). Exhaustive over
-    pairs instead of random draws.
+    (:class:`~radioloc.estimators.least_squares.LeastSquares`, the outliers missing rows).
+    Exhaustive over pairs instead of random draws.
 
     Parameters
     ----------
@@ -254,15 +255,14 @@ class Ransac(SnapshotEstimator):
         e0 = th - distances(x0[..., None, :], cen)
         inliers = valid & (np.abs(e0) < thr)
 
-        def residuals(x):
-            d, J = range_geometry(x, cen)
-            return th - d, J
-        fit = solve_nlls(residuals, x0, weights=inliers.astype(float), method="gauss-newton",
-                         max_iter=self.max_iter)
+        # the refit: generic least squares on the inlier rows (the others missing)
+        obs = Observation(RangeModel(std_m=thr), np.where(inliers, th, np.nan),
+                          Context(points=cen))
+        fit = LeastSquares(max_iterations=self.max_iter).locate(obs, initial=x0)
         n_in = inliers.sum(axis=-1)
-        rms = np.sqrt(fit.cost / np.maximum(n_in, 1))
-        degenerate = _degenerate(fit.x, cen, th, inliers, thr, self.on_degenerate)
-        return Estimate(fit.x, None, None, {"converged": fit.converged, "stalled": fit.stalled,
-                                            "iterations": fit.iterations, "inliers": n_in,
-                                            "residual_rms_m": rms, "degenerate": degenerate,
-                                            "measurements_used": valid.sum(axis=-1)})
+        degenerate = _degenerate(fit.position, cen, th, inliers, thr, self.on_degenerate)
+        lsq = fit.diagnostics
+        return Estimate(fit.position, None, None, {
+            "converged": lsq["converged"], "stalled": lsq["stalled"], "iterations": lsq["iterations"], "inliers": n_in,
+            "residual_rms_m": lsq["residual_rms_m"], "degenerate": degenerate,
+            "measurements_used": valid.sum(axis=-1)})

@@ -1,0 +1,196 @@
+"""The measurement rows of a set of :class:`~radioloc.models.measurement.Observation`\\ s,
+stacked for the least-squares estimators.
+
+:class:`RowStack` holds one or more observations (several kinds at once) and a
+:class:`~radioloc.models.measurement.StateLayout`; for a batch of states ``x (..., n)`` it
+gives the stacked residuals ``z - h(x)`` ``(..., M)`` and Jacobians ``dh/dx`` ``(..., M, n)``
+(the ``residuals`` callable of :func:`radioloc.estimators.nlls.solve_nlls`) and each row's
+cost term, weight and working residual under a robust loss or the max-mixture loss
+(:mod:`radioloc.estimators.robust_loss`). The batch axes of ``x`` broadcast against those
+of ``z``: a smoother passes states ``(..., T, n)`` with values ``(..., T, m)`` and gets every
+step at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from radioloc.core.errors import InputError
+from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
+from radioloc.estimators.robust_loss import max_mixture_terms, row_terms
+
+__all__ = ["observation_list", "layout_for", "RowStack"]
+
+
+def observation_list(observations: Observation | Sequence[Observation]) -> list[Observation]:
+    """The observations as a non-empty list (an :class:`InputError` names a bad entry)."""
+    items = [observations] if isinstance(observations, Observation) else observations
+    try:
+        items = list(items)
+    except TypeError:
+        raise InputError(f"observations: expected an Observation or a sequence of them, got "
+                         f"{type(observations).__name__}") from None
+    if not items:
+        raise InputError("observations: give at least one Observation")
+    for i, o in enumerate(items):
+        if not isinstance(o, Observation):
+            raise InputError(f"observations[{i}]: expected an Observation, got {type(o).__name__}")
+    return items
+
+
+def _n_anchors(obs: Observation) -> int:
+    idx = [i for i in (obs.context.index, obs.context.reference_index) if i is not None]
+    return max((int(i.max()) + 1 for i in idx if i.size), default=obs.context.rows)
+
+
+def layout_for(observations: list[Observation], layout: StateLayout | None = None,
+               order: int = 0) -> StateLayout:
+    """The state layout the observations need.
+
+    Parameters
+    ----------
+    observations : list of Observation
+    layout : StateLayout, optional
+        A starting layout (its dimension is kept); default: the dimension of the first
+        observation's points (one less with ``height_m``: a 2-D node and 3-D points).
+    order : int
+        Motion order of the starting layout (0 for a snapshot).
+
+    Returns
+    -------
+    StateLayout
+        Grown by :meth:`StateLayout.with_model` for every observation's model.
+    """
+    if layout is None:
+        ctx = observations[0].context
+        dim = ctx.points.shape[-1] - (1 if ctx.height_m is not None else 0)
+        if dim not in (2, 3):
+            raise InputError(f"observations[0].context.points: {ctx.points.shape[-1]} coordinates "
+                             "give no 2-D or 3-D position (pass layout=)")
+        layout = StateLayout(dim=dim, order=order)
+    elif not isinstance(layout, StateLayout):
+        raise InputError(f"layout: expected a StateLayout, got {type(layout).__name__}")
+    for o in observations:
+        layout = layout.with_model(o.model, _n_anchors(o))
+    return layout
+
+
+class RowStack:
+    """The rows of several observations for one state layout and one loss.
+
+    Parameters
+    ----------
+    observations : list of Observation
+        Values ``z`` ``(..., m)`` (a smoother: ``(..., T, m)``, the steps as a batch axis).
+    layout : StateLayout
+    loss : str
+        A robust loss of :mod:`radioloc.estimators.robust_loss`.
+    loss_scale : float
+        Its scale in units of each row's standard deviation.
+    los_nlos : LosNlosRange, optional
+        Score the rows of every ``"range"`` observation by the max-mixture of its LOS and
+        NLOS modes under this noise model (the row's own model with ``noise=los_nlos``).
+    null_hypothesis : (float, float), optional
+        ``(weight, std)`` of a null-hypothesis mode added to the max-mixture.
+    """
+
+    def __init__(self, observations: list[Observation], layout: StateLayout, loss: str,
+                 loss_scale: float, los_nlos=None, null_hypothesis=None) -> None:
+        self.layout = layout
+        self.null = null_hypothesis
+        self.loss, self.loss_scale = loss, loss_scale
+        self.items: list[tuple[MeasurementModel, np.ndarray, Context, MeasurementModel | None]] = []
+        for o in observations:
+            layout.check(o.model)
+            ctx = o.context if o.std is None else replace(o.context, std=o.std)
+            mixture = None
+            if los_nlos is not None and o.model.kind == "range":
+                mixture = replace(o.model, noise=los_nlos, std_m=None)
+            self.items.append((o.model, o.z, ctx, mixture))
+        self.sizes = [z.shape[-1] for _, z, _, _ in self.items]
+
+    def batch_shape(self, x_batch: tuple[int, ...]) -> tuple[int, ...]:
+        """Batch shape of the rows for states of batch shape ``x_batch``."""
+        shapes = [x_batch] + [z.shape[:-1] for _, z, _, _ in self.items]
+        shapes += [c.points.shape[:-2] for _, _, c, _ in self.items]
+        try:
+            return np.broadcast_shapes(*shapes)
+        except ValueError:
+            raise InputError("observations: batch shapes do not broadcast: "
+                             + ", ".join(str(s) for s in shapes)) from None
+
+    def values(self, batch: tuple[int, ...]) -> np.ndarray:
+        """The stacked measured values ``(..., M)`` (NaN = missing row)."""
+        return np.concatenate([np.broadcast_to(z, batch + z.shape[-1:]) for _, z, _, _ in
+                               self.items], axis=-1)
+
+    def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(z - h(x), dh/dx)``: ``(..., M)`` and ``(..., M, n)`` (NaN rows stay NaN)."""
+        batch = self.batch_shape(x.shape[:-1])
+        rs, Js = [], []
+        for model, z, ctx, _ in self.items:
+            z_hat, H = self.layout.measure(model, x, ctx)
+            r = model.residual(z, z_hat)
+            rs.append(np.broadcast_to(r, batch + r.shape[-1:]))
+            Js.append(np.broadcast_to(H, batch + H.shape[-2:]))
+        return np.concatenate(rs, axis=-1), np.concatenate(Js, axis=-2)
+
+    def terms(self, x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cost term, weight and working residual of every row ``(..., M)`` at ``x``
+        with residuals ``r`` (the ``row_terms`` of :func:`~radioloc.estimators.nlls.solve_nlls`)."""
+        batch = r.shape[:-1]
+        out = [], [], []
+        start = 0
+        for (model, z, ctx, mixture), m in zip(self.items, self.sizes):
+            rr = r[..., start:start + m]
+            start += m
+            std = np.broadcast_to(model.std(ctx), batch + (m,))
+            if mixture is not None:
+                parts = self._mixture(mixture, z, x, ctx, std)[:3]
+                # a missing row (NaN residual) contributes nothing
+                parts = tuple(np.where(np.isfinite(rr), p, 0.0) for p in parts)
+            else:
+                parts = row_terms(rr, model.noise_mean(ctx), std, self.loss, self.loss_scale)
+            for acc, p in zip(out, parts):
+                acc.append(p)
+        return tuple(np.concatenate(a, axis=-1) for a in out)
+
+    def _mixture(self, mixture, z, x, ctx, std):
+        """:func:`max_mixture_terms` of one observation's rows."""
+        alpha = mixture.noise.alpha
+        zz = np.broadcast_to(z, std.shape)
+        if self.null is None:
+            return max_mixture_terms(mixture, zz, self.layout.split(x), ctx, std,
+                                     np.log([1.0 - alpha, alpha]))
+        w, s = self.null
+        return max_mixture_terms(mixture, zz, self.layout.split(x), ctx, std,
+                                 np.log([(1.0 - w) * (1.0 - alpha), (1.0 - w) * alpha, w]), s)
+
+    def standardised(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """``(r - noise mean) / std`` of every row ``(..., M)`` (NaN where missing)."""
+        batch = r.shape[:-1]
+        out, start = [], 0
+        for (model, z, ctx, _), m in zip(self.items, self.sizes):
+            rr = r[..., start:start + m]
+            start += m
+            out.append((rr - model.noise_mean(ctx)) / np.broadcast_to(model.std(ctx), batch + (m,)))
+        return np.concatenate(out, axis=-1)
+
+    def modes(self, x: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """The max-mixture mode chosen for every row ``(..., M)`` (index 1 LOS, 0 NLOS for
+        a range; -1 where the row is missing or not scored by the max-mixture)."""
+        batch = r.shape[:-1]
+        out, start = [], 0
+        for (model, z, ctx, mixture), m in zip(self.items, self.sizes):
+            rr = r[..., start:start + m]
+            start += m
+            if mixture is None:
+                out.append(np.full(batch + (m,), -1))
+                continue
+            std = np.broadcast_to(model.std(ctx), batch + (m,))
+            k = self._mixture(mixture, z, x, ctx, std)[3]
+            out.append(np.where(np.isfinite(rr), k, -1))
+        return np.concatenate(out, axis=-1)

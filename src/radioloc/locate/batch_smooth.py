@@ -1,0 +1,109 @@
+"""A user's range log smoothed by :class:`~radioloc.estimators.batch_smoother.BatchSmoother`.
+
+:func:`smooth_log` takes a :class:`~radioloc.locate.base.LocateRequest` (the measurements
+and anchors of ``radioloc locate``) and returns the smoothed track table of every node,
+with the options of the trackers (``-o tag_height_m``, ``q``, ``motion``, ``prior_std_m``,
+``init_s``, ``max_gap_s``, ``range_std_m``) and of ``pf`` (``los_std_m``, ``nlos_mean_m``,
+``alpha`` given, or fitted by EM on the log as ``pf`` fits them:
+:func:`radioloc.locate.pf.fit_model`; the fitted range bias is removed; ``min_los_std_m``
+floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default:
+the LOS/NLOS max-mixture), or a robust loss ``linear``, ``huber``, ``cauchy``, ``tukey``
+with ``loss_scale`` (standard deviations of ``range_std_m``). The max-mixture carries a
+null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
+too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
+``-o null_weight=0`` removes it). 3-D anchors with
+``tag_height_m``: the ranges are modelled in 3-D at that height (no projection).
+
+Each node's time stamps are the steps (one anchor per step when the anchors answer in
+turn); segments split at gaps longer than ``max_gap_s`` are smoothed separately, the
+whole segment in one sparse solve.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.estimators.batch_smoother import BatchSmoother
+from radioloc.estimators.robust_loss import LOSSES
+from radioloc.locate.base import LocateRequest
+from radioloc.locate.ekf_track import (PRIOR_SPEED_STD, motion_model, range_rows, segments,
+                                       start_position, track_table, tracker_settings)
+from radioloc.locate.pf import fit_model
+from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.measurement import Context, Observation
+from radioloc.models.ranging import RangeModel
+
+__all__ = ["smooth_log"]
+
+
+def smooth_log(request: LocateRequest) -> pd.DataFrame:
+    """Smoothed tracks of every node of a range log (module docstring).
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Range rows, anchors and ``-o`` options.
+
+    Returns
+    -------
+    DataFrame
+        ``time, node, x, y[, z], uncertainty_m`` at every time stamp with a range.
+
+    Raises
+    ------
+    InputError, ConfigError, GeometryError
+        As ``locate --method ekf-track`` (a bad option names it).
+    """
+    anchors, per_node = range_rows(request, "smoother")
+    s = tracker_settings(request, anchors)
+    loss = request.option("loss", "max-mixture", str)
+    if loss not in ("max-mixture",) + LOSSES:
+        raise ConfigError(f"option loss: must be max-mixture or one of {', '.join(LOSSES)}, "
+                          f"got {loss!r}")
+    std = request.option("range_std_m", 0.15)
+    given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
+    tables = []
+    for node, times, R in per_node:
+        parts = segments(times, s["max_gap_s"])
+        los_nlos, bias = None, s["bias"]
+        if loss == "max-mixture":
+            if any(g is None for g in given):
+                if s["dim"] != 2:
+                    raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs "
+                                     "2-D tracking (give tag_height_m) or los_std_m, "
+                                     "nlos_mean_m and alpha")
+                los_nlos, bias, _ = fit_model(times, R, anchors, s, parts)
+                floor = request.option("min_los_std_m", 0.15)
+                if los_nlos.los_std_m < floor:
+                    los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
+                if "range_bias_m" in request.options:
+                    bias = s["bias"]
+            else:
+                los_nlos = LosNlosRange(*given)
+        null_w = request.option("null_weight", 1e-3)
+        null = (null_w, request.option("null_std_m", 10.0)) if los_nlos and null_w else None
+        smoother = BatchSmoother(motion_model(s["motion"], s["q"], s["dim"]),
+                                 loss="linear" if loss == "max-mixture" else loss,
+                                 loss_scale=request.option("loss_scale", 1.0), los_nlos=los_nlos,
+                                 null_hypothesis=null)
+        ctx = Context(points=anchors, height_m=s["height"])
+        for seg in parts:
+            t, r = times[seg], R[seg] - bias
+            xy0 = start_position(t, r, anchors, s["height"], 0.0, s["init_s"])
+            k = smoother.motion.state_dim
+            mean = np.zeros(k)
+            mean[:2] = xy0
+            var = np.full(k, PRIOR_SPEED_STD ** 2)
+            var[:s["dim"]] = s["prior_std"] ** 2
+            if s["dim"] == 3:
+                mean[2] = float(np.mean(anchors[:, 2]))
+            try:
+                track = smoother.run(Observation(RangeModel(std_m=std), r, ctx), t,
+                                     prior_mean=mean, prior_cov=np.diag(var))
+            except GeometryError as exc:
+                raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
+                                    f"{exc}") from None
+            tables.append(track_table(node, t, track))
+    return pd.concat(tables, ignore_index=True)
