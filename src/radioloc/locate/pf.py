@@ -65,6 +65,7 @@ from radioloc.locate.ekf_track import (
     run_ekf,
     segments,
     start_position,
+    track_summary,
     track_table,
     tracker_settings,
 )
@@ -285,6 +286,7 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
     trajectories = request.option("trajectories", 100, int)
     gate = request.option("gate", 16.0) or None
     tables = {k: [] for k in outputs}
+    fitted, resets = [], [0]
     for node, times, R in per_node:
         parts = segments(times, s["max_gap_s"])
         try:
@@ -297,18 +299,28 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
                     bias = s["bias"]
             else:
                 model, bias = LosNlosRange(*given), s["bias"]
-            for seg in parts:
+            fitted.append({"node": node, "los_std_m": model.los_std_m,
+                           "nlos_mean_m": model.nlos_mean_m, "alpha": model.alpha,
+                           "range_bias_m": float(bias),
+                           "fitted": any(g is None for g in given)})
+            for n, seg in enumerate(parts):
                 tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
-                                 gate, outputs, lag, trajectories)
+                                 gate, outputs, lag, trajectories, resets)
                 for k, track in tracks.items():
-                    tables[k].append(track_table(node, times[seg], track))
+                    tables[k].append(track_table(node, times[seg], track, restart=n > 0))
         except GeometryError as exc:
             raise GeometryError(f"method pf: node {node!r}: {exc}") from None
-    return {k: pd.concat(v, ignore_index=True) for k, v in tables.items()}
+    result = {}
+    for k, v in tables.items():
+        result[k] = pd.concat(v, ignore_index=True)
+        result[k].attrs["summary"] = track_summary(
+            v, per_node, seed=seed, particles=particles, filter_resets=resets[0],
+            smoother=None if k == "filtered" else k, model=fitted)
+    return result
 
 
 def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, lag,
-            trajectories) -> dict[str, Track]:
+            trajectories, resets: list[int]) -> dict[str, Track]:
     """One node's particle-filter tracks over one segment (see the module docstring)."""
     r = R - bias
     if anchors.shape[1] == 3:
@@ -328,6 +340,8 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
     keep = "fixed-lag" in outputs or "backward" in outputs
     bias_m, var_m2 = model.moments()
     streak = 0
+    gated = np.zeros(len(times), dtype=np.int64)
+    p_nlos = np.zeros(len(times))
     for k in range(len(times)):
         row = rows[:, k]
         if gate and streak < GATE_PATIENCE and np.isfinite(row).any():
@@ -340,23 +354,29 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
             spread = np.einsum("...i,ij,...j->...", u, P, u) + var_m2
             out = np.isfinite(row) & ((row - d - bias_m) ** 2 > gate * spread)
             streak = streak + 1 if out.sum() == np.isfinite(row).sum() else 0
+            gated[k] = int(out.sum())
             row = np.where(out, np.nan, row)
         else:
             streak = 0
         state = pf.step(state, row, nodes, rng, dt=dts[k])
         means.append(state.mean[0])
         covs.append(state.covariance[0])
+        used = state.links[0] >= 0
+        if used.any():   # the largest NLOS probability among the ranges used
+            p_nlos[k] = float(np.max(1.0 - state.link_los[0].mean(axis=0)[used]))
         if keep:
             history.append(state.particles[0])
             ancestors.append(state.ancestors[0])
+    flags = {"gated": gated, "p_nlos": p_nlos}
     out = {}
     if "filtered" in outputs:
         mean, cov = np.stack(means), np.stack(covs)
-        out["filtered"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["filtered"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
     if "fixed-lag" in outputs:
         mean, cov = fixed_lag(history, ancestors, lag)
-        out["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
     if "backward" in outputs:
         mean, cov = backward_simulation(history, times, motion, trajectories, rng)
-        out["backward"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["backward"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
+    resets[0] += int(state.resets[0])
     return out
