@@ -28,7 +28,9 @@ import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.io.logs import range_arrays
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import progress
 from radioloc.locate.table import add_covariance
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import GaussianRange
@@ -59,7 +61,8 @@ def motion_model(kind: str, q: float, dim: int):
 def range_rows(request: LocateRequest, method: str):
     """Ranges to anchors as one ``(T, M)`` array per node (NaN: no range at that time).
 
-    Duplicate ``(time, node, peer)`` measurements are averaged.
+    Duplicate ``(time, node, peer)`` measurements are averaged
+    (:func:`radioloc.io.range_arrays`); nodes in the order of their names.
 
     Parameters
     ----------
@@ -74,19 +77,13 @@ def range_rows(request: LocateRequest, method: str):
     """
     table = request.require_anchors(method)
     rows = request.kind("range", method)
-    rows = rows[rows["peer"].isin(set(table["id"]))]
-    if rows.empty:
+    if not rows["peer"].isin(set(table["id"])).any():
         raise GeometryError(f"method {method}: no range to an anchor in the measurements")
-    dims = ["x", "y"] + (["z"] if "z" in table.columns else [])
-    anchors = table[dims].to_numpy(dtype=float)
-    index = {a: i for i, a in enumerate(table["id"])}
-    rows = rows.groupby(["node", "time", "peer"], sort=True, as_index=False)["value"].mean()
+    times, anchors, ranges, nodes = range_arrays(rows, table)
     out = []
-    for node, grp in rows.groupby("node", sort=True):
-        times, t_idx = np.unique(grp["time"].to_numpy(dtype=float), return_inverse=True)
-        R = np.full((times.size, len(anchors)), np.nan)
-        R[t_idx, grp["peer"].map(index).to_numpy()] = grp["value"].to_numpy(dtype=float)
-        out.append((node, times, R))
+    for n in np.argsort(nodes, kind="stable"):
+        has = np.isfinite(ranges[:, n]).any(axis=-1)
+        out.append((nodes[n], times[has], ranges[has, n]))
     return anchors, out
 
 
@@ -337,14 +334,17 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     gate = request.option("gate", 16.0) or None
     std = request.option("range_std_m", 0.15)
     tables = []
-    for node, times, R in per_node:
-        for n, seg in enumerate(segments(times, s["max_gap_s"])):
-            try:
-                track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
-            except GeometryError as exc:
-                raise GeometryError(f"method ekf-track: node {node!r} from time "
-                                    f"{float(times[seg][0])!r}: {exc}") from None
-            tables.append(track_table(node, times[seg], track, restart=n > 0))
+    parts = [(node, times, R, segments(times, s["max_gap_s"])) for node, times, R in per_node]
+    with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
+        for node, times, R, segs in parts:
+            for n, seg in enumerate(segs):
+                try:
+                    track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
+                except GeometryError as exc:
+                    raise GeometryError(f"method ekf-track: node {node!r} from time "
+                                        f"{float(times[seg][0])!r}: {exc}") from None
+                tables.append(track_table(node, times[seg], track, restart=n > 0))
+                bar.advance()
     out = pd.concat(tables, ignore_index=True)
     out.attrs["summary"] = track_summary(tables, per_node, range_std_m=std,
                                          gate=gate or 0.0)

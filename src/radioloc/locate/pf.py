@@ -57,6 +57,7 @@ from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import progress
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
@@ -287,29 +288,10 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
     gate = request.option("gate", 16.0) or None
     tables = {k: [] for k in outputs}
     fitted, resets = [], [0]
-    for node, times, R in per_node:
-        parts = segments(times, s["max_gap_s"])
-        try:
-            if any(g is None for g in given):
-                model, bias, _ = fit_model(times, R, anchors, s, parts)
-                floor = request.option("min_los_std_m", 0.15)
-                if model.los_std_m < floor:
-                    model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
-                if "range_bias_m" in request.parsed:
-                    bias = s["bias"]
-            else:
-                model, bias = LosNlosRange(*given), s["bias"]
-            fitted.append({"node": node, "los_std_m": model.los_std_m,
-                           "nlos_mean_m": model.nlos_mean_m, "alpha": model.alpha,
-                           "range_bias_m": float(bias),
-                           "fitted": any(g is None for g in given)})
-            for n, seg in enumerate(parts):
-                tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
-                                 gate, outputs, lag, trajectories, resets)
-                for k, track in tracks.items():
-                    tables[k].append(track_table(node, times[seg], track, restart=n > 0))
-        except GeometryError as exc:
-            raise GeometryError(f"method pf: node {node!r}: {exc}") from None
+    with progress(sum(t.size for _, t, _ in per_node), "pf: steps") as bar:
+        for node, times, R in per_node:
+            _track_node(request, node, times, R, anchors, s, given, particles, rng, gate,
+                        outputs, lag, trajectories, resets, fitted, tables, bar)
     result = {}
     for k, v in tables.items():
         result[k] = pd.concat(v, ignore_index=True)
@@ -319,8 +301,35 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
     return result
 
 
+def _track_node(request, node, times, R, anchors, s, given, particles, rng, gate, outputs, lag,
+                trajectories, resets, fitted, tables, bar) -> None:
+    """One node's tracks, appended to ``tables``; its model to ``fitted``."""
+    parts = segments(times, s["max_gap_s"])
+    try:
+        if any(g is None for g in given):
+            model, bias, _ = fit_model(times, R, anchors, s, parts)
+            floor = request.option("min_los_std_m", 0.15)
+            if model.los_std_m < floor:
+                model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
+            if "range_bias_m" in request.parsed:
+                bias = s["bias"]
+        else:
+            model, bias = LosNlosRange(*given), s["bias"]
+        fitted.append({"node": node, "los_std_m": model.los_std_m,
+                       "nlos_mean_m": model.nlos_mean_m, "alpha": model.alpha,
+                       "range_bias_m": float(bias),
+                       "fitted": any(g is None for g in given)})
+        for n, seg in enumerate(parts):
+            tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
+                             gate, outputs, lag, trajectories, resets, bar)
+            for k, track in tracks.items():
+                tables[k].append(track_table(node, times[seg], track, restart=n > 0))
+    except GeometryError as exc:
+        raise GeometryError(f"method pf: node {node!r}: {exc}") from None
+
+
 def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, lag,
-            trajectories, resets: list[int]) -> dict[str, Track]:
+            trajectories, resets: list[int], bar) -> dict[str, Track]:
     """One node's particle-filter tracks over one segment (see the module docstring)."""
     r = R - bias
     if anchors.shape[1] == 3:
@@ -359,6 +368,7 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
         else:
             streak = 0
         state = pf.step(state, row, nodes, rng, dt=dts[k])
+        bar.advance()
         means.append(state.mean[0])
         covs.append(state.covariance[0])
         used = state.links[0] >= 0
