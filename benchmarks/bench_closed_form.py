@@ -73,7 +73,7 @@ def main(sizes=(10, 30, 60), runs: int = 1000) -> list[dict]:
     rng = np.random.default_rng(0)
     blue = ClosedFormTracker(Q, XI)
     newton = NewtonTracker(max_iter=20)
-    ekf = RangeEKF(ConstantVelocity(Q), GaussianRange(float(np.sqrt(XI))))
+    ekf = RangeEKF(ConstantVelocity(Q), GaussianRange(float(np.sqrt(XI))), gate=None)
     prior = (np.zeros((1, 4)), np.diag([100.0, 100.0, 9.0, 9.0]))
     print(f"{'n':>4} {'mode':>8} {'BLUE tracks/s':>14} {'Newton tracks/s':>16} "
           f"{'EKF tracks/s':>13} {'Newton/BLUE':>12}")

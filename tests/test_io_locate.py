@@ -27,7 +27,8 @@ def test_example_files_locate_close_to_the_truth(tmp_path):
                               "--anchors", str(EXAMPLES / "anchors.csv"), "--out", str(out)])
     assert res.exit_code == 0, res.output
     est = pd.read_csv(out)
-    assert list(est.columns) == ["time", "node", "x", "y", "uncertainty_m"]
+    assert list(est.columns) == ["time", "node", "x", "y", "uncertainty_m", "cov_xx", "cov_xy",
+                                 "cov_yy", "ranges"]
     tag1 = est[est.node == "tag1"].sort_values("time")
     np.testing.assert_allclose(tag1.x, 10 + 2 * tag1.time, atol=0.5)
     np.testing.assert_allclose(tag1.y, 12.0, atol=0.5)

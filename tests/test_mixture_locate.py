@@ -44,7 +44,8 @@ def test_locate_gmm_finds_user_and_tracks(tmp_path):
     truth = write_locate_files(tmp_path)
     req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
     out = locate_gmm(req)
-    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "stations_ignored"]
+    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "cov_xx", "cov_xy",
+                                 "cov_yy", "stations_ignored"]
     assert len(out) == 3 and np.all(out["stations_ignored"] == 0)
     err = np.hypot(out["x"] - truth[0], out["y"] - truth[1])
     assert np.all(err < 1.5) and np.all(out["uncertainty_m"] > 0)

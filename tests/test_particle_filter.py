@@ -201,7 +201,7 @@ def test_ekf_alpha_one_converges_and_batched_equals_one_by_one():
     # slow vehicles: the one-step lag of the neighbours' messages is negligible
     sc, model, d = _scenario(alpha=1.0, los_std=0.01, ins_std=0.01, speed=1e-4, steps=80)
     assert model.moments() == pytest.approx((0.0, 1e-4))
-    ekf = RangeEKF(InputDriven(0.01), model)
+    ekf = RangeEKF(InputDriven(0.01), model, gate=None)
     tr = run_peer_ekf(ekf, d.ranges, d.truth[:, :, 0] + 0.3, init_std_m=0.5, anchors=d.anchors,
                       controls=d.ins)
     assert tr.position.shape == (2, 4, 80, 2)

@@ -281,6 +281,7 @@ def test_out_writes_a_complete_file_and_stdout_works(tmp_path):
     out = tmp_path / "new" / "est.csv"
     res = invoke(["locate", MEAS, "--anchors", ANCHORS, "--out", out])
     assert res.exit_code == 0, res.output
-    assert len(pd.read_csv(out)) > 0 and sorted(p.name for p in out.parent.iterdir()) == ["est.csv"]
+    assert len(pd.read_csv(out)) > 0 and sorted(p.name for p in out.parent.iterdir()) == [
+        "est.csv", "est.summary.json"]
     res = invoke(["locate", MEAS, "--anchors", ANCHORS, "--out", "-"])
     assert res.exit_code == 0 and res.stdout.startswith("time,node,x,y")

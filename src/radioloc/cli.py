@@ -297,22 +297,41 @@ def locate(
     measurements: Annotated[Path, typer.Argument(help="Measurements CSV: time, node, peer, kind, value.")],
     anchors: Annotated[Optional[Path], typer.Option(help="Anchors CSV: id, x, y[, z].")] = None,
     method: Annotated[str, typer.Option(help="Estimator; see `radioloc methods`.")] = "gn",
-    out: Annotated[Optional[Path], typer.Option(help="Output CSV (default: standard output).")] = None,
+    out: Annotated[Optional[Path], typer.Option(help="Output file (default: CSV on standard output); its format by --format or the suffix (.csv, .parquet, .tum, .geojson). A summary OUT-stem.summary.json is written beside it.")] = None,
+    format: Annotated[Optional[str], typer.Option("--format", help="Output format: csv, parquet, tum (TUM trajectory: timestamp tx ty tz qx qy qz qw; one file per node), geojson (a LineString per node and a Point per row). Default: from the --out suffix, else csv.")] = None,
     priors: Annotated[Optional[Path], typer.Option(help="Priors CSV for methods that use one (see `radioloc methods`).")] = None,
     calibration: Annotated[Optional[Path], typer.Option(help="Calibration file for methods that use one.")] = None,
     option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Method option key=value (repeatable).")] = None,
     smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf); with --reference also the error against time.")] = None,
+    reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (one is drawn on standard error when a run lasts more than 2 s).")] = False,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
-    Output: CSV with time, node, x, y and, where the method has one, uncertainty_m
-    (square root of the trace of the position covariance, metres).
+    Output: one row per (time, node), sorted by time then node: time, node, x, y[, z] and,
+    where the method has them, uncertainty_m (square root of the trace of the position
+    covariance, metres), the covariance columns cov_xx, cov_xy, cov_yy[, cov_xz, cov_yz,
+    cov_zz] (m^2) and per-row flags (gated: ranges refused by the gate; restart: the track
+    starts again after a gap; p_nlos: largest NLOS probability of the row's ranges). The
+    same input and options always give the same output (the particle filter's seed is 0
+    unless -o seed=N).
     """
+    import json
+
     from radioloc.io.logs import (check_output_path, read_anchors, read_measurements,
-                                  subtract_anchor_bias, write_estimates)
+                                  read_reference, subtract_anchor_bias)
     from radioloc.locate.base import LocateRequest, run_method
+    from radioloc.locate.export import output_format, write_output
+    from radioloc.locate.plot import check_plot_path, plot_locate
+    from radioloc.locate.progress import show_progress
+    from radioloc.locate.scoring import error_lines, error_summary, reference_errors
 
     check_output_path(out)
+    fmt = output_format(out, format)
+    if plot is not None:
+        check_plot_path(plot)
+        check_output_path(plot)
     opts = _parse_options(option)
     if smooth:
         if opts.get("smooth", "1").lower() in ("0", "false", "no", "off"):
@@ -320,6 +339,7 @@ def locate(
         opts["smooth"] = "1"
     with numeric_errors_raise():
         anchor_table = read_anchors(anchors) if anchors is not None else None
+        ref_table = read_reference(reference) if reference is not None else None
         nd = opts.get("not_detected")
         try:
             nd = None if nd is None else float(nd)
@@ -328,10 +348,46 @@ def locate(
         meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                       not_detected=nd), anchor_table)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
-        estimates = run_method(method, request)
-    write_estimates(estimates, out)
-    if out is not None and str(out) != "-":
-        _echo_err(f"wrote {out}")
+        with show_progress(not quiet):
+            estimates = run_method(method, request)
+        errors = None if ref_table is None else reference_errors(estimates, ref_table)
+    to_stdout = out is None or str(out) == "-"
+    written = write_output(estimates, out, fmt, anchor_table)
+    summary = {"method": method, "options": dict(sorted(opts.items())),
+               "measurements": str(measurements), "rows_read": int(len(meas)),
+               "rows_out": int(len(estimates)), **estimates.attrs.get("summary", {})}
+    if errors is not None:
+        summary["reference"] = error_summary(errors, len(estimates))
+        for line in error_lines(summary["reference"]):
+            (_echo_err if to_stdout else console.print)(line, **({} if to_stdout else
+                                                                {"markup": False,
+                                                                 "highlight": False}))
+    if plot is not None:
+        plot_locate(estimates, plot, anchors=anchor_table, reference=ref_table, errors=errors,
+                    title=f"radioloc locate --method {method}: {Path(measurements).name}")
+        written.append(plot)
+    if not to_stdout and Path(out).is_file():          # not a device such as /dev/stdout
+        target = Path(out).with_name(Path(out).stem + ".summary.json")
+        text = json.dumps(summary, indent=1, default=_json_default) + "\n"
+        from radioloc.core.atomic import atomic_write_with
+
+        atomic_write_with(target, lambda f: f.write(text))
+        written.insert(len(written) - (plot is not None), target)
+    for path in written:
+        _echo_err(f"wrote {path}")
+
+
+def _json_default(value: Any) -> Any:
+    """JSON for NumPy scalars in a locate summary."""
+    import numpy as np
+
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    raise TypeError(f"not JSON: {type(value).__name__}")
 
 
 @app.command()

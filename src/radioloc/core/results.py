@@ -241,6 +241,74 @@ class Track:
                 diag[k] = np.take(v, step, axis=nb)
         return Estimate(self.position[..., step, :], cov, t, diag)
 
+    def __getitem__(self, index: Any) -> "Track":
+        """Select runs (batch entries); the time and coordinate axes are kept.
+
+        ``track[i]`` is run ``i`` as a :class:`Track`, with its covariance, times and the
+        diagnostics whose leading axes are the batch's.
+        """
+        if not self.batch_shape:
+            raise InputError("Track: a single run has no batch axis to index")
+        idx = index if isinstance(index, tuple) else (index,)
+        nb = len(self.batch_shape)
+        cov = None if self.covariance is None else self.covariance[idx]
+        time = self.time[idx] if self.time.ndim > 1 else self.time
+        diag = {}
+        for k, v in self.diagnostics.items():
+            v = np.asarray(v)
+            if v.shape[:nb] == self.batch_shape:
+                diag[k] = v[idx]
+        return Track(self.position[idx], cov, time, diag)
+
+    def to_frame(self, names: Any = None):
+        """The track as the table ``radioloc locate`` writes: one row per (step, run).
+
+        Parameters
+        ----------
+        names : sequence, optional
+            A name per run (the ``node`` column), for a track with one batch axis; default
+            the run index (column ``run``).
+
+        Returns
+        -------
+        pandas.DataFrame
+            ``time, node`` (or ``run``), ``x, y[, z]`` and, with a covariance,
+            ``uncertainty_m`` and ``cov_xx, cov_xy, cov_yy[, cov_xz, cov_yz, cov_zz]``; rows
+            sorted by time, then run (time-major, as the command line).
+
+        Raises
+        ------
+        InputError
+            ``names`` does not give one name per run, or the track has more than one batch
+            axis and ``names`` is given.
+        """
+        import pandas as pd
+
+        T, D = self.steps, self.dim
+        runs = int(np.prod(self.batch_shape)) if self.batch_shape else 1
+        pos = self.position.reshape(runs, T, D)
+        time = np.broadcast_to(self.time, self.batch_shape + (T,)).reshape(runs, T)
+        if names is None:
+            label, ids = "run", np.arange(runs)
+        else:
+            ids = np.asarray(list(names), dtype=object)
+            if len(self.batch_shape) > 1 or ids.shape != (runs,):
+                raise InputError(f"names: expected {runs} names (one per run of a track with "
+                                 f"one batch axis), got {ids.size}")
+            label = "node"
+        out = pd.DataFrame({"time": time.T.ravel(), label: np.tile(ids, T)})
+        for k, c in enumerate("xyz"[:D]):
+            out[c] = pos[:, :, k].T.ravel()
+        if self.covariance is not None:
+            cov = np.swapaxes(self.covariance.reshape(runs, T, D, D), 0, 1).reshape(-1, D, D)
+            out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+            for name, (i, j) in (("cov_xx", (0, 0)), ("cov_xy", (0, 1)), ("cov_yy", (1, 1)),
+                                 ("cov_xz", (0, 2)), ("cov_yz", (1, 2)), ("cov_zz", (2, 2))):
+                if i < D and j < D:
+                    out[name] = cov[:, i, j]
+        order = np.argsort(out["time"].to_numpy(), kind="stable")   # time-major, runs kept
+        return out.iloc[order].reset_index(drop=True)
+
     def error(self, truth: np.ndarray) -> np.ndarray:
         """Euclidean position error ``(..., T)`` against ``truth`` ``(..., T, D)``."""
         truth = np.asarray(truth, dtype=float)

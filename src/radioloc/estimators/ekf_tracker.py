@@ -53,7 +53,8 @@ class RangeEKF(RecursiveEstimator):
         ``nu_m^2 / S_mm`` (``S = H P H' + R`` before the update) exceeds ``gate`` is
         treated as absent (an outlier), and counted in ``diagnostics['gated']``. E.g.
         ``gate=9`` drops ranges more than three predicted standard deviations off.
-        Default: no gating.
+        Default 16 (four standard deviations), the gate of ``radioloc locate --method
+        ekf-track``; ``None``: no gating (a filter as published without one).
     gate_patience : int
         In :meth:`run`, after this many consecutive steps in which every range was gated,
         the next step's ranges are taken ungated, so that a filter that has lost the node
@@ -76,7 +77,7 @@ class RangeEKF(RecursiveEstimator):
     name = "ekf-track"
 
     def __init__(self, motion, measurement, anchors=None, height_m: float | None = None,
-                 range_bias_m: float = 0.0, gate: float | None = None,
+                 range_bias_m: float = 0.0, gate: float | None = 16.0,
                  gate_patience: int = 10) -> None:
         for attr in ("F", "Q", "dim", "state_dim"):
             if not hasattr(motion, attr):

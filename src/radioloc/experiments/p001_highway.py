@@ -251,8 +251,8 @@ class HighwayExperiment(Experiment):
                 frames.append(_frame(case, case_runs, "ml", sub, ml, truth[:, :, sub]))
                 frames.append(_frame(case, case_runs, "ml_local", sub, local, truth[:, :, sub]))
                 frames.append(_frame(case, case_runs, "ransac", sub, rs, truth[:, :, sub]))
-                ekf = run_peer_ekf(RangeEKF(InputDriven(c.ins_std_m), model), data.ranges,
-                                   data.truth[:, :, 0], init_std_m=c.init_std_m,
+                ekf = run_peer_ekf(RangeEKF(InputDriven(c.ins_std_m), model, gate=None),
+                                   data.ranges, data.truth[:, :, 0], init_std_m=c.init_std_m,
                                    anchors=data.anchors, controls=data.ins)
                 frames.append(_frame(case, case_runs, "ekf", all_steps, ekf.position, truth))
         return pd.concat(frames, ignore_index=True)

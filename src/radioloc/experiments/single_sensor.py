@@ -138,7 +138,8 @@ def _trackers(config, accel_var):
         "blue_printed_eq14": ClosedFormTracker(accel_var, xi, printed_eq14=True, **common),
         "blue_k0": ClosedFormTracker(accel_var, xi, reference_index=0, **moments, **common),
         "newton": NewtonTracker(**common),
-        "ekf": RangeEKF(ConstantVelocity(accel_var), GaussianRange(float(np.sqrt(xi)))),
+        "ekf": RangeEKF(ConstantVelocity(accel_var), GaussianRange(float(np.sqrt(xi))),
+                        gate=None),
     }
 
 

@@ -5,9 +5,11 @@ from radioloc.io.logs import (
     LIMITS,
     check_kinds,
     check_output_path,
+    range_arrays,
     read_cells,
     read_anchors,
     read_measurements,
+    read_reference,
     write_estimates,
 )
 
@@ -15,4 +17,4 @@ from radioloc.io.hanyang import authors_reference, authors_rmse, authors_window,
 from radioloc.io.ujiindoorloc import UjiScans, load_split, read_scans
 
 __all__ = ["authors_rmse", "authors_window", "authors_reference", "measurement_rows", "UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
-           "read_measurements", "read_table_text", "write_estimates", "write_table"]
+           "range_arrays", "read_measurements", "read_reference", "read_table_text", "write_estimates", "write_table"]

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.locate.table import order_rows
 
 INPUTS = ("anchors", "priors", "calibration")
 _TRUE = ("1", "true", "yes", "on")
@@ -317,13 +318,19 @@ def _check_output(name: str, out: pd.DataFrame) -> None:
     missing = [c for c in ("time", "node", "x", "y") if c not in out.columns]
     if missing:  # a method bug, not a user error
         raise RuntimeError(f"method {name} returned no column(s) {missing}")
-    value_cols = [c for c in out.columns if c in ("x", "y", "z", "uncertainty_m")]
+    value_cols = [c for c in out.columns
+                  if c in ("x", "y", "z", "uncertainty_m") or c.startswith("cov_")]
     values = out[value_cols].to_numpy(dtype=float)
     bad = ~np.isfinite(values)
     if bad.any():
         i, j = (int(v) for v in np.argwhere(bad)[0])
         raise RuntimeError(f"method {name} produced a non-finite {value_cols[j]} for node "
                            f"{out['node'].iloc[i]!r} at time {out['time'].iloc[i]!r}")
+    twice = out.duplicated(["time", "node"])
+    if twice.any():
+        i = int(np.flatnonzero(twice.to_numpy())[0])
+        raise RuntimeError(f"method {name} returned two rows for node {out['node'].iloc[i]!r} "
+                           f"at time {out['time'].iloc[i]!r}")
 
 
 def methods() -> dict[str, LocateMethod]:
@@ -352,7 +359,10 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        ``time, node, x, y[, z][, uncertainty_m]``, every value finite.
+        ``time, node, x, y[, z][, uncertainty_m, cov_*][, flags]``, every value finite, one
+        row per ``(time, node)``, sorted by time then node (nodes in the order they first
+        appear in the measurements); ``attrs["summary"]``: what the method reports about
+        the run (counts, fitted parameters, seed), a dict of JSON values.
 
     Raises
     ------
@@ -367,4 +377,7 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     check_request(known[name], request)
     out = known[name].fn(request)
     _check_output(name, out)
+    summary = dict(out.attrs.get("summary", {}))
+    out = order_rows(out, list(dict.fromkeys(request.measurements["node"])))
+    out.attrs["summary"] = summary
     return out

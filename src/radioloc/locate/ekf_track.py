@@ -28,7 +28,10 @@ import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.io.logs import range_arrays
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import progress
+from radioloc.locate.table import add_covariance
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import GaussianRange
 
@@ -58,7 +61,8 @@ def motion_model(kind: str, q: float, dim: int):
 def range_rows(request: LocateRequest, method: str):
     """Ranges to anchors as one ``(T, M)`` array per node (NaN: no range at that time).
 
-    Duplicate ``(time, node, peer)`` measurements are averaged.
+    Duplicate ``(time, node, peer)`` measurements are averaged
+    (:func:`radioloc.io.range_arrays`); nodes in the order of their names.
 
     Parameters
     ----------
@@ -73,19 +77,13 @@ def range_rows(request: LocateRequest, method: str):
     """
     table = request.require_anchors(method)
     rows = request.kind("range", method)
-    rows = rows[rows["peer"].isin(set(table["id"]))]
-    if rows.empty:
+    if not rows["peer"].isin(set(table["id"])).any():
         raise GeometryError(f"method {method}: no range to an anchor in the measurements")
-    dims = ["x", "y"] + (["z"] if "z" in table.columns else [])
-    anchors = table[dims].to_numpy(dtype=float)
-    index = {a: i for i, a in enumerate(table["id"])}
-    rows = rows.groupby(["node", "time", "peer"], sort=True, as_index=False)["value"].mean()
+    times, anchors, ranges, nodes = range_arrays(rows, table)
     out = []
-    for node, grp in rows.groupby("node", sort=True):
-        times, t_idx = np.unique(grp["time"].to_numpy(dtype=float), return_inverse=True)
-        R = np.full((times.size, len(anchors)), np.nan)
-        R[t_idx, grp["peer"].map(index).to_numpy()] = grp["value"].to_numpy(dtype=float)
-        out.append((node, times, R))
+    for n in np.argsort(nodes, kind="stable"):
+        has = np.isfinite(ranges[:, n]).any(axis=-1)
+        out.append((nodes[n], times[has], ranges[has, n]))
     return anchors, out
 
 
@@ -254,24 +252,61 @@ def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, sm
     return ekf.run(R, times, prior_mean=start, prior_cov=np.diag(var), smooth=smooth)
 
 
-def track_table(node, times, track) -> pd.DataFrame:
-    """Rows ``time, node, x, y[, z], uncertainty_m`` of one node's track.
+def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
+    """Rows ``time, node, x, y[, z], uncertainty_m, cov_*`` and flags of one node's track.
 
     Parameters
     ----------
     node : str
     times : ndarray, shape (T,)
     track : Track
+        With ``diagnostics["gated"]`` (ranges refused by the gate at each step) and
+        ``diagnostics["p_nlos"]`` when the tracker has them.
+    restart : bool
+        The track starts again after a gap (flag ``restart`` on its first row).
 
     Returns
     -------
     DataFrame
+        Flags: ``gated`` (int), ``restart`` (0/1), ``p_nlos`` where known.
     """
     out = pd.DataFrame({"time": times, "node": node})
     for k, c in enumerate("xyz"[: track.position.shape[-1]]):
         out[c] = track.position[:, k]
-    out["uncertainty_m"] = np.sqrt(np.trace(track.covariance, axis1=-2, axis2=-1))
+    out = add_covariance(out, track.covariance)
+    if "gated" in track.diagnostics:
+        out["gated"] = np.asarray(track.diagnostics["gated"], dtype=np.int64)
+    flag = np.zeros(len(times), dtype=np.int64)
+    flag[:1] = int(restart)
+    out["restart"] = flag
+    if "p_nlos" in track.diagnostics:
+        out["p_nlos"] = np.asarray(track.diagnostics["p_nlos"], dtype=float)
     return out
+
+
+def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
+    """Counts of a tracker's run for ``summary.json``.
+
+    Parameters
+    ----------
+    tables : list of DataFrame
+        From :func:`track_table`.
+    per_node : list of (node, times, ranges)
+        From :func:`range_rows`.
+    **extra
+        Further entries.
+
+    Returns
+    -------
+    dict
+        ``nodes``, ``ranges`` (to anchors, after averaging duplicates), ``ranges_gated``,
+        ``steps``, ``restarts`` and ``extra``.
+    """
+    frame = pd.concat(tables, ignore_index=True)
+    return {"nodes": len(per_node),
+            "ranges": int(sum(np.isfinite(R).sum() for _, _, R in per_node)),
+            "ranges_gated": int(frame["gated"].sum()) if "gated" in frame else 0,
+            "steps": len(frame), "restarts": int(frame["restart"].sum()), **extra}
 
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its ranges to "
@@ -289,21 +324,28 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        ``time, node, x, y[, z], uncertainty_m``: one row per time stamp at which the node
-        has a range to an anchor (the filtered state, or the smoothed one with
-        ``smooth=1``).
+        ``time, node, x, y[, z], uncertainty_m``, covariance columns, flags ``gated``
+        (ranges refused by the gate) and ``restart`` (first row after a gap): one row per
+        time stamp at which the node has a range to an anchor (the filtered state, or the
+        smoothed one with ``smooth=1``).
     """
     anchors, per_node = range_rows(request, "ekf-track")
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
     std = request.option("range_std_m", 0.15)
     tables = []
-    for node, times, R in per_node:
-        for seg in segments(times, s["max_gap_s"]):
-            try:
-                track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
-            except GeometryError as exc:
-                raise GeometryError(f"method ekf-track: node {node!r} from time "
-                                    f"{float(times[seg][0])!r}: {exc}") from None
-            tables.append(track_table(node, times[seg], track))
-    return pd.concat(tables, ignore_index=True)
+    parts = [(node, times, R, segments(times, s["max_gap_s"])) for node, times, R in per_node]
+    with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
+        for node, times, R, segs in parts:
+            for n, seg in enumerate(segs):
+                try:
+                    track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
+                except GeometryError as exc:
+                    raise GeometryError(f"method ekf-track: node {node!r} from time "
+                                        f"{float(times[seg][0])!r}: {exc}") from None
+                tables.append(track_table(node, times[seg], track, restart=n > 0))
+                bar.advance()
+    out = pd.concat(tables, ignore_index=True)
+    out.attrs["summary"] = track_summary(tables, per_node, range_std_m=std,
+                                         gate=gate or 0.0)
+    return out

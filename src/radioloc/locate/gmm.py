@@ -48,6 +48,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.table import add_covariance
 from radioloc.models.fingerprint_mixture import FingerprintMixture
 from radioloc.models.mixture_calibration import em_calibration
 from radioloc.models.motion import UniformDisk
@@ -311,7 +312,7 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
             est = MixtureLocalizer(models, kmax).locate(meas)
             mean, cov = est.position, est.covariance
     out["x"], out["y"] = mean[:, 0], mean[:, 1]
-    out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    out = add_covariance(out, cov)
     out["stations_ignored"] = ignored.reindex(
         pd.MultiIndex.from_frame(out[["node", "time"]]), fill_value=0).to_numpy()
     for name, values in extra.items():

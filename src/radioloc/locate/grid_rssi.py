@@ -24,6 +24,7 @@ from radioloc.core.errors import InputError
 from radioloc.locate.gmm import _offset_option
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.table import add_covariance
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
 
 
@@ -55,7 +56,9 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        One row per ``(time, node)`` epoch: ``time, node, x, y, uncertainty_m``.
+        One row per ``(time, node)`` epoch: ``time, node, x, y, uncertainty_m``
+        (GetUncertainty, Algorithm 3) and the covariance columns (the grid's covariance
+        about its mean).
     """
     if request.calibration is None:
         raise InputError("method grid-rssi: needs a trapezoid model JSON file (--calibration)")
@@ -130,7 +133,9 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
         if done.any():
             est = filt.estimate(state[done])
             idx = np.flatnonzero(done)
-            out.append(pd.DataFrame({"time": t_of[idx, j], "node": [nodes[i] for i in idx],
-                                     "x": est.position[:, 0], "y": est.position[:, 1],
-                                     "uncertainty_m": est.diagnostics["uncertainty_m"]}))
+            rows = add_covariance(pd.DataFrame({
+                "time": t_of[idx, j], "node": [nodes[i] for i in idx],
+                "x": est.position[:, 0], "y": est.position[:, 1]}), est.covariance)
+            rows["uncertainty_m"] = est.diagnostics["uncertainty_m"]   # Algorithm 3
+            out.append(rows)
     return pd.concat(out, ignore_index=True).sort_values(["time", "node"]).reset_index(drop=True)

@@ -7,7 +7,8 @@ and variance, optionally an anchors CSV (anchors become nodes with prior varianc
 
 The rows with the same ``(time, node)`` form one packet: ``node`` is the master and its
 ranges to the peers update the estimates (missing peers are missing links). Packets are
-processed in time order; after each packet every node's estimate is reported at that time.
+processed in time order; after the last packet of each time stamp every node's estimate is
+reported at that time (one row per time and node).
 
 Options (``-o key=value``): ``range_std_m`` (range noise standard deviation, default 30 m;
 EKF only), ``forgetting`` (RLS lambda, default 1), ``anchor_var_m2``.
@@ -27,6 +28,7 @@ from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.io.priors import read_node_priors
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.table import add_covariance
 
 
 @dataclass
@@ -100,16 +102,22 @@ def _network(request: LocateRequest, method: str) -> _Network:
                     packets["node"].map(index).to_numpy(), ranges, np.isfinite(ranges))
 
 
-def _report(net: _Network, estimates: list[np.ndarray], sigma: list[np.ndarray] | None
+def _report(net: _Network, estimates: list[np.ndarray], covariances: list[np.ndarray] | None
             ) -> pd.DataFrame:
+    """Every reported node's estimate after the last packet of each time stamp (packets of
+    one time stamp from several masters give one row per node, not one per packet)."""
     K = len(net.ids)
-    pos = np.stack(estimates)                               # (P, K, 2)
-    keep = np.broadcast_to(net.reported, (len(net.times), K))
-    out = pd.DataFrame({"time": np.repeat(net.times, K)[keep.ravel()],
-                        "node": np.tile(np.array(net.ids, dtype=object), len(net.times))[keep.ravel()],
+    last = np.append(net.times[1:] != net.times[:-1], True)           # last packet of a time
+    pos = np.stack(estimates)[last]                                   # (P', K, 2)
+    times = net.times[last]
+    keep = np.broadcast_to(net.reported, (len(times), K))
+    out = pd.DataFrame({"time": np.repeat(times, K)[keep.ravel()],
+                        "node": np.tile(np.array(net.ids, dtype=object), len(times))[keep.ravel()],
                         "x": pos[..., 0][keep], "y": pos[..., 1][keep]})
-    if sigma is not None:
-        out["uncertainty_m"] = np.stack(sigma)[keep]
+    if covariances is not None:
+        out = add_covariance(out, np.stack(covariances)[last][keep])
+    out.attrs["summary"] = {"packets": int(len(net.times)), "nodes": int(net.reported.sum()),
+                            "ranges": int(net.masks.sum())}
     return out
 
 
@@ -135,7 +143,7 @@ def locate_rls(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``time, node, x, y``: every node's estimate after each packet.
+        Columns ``time, node, x, y``: every node's estimate after each time stamp's packets.
     """
     net = _network(request, "rls")
     rls = NetworkRLS(forgetting=request.option("forgetting", 1.0))
@@ -169,16 +177,17 @@ def locate_ekf(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Columns ``time, node, x, y, uncertainty_m`` after each packet.
+        Columns ``time, node, x, y, uncertainty_m`` and the covariance columns after each
+        time stamp's packets.
     """
     net = _network(request, "ekf")
     std = check_positive(request.option("range_std_m", 30.0), "range_std_m")
     ekf = NetworkEKF(range_var_m2=std**2)
     state = ekf.init(net.prior_mean, net.prior_var)
-    estimates, sigma = [], []
+    estimates, covariances = [], []
     for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order
         state = ekf.step(state, np.array([m]), rho[None], mask[None])
         est = ekf.estimate(state)
         estimates.append(est.position[0])
-        sigma.append(est.uncertainty_m[0])
-    return _report(net, estimates, sigma)
+        covariances.append(est.covariance[0])
+    return _report(net, estimates, covariances)

@@ -23,17 +23,30 @@ sight plus the mixture's variance) is skipped, causally; after 10 steps with eve
 skipped the next is taken. Ranges much too short (metres) occur in real logs and have no
 component in the LOS/NLOS mixture.
 
-The start: the grid-search start of ``ekf-track`` with spread ``prior_std_m``; a gap longer
-than ``max_gap_s`` starts a new track (and a new EM fit), as in ``ekf-track``.
+The start (:func:`start_state`): the particles are drawn from the state, position and
+velocity, of the RTS-smoothed ``ekf-track`` over the first ``init_s`` seconds (at least
+``START_STEPS`` steps; its own start is the grid search of ``ekf-track`` with spread
+``prior_std_m``) at the first step, covariance inflated by ``START_INFLATION``. A start
+velocity drawn from a prior of metres per second would leave a few particles near the ranges
+of the next step (four ranges of 0.15 m against a spread of metres), and the filter would
+jump. A gap longer than ``max_gap_s`` starts a new track (and a new EM fit), as in
+``ekf-track``.
 
-Smoother (``-o smooth=1``): fixed-lag by default. The estimate at step ``k`` is the mean,
-over the particles of step ``k + lag``, of their ancestors at step ``k`` (followed back
-through the resampling indices), so it uses ``lag`` later steps; the last ``lag`` steps use
-what there is. ``-o smoother=backward``: backward simulation over the whole segment
+Seed: the particle draws come from ``numpy.random.default_rng(seed)``, ``seed`` 0 unless
+given, so that the same log and options always give the same output.
+
+Smoother (``-o smooth=1``): backward simulation over the whole segment by default
 (:func:`radioloc.estimators.pf_smoother.backward_simulation`, ``trajectories`` draws).
+``-o smoother=fixed-lag``: the estimate at step ``k`` is the mean, over the particles of step
+``k + lag``, of their ancestors at step ``k`` (followed back through the resampling
+indices); the lag of a step is shortened where resampling has left fewer than
+``MIN_ANCESTORS`` distinct ancestors (see :func:`fixed_lag`), otherwise the smoothed set
+collapses onto one particle and claims a covariance of zero.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pandas as pd
@@ -44,6 +57,7 @@ from radioloc.estimators.los_nlos_em import fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import progress
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
@@ -52,6 +66,7 @@ from radioloc.locate.ekf_track import (
     run_ekf,
     segments,
     start_position,
+    track_summary,
     track_table,
     tracker_settings,
 )
@@ -60,6 +75,16 @@ from radioloc.models.los_nlos import LosNlosRange
 #: Residuals further than this many robust standard deviations from their median are left
 #: out of the EM fit.
 TRIM = 20.0
+#: Fewest steps of the start window of :func:`start_state`.
+START_STEPS = 3
+#: Factor on the covariance of the start state.
+START_INFLATION = 4.0
+#: Reset rule of the filter: fewer distinct particles than this fraction after resampling
+#: (paper 001's 0.05 resets a well-placed filter whenever four ranges of 0.15 m meet a
+#: prediction spread of half a metre).
+RESET_FRACTION = 0.01
+#: Distinct ancestors the fixed-lag smoother keeps at each step (see :func:`fixed_lag`).
+MIN_ANCESTORS = 20
 #: Steps whose every range was gated after which the next step is taken ungated.
 GATE_PATIENCE = 10
 
@@ -73,17 +98,51 @@ OPTIONS.update({
     "alpha": Option("LOS fraction (default: EM on the log)", float, min=0, max=1),
     "particles": Option("particles per node (default 900)", int, min=1, max=10**6),
     "smooth": Option("1: smoothed track (offline; see `smoother`)", bool),
-    "smoother": Option("with smooth=1: 'fixed-lag' (default; ancestors over `lag` later "
-                       "steps) or 'backward' (backward simulation over the whole log)", str,
+    "smoother": Option("with smooth=1: 'backward' (default; backward simulation over the "
+                       "whole log) or 'fixed-lag' (ancestors over `lag` later steps)", str,
                        choices=("fixed-lag", "backward")),
     "lag": Option("steps of the fixed-lag smoother (default 20)", int, min=1, max=10**6),
     "trajectories": Option("backward trajectories of smoother=backward (default 100)", int,
                            min=1, max=10**5),
     "min_los_std_m": Option("floor of the EM-fitted s_LOS, m (default 0.15; see the module "
                             "docstring)", float, min=0, min_exclusive=True, max=1e6),
-    "seed": Option("seed of the particle draws (default: fresh entropy)", int, min=0,
+    "seed": Option("seed of the particle draws (default 0: the same output every run)", int,
+                   min=0,
                    max=2**63 - 1),
 })
+
+
+def start_state(times, R, anchors, s: dict, model: LosNlosRange, bias: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the particles' start state (position and velocity).
+
+    The smoothed :func:`run_ekf` track over the start window (the first ``init_s`` seconds,
+    at least ``START_STEPS`` steps) at its first step, with range error ``s_LOS``: the same
+    ranges that fix the grid-search start position, now also fixing the start velocity.
+    Its covariance is inflated by ``START_INFLATION`` (the EKF ignores NLOS excess).
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    R : ndarray, shape (T, M)
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`radioloc.locate.ekf_track.tracker_settings`.
+    model : LosNlosRange
+    bias : float
+        Range bias, m.
+
+    Returns
+    -------
+    mean : ndarray, shape (n,)
+    covariance : ndarray, shape (n, n)
+    """
+    n = max(int(np.searchsorted(times, times[0] + s["init_s"], side="right")),
+            min(START_STEPS, times.size))
+    track = run_ekf(times[:n], R[:n], anchors, dict(s, bias=bias), model.los_std_m, 16.0,
+                    smooth=True)
+    cov = START_INFLATION * track.diagnostics["state_covariance"][0]
+    return track.diagnostics["state"][0], 0.5 * (cov + cov.T)
 
 
 def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
@@ -137,13 +196,15 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
         Resampling indices of each step: particle ``j`` of step ``s`` descends from particle
         ``ancestors[s][j]`` of step ``s - 1``.
     lag : int
-        Later steps used.
+        Later steps used at most: the lag of step ``k`` is halved until the particles of
+        step ``k + lag`` descend from at least ``MIN_ANCESTORS`` distinct particles of step
+        ``k`` (or as many as survive the next resampling), so that resampling does not
+        collapse the smoothed set onto one ancestor (a covariance of zero).
 
     Returns
     -------
     mean : ndarray, shape (T, n)
-        Mean over the particles of step ``min(k + lag, T - 1)`` of their ancestors at step
-        ``k``.
+        Mean over the particles of step ``k + lag_k`` of their ancestors at step ``k``.
     covariance : ndarray, shape (T, n, n)
         Their covariance.
     """
@@ -151,10 +212,16 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
     out = np.empty((T, history[0].shape[-1]))
     cov = np.empty((T, history[0].shape[-1], history[0].shape[-1]))
     for k in range(T):
-        end = min(k + lag, T - 1)
-        j = np.arange(history[end].shape[0])
-        for s_ in range(end, k, -1):
-            j = ancestors[s_][j]
+        own = np.unique(ancestors[k + 1]).size if k + 1 < T else history[k].shape[0]
+        need = min(MIN_ANCESTORS, own)
+        L = min(lag, T - 1 - k)
+        while True:
+            j = np.arange(history[k + L].shape[0])
+            for s_ in range(k + L, k, -1):
+                j = ancestors[s_][j]
+            if L == 0 or np.unique(j).size >= need:
+                break
+            L //= 2
         pts = history[k][j]
         out[k] = pts.mean(axis=0)
         dev = pts - out[k]
@@ -183,7 +250,7 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     if not request.option("smooth", False, bool):
         want = "filtered"
     else:
-        want = request.option("smoother", "fixed-lag", str)
+        want = request.option("smoother", "backward", str)
     return pf_tracks(request, (want,))[want]
 
 
@@ -213,55 +280,77 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
         raise InputError("method pf: tracks 2-D positions; with 3-D anchors give the node "
                          "height (-o tag_height_m=H)")
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
-    seed = request.option("seed", None, int)
+    seed = request.option("seed", 0, int)
     rng = np.random.default_rng(seed)
     particles = request.option("particles", 900, int)
     lag = request.option("lag", 20, int)
     trajectories = request.option("trajectories", 100, int)
     gate = request.option("gate", 16.0) or None
     tables = {k: [] for k in outputs}
-    for node, times, R in per_node:
-        parts = segments(times, s["max_gap_s"])
-        try:
-            if any(g is None for g in given):
-                model, bias, _ = fit_model(times, R, anchors, s, parts)
-                floor = request.option("min_los_std_m", 0.15)
-                if model.los_std_m < floor:
-                    model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
-                if "range_bias_m" in request.parsed:
-                    bias = s["bias"]
-            else:
-                model, bias = LosNlosRange(*given), s["bias"]
-            for seg in parts:
-                tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
-                                 gate, outputs, lag, trajectories)
-                for k, track in tracks.items():
-                    tables[k].append(track_table(node, times[seg], track))
-        except GeometryError as exc:
-            raise GeometryError(f"method pf: node {node!r}: {exc}") from None
-    return {k: pd.concat(v, ignore_index=True) for k, v in tables.items()}
+    fitted, resets = [], [0]
+    with progress(sum(t.size for _, t, _ in per_node), "pf: steps") as bar:
+        for node, times, R in per_node:
+            _track_node(request, node, times, R, anchors, s, given, particles, rng, gate,
+                        outputs, lag, trajectories, resets, fitted, tables, bar)
+    result = {}
+    for k, v in tables.items():
+        result[k] = pd.concat(v, ignore_index=True)
+        result[k].attrs["summary"] = track_summary(
+            v, per_node, seed=seed, particles=particles, filter_resets=resets[0],
+            smoother=None if k == "filtered" else k, model=fitted)
+    return result
+
+
+def _track_node(request, node, times, R, anchors, s, given, particles, rng, gate, outputs, lag,
+                trajectories, resets, fitted, tables, bar) -> None:
+    """One node's tracks, appended to ``tables``; its model to ``fitted``."""
+    parts = segments(times, s["max_gap_s"])
+    try:
+        if any(g is None for g in given):
+            model, bias, _ = fit_model(times, R, anchors, s, parts)
+            floor = request.option("min_los_std_m", 0.15)
+            if model.los_std_m < floor:
+                model = LosNlosRange(floor, model.nlos_mean_m, model.alpha)
+            if "range_bias_m" in request.parsed:
+                bias = s["bias"]
+        else:
+            model, bias = LosNlosRange(*given), s["bias"]
+        fitted.append({"node": node, "los_std_m": model.los_std_m,
+                       "nlos_mean_m": model.nlos_mean_m, "alpha": model.alpha,
+                       "range_bias_m": float(bias),
+                       "fitted": any(g is None for g in given)})
+        for n, seg in enumerate(parts):
+            tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
+                             gate, outputs, lag, trajectories, resets, bar)
+            for k, track in tracks.items():
+                tables[k].append(track_table(node, times[seg], track, restart=n > 0))
+    except GeometryError as exc:
+        raise GeometryError(f"method pf: node {node!r}: {exc}") from None
 
 
 def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, lag,
-            trajectories) -> dict[str, Track]:
+            trajectories, resets: list[int], bar) -> dict[str, Track]:
     """One node's particle-filter tracks over one segment (see the module docstring)."""
-    xy0 = start_position(times, R, anchors, s["height"], bias, s["init_s"])
     r = R - bias
     if anchors.shape[1] == 3:
         dz = s["height"] - anchors[:, 2]
         r = np.where(np.isfinite(r), np.sqrt(np.maximum(r * r - dz * dz, 0.0)), np.nan)
     motion = motion_model(s["motion"], s["q"], 2)
-    init_std = np.full(motion.state_dim, 3.0)
-    init_std[:2] = s["prior_std"]
-    pf = P2PParticleFilter(motion, model, particles=particles, init_std=init_std)
+    mean0, cov0 = start_state(times, R, anchors, s, model, bias)
+    pf = P2PParticleFilter(motion, model, particles=particles, reset_fraction=RESET_FRACTION,
+                           init_std=np.sqrt(np.diagonal(cov0)))
     rows = np.concatenate([np.full((len(times), 1), np.nan), r], axis=1)[None]  # (1, T, 1+M)
     nodes = np.concatenate([np.zeros((1, 2)), anchors[:, :2]], axis=0)          # (1+M, 2)
     dts = np.diff(times, prepend=times[0])
-    state = pf.init(xy0[None], rng, time=times[0])
+    state = pf.init(mean0[None], rng, time=times[0])
+    draws = mean0 + rng.standard_normal((particles, mean0.size)) @ np.linalg.cholesky(cov0).T
+    state = dataclasses.replace(state, particles=draws[None], covariance=cov0[None].copy())
     means, covs, history, ancestors = [], [], [], []
     keep = "fixed-lag" in outputs or "backward" in outputs
     bias_m, var_m2 = model.moments()
     streak = 0
+    gated = np.zeros(len(times), dtype=np.int64)
+    p_nlos = np.zeros(len(times))
     for k in range(len(times)):
         row = rows[:, k]
         if gate and streak < GATE_PATIENCE and np.isfinite(row).any():
@@ -274,23 +363,30 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
             spread = np.einsum("...i,ij,...j->...", u, P, u) + var_m2
             out = np.isfinite(row) & ((row - d - bias_m) ** 2 > gate * spread)
             streak = streak + 1 if out.sum() == np.isfinite(row).sum() else 0
+            gated[k] = int(out.sum())
             row = np.where(out, np.nan, row)
         else:
             streak = 0
         state = pf.step(state, row, nodes, rng, dt=dts[k])
+        bar.advance()
         means.append(state.mean[0])
         covs.append(state.covariance[0])
+        used = state.links[0] >= 0
+        if used.any():   # the largest NLOS probability among the ranges used
+            p_nlos[k] = float(np.max(1.0 - state.link_los[0].mean(axis=0)[used]))
         if keep:
             history.append(state.particles[0])
             ancestors.append(state.ancestors[0])
+    flags = {"gated": gated, "p_nlos": p_nlos}
     out = {}
     if "filtered" in outputs:
         mean, cov = np.stack(means), np.stack(covs)
-        out["filtered"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["filtered"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
     if "fixed-lag" in outputs:
         mean, cov = fixed_lag(history, ancestors, lag)
-        out["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
     if "backward" in outputs:
         mean, cov = backward_simulation(history, times, motion, trajectories, rng)
-        out["backward"] = Track(mean[:, :2], cov[:, :2, :2], times)
+        out["backward"] = Track(mean[:, :2], cov[:, :2, :2], times, flags)
+    resets[0] += int(state.resets[0])
     return out

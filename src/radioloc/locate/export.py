@@ -1,0 +1,164 @@
+"""Output formats of ``radioloc locate --out``: CSV, Parquet, TUM trajectory, GeoJSON.
+
+The format is ``--format`` when given, otherwise the suffix of ``--out``: ``.parquet``,
+``.tum``, ``.geojson``; anything else is CSV.
+
+- **TUM** (the format of the TUM RGB-D benchmark, read by ``evo``): one line per estimate,
+  ``timestamp tx ty tz qx qy qz qw``, space separated, orientation the identity
+  (``0 0 0 1``), ``tz`` 0 for 2-D tracks. TUM holds one trajectory per file: with several
+  nodes, ``track.tum`` becomes ``track.<node>.tum`` for each node.
+- **GeoJSON**: a FeatureCollection with one ``LineString`` per node (properties ``node``,
+  ``rows``) and one ``Point`` per estimate (properties ``time``, ``node`` and the other
+  columns). Coordinates are written as they are, in the anchors' frame (metres), not
+  converted to longitude and latitude: give anchors in a projected frame and declare it in
+  your GIS, or convert before mapping.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.atomic import atomic_write_with
+from radioloc.core.errors import ConfigError
+from radioloc.io.logs import write_estimates
+
+FORMATS = ("csv", "parquet", "tum", "geojson")
+
+
+def output_format(path: Path | None, given: str | None) -> str:
+    """The format of ``--out path`` (``--format`` when given, else the suffix).
+
+    Parameters
+    ----------
+    path : Path or None
+        ``--out`` (None: standard output).
+    given : str or None
+        ``--format``.
+
+    Returns
+    -------
+    str
+        One of :data:`FORMATS`.
+
+    Raises
+    ------
+    ConfigError
+        An unknown format, or a binary format to standard output.
+    """
+    if given is not None:
+        fmt = given.lower()
+        if fmt not in FORMATS:
+            raise ConfigError(f"--format {given!r}: expected one of {', '.join(FORMATS)}")
+    elif path is None or str(path) == "-":
+        fmt = "csv"
+    else:
+        fmt = {".parquet": "parquet", ".tum": "tum", ".geojson": "geojson"}.get(
+            path.suffix.lower(), "csv")
+    if fmt == "parquet" and (path is None or str(path) == "-"):
+        raise ConfigError("--format parquet: needs a file (--out FILE.parquet)")
+    return fmt
+
+
+def _tum_text(frame: pd.DataFrame) -> str:
+    z = frame["z"] if "z" in frame else pd.Series(0.0, index=frame.index)
+    lines = [f"{t!r} {x!r} {y!r} {zz!r} 0 0 0 1" for t, x, y, zz in
+             zip(frame["time"].astype(float), frame["x"].astype(float),
+                 frame["y"].astype(float), z.astype(float))]
+    return "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(lines) + "\n"
+
+
+def _json_value(v):
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def geojson(frame: pd.DataFrame, anchors: pd.DataFrame | None = None) -> dict:
+    """The estimates as a GeoJSON FeatureCollection (see the module docstring).
+
+    Parameters
+    ----------
+    frame : DataFrame
+        A ``locate`` output table.
+    anchors : DataFrame, optional
+        Anchors, added as ``Point`` features with ``"anchor": id``.
+
+    Returns
+    -------
+    dict
+    """
+    dims = ["x", "y"] + (["z"] if "z" in frame else [])
+    features = []
+    for node, g in frame.groupby("node", sort=False):
+        features.append({"type": "Feature", "properties": {"node": str(node), "rows": len(g)},
+                         "geometry": {"type": "LineString",
+                                      "coordinates": g[dims].to_numpy(float).tolist()}})
+    other = [c for c in frame.columns if c not in dims]
+    for rec, xyz in zip(frame[other].to_dict("records"), frame[dims].to_numpy(float).tolist()):
+        features.append({"type": "Feature",
+                         "properties": {k: _json_value(v) for k, v in rec.items()},
+                         "geometry": {"type": "Point", "coordinates": xyz}})
+    if anchors is not None:
+        a_dims = [c for c in dims if c in anchors]
+        for aid, xyz in zip(anchors["id"], anchors[a_dims].to_numpy(float).tolist()):
+            features.append({"type": "Feature", "properties": {"anchor": str(aid)},
+                             "geometry": {"type": "Point", "coordinates": xyz}})
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
+                 anchors: pd.DataFrame | None = None) -> list[Path]:
+    """Write ``frame`` to ``path`` (None: standard output) in format ``fmt``.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        A ``locate`` output table.
+    path : Path or None
+    fmt : str
+        From :func:`output_format`.
+    anchors : DataFrame, optional
+        For GeoJSON.
+
+    Returns
+    -------
+    list of Path
+        Files written (empty for standard output).
+    """
+    stdout = path is None or str(path) == "-"
+    if fmt in ("csv", "parquet"):
+        write_estimates(frame, path)
+        return [] if stdout else [Path(path)]
+    if fmt == "geojson":
+        text = json.dumps(geojson(frame, anchors), indent=1) + "\n"
+        if stdout:
+            import sys
+            sys.stdout.write(text)
+            return []
+        atomic_write_with(path, lambda f: f.write(text))
+        return [Path(path)]
+    nodes = list(dict.fromkeys(frame["node"]))
+    if stdout:
+        if len(nodes) > 1:
+            raise ConfigError("--format tum: one trajectory per file; with several nodes give "
+                              "--out FILE.tum (one file per node)")
+        import sys
+        sys.stdout.write(_tum_text(frame))
+        return []
+    path = Path(path)
+    written = []
+    for node in nodes:
+        target = path if len(nodes) == 1 else path.with_name(f"{path.stem}.{node}{path.suffix}")
+        text = _tum_text(frame[frame["node"] == node])
+        atomic_write_with(target, lambda f, text=text: f.write(text))
+        written.append(target)
+    return written
