@@ -149,3 +149,12 @@ def test_lag_ablation_leaves_the_other_rows_unchanged():
     assert set(on_rows.method) - set(off_rows.method) == {"pf_lag_ablation"}
     kept = on_rows[on_rows.method != "pf_lag_ablation"][off_rows.columns]
     pd.testing.assert_frame_equal(kept.reset_index(drop=True), off_rows)
+
+
+def test_lag_ablation_refuses_messages_that_are_not_estimates():
+    from radioloc.core.errors import ConfigError
+
+    exp = get_experiment("p001-highway")
+    cfg = _ablation_only(exp, steps=2, particles=10, lag_ablation_messages=("given",))
+    with pytest.raises(ConfigError, match="lag_ablation_messages"):
+        exp.run_block(cfg, np.array([0]), block_generator(0, 0))

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from radioloc.core.errors import ConfigError
 from radioloc.core.metrics import error_cdf, position_error
 from radioloc.core.rng import stream
 from radioloc.estimators.ekf_ranging import run_peer_ekf
@@ -136,6 +137,10 @@ def _ablation_settings(c: HighwayConfig) -> list[tuple[float, int]]:
     """(alpha, N) of the message-lag ablation, M = 26, in order."""
     if not c.lag_ablation:
         return []
+    bad = set(c.lag_ablation_messages) - {"previous", "extrapolated"}
+    if bad:
+        raise ConfigError(f"lag_ablation_messages: {sorted(bad)} not estimated messages; "
+                          "expected 'previous' and/or 'extrapolated'")
     out = [(a, 20) for a in c.lag_ablation_alphas]
     out += [(0.30, n) for n in c.lag_ablation_vehicles if (0.30, n) not in out]
     return out
@@ -227,6 +232,7 @@ class HighwayExperiment(Experiment):
             The tidy results table (one row per method, run, step and vehicle).
         """
         c = config
+        ablation = _ablation_settings(c)            # checked before the long cases run
         frames = []
         for case in _cases(c):
             model = LosNlosRange(c.los_std_m, c.nlos_mean_m, case["alpha"])
@@ -278,17 +284,18 @@ class HighwayExperiment(Experiment):
                                    data.truth[:, :, 0], init_std_m=c.init_std_m,
                                    anchors=data.anchors, controls=data.ins)
                 frames.append(_frame(case, case_runs, "ekf", all_steps, ekf.position, truth))
-        frames += self._lag_ablation(c, runs, rng)
+        frames += self._lag_ablation(c, ablation, runs, rng)
         return pd.concat(frames, ignore_index=True)
 
     @staticmethod
-    def _lag_ablation(c: HighwayConfig, runs: np.ndarray, rng: np.random.Generator) -> list:
+    def _lag_ablation(c: HighwayConfig, settings: list, runs: np.ndarray,
+                      rng: np.random.Generator) -> list:
         """The message-lag ablation rows (after every other case, so those keep their draws):
         per setting one simulation and one filter seed shared by every reading."""
         if c.variant_runs is not None:
             runs = runs[runs < c.variant_runs]
         frames = []
-        for alpha, n_veh in _ablation_settings(c) if runs.size else []:
+        for alpha, n_veh in settings if runs.size else []:
             model = LosNlosRange(c.los_std_m, c.nlos_mean_m, alpha)
             sc = HighwayScenario(vehicles=n_veh, anchors=26, steps=c.steps, radius_m=c.radius_m,
                                  ins_std_m=c.ins_std_m, start_width_m=c.start_width_m,
