@@ -192,6 +192,7 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     assert "rmse_blue_n20" in text and "skipped" in text
     assert "cpu" not in " ".join(c["claim"] for c in json.loads(text)["claims"]).lower()
     table = pd.read_csv(folder / "results.csv")
-    assert set(table["table"]) == {"runs", "fig2", "sensitivity", "sensitivity_runs"}
+    assert set(table["table"]) == {"runs", "causal", "fig2", "sensitivity", "sensitivity_runs"}
+    assert "causal_rmse_blue" in text
     assert "traj_rmse_blue_n20" in text and "newton_diverged_frac_n20" in text
     assert (table["table"] == "fig2").sum() == 3 * (15 - 9)

@@ -110,3 +110,51 @@ def test_variant_runs_drops_the_variant_rows_of_later_runs_and_nothing_else():
     # the paper's rows of the later run are the same draws with and without the variants
     pd.testing.assert_frame_equal(later.reset_index(drop=True),
                                   every.iloc[:len(later)][later.columns].reset_index(drop=True))
+
+
+def _ablation_only(exp, **kw):
+    """The quick config with the message-lag ablation and no other row."""
+    opts = {"lag_ablation": "1", "alphas": "()", "table_d": "()", "lag_variants": "()",
+            "layout_variants": "()", "em_alphas": "()"}
+    return dataclasses.replace(exp.with_options(exp.config(False), opts), **kw)
+
+
+def test_lag_ablation_reports_every_reading_and_its_claims(tmp_path):
+    exp = get_experiment("p001-highway")
+    cfg = _ablation_only(exp, steps=6, particles=40)
+    res = exp.run_block(cfg, np.array([0]), block_generator(0, 0))
+    assert set(res.method) == {"pf_lag_ablation"}
+    summary = exp.summarize(cfg, res, tmp_path)
+    m = {x.name: x.value for x in summary.metrics}
+    names = {f"pf_mean_error_m_alpha{a}_N{n}_{v}_lag{lag}"
+             for a, n in ((5, 20), (45, 20), (30, 20), (30, 30))
+             for v in ("previous", "extrapolated") for lag in (0, 1)}
+    assert names == set(m) and all(np.isfinite(list(m.values())))
+    assert len(summary.claims) == 8 and all(c.claim.startswith("ablation (")
+                                           for c in summary.claims)
+    assert any("previous, lag 1 | previous, lag 0" in note for note in summary.notes)
+    # every reading of a setting sees the same simulated truth
+    truth = res.groupby(["alpha", "N", "messages", "message_lag"])[["x_true", "y_true"]].sum()
+    for (_, _), g in truth.groupby(level=["alpha", "N"]):
+        assert np.allclose(g.to_numpy(), g.to_numpy()[0])
+
+
+def test_lag_ablation_leaves_the_other_rows_unchanged():
+    exp = get_experiment("p001-highway")
+    cfg = dataclasses.replace(exp.config(False), steps=6, particles=40, ml_every=3)
+    on = dataclasses.replace(cfg, lag_ablation=True, lag_ablation_alphas=(0.05,),
+                             lag_ablation_vehicles=(20,))
+    off_rows = exp.run_block(cfg, np.array([0]), block_generator(0, 0))
+    on_rows = exp.run_block(on, np.array([0]), block_generator(0, 0))
+    assert set(on_rows.method) - set(off_rows.method) == {"pf_lag_ablation"}
+    kept = on_rows[on_rows.method != "pf_lag_ablation"][off_rows.columns]
+    pd.testing.assert_frame_equal(kept.reset_index(drop=True), off_rows)
+
+
+def test_lag_ablation_refuses_messages_that_are_not_estimates():
+    from radioloc.core.errors import ConfigError
+
+    exp = get_experiment("p001-highway")
+    cfg = _ablation_only(exp, steps=2, particles=10, lag_ablation_messages=("given",))
+    with pytest.raises(ConfigError, match="lag_ablation_messages"):
+        exp.run_block(cfg, np.array([0]), block_generator(0, 0))

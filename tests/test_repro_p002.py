@@ -22,6 +22,11 @@ from radioloc.experiments.single_sensor import SingleSensorExperiment
 K = 4.0
 #: reference (value, standard error): 400 runs of the reduced configuration, n = 60
 REFERENCE = {
+    "causal_rmse_blue": (0.2944, 0.0035),
+    "causal_rmse_newton": (0.2826, 0.0039),
+    "causal_rmse_ekf": (0.2663, 0.0029),
+    "causal_rmse_ols": (0.5605, 0.0059),
+    "traj_rmse_ekf_straight_n60": (0.4192, 0.0102),
     "traj_rmse_blue_n60": (0.4081, 0.0096),
     "traj_rmse_newton_n60": (0.1800, 0.0027),
     "traj_rmse_ekf_n60": (0.1515, 0.0024),
@@ -90,6 +95,18 @@ def test_fast_sensor_path_makes_the_blue_usable_at_n10(p002):
     assert m["rmse_blue_n60_step0p4"] < 1.0
 
 
+def test_causal_track_of_one_window_is_the_current_position_error(tmp_path):
+    """With one window (n_values = (30,)) the causal track is p_29 from the first 30 samples,
+    the p_k reading at n = 30, for every method (the EKF's filtered state at k is the last
+    sample of its smoothed window)."""
+    exp = SingleSensorExperiment()
+    cfg = dataclasses.replace(exp.config(False), runs=8, block_size=8, n_values=(30,))
+    m, _ = summarize_block(exp, cfg, 3, tmp_path, tmp_path / "no-data")
+    for meth in ("blue", "newton", "ekf", "ols"):
+        assert m[f"causal_rmse_{meth}"] == pytest.approx(m[f"rmse_{meth}_n30"], rel=1e-9)
+    assert m["traj_rmse_ekf_straight_n30"] != pytest.approx(m["traj_rmse_ekf_n30"], rel=0.05)
+
+
 def test_no_metric_is_a_cpu_time(p002):
     assert not [k for k in p002[0] if "cpu" in k]
 
@@ -101,9 +118,11 @@ def test_claim_verdicts(p002):
         (hit,) = [v for c, v in claims.items() if c.startswith(start)]
         return hit
 
-    assert not verdict("(synthetic) the closed form has the lowest trajectory RMSE")
-    assert not verdict("(synthetic) beside it, on p_k (k = n-1): the closed form has the lowest")
-    assert not verdict("(synthetic) the closed-form trajectory RMSE decreases with n")
-    assert not verdict("(synthetic) the closed-form RMSE of p_k decreases with n")
+    assert not verdict("(synthetic) the closed form has the lowest causal-track RMSE")
+    assert not verdict("(synthetic) reading, straight tracks at n = 60")
+    assert not verdict("(synthetic) reading, Fig. 1 trajectories at n = 60")
+    assert not verdict("(synthetic) reading, p_k (k = n-1) at n = 60 only")
+    assert not verdict("(synthetic) reading, straight track: the closed-form trajectory RMSE")
+    assert not verdict("(synthetic) the closed-form causal error (p_k, k = n-1) decreases")
     assert verdict("(synthetic) variant, fixed k = 0 as in Lemma 1")
     assert not verdict("(Fig. 2, y = sin x) Newton from a start at the origin fails")

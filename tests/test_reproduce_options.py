@@ -103,3 +103,20 @@ def test_an_optional_number_reads_none_and_positive_numbers_only():
         for bad in ("0", "-2", "x"):
             with pytest.raises(ConfigError, match="-o variant_runs"):
                 e.with_options(c, {"variant_runs": bad})
+
+
+@pytest.mark.parametrize("text, want", [("()", ()), (" ( ) ", ()),
+                                        ("(cells_1m, avg10)", ("cells_1m", "avg10")),
+                                        ("cells_1m", ("cells_1m",))])
+def test_tuple_options_accept_parentheses_and_the_empty_tuple(text, want):
+    exp = get_experiment("p003-tether")
+    cfg = exp.with_options(exp.config(False), {"ablations": text})
+    assert cfg.ablations == want
+
+
+def test_an_empty_number_tuple_reads_as_empty_and_a_bare_comma_is_refused():
+    exp, cfg = _config()
+    new = exp.with_options(cfg, {"range_var_m2": "()"})
+    assert new.range_var_m2 == ()
+    with pytest.raises(ConfigError, match="range_var_m2"):
+        exp.with_options(cfg, {"range_var_m2": ","})

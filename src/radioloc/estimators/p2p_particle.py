@@ -48,6 +48,7 @@ The parameters of the range model can be estimated inside the filter by online E
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -494,6 +495,13 @@ class P2PParticleFilter(RecursiveEstimator):
         step (with INS: plus the neighbour's own INS reading, one more number in the
         message); ``"given"`` positions passed to :meth:`run` (e.g. the truth, to measure
         what the approximation costs).
+    message_lag : {1, 0}
+        Steps between a neighbour's message and the ranges it is used with in
+        :meth:`run`. 1 (the paper): the messages above, sent after step ``t - 1``. 0 (an
+        ablation that removes the lag): step ``t`` is first filtered with those messages
+        from a copy of ``rng``, and each neighbour's estimate of step ``t`` from that pass
+        is then its message for the update of step ``t`` itself, which consumes ``rng`` as
+        the lagged filter would (same draws; twice the cost). Not with ``"given"``.
     online_em : bool or OnlineEM
         Estimate alpha, s_LOS and s_NLOS inside the filter (each vehicle on its own links),
         starting from the measurement model's values; ``True`` is ``OnlineEM()``. The
@@ -511,7 +519,8 @@ class P2PParticleFilter(RecursiveEstimator):
     def __init__(self, motion, measurement, *, particles: int = 900,
                  resampling: str = "systematic", init_std=1.0, reset_fraction: float = 0.05,
                  reset_std_m: float = 0.5, backend: str = DEFAULT_BACKEND,
-                 messages: str = "previous", online_em: bool | OnlineEM = False) -> None:
+                 messages: str = "previous", message_lag: int = 1,
+                 online_em: bool | OnlineEM = False) -> None:
         for attr in ("sample", "predict", "dim", "state_dim"):
             if not hasattr(motion, attr):
                 raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
@@ -552,6 +561,11 @@ class P2PParticleFilter(RecursiveEstimator):
         check_backend(backend)
         if messages not in MESSAGES:
             raise ConfigError(f"messages: must be one of {MESSAGES}, got {messages!r}")
+        if message_lag not in (0, 1) or isinstance(message_lag, bool):
+            raise ConfigError(f"message_lag: must be 1 (the paper) or 0, got {message_lag!r}")
+        if message_lag == 0 and messages == "given":
+            raise ConfigError("message_lag: 0 applies to estimated messages ('previous' or "
+                              "'extrapolated'), not to messages='given'")
         self.motion = motion
         self.measurement = measurement
         self._mixture = mixture
@@ -562,6 +576,7 @@ class P2PParticleFilter(RecursiveEstimator):
         self.reset_std_m = float(reset_std_m)
         self.backend = backend
         self.messages = messages
+        self.message_lag = int(message_lag)
         if online_em is True:
             online_em = OnlineEM()
         if online_em is not False and online_em is not None and not isinstance(online_em, OnlineEM):
@@ -848,16 +863,24 @@ class P2PParticleFilter(RecursiveEstimator):
                              "reading of every step")
         mask_all = ~np.isnan(r)
         estimates = []
-        for k in range(T):
-            uk = None if u is None else u[..., k, :]
-            peers = self._peers(state.mean, dts[k], uk, given, k)
-            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b], axis=-2)
-            mask = mask_all[..., k, :]
+        def nodes_of(peers, mask):
+            nodes = np.concatenate([np.broadcast_to(peers, batch + (n_veh, 2)), anchors_b],
+                                   axis=-2)
             nodes = np.broadcast_to(nodes[..., None, :, :], mask.shape + (2,))
             if not np.all(np.isfinite(peers)):
                 _check_nodes(mask, nodes)
-            state = self._step(state, r[..., k, :], mask, nodes, rng,
-                               None if uk is None else uk[..., None, :], dts[k])
+            return nodes
+
+        for k in range(T):
+            uk = None if u is None else u[..., k, :]
+            uk_p = None if uk is None else uk[..., None, :]
+            mask = mask_all[..., k, :]
+            nodes = nodes_of(self._peers(state.mean, dts[k], uk, given, k), mask)
+            if self.message_lag == 0:       # the neighbours' estimates of this step
+                first = self._step(state, r[..., k, :], mask, nodes, copy.deepcopy(rng), uk_p,
+                                   dts[k])
+                nodes = nodes_of(first.mean[..., : self.motion.dim], mask)
+            state = self._step(state, r[..., k, :], mask, nodes, rng, uk_p, dts[k])
             estimates.append(self.estimate(state))
         return track_from_steps(estimates, t)
 

@@ -145,7 +145,8 @@ class Experiment:
             Field name (``name.field`` for a field of a nested config) to its new value
             as text. The text is read as the field's current
             type: bool (``1/0/true/false/yes/no/on/off``), int, float, str, or a tuple
-            of numbers or words separated by commas.
+            of numbers or words separated by commas (optionally in parentheses; ``()``
+            is the empty tuple).
 
         Returns
         -------
@@ -256,8 +257,12 @@ def _read_as(field_name: str, text: str, current: Any) -> Any:
         if isinstance(current, str) or current is None:
             return t
         if isinstance(current, tuple):
+            if t.startswith("(") and t.endswith(")"):
+                t = t[1:-1].strip()
             items = [s.strip() for s in t.split(",") if s.strip()]
             if not items:
+                if not t:                   # "()": the empty tuple
+                    return ()
                 raise ValueError("expected comma-separated values")
             kinds = {type(v) for v in current}
             if current and kinds <= {int, np.int64}:

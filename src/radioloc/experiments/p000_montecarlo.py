@@ -312,17 +312,27 @@ class P000MonteCarlo(Experiment):
         def close(f, a, b, rv):
             return abs(f[a, rv] - f[b, rv]) <= tol * min(f[a, rv], f[b, rv])
         on = " (judged on the mean of the runs that did not diverge and on the median)"
+
+        def converges(f, m, rv) -> bool:
+            return bool(f[m, rv] < prior[rv])
+
+        def faster(rv):
+            """Fewer EKF iterations to settle, judged only where both methods converge
+            (a method whose error grows settles too, on a drifted frame)."""
+            return lambda f, s: (converges(f, "rls", rv) and converges(f, "ekf", rv)
+                                 and s["ekf", rv] < s["rls", rv])
+        where = " (judged only where both converge: final error below the prior error)"
         claims += [
             Claim(f"({t1}) both RLS and EKF converge (final error below the prior error)" + on,
                   both(lambda f, s: f["rls", v1] < prior[v1] and f["ekf", v1] < prior[v1])),
-            Claim(f"({t1}) EKF converges in fewer iterations than RLS" + on,
-                  both(lambda f, s: s["ekf", v1] < s["rls", v1])),
+            Claim(f"({t1}) EKF converges in fewer iterations than RLS" + where + on,
+                  both(faster(v1))),
             Claim(f"({t1}) final RLS and EKF errors are nearly identical (within {tol:.0%})" + on,
                   both(lambda f, s: close(f, "rls", "ekf", v1))),
             Claim(f"({t2}) EKF ends clearly lower than RLS (at least {low:.0%} lower)" + on,
                   both(lambda f, s: f["ekf", v2] <= (1 - low) * f["rls", v2])),
-            Claim(f"({t2}) EKF converges in fewer iterations than RLS" + on,
-                  both(lambda f, s: s["ekf", v2] < s["rls", v2])),
+            Claim(f"({t2}) EKF converges in fewer iterations than RLS" + where + on,
+                  both(faster(v2))),
             Claim(f"variant rls_prior_weighted ({t1}): final RLS and EKF errors within {tol:.0%}" + on,
                   both(lambda f, s: close(f, "rlsw", "ekf", v1))),
             Claim(f"variant rls_prior_weighted ({t2}): EKF ends clearly lower than RLS" + on,

@@ -6,7 +6,10 @@ five (anchors, vehicles) pairs at alpha = 30%; the RANSAC row at alpha = 30%; Fi
 error CDFs; Fig. 4(b) true and estimated trajectories. Extra rows at alpha = 30% measure
 what the one-step lag of the neighbours' messages costs and run the earlier centre-line
 anchor layout (labelled variants); the genie ML is read twice, as a global snapshot search
-and as a local search around its previous estimate. The online EM the paper names
+and as a local search around its previous estimate. ``-o lag_ablation=1`` adds the message-lag
+ablation: alpha 5 -> 45 % and N 20 -> 30, ``previous`` and ``extrapolated`` messages, each
+with the paper's one-step lag and without it (``P2PParticleFilter(message_lag=0)``), every
+reading of a setting on the same simulated data and the same filter draws. The online EM the paper names
 (Sect. V) runs inside the filter, started from wrong parameters, and its estimates of
 alpha, s_LOS and s_NLOS are reported against the truth.
 """
@@ -19,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from radioloc.core.errors import ConfigError
 from radioloc.core.metrics import error_cdf, position_error
 from radioloc.core.rng import stream
 from radioloc.estimators.ekf_ranging import run_peer_ekf
@@ -68,7 +72,14 @@ class HighwayConfig:
     em_initial: (s_LOS, s_NLOS, alpha) the online EM starts from (the truth: 0.05 m,
         5 m, the case's alpha).
     em_step_exponent, em_burn_in: see ``OnlineEM``.
-    variant_runs: the variant rows (message lag, other layouts, online EM; none is a row of
+    lag_ablation: also run the message-lag ablation (labelled rows, method
+        ``pf_lag_ablation``): the PF with ``lag_ablation_messages`` messages, lag 1 (the
+        paper) and lag 0 (the neighbours' estimates of the same step), at alpha in
+        ``lag_ablation_alphas`` (N = 20) and at N in ``lag_ablation_vehicles`` (alpha =
+        30 %), M = 26. Off by default: at full size it costs about as much as every other
+        row together. Every reading of a setting sees the same data and filter draws.
+    variant_runs: the variant rows (message lag, other layouts, online EM, the lag ablation;
+        none is a row of
         tables 4(c) or 4(d)) run on the runs with index below this only (None: every run).
         4 at full size: a variant row then averages 4 x 20 vehicles x 700 steps = 56,000
         vehicle-steps, and the five variant cases no longer cost 38 % of the PF's time on
@@ -102,6 +113,10 @@ class HighwayConfig:
     em_step_exponent: float = 0.6
     em_burn_in: int = 20
     variant_runs: int | None = None
+    lag_ablation: bool = False
+    lag_ablation_alphas: tuple[float, ...] = (0.05, 0.45)
+    lag_ablation_vehicles: tuple[int, ...] = (20, 30)
+    lag_ablation_messages: tuple[str, ...] = ("previous", "extrapolated")
 
 
 def _cases(c: HighwayConfig) -> list[dict]:
@@ -116,6 +131,19 @@ def _cases(c: HighwayConfig) -> list[dict]:
     cases += [dict(alpha=a, M=26, N=20, messages="previous", ml=False, layout=lay, em=True,
                    variant=True) for a in c.em_alphas]
     return cases
+
+
+def _ablation_settings(c: HighwayConfig) -> list[tuple[float, int]]:
+    """(alpha, N) of the message-lag ablation, M = 26, in order."""
+    if not c.lag_ablation:
+        return []
+    bad = set(c.lag_ablation_messages) - {"previous", "extrapolated"}
+    if bad:
+        raise ConfigError(f"lag_ablation_messages: {sorted(bad)} not estimated messages; "
+                          "expected 'previous' and/or 'extrapolated'")
+    out = [(a, 20) for a in c.lag_ablation_alphas]
+    out += [(0.30, n) for n in c.lag_ablation_vehicles if (0.30, n) not in out]
+    return out
 
 
 def _snapshot(data: HighwayData, model: LosNlosRange, c: HighwayConfig, steps: np.ndarray):
@@ -204,6 +232,7 @@ class HighwayExperiment(Experiment):
             The tidy results table (one row per method, run, step and vehicle).
         """
         c = config
+        ablation = _ablation_settings(c)            # checked before the long cases run
         frames = []
         for case in _cases(c):
             model = LosNlosRange(c.los_std_m, c.nlos_mean_m, case["alpha"])
@@ -255,7 +284,41 @@ class HighwayExperiment(Experiment):
                                    data.ranges, data.truth[:, :, 0], init_std_m=c.init_std_m,
                                    anchors=data.anchors, controls=data.ins)
                 frames.append(_frame(case, case_runs, "ekf", all_steps, ekf.position, truth))
+        frames += self._lag_ablation(c, ablation, runs, rng)
         return pd.concat(frames, ignore_index=True)
+
+    @staticmethod
+    def _lag_ablation(c: HighwayConfig, settings: list, runs: np.ndarray,
+                      rng: np.random.Generator) -> list:
+        """The message-lag ablation rows (after every other case, so those keep their draws):
+        per setting one simulation and one filter seed shared by every reading."""
+        if c.variant_runs is not None:
+            runs = runs[runs < c.variant_runs]
+        frames = []
+        for alpha, n_veh in settings if runs.size else []:
+            model = LosNlosRange(c.los_std_m, c.nlos_mean_m, alpha)
+            sc = HighwayScenario(vehicles=n_veh, anchors=26, steps=c.steps, radius_m=c.radius_m,
+                                 ins_std_m=c.ins_std_m, start_width_m=c.start_width_m,
+                                 layout=c.layout)
+            anchors = anchor_layout(c.layout, 26, sc.length_m, sc.width_m,
+                                    rng=stream(rng, "anchor-layout-M26"))
+            data = simulate(sc, model, runs.size, rng, anchors=anchors)
+            seed = int(rng.integers(2**63))
+            truth = data.truth[:, :, 1:]
+            for messages in c.lag_ablation_messages:
+                for lag in (1, 0):
+                    pf = P2PParticleFilter(InputDriven(c.ins_std_m), model, particles=c.particles,
+                                           resampling=c.resampling, init_std=c.init_std_m,
+                                           reset_fraction=c.reset_fraction,
+                                           reset_std_m=c.reset_std_m, messages=messages,
+                                           message_lag=lag)
+                    res = pf.run(data.ranges, data.truth[:, :, 0], np.random.default_rng(seed),
+                                 anchors=data.anchors, controls=data.ins)
+                    case = dict(alpha=alpha, M=26, N=n_veh, messages=messages, layout=c.layout)
+                    lags = np.full(res.position.shape[:-1], lag)
+                    frames.append(_frame(case, runs, "pf_lag_ablation", np.arange(c.steps),
+                                         res.position, truth, {"message_lag": lags}))
+        return frames
 
     def summarize(self, config: HighwayConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
         """Metrics, claims and figures from the results table only.
@@ -273,6 +336,8 @@ class HighwayExperiment(Experiment):
         Summary
         """
         r = results
+        ablation = r[r.method == "pf_lag_ablation"]
+        r = r[r.method != "pf_lag_ablation"]
         variants = r[r.layout != config.layout]
         r = r[r.layout == config.layout]
         prev = r[r.messages == "previous"]
@@ -331,6 +396,9 @@ class HighwayExperiment(Experiment):
                                       f"online EM estimate at the last step, mean over vehicles and runs "
                                       f"(truth {truth[col]:g}, start {start[col]:g}); "
                                       f"spread over vehicles (sd) {last[col].std(ddof=0):.3g}"))
+        m_abl, c_abl, n_abl = self._lag_ablation_summary(ablation)
+        metrics += m_abl
+        notes += n_abl
         # claims
         if 30 in ml_c:
             rans = metrics[[m.name for m in metrics].index("ransac_mean_error_m_alpha30")].value
@@ -360,7 +428,9 @@ class HighwayExperiment(Experiment):
                                      and pf_d[(26, 20)] - pf_d[(30, 20)] > pf_d[(30, 20)] - pf_d[(36, 20)])))
             claims.append(Claim("more vehicles (20 -> 24 -> 30) lower the PF error",
                                 bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
-        self._figures(config, base, out_dir)
+        claims += c_abl
+        if not base.empty:
+            self._figures(config, base, out_dir)
         self._lag_figure(r, variants, out_dir)
         self._em_figure(config, em_rows, out_dir)
         notes.append(f"runs={config.runs}, steps={config.steps}, particles={config.particles}, "
@@ -368,10 +438,55 @@ class HighwayExperiment(Experiment):
                      + ("" if config.variant_runs is None else
                         f"; variant rows (message lag, other layouts, online EM) on runs "
                         f"0-{config.variant_runs - 1} only"))
-        if "x_true" in r:
+        if "x_true" in r and len(r):
             off = float(((r.x_true < 0) | (r.x_true > HighwayScenario().length_m)).mean())
             notes.append(f"fraction of vehicle-step rows off the road: {off:.4f}")
         return Summary(metrics, claims, notes)
+
+    @staticmethod
+    def _lag_ablation_summary(abl: pd.DataFrame) -> tuple[list, list, list]:
+        """Metrics, claims and the table note of the message-lag ablation rows."""
+        if abl.empty:
+            return [], [], []
+        mean = abl.groupby(["alpha", "N", "messages", "message_lag"]).error_m.mean()
+        metrics, claims = [], []
+        for (a, n, v, lag), val in mean.items():
+            tag = int(round(a * 100))
+            paper = PAPER_C[tag][1] if n == 20 and tag in PAPER_C else PAPER_D.get((26, int(n)))
+            metrics.append(Metric(
+                f"pf_mean_error_m_alpha{tag}_N{int(n)}_{v}_lag{int(lag)}", val, paper, "m",
+                f"ablation: PF, {v} messages, "
+                + ("one-step lag (the paper's timing)" if lag else
+                   "no lag (the neighbours' estimates of the same step)")
+                + "; same data and draws for every reading of this (alpha, N)"))
+        names = sorted(set(mean.index.get_level_values(2)), key=lambda v: (v != "previous", v))
+        readings = [(v, lag) for v in names for lag in (1, 0)]
+        get = {(int(round(a * 100)), int(n), v, int(lag)): val
+               for (a, n, v, lag), val in mean.items()}
+        alphas = sorted({k[0] for k in get if k[1] == 20})
+        vehicles = sorted({k[1] for k in get if k[0] == 30})
+        rows = [(f"alpha {a} %, N = 20", (a, 20)) for a in alphas]
+        rows += [(f"alpha 30 %, N = {n}", (30, n)) for n in vehicles if (30, n) not in
+                 [key for _, key in rows]]
+        head = "| setting | " + " | ".join(f"{v}, lag {lag}" for v, lag in readings) + " |"
+        lines = [head, "|---" * (len(readings) + 1) + "|"]
+        for label, (a, n) in rows:
+            lines.append(f"| {label} | " + " | ".join(
+                f"{get[a, n, v, lag]:.3f}" if (a, n, v, lag) in get else "-"
+                for v, lag in readings) + " |")
+        for v, lag in readings:
+            what = f"ablation ({v} messages, " + ("one-step lag)" if lag else "no lag)")
+            if len(alphas) >= 2 and all((a, 20, v, lag) in get for a in alphas):
+                lo, hi = alphas[0], alphas[-1]
+                claims.append(Claim(f"{what}: PF mean error decreases as alpha grows "
+                                    f"({lo} -> {hi} %)",
+                                    bool(get[hi, 20, v, lag] < get[lo, 20, v, lag])))
+            if len(vehicles) >= 2 and all((30, n, v, lag) in get for n in vehicles):
+                lo, hi = vehicles[0], vehicles[-1]
+                claims.append(Claim(f"{what}: more vehicles ({lo} -> {hi}) lower the PF error",
+                                    bool(get[30, hi, v, lag] < get[30, lo, v, lag])))
+        note = ("message-lag ablation, PF mean error [m] (M = 26):\n" + "\n".join(lines))
+        return metrics, claims, [note]
 
     @staticmethod
     def _lag_figure(r: pd.DataFrame, variants: pd.DataFrame, out_dir: Path) -> None:
