@@ -82,6 +82,7 @@ def export_dataset(
     venue: Annotated[str, typer.Option(help="wifi-rtt: Canteen, 'Conference Room' or Library.")] = "Canteen",
     circle: Annotated[str, typer.Option(help="wifi-rtt: circle folder of the venue, e.g. 1.")] = "1",
     rss: Annotated[bool, typer.Option("--rss", help="wifi-rtt: also write the RSS rows.")] = False,
+    phone_std: Annotated[bool, typer.Option("--phone-std", help="wifi-rtt: write the phone's reported range std as the std column.")] = False,
 ) -> None:
     """Write a data set in the `radioloc locate` formats (measurements, anchors, reference,
     and a fingerprint calibration file for the fingerprint sets)."""
@@ -95,7 +96,7 @@ def export_dataset(
         elif ds.name == "ujiindoorloc":
             opts.update(building=building, floor=floor, min_detections=min_detections)
         elif ds.name == "wifi-rtt-haiyaoyu":
-            opts.update(venue=venue, circle=circle, rss=rss)
+            opts.update(venue=venue, circle=circle, rss=rss, phone_std=phone_std)
         paths = export(ds.name, out, **opts)
     except RadiolocError as exc:
         _fail(exc)

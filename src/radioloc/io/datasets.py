@@ -739,13 +739,15 @@ def _rss_run(out: Path, ext: str, time: np.ndarray, node: str, ids: list[str],
 
 
 def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | int = 1,
-                    rss: bool = False, root: Path | str | None = None,
-                    fmt: str = "csv") -> dict[str, Path]:
+                    rss: bool = False, phone_std: bool = False,
+                    root: Path | str | None = None, fmt: str = "csv") -> dict[str, Path]:
     """Write one circle of the WiFi RTT set in the ``radioloc locate`` schema.
 
     Both phones go in one log, as nodes ``M1`` and ``M2`` (their clocks start at 0 together).
-    Each sample gives one ``range`` row per AP measured (``std``: the standard deviation
-    the phone reports, empty where it reports 0) and, with ``rss``, one ``rss`` row. The truth columns
+    Each sample gives one ``range`` row per AP measured and, with ``rss``, one ``rss`` row.
+    The standard deviation the phone reports with a range is the spread within its burst of
+    exchanges, far below the range's error (biases of 1-7 m, multipath outliers), so it is
+    written (as the ``std`` column) only with ``phone_std``. The truth columns
     (true distances, ground truth) are never written as measurements; the ground truth goes
     to ``reference``. An AP written as 0 (not measured) has no row. The phone-to-phone
     ranges are not written: their clock is not aligned with the phones' logs.
@@ -760,6 +762,8 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
         A circle folder of the venue.
     rss : bool
         Also write the RSS rows (for methods that use ``rss``).
+    phone_std : bool
+        Write the phone's reported standard deviation as the ``std`` column.
     root : path, optional
         The data set folder (default :func:`require`).
     fmt : {"csv", "parquet"}
@@ -787,6 +791,8 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
         refs.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
                                   "x": run.truth_xy[:, 0], "y": run.truth_xy[:, 1]}))
     meas = pd.concat(rows, ignore_index=True)
+    if not phone_std:
+        meas = meas.drop(columns="std")
     meas = meas[np.isfinite(meas["value"].to_numpy())].sort_values(["time", "node", "kind"],
                                                                     kind="stable")
     out = Path(out)

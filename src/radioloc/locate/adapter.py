@@ -81,7 +81,8 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
 
 
 def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,
-                      models: Mapping[str, MeasurementModel]) -> tuple[np.ndarray, list[Observation]]:
+                      models: Mapping[str, MeasurementModel], *,
+                      height_m: float | None = None) -> tuple[np.ndarray, list[Observation]]:
     """The observations of one node, one per kind that ``models`` explains.
 
     Parameters
@@ -91,6 +92,8 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ``id, x, y[, z]`` (as read by :func:`radioloc.io.logs.read_anchors`).
     node : str
     models : mapping of kind to MeasurementModel
+    height_m : float, optional
+        Known height of a 2-D node with 3-D anchors.
 
     Returns
     -------
@@ -99,14 +102,18 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
     observations : list of Observation
         ``z`` of shape ``(T, S)``; NaN where a slot has no measurement at a step.
 
+    Rows whose peer is another node (cooperative ranges) are left out: they are for the
+    network methods.
+
     Raises
     ------
     InputError
-        A peer or reference that is not an anchor (naming it, the node and the kind).
+        A reference that is not an anchor (naming it, the node and the kind).
     """
     points = anchor_positions(anchors)
     index = {a: i for i, a in enumerate(anchors["id"])}
     sel = measurements.select(kind=list(models), node=node)
+    sel = Measurements(sel.frame[sel.frame["peer"].isin(index)])
     time = sel.times(node)
     out = []
     for kind in sel.kinds:
@@ -121,7 +128,7 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
                    if kind == "tdoa" else None)
         ctx = Context(points=points[peer_idx], index=peer_idx,
                       reference=None if ref_idx is None else points[ref_idx],
-                      reference_index=ref_idx)
+                      reference_index=ref_idx, height_m=height_m)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std))
     return time, out

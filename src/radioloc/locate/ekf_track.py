@@ -1,9 +1,13 @@
-"""``radioloc locate --method ekf-track``: track each node from its ranges to anchors with an
-extended Kalman filter (:class:`radioloc.estimators.ekf_tracker.RangeEKF`).
+"""``radioloc locate --method ekf-track``: track each node from its measurements to anchors
+with the generic extended Kalman filter (:class:`radioloc.estimators.ExtendedKalmanFilter`).
 
-Ranges are processed as they arrive: the rows of a node that share one time stamp are one
-update, whatever anchors they reach (one anchor at a time is fine); a time with no range to
-a known anchor is not a step. Ranges to peers that are not anchors are not used.
+Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: ranges, time
+differences, angles of arrival, pseudoranges; :func:`radioloc.locate.adapter.default_models`
+picks the model of each), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
+(WiFi RTT offsets, antenna delays), learnt online from a common offset fitted at the start.
+Measurements are processed as they arrive: the rows of a node that share one time stamp are
+one update, whatever anchors they reach (one anchor at a time is fine); a time with no
+measurement to a known anchor is not a step. Rows whose peer is not an anchor are not used.
 
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
@@ -11,7 +15,9 @@ model alone cannot bridge it; one update from a prior metres wide linearises bad
 The start: the node is assumed to stay within ``prior_std_m`` of one place during its first
 ``init_s`` seconds; the median range to each anchor over that window is fitted by a coarse
 then fine grid search over the horizontal plane (at the tag height, or at the anchors' mean
-height in 3-D), which finds the global least-squares minimum rather than a mirror basin. The
+height in 3-D), which finds the global least-squares minimum rather than a mirror basin. A
+log without ranges to three anchors starts from a robust least-squares fit of the window's
+medians of every kind. The
 filter starts there with position standard deviation ``prior_std_m`` and velocity standard
 deviation ``PRIOR_SPEED_STD`` m/s.
 
@@ -27,13 +33,20 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.estimators.ekf_tracker import RangeEKF
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
+from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.logs import range_arrays
+from radioloc.io.measurements import Measurements
+from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.progress import progress
 from radioloc.locate.table import add_covariance
+from radioloc.models.measurement import Context, Observation, StateLayout
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
-from radioloc.models.ranging import GaussianRange
+from radioloc.models.ranging import RangeModel
+
+#: The measurement kinds the trackers read.
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange")
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
@@ -96,12 +109,17 @@ def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.
 
 
 def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height: float | None,
-                   bias: float, init_s: float) -> np.ndarray:
+                   bias: float, init_s: float, common_offset: bool = False):
     """Horizontal start position from the median ranges of the first ``init_s`` seconds.
 
     Two grid searches (coarse over a square covering every anchor and the largest range,
     then fine around the best cell) minimise the sum of squared range residuals; with at
     least three anchors not on one line this is the global minimum, not a mirror basin.
+
+    With ``common_offset``, every range is taken to carry one unknown offset ``b >= 0``
+    (per-anchor biases, of which this is the mean): each cell's residuals are taken about
+    their median, and the search stays within the anchors' bounding box grown by a quarter
+    of its size and 2 m (far outside it, a common offset explains any ranges equally well).
 
     Parameters
     ----------
@@ -116,9 +134,13 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
     init_s : float
         Window length, seconds.
 
+    common_offset : bool
+        Estimate a common range offset too.
+
     Returns
     -------
     ndarray, shape (2,)
+        With ``common_offset``: ``(position (2,), offset_m)``.
 
     Raises
     ------
@@ -138,17 +160,21 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
     r = med[heard] - bias
     a = anchors[heard]
     h = None if a.shape[1] == 2 else (float(np.mean(anchors[:, 2])) if height is None else height)
-    centre = anchors[:, :2].mean(axis=0)
-    half = float(np.max(np.abs(anchors[:, :2] - centre)) + np.max(r) + 1.0)
-    best = centre
+    lo, hi = anchors[:, :2].min(axis=0), anchors[:, :2].max(axis=0)
+    centre = (lo + hi) / 2 if common_offset else anchors[:, :2].mean(axis=0)
+    half = (float(np.max((hi - lo) * 0.75 + 2.0)) if common_offset else
+            float(np.max(np.abs(anchors[:, :2] - centre)) + np.max(r) + 1.0))
+    best, offset = centre, 0.0
     for _ in range(3):   # coarse, finer, finest: 201 x 201 cells each
         g = np.linspace(-half, half, 201)
         gx, gy = np.meshgrid(best[0] + g, best[1] + g, indexing="ij")
         xy = np.stack([gx.ravel(), gy.ravel()], axis=-1)
-        cost = np.sum((_predicted(xy, a, h) - r) ** 2, axis=-1)
-        best = xy[int(np.argmin(cost))]
+        res = r - _predicted(xy, a, h)
+        b = np.maximum(np.median(res, axis=-1), 0.0) if common_offset else np.zeros(len(xy))
+        k = int(np.argmin(np.sum((res - b[:, None]) ** 2, axis=-1)))
+        best, offset = xy[k], float(b[k])
         half = half / 20
-    return best
+    return (best, offset) if common_offset else best
 
 
 OPTIONS = {
@@ -160,6 +186,18 @@ OPTIONS = {
                           min_exclusive=True, max=1e6),
     "range_bias_m": Option("constant offset of every range (antenna delay), m; subtracted "
                            "(default 0)", float, min=-1e3, max=1e3),
+    "anchor_bias": Option("1: estimate a range bias per anchor online (WiFi RTT offsets, "
+                          "antenna delays), starting from a common offset fitted to the first "
+                          "init_s seconds", bool),
+    "bias_prior_std_m": Option("prior standard deviation of each anchor's bias about that "
+                               "common offset, m (default 3)", float, min=0, min_exclusive=True,
+                               max=1e3),
+    "tdoa_std_m": Option("standard deviation of one arrival time in a tdoa row, m (default "
+                         "0.3)", float, min=0, min_exclusive=True, max=1e6),
+    "aoa_std_rad": Option("angle-of-arrival error standard deviation, rad (default 0.05)",
+                          float, min=0, min_exclusive=True, max=10),
+    "pseudorange_std_m": Option("pseudorange error standard deviation, m (default 5)", float,
+                                min=0, min_exclusive=True, max=1e6),
     "tag_height_m": Option("known node height: track in 2-D (x, y) with 3-D anchors (default: "
                            "3-D tracking when the anchors have z)", float, min=-1e4, max=1e4),
     "gate": Option("drop a range whose squared innovation exceeds gate x its predicted "
@@ -220,8 +258,103 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "max_gap_s": request.option("max_gap_s", 5.0)}
 
 
+def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
+                anchor_bias: bool = False) -> tuple[np.ndarray, float]:
+    """Start position (and common range offset) of a track.
+
+    From the ranges when there are ranges to three anchors (:func:`start_position`, a
+    global grid search); otherwise a robust least-squares fit
+    (:class:`~radioloc.estimators.LeastSquares`, Huber loss) of every observation's median
+    over the first ``init_s`` seconds.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    observations : list of Observation
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`tracker_settings`.
+    anchor_bias : bool
+        Fit a common range offset too (the start of the per-anchor biases).
+
+    Returns
+    -------
+    position : ndarray, shape (D,)
+    offset_m : float
+    """
+    dim = s["dim"]
+    ranges = [o for o in observations if o.model.kind == "range"]
+    if ranges and (np.isfinite(ranges[0].z).any(axis=0).sum() >= 3 or len(observations) == 1):
+        R = np.full((times.size, len(anchors)), np.nan)
+        R[:, ranges[0].context.index] = ranges[0].z
+        fit = start_position(times, R, anchors, s["height"], s["bias"], s["init_s"],
+                             common_offset=anchor_bias)
+        xy, offset = fit if anchor_bias else (fit, 0.0)
+        pos = np.zeros(dim)
+        pos[:2] = xy
+        if dim == 3:
+            pos[2] = float(np.mean(anchors[:, 2]))
+        return pos, offset
+    window = times <= times[0] + s["init_s"]
+    medians = []
+    for o in observations:
+        z = o.z[window]
+        heard = np.isfinite(z).any(axis=0)
+        med = np.full(z.shape[1], np.nan)
+        med[heard] = np.nanmedian(z[:, heard], axis=0)
+        medians.append(Observation(o.model, med, o.context))
+    fit = LeastSquares(loss="huber").locate(medians)
+    if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
+        raise GeometryError("the measurements of the first init_s seconds do not fix a start "
+                            "position (give -o init_s=SECONDS longer)")
+    return np.asarray(fit.position, dtype=float), 0.0
+
+
+def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
+                gate: float | None, smooth: bool, anchor_bias: bool = False,
+                bias_prior_std_m: float = 3.0):
+    """One node's track by the generic :class:`ExtendedKalmanFilter` over its observations
+    (any kinds; see the module docstring for the start).
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    observations : list of Observation
+        ``z`` of shape ``(T, S)``.
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`tracker_settings`.
+    gate : float or None
+    smooth : bool
+    anchor_bias : bool
+        Estimate a per-anchor range bias (the range model must read ``anchor_bias``).
+    bias_prior_std_m : float
+
+    Returns
+    -------
+    Track
+    """
+    dim = s["dim"]
+    pos, offset = start_state(times, observations, anchors, s, anchor_bias)
+    motion = motion_model(s["motion"], s["q"], dim)
+    ekf = ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
+                               layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
+                                                  n_bias=len(anchors) if anchor_bias else 0))
+    layout = ekf.state_layout(observations)
+    mean = np.zeros(layout.size)
+    var = np.full(layout.size, PRIOR_SPEED_STD ** 2)
+    mean[:dim] = pos
+    var[:dim] = s["prior_std"] ** 2
+    extra = slice(layout.motion_size, layout.size)
+    var[extra] = ekf.init(np.zeros(layout.motion_size), np.eye(layout.motion_size),
+                          observations=observations).covariance.diagonal()[extra]
+    if "anchor_bias" in layout.slices:
+        mean[layout.slices["anchor_bias"]] = offset
+    return ekf.run(observations, times, prior_mean=mean, prior_cov=np.diag(var), smooth=smooth)
+
+
 def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, smooth: bool):
-    """One node's :class:`RangeEKF` track (see the module docstring for the start).
+    """One node's range-only track (:func:`run_tracker` on a ``(T, M)`` range array).
 
     Parameters
     ----------
@@ -238,18 +371,14 @@ def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, sm
     -------
     Track
     """
-    dim = s["dim"]
-    xy0 = start_position(times, R, anchors, s["height"], s["bias"], s["init_s"])
-    motion = motion_model(s["motion"], s["q"], dim)
-    start = np.zeros(motion.state_dim)
-    start[:2] = xy0
-    var = np.full(motion.state_dim, PRIOR_SPEED_STD ** 2)
-    var[:dim] = s["prior_std"] ** 2
-    if dim == 3:
-        start[2] = float(np.mean(anchors[:, 2]))
-    ekf = RangeEKF(motion, GaussianRange(range_std), anchors=anchors, height_m=s["height"],
-                   range_bias_m=s["bias"], gate=gate)
-    return ekf.run(R, times, prior_mean=start, prior_cov=np.diag(var), smooth=smooth)
+    obs = Observation(RangeModel(std_m=range_std), np.asarray(R, dtype=float) - s["bias"],
+                      Context(points=anchors, index=np.arange(len(anchors)), height_m=s["height"]))
+    return run_tracker(times, [obs], anchors, dict(s, bias=0.0), gate, smooth)
+
+
+def _window(obs: Observation, seg: slice) -> Observation:
+    return Observation(obs.model, obs.z[seg], obs.context,
+                       None if obs.std is None else obs.std[seg])
 
 
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
@@ -309,43 +438,70 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
             "steps": len(frame), "restarts": int(frame["restart"].sum()), **extra}
 
 
-@locate_method("ekf-track", "Extended Kalman filter tracking each node from its ranges to "
-                            "anchors as they arrive (constant velocity or random walk; RTS "
-                            "smoother with -o smooth=1)",
-               options=OPTIONS, kinds=("range",), inputs=("anchors",))
+@locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
+                            "to anchors as they arrive: ranges (optionally with a bias per "
+                            "anchor), time differences, angles, pseudoranges (constant "
+                            "velocity or random walk; RTS smoother with -o smooth=1)",
+               options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
-    """Track every node with a :class:`RangeEKF` over its range rows.
+    """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
+
+    Each kind present gets its model (:func:`radioloc.locate.adapter.default_models`);
+    ``-o anchor_bias=1`` adds a range bias per anchor to the state.
 
     Parameters
     ----------
     request : LocateRequest
-        Measurements (range rows), anchors, ``-o`` options (see :data:`OPTIONS`).
+        Measurements, anchors, ``-o`` options (see :data:`OPTIONS`).
 
     Returns
     -------
     DataFrame
         ``time, node, x, y[, z], uncertainty_m``, covariance columns, flags ``gated``
-        (ranges refused by the gate) and ``restart`` (first row after a gap): one row per
-        time stamp at which the node has a range to an anchor (the filtered state, or the
+        (measurements refused by the gate) and ``restart`` (first row after a gap): one row
+        per time stamp at which the node has a measurement (the filtered state, or the
         smoothed one with ``smooth=1``).
     """
-    anchors, per_node = range_rows(request, "ekf-track")
+    table = request.require_anchors("ekf-track")
+    anchors = anchor_positions(table)
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
-    std = request.option("range_std_m", 0.15)
+    anchor_bias = bool(request.option("anchor_bias", False, bool))
+    meas = request.measurements
+    if s["bias"]:
+        meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
+                                          meas["value"]))
+    log = Measurements(meas)
+    opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
+    opts.setdefault("range_std_m", 0.15)
+    models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    parts = []
+    for node in log.nodes:
+        times, obs = node_observations(log, table, node, models, height_m=s["height"])
+        if times.size:
+            parts.append((node, times, obs, segments(times, s["max_gap_s"])))
+    if not parts:
+        raise GeometryError("method ekf-track: no measurement to an anchor in the measurements")
     tables = []
-    parts = [(node, times, R, segments(times, s["max_gap_s"])) for node, times, R in per_node]
     with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
-        for node, times, R, segs in parts:
+        for node, times, obs, segs in parts:
             for n, seg in enumerate(segs):
                 try:
-                    track = run_ekf(times[seg], R[seg], anchors, s, std, gate, s["smooth"])
+                    track = run_tracker(times[seg], [_window(o, seg) for o in obs], anchors, s,
+                                        gate, s["smooth"], anchor_bias,
+                                        request.option("bias_prior_std_m", 3.0))
                 except GeometryError as exc:
                     raise GeometryError(f"method ekf-track: node {node!r} from time "
                                         f"{float(times[seg][0])!r}: {exc}") from None
                 tables.append(track_table(node, times[seg], track, restart=n > 0))
                 bar.advance()
-    out = pd.concat(tables, ignore_index=True)
-    out.attrs["summary"] = track_summary(tables, per_node, range_std_m=std,
-                                         gate=gate or 0.0)
+    out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
+    out = out.reset_index(drop=True)
+    counts = {k: int(np.isfinite(o.z).sum()) for _, _, obs, _ in parts for o in obs
+              for k in [o.model.kind]}
+    out.attrs["summary"] = {
+        "nodes": len(parts), "measurements": counts,
+        "measurements_gated": int(out["gated"].sum()) if "gated" in out else 0,
+        "steps": len(out), "restarts": int(out["restart"].sum()),
+        "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias}
     return out
