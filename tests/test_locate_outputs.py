@@ -241,3 +241,21 @@ def test_coverage_counts_an_error_outside_a_point_claim(tmp_path):
     assert list(errors.inside_95) == [False, True]
     s = error_summary(errors, 2)
     assert s["inside_95"] == 0.5 and s["rmse_m"] == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("method", ["ekf", "rls"])
+def test_network_methods_report_once_per_time_and_node(tmp_path, method):
+    (tmp_path / "priors.csv").write_text("node,x,y,var_x,var_y\nn1,1,1,4,4\nn2,9,1,4,4\n")
+    a = read_anchors(ANCHORS)
+    rows = ["time,node,peer,kind,value"]
+    truth = {"n1": (2.0, 2.0), "n2": (8.0, 3.0)}
+    for t in (0.0, 1.0):
+        for node, p in truth.items():                  # both nodes are masters at each time
+            for aid, x, y in zip(a.id, a.x, a.y):
+                rows.append(f"{t},{node},{aid},range,{float(np.hypot(p[0] - x, p[1] - y))!r}")
+    (tmp_path / "m.csv").write_text("\n".join(rows) + "\n")
+    meas = read_measurements(tmp_path / "m.csv", anchors=a)
+    out = run_method(method, LocateRequest(meas, a, priors=tmp_path / "priors.csv"))
+    assert len(out) == 4 and not out.duplicated(["time", "node"]).any()
+    assert list(out.node) == ["n1", "n2", "n1", "n2"]
+    assert ("cov_xx" in out) == (method == "ekf")
