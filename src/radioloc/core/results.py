@@ -58,6 +58,16 @@ DIAGNOSTICS: dict[str, str] = {
 }
 
 
+#: Covariance columns of a position table (:meth:`Track.to_frame`, ``radioloc locate``) by
+#: dimension, and the matrix entry of each.
+COVARIANCE_COLUMNS: dict[int, tuple[str, ...]] = {
+    2: ("cov_xx", "cov_xy", "cov_yy"),
+    3: ("cov_xx", "cov_xy", "cov_yy", "cov_xz", "cov_yz", "cov_zz")}
+COVARIANCE_ENTRY: dict[str, tuple[int, int]] = {
+    "cov_xx": (0, 0), "cov_xy": (0, 1), "cov_yy": (1, 1), "cov_xz": (0, 2), "cov_yz": (1, 2),
+    "cov_zz": (2, 2)}
+
+
 def _as_position(position: Any, name: str) -> np.ndarray:
     p = np.asarray(position, dtype=float)
     if p.ndim < 1 or p.shape[-1] not in (1, 2, 3):
@@ -302,10 +312,9 @@ class Track:
         if self.covariance is not None:
             cov = np.swapaxes(self.covariance.reshape(runs, T, D, D), 0, 1).reshape(-1, D, D)
             out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
-            for name, (i, j) in (("cov_xx", (0, 0)), ("cov_xy", (0, 1)), ("cov_yy", (1, 1)),
-                                 ("cov_xz", (0, 2)), ("cov_yz", (1, 2)), ("cov_zz", (2, 2))):
-                if i < D and j < D:
-                    out[name] = cov[:, i, j]
+            for name in COVARIANCE_COLUMNS.get(D, ()):
+                i, j = COVARIANCE_ENTRY[name]
+                out[name] = cov[:, i, j]
         order = np.argsort(out["time"].to_numpy(), kind="stable")   # time-major, runs kept
         return out.iloc[order].reset_index(drop=True)
 

@@ -428,14 +428,15 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
     Returns
     -------
     dict
-        ``nodes``, ``ranges`` (to anchors, after averaging duplicates), ``ranges_gated``,
-        ``steps``, ``restarts`` and ``extra``.
+        ``nodes``, ``ranges`` (to anchors, after averaging duplicates), ``ranges_used``,
+        ``ranges_gated``, ``steps``, ``restarts`` and ``extra``.
     """
     frame = pd.concat(tables, ignore_index=True)
-    return {"nodes": len(per_node),
-            "ranges": int(sum(np.isfinite(R).sum() for _, _, R in per_node)),
-            "ranges_gated": int(frame["gated"].sum()) if "gated" in frame else 0,
-            "steps": len(frame), "restarts": int(frame["restart"].sum()), **extra}
+    ranges = int(sum(np.isfinite(R).sum() for _, _, R in per_node))
+    gated = int(frame["gated"].sum()) if "gated" in frame else 0
+    return {"nodes": len(per_node), "ranges": ranges, "ranges_used": ranges - gated,
+            "ranges_gated": gated, "steps": len(frame),
+            "restarts": int(frame["restart"].sum()), **extra}
 
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "

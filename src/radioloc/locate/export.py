@@ -6,7 +6,8 @@ The format is ``--format`` when given, otherwise the suffix of ``--out``: ``.par
 - **TUM** (the format of the TUM RGB-D benchmark, read by ``evo``): one line per estimate,
   ``timestamp tx ty tz qx qy qz qw``, space separated, orientation the identity
   (``0 0 0 1``), ``tz`` 0 for 2-D tracks. TUM holds one trajectory per file: with several
-  nodes, ``track.tum`` becomes ``track.<node>.tum`` for each node.
+  nodes, ``track.tum`` becomes ``track.<node>.tum`` for each node (characters other than
+  letters, digits, ``.``, ``_``, ``-`` in the id become ``_``).
 - **GeoJSON**: a FeatureCollection with one ``LineString`` per node (properties ``node``,
   ``rows``) and one ``Point`` per estimate (properties ``time``, ``node`` and the other
   columns). Coordinates are written as they are, in the anchors' frame (metres), not
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -157,7 +159,8 @@ def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
     path = Path(path)
     written = []
     for node in nodes:
-        target = path if len(nodes) == 1 else path.with_name(f"{path.stem}.{node}{path.suffix}")
+        safe = re.sub(r"[^A-Za-z0-9._-]", "_", str(node))
+        target = path if len(nodes) == 1 else path.with_name(f"{path.stem}.{safe}{path.suffix}")
         text = _tum_text(frame[frame["node"] == node])
         atomic_write_with(target, lambda f, text=text: f.write(text))
         written.append(target)

@@ -24,6 +24,18 @@ from radioloc.locate.table import add_covariance
 STD_FLOOR_M = 1e-6
 
 
+def _inverse_information(position: np.ndarray, anchors: np.ndarray, heard: np.ndarray,
+                         skip: np.ndarray) -> np.ndarray:
+    """``(J' J)^-1`` of each fix ``(E, D)`` from the unit vectors to the anchors it heard
+    (``heard`` (E, M)); NaN for the ``skip`` epochs."""
+    d = position[:, None, :] - anchors[None]
+    u = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+    u = np.where(heard[..., None], u, 0.0)
+    info = np.einsum("emi,emj->eij", u, u)
+    info = np.where(skip[:, None, None], np.eye(anchors.shape[1]), info)
+    return np.where(skip[:, None, None], np.nan, np.linalg.inv(info))
+
+
 @locate_method("gn", "Gauss-Newton multilateration of each node at each time from its ranges "
                      "to anchors (options: std_m, on_degenerate)",
                options={"std_m": Option("range error standard deviation, m (default: pooled "
@@ -127,15 +139,13 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
                             f"({int(mirror.sum())} ambiguous mirror fixes; first: node "
                             f"{epochs['node'][i]!r} at time {float(epochs['time'][i])!r})")
     source = "option std_m"
-    cov = fit.covariance
     if std is None:
         used = np.isfinite(R_ok).sum(axis=1)
         rms = np.asarray(fit.diagnostics["residual_rms_m"])
         dof = float(np.sum((used - len(dims))[~bad]))
         std = max(float(np.sqrt(np.sum((rms ** 2 * used)[~bad]) / dof)), STD_FLOOR_M)
         source = f"pooled residuals of {int((~bad).sum())} epochs ({dof:g} degrees of freedom)"
-        cov = Multilateration(range_std_m=std, on_degenerate="flag").locate(
-            R_ok, a_xyz).covariance
+    cov = std ** 2 * _inverse_information(fit.position, a_xyz, np.isfinite(R_ok), bad)
     out = epochs.iloc[solvable].reset_index(drop=True)
     for k, c in enumerate(dims):
         out[c] = fit.position[:, k]

@@ -244,8 +244,9 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        ``time, node, x, y, uncertainty_m``: one row per time stamp at which the node has a
-        range to an anchor (filtered, or smoothed with ``smooth=1``).
+        ``time, node, x, y, uncertainty_m``, the covariance columns and the flags ``gated``,
+        ``restart``, ``p_nlos``: one row per time stamp at which the node has a range to an
+        anchor (filtered, or smoothed with ``smooth=1``).
     """
     if not request.option("smooth", False, bool):
         want = "filtered"
@@ -269,7 +270,9 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
     Returns
     -------
     dict of str to DataFrame
-        One ``time, node, x, y, uncertainty_m`` table per name of ``outputs``.
+        One table per name of ``outputs``: ``time, node, x, y, uncertainty_m``, the
+        covariance columns and flags ``gated``, ``restart``, ``p_nlos``; ``attrs["summary"]``
+        holds the counts, the seed and each node's LOS/NLOS parameters.
     """
     bad = set(outputs) - {"filtered", "fixed-lag", "backward"}
     if bad:

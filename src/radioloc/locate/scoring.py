@@ -62,7 +62,12 @@ def reference_errors(estimates: pd.DataFrame, reference: pd.DataFrame) -> pd.Dat
                              "error_m": np.sqrt(np.sum(err ** 2, axis=-1))})
         if cov is not None:
             c = cov[idx][:, : len(dims), : len(dims)]
-            m2 = np.einsum("ni,ni->n", err, np.linalg.solve(c, err[..., None])[..., 0])
+            # a singular covariance (a claimed point) holds no error but zero
+            tr = np.trace(c, axis1=-2, axis2=-1)
+            c = c + (1e-12 * np.maximum(tr, 1e-300))[:, None, None] * np.eye(len(dims))
+            with np.errstate(all="ignore"):
+                m2 = np.einsum("ni,ni->n", err, np.linalg.solve(c, err[..., None])[..., 0])
+            m2 = np.where(np.isnan(m2), np.inf, m2)
             part["inside_95"] = m2 <= CHI2_95[len(dims)]
         rows.append(part)
     if not rows:

@@ -12,10 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-COVARIANCE_COLUMNS = {2: ("cov_xx", "cov_xy", "cov_yy"),
-                      3: ("cov_xx", "cov_xy", "cov_yy", "cov_xz", "cov_yz", "cov_zz")}
-_INDEX = {"cov_xx": (0, 0), "cov_xy": (0, 1), "cov_yy": (1, 1), "cov_xz": (0, 2),
-          "cov_yz": (1, 2), "cov_zz": (2, 2)}
+from radioloc.core.results import COVARIANCE_COLUMNS, COVARIANCE_ENTRY as _INDEX
 
 
 def add_covariance(frame: pd.DataFrame, covariance: np.ndarray) -> pd.DataFrame:
