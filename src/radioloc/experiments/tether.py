@@ -7,8 +7,10 @@ places tracker and trackee at random poses and runs Algorithm 4 without and with
 compass, with :class:`~radioloc.estimators.grid.GridFilter` injected into the tethering
 world as the tracker.
 
-The results table has a ``table`` column: ``"runs"`` rows are the Monte Carlo steps; the
-block holding run 0 adds the rows the figures need (``"model"``: the fitted trapezoid rows
+The results table has a ``table`` column: ``"runs"`` rows are the Monte Carlo steps (with
+``driving``: the tracker drove toward its estimate in that step, its spread below ``v``);
+``"vsweep"`` rows are the same worlds with a compass at each ``v`` of
+``TetherConfig.v_sweep_m``; the block holding run 0 adds the rows the figures need (``"model"``: the fitted trapezoid rows
 of Fig. 2; ``"fig3"``: three readings' likelihoods and posteriors; ``"fig6"``: grids of an
 example simulation, from the named streams ``"fig3-readings"`` and ``"fig6-example"``).
 :meth:`TetherExperiment.summarize` only reads that table.
@@ -299,7 +301,8 @@ class TetherExperiment(Experiment):
         full : bool
             Full size (200 runs of 400 s, every ablation); quick: 16 runs of 300 s with
             the ``cells_1m``, ``perfect_odometry`` and ``no_odometry_sharing`` ablations
-            only. Both run the two-tracker team; full also its ``perfect_odometry`` variant.
+            only. Both run the two-tracker team and the ``v`` sweep (2, 3, 4, 6 m); full
+            also the team's ``perfect_odometry`` variant.
 
         Returns
         -------
