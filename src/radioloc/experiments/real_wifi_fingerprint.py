@@ -297,7 +297,7 @@ class WifiFingerprintExperiment(Experiment):
                         Metric(f"{name}_building_hit_rate", r["building_hit"], None, "", what),
                         Metric(f"{name}_floor_hit_rate", r["floor_hit"], None, "",
                                f"{what}; building and floor right")]
-        gm, wk = stats.loc["gmm_places"], stats.loc["wknn"]
+
         def paired(col):
             """Per validation scan: the mixture's ``col`` minus weighted kNN's."""
             one = {m: per_run(test[test["method"] == m].astype({col: float}), col, ("row",))
