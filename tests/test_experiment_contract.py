@@ -8,6 +8,7 @@ measurements of the machine and are left out of the comparison.
 """
 
 import dataclasses
+import json
 
 import numpy as np
 import pandas as pd
@@ -34,6 +35,8 @@ def test_run_block_is_deterministic_and_summarize_only_reads_the_table(exp_id, t
     """The same block with the same seed gives the same tidy frame; then ``summarize()`` on
     that frame runs with every simulation, random draw and estimator entry point replaced
     by a function that fails: every metric and claim comes from the rows the blocks wrote.
+    Every claim reads holds / does not hold / undecided at this size, and a decided claim
+    with an interval has finite ends (a claim is never decided on a missing interval).
     (One test, so that the table is computed twice rather than three times.)"""
     import sys
     import warnings
@@ -74,3 +77,13 @@ def test_run_block_is_deterministic_and_summarize_only_reads_the_table(exp_id, t
         warnings.simplefilter("ignore")          # tiny tables: empty means are expected
         summary = exp.summarize(cfg, a, tmp_path)
     assert summary.metrics
+    for c in summary.claims:          # three verdicts; an interval only with its verdict's evidence
+        d = json.loads(json.dumps(c.as_dict()))
+        assert d["verdict"] in ("holds", "does not hold", "undecided at this size"), c.claim
+        assert (d["holds"] is None) == (d["verdict"] == "undecided at this size"), c.claim
+        if d["holds"] is not None and c.ci is not None:
+            assert d["ci_low"] is not None and d["ci_low"] <= d["ci_high"], c.claim
+    for m in summary.metrics:
+        d = json.loads(json.dumps(m.as_dict()))
+        if d["ci_low"] is not None:
+            assert d["ci_low"] <= d["ci_high"], m.name

@@ -455,7 +455,7 @@ def test_p000_robust_curves_median_and_kept_runs():
 # full-size (5000 runs, seed 0) reproduction, docs/p000.md
 P000_FULL = {("ekf", 900.0, "mean"): 11.2033, ("ekf", 10_000.0, "mean"): 13.758,
              ("rls", 900.0, "median"): 175.3689, ("rls", 10_000.0, "median"): 282.3243}
-P000_FULL_VERDICTS = [False, False, False, True, False, False, True]
+P000_FULL_VERDICTS = [False, False, False, True, False, False, True]   # settling time per run
 
 
 def test_p000_reproduction_at_reduced_size_holds_the_full_numbers_and_verdicts(tmp_path):

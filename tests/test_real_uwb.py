@@ -200,7 +200,8 @@ def test_real_uwb_hanyang_reduced_reproduction(tmp_path, monkeypatch):
     verdicts = [c.holds for c in summary.claims]
     texts = [c.claim for c in summary.claims]
     assert not any("reproduces RMSD_results" in t for t in texts)    # cropped: not judged
-    assert verdicts == [False, False, False, True, False], texts
+    # (one run in this window: the paired PF-vs-EKF claim has no interval, so it is undecided)
+    assert verdicts == [False, False, False, True, None], texts
     assert (tmp_path / "table.md").is_file() and (tmp_path / "trajectories.png").is_file()
 
 

@@ -100,3 +100,24 @@ def test_import_does_not_switch_the_backend():
                          env={"PYTHONPATH": src, "PATH": "/usr/bin:/bin", "MPLBACKEND": "",
                               "HOME": "/nonexistent"})
     assert res.returncode == 0, res.stderr
+
+
+def test_claims_show_verdict_and_interval_and_metrics_their_interval(tmp_path):
+    """An undecided claim reads 'undecided at this size' with its interval, counts as not
+    holding in the score, and a metric's interval shows in the table."""
+    from radioloc.report.tables import claim_evidence, interval, verdict
+
+    r = fake_record("delta", holds=(True,))
+    r["claims"] = [{"claim": "A beats B", "holds": None, "verdict": "undecided at this size",
+                    "estimate": 0.2, "ci_low": -0.1, "ci_high": 0.5, "level": 0.95, "n": 16,
+                    "unit": "m", "what": "mean paired difference"},
+                   {"claim": "C beats D", "holds": True}]
+    r["metrics"][0].update(ci_low=0.9, ci_high=1.1)
+    assert claims_score(r) == (1, 2)
+    assert verdict(r["claims"][1]) == "holds" and claim_evidence(r["claims"][1]) == ""
+    assert claim_evidence(r["claims"][0]) == ("mean paired difference 0.2 m, 95% CI [-0.1, 0.5], "
+                                              "n = 16")
+    assert interval(0.9, 1.1) == "[0.9, 1.1]" and interval(None, 1.0) == ""
+    page = render([r], tmp_path)
+    assert "undecided at this size" in page and "95% CI [-0.1, 0.5]" in page
+    assert "<td class=\"num\">[0.9, 1.1]</td>" in page and "95% CI</th>" in page

@@ -33,7 +33,7 @@ def repro(tmp_path_factory):
     df = exp.run_block(cfg, np.arange(RUNS), block_generator(7, 0))
     summary = exp.summarize(cfg, df, tmp_path_factory.mktemp("p004"))
     return (df, {m.name: m.value for m in summary.metrics},
-            {c.claim: bool(c.holds) for c in summary.claims})
+            {c.claim: c.verdict for c in summary.claims})
 
 
 def _rmse_and_se(df, scenario, step):
@@ -80,12 +80,18 @@ def test_claim_verdicts(repro):
         (hit,) = [v for c, v in claims.items() if c.startswith(start)]
         return hit
 
-    assert not verdict("Tracking with the motion model is more accurate")
-    assert verdict("Calibration in both door states gives a bimodal")
-    assert verdict("The product of the per-station densities")
-    assert verdict("Progressive Bayes reduction")
-    assert verdict("Variant (ours, not the paper's): a constant-velocity mixture tracker is "
+    def holds(start):
+        return verdict(start) == "holds"
+
+    def fails(start):          # at this size a claim may also be undecided, never the opposite
+        return verdict(start) == "does not hold"
+
+    assert not holds("Tracking with the motion model is more accurate")
+    assert not fails("Calibration in both door states gives a bimodal")
+    assert not fails("The product of the per-station densities")
+    assert not fails("Progressive Bayes reduction")
+    assert not fails("Variant (ours, not the paper's): a constant-velocity mixture tracker is "
                    "more accurate than one-shot positioning on the walk")
-    assert verdict("Variant (ours, not the paper's): a constant-velocity mixture tracker is "
+    assert not fails("Variant (ours, not the paper's): a constant-velocity mixture tracker is "
                    "more accurate than one-shot positioning on the pausing walk")
-    assert not verdict("After 8 updates the estimate concentrates")
+    assert not holds("After 8 updates the estimate concentrates")

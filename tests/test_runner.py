@@ -76,9 +76,11 @@ def test_reproduce_writes_results_summary_and_figures(tmp_path):
             "claims"} <= set(summary)
     assert summary["runs"] == 200 and summary["full"] is False
     for m in summary["metrics"]:
-        assert set(m) == {"name", "value", "paper", "unit", "note"}
+        assert set(m) == {"name", "value", "paper", "unit", "note", "ci_low", "ci_high"}
         assert isinstance(m["value"], float)
-    assert all(set(c) == {"claim", "holds"} for c in summary["claims"])
+    for c in summary["claims"]:
+        assert {"claim", "holds", "verdict", "estimate", "ci_low", "ci_high", "n"} <= set(c)
+        assert c["verdict"] in ("holds", "does not hold", "undecided at this size")
     assert len(pd.read_csv(d / "results.csv")) == 200 * 6
     assert list(d.glob("*.png"))
 

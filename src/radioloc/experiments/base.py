@@ -21,36 +21,337 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, DataUnavailable
 
 
+#: Confidence level of every interval the experiments report (claims and metrics).
+LEVEL = 0.95
+#: The three verdicts of a claim.
+HOLDS, FAILS, UNDECIDED = "holds", "does not hold", "undecided at this size"
+
+
+def _finite(values: Any) -> np.ndarray:
+    """The finite entries of ``values`` as a flat float array."""
+    x = np.asarray(values, dtype=float).ravel()
+    return x[np.isfinite(x)]
+
+
+def mean_interval(values: Any, level: float = LEVEL) -> tuple[float, float, float, int]:
+    """Mean over runs and its Student-t confidence interval.
+
+    Parameters
+    ----------
+    values : array_like or pandas.Series
+        One number per run; non-finite entries are left out.
+    level : float
+        Confidence level of the interval (0.95: 95 %).
+
+    Returns
+    -------
+    mean, low, high : float
+        The mean and the interval's ends (NaN ends with fewer than two values; the interval
+        is the single point when every value is equal).
+    n : int
+        Runs used.
+    """
+    from scipy.stats import t as student_t
+
+    x = _finite(values)
+    n = int(x.size)
+    if n == 0:
+        return np.nan, np.nan, np.nan, 0
+    mean = float(x.mean())
+    if n < 2:
+        return mean, np.nan, np.nan, n
+    half = float(student_t.ppf(0.5 + level / 2, n - 1) * x.std(ddof=1) / np.sqrt(n))
+    return mean, mean - half, mean + half, n
+
+
+def median_interval(values: Any, level: float = LEVEL) -> tuple[float, float, float, int]:
+    """Median over runs and its distribution-free confidence interval.
+
+    The interval's ends are the order statistics ``x_(j)``, ``x_(k)`` whose binomial
+    coverage ``P(j <= B < k)``, ``B ~ Bin(n, 1/2)``, is at least ``level`` (the narrowest
+    symmetric pair; the whole range when ``n`` is too small to reach ``level``).
+
+    Parameters
+    ----------
+    values : array_like or pandas.Series
+        One number per run; non-finite entries are left out.
+    level : float
+        Confidence level of the interval.
+
+    Returns
+    -------
+    median, low, high : float
+        The median and the interval's ends (NaN ends with fewer than two values).
+    n : int
+        Runs used.
+    """
+    from scipy.stats import binom
+
+    x = np.sort(_finite(values))
+    n = int(x.size)
+    if n == 0:
+        return np.nan, np.nan, np.nan, 0
+    med = float(np.median(x))
+    if n < 2:
+        return med, np.nan, np.nan, n
+    j = int(binom.ppf((1 - level) / 2, n, 0.5))        # P(B < j) <= (1 - level) / 2
+    j = max(j - 1, 0)
+    while j > 0 and binom.cdf(n - j - 1, n, 0.5) - binom.cdf(j - 1, n, 0.5) < level:
+        j -= 1
+    return med, float(x[j]), float(x[n - 1 - j]), n
+
+
+def paired_differences(a: Any, b: Any) -> np.ndarray:
+    """Per-run differences ``a - b`` over the runs where both are finite.
+
+    Parameters
+    ----------
+    a, b : pandas.Series indexed by run, or array_like of equal shape
+        One number per run of each setting; Series are matched on their index (the run).
+
+    Returns
+    -------
+    ndarray
+        The finite differences.
+    """
+    if isinstance(a, pd.Series) and isinstance(b, pd.Series):
+        d = a.astype(float).sub(b.astype(float)).to_numpy()
+    else:
+        a_, b_ = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        if a_.shape != b_.shape:
+            raise ConfigError(f"paired comparison: {a_.shape} runs against {b_.shape}")
+        d = a_ - b_
+    return _finite(d)
+
+
+def per_run(frame: pd.DataFrame, column: str, by: tuple[str, ...] = ("run",)) -> pd.Series:
+    """The mean of ``column`` over the rows of each run: one number per run for a claim
+    or a metric with its interval.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Tidy rows with the ``by`` columns.
+    column : str
+        The column to average.
+    by : tuple of str
+        The columns naming one unit (``("run",)``; e.g. ``("run", "vehicle")`` where the
+        runs are too few and the units inside a run are independent draws).
+
+    Returns
+    -------
+    pandas.Series
+        Indexed by ``by``: the units of two settings pair on it.
+    """
+    return frame.groupby(list(by))[column].mean()
+
+
 @dataclass
 class Metric:
-    """One number of the reproduction, beside the paper's where it has one."""
+    """One number of the reproduction, beside the paper's where it has one.
+
+    ``ci`` is the confidence interval (at :data:`LEVEL`) of ``value`` over the runs, where
+    the value is a statistic over runs (see :meth:`over_runs`).
+    """
 
     name: str
     value: float
     paper: float | None = None
     unit: str = ""
     note: str = ""
+    ci: tuple[float, float] | None = None
+
+    @classmethod
+    def over_runs(cls, name: str, values: Any, paper: float | None = None, unit: str = "",
+                  note: str = "", stat: str = "mean") -> "Metric":
+        """The mean (or median) of one number per run, with its confidence interval.
+
+        Parameters
+        ----------
+        name, paper, unit, note
+            As the fields.
+        values : array_like or pandas.Series
+            One number per run (non-finite ones left out).
+        stat : {"mean", "median"}
+            Mean with its t interval, or median with its order-statistic interval.
+
+        Returns
+        -------
+        Metric
+        """
+        if stat not in ("mean", "median"):
+            raise ConfigError(f"Metric.over_runs: stat must be 'mean' or 'median', got {stat!r}")
+        value, low, high, _ = (mean_interval if stat == "mean" else median_interval)(values)
+        return cls(name, value, paper, unit, note, (low, high))
 
     def as_dict(self) -> dict[str, Any]:
         v = float(self.value)
+        lo, hi = (np.nan, np.nan) if self.ci is None else map(float, self.ci)
         return {
             "name": self.name,
             "value": v if np.isfinite(v) else None,
             "paper": None if self.paper is None else float(self.paper),
             "unit": self.unit,
             "note": self.note,
+            "ci_low": lo if np.isfinite(lo) else None,
+            "ci_high": hi if np.isfinite(hi) else None,
         }
 
 
 @dataclass
 class Claim:
-    """A qualitative statement of the paper and whether it holds on our numbers."""
+    """A qualitative statement of the paper and its verdict on our numbers.
+
+    A claim is decided on a mean over runs of one number per run (a paired difference of
+    two settings, or one setting's number against a bound): ``estimate`` is that mean,
+    ``ci`` its confidence interval at ``level``, ``n`` the runs. It **holds** when the whole
+    interval lies where the claim says, **does not hold** when the whole interval lies
+    outside, and is **undecided at this size** otherwise (``holds`` is then None). Build
+    claims with :meth:`lower`, :meth:`below`, :meth:`above`, :meth:`within` and
+    :meth:`all_of`; ``Claim(text, holds)`` remains for a statement with no runs to average
+    over (``ci`` stays None).
+    """
 
     claim: str
-    holds: bool
+    holds: bool | None
+    estimate: float = np.nan
+    ci: tuple[float, float] | None = None
+    n: int = 0
+    unit: str = ""
+    level: float = LEVEL
+    what: str = ""
+
+    @property
+    def verdict(self) -> str:
+        """``"holds"``, ``"does not hold"`` or ``"undecided at this size"``."""
+        return UNDECIDED if self.holds is None else HOLDS if self.holds else FAILS
+
+    @classmethod
+    def decide(cls, claim: str, values: Any, low: float = -np.inf, high: float = np.inf,
+               unit: str = "", what: str = "mean", level: float = LEVEL,
+               stat: str = "mean") -> "Claim":
+        """The claim "the mean (or median) of ``values`` lies in (``low``, ``high``]", over runs.
+
+        Parameters
+        ----------
+        claim : str
+            The statement.
+        values : array_like
+            One number per run (non-finite ones left out).
+        low, high : float
+            The interval the claim puts the mean in.
+        unit, what : str
+            Unit of ``values`` and what their mean is (shown beside the interval).
+        level : float
+            Confidence level.
+        stat : {"mean", "median"}
+            The statistic: the mean (t interval) or the median (order-statistic interval).
+
+        Returns
+        -------
+        Claim
+            Holds if the confidence interval lies inside (``low``, ``high``], does not hold
+            if it lies outside, else undecided (also with fewer than two runs).
+        """
+        if stat not in ("mean", "median"):
+            raise ConfigError(f"Claim.decide: stat must be 'mean' or 'median', got {stat!r}")
+        mean, lo, hi, n = (mean_interval if stat == "mean" else median_interval)(values, level)
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            holds = None
+        elif lo > low and hi <= high:
+            holds = True
+        elif hi <= low or lo > high:
+            holds = False
+        else:
+            holds = None
+        return cls(claim, holds, mean, (lo, hi), n, unit, level, what)
+
+    @classmethod
+    def lower(cls, claim: str, a: Any, b: Any, margin: float = 0.0, unit: str = "",
+              level: float = LEVEL, stat: str = "mean") -> "Claim":
+        """"``a`` is lower than ``b`` (by more than ``margin``)", paired over runs.
+
+        Parameters
+        ----------
+        claim : str
+            The statement.
+        a, b : pandas.Series indexed by run, or array_like of equal shape
+            One number per run of each setting (same runs: a paired comparison).
+        margin : float
+            Difference ``b - a`` the claim requires (0: ``a`` lower at all).
+        unit : str
+            Unit of ``a`` and ``b``.
+        level : float
+            Confidence level.
+        stat : {"mean", "median"}
+            Decide on the mean or the median of the paired differences.
+
+        Returns
+        -------
+        Claim
+            Decided on the mean (median) of ``b - a`` over the runs where both are finite.
+        """
+        return cls.decide(claim, paired_differences(b, a), low=margin, unit=unit,
+                          what=f"{stat} paired difference", level=level, stat=stat)
+
+    @classmethod
+    def below(cls, claim: str, values: Any, bound: float, unit: str = "",
+              level: float = LEVEL, stat: str = "mean") -> "Claim":
+        """"The mean (or median) of ``values`` is at most ``bound``", over runs."""
+        return cls.decide(claim, values, high=bound, unit=unit, level=level, stat=stat,
+                          what=stat)
+
+    @classmethod
+    def above(cls, claim: str, values: Any, bound: float, unit: str = "",
+              level: float = LEVEL, stat: str = "mean") -> "Claim":
+        """"The mean (or median) of ``values`` is above ``bound``", over runs."""
+        return cls.decide(claim, values, low=bound, unit=unit, level=level, stat=stat,
+                          what=stat)
+
+    @classmethod
+    def within(cls, claim: str, a: Any, b: Any, rel_tol: float, unit: str = "",
+               level: float = LEVEL, stat: str = "mean") -> "Claim":
+        """"``a`` and ``b`` are equal within ``rel_tol`` of ``b``'s mean", paired over runs.
+
+        Holds if the interval of the mean of ``a - b`` lies within +- ``rel_tol`` x the
+        mean of ``b`` (an equivalence test), does not hold if it lies outside.
+        """
+        centre = np.mean if stat == "mean" else np.median
+        tol = rel_tol * abs(float(centre(_finite(b)))) if _finite(b).size else np.nan
+        return cls.decide(claim, paired_differences(a, b), low=-tol, high=tol, unit=unit,
+                          what=f"{stat} paired difference", level=level, stat=stat)
+
+    @classmethod
+    def all_of(cls, claim: str, parts: list["Claim"]) -> "Claim":
+        """A claim that holds when every part holds (e.g. a monotone chain of pairs).
+
+        Does not hold when some part does not hold, else is undecided. The interval shown
+        is that of the deciding part: the first that does not hold, else the first
+        undecided one, else the one with the widest interval below its mean.
+        """
+        if not parts:
+            raise ConfigError(f"Claim.all_of: {claim!r} has no parts")
+        fails = [p for p in parts if p.holds is False]
+        open_ = [p for p in parts if p.holds is None]
+        if fails:
+            key, holds = fails[0], False
+        elif open_:
+            key, holds = open_[0], None
+        else:
+            key, holds = min(parts, key=lambda p: p.ci[0] - p.estimate), True
+        return cls(claim, holds, key.estimate, key.ci, key.n, key.unit, key.level,
+                   f"{key.what} of the deciding step ({len(parts)} steps)")
 
     def as_dict(self) -> dict[str, Any]:
-        return {"claim": self.claim, "holds": bool(self.holds)}
+        lo, hi = (np.nan, np.nan) if self.ci is None else map(float, self.ci)
+        est = float(self.estimate)
+        return {"claim": self.claim, "holds": None if self.holds is None else bool(self.holds),
+                "verdict": self.verdict,
+                "estimate": est if np.isfinite(est) else None,
+                "ci_low": lo if np.isfinite(lo) else None,
+                "ci_high": hi if np.isfinite(hi) else None,
+                "level": float(self.level), "n": int(self.n), "unit": self.unit,
+                "what": self.what}
 
 
 @dataclass

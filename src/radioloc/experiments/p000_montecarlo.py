@@ -305,38 +305,57 @@ class P000MonteCarlo(Experiment):
         t1, t2 = tags[v1], tags[v2]
         tol, low = config.equal_tolerance, config.clearly_lower
 
-        def both(test) -> bool:
-            """A claim holds on the mean of the runs that did not diverge and the median."""
-            return bool(test(final, steps) and test(med_final, med_steps))
+        def run_values(rv):
+            """Per run and method: final error and steps to converge, NaN where the run
+            diverged (``kept``) and over all runs (``all``)."""
+            rob = robust_curves(results[results["range_var_m2"] == rv], wt, config.diverged_m)
+            out = {}
+            for m in METHODS:
+                e = rob["per_run"][m]
+                ok = np.abs(e - e[:, -1:]) <= config.converge_tolerance * np.abs(e[:, -1:])
+                last_bad = e.shape[1] - np.argmax(~ok[:, ::-1], axis=1)
+                step = np.where((~ok).any(axis=1), last_bad, 0).astype(float)
+                keep = rob["kept"][m]
+                out[m, "kept"] = (np.where(keep, e[:, -1], np.nan), np.where(keep, step, np.nan))
+                out[m, "all"] = (e[:, -1], step)
+            return out
 
-        def close(f, a, b, rv):
-            return abs(f[a, rv] - f[b, rv]) <= tol * min(f[a, rv], f[b, rv])
+        vals = {rv: run_values(rv) for rv in (v1, v2)}
+
+        def claim(text, make) -> Claim:
+            """A claim decided on the mean of the runs that did not diverge and on the median
+            over all runs (``make(final, steps, stat)`` -> a list of claims)."""
+            return Claim.all_of(text, [c for sel, st in (("kept", "mean"), ("all", "median"))
+                                       for c in make(lambda rv, m: vals[rv][m, sel][0],
+                                                     lambda rv, m: vals[rv][m, sel][1], st)])
+
         on = " (judged on the mean of the runs that did not diverge and on the median)"
 
-        def converges(f, m, rv) -> bool:
-            return bool(f[m, rv] < prior[rv])
-
-        def faster(rv):
-            """Fewer EKF iterations to settle, judged only where both methods converge
-            (a method whose error grows settles too, on a drifted frame)."""
-            return lambda f, s: (converges(f, "rls", rv) and converges(f, "ekf", rv)
-                                 and s["ekf", rv] < s["rls", rv])
+        def both_converge(f, rv, st) -> list[Claim]:
+            """Settling is compared only where both methods converge (a method whose error
+            grows settles too, on a drifted frame)."""
+            return [Claim.below("", f(rv, m), prior[rv], "m", stat=st) for m in ("rls", "ekf")]
         where = " (judged only where both converge: final error below the prior error)"
         claims += [
-            Claim(f"({t1}) both RLS and EKF converge (final error below the prior error)" + on,
-                  both(lambda f, s: f["rls", v1] < prior[v1] and f["ekf", v1] < prior[v1])),
-            Claim(f"({t1}) EKF converges in fewer iterations than RLS" + where + on,
-                  both(faster(v1))),
-            Claim(f"({t1}) final RLS and EKF errors are nearly identical (within {tol:.0%})" + on,
-                  both(lambda f, s: close(f, "rls", "ekf", v1))),
-            Claim(f"({t2}) EKF ends clearly lower than RLS (at least {low:.0%} lower)" + on,
-                  both(lambda f, s: f["ekf", v2] <= (1 - low) * f["rls", v2])),
-            Claim(f"({t2}) EKF converges in fewer iterations than RLS" + where + on,
-                  both(faster(v2))),
-            Claim(f"variant rls_prior_weighted ({t1}): final RLS and EKF errors within {tol:.0%}" + on,
-                  both(lambda f, s: close(f, "rlsw", "ekf", v1))),
-            Claim(f"variant rls_prior_weighted ({t2}): EKF ends clearly lower than RLS" + on,
-                  both(lambda f, s: f["ekf", v2] <= (1 - low) * f["rlsw", v2])),
+            claim(f"({t1}) both RLS and EKF converge (final error below the prior error)" + on,
+                  lambda f, s, st: [Claim.below("", f(v1, m), prior[v1], "m", stat=st)
+                                    for m in ("rls", "ekf")]),
+            claim(f"({t1}) EKF converges in fewer iterations than RLS" + where + on,
+                  lambda f, s, st: both_converge(f, v1, st)
+                  + [Claim.lower("", s(v1, "ekf"), s(v1, "rls"), stat=st)]),
+            claim(f"({t1}) final RLS and EKF errors are nearly identical (within {tol:.0%})" + on,
+                  lambda f, s, st: [Claim.within("", f(v1, "rls"), f(v1, "ekf"), tol, "m", stat=st)]),
+            claim(f"({t2}) EKF ends clearly lower than RLS (at least {low:.0%} lower)" + on,
+                  lambda f, s, st: [Claim.lower("", f(v2, "ekf"), (1 - low) * f(v2, "rls"), unit="m",
+                                                stat=st)]),
+            claim(f"({t2}) EKF converges in fewer iterations than RLS" + where + on,
+                  lambda f, s, st: both_converge(f, v2, st)
+                  + [Claim.lower("", s(v2, "ekf"), s(v2, "rls"), stat=st)]),
+            claim(f"variant rls_prior_weighted ({t1}): final RLS and EKF errors within {tol:.0%}" + on,
+                  lambda f, s, st: [Claim.within("", f(v1, "rlsw"), f(v1, "ekf"), tol, "m", stat=st)]),
+            claim(f"variant rls_prior_weighted ({t2}): EKF ends clearly lower than RLS" + on,
+                  lambda f, s, st: [Claim.lower("", f(v2, "ekf"), (1 - low) * f(v2, "rlsw"), unit="m",
+                                                stat=st)]),
         ]
         for rv in config.range_var_m2:
             notes.append(

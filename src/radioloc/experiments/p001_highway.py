@@ -29,7 +29,7 @@ from radioloc.estimators.ekf_ranging import run_peer_ekf
 from radioloc.estimators.ekf_tracker import RangeEKF
 from radioloc.estimators.p2p_particle import OnlineEM, P2PParticleFilter
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
-from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
+from radioloc.experiments.base import Claim, Experiment, Metric, Summary, per_run, register
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.motion import InputDriven
 from radioloc.report.style import COLORS, figure, save
@@ -399,35 +399,52 @@ class HighwayExperiment(Experiment):
         m_abl, c_abl, n_abl = self._lag_ablation_summary(ablation)
         metrics += m_abl
         notes += n_abl
-        # claims
+        # claims: paired over (run, vehicle) units (the quick size has a single run)
+        unit = ("run", "vehicle")
+
+        def units(g, method, a=None):
+            sel = g.method == method if a is None else (g.method == method) & np.isclose(g.alpha, a / 100)
+            return per_run(g[sel], "error_m", unit)
+
         if 30 in ml_c:
-            rans = metrics[[m.name for m in metrics].index("ransac_mean_error_m_alpha30")].value
-            claims.append(Claim("RANSAC-based methods have errors over 5 m (alpha = 30%)", bool(rans > 5.0)))
+            claims.append(Claim.above("RANSAC-based methods have errors over 5 m (alpha = 30%)",
+                                      units(base, "ransac", 30), 5.0, "m"))
         if pf_c:
-            claims.append(Claim("PF is slightly better than the genie local ML at every alpha "
-                                "(ML reading: global snapshot search)",
-                                bool(all(pf_c[a] <= ml_c[a] for a in pf_c))))
-            claims.append(Claim("PF is slightly better than the genie local ML at every alpha "
-                                "(ML reading: local search around its previous estimate)",
-                                bool(all(pf_c[a] <= mll_c[a] for a in pf_c))))
             tags = sorted(pf_c)
-            claims.append(Claim("the PF beats the Gaussian EKF at every alpha",
-                                bool(all(pf_c[a] < base[(np.isclose(base.alpha, a / 100)) & (base.method == "ekf")]
-                                         .error_m.mean() for a in pf_c))))
-            claims.append(Claim("PF mean error decreases as alpha grows",
-                                bool(np.all(np.diff([pf_c[a] for a in tags]) < 0))))
-            claims.append(Claim("P_d increases with alpha", bool(np.all(np.diff([pd_c[a] for a in tags]) > 0))))
+            for ml, reading in (("ml", "global snapshot search"),
+                                ("ml_local", "local search around its previous estimate")):
+                claims.append(Claim.all_of(
+                    f"PF is slightly better than the genie local ML at every alpha (ML reading: {reading})",
+                    [Claim.lower("", units(base, "pf", a), units(base, ml, a), unit="m") for a in tags]))
+            claims.append(Claim.all_of("the PF beats the Gaussian EKF at every alpha",
+                                       [Claim.lower("", units(base, "pf", a), units(base, "ekf", a),
+                                                    unit="m") for a in tags]))
+            claims.append(Claim.all_of("PF mean error decreases as alpha grows",
+                                       [Claim.lower("", units(base, "pf", b), units(base, "pf", a),
+                                                    unit="m") for a, b in zip(tags, tags[1:])]))
+            pf_rows = base[base.method == "pf"]
+            link_sums = pf_rows.groupby(["alpha", *unit])[["los_detected", "los_links"]].sum()
+            pd_units = {int(round(a * 100)): (g["los_detected"] / g["los_links"].where(g["los_links"] > 0))
+                        .droplevel("alpha") for a, g in link_sums.groupby(level="alpha")}
+            claims.append(Claim.all_of("P_d increases with alpha",
+                                       [Claim.lower("", pd_units[a], pd_units[b]) for a, b in zip(tags, tags[1:])]))
         if 5 in pf_c:
-            e5 = base[(base.alpha == 0.05) & (base.method == "pf")].error_m
-            frac = float((e5 < 1.5).mean())
+            e5 = base[(base.alpha == 0.05) & (base.method == "pf")]
+            frac = float((e5.error_m < 1.5).mean())
             notes.append(f"alpha = 5%: fraction of PF errors below 1.5 m = {frac:.3f}")
-            claims.append(Claim("at alpha = 5% more than 80% of the errors are below 1.5 m", frac > 0.8))
+            claims.append(Claim.above("at alpha = 5% more than 80% of the errors are below 1.5 m",
+                                      per_run(e5.assign(below=e5.error_m < 1.5), "below", unit), 0.8))
         if len(pf_d) == 5:
-            claims.append(Claim("more anchors (26 -> 30 -> 36) lower the PF error, with diminishing returns",
-                                bool(pf_d[(26, 20)] > pf_d[(30, 20)] > pf_d[(36, 20)]
-                                     and pf_d[(26, 20)] - pf_d[(30, 20)] > pf_d[(30, 20)] - pf_d[(36, 20)])))
-            claims.append(Claim("more vehicles (20 -> 24 -> 30) lower the PF error",
-                                bool(pf_d[(26, 20)] > pf_d[(26, 24)] > pf_d[(26, 30)])))
+            d = {k: per_run(g, "error_m", unit) for k, g in a30.groupby(["M", "N"])}
+            claims.append(Claim.all_of(
+                "more anchors (26 -> 30 -> 36) lower the PF error, with diminishing returns",
+                [Claim.lower("", d[30, 20], d[26, 20], unit="m"),
+                 Claim.lower("", d[36, 20], d[30, 20], unit="m"),
+                 Claim.decide("", (d[26, 20] - 2 * d[30, 20] + d[36, 20]).dropna(), low=0.0,
+                              unit="m", what="mean paired (26 - 30) - (30 - 36) gain")]))
+            claims.append(Claim.all_of("more vehicles (20 -> 24 -> 30) lower the PF error",
+                                       [Claim.lower("", d[26, 24], d[26, 20], unit="m"),
+                                        Claim.lower("", d[26, 30], d[26, 24], unit="m")]))
         claims += c_abl
         if not base.empty:
             self._figures(config, base, out_dir)

@@ -2,10 +2,12 @@
 
 The page opens with a **scoreboard**: one row per experiment with the paper's claims that
 hold on our numbers (k of n), the headline numbers beside the paper's with the gap coloured,
-and a link to the experiment's section. Each section then shows the claims, the figures at
+and a link to the experiment's section. Each section then shows the claims (holds / does
+not hold / undecided at this size, with the confidence interval that decided each), the figures at
 full width with a caption naming the paper figure they reproduce (from the file name
 ``figN[a-z]_*.png``, or from an optional ``captions.json`` ``{file stem: caption}`` in the
-experiment's folder), and the full metric table folded in a ``<details>`` element.
+experiment's folder), and the full metric table (with each metric's confidence interval
+over runs, where it has one) folded in a ``<details>`` element.
 
 Nothing here imports pyplot or switches the matplotlib backend.
 """
@@ -19,7 +21,7 @@ import re
 from pathlib import Path
 from typing import Any, Iterable
 
-from radioloc.report.tables import fmt, relative_gap
+from radioloc.report.tables import claim_evidence, fmt, interval, relative_gap, verdict
 
 #: Relative gaps (ours against the paper's) up to these bounds are coloured good / fair;
 #: larger ones poor.
@@ -48,7 +50,7 @@ white-space:nowrap}
 .pill.good{background:#dafbe1} .pill.fair{background:#fff8c5} .pill.poor{background:#ffebe9}
 .pill.none{background:#eaeef2;color:#57606a}
 .meta{color:#57606a;font-size:.9em} .note{color:#57606a;font-size:.9em}
-ul.claims{padding-left:1.2em} ul.claims li{margin:.15em 0}
+ul.claims{padding-left:1.2em} ul.claims li{margin:.15em 0} .ci{color:#57606a;font-size:.9em}
 figure{margin:1.2em 0;max-width:100%} figure img{display:block;max-width:100%;height:auto;
 border:1px solid #eaeef2} figcaption{color:#57606a;font-size:.9em;margin-top:.3em}
 details{margin:1em 0} summary{cursor:pointer;font-weight:600}
@@ -92,7 +94,7 @@ def claims_score(record: dict[str, Any]) -> tuple[int, int]:
     tuple of int
     """
     claims = record.get("claims") or []
-    return sum(bool(c["holds"]) for c in claims), len(claims)
+    return sum(verdict(c) == "holds" for c in claims), len(claims)
 
 
 def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[str, Any]]:
@@ -137,13 +139,19 @@ def figure_caption(stem: str, paper: str) -> str:
     return f"{title}."
 
 
+def _ci_span(metric: dict[str, Any]) -> str:
+    """`` <span class="ci">[lo, hi]</span>`` of a metric with an interval, else ``""``."""
+    ci = interval(metric.get("ci_low"), metric.get("ci_high"))
+    return f' <span class="ci">{_esc(ci)}</span>' if ci else ""
+
+
 def _headline_cell(record: dict[str, Any]) -> str:
     items = []
     for m in headline_metrics(record):
         cls = gap_class(m["value"], m["paper"])
         gap = relative_gap(m["value"], m["paper"])
         items.append(f'<span class="hl" title="{_esc(m["note"])}"><span class="n">'
-                     f'{_esc(m["name"])}</span> {fmt(m["value"])} / {fmt(m["paper"])} '
+                     f'{_esc(m["name"])}</span> {fmt(m["value"])}{_ci_span(m)} / {fmt(m["paper"])} '
                      f'<b class="{cls}">{_esc(gap)}</b></span>')
     return "".join(items) or '<span class="meta">no number with a published value</span>'
 
@@ -191,12 +199,14 @@ def scoreboard(records: Iterable[dict[str, Any]]) -> str:
 def _metric_table(record: dict[str, Any]) -> str:
     rows = "".join(
         f'<tr><td>{_esc(m["name"])}</td><td class="num">{fmt(m["value"])}</td>'
+        f'<td class="num">{_esc(interval(m.get("ci_low"), m.get("ci_high")))}</td>'
         f'<td class="num">{fmt(m["paper"])}</td>'
         f'<td class="num {gap_class(m["value"], m["paper"])}">{relative_gap(m["value"], m["paper"])}</td>'
         f'<td>{_esc(m["unit"])}</td><td class="note">{_esc(m["note"])}</td></tr>'
         for m in record["metrics"])
     return (f'<details><summary>All {len(record["metrics"])} metrics</summary><div class="wrap">'
-            '<table><thead><tr><th>metric</th><th class="num">ours</th><th class="num">paper</th>'
+            '<table><thead><tr><th>metric</th><th class="num">ours</th><th class="num">95% CI</th>'
+            '<th class="num">paper</th>'
             '<th class="num">gap</th><th>unit</th><th>note</th></tr></thead>'
             f'<tbody>{rows}</tbody></table></div></details>')
 
@@ -214,6 +224,10 @@ def _captions(folder: Path) -> dict[str, str]:
 def _figure_order(path: Path) -> tuple:
     m = re.match(r"fig(\d+)([a-z]?)", path.stem)
     return (0, int(m.group(1)), m.group(2), path.stem) if m else (1, 0, "", path.stem)
+
+
+_VERDICT_CLASS = {"holds": "good", "does not hold": "poor", "undecided at this size": "fair"}
+_VERDICT_MARK = {"holds": "&#10003;", "does not hold": "&#10007;", "undecided at this size": "?"}
 
 
 def experiment_section(record: dict[str, Any], out: Path, description: str = "") -> str:
@@ -242,9 +256,11 @@ def experiment_section(record: dict[str, Any], out: Path, description: str = "")
                  f'{"full" if record["full"] else "quick"} size, {record["elapsed_s"]:.1f} s</p>')
     if record["claims"]:
         items = "".join(
-            f'<li class="{"good" if c["holds"] else "poor"}">'
-            f'{"&#10003; holds" if c["holds"] else "&#10007; does not hold"}: '
-            f'<span style="color:#1f2328">{_esc(c["claim"])}</span></li>'
+            f'<li class="{_VERDICT_CLASS[verdict(c)]}">'
+            f'{_VERDICT_MARK[verdict(c)]} {_esc(verdict(c))}: '
+            f'<span style="color:#1f2328">{_esc(c["claim"])}</span>'
+            + (f' <span class="ci">({_esc(claim_evidence(c))})</span>' if claim_evidence(c) else "")
+            + '</li>'
             for c in record["claims"])
         parts.append(f'<p><b>Claims of the paper, checked on our numbers</b></p>'
                      f'<ul class="claims">{items}</ul>')

@@ -28,17 +28,47 @@ def relative_gap(value: float | None, paper: float | None) -> str:
     return f"{100.0 * (value - paper) / abs(paper):+.0f}%"
 
 
+def interval(low: float | None, high: float | None) -> str:
+    """``[low, high]`` of a confidence interval (``""`` when it has no ends)."""
+    if low is None or high is None:
+        return ""
+    return f"[{fmt(low)}, {fmt(high)}]"
+
+
+def verdict(claim: dict[str, Any]) -> str:
+    """The verdict of one claim record: ``holds``, ``does not hold`` or ``undecided at this
+    size`` (a record without ``verdict`` reads its ``holds``)."""
+    if "verdict" in claim:
+        return str(claim["verdict"])
+    return "holds" if claim["holds"] else "does not hold"
+
+
+def claim_evidence(claim: dict[str, Any]) -> str:
+    """What decided a claim: ``mean paired difference 0.22 m, 95% CI [0.05, 0.39], n = 40``
+    (``n``: runs, or the units a run holds where the experiment pairs on them; ``""`` for a
+    claim without an interval)."""
+    if claim.get("ci_low") is None and claim.get("estimate") is None:
+        return ""
+    unit = f" {claim['unit']}" if claim.get("unit") else ""
+    est = claim.get("estimate")
+    level = float(claim.get("level") or 0.95)
+    ci = interval(claim.get("ci_low"), claim.get("ci_high")) or "none (fewer than 2 runs)"
+    return (f"{claim.get('what') or 'mean'} {'-' if est is None else fmt(est)}{unit}, "
+            f"{level:.0%} CI {ci}, n = {claim.get('n', 0)}")
+
+
 def summary_table(record: dict[str, Any]) -> Table:
     """A rich table of one experiment's ``summary.json`` record."""
     t = Table(title=f"{record['experiment']} (paper {record['paper']}, "
                     f"{record['runs']} runs, {record['elapsed_s']:.1f} s)", title_justify="left")
     t.add_column("metric", no_wrap=True)
-    for col in ("ours", "paper", "gap"):
+    for col in ("ours", "95% CI", "paper", "gap"):
         t.add_column(col, justify="right", no_wrap=True)
     t.add_column("unit", no_wrap=True)
     t.add_column("note", overflow="fold", min_width=30)
     for m in record["metrics"]:
-        t.add_row(m["name"], fmt(m["value"]), fmt(m["paper"]), relative_gap(m["value"], m["paper"]),
+        t.add_row(m["name"], fmt(m["value"]), interval(m.get("ci_low"), m.get("ci_high")),
+                  fmt(m["paper"]), relative_gap(m["value"], m["paper"]),
                   m["unit"], m["note"])
     return t
 
@@ -58,8 +88,11 @@ def print_record(record: dict[str, Any], console: Console | None = None) -> None
         console.print(f"[yellow]{record['skipped']}[/yellow]")
         return
     console.print(summary_table(record))
+    colour = {"holds": "green", "does not hold": "red"}
     for c in record["claims"]:
-        mark = "[green]holds[/green]" if c["holds"] else "[red]does not hold[/red]"
-        console.print(f"  claim: {c['claim']} -> {mark}")
+        v = verdict(c)
+        mark = f"[{colour.get(v, 'yellow')}]{v}[/{colour.get(v, 'yellow')}]"
+        why = claim_evidence(c)
+        console.print(f"  claim: {c['claim']} -> {mark}" + (f" ({why})" if why else ""))
     for n in record.get("notes", []):
         console.print(f"  [dim]note: {n}[/dim]")

@@ -229,6 +229,9 @@ class TetherTrace:
         The same error scored in the tracker's current odometry frame (the trackee's true
         position relative to the tracker's true pose, placed at its odometry pose): the
         tracker's own odometry drift is not counted.
+    driving : ndarray of bool, shape (B, T)
+        The tracker drove toward its estimate in this step (the predicted belief's spread
+        was below ``v``); otherwise it explored (ExploreGrid).
     """
 
     time_s: np.ndarray
@@ -242,6 +245,7 @@ class TetherTrace:
     track: Track
     states: dict = field(default_factory=dict)
     error_odom_m: np.ndarray | None = None
+    driving: np.ndarray | None = None
 
 
 def read_rssi(channel: IndoorChannel, a, b, walls, rng: np.random.Generator) -> np.ndarray:
@@ -387,7 +391,8 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
 
     wp_b = roam()
     comp = np.deg2rad(P.compass_std_deg)
-    out = {k: np.zeros((B, M, T)) for k in ("err", "dist", "unc", "loc", "syn", "odom")}
+    out = {k: np.zeros((B, M, T)) for k in ("err", "dist", "unc", "loc", "syn", "odom",
+                                                 "drv")}
     truth_xy, own_xy = np.zeros((B, M, T, 2)), np.zeros((B, M, T, 2))
     states, estimates = {}, []
     for t in range(T):
@@ -445,6 +450,7 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
         out["unc"][..., t] = _spread(est).reshape(B, M)
         out["loc"][..., t] = localized
         out["syn"][..., t] = synced
+        out["drv"][..., t] = good
         truth_xy[:, :, t], own_xy[:, :, t] = truth_local, s_a
         if t in record_steps:
             states[t] = state
@@ -452,4 +458,5 @@ def simulate_tether(params: TetherParams, tracker: Tracker, batch: int, steps: i
     o = {k: flat(v) for k, v in out.items()}
     return TetherTrace(np.broadcast_to(time, (B * M, T)), o["err"], o["dist"], o["unc"],
                        o["loc"].astype(bool), o["syn"].astype(bool), flat(truth_xy), flat(own_xy),
-                       track_from_steps(estimates, time=time), states, o["odom"])
+                       track_from_steps(estimates, time=time), states, o["odom"],
+                       o["drv"].astype(bool))
