@@ -312,7 +312,8 @@ class P000MonteCarlo(Experiment):
             out = {}
             for m in METHODS:
                 e = rob["per_run"][m]
-                ok = np.abs(e - e[:, -1:]) <= config.converge_tolerance * np.abs(e[:, -1:])
+                with np.errstate(invalid="ignore"):      # a diverged run's inf errors
+                    ok = np.abs(e - e[:, -1:]) <= config.converge_tolerance * np.abs(e[:, -1:])
                 last_bad = e.shape[1] - np.argmax(~ok[:, ::-1], axis=1)
                 step = np.where((~ok).any(axis=1), last_bad, 0).astype(float)
                 keep = rob["kept"][m]
