@@ -95,6 +95,8 @@ class Problem:
         Position, velocity and what the models read.
     prior_mean : ndarray, shape (B, n)
     prior_cov : ndarray, shape (n, n)
+    time_scale : float
+        The factor time was scaled by (rates in ``RATE_SETTINGS`` are divided by it).
     """
 
     observations: list
@@ -104,6 +106,7 @@ class Problem:
     layout: StateLayout
     prior_mean: np.ndarray
     prior_cov: np.ndarray
+    time_scale: float = 1.0
 
     def snapshot(self, step: int = 0) -> list:
         """The observations of one step, ``z`` ``(B, m)`` (for a snapshot estimator)."""
@@ -257,7 +260,7 @@ class ModelCase:
         if layout.n_bias:
             var = np.r_[var, np.full(layout.n_bias, BIAS_PRIOR_STD_M**2)]
         return Problem(obs, truth, time, WhiteAccelerationCV(Q_M2_PER_S3 / s**3, dim=D),
-                       layout, mean, np.diag(var))
+                       layout, mean, np.diag(var), s)
 
 
 def _fixed(model) -> Callable:
@@ -329,6 +332,9 @@ def _components(p: Problem, step: int) -> dict:
 # ---- the generic estimators over the cases ----------------------------------------------
 #: settings of the small runs (a constructor parameter of that name gets this value)
 SMALL_SETTINGS = {"n_particles": 500}
+#: settings that are rates (per second): divided by the problem's time scale, so that a
+#: scaled problem is the same model (the batch smoother's clock and bias random walk)
+RATE_SETTINGS = {"extra_q": 1e-6}
 SEEDS = np.arange(11, 11 + B)
 
 
@@ -357,10 +363,11 @@ def pairs() -> list:
 def make_estimator(cls, problem: Problem, runs: slice = slice(None)):
     """``cls`` with the small settings: the problem's motion model first for a recursive
     estimator, a seed per run where it takes ``seed`` (so a run draws the same alone as in
-    a batch)."""
+    a batch), rates scaled with time."""
     import inspect
     params = inspect.signature(cls).parameters
     kw = {k: v for k, v in SMALL_SETTINGS.items() if k in params}
+    kw.update({k: v / problem.time_scale for k, v in RATE_SETTINGS.items() if k in params})
     if "seed" in params:
         kw["seed"] = SEEDS[runs]
     return cls(problem.motion, **kw) if cls.tags.recursive else cls(**kw)
