@@ -11,8 +11,15 @@ No truth is needed: the relation between two runs is known.
   The mixture estimators agree to rounding: the stations enter the product of eq. (2) by
   decreasing reading, and the tracker's default reduction compares no costs.
 - **Permutation**: reordering the anchors (with their ranges) changes nothing. Not for the
-  network estimators (their sequential update order over masters is part of the
-  algorithm, paper 000) nor the single-sensor trackers (their rows are time samples).
+  single-sensor trackers (their rows are time samples). Relabelling the nodes of a network
+  changes nothing for the RLS; the sequential EKF's update order over masters follows the
+  node index (paper 000), so relabelling moves its frame: bounded by its claimed
+  uncertainty, its shape unchanged (``test_network_ekf_relabelling_nodes_...``).
+- **Generic estimators** (``tags.generic``): every pair of ``tests/model_cases.py`` is
+  rotated, translated, relabelled and time-scaled (``test_generic_*``).
+- **Mixture estimators under any rotation**: their densities are axis-aligned (per-axis
+  variances), so only the rotations that map the grid of models onto itself are exact;
+  any other moves them by a bounded amount (``test_mixture_*_rotation_*``).
 - **Continuity in time**: multiplying every time step by ``1 + 1e-12`` (and by
   ``1 + 1e-9``) changes the estimate by a comparable relative amount, not by metres.
 
@@ -445,3 +452,43 @@ def test_generic_time_scale_changes_nothing(pair):
     err = np.linalg.norm(scaled - base, axis=-1)
     tol = tolerance_m(cls, case) if cls.tags.uses == "logpdf" else GENERIC_TOL_M
     assert np.all(err <= tol), f"{cls.__name__} on {name}: time x {TIME_SCALE} moved {err}"
+
+
+# ---- relabelling the nodes of a network ---------------------------------------------------
+def _relabelled_network(cls, perm, **settings):
+    """Final positions ``(B, K, 2)`` of the network scene and of the same network with its
+    nodes relabelled by ``perm`` (mapped back to the original labels), and the claimed
+    per-node standard deviation ``sqrt(trace)`` of the original run."""
+    ranges, prior = _network(2)
+    est = cls(**settings)
+    var = np.full(prior.shape, 1.0)
+    base = est.run(ranges, prior, var)
+    other = est.run(ranges[:, :, perm][:, :, :, perm], prior[:, perm], var)
+    back = other.position[:, np.argsort(perm), -1]
+    sd = None if base.covariance is None else np.sqrt(
+        np.trace(base.covariance[:, :, -1], axis1=-2, axis2=-1))
+    return base.position[:, :, -1], back, sd
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_network_rls_relabelling_nodes_changes_nothing(seed):
+    perm = np.random.default_rng(seed).permutation(5)
+    base, back, _ = _relabelled_network(NetworkRLS, perm, forgetting=0.7)
+    np.testing.assert_allclose(back, base, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_network_ekf_relabelling_nodes_moves_only_the_frame_within_its_claim(seed):
+    """The sequential EKF updates with one master at a time in node order (paper 000,
+    eq. (18)-(23)): relabelling the nodes changes the order of the updates, hence the
+    estimate (0.97-1.29 m here, up to 2.0 claimed standard deviations). The network's shape is
+    fixed by the ranges and agrees within 0.1 m (two range standard deviations) after a
+    rigid alignment; what moves is its frame, which only the 1 m priors fix: every node
+    stays within three of its claimed standard deviations."""
+    from radioloc.core.alignment import rigid_aligned_error
+    perm = np.random.default_rng(seed).permutation(5)
+    base, back, sd = _relabelled_network(NetworkEKF, perm, range_var_m2=0.05**2)
+    moved = np.linalg.norm(back - base, axis=-1)
+    assert moved.max() > 1e-3, "relabelling no longer changes the EKF: update its docstring"
+    assert np.all(moved <= 3.0 * sd), f"moved {moved} m, claimed sd {sd} m"
+    assert np.all(rigid_aligned_error(back, base) <= 0.1)
