@@ -25,8 +25,8 @@ translation, a relabelling of the anchors and a scaling of time:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 
@@ -112,11 +112,11 @@ class Problem:
         """The observations of one step, ``z`` ``(B, m)`` (for a snapshot estimator)."""
         return [replace(o, z=o.z[:, step]) for o in self.observations]
 
-    def with_values(self, z: list) -> "Problem":
+    def with_values(self, z: list) -> Problem:
         """The same problem with other values (one array per observation)."""
         return replace(self, observations=[replace(o, z=v) for o, v in zip(self.observations, z)])
 
-    def take(self, runs: slice) -> "Problem":
+    def take(self, runs: slice) -> Problem:
         """The problems ``runs`` of the batch."""
         return replace(self, observations=[replace(o, z=o.z[runs]) for o in self.observations],
                        truth=self.truth[runs], prior_mean=self.prior_mean[runs])
