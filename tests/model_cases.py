@@ -283,8 +283,9 @@ OTHERS = ALL[1:]
 CASES = {c.name: c for c in [
     ModelCase("range-gaussian", 2, [Part(_fixed(RangeModel(std_m=0.05)), ALL)], 0.15),
     ModelCase("range-los-nlos", 2, [Part(_fixed(RangeModel(noise=LosNlosRange(0.05, 1.0, 0.9))),
-                                         ALL)], 0.8, seed=1,
-              # one epoch with an NLOS link (1 m mean excess) fitted by its moments
+                                         ALL)], 1.2, seed=1,
+              # NLOS links (1 m mean excess, 10 %) fitted by the mixture's moments: the
+              # ungated smoother ends 0.76 m off on one run, one epoch 1.5 m
               snapshot_tol_m=2.0),
     ModelCase("range-anchor-bias", 2,
               [Part(_fixed(RangeModel(std_m=0.05, anchor_bias=True)), ALL)], 0.6,
