@@ -547,3 +547,36 @@ def test_mixture_tracker_rotation_is_bounded_by_half_a_component_std():
         MixtureTracker(m, UniformDisk(1.5), max_components=8).run(rss, time)))
     assert moved.max() > 1e-3, "the tracker became rotation-free: update the docstring"
     assert np.all(moved <= 0.5 * np.sqrt(ISO_VAR)), moved
+
+
+# ---- a finite time scale for the paper estimators with a motion model ---------------------
+def test_range_ekf_time_scale_changes_nothing():
+    """Time scaled by ``s``: velocities by ``1/s`` (prior mean and variance), and the
+    constant-velocity model's per-step acceleration variance (``Q = a [[dt^4/4, dt^3/2],
+    [dt^3/2, dt^2]]``) by ``1/s^4``, which maps the model onto itself; the track is the
+    same to rounding."""
+    time, _, r, start, vel = _walk()
+
+    def solve(s):
+        ekf = RangeEKF(ConstantVelocity(0.05 / s**4), GaussianRange(0.05), anchors=ANCHORS)
+        prior = np.c_[start, np.broadcast_to(vel / s, (B, 2))]
+        cov = np.diag([1.0, 1.0, 1.0 / s**2, 1.0 / s**2])
+        return ekf.run(r, time * s, prior_mean=prior, prior_cov=cov).position
+    np.testing.assert_allclose(solve(2.5), solve(1.0), atol=1e-6, rtol=0)
+
+
+def test_mixture_tracker_time_scale_changes_nothing():
+    """Time scaled by ``s`` and the disk's speed by ``1/s``: the reachable disk
+    ``v_max dt`` is the same, and so is the track. (The P2P particle filter's motion is
+    driven by displacement readings and the grid filter's blur is per step: time enters
+    neither beyond ``test_infinitesimal_time_change_is_infinitesimal``.)"""
+    time = 0.5 * np.arange(8)
+    starts = np.array([[2.0, 1.0], [3.0, 4.5]])
+    truth = starts[:, None] + np.c_[1.0 * time, 0.3 * time]
+    rss = mean_rss(truth) + 0.3 * np.sin(np.arange(truth[..., 0].size * 4)).reshape(B, 8, 4)
+
+    def solve(s):
+        trk = MixtureTracker(mixture_models(I2, ZERO, None), UniformDisk(1.5 / s),
+                             max_components=8)
+        return trk.run(rss, time * s).position
+    np.testing.assert_allclose(solve(2.5), solve(1.0), atol=1e-6, rtol=0)
