@@ -47,6 +47,7 @@ DIAGNOSTICS: dict[str, str] = {
     "mixture_means": "posterior mixture means",
     "mixture_variances": "posterior mixture variances",
     "log_likelihood": "log-likelihood of the measurements at the estimate",
+    "cost": "the objective a smoother or solver minimised, at its solution",
     "inliers": "int: measurements a robust estimator kept",
     "trajectory": "the whole estimated trajectory of a snapshot track fit, (..., n, D)",
     "ols_state": "the ordinary least-squares state a closed-form fit starts from",

@@ -47,17 +47,21 @@ from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 
-#: every estimator class of the toolkit (the contract test runs each)
+#: the estimators over any measurement model (``tags.generic``; ``Observation`` inputs)
+GENERIC_ESTIMATORS = (ExtendedKalmanFilter, ParticleFilter, LeastSquares, BatchSmoother)
+
+#: every estimator class of the toolkit (the contract tests run each: the paper
+#: estimators on their own arrays, the generic ones on every model their tags accept)
 ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilter, LocalML,
               Ransac, ClosedFormTracker, NewtonTracker, GridFilter, MixtureLocalizer,
-              MixtureTracker)
+              MixtureTracker) + GENERIC_ESTIMATORS
 
 __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",
     "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter", "MixtureLocalizer",
     "MixtureTracker", "ParticleFilter", "LeastSquares", "BatchSmoother",
     "GridGeometry", "posterior_mixture", "fit_los_nlos", "OnlineEM", "backward_simulation",
-    "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS",
+    "SnapshotEstimator", "RecursiveEstimator", "ESTIMATORS", "GENERIC_ESTIMATORS",
     "ExtendedKalmanFilter",
     "GaussianState", "kalman_predict", "kalman_update", "rts_smooth", "NLLSResult", "solve_nlls",
 ]

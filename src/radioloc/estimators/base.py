@@ -66,6 +66,35 @@ class Tags:
         need = ("predict", "jacobian", "noise_cov") if self.uses == "jacobian" else ("predict", "logpdf")
         return all(hasattr(model, n) for n in need)
 
+    def require(self, model: Any, where: str, estimator: str) -> None:
+        """Refuse a model these tags do not accept.
+
+        Parameters
+        ----------
+        model : MeasurementModel
+        where : str
+            The argument it came in (``"observations[0].model"``), for the message.
+        estimator : str
+            The estimator's class name, for the message.
+
+        Raises
+        ------
+        ConfigError
+            Naming the model, its kind and what the estimator needs.
+        """
+        if self.accepts(model):
+            return
+        from radioloc.core.errors import ConfigError
+        kind = getattr(model, "kind", None)
+        if self.kinds is not None and kind not in self.kinds:
+            why = f"kind {kind!r} is not one of {', '.join(self.kinds)}"
+        elif self.uses == "jacobian":
+            why = ("it has no measurement function to linearise (a likelihood-only model: use "
+                   "an estimator whose tags.uses is 'logpdf')")
+        else:
+            why = "it lacks predict/logpdf"
+        raise ConfigError(f"{where}: {estimator} does not take {type(model).__name__}: {why}")
+
 
 class SnapshotEstimator:
     """Base class of one-epoch estimators: ``locate(...) -> Estimate``."""

@@ -334,6 +334,8 @@ class BatchSmoother(RecursiveEstimator):
             Observations, time, prior or ``initial`` do not fit (the message names them).
         """
         obs = observation_list(observations)
+        for i, o in enumerate(obs):
+            self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
         steps = {o.z.ndim >= 2 and o.steps for o in obs}
         if len(steps) != 1 or False in steps:
             raise InputError("observations: each needs values (..., T, m) with the same T, got "

@@ -153,6 +153,17 @@ class NetworkEKF(RecursiveEstimator):
     ------
     ConfigError
         ``range_var_m2`` is not a positive number, or ``backend`` is unknown.
+
+    Notes
+    -----
+    The estimate depends on the labels of the nodes. Within an iteration the masters
+    update the global estimate one after another in node order (eq. (18)-eq. (23)), and
+    sequential EKF updates do not commute (each relinearises at the estimate its
+    predecessor left), so relabelling the nodes changes the estimate. The ranges fix the
+    network's shape, which barely moves (within two range standard deviations after a
+    rigid alignment); its frame (translation, rotation) is fixed only by the priors and
+    moves by up to about two of the filter's claimed standard deviations (about 1 m with
+    1 m priors on a five-node network). The order is the paper's model, kept as written.
     """
 
     name = "ekf"

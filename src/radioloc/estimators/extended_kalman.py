@@ -386,6 +386,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
     def _update(self, state: FilterState, rows, ungated) -> tuple[FilterState, dict]:
         layout = self._layout_of(state)
         for model, _, _, name in rows:
+            self.tags.require(model, f"{name}.model", type(self).__name__)
             try:
                 layout.check(model)
             except InputError as exc:

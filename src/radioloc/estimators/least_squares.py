@@ -201,6 +201,8 @@ class LeastSquares(SnapshotEstimator):
             An observation, the layout or ``initial`` does not fit (the message names it).
         """
         obs = observation_list(observations)
+        for i, o in enumerate(obs):
+            self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
         layout = layout_for(obs, self.layout)
         rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos)
         batch = rows.batch_shape(())

@@ -601,6 +601,7 @@ class ParticleFilter(RecursiveEstimator):
         degenerate = np.zeros(state.batch_shape, dtype=bool)
         comps = layout.split(x)
         for i, (model, z, ctx) in enumerate(rows):
+            self.tags.require(model, f"observations[{i}].model", type(self).__name__)
             layout.check(model)
             if i >= len(modes):
                 modes.append(None)
