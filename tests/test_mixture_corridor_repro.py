@@ -4,11 +4,12 @@ Carlo bands is tests/test_repro_p004.py)."""
 import numpy as np
 import pytest
 
-from radioloc.experiments.p004_corridor import (
-    CorridorExperiment,
-    error_calibration,
-    pause_walk,
-)
+from radioloc.estimators.mixture_localization import MixtureTracker
+from radioloc.experiments.p004_corridor import (CorridorExperiment, door_bank, error_calibration,
+                                                model_isd, pause_walk)
+from radioloc.models.mixture import DiagMixture
+from radioloc.models.motion import UniformDisk
+from radioloc.sim.corridor import Corridor
 
 
 def test_calibration_statistics_known_answers():
@@ -27,9 +28,6 @@ def test_pausing_walker_stands_still_then_walks_on():
 
 
 def test_model_isd_small_for_the_true_density_large_for_a_shifted_one():
-    from radioloc.experiments.p004_corridor import model_isd
-    from radioloc.models.mixture import DiagMixture
-    from radioloc.sim.corridor import Corridor
 
     corridor, noise = Corridor(), 2.0
     x = np.arange(0.1, 60.0, 0.2)                        # narrow kernels along both curves
@@ -44,11 +42,6 @@ def test_model_isd_small_for_the_true_density_large_for_a_shifted_one():
 
 
 def test_door_bank_with_equal_door_models_is_the_single_tracker():
-    from radioloc.estimators.mixture_localization import MixtureTracker
-    from radioloc.experiments.p004_corridor import door_bank
-    from radioloc.models.mixture import DiagMixture
-    from radioloc.models.motion import UniformDisk
-    from radioloc.sim.corridor import Corridor
 
     corridor, rng = Corridor(), np.random.default_rng(3)
     xs = np.linspace(2.0, 58.0, 8)
@@ -70,11 +63,6 @@ def test_door_bank_with_equal_door_models_is_the_single_tracker():
 
 
 def test_door_bank_finds_the_door_state_of_the_run():
-    from radioloc.estimators.mixture_localization import MixtureTracker
-    from radioloc.experiments.p004_corridor import door_bank
-    from radioloc.models.mixture import DiagMixture
-    from radioloc.models.motion import UniformDisk
-    from radioloc.sim.corridor import Corridor
 
     corridor, rng = Corridor(), np.random.default_rng(4)
     xs = np.linspace(1.0, 59.0, 30)

@@ -6,17 +6,9 @@ import pytest
 
 from radioloc.core.errors import InputError
 from radioloc.models.mixture import DiagMixture, compact, product, reduce
-from radioloc.models.mixture_calibration import (
-    parameter_calibration,
-    progressive_calibration,
-)
-from radioloc.models.progressive_bayes import (
-    cross_gradient,
-    gram,
-    inner,
-    isd,
-    progressive_reduce,
-)
+from radioloc.models.mixture_calibration import parameter_calibration, progressive_calibration
+from radioloc.models.progressive_bayes import (cross_gradient, gram, inner, isd,
+                                               progressive_reduce)
 
 
 def random_mixture(rng, batch=(), k=4, d=2, spread=3.0):

@@ -3,10 +3,11 @@
 Each Monte Carlo run draws its own calibration set (positions uniform along the corridor,
 door open or closed with probability 1/2 per sample), builds the two per-station models by
 Progressive Bayes calibration in the parameter space (Fig. 3; the kernel-insertion
-calibration runs beside it as a labelled variant), then (i) a static user at 45 m takes 8 measurements (the door in
-one state for the whole run) and is localized by successive measurement updates (Fig. 10),
-(ii) a user walks the corridor and is tracked with the uniform-disk motion model, (iii) a
-user walks, pauses and walks on (tracked and located one shot at a time). Both noise
+calibration runs beside it as a labelled variant), then (i) a static user at 45 m takes 8
+measurements (the door in one state for the whole run) and is localized by successive
+measurement updates (Fig. 10), (ii) a user walks the corridor and is tracked with the
+uniform-disk motion model, (iii) a user walks, pauses and walks on (tracked and located one
+shot at a time). Both noise
 levels of the paper (2 dB, 10 dB) are run. Per run the block also records how many modes
 station 1's D(m | x) has past the door (Fig. 6, judged over runs).
 
@@ -34,17 +35,11 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.rng import stream
-from radioloc.estimators.mixture_localization import (
-    MixtureLocalizer,
-    MixtureTracker,
-    posterior_mixture,
-)
+from radioloc.estimators.mixture_localization import (MixtureLocalizer, MixtureTracker,
+                                                      posterior_mixture)
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, register
 from radioloc.models.mixture import DiagMixture, convolve, product, reduce, uniform_ball
-from radioloc.models.mixture_calibration import (
-    parameter_calibration,
-    progressive_calibration,
-)
+from radioloc.models.mixture_calibration import parameter_calibration, progressive_calibration
 from radioloc.models.motion import BoundedSpeedCV, UniformDisk
 from radioloc.models.progressive_bayes import inner, isd, progressive_reduce
 from radioloc.report.style import COLORS, figure, save
