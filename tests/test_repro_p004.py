@@ -2,8 +2,14 @@
 Monte Carlo bands, each stable claim's verdict, and the format of the docs' generated numbers.
 
 Bands: the reference is the quick run (20 runs, seed 0: runs 0-19 of the run that wrote
-docs/generated/p004_corridor.md); the band is four combined standard errors, each computed
-from the per-run values of this test's runs (the reference's is scaled by sqrt(6 / 20))."""
+docs/generated/p004_corridor.md); the band is four combined standard errors: this test's,
+from the per-run values of its 6 runs, and the reference's own, from its 20 runs (stored
+beside it). The per-run errors are heavy-tailed (a static user's run that settles on the
+wrong door mode), so the spread of 6 runs alone can be far too small: with the test's
+standard error standing in for the reference's, block seed 2 failed the static user's bands
+by up to 0.22 m (the kernel-insertion models included). Checked on six further disjoint
+sets of 6 runs (runs 20-55 of the same run) and on block seeds 1, 2 and 7: every value
+within its band."""
 
 import dataclasses
 import json
@@ -19,22 +25,24 @@ from radioloc.experiments.p004_corridor import CorridorExperiment, docs_snippet
 RUNS = 6
 SNIPPET = Path(__file__).resolve().parents[1] / "docs" / "generated" / "p004_corridor.md"
 
-#: headline per-run RMSEs [m] of the quick run (20 runs) and the scenario / step they read
+#: headline per-run RMSEs [m] of the quick run (20 runs), their standard errors (delta
+#: method over the 20 runs) and the scenario / step they read
 REFERENCE = {
-    "rmse_m_after_8": (3.14, "static", 8),
-    "rmse_m_after_8_runnalls": (3.13, "static_runnalls", 8),
-    "rmse_m_after_8_kernel": (1.93, "static_kernel", 8),
-    "tracking_rmse_m": (7.16, "tracking", None),
-    "tracking_cv_rmse_m": (2.37, "tracking_cv", None),
-    "pause_tracking_cv_rmse_m": (2.74, "pause_tracking_cv", None),
-    "walk_oneshot_rmse_m": (3.56, "walk_oneshot", None),
-    "slow_tracking_rmse_m": (3.87, "slow_tracking", None),
-    "slow_tracking_door_shared_rmse_m": (4.33, "slow_tracking_door_shared", None),
-    "slow_oneshot_rmse_m": (3.65, "slow_oneshot", None),
+    "rmse_m_after_8": (3.14, 0.416, "static", 8),
+    "rmse_m_after_8_runnalls": (3.13, 0.413, "static_runnalls", 8),
+    "rmse_m_after_8_kernel": (1.93, 0.261, "static_kernel", 8),
+    "tracking_rmse_m": (7.16, 0.282, "tracking", None),
+    "tracking_cv_rmse_m": (2.37, 0.082, "tracking_cv", None),
+    "pause_tracking_cv_rmse_m": (2.74, 0.098, "pause_tracking_cv", None),
+    "walk_oneshot_rmse_m": (3.56, 0.090, "walk_oneshot", None),
+    "slow_tracking_rmse_m": (3.87, 0.174, "slow_tracking", None),
+    "slow_tracking_door_shared_rmse_m": (4.33, 0.216, "slow_tracking_door_shared", None),
+    "slow_oneshot_rmse_m": (3.65, 0.092, "slow_oneshot", None),
 }
 
 #: mean over runs and stations of each calibration's ISD to the true density (quick run)
-MODEL_ISD = {"parameter": 0.277, "kernel": 0.161}
+#: and its standard error over the 20 runs
+MODEL_ISD = {"parameter": (0.2765, 0.0039), "kernel": (0.1610, 0.0029)}
 
 
 @pytest.fixture(scope="module")
@@ -60,10 +68,10 @@ def _rmse_and_se(df, scenario, step):
 @pytest.mark.parametrize("name", sorted(REFERENCE))
 def test_headline_numbers_within_monte_carlo_bands(repro, name):
     df, metrics, _, _ = repro
-    ref, scenario, step = REFERENCE[name]
+    ref, se_ref, scenario, step = REFERENCE[name]
     rmse, se = _rmse_and_se(df, scenario, step)
     assert metrics[name] == pytest.approx(rmse, rel=1e-9)        # the summary reads the rows
-    band = 4.0 * se * np.sqrt(1.0 + RUNS / 20.0)
+    band = 4.0 * np.hypot(se, se_ref)
     assert abs(rmse - ref) <= band, (name, rmse, ref, band)
 
 
@@ -73,8 +81,9 @@ def test_model_isd_within_monte_carlo_bands(repro, method):
     rows = df[df["table"] == "model_isd"]
     per_run = rows.groupby("run")[f"isd_{method}"].mean()
     assert metrics[f"model_isd_{method}"] == pytest.approx(per_run.mean(), rel=1e-9)
-    band = 4.0 * per_run.std(ddof=1) / np.sqrt(per_run.size) * np.sqrt(1.0 + RUNS / 20.0)
-    assert abs(per_run.mean() - MODEL_ISD[method]) <= band, (method, per_run.mean(), band)
+    ref, se_ref = MODEL_ISD[method]
+    band = 4.0 * np.hypot(per_run.std(ddof=1) / np.sqrt(per_run.size), se_ref)
+    assert abs(per_run.mean() - ref) <= band, (method, per_run.mean(), band)
 
 
 def test_guard_fraction_and_isd_ratio(repro):
