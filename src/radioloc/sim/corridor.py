@@ -96,7 +96,8 @@ class Corridor:
         return mean + noise_db * rng.standard_normal(mean.shape)
 
     def calibration_set(self, n_runs: int, n_samples: int, noise_db: float,
-                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                        rng: np.random.Generator, return_door: bool = False
+                        ) -> tuple[np.ndarray, ...]:
         """Calibration samples in both door states (Sect. 3.1.1).
 
         Positions are uniform along the corridor, the door is closed with probability 1/2
@@ -112,6 +113,8 @@ class Corridor:
             Measurement noise, dB.
         rng : numpy.random.Generator
             Source of positions, door states and noise (drawn in that order).
+        return_door : bool
+            Also return each sample's door state (the draws are the same either way).
 
         Returns
         -------
@@ -119,10 +122,13 @@ class Corridor:
             Sample positions, metres.
         rss : ndarray, shape (n_runs, n_samples, 2)
             Signal strengths of both stations, dBm.
+        door_closed : ndarray of bool, shape (n_runs, n_samples)
+            Only with ``return_door``.
         """
         x = rng.uniform(0.0, self.length_m, (int(n_runs), int(n_samples)))
         door = rng.random(x.shape) < 0.5
-        return x[..., None], self.sample_rss(x, door, noise_db, rng)
+        rss = self.sample_rss(x, door, noise_db, rng)
+        return (x[..., None], rss, door) if return_door else (x[..., None], rss)
 
 
 def walk_positions(start_m: float, end_m: float, speed_m_per_s: float, dt_s: float) -> np.ndarray:
