@@ -922,7 +922,8 @@ def docs_snippet(record: dict) -> str:
                      f"{_fmt(paper[name])} | {_cell(notes[name])} |")
     lines += ["", "Claims:", ""]
     for c in record["claims"]:
-        lines.append(f"- {c['claim']}: **{'holds' if c['holds'] else 'does not hold'}**")
+        verdict = c.get("verdict") or ("holds" if c["holds"] else "does not hold")
+        lines.append(f"- {c['claim']}: **{verdict}**")
     return "\n".join(lines) + "\n"
 
 
