@@ -33,7 +33,7 @@ from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
-from radioloc.models.fingerprint_mixture import FingerprintMixture, place_weights
+from radioloc.models.fingerprint_mixture import FingerprintMixture, place_moments, place_weights
 from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
                                      convolve, linear_predict, merge_groups, outer,
                                      pad_components, product, product_on, reduce, select,
@@ -351,10 +351,7 @@ class MixtureLocalizer(SnapshotEstimator):
         flat = m.reshape(-1, m.shape[-1])
         w, chosen = place_weights(fm, fm.loglik(flat), self.temperature, self.top_places)
         pos, pvar = fm.positions, fm.position_variances
-        mean = w @ pos
-        second = np.einsum("nk,ki,kj->nij", w, pos, pos) + np.einsum("nk,ki->ni", w, pvar)[
-            ..., None] * np.eye(fm.dim)
-        cov = second - mean[:, :, None] * mean[:, None, :]
+        mean, cov = place_moments(fm, w)
         det = np.isfinite(flat)
         top = min(self.max_components, fm.n_places)
         idx = np.argpartition(-w, top - 1, axis=1)[:, :top]

@@ -25,7 +25,8 @@ Models (``-o model=``):
   heaviest places, ``-o shrink`` sets the shrinkage of the place statistics. Those not
   given are chosen by spatially grouped cross-validation on the calibration file
   (:func:`~radioloc.models.fingerprint_selection.select_places_settings`). See
-  docs/fingerprinting.md.
+  docs/fingerprinting.md. ``-o track=1`` tracks each node over the places
+  (:func:`~radioloc.estimators.place_tracking.track_places`, uniform disk of ``v_max``).
 
 Measurements: ``rss`` rows, ``node`` = the mobile, ``peer`` = the base station id; all
 rows of one ``(time, node)`` form one measurement vector (duplicates are averaged). A
@@ -50,6 +51,7 @@ import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
+from radioloc.estimators.place_tracking import track_places
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.models.fingerprint_mixture import FingerprintMixture
@@ -255,9 +257,6 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
                                                             with_zones=True)
     min_samples = int(request.option("min_samples", 3))
     offset = _offset_option(request)
-    if kind == "places" and request.option("track", 0.0):
-        raise ConfigError("method gmm: -o track=1 needs -o model=stations (the places model "
-                          "is one-shot)")
     for name in ("temperature", "top_places", "shrink"):
         if kind != "places" and name in request.options:
             raise ConfigError(f"method gmm: -o {name} applies to -o model=places")
@@ -304,19 +303,34 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
         given = {name: request.option(name, None) for name in ("temperature", "top_places",
                                                                 "shrink")}
         if any(v is None for v in given.values()):
-            chosen = select_places_settings(
-                pos, cal_rss, zones, zone_names, min_samples=1,
-                **{grid: (v,) for grid, v in zip(("temperatures", "top_places", "shrinks"),
-                                                  given.values()) if v is not None})
-            given = {"temperature": chosen.temperature, "top_places": chosen.top_places or 0,
-                     "shrink": chosen.shrink}
+            defaults = {"temperature": 1.0, "top_places": 0, "shrink": 5.0}
+            try:
+                chosen = select_places_settings(
+                    pos, cal_rss, zones, zone_names, min_samples=1,
+                    **{grid: (v,) for grid, v in zip(("temperatures", "top_places", "shrinks"),
+                                                      given.values()) if v is not None})
+                given = {"temperature": chosen.temperature,
+                         "top_places": chosen.top_places or 0, "shrink": chosen.shrink}
+            except ConfigError as err:           # a calibration too small to split
+                warnings.warn(f"method gmm: {err}; settings not given are T=1, all places, "
+                              "shrink 5", UserWarning, stacklevel=2)
+                given = {k: defaults[k] if v is None else v for k, v in given.items()}
         model = FingerprintMixture.fit(pos, cal_rss, zones, zone_names, min_samples=1,
                                        shrink=float(given["shrink"]))
-        est = MixtureLocalizer(model, kmax, temperature=float(given["temperature"]),
-                               top_places=int(given["top_places"]) or None).locate(meas)
-        mean, cov = est.position, est.covariance
-        for j, name in enumerate(zone_names):
-            extra[name] = est.diagnostics["zone"][:, j]
+        t_best, top = float(given["temperature"]), int(given["top_places"]) or None
+        if request.option("track", 0.0):
+            mean = np.empty((len(out), 2))
+            cov = np.empty((len(out), 2, 2))
+            for node in out["node"].unique():         # nodes have different time axes
+                idx = np.flatnonzero(out["node"].to_numpy() == node)
+                res = track_places(model, meas[idx], out["time"].to_numpy()[idx],
+                                   float(request.option("v_max", 1.5)), t_best, top)
+                mean[idx], cov[idx] = res.position, res.covariance
+        else:
+            est = MixtureLocalizer(model, kmax, temperature=t_best, top_places=top).locate(meas)
+            mean, cov = est.position, est.covariance
+            for j, name in enumerate(zone_names):
+                extra[name] = est.diagnostics["zone"][:, j]
     else:
         content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
         rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(

@@ -71,7 +71,7 @@ from radioloc.core.validation import as_float_array
 
 _LOG2PI = np.log(2.0 * np.pi)
 
-__all__ = ["FingerprintMixture", "place_weights", "zone_posterior"]
+__all__ = ["FingerprintMixture", "place_moments", "place_weights", "zone_posterior"]
 
 
 @dataclass(frozen=True)
@@ -371,3 +371,26 @@ def place_weights(model: FingerprintMixture, loglik: np.ndarray, temperature: fl
         thr = -np.partition(-w, int(top_places) - 1, axis=1)[:, int(top_places) - 1:int(top_places)]
         w = np.where(w >= thr, w, 0.0)
     return w / w.sum(1, keepdims=True), chosen
+
+
+def place_moments(model: FingerprintMixture, weights: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the position mixture ``sum_j w_j N(x_j, s_j^2)``.
+
+    Parameters
+    ----------
+    model : FingerprintMixture
+        The fitted model.
+    weights : ndarray, shape (N, K)
+        Place weights, rows summing to one.
+
+    Returns
+    -------
+    mean : ndarray, shape (N, D)
+    covariance : ndarray, shape (N, D, D)
+    """
+    pos, pvar = model.positions, model.position_variances
+    mean = weights @ pos
+    second = np.einsum("nk,ki,kj->nij", weights, pos, pos) \
+        + np.einsum("nk,ki->ni", weights, pvar)[..., None] * np.eye(model.dim)
+    return mean, second - mean[:, :, None] * mean[:, None, :]

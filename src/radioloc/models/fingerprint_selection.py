@@ -102,7 +102,7 @@ def select_places_settings(positions, rss, zones=None, zone_names=(), *,
     temperatures, top_places, shrinks : sequences
         The candidate grid (``top_places`` 0 = every place).
     folds : int
-        Folds (>= 2; blocks are dealt to them).
+        Folds (>= 2; blocks are dealt to them; fewer when there are fewer blocks).
     block_m : float
         Side of the spatial blocks, metres.
     seed : int
@@ -117,7 +117,7 @@ def select_places_settings(positions, rss, zones=None, zone_names=(), *,
     Raises
     ------
     ConfigError
-        An empty grid, ``folds`` < 2, ``block_m`` <= 0, fewer blocks than folds.
+        An empty grid, ``folds`` < 2, ``block_m`` <= 0, a calibration within one block.
     InputError
         Shapes (as :meth:`FingerprintMixture.fit`).
     """
@@ -133,12 +133,14 @@ def select_places_settings(positions, rss, zones=None, zone_names=(), *,
         raise ConfigError(f"block_m: must be a finite number > 0, got {block_m!r}")
     if not (len(temperatures) and len(top_places) and len(shrinks)):
         raise ConfigError("temperatures, top_places, shrinks: each needs a candidate")
-    fold = spatial_folds(pos, z, int(folds), float(block_m), seed)
-    if np.unique(fold).size < folds:
-        raise ConfigError(f"block_m: {block_m:g} m gives fewer spatial blocks than the "
-                          f"{folds} folds; use a smaller block or fewer folds")
+    blocks = np.unique(np.c_[z, np.floor(pos / block_m)], axis=0).shape[0]
+    if blocks < 2:
+        raise ConfigError(f"block_m: the calibration spans one spatial block of {block_m:g} m; "
+                          "cross-validation needs two or more")
+    folds = min(int(folds), blocks)
+    fold = spatial_folds(pos, z, folds, float(block_m), seed)
     err = np.zeros((len(shrinks), len(temperatures), len(top_places)))
-    for f in range(int(folds)):
+    for f in range(folds):
         tr, te = fold != f, fold == f
         for i, lam in enumerate(shrinks):
             with warnings.catch_warnings():
