@@ -277,7 +277,7 @@ def test_wifi_reproduction_reduced_size(tmp_path, monkeypatch):
     monkeypatch.setenv("RADIOLOC_DATA", str(UJI.parent))
     exp = WifiFingerprintExperiment()
     cfg = replace(exp.config(False), train_stride=3, cv_folds=2, knn_ks=(3, 5, 8),
-                  temperatures=(2.0, 4.0))
+                  temperatures=(2.0, 4.0), places_folds=3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         df = exp.run_block(cfg, np.arange(1), block_generator(0, 0))
