@@ -8,11 +8,10 @@ Prediction over ``dt`` moves the mass of place ``i`` to the places ``j`` at dist
 here on the discrete places) and ``exp(-(d_ij - r)^2 / (2 s^2))`` beyond, cut at ``r + 3 s``,
 ``s^2`` the mean position variance of the places (the disk convolved with the places' own
 spread), each row normalised: ``p_t^-(j) = sum_i p_{t-1}(i) A_ij``. The filter step
-multiplies by the tempered scan likelihood (places holding less than ``1e-12`` of the largest
-weight are not propagated): ``p_t(j) ∝ p_t^-(j) L_j(m_t)^(1/T)``. The
+multiplies by the tempered scan likelihood: ``p_t(j) ∝ p_t^-(j) L_j(m_t)^(1/T)``. The
 estimate at each step is the one-shot rule applied to ``p_t``
 (:func:`~radioloc.models.fingerprint_mixture.place_weights`: zone, then the ``M`` heaviest
-places) and its moments. One matrix-vector product per step, over the places that hold mass; ``A`` is built once
+places) and its moments. One matrix-vector product per step; ``A`` is built once
 per distinct ``dt`` rounded to 50 ms.
 """
 
@@ -105,11 +104,11 @@ def track_places(model: FingerprintMixture, rss, time_s, v_max_m_per_s: float = 
         else:
             key = int(round(20.0 * (t[i] - t[i - 1])))
             if key not in cache:
-                cache[key] = place_transition(model, v_max_m_per_s * key / 20.0)
+                cache[key] = np.ascontiguousarray(   # A^T, rows contiguous for A^T p
+                    place_transition(model, v_max_m_per_s * key / 20.0).T)
             prev = np.exp(logp[i - 1] - logp[i - 1].max())
-            src = np.flatnonzero(prev > 1e-12)        # the places that hold mass
             with np.errstate(divide="ignore"):
-                prior = np.log(cache[key][src].T @ prev[src])
+                prior = np.log(cache[key] @ prev)
         logp[i] = prior + ll[i] - model.log_prior
         logp[i] -= logsumexp(logp[i])
     w, _ = place_weights(model, logp, 1.0, top_places)
