@@ -48,14 +48,16 @@ def test_hanyang_tutorial(tmp_path):
 def test_kolakowski_tutorial(tmp_path):
     _need("kolakowski-ble-fingerprints-2021")
     table = _load("kolakowski_ble").main(tmp_path, small=True)
-    assert len(table) == 3 and np.all(table.median_m < 3.0)
+    assert len(table) == 6 and np.all(table.median_m < 3.0)
+    assert (tmp_path / "kolakowski_ble.md").read_text().count("\n| ") == 6
     assert (tmp_path / "kolakowski.png").is_file()
 
 
 def test_ujiindoorloc_tutorial(tmp_path):
     _need("ujiindoorloc")
     table = _load("ujiindoorloc_wifi").main(tmp_path, small=True)
-    assert list(table.method) == ["gmm", "1-NN"] and np.all(table.median_file_units < 30)
+    assert list(table.method) == ["gmm", "gmm places", "1-NN"]
+    assert np.all(table.median_file_units < 30)
     assert (tmp_path / "ujiindoorloc.png").is_file()
 
 
@@ -70,3 +72,15 @@ def test_docs_site_builds_strict(tmp_path):
     assert res.returncode == 0, res.stderr[-3000:]
     for page in ("index.html", "api/estimators.html", "your-own-log/hanyang.html"):
         assert (tmp_path / "site" / page).is_file()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, dataset", [("kolakowski_ble", "kolakowski-ble-fingerprints-2021"),
+                                           ("ujiindoorloc_wifi", "ujiindoorloc")])
+def test_tutorial_snippet_on_the_page_is_current(tmp_path, name, dataset):
+    """The page includes docs/generated/<name>.md: it must equal the tutorial's output at the
+    page's size (the full one)."""
+    _need(dataset)
+    _load(name).main(tmp_path)
+    page = ROOT / "docs" / "generated" / f"{name}.md"
+    assert (tmp_path / f"{name}.md").read_text() == page.read_text()

@@ -232,13 +232,20 @@ def test_locate_places_reads_sentinel_zones_and_ignores_unknown(tmp_path):
     assert np.all(np.isfinite(out[["x", "y", "uncertainty_m"]].to_numpy()))
 
 
-def test_locate_gmm_refuses_track_with_places_and_bad_offset(tmp_path):
-    _uji_calibration(tmp_path)
+def test_locate_gmm_tracks_with_places_and_refuses_bad_offset(tmp_path):
+    va = _uji_calibration(tmp_path)
     meas = read_measurements(tmp_path / "meas.csv")
     req = LocateRequest(meas, calibration=tmp_path / "cal.csv",
                         options={"model": "places", "track": "1"},
                         parsed={"model": "places", "track": True, "not_detected": 100.0})
-    with pytest.raises(ConfigError, match="track"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        out = locate_gmm(req)
+    assert len(out) == len(va) and np.all(np.isfinite(out[["x", "y"]].to_numpy()))
+    req = LocateRequest(meas, calibration=tmp_path / "cal.csv",
+                        options={"model": "stations", "top_places": "3"},
+                        parsed={"model": "stations", "top_places": 3, "not_detected": 100.0})
+    with pytest.raises(ConfigError, match="top_places"):
         locate_gmm(req)
     req = LocateRequest(meas, calibration=tmp_path / "cal.csv",
                         options={"device_offset": "loud"}, parsed={"not_detected": 100.0})
@@ -270,7 +277,7 @@ def test_wifi_reproduction_reduced_size(tmp_path, monkeypatch):
     monkeypatch.setenv("RADIOLOC_DATA", str(UJI.parent))
     exp = WifiFingerprintExperiment()
     cfg = replace(exp.config(False), train_stride=3, cv_folds=2, knn_ks=(3, 5, 8),
-                  temperatures=(2.0, 4.0))
+                  temperatures=(2.0, 4.0), places_folds=3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         df = exp.run_block(cfg, np.arange(1), block_generator(0, 0))

@@ -33,7 +33,7 @@ from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
-from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
+from radioloc.models.fingerprint_mixture import FingerprintMixture, place_moments, place_weights
 from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
                                      convolve, linear_predict, merge_groups, outer,
                                      pad_components, product, product_on, reduce, select,
@@ -142,6 +142,9 @@ class MixtureLocalizer(SnapshotEstimator):
     temperature : float
         Fingerprint models only: ``T >= 1`` tempering the product over access points
         (place weights ``∝ exp(log L / T)``); 1 = the plain product.
+    top_places : int, optional
+        Fingerprint models only: keep the ``M`` heaviest places of the chosen zone
+        (:func:`~radioloc.models.fingerprint_mixture.place_weights`); None = all.
     backend : str
         ``"numba"`` (default: the compiled kernels) or ``"numpy"`` (the definition).
 
@@ -166,8 +169,16 @@ class MixtureLocalizer(SnapshotEstimator):
 
     def __init__(self, models: DiagMixture | FingerprintMixture, max_components: int = 16,
                  reduction: str = "runnalls", temperature: float = 1.0,
-                 backend: str = DEFAULT_BACKEND) -> None:
+                 top_places: int | None = None, backend: str = DEFAULT_BACKEND) -> None:
         self.backend = check_backend(backend)
+        if top_places is not None:
+            if isinstance(top_places, bool) or not isinstance(top_places, (int, np.integer)) \
+                    or top_places < 1:
+                raise InputError(f"top_places: must be an integer >= 1 or None, got "
+                                 f"{top_places!r}")
+            if not isinstance(models, FingerprintMixture):
+                raise InputError("top_places: applies to fingerprint models only")
+        self.top_places = None if top_places is None else int(top_places)
         if isinstance(models, FingerprintMixture):
             self.models = models
         else:
@@ -348,15 +359,9 @@ class MixtureLocalizer(SnapshotEstimator):
         fm: FingerprintMixture = self.models
         lead = m.shape[:-1]
         flat = m.reshape(-1, m.shape[-1])
-        w = fm.posterior(flat, self.temperature)
-        chosen, inside = zone_posterior(w, fm.zones)
-        w = np.where(inside, w, 0.0)
-        w /= w.sum(1, keepdims=True)
+        w, chosen = place_weights(fm, fm.loglik(flat), self.temperature, self.top_places)
         pos, pvar = fm.positions, fm.position_variances
-        mean = w @ pos
-        second = np.einsum("nk,ki,kj->nij", w, pos, pos) + np.einsum("nk,ki->ni", w, pvar)[
-            ..., None] * np.eye(fm.dim)
-        cov = second - mean[:, :, None] * mean[:, None, :]
+        mean, cov = place_moments(fm, w)
         det = np.isfinite(flat)
         top = min(self.max_components, fm.n_places)
         idx = np.argpartition(-w, top - 1, axis=1)[:, :top]

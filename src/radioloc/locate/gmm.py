@@ -21,7 +21,12 @@ Models (``-o model=``):
   shared-place model :class:`~radioloc.models.fingerprint_mixture.FingerprintMixture`,
   "not detected" an explicit outcome, the building and floor decided first when the
   calibration has those columns (output columns ``building``, ``floor``); ``-o
-  temperature=T`` tempers the product over stations. See docs/fingerprinting.md.
+  temperature=T`` tempers the product over stations, ``-o top_places=M`` keeps the ``M``
+  heaviest places, ``-o shrink`` sets the shrinkage of the place statistics. Those not
+  given are chosen by spatially grouped cross-validation on the calibration file
+  (:func:`~radioloc.models.fingerprint_selection.select_places_settings`). See
+  docs/fingerprinting.md. ``-o track=1`` tracks each node over the places
+  (:func:`~radioloc.estimators.place_tracking.track_places`, uniform disk of ``v_max``).
 
 Measurements: ``rss`` rows, ``node`` = the mobile, ``peer`` = the base station id; all
 rows of one ``(time, node)`` form one measurement vector (duplicates are averaged). A
@@ -46,10 +51,12 @@ import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
+from radioloc.estimators.place_tracking import track_places
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.table import add_covariance
 from radioloc.models.fingerprint_mixture import FingerprintMixture
+from radioloc.models.fingerprint_selection import select_places_settings
 from radioloc.models.mixture_calibration import em_calibration
 from radioloc.models.motion import UniformDisk
 from radioloc.models.rssi_logdistance import device_offset
@@ -194,7 +201,8 @@ def apply_device_offset(meas: np.ndarray, nodes: np.ndarray, reference: np.ndarr
 
 @locate_method("gmm", "Gaussian-mixture RSS fingerprinting (paper 004) from a calibration file "
                       "(options: model=stations/places, components, position_components, track, "
-                      "v_max, not_detected, min_samples, temperature, device_offset)",
+                      "v_max, not_detected, min_samples, temperature, top_places, shrink, "
+                      "device_offset)",
                options={"model": Option("stations: per-station mixtures, eq. (2) (default); "
                                         "places: shared places with not-detected outcome "
                                         "(WiFi scale)", str, choices=("stations", "places")),
@@ -210,7 +218,14 @@ def apply_device_offset(meas: np.ndarray, nodes: np.ndarray, reference: np.ndarr
                         "min_samples": Option("stations with fewer calibration readings are "
                                               "dropped, with a warning (3)", int, min=2, max=1e6),
                         "temperature": Option("places model: tempering T >= 1 of the product "
-                                              "over stations (1)", float, min=1, max=1e3),
+                                              "over stations (chosen by grouped CV on the "
+                                              "calibration)", float, min=1, max=1e3),
+                        "top_places": Option("places model: heaviest places kept per estimate, "
+                                             "0 = all (chosen by grouped CV)", int, min=0,
+                                             max=10**6),
+                        "shrink": Option("places model: pseudo-samples of the shrinkage of "
+                                         "place statistics (chosen by grouped CV)", float,
+                                         min=0, max=1e6),
                         "device_offset": Option("'auto': label-free per-node RSS offset against "
                                                 "the calibration; or dB to subtract (none)", str)},
                kinds=("rss",), inputs=("calibration",))
@@ -243,11 +258,9 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
                                                             with_zones=True)
     min_samples = int(request.option("min_samples", 3))
     offset = _offset_option(request)
-    if kind == "places" and request.option("track", 0.0):
-        raise ConfigError("method gmm: -o track=1 needs -o model=stations (the places model "
-                          "is one-shot)")
-    if kind != "places" and "temperature" in request.options:
-        raise ConfigError("method gmm: -o temperature applies to -o model=places")
+    for name in ("temperature", "top_places", "shrink"):
+        if kind != "places" and name in request.options:
+            raise ConfigError(f"method gmm: -o {name} applies to -o model=places")
     counts = np.isfinite(cal_rss).sum(0)
     keep = counts >= min_samples
     if not keep.any():
@@ -288,12 +301,37 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     kmax = int(request.option("position_components", 8))
     extra = {}
     if kind == "places":
-        model = FingerprintMixture.fit(pos, cal_rss, zones, zone_names, min_samples=1)
-        est = MixtureLocalizer(model, kmax, temperature=float(request.option("temperature", 1.0))
-                               ).locate(meas)
-        mean, cov = est.position, est.covariance
-        for j, name in enumerate(zone_names):
-            extra[name] = est.diagnostics["zone"][:, j]
+        given = {name: request.option(name, None) for name in ("temperature", "top_places",
+                                                                "shrink")}
+        if any(v is None for v in given.values()):
+            defaults = {"temperature": 1.0, "top_places": 0, "shrink": 5.0}
+            try:
+                chosen = select_places_settings(
+                    pos, cal_rss, zones, zone_names, min_samples=1,
+                    **{grid: (v,) for grid, v in zip(("temperatures", "top_places", "shrinks"),
+                                                      given.values()) if v is not None})
+                given = {"temperature": chosen.temperature,
+                         "top_places": chosen.top_places or 0, "shrink": chosen.shrink}
+            except ConfigError as err:           # a calibration too small to split
+                warnings.warn(f"method gmm: {err}; settings not given are T=1, all places, "
+                              "shrink 5", UserWarning, stacklevel=2)
+                given = {k: defaults[k] if v is None else v for k, v in given.items()}
+        model = FingerprintMixture.fit(pos, cal_rss, zones, zone_names, min_samples=1,
+                                       shrink=float(given["shrink"]))
+        t_best, top = float(given["temperature"]), int(given["top_places"]) or None
+        if request.option("track", 0.0):
+            mean = np.empty((len(out), 2))
+            cov = np.empty((len(out), 2, 2))
+            for node in out["node"].unique():         # nodes have different time axes
+                idx = np.flatnonzero(out["node"].to_numpy() == node)
+                res = track_places(model, meas[idx], out["time"].to_numpy()[idx],
+                                   float(request.option("v_max", 1.5)), t_best, top)
+                mean[idx], cov[idx] = res.position, res.covariance
+        else:
+            est = MixtureLocalizer(model, kmax, temperature=t_best, top_places=top).locate(meas)
+            mean, cov = est.position, est.covariance
+            for j, name in enumerate(zone_names):
+                extra[name] = est.diagnostics["zone"][:, j]
     else:
         content = np.nan_to_num(np.c_[pos, cal_rss], nan=-1e9)
         rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(

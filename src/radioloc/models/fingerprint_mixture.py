@@ -71,7 +71,7 @@ from radioloc.core.validation import as_float_array
 
 _LOG2PI = np.log(2.0 * np.pi)
 
-__all__ = ["FingerprintMixture", "zone_posterior"]
+__all__ = ["FingerprintMixture", "place_moments", "place_weights", "zone_posterior"]
 
 
 @dataclass(frozen=True)
@@ -331,3 +331,66 @@ def zone_posterior(weights: np.ndarray, zones: np.ndarray) -> tuple[np.ndarray, 
         chosen[:, level] = labels[pick]
         inside &= zones[None, :, level] == chosen[:, level, None]
     return chosen, inside
+
+
+def place_weights(model: FingerprintMixture, loglik: np.ndarray, temperature: float = 1.0,
+                  top_places: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Place weights of every scan: tempered posterior, restricted to the chosen zone and,
+    optionally, to the ``top_places`` heaviest places.
+
+    ``w_j ∝ pi_j exp(log L_j / T)`` (:meth:`FingerprintMixture.posterior`), the zone chosen
+    by :func:`zone_posterior`, weights outside it set to 0; with ``top_places = M`` only the
+    places whose weight is at least the ``M``-th largest keep theirs (ties keep all), and
+    the rest is renormalised. ``M`` small makes the estimate local, as k nearest neighbours
+    are, with the neighbours and their weights from the mixture's likelihood instead of a
+    distance in signal space.
+
+    Parameters
+    ----------
+    model : FingerprintMixture
+        The fitted model.
+    loglik : ndarray, shape (N, K)
+        ``log L_j(m)`` of every scan (:meth:`FingerprintMixture.loglik`).
+    temperature : float
+        ``T >= 1``.
+    top_places : int, optional
+        ``M >= 1`` places kept per scan; None or 0 keeps every place of the zone.
+
+    Returns
+    -------
+    weights : ndarray, shape (N, K)
+        Rows summing to one.
+    chosen : ndarray of int, shape (N, L)
+        The zone label chosen at each level.
+    """
+    w = softmax(loglik / temperature + model.log_prior, axis=-1)
+    chosen, inside = zone_posterior(w, model.zones)
+    w = np.where(inside, w, 0.0)
+    k = w.shape[1]
+    if top_places and top_places < k:
+        thr = -np.partition(-w, int(top_places) - 1, axis=1)[:, int(top_places) - 1:int(top_places)]
+        w = np.where(w >= thr, w, 0.0)
+    return w / w.sum(1, keepdims=True), chosen
+
+
+def place_moments(model: FingerprintMixture, weights: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the position mixture ``sum_j w_j N(x_j, s_j^2)``.
+
+    Parameters
+    ----------
+    model : FingerprintMixture
+        The fitted model.
+    weights : ndarray, shape (N, K)
+        Place weights, rows summing to one.
+
+    Returns
+    -------
+    mean : ndarray, shape (N, D)
+    covariance : ndarray, shape (N, D, D)
+    """
+    pos, pvar = model.positions, model.position_variances
+    mean = weights @ pos
+    second = np.einsum("nk,ki,kj->nij", weights, pos, pos) \
+        + np.einsum("nk,ki->ni", weights, pvar)[..., None] * np.eye(model.dim)
+    return mean, second - mean[:, :, None] * mean[:, None, :]
