@@ -28,7 +28,7 @@ import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.ekf_tracker import RangeEKF
-from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import GaussianRange
 
@@ -219,7 +219,7 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "smooth": bool(request.option("smooth", False, bool)),
             "prior_std": request.option("prior_std_m", 2.0),
             "init_s": request.option("init_s", 2.0),
-            "max_gap_s": request.option("max_gap_s", 5.0)}
+            "max_gap_s": request.option("max_gap_s", MAX_GAP_S)}
 
 
 def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, smooth: bool):

@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.plausibility import check_calibration
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
@@ -240,6 +241,8 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     nd = request.option("not_detected", None)
     pos, cal_rss, ids, zones, zone_names = read_calibration(request.calibration, nd,
                                                             with_zones=True)
+    check_calibration(pos, cal_rss, skip=request.parsed.get("no_check", ()),
+                      where=str(request.calibration))
     min_samples = int(request.option("min_samples", 3))
     offset = _offset_option(request)
     if kind == "places" and request.option("track", 0.0):
