@@ -72,6 +72,9 @@ MISTAKES = {
     "collinear anchors": (dict(anchors=np.array([[0.0, 0], [7, 0], [13, 0], [20, 0]])),
                           "collinear", "geometry"),
     "coplanar 3-D anchors": (dict(z=[3.0, 3.0, 3.0, 3.0]), "coplanar", "geometry"),
+    "one anchor's coordinates wrong": (dict(anchors=np.array([[-300.0, 250.0], [20, 0],
+                                                              [20, 15], [0, 15]])),
+                                       "anchor(s) A0 fit no position", "anchor_ranges"),
 }
 
 

@@ -15,6 +15,10 @@ check               refused (or warned) when
 ``range_units``     the ranges break the triangle inequality with the anchors by a large
                     factor: ``|r_i - r_j|`` far above the anchor distance ``d_ij`` (ranges in
                     mm or cm, anchors in km) or ``r_i + r_j`` far below it (ranges in km)
+``anchor_ranges``   the ranges to one anchor break the triangle inequality with the others by
+                    more than the anchor distance (median over epochs and partners), while
+                    the rest agree: its coordinates or id are wrong; or the median over all
+                    pairs does (the ranges fit no position with these anchors)
 ``rss_units``       the median RSS (of the log, or of a fingerprint calibration) is >= 0 dBm
                     (received power of a milliwatt or more: RSS written in mW or W)
 ``time_units``      the median time step within a node exceeds the method's ``max_gap_s``
@@ -55,6 +59,8 @@ CHECKS = {
     "geometry": "coincident, collinear (2-D) or coplanar (3-D) anchors",
     "anchor_units": "anchors in lat/lon degrees while ranges are metres",
     "range_units": "ranges impossible for the anchors' span (mm, cm or km)",
+    "anchor_ranges": "the ranges to one anchor fit no position with the others (its id or "
+                     "coordinates wrong)",
     "rss_units": "RSS at or above 0 dBm (written in mW or W)",
     "time_units": "median time step within a node above max_gap_s (milliseconds)",
     "time_order": "time going backwards within a node (warning)",
@@ -64,6 +70,9 @@ RANGE_FACTOR = 3.0
 #: Smallest singular value ratio of the centred anchors below which they count as
 #: collinear (2-D) or coplanar (3-D).
 FLAT_RATIO = 1e-3
+#: Median triangle-inequality ratio, ``max(|r_i - r_j| / d_ij, d_ij / (r_i + r_j))`` (at
+#: most 1 for exact ranges), beyond which one anchor's ranges are refused.
+ODD_FACTOR = 2.0
 #: Epochs sampled (evenly) for the range statistics: bounds the work on long logs.
 MAX_EPOCHS = 4000
 _UNITS = ((1e3, "mm"), (1e2, "cm"), (1e-3, "km"))
@@ -135,6 +144,13 @@ def anchor_problem(anchors: np.ndarray, dim: int | None = None) -> tuple[str, st
     return None
 
 
+def _sample(R: np.ndarray, m: int) -> np.ndarray:
+    """An even sample of the epochs: at most :data:`MAX_EPOCHS`, and at most about 2e6
+    anchor pairs in all (bounds time and memory for many anchors)."""
+    n = min(MAX_EPOCHS, max(16, int(2e6 // max(m * m, 1))))
+    return R[np.linspace(0, R.shape[0] - 1, n).astype(int)] if R.shape[0] > n else R
+
+
 def _span(a: np.ndarray) -> float:
     return float(np.max(np.linalg.norm(a[:, None, :] - a[None, :, :], axis=-1)))
 
@@ -164,8 +180,7 @@ def range_ratios(R: np.ndarray, anchors: np.ndarray) -> tuple[float, float] | No
     """
     R = np.asarray(R, dtype=float)
     a = np.asarray(anchors, dtype=float)
-    if R.shape[0] > MAX_EPOCHS:
-        R = R[np.linspace(0, R.shape[0] - 1, MAX_EPOCHS).astype(int)]
+    R = _sample(R, a.shape[0])
     span = _span(a)
     d = np.linalg.norm(a[:, None, :] - a[None, :, :], axis=-1)
     i, j = np.triu_indices(a.shape[0], 1)
@@ -181,6 +196,50 @@ def range_ratios(R: np.ndarray, anchors: np.ndarray) -> tuple[float, float] | No
         return None
     ratio = float(np.median(finite)) / span
     return ratio, ratio
+
+
+def odd_anchors(R: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Anchors whose ranges fit no position together with the other anchors' ranges.
+
+    For each anchor ``i`` the triangle-inequality ratio with each partner ``j`` in one
+    epoch, ``max(|r_i - r_j| / max(d_ij, 1 m), d_ij / (r_i + r_j))`` (at most 1 for exact
+    ranges); its median over epochs and partners above :data:`ODD_FACTOR` flags the anchor
+    (noise and NLOS bias stay far below the anchor distance). Flags are kept only when a
+    minority of the anchors has them (otherwise the cause is global, and ``overall``, the
+    median over every pair, says so).
+
+    Parameters
+    ----------
+    R : ndarray, shape (E, M)
+        Ranges (NaN: absent).
+    anchors : ndarray, shape (M, d)
+
+    Returns
+    -------
+    flagged : ndarray of bool, shape (M,)
+    score : ndarray, shape (M,)
+        The median ratio of each anchor (NaN: no pair).
+    overall : float
+        The median ratio over every pair (0: no pair).
+    """
+    R = np.asarray(R, dtype=float)
+    a = np.asarray(anchors, dtype=float)
+    m = a.shape[0]
+    R = _sample(R, a.shape[0])
+    d = np.linalg.norm(a[:, None, :] - a[None, :, :], axis=-1)
+    ri, rj = R[:, :, None], R[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        viol = np.maximum(np.abs(ri - rj) / np.maximum(d, 1.0), d / np.maximum(ri + rj, 1e-9))
+    viol = np.where(np.eye(m, dtype=bool), np.nan, viol)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # an anchor with no pair: NaN
+        score = np.nanmedian(viol.transpose(1, 0, 2).reshape(m, -1), axis=1) if R.size \
+            else np.full(m, np.nan)
+        overall = float(np.nanmedian(viol)) if np.isfinite(viol).any() else 0.0
+    flagged = np.nan_to_num(score, nan=0.0) > ODD_FACTOR
+    if m < 3 or 2 * flagged.sum() >= m:
+        flagged[:] = False
+    return flagged, score, overall
 
 
 def range_scale(R: np.ndarray, anchors: np.ndarray) -> float | None:
@@ -280,6 +339,22 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
                 f"{where}: {cause} The ranges are about {max(factor, 1 / factor):.3g} times "
                 f"{side} than anchors {_span(a):.3g} m apart allow (triangle inequality); "
                 f"ranges and anchors must both be metres{_hint('range_units')}")
+    if "anchor_ranges" not in skip and a.shape[0] >= 3:
+        flagged, score, overall = odd_anchors(R, a)
+        if flagged.any():
+            k = np.flatnonzero(flagged)
+            names = [ids[i] if ids is not None else f"#{i}" for i in k]
+            raise InputError(
+                f"{where}: the ranges to anchor(s) {', '.join(names)} fit no position with the "
+                f"other anchors' ranges (they break the triangle inequality by a factor "
+                f"{score[k[0]]:.3g}, median): wrong coordinates or id of that anchor?"
+                f"{_hint('anchor_ranges')}")
+        if overall > ODD_FACTOR:
+            raise InputError(
+                f"{where}: the ranges fit no position with these anchors (they break the "
+                f"triangle inequality by a factor {overall:.3g}, median): "
+                f"an anchors file of another site, or ranges of another unit?"
+                f"{_hint('anchor_ranges')}")
     if problem is not None and "geometry" not in skip:
         raise GeometryError(f"{where}: {problem[1]}{_hint('geometry')}")
 
