@@ -359,6 +359,48 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
         raise GeometryError(f"{where}: {problem[1]}{_hint('geometry')}")
 
 
+def check_node_ranges(ranges: np.ndarray, prior_distance_m: np.ndarray, *,
+                      skip: Collection[str] = (), where: str = "ranges") -> None:
+    """Node-to-node ranges against the distances between the nodes' prior means.
+
+    Priors are metres off, so only a gross misfit is refused: a median ratio of range to
+    prior distance beyond ``10 RANGE_FACTOR`` either way (ranges in mm, cm or km).
+
+    Parameters
+    ----------
+    ranges : ndarray, shape (K,)
+        Measured ranges between nodes.
+    prior_distance_m : ndarray, shape (K,)
+        Distance between the two nodes' prior means, per range.
+    skip : collection of str
+        Checks to leave out (``range_units``).
+    where : str
+        For the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the likely unit.
+    """
+    r, d = np.asarray(ranges, dtype=float), np.asarray(prior_distance_m, dtype=float)
+    ok = np.isfinite(r) & (d > 0)
+    if "range_units" in skip or not ok.any():
+        return
+    ratio = float(np.median(r[ok] / d[ok]))
+    if 1 / (10 * RANGE_FACTOR) <= ratio <= 10 * RANGE_FACTOR:
+        return
+    k, unit = min(_UNITS, key=lambda u: abs(np.log(ratio / u[0])))
+    cause = {"mm": "ranges in mm?", "cm": "ranges in cm?", "km": "ranges in km?"}[unit]
+    raise InputError(f"{where}: {cause} The ranges between nodes are about "
+                     f"{max(ratio, 1 / ratio):.3g} times {'longer' if ratio > 1 else 'shorter'} than the distances between "
+                     f"their prior positions; ranges and priors must both be metres"
+                     f"{_hint('range_units')}")
+
+
 def check_rss(values: np.ndarray, *, skip: Collection[str] = (), where: str = "rss") -> None:
     """Refuse RSS values written in mW or W (median >= 0 dBm).
 

@@ -385,8 +385,21 @@ def check_plausible(method: LocateMethod, request: LocateRequest,
         dim = 3 if "z" in anchors.columns and request.option("tag_height_m") is None else 2
     declared = method.options or {}
     gap = request.option("max_gap_s", MAX_GAP_S) if "max_gap_s" in declared else None
+    reads_priors = method.inputs is not None and "priors" in method.inputs
     check_log(request.measurements, anchors, kinds=method.kinds, dim=dim, max_gap_s=gap,
-              geometry=method.inputs is None or "priors" not in method.inputs, skip=skip)
+              geometry=not reads_priors, skip=skip)
+    if reads_priors and request.priors is not None:
+        from radioloc.core.plausibility import check_node_ranges
+        from radioloc.io.priors import read_node_priors
+
+        mean = read_node_priors(request.priors).set_index("node")[["x", "y"]]
+        m = request.measurements
+        rows = m[(m["kind"] == "range") & m["node"].isin(mean.index) & m["peer"].isin(mean.index)]
+        if not rows.empty:
+            gap_m = np.linalg.norm(mean.loc[rows["node"]].to_numpy(float)
+                                   - mean.loc[rows["peer"]].to_numpy(float), axis=1)
+            check_node_ranges(rows["value"].to_numpy(float), gap_m, skip=skip,
+                              where="measurements")
 
 
 def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
