@@ -14,14 +14,21 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "fuzz"))
 
-from library_harness import ARRAY_MODELS, CASES, MODELS  # noqa: E402
-from radioloc.core.errors import ConfigError, InputError, RadiolocError  # noqa: E402
-from radioloc.core.textfile import read_json_object  # noqa: E402
-from radioloc.core.validation import (as_float_array, check_dtype, check_int,  # noqa: E402
-                                      check_positive, check_real, check_shapes)
-from radioloc.estimators import GridFilter, GridGeometry, LocalML, Ransac  # noqa: E402
-from radioloc.io.logs import read_measurements  # noqa: E402
-from radioloc.models import LogDistanceGaussian, LosNlosRange, TrapezoidModel  # noqa: E402
+from library_harness import ARRAY_MODELS, CASES, MODELS
+
+from radioloc.core.errors import ConfigError, InputError, RadiolocError
+from radioloc.core.textfile import read_json_object
+from radioloc.core.validation import (
+    as_float_array,
+    check_dtype,
+    check_int,
+    check_positive,
+    check_real,
+    check_shapes,
+)
+from radioloc.estimators import GridFilter, GridGeometry, LocalML, Ransac
+from radioloc.io.logs import read_measurements
+from radioloc.models import LogDistanceGaussian, LosNlosRange, TrapezoidModel
 
 DTYPES = {
     "complex": lambda a: a + 0j,
@@ -66,7 +73,7 @@ def test_every_estimator_refuses_complex_and_bool_settings(name):
     for field in settings:
         for value in (np.complex128(2.0), complex(1, 1), np.bool_(True)):
             s = dict(case.settings, **{field: value})
-            _refused(lambda: case.solve(s, case.args), (field,))
+            _refused(lambda s=s: case.solve(s, case.args), (field,))
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
@@ -74,7 +81,7 @@ def test_every_model_refuses_complex_settings(name):
     ctor, fields, values, check = MODELS[name]
     for field in fields:
         kw = dict(values, **{field: np.complex128(2.0)})
-        _refused(lambda: check(ctor(**kw)), (field,))
+        _refused(lambda kw=kw: check(ctor(**kw)), (field,))
 
 
 @pytest.mark.parametrize("name", sorted(ARRAY_MODELS))
@@ -84,10 +91,10 @@ def test_array_models_refuse_dtypes_and_name_shape_errors(name, kind):
     for field in fields:
         kw = make()
         kw[field] = DTYPES[kind](np.asarray(kw[field], dtype=float))
-        _refused(lambda: check(ctor(**kw)), (field,))
+        _refused(lambda kw=kw: check(ctor(**kw)), (field,))
         kw = make()
         kw[field] = np.asarray(kw[field])[:-1]
-        _refused(lambda: check(ctor(**kw)), tuple(fields))
+        _refused(lambda kw=kw: check(ctor(**kw)), tuple(fields))
 
 
 def test_helpers_name_the_argument():

@@ -47,7 +47,7 @@ node-to-node ranges fix what the anchors leave open.
 from __future__ import annotations
 
 import warnings
-from typing import Collection
+from collections.abc import Collection
 
 import numpy as np
 import pandas as pd
@@ -393,7 +393,7 @@ def check_node_ranges(ranges: np.ndarray, prior_distance_m: np.ndarray, *,
     ratio = float(np.median(r[ok] / d[ok]))
     if 1 / (10 * RANGE_FACTOR) <= ratio <= 10 * RANGE_FACTOR:
         return
-    k, unit = min(_UNITS, key=lambda u: abs(np.log(ratio / u[0])))
+    _, unit = min(_UNITS, key=lambda u: abs(np.log(ratio / u[0])))
     cause = {"mm": "ranges in mm?", "cm": "ranges in cm?", "km": "ranges in km?"}[unit]
     raise InputError(f"{where}: {cause} The ranges between nodes are about "
                      f"{max(ratio, 1 / ratio):.3g} times {'longer' if ratio > 1 else 'shorter'} than the distances between "
