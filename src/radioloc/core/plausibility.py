@@ -464,7 +464,13 @@ def check_calibration(positions: np.ndarray, rss: np.ndarray, *, skip: Collectio
 
 def _epoch_matrix(rows: pd.DataFrame, ids: list[str]) -> np.ndarray:
     """Ranges as an (epochs, anchors) array, one row per (node, time); NaN: absent."""
-    epoch, _ = pd.factorize(pd.MultiIndex.from_arrays([rows["node"], rows["time"]]))
+    node = pd.factorize(rows["node"])[0]
+    time = rows["time"].to_numpy(dtype=float)
+    order = np.lexsort((time, node))
+    ts, ns = time[order], node[order]
+    new = np.r_[True, (ts[1:] != ts[:-1]) | (ns[1:] != ns[:-1])]
+    epoch = np.empty(order.size, dtype=np.int64)
+    epoch[order] = np.cumsum(new) - 1
     col = rows["peer"].map({a: k for k, a in enumerate(ids)}).to_numpy()
     n = int(epoch.max()) + 1
     if n > MAX_EPOCHS:                          # keep an even sample of the epochs
@@ -507,15 +513,17 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
         The median step within a node exceeds ``max_gap_s``.
     """
     frame = measurements
-    if "line" in frame.columns:
+    if "line" in frame.columns and not frame["line"].is_monotonic_increasing:
         frame = frame.sort_values("line", kind="stable")
-    node = frame["node"].to_numpy()
+    names = frame["node"].to_numpy()
+    node = pd.factorize(names)[0]
     time = frame["time"].to_numpy(dtype=float)
     order = np.argsort(node, kind="stable")          # file order within each node
-    node_s, time_s = node[order], time[order]
-    same = node_s[1:] == node_s[:-1]
+    code_s, time_s = node[order], time[order]
+    node_s = names[order]
+    same = code_s[1:] == code_s[:-1]
     if "time_order" not in skip and same.any():
-        running = pd.Series(time_s).groupby(node_s).cummax().to_numpy()
+        running = pd.Series(time_s).groupby(code_s).cummax().to_numpy()
         back = np.zeros(time_s.size, bool)
         back[1:] = same & (time_s[1:] < running[:-1])
         if back.any():
@@ -526,8 +534,9 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
                           f"{running[k - 1]:g}); they are used in time order", stacklevel=3)
     if max_gap_s is None or "time_units" in skip:
         return
-    by_node = pd.DataFrame({"n": node, "t": time}).drop_duplicates().sort_values(["n", "t"])
-    step = np.diff(by_node["t"].to_numpy())[by_node["n"].to_numpy()[1:] == by_node["n"].to_numpy()[:-1]]
+    srt = np.lexsort((time, node))
+    ts, ns = time[srt], node[srt]
+    step = np.diff(ts)[(ns[1:] == ns[:-1]) & (ts[1:] != ts[:-1])]  # between distinct times
     if step.size and np.median(step) > max_gap_s:
         med = float(np.median(step))
         guess = "time in milliseconds? " if med / 1000 <= max_gap_s else ""
