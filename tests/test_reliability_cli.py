@@ -143,7 +143,9 @@ def test_a_file_the_method_does_not_read_is_refused(fake_methods, meas_range, fl
 
 def test_declared_inputs_are_accepted(fake_methods, meas_range):
     declare(fake_methods, inputs=("anchors",), kinds=("range",), options={})
-    res = invoke(["locate", meas_range, "--method", "fake", "--anchors", ANCHORS])
+    meas = meas_range.parent / "m3.csv"          # three anchors: a geometry that fixes a position
+    meas.write_text(meas_range.read_text() + "0,t,A3,range,40\n")
+    res = invoke(["locate", meas, "--method", "fake", "--anchors", ANCHORS])
     assert res.exit_code == 0, res.output
 
 

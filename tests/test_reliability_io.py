@@ -75,7 +75,7 @@ def test_empty_trailing_column_is_ignored_but_a_nameless_column_with_values_is_n
 def test_not_utf8_and_folder_inputs(tmp_path):
     p = tmp_path / "m.csv"
     p.write_bytes(HEAD.encode() + b"0,t\xff\xfe,A,range,1\n")
-    with pytest.raises(InputError, match="not a text file in UTF-8"):
+    with pytest.raises(InputError, match="line 2: not UTF-8 text"):
         read_measurements(p)
     with pytest.raises(InputError, match="is a folder, not a file"):
         read_measurements(tmp_path)

@@ -352,12 +352,14 @@ assert set(CASES) == {c.__name__ for c in ESTIMATORS if not c.tags.generic}, \
 
 ARRAY_MUTATIONS = ["nan", "inf", "-inf", "huge", "tiny", "negative", "zero", "scale_huge",
                    "scale_tiny", "extra_column", "leading_axis", "drop_axis", "empty", "text",
-                   "max_float", "subnormal"]
+                   "max_float", "subnormal", "complex", "bool", "object"]
 SETTING_VALUES = [math.nan, math.inf, -math.inf, -1.0, 0.0, 1e300, 1e-300, 1.7976931348623157e308,
-                  5e-324, 10**12, 10**9, True, "abc", None, -5, 0.5, 2.0]
+                  5e-324, 10**12, 10**9, True, "abc", None, -5, 0.5, 2.0, complex(2.0, 0.0),
+                  np.complex128(2.0), np.bool_(True)]
 
 #: mutations the contract refuses whatever the field (besides the field's own rules)
-ALWAYS_INVALID = {"inf", "-inf", "extra_column", "drop_axis", "empty", "text"}
+ALWAYS_INVALID = {"inf", "-inf", "extra_column", "drop_axis", "empty", "text", "complex",
+                  "bool", "object"}
 #: shape mutations: an error about them may name any array argument of the call (in a
 #: mismatch between two arguments either can be the one at fault)
 SHAPE_MUTATIONS = {"extra_column", "leading_axis", "drop_axis", "empty"}
@@ -383,7 +385,9 @@ def _set_one(arr, index, value):
 def invalid_setting(spec: Field, value) -> bool:
     if value is None:
         return not spec.none_ok
-    if isinstance(value, str):
+    if isinstance(value, (str, complex, np.complexfloating)):
+        return True
+    if isinstance(value, np.bool_):
         return True
     if isinstance(value, bool):
         return spec.integer
@@ -459,6 +463,12 @@ def mutations(draw, case: Case) -> tuple[Case, Mutation]:
             new = arr[..., 0] if arr.ndim else np.zeros((2, 2, 2))
     elif kind == "empty":
         new = arr[:0] if arr.ndim else np.zeros(0)
+    elif kind == "complex":        # the imaginary part must not be dropped without a word
+        new = arr + 0j if arr.ndim else complex(float(arr), 0.0)
+    elif kind == "bool":           # True must not be read as 1
+        new = arr > np.median(arr) if arr.ndim else np.bool_(True)
+    elif kind == "object":         # numbers hidden in an object array (a list with None...)
+        new = arr.astype(object)
     elif kind == "text":
         new = np.full(arr.shape, "abc", dtype=object) if arr.ndim else "abc"
     else:  # pragma: no cover

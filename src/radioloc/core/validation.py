@@ -7,6 +7,7 @@ instead of letting a NaN or a shape mismatch travel into the numerics.
 
 from __future__ import annotations
 
+import warnings
 from typing import Callable, Sequence
 
 import numpy as np
@@ -17,6 +18,9 @@ from radioloc.core.errors import ConfigError, InputError
 #: 1e14 light years). Squares and products of such values stay far from float64 overflow,
 #: so an overflow inside an estimator is impossible by construction, not a RuntimeWarning.
 MAGNITUDE_LIMIT = 1e30
+#: Largest length setting (metres) that sizes a grid, a kernel or a search: 1e9 m is beyond
+#: any terrestrial scene, and a cell or blur count derived from it stays an integer.
+LENGTH_LIMIT_M = 1e9
 #: Smallest magnitude accepted for a positive scalar setting (a standard deviation of
 #: 1e-300 would overflow its inverse square).
 POSITIVE_FLOOR = 1e-30
@@ -28,6 +32,77 @@ MAX_COMPONENTS = 100_000
 #: Default bound on the memory one call may allocate; the environment variable
 #: ``RADIOLOC_MEMORY_LIMIT_GB`` overrides it.
 MEMORY_LIMIT_GB = 4.0
+
+
+#: Array kinds refused at the boundary, by numpy dtype kind: their conversion to float would
+#: drop an imaginary part, read True as 1, or hide text and None inside an object array.
+REFUSED_KINDS = {"c": "complex", "b": "bool", "O": "object (mixed or non-numeric)",
+                 "U": "text", "S": "bytes", "M": "datetime", "m": "timedelta",
+                 "V": "structured"}
+
+
+def check_dtype(value: object, name: str) -> np.ndarray:
+    """``value`` as an array of real numbers (int, unsigned or float dtype), not converted.
+
+    Parameters
+    ----------
+    value : array_like
+        The argument as the user passed it.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    ndarray
+        ``np.asarray(value)``.
+
+    Raises
+    ------
+    InputError
+        A complex, bool, object, text, datetime or structured array (or a nested sequence
+        that is none of these, e.g. ragged), naming ``name`` and the dtype.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise InputError(f"{name}: expected real numbers, got a bool ({value!r})")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            arr = np.asarray(value)
+    except (TypeError, ValueError, OverflowError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{name}: expected an array of numbers, got {type(value).__name__} "
+                         f"({first})") from None
+    kind = REFUSED_KINDS.get(arr.dtype.kind)
+    if kind is not None:
+        raise InputError(f"{name}: expected real numbers, got {kind} values (dtype {arr.dtype})")
+    return arr
+
+
+def check_shapes(name_a: str, shape_a: tuple[int, ...], name_b: str,
+                 shape_b: tuple[int, ...]) -> tuple[int, ...]:
+    """The broadcast shape of two arguments, or an error naming both.
+
+    Parameters
+    ----------
+    name_a, name_b : str
+        Argument names.
+    shape_a, shape_b : tuple of int
+        Their shapes.
+
+    Returns
+    -------
+    tuple of int
+
+    Raises
+    ------
+    InputError
+        The shapes do not broadcast.
+    """
+    try:
+        return tuple(np.broadcast_shapes(tuple(shape_a), tuple(shape_b)))
+    except ValueError:
+        raise InputError(f"{name_a} (shape {tuple(shape_a)}) and {name_b} (shape "
+                         f"{tuple(shape_b)}) do not broadcast together") from None
 
 
 def _first_bad_index(mask: np.ndarray) -> tuple[int, ...]:
@@ -72,8 +147,10 @@ def as_float_array(
     Raises
     ------
     InputError
-        Naming ``name`` and, for bad entries, the first offending index.
+        Naming ``name`` and, for bad entries, the first offending index; a complex, bool,
+        object or text array (:func:`check_dtype`).
     """
+    value = check_dtype(value, name)
     try:
         with np.errstate(over="ignore", invalid="ignore"):
             arr = np.asarray(value, dtype=np.float64)
@@ -116,15 +193,19 @@ def as_positions(value: object, name: str, *, dims: Sequence[int] = (2, 3)) -> n
 
 
 def _scalar(value: object, name: str) -> float:
-    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
-        raise ConfigError(f"{name}: expected a number, got {value!r}")
+    if isinstance(value, (bool, np.bool_, str, bytes, complex, np.complexfloating)) \
+            or value is None:
+        raise ConfigError(f"{name}: expected a real number, got {value!r}")
+    if isinstance(value, np.ndarray) and value.dtype.kind not in "iuf":
+        raise ConfigError(f"{name}: expected a real number, got an array of dtype {value.dtype}")
     try:
         return float(value)
     except (TypeError, ValueError, OverflowError):
         raise ConfigError(f"{name}: expected a number, got {value!r}") from None
 
 
-def check_positive(value: float, name: str, *, allow_zero: bool = False) -> float:
+def check_positive(value: float, name: str, *, allow_zero: bool = False,
+                   maximum: float = MAGNITUDE_LIMIT) -> float:
     """A scalar parameter that must be positive (or non-negative).
 
     Parameters
@@ -135,11 +216,14 @@ def check_positive(value: float, name: str, *, allow_zero: bool = False) -> floa
         Its name, for the message.
     allow_zero : bool
         Accept 0.
+    maximum : float
+        Largest value accepted (default :data:`MAGNITUDE_LIMIT`; :data:`LENGTH_LIMIT_M` for
+        a length that sizes a grid or a kernel).
 
     Returns
     -------
     float
-        The value; a non-zero value lies in ``[POSITIVE_FLOOR, MAGNITUDE_LIMIT]``.
+        The value; a non-zero value lies in ``[POSITIVE_FLOOR, maximum]``.
 
     Raises
     ------
@@ -151,9 +235,9 @@ def check_positive(value: float, name: str, *, allow_zero: bool = False) -> floa
     if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
         raise ConfigError(f"{name}: must be finite and {bound}, got {value!r}")
-    if v != 0 and not (POSITIVE_FLOOR <= v <= MAGNITUDE_LIMIT):
+    if v != 0 and not (POSITIVE_FLOOR <= v <= maximum):
         raise ConfigError(f"{name}: {v:g} is outside the supported range "
-                          f"[{POSITIVE_FLOOR:g}, {MAGNITUDE_LIMIT:g}]")
+                          f"[{POSITIVE_FLOOR:g}, {maximum:g}]")
     return v
 
 
@@ -207,7 +291,8 @@ def check_int(value: object, name: str, *, minimum: int = 1, maximum: int | None
     ConfigError
         Not an integer, or out of bounds (the message says which limit).
     """
-    if isinstance(value, (bool, np.bool_, str, bytes)) or value is None:
+    if isinstance(value, (bool, np.bool_, str, bytes, complex, np.complexfloating)) \
+            or value is None:
         raise ConfigError(f"{name}: expected an integer, got {value!r}")
     try:
         v = float(value)

@@ -35,8 +35,8 @@ import numpy as np
 from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import (MAGNITUDE_LIMIT, as_float_array, check_positive,
-                                      check_probability)
+from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_array,
+                                      check_positive, check_probability)
 from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
@@ -671,7 +671,7 @@ class GridFilter(RecursiveEstimator):
         eps = check_probability(epsilon, "epsilon")
         if eps * geometry.k > 1:
             raise ConfigError(f"epsilon: {eps} x {geometry.k} cells exceeds 1")
-        blur_v = check_positive(blur_m, "blur_m", allow_zero=True)
+        blur_v = check_positive(blur_m, "blur_m", allow_zero=True, maximum=LENGTH_LIMIT_M)
         if motion is not None:
             if not callable(getattr(motion, "Q", None)) or getattr(motion, "state_dim", None) != 2 \
                     or getattr(motion, "dim", None) != 2:

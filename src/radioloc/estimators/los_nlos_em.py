@@ -22,6 +22,10 @@ from radioloc.core.validation import as_float_array
 from radioloc.models.los_nlos import LosNlosRange, emg_logpdf, gaussian_logpdf
 
 
+#: Fewest range errors the EM fit accepts.
+MIN_SAMPLES = 10
+
+
 @dataclass
 class EmFit:
     """Result of :func:`fit_los_nlos`.
@@ -77,14 +81,19 @@ def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | N
     EmFit
     """
     e = as_float_array(errors, "errors", ndim=1)
-    if e.size < 10:
-        raise InputError(f"errors: need at least 10 samples, got {e.size}")
+    if e.size < MIN_SAMPLES:
+        raise InputError(f"errors: need at least {MIN_SAMPLES} samples, got {e.size}")
     med = float(np.median(e))
     b = med if fit_bias else 0.0
     lo = e[e <= np.quantile(e, 0.5)]
     s = los_std0 or max(float(1.4826 * np.median(np.abs(lo - np.median(lo)))), 1e-3)
     mu = nlos_mean0 or max(float(np.mean(e) - med), 1e-2)
     alpha = float(alpha0)
+    # the M-step searches bias and log scales within the span of the errors, so that no
+    # trial point overflows the mixture's log-density (exp of an unbounded log scale)
+    width = max(float(np.ptp(e)), 1e-3)
+    lower = np.array([float(e.min()) - width, np.log(1e-6), np.log(1e-6)])
+    upper = np.array([float(e.max()) + width, np.log(10 * width), np.log(10 * width)])
     hist = []
     r = np.full(e.shape, alpha)
     for _ in range(iterations):
@@ -101,7 +110,8 @@ def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | N
             ss, mm = np.exp(p[1]), np.exp(p[2])
             x = e - bb
             return -np.mean(r * gaussian_logpdf(x, ss) + (1 - r) * emg_logpdf(x, ss, mm))
-        res = minimize(neg, np.array([b, np.log(s), np.log(mu)]), method="L-BFGS-B",
+        res = minimize(neg, np.clip([b, np.log(s), np.log(mu)], lower, upper),
+                       method="L-BFGS-B", bounds=list(zip(lower, upper)),
                        options={"maxiter": 20})
         b = float(res.x[0]) if fit_bias else 0.0
         s, mu = float(np.exp(res.x[1])), float(np.exp(res.x[2]))

@@ -253,7 +253,8 @@ class MixtureLocalizer(SnapshotEstimator):
                              f"models' {models.batch_shape[:-1]}") from None
         s, k, d1 = models.batch_shape[-1], models.n_components, models.dim
         kmax = self.max_components
-        k_eff = min(float(kmax), float(k) ** s)
+        # min(kmax, k ** s) without forming k ** s (it overflows for hundreds of stations)
+        k_eff = float(kmax) if k > 1 and s * np.log(k) >= np.log(kmax) else float(k) ** s
         check_memory(32.0 * np.prod(shape, dtype=float) * k_eff * k_eff * (2 * d1 - 1),
                      "max_components", "the products of the position mixtures")
         got = np.broadcast_to(np.isfinite(rss), shape + (s,))

@@ -74,6 +74,9 @@ def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     except ValueError:
         raise InputError(f"centres: shape {c.shape} does not fit ranges {r.shape}") from None
     mask = np.isfinite(r)
+    if not mask.any():
+        raise InputError(f"ranges: no finite range in any of the {mask.size} entries (NaN marks "
+                         "an absent link; every link is absent)")
     if np.any(mask & ~np.all(np.isfinite(c), axis=-1)):
         raise InputError("centres: non-finite position of a point with a range")
     index, valid = pack_mask(mask)

@@ -72,13 +72,15 @@ def _line(frame: pd.DataFrame, i: int) -> int:
 
 def _open_table(path: Path):
     """A text stream of the table: the CSV file itself, or a Parquet file's cells as CSV."""
-    if path.suffix.lower() == ".parquet":
-        import io
+    import io
 
+    if path.suffix.lower() == ".parquet":
         from radioloc.io.datasets import read_table_text
 
         return io.StringIO(read_table_text(path).to_csv(index=False))
-    return open(path, newline="", encoding="utf-8-sig")
+    from radioloc.core.textfile import decode_text
+
+    return io.StringIO(decode_text(path.read_bytes(), path), newline="")
 
 
 def _read_csv(path: Path | str, what: str, preserve_case: bool = False) -> pd.DataFrame:
@@ -114,8 +116,6 @@ def _read_csv(path: Path | str, what: str, preserve_case: bool = False) -> pd.Da
                 else:
                     rows.append(rec)
                     lines.append(line)
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a text file in UTF-8 (line {line})") from None
     except csv.Error as exc:
         raise InputError(f"{path}: line {line}: not readable as CSV ({exc})") from None
     except OSError as exc:

@@ -19,6 +19,11 @@ method runs, so that nothing a user gives is silently ignored:
 
 A method that declares nothing (``None``) accepts anything, as before declarations existed.
 Its output is checked too: a non-finite position is a method failure, never printed.
+
+Before a method runs, :func:`radioloc.core.plausibility.check_log` refuses logs that are
+well-formed but implausible (degenerate anchors, ranges, anchors, RSS or time in the wrong
+unit) and warns of time going backwards within a node; every method accepts
+``-o no_check=NAME[,NAME...]`` (or ``all``) to overrule named checks.
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.locate.table import order_rows
 
 INPUTS = ("anchors", "priors", "calibration")
+#: Default gap between a node's rows that restarts a track (option ``max_gap_s``), seconds.
+MAX_GAP_S = 5.0
 _TRUE = ("1", "true", "yes", "on")
 _FALSE = ("0", "false", "no", "off")
 
@@ -153,7 +160,8 @@ class LocateRequest:
         ``-o key=value`` pairs; read them with :meth:`option`.
     parsed : dict of str to value
         Options already converted and checked against the method's declaration
-        (filled by :func:`run_method`).
+        (filled by :func:`run_method`); ``parsed["no_check"]`` holds the plausibility
+        checks overruled with ``-o no_check`` (a frozenset of names).
     """
 
     measurements: pd.DataFrame
@@ -346,6 +354,61 @@ def methods() -> dict[str, LocateMethod]:
     return dict(sorted(_METHODS.items()))
 
 
+def _plausibility_skip(request: LocateRequest) -> frozenset[str]:
+    from radioloc.core.plausibility import parse_skip
+
+    return parse_skip(request.options.pop("no_check", None))
+
+
+def check_plausible(method: LocateMethod, request: LocateRequest,
+                    skip: frozenset[str] = frozenset()) -> None:
+    """The plausibility checks of :mod:`radioloc.core.plausibility` for ``method``.
+
+    The positions are 3-D when the anchors have ``z`` and no ``tag_height_m`` is given; the
+    time-unit check applies to methods with a ``max_gap_s`` option; methods that read node
+    priors skip the anchor-geometry check (the priors fix what the anchors leave open).
+
+    Parameters
+    ----------
+    method : LocateMethod
+    request : LocateRequest
+    skip : frozenset of str
+        Checks overruled with ``-o no_check``.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    GeometryError, InputError
+        One line naming the likely cause.
+    """
+    from radioloc.core.plausibility import check_log
+
+    anchors = request.anchors
+    dim = None
+    if anchors is not None:
+        dim = 3 if "z" in anchors.columns and request.option("tag_height_m") is None else 2
+    declared = method.options or {}
+    gap = request.option("max_gap_s", MAX_GAP_S) if "max_gap_s" in declared else None
+    reads_priors = method.inputs is not None and "priors" in method.inputs
+    check_log(request.measurements, anchors, kinds=method.kinds, dim=dim, max_gap_s=gap,
+              geometry=not reads_priors, skip=skip)
+    if reads_priors and request.priors is not None:
+        from radioloc.core.plausibility import check_node_ranges
+        from radioloc.io.priors import read_node_priors
+
+        mean = read_node_priors(request.priors).set_index("node")[["x", "y"]]
+        m = request.measurements
+        rows = m[(m["kind"] == "range") & m["node"].isin(mean.index) & m["peer"].isin(mean.index)]
+        if not rows.empty:
+            gap_m = np.linalg.norm(mean.loc[rows["node"]].to_numpy(float)
+                                   - mean.loc[rows["peer"]].to_numpy(float), axis=1)
+            check_node_ranges(rows["value"].to_numpy(float), gap_m, skip=skip,
+                              where="measurements")
+
+
 def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     """Apply method ``name`` to ``request``.
 
@@ -374,7 +437,10 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     known = methods()
     if name not in known:
         raise ConfigError(f"unknown method {name!r}; known: {', '.join(known)}")
+    skip = _plausibility_skip(request)
     check_request(known[name], request)
+    request.parsed["no_check"] = skip
+    check_plausible(known[name], request, skip)
     out = known[name].fn(request)
     _check_output(name, out)
     summary = dict(out.attrs.get("summary", {}))

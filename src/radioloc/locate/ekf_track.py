@@ -38,7 +38,7 @@ from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.logs import range_arrays
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
-from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.progress import progress
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout
@@ -255,7 +255,7 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "smooth": bool(request.option("smooth", False, bool)),
             "prior_std": request.option("prior_std_m", 2.0),
             "init_s": request.option("init_s", 2.0),
-            "max_gap_s": request.option("max_gap_s", 5.0)}
+            "max_gap_s": request.option("max_gap_s", MAX_GAP_S)}
 
 
 def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,

@@ -50,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.plausibility import check_calibration
 from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTracker
 from radioloc.estimators.place_tracking import track_places
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
@@ -256,6 +257,8 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     nd = request.option("not_detected", None)
     pos, cal_rss, ids, zones, zone_names = read_calibration(request.calibration, nd,
                                                             with_zones=True)
+    check_calibration(pos, cal_rss, skip=request.parsed.get("no_check", ()),
+                      where=str(request.calibration))
     min_samples = int(request.option("min_samples", 3))
     offset = _offset_option(request)
     for name in ("temperature", "top_places", "shrink"):

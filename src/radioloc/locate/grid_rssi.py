@@ -36,7 +36,7 @@ from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
                         "margin_m": Option("grid margin beyond the anchors, m (5)", float, min=0,
                                            max=1e5),
                         "epsilon": Option("floor of a cell's probability (1e-9)", float, min=0,
-                                          max=1),
+                                          min_exclusive=True, max=1),
                         "blur_m": Option("blur radius per row, m (0)", float, min=0, max=1e4),
                         "dbm_min": Option("dBm mapped to RSSI 0 (-110)", float, min=-200, max=30),
                         "dbm_max": Option("dBm mapped to RSSI 100 (-10)", float, min=-200, max=30),

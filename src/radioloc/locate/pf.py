@@ -53,7 +53,7 @@ import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.results import Track
-from radioloc.estimators.los_nlos_em import fit_los_nlos
+from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.locate.base import LocateRequest, Option, locate_method
@@ -179,6 +179,11 @@ def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None
     med = float(np.median(e))
     mad = max(1.4826 * float(np.median(np.abs(e - med))), 1e-3)
     keep = np.abs(e - med) <= TRIM * mad          # gross outliers: the gate's job, not EM's
+    if keep.sum() < MIN_SAMPLES:
+        outliers = f" ({int((~keep).sum())} of them gross outliers)" if (~keep).any() else ""
+        raise InputError(f"method pf: the log holds {e.size} range(s) to anchors{outliers}; "
+                         f"fitting its LOS/NLOS model by EM needs at least {MIN_SAMPLES}: give a "
+                         "longer log, or use --method ekf-track")
     fit = fit_los_nlos(e[keep], fit_bias=True, alpha0=0.9, los_std0=mad,
                        nlos_mean0=max(5 * mad, 0.1))
     return fit.model, fit.bias_m, {"samples": int(keep.sum()), "trimmed": int((~keep).sum())}

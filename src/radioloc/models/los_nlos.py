@@ -21,7 +21,7 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import check_positive, check_probability
+from radioloc.core.validation import LENGTH_LIMIT_M, check_positive, check_probability
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -90,8 +90,8 @@ class LosNlosRange:
     alpha: float = 0.3
 
     def __post_init__(self) -> None:
-        check_positive(self.los_std_m, "los_std_m")
-        check_positive(self.nlos_mean_m, "nlos_mean_m")
+        check_positive(self.los_std_m, "los_std_m", maximum=LENGTH_LIMIT_M)
+        check_positive(self.nlos_mean_m, "nlos_mean_m", maximum=LENGTH_LIMIT_M)
         check_probability(self.alpha, "alpha")
 
     @property

@@ -296,17 +296,17 @@ class TrapezoidModel:
         -------
         TrapezoidModel
         """
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
-            raise InputError(f"model file {path}: cannot read JSON ({exc})") from None
+        from radioloc.core.textfile import read_json_object
+
+        data = read_json_object(path, "model")
         missing = [k for k in ("mu", "tau", "sigma") if k not in data]
         if missing:
             raise InputError(f"model file {path}: missing key(s) {', '.join(missing)}")
         count = data.get("count", np.zeros(RSSI_LEVELS))
-        return cls(np.asarray(data["mu"], float), np.asarray(data["tau"], float),
-                   np.asarray(data["sigma"], float), np.asarray(count, float))
+        try:
+            return cls(data["mu"], data["tau"], data["sigma"], count)
+        except InputError as exc:
+            raise InputError(f"model file {path}: {exc}") from None
 
 
 def trapezoid(dist, mu, tau, sigma) -> np.ndarray:
