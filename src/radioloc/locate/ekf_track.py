@@ -501,7 +501,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     counts = {k: int(np.isfinite(o.z).sum()) for _, _, obs, _ in parts for o in obs
               for k in [o.model.kind]}
     out.attrs["summary"] = {
-        "nodes": len(parts), "measurements": counts,
+        "nodes": len(parts), "ranges": counts.get("range", 0), "measurements": counts,
         "measurements_gated": int(out["gated"].sum()) if "gated" in out else 0,
         "steps": len(out), "restarts": int(out["restart"].sum()),
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias}
