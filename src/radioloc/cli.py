@@ -428,12 +428,13 @@ def list_methods() -> None:
     """List the estimators available to `radioloc locate`."""
     from radioloc.locate.base import methods
 
-    table = Table("method", "what it does", "options (-o key=value)",
+    table = Table("method", "kinds", "what it does", "options (-o key=value)",
                   title="radioloc locate methods", title_justify="left")
     for name, m in methods().items():
         opts = "" if m.options is None else "\n".join(
             f"{k}: {spec.describe()}" for k, spec in m.options.items()) or "none"
-        table.add_row(name, m.summary, opts)
+        kinds = "any" if m.kinds is None else "\n".join(m.kinds)
+        table.add_row(name, kinds, m.summary, opts)
     console.print(table)
 
 

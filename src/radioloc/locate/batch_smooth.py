@@ -27,17 +27,40 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
-from radioloc.locate.base import LocateRequest
+from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (PRIOR_SPEED_STD, motion_model, range_rows, segments,
                                        start_position, track_table, tracker_settings)
+from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
 
-__all__ = ["smooth_log"]
+__all__ = ["smooth_log", "OPTIONS"]
+
+#: The ``-o`` options of ``locate --method smoother``.
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
+                                       "tag_height_m", "prior_std_m", "init_s", "max_gap_s")}
+OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
+                                           "min_los_std_m")})
+OPTIONS.update({
+    "loss": Option("'max-mixture' (default: LOS/NLOS max-mixture of each range) or a robust "
+                   "loss of the standardised range residual", str,
+                   choices=("max-mixture",) + LOSSES),
+    "loss_scale": Option("the robust loss's scale, in standard deviations (range_std_m) "
+                         "(default 1)", float, min=0, min_exclusive=True, max=1e6),
+    "null_weight": Option("weight of the max-mixture's null-hypothesis mode (default 1e-3; 0: "
+                          "none)", float, min=0, max=1),
+    "null_std_m": Option("standard deviation of the null-hypothesis mode, m (default 10)",
+                         float, min=0, min_exclusive=True, max=1e6),
+})
 
 
+@locate_method("smoother", "Batch MAP smoother of each node's whole track from its ranges to "
+                           "anchors (sparse solve; LOS/NLOS max-mixture by EM on the log, or "
+                           "a robust loss)",
+               options=OPTIONS, kinds=("range",), inputs=("anchors",))
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a range log (module docstring).
 
@@ -105,5 +128,11 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
-            tables.append(track_table(node, t, track))
-    return pd.concat(tables, ignore_index=True)
+            tables.append(track_table(node, t, track, restart=seg is not parts[0]))
+    out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
+    out = out.reset_index(drop=True)
+    out.attrs["summary"] = {"nodes": len(per_node), "steps": len(out),
+                            "ranges": int(sum(np.isfinite(R).sum() for _, _, R in per_node)),
+                            "restarts": int(out["restart"].sum()), "loss": loss,
+                            "range_std_m": std}
+    return out
