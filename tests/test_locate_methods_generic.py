@@ -205,3 +205,83 @@ def test_cli_lists_kinds_and_runs_the_new_methods(tmp_path):
         assert res.exit_code == 0, res.output
         out = pd.read_csv(tmp_path / f"{method}.csv")
         assert len(out) == 16 and error_m(out, pos).max() < 0.5
+
+
+def sensor_log(n=30, period=0.5, std=0.0, seed=4):
+    """Two targets on straight lines ranged by one sensor circling them, turning 1.3 rad
+    per sample (paper 002's setting): measurements, anchors with a ``time`` column (the
+    sensor's track, sampled at the range times), truth."""
+    rng = np.random.default_rng(seed)
+    t = period * np.arange(n)
+    track_t = t
+    ang = 1.3 * np.arange(n)
+    sensor = np.c_[10 * np.cos(ang), 10 * np.sin(ang)]
+    anchors = pd.DataFrame({"id": "S", "time": track_t, "x": sensor[:, 0], "y": sensor[:, 1]})
+    pos = {"n1": np.array([-3.0, -2.0]) + t[:, None] * [0.4, 0.2],
+           "n2": np.array([2.0, -3.0]) + t[:, None] * [-0.3, 0.4]}
+    rows = []
+    s_t = np.c_[np.interp(t, track_t, sensor[:, 0]), np.interp(t, track_t, sensor[:, 1])]
+    for node, p in pos.items():
+        d = np.linalg.norm(p - s_t, axis=1) + std * rng.standard_normal(n)
+        rows += [(ti, node, "S", "range", di) for ti, di in zip(t, d)]
+    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value"])
+    return meas, anchors, {k: (t, v) for k, v in pos.items()}
+
+
+def track_error(out, pos):
+    errs = []
+    for node, (t, p) in pos.items():
+        got = out[out.node == node]
+        np.testing.assert_allclose(got["time"], t)
+        errs.append(np.linalg.norm(got[["x", "y"]].to_numpy() - p, axis=1))
+    return np.concatenate(errs)
+
+
+@pytest.mark.parametrize("method", ["closed-form", "newton"])
+def test_single_sensor_methods_track_targets_from_a_moving_anchor(method):
+    meas, anchors, pos = sensor_log()
+    out = run(method, meas, anchors, accel_std_mps2=0.001, range_std_m=0.001)
+    assert len(out) == 60 and not out.duplicated(["time", "node"]).any()
+    assert track_error(out, pos).max() < 0.05
+    assert ("cov_xx" in out.columns) == (method == "closed-form")
+    noisy, _, _ = sensor_log(std=0.1)
+    out = run(method, noisy, anchors, range_std_m=0.1, window=12)
+    assert np.sqrt(np.mean(track_error(out, pos) ** 2)) < 1.5
+
+
+def test_closed_form_covariance_follows_the_range_noise():
+    meas, anchors, pos = sensor_log(std=0.1)
+    a = run("closed-form", meas, anchors, range_std_m=0.1, accel_std_mps2=0.0)
+    b = run("closed-form", meas, anchors, range_std_m=0.2, accel_std_mps2=0.0)
+    assert (b["uncertainty_m"] > 1.5 * a["uncertainty_m"]).all()
+
+
+def test_moving_anchors_are_validated_and_only_taken_by_the_trackers_of_paper_002(tmp_path):
+    meas, anchors, pos = sensor_log()
+    with pytest.raises(InputError, match="time column.*closed-form, newton"):
+        run("lsq", meas, anchors)
+    short = anchors[anchors["time"] <= 10.0].assign(time=lambda f: f["time"] - 0.01)
+    with pytest.raises(InputError, match=r"anchor 'S': no position at time 10\.0"):
+        run("closed-form", meas, short)
+    twice = pd.concat([anchors, anchors.iloc[[3]]])
+    twice.to_csv(tmp_path / "a.csv", index=False)
+    with pytest.raises(InputError, match=r"line 32, column 'time'.*anchor 'S' at time 1\.5"):
+        read_anchors(tmp_path / "a.csv")
+    uneven = meas[~((meas.node == "n1") & (meas.time == 2.0))].copy()
+    uneven.loc[(uneven.node == "n1") & (uneven.time == 3.0), "time"] = 3.2
+    with pytest.raises(InputError, match=r"node 'n1'.*time 3\.2.*uniform grid"):
+        run("newton", uneven, anchors)
+    gap = meas[~((meas.node == "n1") & meas.time.isin([2.0, 4.0]))]
+    with pytest.raises(GeometryError, match=r"node 'n1', the window ending at time .*-o window"):
+        run("closed-form", gap, anchors)
+    out = run("closed-form", gap, anchors, accel_std_mps2=0.001, range_std_m=0.001, window=16)
+    assert len(out) == 58 and error_m_at(out, pos) < 0.05
+
+
+def error_m_at(out, pos):
+    errs = []
+    for node, (t, p) in pos.items():
+        got = out[out.node == node]
+        i = np.searchsorted(t, got["time"].to_numpy())
+        errs.append(np.linalg.norm(got[["x", "y"]].to_numpy() - p[i], axis=1))
+    return np.concatenate(errs).max()

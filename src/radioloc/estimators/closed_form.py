@@ -290,10 +290,11 @@ class ClosedFormTracker(SnapshotEstimator):
             if np.any(gap):
                 i = int(np.flatnonzero(gap)[0])
                 track = int(tracks[i]) if tracks is not None else i
-                raise GeometryError(f"ranges: the missing (NaN) ranges of track {track} leave "
-                                    f"{int(np.sum(rows[i]))} of {rows.shape[-1]} difference "
-                                    "rows, too few to separate [x_k, y_k, vx_k, vy_k] (S A "
-                                    "rank deficient)")
+                detail = (f"the missing (NaN) ranges leave {int(np.sum(rows[i]))} of "
+                          f"{rows.shape[-1]} difference rows, too few to separate "
+                          "[x_k, y_k, vx_k, vy_k] (S A rank deficient)")
+                raise GeometryError(f"ranges: track {track}: {detail}", detail=detail,
+                                    index=(track,))
         if np.any(bad):
             raise GeometryError(f"sensor_path: S A is rank deficient (condition number "
                                 f"{np.max(cond):.3g} > {self.cond_limit:.0e}); the sensor path "

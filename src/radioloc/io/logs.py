@@ -263,13 +263,17 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``; and, when the
         file has them, ``std_m`` (prior standard deviation of a rough anchor, NaN: surveyed)
         and ``bias_m`` (a range bias that ``locate`` subtracts, written by ``radioloc
-        calibrate``).
+        calibrate``). With a ``time`` column (seconds, on the measurements' clock) an anchor
+        may move: each of its rows is its position at that time (rows sorted by time
+        within an anchor; :func:`radioloc.locate.adapter.anchor_points` interpolates
+        between them); an empty time marks a fixed anchor (one row).
 
     Raises
     ------
     InputError
         Missing or duplicated column, text in a coordinate, non-finite coordinate or one
-        beyond 1e7 m, duplicate or empty id.
+        beyond 1e7 m, duplicate or empty id; with ``time``: a second row of one anchor at
+        one time, or of a fixed anchor.
     """
     frame = _read_csv(path, "anchors")
     _require_columns(frame, ("id", "x", "y"), path)
@@ -283,12 +287,30 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
-    dup = out["id"].duplicated()
+    tracked = "time" in frame.columns
+    if tracked:                                      # a moving anchor: one row per position
+        out["time"] = _optional_number(frame, "time", path)
+        _check_magnitude(frame, out["time"], "time", LIMITS["time_s"], "s", path)
+    dup = out.duplicated(["id", "time"] if tracked else ["id"])
+    if tracked:                                      # a fixed anchor (empty time) has one row
+        fixed = set(out.loc[out["time"].isna(), "id"])
+        dup |= out["id"].isin(fixed) & out["id"].duplicated(keep=False) & out["time"].notna()
     if dup.any():
         i = int(np.flatnonzero(dup.to_numpy())[0])
-        raise InputError(f"{path}: line {_line(frame, i)}, column 'id': duplicate anchor id "
-                         f"{out['id'].iloc[i]!r}")
+        a = out["id"].iloc[i]
+        if not tracked:
+            what = f"duplicate anchor id {a!r}"
+        elif a in fixed:
+            what = f"anchor {a!r} has a row without a time (fixed) and other rows"
+        else:
+            what = f"a second position of anchor {a!r} at time {float(out['time'].iloc[i])!r}"
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{'time' if tracked else 'id'}"
+                         f"': {what}")
     out["line"] = frame.attrs["lines"]
+    if tracked:
+        order = {a: k for k, a in enumerate(dict.fromkeys(out["id"]))}
+        out = out.assign(_o=out["id"].map(order)).sort_values(["_o", "time"], kind="stable")
+        out = out.drop(columns="_o").reset_index(drop=True)
     return out
 
 

@@ -19,7 +19,8 @@ from radioloc.core.errors import InputError
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["anchor_positions", "node_observations", "default_models", "MODEL_KINDS"]
+__all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+           "default_models", "MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
 MODEL_KINDS = {
@@ -35,6 +36,56 @@ def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:
     """The anchors' coordinates ``(A, D)`` in table order (``x, y[, z]``)."""
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     return anchors[dims].to_numpy(dtype=float)
+
+
+def moving_anchors(anchors: pd.DataFrame | None) -> bool:
+    """Whether the anchors table has a track (a ``time`` column with a time in it)."""
+    return anchors is not None and "time" in anchors.columns and bool(anchors["time"].notna().any())
+
+
+def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
+    """Positions of the anchors ``ids`` at ``times``: ``(T, S, D)``.
+
+    A fixed anchor (no ``time`` column, or an empty time) is where its row says; a moving
+    one (rows at several times) is interpolated linearly between its two rows around each
+    time, never extrapolated.
+
+    Parameters
+    ----------
+    anchors : DataFrame
+        As read by :func:`radioloc.io.logs.read_anchors`.
+    ids : sequence of str
+        Anchor ids (slots).
+    times : ndarray, shape (T,)
+
+    Returns
+    -------
+    ndarray, shape (T, S, D)
+
+    Raises
+    ------
+    InputError
+        A time outside a moving anchor's track (naming the anchor and the time).
+    """
+    dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
+    times = np.asarray(times, dtype=float)
+    out = np.empty((times.size, len(ids), len(dims)))
+    tracked = "time" in anchors.columns
+    for s, a in enumerate(ids):
+        rows = anchors[anchors["id"] == a]
+        xyz = rows[dims].to_numpy(dtype=float)
+        if not tracked or rows["time"].isna().all():
+            out[:, s] = xyz[0]
+            continue
+        t = rows["time"].to_numpy(dtype=float)
+        outside = (times < t[0]) | (times > t[-1])
+        if outside.any():
+            raise InputError(f"anchor {a!r}: no position at time {float(times[outside][0])!r} "
+                             f"(its track runs from {float(t[0])!r} to {float(t[-1])!r}; positions are "
+                             "interpolated, never extrapolated)")
+        for d in range(len(dims)):
+            out[:, s, d] = np.interp(times, t, xyz[:, d])
+    return out
 
 
 def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = False,
@@ -103,15 +154,18 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ``z`` of shape ``(T, S)``; NaN where a slot has no measurement at a step.
 
     Rows whose peer is another node (cooperative ranges) are left out: they are for the
-    network methods.
+    network methods. With moving anchors (:func:`moving_anchors`) the context's points
+    are ``(T, S, D)``: each anchor where it was at each step (:func:`anchor_points`).
 
     Raises
     ------
     InputError
         A reference that is not an anchor (naming it, the node and the kind).
     """
-    points = anchor_positions(anchors)
-    index = {a: i for i, a in enumerate(anchors["id"])}
+    moving = moving_anchors(anchors)
+    ids = list(dict.fromkeys(anchors["id"]))
+    points = None if moving else anchor_positions(anchors)
+    index = {a: i for i, a in enumerate(ids)}
     sel = measurements.select(kind=list(models), node=node)
     sel = Measurements(sel.frame[sel.frame["peer"].isin(index)])
     time = sel.times(node)
@@ -126,8 +180,13 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         peer_idx = np.array([index[p] for p in grid.peers], dtype=int)
         ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
                    if kind == "tdoa" else None)
-        ctx = Context(points=points[peer_idx], index=peer_idx,
-                      reference=None if ref_idx is None else points[ref_idx],
+        if moving:
+            pts = anchor_points(anchors, grid.peers, time)
+            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time)
+        else:
+            pts = points[peer_idx]
+            ref = None if ref_idx is None else points[ref_idx]
+        ctx = Context(points=pts, index=peer_idx, reference=ref,
                       reference_index=ref_idx, height_m=height_m)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std))

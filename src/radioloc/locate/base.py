@@ -16,6 +16,8 @@ method runs, so that nothing a user gives is silently ignored:
   are refused, naming the kind and the count.
 - ``inputs``: the files it reads besides the measurements (``"anchors"``, ``"priors"``,
   ``"calibration"``); another file given is refused.
+- ``moving_anchors``: whether it takes anchors that move (an anchors file with a ``time``
+  column, :func:`radioloc.io.read_anchors`); others refuse such a file.
 
 A method that declares nothing (``None``) accepts anything, as before declarations existed.
 Its output is checked too: a non-finite position is a method failure, never printed.
@@ -231,13 +233,15 @@ class LocateMethod:
     options: dict[str, Option] | None = None
     kinds: tuple[str, ...] | None = None
     inputs: tuple[str, ...] | None = None
+    moving_anchors: bool = False
 
 
 _METHODS: dict[str, LocateMethod] = {}
 
 
 def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option] | None = None,
-                  kinds: tuple[str, ...] | None = None, inputs: tuple[str, ...] | None = None):
+                  kinds: tuple[str, ...] | None = None, inputs: tuple[str, ...] | None = None,
+                  moving_anchors: bool = False):
     """Decorator registering ``fn(request) -> DataFrame`` as ``radioloc locate --method name``.
 
     Parameters
@@ -255,6 +259,8 @@ def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option
     inputs : tuple of str, optional
         Files it reads besides the measurements, among ``"anchors"``, ``"priors"``,
         ``"calibration"``.
+    moving_anchors : bool
+        It takes anchors with a track (a ``time`` column in the anchors file).
 
     Returns
     -------
@@ -275,7 +281,8 @@ def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option
     def deco(fn: Callable[[LocateRequest], pd.DataFrame]):
         _METHODS[name] = LocateMethod(name, summary, fn, decl,
                                       None if kinds is None else tuple(kinds),
-                                      None if inputs is None else tuple(inputs))
+                                      None if inputs is None else tuple(inputs),
+                                      bool(moving_anchors))
         return fn
 
     return deco
@@ -316,6 +323,12 @@ def check_request(method: LocateMethod, request: LocateRequest) -> None:
             if getattr(request, what) is not None and what not in method.inputs:
                 raise InputError(f"method {name}: does not read a {what} file; remove "
                                  f"--{what} (it reads: {', '.join(method.inputs) or 'none'})")
+    from radioloc.locate.adapter import moving_anchors
+
+    if moving_anchors(request.anchors) and not method.moving_anchors:
+        takers = ", ".join(n for n, m in _METHODS.items() if m.moving_anchors) or "none"
+        raise InputError(f"method {name}: the anchors file has a time column (anchors that "
+                         f"move); methods that take moving anchors: {takers}")
     if method.kinds is not None:
         from radioloc.io.logs import check_kinds
 
@@ -385,8 +398,12 @@ def check_plausible(method: LocateMethod, request: LocateRequest,
         One line naming the likely cause.
     """
     from radioloc.core.plausibility import check_log
+    from radioloc.locate.adapter import moving_anchors
 
     anchors = request.anchors
+    moving = moving_anchors(anchors)
+    if moving:                  # a track: checked at its first position, no fixed geometry
+        anchors = anchors.drop_duplicates("id")
     dim = None
     if anchors is not None:
         dim = 3 if "z" in anchors.columns and request.option("tag_height_m") is None else 2
@@ -394,7 +411,7 @@ def check_plausible(method: LocateMethod, request: LocateRequest,
     gap = request.option("max_gap_s", MAX_GAP_S) if "max_gap_s" in declared else None
     reads_priors = method.inputs is not None and "priors" in method.inputs
     check_log(request.measurements, anchors, kinds=method.kinds, dim=dim, max_gap_s=gap,
-              geometry=not reads_priors, skip=skip)
+              geometry=not reads_priors and not moving, skip=skip)
     if reads_priors and request.priors is not None:
         from radioloc.core.plausibility import check_node_ranges
         from radioloc.io.priors import read_node_priors
