@@ -198,6 +198,12 @@ OPTIONS = {
                           float, min=0, min_exclusive=True, max=10),
     "pseudorange_std_m": Option("pseudorange error standard deviation, m (default 5)", float,
                                 min=0, min_exclusive=True, max=1e6),
+    "clock_offset_std_m_per_sqrt_s": Option("pseudoranges: white frequency noise of the "
+                                            "receiver clock offset (times c), m/sqrt(s) "
+                                            "(default 1)", float, min=0, max=1e6),
+    "clock_drift_std_m_per_s_per_sqrt_s": Option("pseudoranges: random walk of the clock "
+                                                 "drift (times c), m/s/sqrt(s) (default 1)",
+                                                 float, min=0, max=1e6),
     "tag_height_m": Option("known node height: track in 2-D (x, y) with 3-D anchors (default: "
                            "3-D tracking when the anchors have z)", float, min=-1e4, max=1e4),
     "gate": Option("drop a range whose squared innovation exceeds gate x its predicted "
@@ -255,7 +261,9 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "smooth": bool(request.option("smooth", False, bool)),
             "prior_std": request.option("prior_std_m", 2.0),
             "init_s": request.option("init_s", 2.0),
-            "max_gap_s": request.option("max_gap_s", MAX_GAP_S)}
+            "max_gap_s": request.option("max_gap_s", MAX_GAP_S),
+            "clock_offset_q": request.option("clock_offset_std_m_per_sqrt_s", 1.0),
+            "clock_drift_q": request.option("clock_drift_std_m_per_s_per_sqrt_s", 1.0)}
 
 
 def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
@@ -281,6 +289,8 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     -------
     position : ndarray, shape (D,)
     offset_m : float
+        The common range offset (``anchor_bias``) or the receiver clock offset (models
+        that read ``clock_offset``), metres; 0 otherwise.
     """
     dim = s["dim"]
     ranges = [o for o in observations if o.model.kind == "range"]
@@ -307,7 +317,10 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
                             "position (give -o init_s=SECONDS longer)")
-    return np.asarray(fit.position, dtype=float), 0.0
+    clock = 0.0
+    if any("clock_offset" in o.model.reads for o in observations):
+        clock = float(np.asarray(fit.diagnostics["state"])[..., dim])   # after the position
+    return np.asarray(fit.position, dtype=float), clock
 
 
 def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
@@ -337,9 +350,13 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     dim = s["dim"]
     pos, offset = start_state(times, observations, anchors, s, anchor_bias)
     motion = motion_model(s["motion"], s["q"], dim)
+    clock = 2 if any("clock_offset" in o.model.reads for o in observations) else 0
     ekf = ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
                                layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
-                                                  n_bias=len(anchors) if anchor_bias else 0))
+                                                  clock=clock,
+                                                  n_bias=len(anchors) if anchor_bias else 0),
+                               clock_offset_std_m_per_sqrt_s=s["clock_offset_q"],
+                               clock_drift_std_m_per_s_per_sqrt_s=s["clock_drift_q"])
     layout = ekf.state_layout(observations)
     mean = np.zeros(layout.size)
     var = np.full(layout.size, PRIOR_SPEED_STD ** 2)
@@ -350,6 +367,8 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
                           observations=observations).covariance.diagonal()[extra]
     if "anchor_bias" in layout.slices:
         mean[layout.slices["anchor_bias"]] = offset
+    elif "clock_offset" in layout.slices:          # a pseudorange receiver's clock
+        mean[layout.slices["clock_offset"]] = offset
     return ekf.run(observations, times, prior_mean=mean, prior_cov=np.diag(var), smooth=smooth)
 
 
