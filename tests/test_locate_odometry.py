@@ -11,6 +11,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.io.logs import read_measurements
 from radioloc.locate.base import LocateRequest, run_method
+from radioloc.locate.batch_smooth import smooth_log
 from radioloc.locate.odometry import odometry_controls, odometry_motion
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
@@ -147,6 +148,8 @@ def test_other_methods_refuse_odometry_rows():
     log, _ = robot(5, duration_s=6.0)
     with pytest.raises(InputError, match="odometry_d[xy]"):
         run_method("gn", LocateRequest(log, ANCHORS))
+    with pytest.raises(InputError, match="odometry"):
+        smooth_log(LocateRequest(log, ANCHORS))
 
 
 def test_options_that_do_not_apply_are_refused():
