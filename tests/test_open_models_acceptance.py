@@ -99,3 +99,16 @@ def test_new_kinds_run_through_locate(tmp_path, kind, option):
     err = np.hypot(out.x - xy[:, 0], out.y - xy[:, 1])
     assert err[10:].mean() < 0.3, err.describe()
     assert {"cov_xx", "cov_xy", "cov_yy"} <= set(out.columns)
+
+
+def test_new_kinds_walkthrough_table_is_current(tmp_path):
+    """docs/your-own-log/new-kinds.md shows docs/generated/new_kinds.md: what the script gives."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("new_kinds", root / "docs/tutorials/new_kinds.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(tmp_path)
+    assert (tmp_path / "new_kinds.md").read_text() == (root / "docs/generated/new_kinds.md").read_text()

@@ -11,8 +11,11 @@ column      meaning
 ``kind``    ``range`` (metres), ``rss`` (dBm), ``tdoa`` (range difference to ``peer``
             minus to ``reference``, metres), ``aoa`` (bearing from ``peer`` to the
             node, radians, counter-clockwise from +x), ``aoa_elevation`` (its
-            elevation, radians) or ``pseudorange`` (metres, with the node's clock
-            offset)
+            elevation, radians), ``pseudorange`` (metres, with the node's clock
+            offset), or ``odometry_dx`` / ``odometry_dy`` (the node's displacement
+            along +x / +y of the anchors' frame since its previous odometry row,
+            metres; the two come in pairs with the same time; ``peer`` names the
+            sensor, any id)
 ``value``   the measured value (number; a range must be >= 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
             anchor); empty for other kinds
@@ -50,7 +53,9 @@ from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
-KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange")
+#: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
+MOTION_KINDS = ("odometry_dx", "odometry_dy")
+KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
 LIMITS = {
@@ -60,6 +65,7 @@ LIMITS = {
     "rss_max_dbm": 30.0,     # 1 W received
     "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
     "time_s": 1e12,          # ~31,700 years; epoch milliseconds are 1.7e12
+    "odometry_m": 1e4,       # one odometry row's displacement (a car at 100 m/s for 100 s)
 }
 RSS_NOT_DETECTED_DBM = 100.0
 
@@ -407,18 +413,43 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_tdoa & (np.abs(value) > LIMITS["range_m"]))) is not None:
         fail(i, f"column 'value': range difference {value[i]:g} m is beyond the limit of "
                 f"{LIMITS['range_m']:g} m")
-    if (i := _first(out["node"] == out["peer"])) is not None:
+    is_motion = out["kind"].isin(MOTION_KINDS).to_numpy()
+    if is_motion.any():
+        _check_odometry(out, is_motion, fail)
+    if (i := _first((out["node"] == out["peer"]).to_numpy() & ~is_motion)) is not None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")
     if anchors is not None:
         known = set(anchors["id"]) | set(out["node"])
-        if (i := _first(~out["peer"].isin(known))) is not None:
+        if (i := _first(~out["peer"].isin(known).to_numpy() & ~is_motion)) is not None:
             fail(i, f"column 'peer': unknown anchor or node {out['peer'].iloc[i]!r} (not in the "
                     "anchors file nor a node)")
         if (i := _first(out["node"].isin(set(anchors["id"])))) is not None:
             fail(i, f"column 'node': {out['node'].iloc[i]!r} is an anchor id; anchors do not "
                     "need locating")
     return out
+
+
+def _check_odometry(out: pd.DataFrame, is_motion: np.ndarray, fail) -> None:
+    """Odometry rows: a displacement within :data:`LIMITS`, ``dx`` and ``dy`` in pairs (one of
+    each per node and time)."""
+    value = out["value"].to_numpy()
+    if (i := _first(is_motion & (np.abs(value) > LIMITS["odometry_m"]))) is not None:
+        fail(i, f"column 'value': odometry displacement {value[i]:g} m is beyond the limit of "
+                f"{LIMITS['odometry_m']:g} m for one row")
+    rows = out[is_motion]
+    twice = rows.duplicated(["time", "node", "kind"])
+    if twice.any():
+        i = int(np.flatnonzero(is_motion)[np.flatnonzero(twice.to_numpy())[0]])
+        fail(i, f"column 'kind': a second {out['kind'].iloc[i]!r} row of node "
+                f"{out['node'].iloc[i]!r} at time {out['time'].iloc[i]!r}")
+    count = rows.groupby(["time", "node"])["kind"].transform("size").to_numpy()
+    if (j := _first(count != 2)) is not None:
+        i = int(np.flatnonzero(is_motion)[j])
+        other = "odometry_dy" if out["kind"].iloc[i] == "odometry_dx" else "odometry_dx"
+        fail(i, f"column 'kind': {out['kind'].iloc[i]!r} of node {out['node'].iloc[i]!r} at "
+                f"time {out['time'].iloc[i]!r} has no {other!r} row at the same time "
+                "(odometry rows come in dx, dy pairs)")
 
 
 def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | None) -> pd.DataFrame:

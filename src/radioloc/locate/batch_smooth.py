@@ -77,10 +77,13 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     Raises
     ------
     InputError, ConfigError, GeometryError
-        As ``locate --method ekf-track`` (a bad option names it).
+        As ``locate --method ekf-track`` (a bad option names it); odometry rows.
     """
     anchors, per_node = range_rows(request, "smoother")
     s = tracker_settings(request, anchors)
+    if s["odometry_std"] is not None:
+        raise InputError("smoother: the batch smoother does not use odometry rows; remove them "
+                         "or use ekf-track or pf")
     loss = request.option("loss", "max-mixture", str)
     if loss not in ("max-mixture",) + LOSSES:
         raise ConfigError(f"option loss: must be max-mixture or one of {', '.join(LOSSES)}, "

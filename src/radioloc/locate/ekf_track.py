@@ -25,6 +25,12 @@ Motion models for asynchronous rows are continuous-time: ``cv`` is a constant ve
 driven by white acceleration of spectral density ``q`` (m^2/s^3), so the process noise of an
 interval does not depend on how the interval is split (:class:`WhiteAccelerationCV`);
 ``rw`` is a random walk of diffusion ``q`` (m^2/s).
+
+Odometry rows (``odometry_dx``, ``odometry_dy``) replace that motion model: the state is
+the position, moved at each step by the odometry's displacement over the step (the
+control input) with a random walk of diffusion ``odometry_std_m^2`` about it
+(:mod:`radioloc.locate.odometry`); options ``motion`` and ``q`` do not apply then. The
+odometry rows are not steps: the steps stay the times of the measurements to anchors.
 """
 
 from __future__ import annotations
@@ -32,21 +38,23 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.logs import range_arrays
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
+from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
+                                      has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
-#: The measurement kinds the trackers read.
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange")
+#: The measurement kinds the trackers read (odometry: the control input of the motion).
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
@@ -198,6 +206,12 @@ OPTIONS = {
                           float, min=0, min_exclusive=True, max=10),
     "pseudorange_std_m": Option("pseudorange error standard deviation, m (default 5)", float,
                                 min=0, min_exclusive=True, max=1e6),
+    "clock_offset_std_m_per_sqrt_s": Option("pseudoranges: white frequency noise of the "
+                                            "receiver clock offset (times c), m/sqrt(s) "
+                                            "(default 1)", float, min=0, max=1e6),
+    "clock_drift_std_m_per_s_per_sqrt_s": Option("pseudoranges: random walk of the clock "
+                                                 "drift (times c), m/s/sqrt(s) (default 1)",
+                                                 float, min=0, max=1e6),
     "tag_height_m": Option("known node height: track in 2-D (x, y) with 3-D anchors (default: "
                            "3-D tracking when the anchors have z)", float, min=-1e4, max=1e4),
     "gate": Option("drop a range whose squared innovation exceeds gate x its predicted "
@@ -211,6 +225,7 @@ OPTIONS = {
     "max_gap_s": Option("a gap longer than this between a node's ranges restarts its track "
                         "from a new start fix (default 5 s)", float, min=0, min_exclusive=True,
                         max=1e9),
+    **ODOMETRY_OPTIONS,
 }
 
 
@@ -243,8 +258,22 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
     Returns
     -------
     dict
-        ``motion, q, height, dim, bias, smooth, prior_std, init_s, max_gap_s``.
+        ``motion, q, height, dim, bias, smooth, prior_std, init_s, max_gap_s`` and
+        ``odometry_std`` (None: the log has no odometry rows).
+
+    Raises
+    ------
+    ConfigError
+        ``motion`` or ``q`` given with odometry rows, ``odometry_std_m`` without them.
     """
+    odometry = has_odometry(request.measurements)
+    if odometry:
+        for key in ("motion", "q"):
+            if key in request.parsed or key in request.options:
+                raise ConfigError(f"option {key}: the log holds odometry rows, which drive "
+                                  "the motion (tune odometry_std_m instead)")
+    elif "odometry_std_m" in request.parsed or "odometry_std_m" in request.options:
+        raise ConfigError("option odometry_std_m: the log holds no odometry rows")
     kind = request.option("motion", "cv", str)
     height = request.option("tag_height_m")
     if height is not None and anchors.shape[1] != 3:
@@ -255,7 +284,11 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
             "smooth": bool(request.option("smooth", False, bool)),
             "prior_std": request.option("prior_std_m", 2.0),
             "init_s": request.option("init_s", 2.0),
-            "max_gap_s": request.option("max_gap_s", MAX_GAP_S)}
+            "max_gap_s": request.option("max_gap_s", MAX_GAP_S),
+            "clock_offset_q": request.option("clock_offset_std_m_per_sqrt_s", 1.0),
+            "clock_drift_q": request.option("clock_drift_std_m_per_s_per_sqrt_s", 1.0),
+            "odometry_std": (request.option("odometry_std_m", ODOMETRY_STD_M) if odometry
+                             else None)}
 
 
 def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
@@ -281,6 +314,8 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     -------
     position : ndarray, shape (D,)
     offset_m : float
+        The common range offset (``anchor_bias``) or the receiver clock offset (models
+        that read ``clock_offset``), metres; 0 otherwise.
     """
     dim = s["dim"]
     ranges = [o for o in observations if o.model.kind == "range"]
@@ -307,12 +342,33 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
                             "position (give -o init_s=SECONDS longer)")
-    return np.asarray(fit.position, dtype=float), 0.0
+    clock = 0.0
+    if any("clock_offset" in o.model.reads for o in observations):
+        clock = float(np.asarray(fit.diagnostics["state"])[..., dim])   # after the position
+    return np.asarray(fit.position, dtype=float), clock
+
+
+def tracker_motion(s: dict):
+    """The motion model of a track: the odometry's (``s["odometry_std"]`` set) or option
+    ``motion``'s.
+
+    Parameters
+    ----------
+    s : dict
+        From :func:`tracker_settings`.
+
+    Returns
+    -------
+    motion model
+    """
+    if s.get("odometry_std") is not None:
+        return odometry_motion(s["odometry_std"], s["dim"])
+    return motion_model(s["motion"], s["q"], s["dim"])
 
 
 def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
                 gate: float | None, smooth: bool, anchor_bias: bool = False,
-                bias_prior_std_m: float = 3.0):
+                bias_prior_std_m: float = 3.0, controls: np.ndarray | None = None):
     """One node's track by the generic :class:`ExtendedKalmanFilter` over its observations
     (any kinds; see the module docstring for the start).
 
@@ -329,6 +385,8 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     anchor_bias : bool
         Estimate a per-anchor range bias (the range model must read ``anchor_bias``).
     bias_prior_std_m : float
+    controls : ndarray, shape (T, D), optional
+        Odometry displacement over each step (row 0 zero), with ``s["odometry_std"]``.
 
     Returns
     -------
@@ -336,10 +394,14 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     """
     dim = s["dim"]
     pos, offset = start_state(times, observations, anchors, s, anchor_bias)
-    motion = motion_model(s["motion"], s["q"], dim)
+    motion = tracker_motion(s)
+    clock = 2 if any("clock_offset" in o.model.reads for o in observations) else 0
     ekf = ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
                                layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
-                                                  n_bias=len(anchors) if anchor_bias else 0))
+                                                  clock=clock,
+                                                  n_bias=len(anchors) if anchor_bias else 0),
+                               clock_offset_std_m_per_sqrt_s=s["clock_offset_q"],
+                               clock_drift_std_m_per_s_per_sqrt_s=s["clock_drift_q"])
     layout = ekf.state_layout(observations)
     mean = np.zeros(layout.size)
     var = np.full(layout.size, PRIOR_SPEED_STD ** 2)
@@ -350,7 +412,10 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
                           observations=observations).covariance.diagonal()[extra]
     if "anchor_bias" in layout.slices:
         mean[layout.slices["anchor_bias"]] = offset
-    return ekf.run(observations, times, prior_mean=mean, prior_cov=np.diag(var), smooth=smooth)
+    elif "clock_offset" in layout.slices:          # a pseudorange receiver's clock
+        mean[layout.slices["clock_offset"]] = offset
+    return ekf.run(observations, times, prior_mean=mean, prior_cov=np.diag(var),
+                   controls=controls, smooth=smooth)
 
 
 def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, smooth: bool):
@@ -373,7 +438,7 @@ def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, sm
     """
     obs = Observation(RangeModel(std_m=range_std), np.asarray(R, dtype=float) - s["bias"],
                       Context(points=anchors, index=np.arange(len(anchors)), height_m=s["height"]))
-    return run_tracker(times, [obs], anchors, dict(s, bias=0.0), gate, smooth)
+    return run_tracker(times, [obs], anchors, dict(s, bias=0.0, odometry_std=None), gate, smooth)
 
 
 def _window(obs: Observation, seg: slice) -> Observation:
@@ -442,7 +507,8 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
                             "to anchors as they arrive: ranges (optionally with a bias per "
                             "anchor), time differences, angles, pseudoranges (constant "
-                            "velocity or random walk; RTS smoother with -o smooth=1)",
+                            "velocity or random walk, or driven by odometry rows; RTS "
+                            "smoother with -o smooth=1)",
                options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
@@ -487,10 +553,12 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
         for node, times, obs, segs in parts:
             for n, seg in enumerate(segs):
+                controls = (None if s["odometry_std"] is None else
+                            odometry_controls(meas, node, times[seg], s["dim"]))
                 try:
                     track = run_tracker(times[seg], [_window(o, seg) for o in obs], anchors, s,
                                         gate, s["smooth"], anchor_bias,
-                                        request.option("bias_prior_std_m", 3.0))
+                                        request.option("bias_prior_std_m", 3.0), controls)
                 except GeometryError as exc:
                     raise GeometryError(f"method ekf-track: node {node!r} from time "
                                         f"{float(times[seg][0])!r}: {exc}") from None
@@ -498,11 +566,14 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
                 bar.advance()
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
-    counts = {k: int(np.isfinite(o.z).sum()) for _, _, obs, _ in parts for o in obs
-              for k in [o.model.kind]}
+    counts: dict[str, int] = {}
+    for _, _, obs, _ in parts:
+        for o in obs:
+            counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
     out.attrs["summary"] = {
         "nodes": len(parts), "ranges": counts.get("range", 0), "measurements": counts,
         "measurements_gated": int(out["gated"].sum()) if "gated" in out else 0,
         "steps": len(out), "restarts": int(out["restart"].sum()),
-        "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias}
+        "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
+        "odometry_std_m": s["odometry_std"]}
     return out

@@ -1,7 +1,11 @@
 """``radioloc locate --method pf``: track each node from its ranges to anchors with the
-LOS/NLOS particle filter of paper 001 (:class:`radioloc.estimators.p2p_particle.P2PParticleFilter`),
-no inertial readings: the motion is a constant velocity (white acceleration) or a random
-walk.
+LOS/NLOS particle filter of paper 001 (:class:`radioloc.estimators.p2p_particle.P2PParticleFilter`).
+Without odometry rows the motion is a constant velocity (white acceleration) or a random
+walk. With odometry rows (``odometry_dx``, ``odometry_dy``) it is paper 001's input-driven
+model: each particle moves by the odometry's displacement over the step (the control) plus
+a random walk of diffusion ``odometry_std_m^2`` (:mod:`radioloc.locate.odometry`); the
+state is the position, the start its part of the start state below, and the smoother
+``fixed-lag`` (the default then; backward simulation does not take the control).
 
 Ranges are processed as they arrive (rows of one node with the same time stamp are one
 step, see :mod:`radioloc.locate.ekf_track`); ranges to peers that are not anchors are not
@@ -51,7 +55,7 @@ import dataclasses
 import numpy as np
 import pandas as pd
 
-from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
@@ -61,15 +65,16 @@ from radioloc.locate.progress import progress
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
-    motion_model,
     range_rows,
     run_ekf,
     segments,
     start_position,
     track_summary,
     track_table,
+    tracker_motion,
     tracker_settings,
 )
+from radioloc.locate.odometry import MOTION_KINDS, ODOMETRY_OPTIONS, has_odometry, odometry_controls
 from radioloc.models.los_nlos import LosNlosRange
 
 #: Residuals further than this many robust standard deviations from their median are left
@@ -109,6 +114,7 @@ OPTIONS.update({
     "seed": Option("seed of the particle draws (default 0: the same output every run)", int,
                    min=0,
                    max=2**63 - 1),
+    **ODOMETRY_OPTIONS,
 })
 
 
@@ -235,9 +241,10 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
 
 
 @locate_method("pf", "LOS/NLOS particle filter (paper 001) tracking each node from its ranges "
-                     "to anchors as they arrive, no INS (parameters fitted by EM on the log "
-                     "unless given; fixed-lag or backward-simulation smoother with -o smooth=1)",
-               options=OPTIONS, kinds=("range",), inputs=("anchors",))
+                     "to anchors as they arrive, driven by odometry rows when the log has "
+                     "them (parameters fitted by EM on the log unless given; fixed-lag or "
+                     "backward-simulation smoother with -o smooth=1)",
+               options=OPTIONS, kinds=("range",) + MOTION_KINDS, inputs=("anchors",))
 def locate_pf(request: LocateRequest) -> pd.DataFrame:
     """Track every node with a :class:`P2PParticleFilter` over its range rows.
 
@@ -256,7 +263,8 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     if not request.option("smooth", False, bool):
         want = "filtered"
     else:
-        want = request.option("smoother", "backward", str)
+        default = "fixed-lag" if has_odometry(request.measurements) else "backward"
+        want = request.option("smoother", default, str)
     return pf_tracks(request, (want,))[want]
 
 
@@ -284,6 +292,9 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
         raise InputError(f"outputs: unknown track(s) {sorted(bad)}")
     anchors, per_node = range_rows(request, "pf")
     s = tracker_settings(request, anchors)
+    if s["odometry_std"] is not None and "backward" in outputs:
+        raise ConfigError("option smoother: backward simulation does not take the odometry "
+                          "input; with odometry rows use smoother=fixed-lag")
     if s["dim"] != 2:
         raise InputError("method pf: tracks 2-D positions; with 3-D anchors give the node "
                          "height (-o tag_height_m=H)")
@@ -328,8 +339,10 @@ def _track_node(request, node, times, R, anchors, s, given, particles, rng, gate
                        "range_bias_m": float(bias),
                        "fitted": any(g is None for g in given)})
         for n, seg in enumerate(parts):
+            controls = (None if s["odometry_std"] is None else
+                        odometry_controls(request.measurements, node, times[seg], 2))
             tracks = _filter(times[seg], R[seg], anchors, s, model, bias, particles, rng,
-                             gate, outputs, lag, trajectories, resets, bar)
+                             gate, outputs, lag, trajectories, resets, bar, controls)
             for k, track in tracks.items():
                 tables[k].append(track_table(node, times[seg], track, restart=n > 0))
     except GeometryError as exc:
@@ -337,14 +350,15 @@ def _track_node(request, node, times, R, anchors, s, given, particles, rng, gate
 
 
 def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, lag,
-            trajectories, resets: list[int], bar) -> dict[str, Track]:
+            trajectories, resets: list[int], bar, controls=None) -> dict[str, Track]:
     """One node's particle-filter tracks over one segment (see the module docstring)."""
     r = R - bias
     if anchors.shape[1] == 3:
         dz = s["height"] - anchors[:, 2]
         r = np.where(np.isfinite(r), np.sqrt(np.maximum(r * r - dz * dz, 0.0)), np.nan)
-    motion = motion_model(s["motion"], s["q"], 2)
+    motion = tracker_motion(dict(s, dim=2))
     mean0, cov0 = start_state(times, R, anchors, s, model, bias)
+    mean0, cov0 = mean0[:motion.state_dim], cov0[:motion.state_dim, :motion.state_dim]
     pf = P2PParticleFilter(motion, model, particles=particles, reset_fraction=RESET_FRACTION,
                            init_std=np.sqrt(np.diagonal(cov0)))
     rows = np.concatenate([np.full((len(times), 1), np.nan), r], axis=1)[None]  # (1, T, 1+M)
@@ -364,6 +378,8 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
         if gate and streak < GATE_PATIENCE and np.isfinite(row).any():
             # causal gate: residual to the range from the predicted mean, over its variance
             pred = motion.predict(state.mean, dts[k])[..., :2]                      # (1, 2)
+            if controls is not None:
+                pred = pred + controls[k]
             diff = pred[:, None, :] - nodes[None]                                   # (1, J, 2)
             d = np.sqrt(np.sum(diff ** 2, axis=-1))
             u = diff / np.maximum(d, 1e-9)[..., None]
@@ -375,7 +391,8 @@ def _filter(times, R, anchors, s, model, bias, particles, rng, gate, outputs, la
             row = np.where(out, np.nan, row)
         else:
             streak = 0
-        state = pf.step(state, row, nodes, rng, dt=dts[k])
+        state = pf.step(state, row, nodes, rng, dt=dts[k],
+                        control=None if controls is None else controls[k][None])
         bar.advance()
         means.append(state.mean[0])
         covs.append(state.covariance[0])

@@ -28,7 +28,6 @@ from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
-from radioloc.locate.ekf_track import TRACKER_KINDS
 from radioloc.locate.epochs import (ON_DEGENERATE, Epochs, epoch_error, epoch_table,
                                     horizontal_ranges, range_epochs)
 from radioloc.models.los_nlos import LosNlosRange
@@ -154,7 +153,7 @@ _LSQ_OPTIONS.update({
 @locate_method("lsq", "Nonlinear least squares fix of each node at each time from every "
                       "measurement to anchors (ranges, time differences, angles, "
                       "pseudoranges) with a robust loss (linear, huber, cauchy, tukey)",
-               options=_LSQ_OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
+               options=_LSQ_OPTIONS, kinds=tuple(MODEL_KINDS), inputs=("anchors",))
 def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     """Locate every ``(time, node)`` epoch with the generic :class:`LeastSquares`.
 
