@@ -256,10 +256,10 @@ def test_closed_form_covariance_follows_the_range_noise():
     assert (b["uncertainty_m"] > 1.5 * a["uncertainty_m"]).all()
 
 
-def test_moving_anchors_are_validated_and_only_taken_by_the_trackers_of_paper_002(tmp_path):
+def test_moving_anchors_are_validated_and_refused_by_methods_that_do_not_take_them(tmp_path):
     meas, anchors, pos = sensor_log()
-    with pytest.raises(InputError, match="time column.*closed-form, newton"):
-        run("lsq", meas, anchors)
+    with pytest.raises(InputError, match="time column.*closed-form, lsq, newton"):
+        run("gn", meas, anchors)
     short = anchors[anchors["time"] <= 10.0].assign(time=lambda f: f["time"] - 0.01)
     with pytest.raises(InputError, match=r"anchor 'S': no position at time 10\.0"):
         run("closed-form", meas, short)
@@ -285,3 +285,23 @@ def error_m_at(out, pos):
         i = np.searchsorted(t, got["time"].to_numpy())
         errs.append(np.linalg.norm(got[["x", "y"]].to_numpy() - p[i], axis=1))
     return np.concatenate(errs).max()
+
+
+def test_lsq_fixes_each_epoch_with_the_anchors_where_they_were_at_its_time():
+    """Three fixed anchors and one that moves (rows at 0 s and 10 s, interpolated)."""
+    t, pos = truth()
+    start, end = np.array([0.0, 0.0]), np.array([6.0, -4.0])
+    track = lambda ti: start + (end - start) * ti / 10.0          # noqa: E731
+    anchors = pd.DataFrame({"id": ["A0", "A0", "A1", "A2", "A3"], "time": [0.0, 10.0] + [np.nan] * 3,
+                            "x": [0.0, 6.0, 20.0, 20.0, 0.0], "y": [0.0, -4.0, 0.0, 15.0, 15.0]})
+    rows = []
+    for node, p in pos.items():
+        for i, ti in enumerate(t):
+            pts = np.r_[[track(ti)], ANCHORS[1:4]]
+            d = np.linalg.norm(p[i] - pts, axis=1)
+            rows += [(ti, node, f"A{a}", "range", d[a]) for a in range(4)]
+    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value"])
+    out = run("lsq", meas, anchors)
+    assert len(out) == 16 and error_m(out, pos).max() < 1e-6
+    fixed = run("lsq", meas, anchors.drop_duplicates("id").drop(columns="time"))
+    assert error_m(fixed, pos).max() > 0.1          # the anchor's first position is wrong

@@ -326,7 +326,7 @@ def check_request(method: LocateMethod, request: LocateRequest) -> None:
     from radioloc.locate.adapter import moving_anchors
 
     if moving_anchors(request.anchors) and not method.moving_anchors:
-        takers = ", ".join(n for n, m in _METHODS.items() if m.moving_anchors) or "none"
+        takers = ", ".join(sorted(n for n, m in _METHODS.items() if m.moving_anchors)) or "none"
         raise InputError(f"method {name}: the anchors file has a time column (anchors that "
                          f"move); methods that take moving anchors: {takers}")
     if method.kinds is not None:

@@ -153,14 +153,17 @@ _LSQ_OPTIONS.update({
 @locate_method("lsq", "Nonlinear least squares fix of each node at each time from every "
                       "measurement to anchors (ranges, time differences, angles, "
                       "pseudoranges) with a robust loss (linear, huber, cauchy, tukey)",
-               options=_LSQ_OPTIONS, kinds=tuple(MODEL_KINDS), inputs=("anchors",))
+               options=_LSQ_OPTIONS, kinds=tuple(MODEL_KINDS), inputs=("anchors",),
+               moving_anchors=True)
 def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     """Locate every ``(time, node)`` epoch with the generic :class:`LeastSquares`.
 
     Each kind present gets its model (:func:`radioloc.locate.adapter.default_models`, the
     sigmas from the options); each node's epochs are one batched fit. An epoch with fewer
     measurements than unknowns (position, and the clock offset with pseudoranges), or whose
-    information is singular, does not fix the position (``-o on_degenerate``).
+    information is singular, does not fix the position (``-o on_degenerate``). Anchors
+    may move (an anchors file with a ``time`` column): each epoch uses their positions at
+    its time (:func:`radioloc.locate.adapter.anchor_points`).
 
     Parameters
     ----------
@@ -198,10 +201,11 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     d = {k: np.concatenate([np.asarray(f.diagnostics[k]) for f in fits])
          for k in ("measurements_used", "degenerate", "inliers")}
     unknowns = max(f.diagnostics["state"].shape[-1] for f in fits)
-    points = anchor_positions(table)
+    points = anchor_positions(table.drop_duplicates("id"))
     if height is not None:
         points = points[:, :2]
-    ep = Epochs("lsq", pd.concat(epochs, ignore_index=True), None, points, list(table["id"]),
+    ep = Epochs("lsq", pd.concat(epochs, ignore_index=True), None, points,
+                list(dict.fromkeys(table["id"])),
                 request.option("on_degenerate", "error", str) == "skip",
                 np.zeros(len(d["degenerate"]), dtype=bool), unknowns)
     ep.set_few(d["measurements_used"], unknowns, what="", unit="measurement(s) to anchors")
