@@ -246,7 +246,7 @@ def test_single_sensor_methods_track_targets_from_a_moving_anchor(method):
     assert ("cov_xx" in out.columns) == (method == "closed-form")
     noisy, _, _ = sensor_log(std=0.1)
     out = run(method, noisy, anchors, range_std_m=0.1, window=12)
-    assert np.sqrt(np.mean(track_error(out, pos) ** 2)) < 1.5
+    assert np.sqrt(np.mean(track_error(out, pos) ** 2)) < 0.4
 
 
 def test_closed_form_covariance_follows_the_range_noise():
