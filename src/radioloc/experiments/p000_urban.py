@@ -330,19 +330,26 @@ class UrbanRadiolocation(Experiment):
 
         excess_links = (links["first_path_m"] - links["true_m"])[~links["los"]]
         no_path = float((links["n_paths"] == 0).mean())
+        def final(e, stat="mean", kept_only=False):
+            """Per-realization final errors of the unassisted nodes of estimator ``e``."""
+            end = endr.loc[(e, "unassisted")]
+            return end[~bad[(e, "unassisted")]] if kept_only else end
+
         metrics = [
-            Metric("rls_final_error_unassisted_m", fin[("rls", "unassisted")], 20.0, "m",
-                   f"mean error of unassisted nodes after {last} packets, RLS"),
-            Metric("ekf_final_error_unassisted_m", fin[("ekf", "unassisted")], 20.0, "m",
-                   f"mean error of unassisted nodes after {last} packets, EKF"),
-            Metric("rls_final_error_unassisted_kept_m", kept[("rls", "unassisted")], 20.0, "m",
-                   f"as above, runs that did not diverge (> {config.diverged_m:g} m)"),
-            Metric("ekf_final_error_unassisted_kept_m", kept[("ekf", "unassisted")], 20.0, "m",
-                   "as above, runs that did not diverge"),
-            Metric("rls_final_error_unassisted_median_m", medf[("rls", "unassisted")], None, "m",
-                   "median over all runs of the unassisted nodes' mean final error, RLS"),
-            Metric("ekf_final_error_unassisted_median_m", medf[("ekf", "unassisted")], None, "m",
-                   "same, EKF"),
+            Metric.over_runs("rls_final_error_unassisted_m", final("rls"), 20.0, "m",
+                             f"mean error of unassisted nodes after {last} packets, RLS"),
+            Metric.over_runs("ekf_final_error_unassisted_m", final("ekf"), 20.0, "m",
+                             f"mean error of unassisted nodes after {last} packets, EKF"),
+            Metric.over_runs("rls_final_error_unassisted_kept_m", final("rls", kept_only=True),
+                             20.0, "m", "as above, runs that did not diverge "
+                             f"(> {config.diverged_m:g} m)"),
+            Metric.over_runs("ekf_final_error_unassisted_kept_m", final("ekf", kept_only=True),
+                             20.0, "m", "as above, runs that did not diverge"),
+            Metric.over_runs("rls_final_error_unassisted_median_m", final("rls"), None, "m",
+                             "median over all runs of the unassisted nodes' mean final error, "
+                             "RLS", stat="median"),
+            Metric.over_runs("ekf_final_error_unassisted_median_m", final("ekf"), None, "m",
+                             "same, EKF", stat="median"),
             Metric("rls_diverged_runs", float(bad[("rls", "unassisted")].sum()), None, "",
                    f"runs (of {int(len(bad[('rls', 'unassisted')]))}) whose unassisted error diverged "
                    "or whose information matrix became singular, RLS"),

@@ -1,8 +1,10 @@
 """The one-page HTML report of all experiments (``out/index.html``).
 
 The page opens with a **scoreboard**: one row per experiment with the paper's claims that
-hold on our numbers (k of n), the headline numbers beside the paper's with the gap coloured,
-and a link to the experiment's section. Each section then shows the claims (holds / does
+hold on our numbers (k of n), the headline numbers (with their interval) beside the paper's
+with the gap coloured (the relative gap only where ours and the paper's are within a factor
+:data:`~radioloc.report.tables.GAP_FACTOR`; a departure the paper itself predicts is marked
+as such, apart from our gaps), and a link to the experiment's section. Each section then shows the claims (holds / does
 not hold / undecided at this size, with the confidence interval that decided each), the figures at
 full width with a caption naming the paper figure they reproduce (from the file name
 ``figN[a-z]_*.png``, or from an optional ``captions.json`` ``{file stem: caption}`` in the
