@@ -79,12 +79,14 @@ def test_a_departure_the_paper_predicts_is_marked_apart_from_our_gap(tmp_path):
     from radioloc.report.tables import PREDICTED
 
     r = fake_record("pred", n_metrics=0)
-    r["metrics"] = [{"name": "newton_diverged", "value": 0.3, "paper": None, "unit": "",
+    r["metrics"] = [{"name": "plain", "value": 1.0, "paper": None, "unit": "", "note": ""},
+                    {"name": "newton_diverged", "value": 0.3, "paper": 0.0, "unit": "",
                      "note": "", "predicted": "Sect. I: Newton's method may diverge"},
-                    {"name": "plain", "value": 1.0, "paper": None, "unit": "", "note": ""}]
+                    {"name": "rmse_m", "value": 3.0, "paper": 1.0, "unit": "m", "note": ""}]
     board = scoreboard([r])
-    assert PREDICTED in board.split("</thead>")[1] and 'class="expected"' in board
-    assert [m["name"] for m in headline_metrics(r)] == ["newton_diverged"]
+    row = board.split("</thead>")[1]
+    assert PREDICTED in row and 'class="expected"' in row and "+200%" in row
+    assert [m["name"] for m in headline_metrics(r)] == ["newton_diverged", "rmse_m"]
     page = render([r], tmp_path)
     assert page.count(PREDICTED) >= 3            # legend, scoreboard row, metric table
 

@@ -104,7 +104,7 @@ def claims_score(record: dict[str, Any]) -> tuple[int, int]:
 
 def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[str, Any]]:
     """The experiment's headline numbers: the first ``n`` metrics that have a paper value,
-    else the first ``n`` the paper predicts (``predicted``), else its first metric.
+    else its first metric (the experiment lists its headline first).
 
     Parameters
     ----------
@@ -118,8 +118,7 @@ def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[st
     list of dict
     """
     metrics = record.get("metrics") or []
-    return ([m for m in metrics if m.get("paper") is not None][:n]
-            or [m for m in metrics if m.get("predicted")][:n] or metrics[:1])
+    return [m for m in metrics if m.get("paper") is not None][:n] or metrics[:1]
 
 
 def figure_caption(stem: str, paper: str) -> str:
