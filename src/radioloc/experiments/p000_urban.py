@@ -487,13 +487,15 @@ class UrbanRadiolocation(Experiment):
                 sel = end["estimator"] == name
                 value[name] = float(end.loc[sel & ok, "error_m"].mean())
                 metrics += [
-                    Metric(f"{name}_final_error_unassisted_kept_m", value[name],
-                           20.0 if c == "unbiased" else None, "m",
-                           f"control, {CONTROL_LABELS[c]}: unassisted nodes, {e.upper()}, same "
-                           "placements, priors and ACK-set orders, runs that did not diverge"),
-                    Metric(f"{name}_final_error_unassisted_median_m",
-                           float(end.loc[sel, "error_m"].median()), None, "m",
-                           "same, median over all runs"),
+                    Metric.over_runs(f"{name}_final_error_unassisted_kept_m",
+                                     end.loc[sel & ok, "error_m"],
+                                     20.0 if c == "unbiased" else None, "m",
+                                     f"control, {CONTROL_LABELS[c]}: unassisted nodes, "
+                                     f"{e.upper()}, same placements, priors and ACK-set orders, "
+                                     "runs that did not diverge"),
+                    Metric.over_runs(f"{name}_final_error_unassisted_median_m",
+                                     end.loc[sel, "error_m"], None, "m",
+                                     "same, median over all runs", stat="median"),
                     Metric(f"{name}_diverged_runs", float((sel & ~ok).sum()), None, "",
                            "same, runs that diverged")]
         for name in value:
