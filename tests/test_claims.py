@@ -114,3 +114,16 @@ def test_metric_over_runs():
     assert Metric("plain", 1.0).as_dict()["ci_low"] is None
     with pytest.raises(ConfigError, match="stat"):
         Metric.over_runs("e", values, stat="max")
+
+
+def test_metric_over_runs_rms_is_the_root_of_the_mean_square_with_the_roots_of_its_interval():
+    sq = np.array([0.04, 0.09, 0.16, 0.01, 0.25, 0.0, 0.36])      # per-run squared errors, m^2
+    m = Metric.over_runs("rmse_m", sq, unit="m", stat="rms")
+    mean, lo, hi, _ = mean_interval(sq)
+    assert m.value == pytest.approx(np.sqrt(sq.mean()))
+    assert m.ci == pytest.approx((np.sqrt(max(lo, 0.0)), np.sqrt(hi)))
+    assert m.ci[0] < m.value < m.ci[1]
+    wide = Metric.over_runs("rmse_m", [0.0, 0.0, 9.0], stat="rms")   # t interval below 0
+    assert wide.ci[0] == 0.0 and wide.ci[1] > wide.value
+    assert Metric.over_runs("e", [1.0], stat="rms").value == 1.0
+    assert Metric("x", 1.0, predicted="Sect. I").as_dict()["predicted"] == "Sect. I"

@@ -57,6 +57,40 @@ def test_claims_score_and_headlines():
     assert [m["name"] for m in headline_metrics(r)] == ["metric_0", "metric_2", "metric_4"]
 
 
+def test_scoreboard_shows_a_gap_only_within_a_factor_and_a_headline_on_every_row():
+    far = fake_record("far", n_metrics=0)
+    far["metrics"] = [{"name": "err_m", "value": 451562.0, "paper": 20.0, "unit": "m",
+                       "note": "", "ci_low": 1.0e5, "ci_high": 8.0e5}]
+    none = fake_record("none", n_metrics=0)
+    none["metrics"] = [{"name": "count", "value": 7.0, "paper": None, "unit": "", "note": ""},
+                       {"name": "other", "value": 1.0, "paper": None, "unit": "", "note": ""}]
+    near = fake_record("near", n_metrics=0)
+    near["metrics"] = [{"name": "rmse_m", "value": 1.2, "paper": 1.0, "unit": "m", "note": ""}]
+    board = scoreboard([far, none, near])
+    assert "%" not in board.split("far")[-1].split("</tr>")[0]      # no +2257710%
+    assert "4.52e+05" in board and "paper 20" in board and "[1e+05, 8e+05]" in board
+    assert [m["name"] for m in headline_metrics(none)] == ["count"]  # a number on every row
+    assert "no number with a published value" not in board
+    assert "+20%" in board
+    assert gap_class(451562.0, 20.0) == "poor" and gap_class(-1.0, 1.0) == "poor"
+
+
+def test_a_departure_the_paper_predicts_is_marked_apart_from_our_gap(tmp_path):
+    from radioloc.report.tables import PREDICTED
+
+    r = fake_record("pred", n_metrics=0)
+    r["metrics"] = [{"name": "plain", "value": 1.0, "paper": None, "unit": "", "note": ""},
+                    {"name": "newton_diverged", "value": 0.3, "paper": 0.0, "unit": "",
+                     "note": "", "predicted": "Sect. I: Newton's method may diverge"},
+                    {"name": "rmse_m", "value": 3.0, "paper": 1.0, "unit": "m", "note": ""}]
+    board = scoreboard([r])
+    row = board.split("</thead>")[1]
+    assert PREDICTED in row and 'class="expected"' in row and "+200%" in row
+    assert [m["name"] for m in headline_metrics(r)] == ["newton_diverged", "rmse_m"]
+    page = render([r], tmp_path)
+    assert page.count(PREDICTED) >= 3            # legend, scoreboard row, metric table
+
+
 def test_captions_name_the_paper_figure():
     assert figure_caption("fig4a_error_cdf", "001") == "Error cdf. Reproduces Fig. 4(a) of paper 001."
     assert figure_caption("fig3_map", "000") == "Map. Reproduces Fig. 3 of paper 000."

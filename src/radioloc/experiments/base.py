@@ -151,7 +151,9 @@ class Metric:
     """One number of the reproduction, beside the paper's where it has one.
 
     ``ci`` is the confidence interval (at :data:`LEVEL`) of ``value`` over the runs, where
-    the value is a statistic over runs (see :meth:`over_runs`).
+    the value is a statistic over runs (see :meth:`over_runs`). ``predicted`` is non-empty
+    where the paper itself predicts this number to depart (e.g. a method it says may
+    diverge): the text says where, and the report shows the departure apart from our gaps.
     """
 
     name: str
@@ -160,28 +162,36 @@ class Metric:
     unit: str = ""
     note: str = ""
     ci: tuple[float, float] | None = None
+    predicted: str = ""
 
     @classmethod
     def over_runs(cls, name: str, values: Any, paper: float | None = None, unit: str = "",
                   note: str = "", stat: str = "mean") -> "Metric":
-        """The mean (or median) of one number per run, with its confidence interval.
+        """The mean (or median, or root mean) of one number per run, with its confidence
+        interval.
 
         Parameters
         ----------
         name, paper, unit, note
             As the fields.
         values : array_like or pandas.Series
-            One number per run (non-finite ones left out).
-        stat : {"mean", "median"}
-            Mean with its t interval, or median with its order-statistic interval.
+            One number per run (non-finite ones left out); squared errors for ``"rms"``.
+        stat : {"mean", "median", "rms"}
+            Mean with its t interval, median with its order-statistic interval, or the root
+            of the mean (an RMSE from per-run squared errors) with the roots of the mean's
+            t interval (a negative lower end read as 0).
 
         Returns
         -------
         Metric
         """
-        if stat not in ("mean", "median"):
-            raise ConfigError(f"Metric.over_runs: stat must be 'mean' or 'median', got {stat!r}")
-        value, low, high, _ = (mean_interval if stat == "mean" else median_interval)(values)
+        if stat not in ("mean", "median", "rms"):
+            raise ConfigError("Metric.over_runs: stat must be 'mean', 'median' or 'rms', "
+                              f"got {stat!r}")
+        value, low, high, _ = (median_interval if stat == "median" else mean_interval)(values)
+        if stat == "rms":
+            value, low, high = (float(np.sqrt(max(v, 0.0))) if np.isfinite(v) else v
+                                for v in (value, low, high))
         return cls(name, value, paper, unit, note, (low, high))
 
     def as_dict(self) -> dict[str, Any]:
@@ -195,6 +205,7 @@ class Metric:
             "note": self.note,
             "ci_low": lo if np.isfinite(lo) else None,
             "ci_high": hi if np.isfinite(hi) else None,
+            "predicted": self.predicted,
         }
 
 

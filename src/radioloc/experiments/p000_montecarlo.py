@@ -254,16 +254,17 @@ class P000MonteCarlo(Experiment):
                 name = "rls_prior_weighted" if m == "rlsw" else m
                 what = LABELS[m]
                 metrics += [
-                    Metric(f"{name}_final_error_m_{tag}", final[m, rv], None, "m",
+                    Metric.over_runs(f"{name}_final_error_m_{tag}", fin[kept], None, "m",
                            f"{what}: mean position error at iteration {config.iterations}, "
                            "all nodes, runs that did not diverge"),
-                    Metric(f"{name}_final_error_m_all_runs_{tag}", float(np.mean(fin)), None, "m",
+                    Metric.over_runs(f"{name}_final_error_m_all_runs_{tag}", fin, None, "m",
                            f"{what}: mean final error over all runs, diverged ones included"),
                     Metric(f"{name}_final_trimmed_mean_error_m_{tag}", float(trimmed[-1]), None,
                            "m", f"{what}: {config.trim_fraction:.0%}-trimmed mean over runs "
                            "of the final error"),
-                    Metric(f"{name}_final_median_error_m_{tag}", med_final[m, rv], None,
-                           "m", f"{what}: median over runs of the final error (mean over nodes)"),
+                    Metric.over_runs(f"{name}_final_median_error_m_{tag}", fin, None, "m",
+                                     f"{what}: median over runs of the final error (mean over "
+                                     "nodes)", stat="median"),
                     Metric(f"{name}_final_rmse_m_{tag}", float(np.sqrt(sq.iloc[-1])), None, "m",
                            f"{what}: RMSE at the last iteration, runs that did not diverge "
                            "(compare with the CRB)"),

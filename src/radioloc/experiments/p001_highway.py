@@ -344,6 +344,11 @@ class HighwayExperiment(Experiment):
         base = prev[(prev.M == 26) & (prev.N == 20)]
         metrics, notes, claims = [], [], []
         pf_c, ml_c, mll_c, pd_c = {}, {}, {}, {}
+        by_vehicle = ("run", "vehicle")  # one number per (run, vehicle): quick has one run
+
+        def over(name, rows, paper, u, note, col="error_m"):
+            return Metric.over_runs(name, per_run(rows, col, by_vehicle), paper, u, note)
+
         for a, g in base.groupby("alpha"):
             tag = int(round(a * 100))
             pf = g[g.method == "pf"]
@@ -352,14 +357,17 @@ class HighwayExperiment(Experiment):
             mll_c[tag] = g[g.method == "ml_local"].error_m.mean()
             pd_c[tag] = pf.los_detected.sum() / max(pf.los_links.sum(), 1)
             paper = PAPER_C.get(tag, (None, None, None))
+            pd_rows = pf.assign(pd=pf.los_detected / pf.los_links.where(pf.los_links > 0))
             metrics += [
-                Metric(f"pf_mean_error_m_alpha{tag}", pf_c[tag], paper[1], "m", "particle filter, table 4(c)"),
-                Metric(f"ml_mean_error_m_alpha{tag}", ml_c[tag], paper[2], "m",
-                       "genie local ML, table 4(c); reading: global snapshot search"),
-                Metric(f"ml_local_mean_error_m_alpha{tag}", mll_c[tag], paper[2], "m",
-                       "genie local ML, table 4(c); reading: local search within "
-                       f"+-{config.ml_local_radius_m:g} m of its previous estimate moved by the INS"),
-                Metric(f"pd_alpha{tag}", pd_c[tag], paper[0], "", "LOS detection probability"),
+                over(f"pf_mean_error_m_alpha{tag}", pf, paper[1], "m", "particle filter, table 4(c)"),
+                over(f"ml_mean_error_m_alpha{tag}", g[g.method == "ml"], paper[2], "m",
+                     "genie local ML, table 4(c); reading: global snapshot search"),
+                over(f"ml_local_mean_error_m_alpha{tag}", g[g.method == "ml_local"], paper[2], "m",
+                     "genie local ML, table 4(c); reading: local search within "
+                     f"+-{config.ml_local_radius_m:g} m of its previous estimate moved by the INS"),
+                over(f"pd_alpha{tag}", pd_rows, paper[0], "",
+                     "LOS detection probability, mean over vehicles of the detected fraction "
+                     "of their LOS links", col="pd"),
                 Metric(f"ekf_mean_error_m_alpha{tag}", g[g.method == "ekf"].error_m.mean(), None, "m",
                        "Gaussian EKF (moment-matched noise), same messages as the PF"),
                 Metric(f"ransac_mean_error_m_alpha{tag}", g[g.method == "ransac"].error_m.mean(), None, "m",
@@ -369,8 +377,8 @@ class HighwayExperiment(Experiment):
         pf_d = {}
         for (m, n), g in a30.groupby(["M", "N"]):
             pf_d[(m, n)] = g.error_m.mean()
-            metrics.append(Metric(f"pf_mean_error_m_M{m}_N{n}", pf_d[(m, n)], PAPER_D.get((m, n)), "m",
-                                  "particle filter, table 4(d)"))
+            metrics.append(over(f"pf_mean_error_m_M{m}_N{n}", g, PAPER_D.get((m, n)), "m",
+                                "particle filter, table 4(d)"))
         v30 = r[(r.alpha == 0.30) & (r.M == 26) & (r.N == 20) & (r.method == "pf")]
         for v, g in v30.groupby("messages"):
             if v != "previous":
@@ -379,17 +387,17 @@ class HighwayExperiment(Experiment):
         vpf = variants[(variants.method == "pf") & (variants.messages == "previous")]
         for (lay, a), g in vpf.groupby(["layout", "alpha"]):
             tag = int(round(a * 100))
-            metrics.append(Metric(f"pf_mean_error_m_alpha{tag}_layout_{lay}", g.error_m.mean(),
-                                  PAPER_C.get(tag, (None, None, None))[1], "m",
-                                  f"variant: anchor layout {lay} (default: {config.layout}), table 4(c)"))
+            metrics.append(over(f"pf_mean_error_m_alpha{tag}_layout_{lay}", g,
+                                PAPER_C.get(tag, (None, None, None))[1], "m",
+                                f"variant: anchor layout {lay} (default: {config.layout}), table 4(c)"))
         em_rows = r[r.method == "pf_em"]
         for a, g in em_rows.groupby("alpha"):
             tag = int(round(a * 100))
             last = g[g.step == g.step.max()]
             truth = {"em_alpha": a, "em_los_std_m": config.los_std_m, "em_nlos_mean_m": config.nlos_mean_m}
             start = dict(zip(("em_los_std_m", "em_nlos_mean_m", "em_alpha"), config.em_initial))
-            metrics.append(Metric(f"pf_em_mean_error_m_alpha{tag}", g.error_m.mean(), PAPER_C.get(tag, (None,) * 3)[1],
-                                  "m", "variant: PF with online EM from wrong parameters "
+            metrics.append(over(f"pf_em_mean_error_m_alpha{tag}", g, PAPER_C.get(tag, (None,) * 3)[1],
+                                "m", "variant: PF with online EM from wrong parameters "
                                   f"(s_LOS, s_NLOS, alpha) = {config.em_initial}, table 4(c)"))
             for col, unit in (("em_alpha", ""), ("em_los_std_m", "m"), ("em_nlos_mean_m", "m")):
                 metrics.append(Metric(f"{col}_final_alpha{tag}", last[col].mean(), None, unit,
@@ -399,8 +407,8 @@ class HighwayExperiment(Experiment):
         m_abl, c_abl, n_abl = self._lag_ablation_summary(ablation)
         metrics += m_abl
         notes += n_abl
-        # claims: paired over (run, vehicle) units (the quick size has a single run)
-        unit = ("run", "vehicle")
+        # claims: paired over the same (run, vehicle) units
+        unit = by_vehicle
 
         def units(g, method, a=None):
             sel = g.method == method if a is None else (g.method == method) & np.isclose(g.alpha, a / 100)
@@ -467,11 +475,12 @@ class HighwayExperiment(Experiment):
             return [], [], []
         mean = abl.groupby(["alpha", "N", "messages", "message_lag"]).error_m.mean()
         metrics, claims = [], []
-        for (a, n, v, lag), val in mean.items():
+        for (a, n, v, lag), g in abl.groupby(["alpha", "N", "messages", "message_lag"]):
             tag = int(round(a * 100))
             paper = PAPER_C[tag][1] if n == 20 and tag in PAPER_C else PAPER_D.get((26, int(n)))
-            metrics.append(Metric(
-                f"pf_mean_error_m_alpha{tag}_N{int(n)}_{v}_lag{int(lag)}", val, paper, "m",
+            metrics.append(Metric.over_runs(
+                f"pf_mean_error_m_alpha{tag}_N{int(n)}_{v}_lag{int(lag)}",
+                per_run(g, "error_m", ("run", "vehicle")), paper, "m",
                 f"ablation: PF, {v} messages, "
                 + ("one-step lag (the paper's timing)" if lag else
                    "no lag (the neighbours' estimates of the same step)")

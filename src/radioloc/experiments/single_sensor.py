@@ -35,7 +35,8 @@ from radioloc.core.rng import stream
 from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.ekf_tracker import RangeEKF
 from radioloc.estimators.nlls_newton import NewtonTracker
-from radioloc.experiments.base import Claim, Experiment, Metric, Summary, data_root, register
+from radioloc.experiments.base import (Claim, Experiment, Metric, Summary, data_root, per_run,
+                                      register)
 from radioloc.io.uci_characters import resampled_tracks
 from radioloc.models.motion import ConstantVelocity
 from radioloc.models.ranging import GaussianRange
@@ -444,8 +445,13 @@ class SingleSensorExperiment(Experiment):
             causal = {m: float(np.sqrt(cz.loc[cz.method == m, "pos_err2"].mean()))
                       for m in METHODS}
             window = f"n = {n_low}..{int(cz['n'].max())}" if len(cz) else ""
+            top = sub[sub.n == n_top]
+
+            def rms(name, rows, col, note):
+                return Metric.over_runs(name, per_run(rows, col), None, "m", note, stat="rms")
+
             for m in METHODS:
-                metrics.append(Metric(f"causal_rmse_{m}{tag}", causal[m], None, "m",
+                metrics.append(rms(f"causal_rmse_{m}{tag}", cz[cz.method == m], "pos_err2",
                                       f"{LABELS[m]}: headline, RMSE of the causal track "
                                       f"(p_(n-1) from the first n samples, {window}"
                                       + ("; the filtered state)" if m == "ekf" else ")")))
@@ -455,17 +461,16 @@ class SingleSensorExperiment(Experiment):
             for m in METHODS:
                 what = ("reading: RTS-smoothed track over the n samples" if m == "ekf" else
                         "reading (Fig. 1): fitted straight track over the n samples")
-                metrics.append(Metric(f"traj_rmse_{m}_n{n_top}{tag}", traj.loc[n_top, m], None,
-                                      "m", f"{LABELS[m]}: {what}"))
-            metrics.append(Metric(f"traj_rmse_ekf_straight_n{n_top}{tag}",
-                                  traj.loc[n_top, "ekf_straight"], None, "m",
-                                  f"{LABELS['ekf']}: reading: straight track p_k + (j-k) T v_k "
-                                  "of the filtered state at k (beside the closed form's)"))
+                metrics.append(rms(f"traj_rmse_{m}_n{n_top}{tag}", top[top.method == m],
+                                   "traj_err2", f"{LABELS[m]}: {what}"))
+            metrics.append(rms(f"traj_rmse_ekf_straight_n{n_top}{tag}",
+                               top[top.method == "ekf_straight"], "traj_err2",
+                               f"{LABELS['ekf']}: reading: straight track p_k + (j-k) T v_k "
+                               "of the filtered state at k (beside the closed form's)"))
             for m in METHODS:
-                metrics.append(Metric(f"rmse_{m}_n{n_top}{tag}", rmse.loc[n_top, m], None, "m",
-                                      f"{LABELS[m]}: reading: current position p_k, k = n-1, "
-                                      f"at n = {n_top} only"))
-            top = sub[sub.n == n_top]
+                metrics.append(rms(f"rmse_{m}_n{n_top}{tag}", top[top.method == m], "pos_err2",
+                                   f"{LABELS[m]}: reading: current position p_k, k = n-1, "
+                                   f"at n = {n_top} only"))
             for m in (*METHODS, "ekf_straight"):
                 cols = (("traj_err2", "traj_rmse"),) + (() if m == "ekf_straight" else
                                                         (("pos_err2", "rmse"),))
@@ -488,7 +493,9 @@ class SingleSensorExperiment(Experiment):
                     metrics.append(Metric(
                         f"{m}_diverged_frac_n{n}{tag}", nt["diverged"].astype(bool).mean(),
                         None, "", f"{VARIANTS.get(m, LABELS.get(m))}: runs not meeting the "
-                        f"stopping rule or ending > {config.divergence_m:g} m from p_k"))
+                        f"stopping rule or ending > {config.divergence_m:g} m from p_k",
+                        predicted="Sect. I: Newton's method may diverge (start outside the "
+                        "convergence region, near-singular Hessian)"))
             newton_top = sub[(sub.method == "newton") & (sub.n == n_top)]
             metrics.append(Metric(f"newton_converged_frac_n{n_top}{tag}",
                                   newton_top["newton_converged"].astype(bool).mean(), None, "",

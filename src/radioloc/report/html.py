@@ -1,8 +1,10 @@
 """The one-page HTML report of all experiments (``out/index.html``).
 
 The page opens with a **scoreboard**: one row per experiment with the paper's claims that
-hold on our numbers (k of n), the headline numbers beside the paper's with the gap coloured,
-and a link to the experiment's section. Each section then shows the claims (holds / does
+hold on our numbers (k of n), the headline numbers (with their interval) beside the paper's
+with the gap coloured (the relative gap only where ours and the paper's are within a factor
+:data:`~radioloc.report.tables.GAP_FACTOR`; a departure the paper itself predicts is marked
+as such, apart from our gaps), and a link to the experiment's section. Each section then shows the claims (holds / does
 not hold / undecided at this size, with the confidence interval that decided each), the figures at
 full width with a caption naming the paper figure they reproduce (from the file name
 ``figN[a-z]_*.png``, or from an optional ``captions.json`` ``{file stem: caption}`` in the
@@ -16,12 +18,12 @@ from __future__ import annotations
 
 import html
 import json
-import math
 import re
 from pathlib import Path
 from typing import Any, Iterable
 
-from radioloc.report.tables import claim_evidence, fmt, interval, relative_gap, verdict
+from radioloc.report.tables import (GAP_FACTOR, PREDICTED, claim_evidence, fmt, gap_is_meaningful,
+                                    interval, metric_gap, verdict)
 
 #: Relative gaps (ours against the paper's) up to these bounds are coloured good / fair;
 #: larger ones poor.
@@ -45,6 +47,7 @@ td.num,th.num{text-align:right;white-space:nowrap}
 .hl{display:inline-block;margin:0 .9em .1em 0;white-space:nowrap}
 .hl .n{color:#57606a}
 .good{color:#1a7f37} .fair{color:#9a6700} .poor{color:#cf222e} .skip{color:#9a6700}
+.expected{color:#57606a;font-style:italic}
 .pill{display:inline-block;border-radius:1em;padding:0 .6em;font-weight:600;font-size:.92em;
 white-space:nowrap}
 .pill.good{background:#dafbe1} .pill.fair{background:#fff8c5} .pill.poor{background:#ffebe9}
@@ -75,8 +78,10 @@ def gap_class(value: float | None, paper: float | None) -> str:
     -------
     str
     """
-    if value is None or paper is None or paper == 0 or not math.isfinite(value):
+    if value is None or paper is None or paper == 0 or value != value:
         return ""
+    if not gap_is_meaningful(value, paper):
+        return "poor"
     rel = abs(value - paper) / abs(paper)
     return "good" if rel <= GAP_GOOD else "fair" if rel <= GAP_FAIR else "poor"
 
@@ -98,7 +103,8 @@ def claims_score(record: dict[str, Any]) -> tuple[int, int]:
 
 
 def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[str, Any]]:
-    """The first ``n`` metrics that have a paper value (the experiment's headline numbers).
+    """The experiment's headline numbers: the first ``n`` metrics that have a paper value,
+    else its first metric (the experiment lists its headline first).
 
     Parameters
     ----------
@@ -111,7 +117,8 @@ def headline_metrics(record: dict[str, Any], n: int = HEADLINES) -> list[dict[st
     -------
     list of dict
     """
-    return [m for m in record.get("metrics") or [] if m.get("paper") is not None][:n]
+    metrics = record.get("metrics") or []
+    return [m for m in metrics if m.get("paper") is not None][:n] or metrics[:1]
 
 
 def figure_caption(stem: str, paper: str) -> str:
@@ -148,11 +155,12 @@ def _ci_span(metric: dict[str, Any]) -> str:
 def _headline_cell(record: dict[str, Any]) -> str:
     items = []
     for m in headline_metrics(record):
-        cls = gap_class(m["value"], m["paper"])
-        gap = relative_gap(m["value"], m["paper"])
-        items.append(f'<span class="hl" title="{_esc(m["note"])}"><span class="n">'
-                     f'{_esc(m["name"])}</span> {fmt(m["value"])}{_ci_span(m)} / {fmt(m["paper"])} '
-                     f'<b class="{cls}">{_esc(gap)}</b></span>')
+        cls = "expected" if m.get("predicted") else gap_class(m["value"], m["paper"])
+        gap = metric_gap(m)
+        paper = f' / paper {fmt(m["paper"])}' if m.get("paper") is not None else ""
+        items.append(f'<span class="hl" title="{_esc(m.get("predicted") or m["note"])}">'
+                     f'<span class="n">{_esc(m["name"])}</span> {fmt(m["value"])}{_ci_span(m)}'
+                     f'{paper} <b class="{cls}">{_esc(gap)}</b></span>')
     return "".join(items) or '<span class="meta">no number with a published value</span>'
 
 
@@ -190,9 +198,11 @@ def scoreboard(records: Iterable[dict[str, Any]]) -> str:
         rows.append(f'<tr><td class="exp">{link}</td><td>{_esc(r["paper"])}</td>'
                     f'<td>{_score_pill(r)}</td><td>{_headline_cell(r)}</td></tr>')
     return ('<table class="scoreboard"><thead><tr><th>experiment</th><th>paper</th>'
-            '<th>claims hold</th><th>headline numbers: ours / paper, gap '
+            '<th>claims hold</th><th>headline numbers: ours [95% CI] / paper, our gap '
             f'(<span class="good">&le;{GAP_GOOD:.0%}</span>, '
-            f'<span class="fair">&le;{GAP_FAIR:.0%}</span>, <span class="poor">more</span>)'
+            f'<span class="fair">&le;{GAP_FAIR:.0%}</span>, <span class="poor">more</span>; '
+            f'shown only within a factor {GAP_FACTOR:g}) or '
+            f'<span class="expected">{_esc(PREDICTED)}</span>'
             f'</th></tr></thead><tbody>{"".join(rows)}</tbody></table>')
 
 
@@ -201,7 +211,8 @@ def _metric_table(record: dict[str, Any]) -> str:
         f'<tr><td>{_esc(m["name"])}</td><td class="num">{fmt(m["value"])}</td>'
         f'<td class="num">{_esc(interval(m.get("ci_low"), m.get("ci_high")))}</td>'
         f'<td class="num">{fmt(m["paper"])}</td>'
-        f'<td class="num {gap_class(m["value"], m["paper"])}">{relative_gap(m["value"], m["paper"])}</td>'
+        f'<td class="num {"expected" if m.get("predicted") else gap_class(m["value"], m["paper"])}">'
+        f'{_esc(metric_gap(m))}</td>'
         f'<td>{_esc(m["unit"])}</td><td class="note">{_esc(m["note"])}</td></tr>'
         for m in record["metrics"])
     return (f'<details><summary>All {len(record["metrics"])} metrics</summary><div class="wrap">'

@@ -21,11 +21,38 @@ def fmt(value: float | None) -> str:
     return f"{v:.4g}" if abs(v) < 100 else f"{v:.1f}"
 
 
-def relative_gap(value: float | None, paper: float | None) -> str:
-    """``+12%`` style difference of ours against the paper."""
+#: A relative gap is shown only while ours and the paper's number are within this factor of
+#: each other (and of the same sign); beyond it the two numbers speak for themselves.
+GAP_FACTOR = 10.0
+
+
+def gap_is_meaningful(value: float | None, paper: float | None) -> bool:
+    """True when the relative gap of ``value`` to ``paper`` says something: both finite,
+    of the same sign, the paper's not zero, and within :data:`GAP_FACTOR` of each other."""
     if value is None or paper is None or paper == 0:
+        return False
+    v, p = float(value), float(paper)
+    return math.isfinite(v) and v * p > 0 and 1 / GAP_FACTOR <= v / p <= GAP_FACTOR
+
+
+def relative_gap(value: float | None, paper: float | None) -> str:
+    """``+12%`` style difference of ours against the paper (``""`` where the gap is not
+    meaningful, see :func:`gap_is_meaningful`)."""
+    if not gap_is_meaningful(value, paper):
         return ""
     return f"{100.0 * (value - paper) / abs(paper):+.0f}%"
+
+
+#: What the report shows in place of a gap where the paper predicts the departure.
+PREDICTED = "diverges, as the paper predicts"
+
+
+def metric_gap(metric: dict[str, Any]) -> str:
+    """The gap column of one metric record: :data:`PREDICTED` where the record says the paper
+    predicts the departure (``predicted``), else :func:`relative_gap`."""
+    if metric.get("predicted"):
+        return PREDICTED
+    return relative_gap(metric.get("value"), metric.get("paper"))
 
 
 def interval(low: float | None, high: float | None) -> str:
@@ -68,7 +95,7 @@ def summary_table(record: dict[str, Any]) -> Table:
     t.add_column("note", overflow="fold", min_width=30)
     for m in record["metrics"]:
         t.add_row(m["name"], fmt(m["value"]), interval(m.get("ci_low"), m.get("ci_high")),
-                  fmt(m["paper"]), relative_gap(m["value"], m["paper"]),
+                  fmt(m["paper"]), metric_gap(m),
                   m["unit"], m["note"])
     return t
 
