@@ -37,6 +37,7 @@ SLOW_MODULES = {
     "test_rssi_tether", "test_channel_urban", "test_mixture_corridor_repro",
     "test_fingerprint_wifi", "test_p000_network", "test_closed_form_bounds",
     "test_docs_browser", "test_locate_outputs", "test_plausibility", "test_open_models_acceptance",
+    "test_docs_snippets", "test_locate_methods_generic",
 }
 
 
