@@ -39,6 +39,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.validation import check_dtype, check_real, check_shapes
 
 __all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
@@ -293,7 +294,7 @@ class Context:
     height_m: float | None = None
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=float)
+        pts = check_dtype(self.points, "points").astype(float)
         if pts.ndim < 2:
             raise InputError(f"points: expected shape (..., m, P), got {pts.shape}")
         object.__setattr__(self, "points", pts)
@@ -307,12 +308,14 @@ class Context:
                                      f"{v.dtype} of shape {v.shape}")
                 object.__setattr__(self, name, v)
         if self.reference is not None:
-            ref = np.asarray(self.reference, dtype=float)
+            ref = check_dtype(self.reference, "reference").astype(float)
             if ref.shape[-2:] != pts.shape[-2:]:
                 raise InputError(f"reference: shape {ref.shape} does not match points {pts.shape}")
             object.__setattr__(self, "reference", ref)
+        if self.height_m is not None:
+            object.__setattr__(self, "height_m", check_real(self.height_m, "height_m"))
         if self.std is not None:
-            s = np.asarray(self.std, dtype=float)
+            s = check_dtype(self.std, "std").astype(float)
             if s.shape[-1:] != (m,) or np.any(s[np.isfinite(s)] <= 0):
                 raise InputError(f"std: expected {m} positive per-row standard deviations, "
                                  f"got shape {s.shape}")
@@ -532,6 +535,7 @@ class MeasurementModel:
         -------
         ndarray, shape (..., m)
         """
+        z = checked_call(z, state, context, self.reads)
         r = self.residual(z, self.predict(state, context)) - self.noise_mean(context)
         lp = gaussian_logpdf(r, self.std(context))
         return np.where(np.isnan(r), 0.0, lp)
@@ -556,6 +560,50 @@ class MeasurementModel:
         v = np.einsum("...ij,...j->...i", L, rng.standard_normal(z_hat.shape))
         z = z_hat + self.noise_mean(context) + v
         return wrap_angle(z) if self.angular else z
+
+
+def checked_call(z, state, context: Context, reads: tuple[str, ...] = ("position",)
+                 ) -> np.ndarray:
+    """The arguments of a model's ``logpdf`` checked at the boundary: ``z`` real numbers
+    whose shape broadcasts with the rows the state and context predict.
+
+    Parameters
+    ----------
+    z : array_like, shape (..., m)
+    state : mapping
+        Named components of a batch of states, ``position`` (..., P) among them.
+    context : Context
+    reads : tuple of str
+        The components the model reads (:attr:`MeasurementModel.reads`).
+
+    Returns
+    -------
+    ndarray
+        ``z`` as float64.
+
+    Raises
+    ------
+    InputError
+        Naming ``state``, ``z`` or ``context.points``.
+    """
+    if not isinstance(context, Context):
+        raise InputError(f"context: expected a Context, got {type(context).__name__}")
+    if not isinstance(state, Mapping) or "position" not in state:
+        raise InputError("state: expected a mapping of named components with 'position' "
+                         f"(StateLayout.split), got {type(state).__name__}")
+    missing = [k for k in reads if k not in state]
+    if missing:
+        raise InputError(f"state: the model reads {', '.join(missing)}, absent from the "
+                         f"state's components {sorted(state)}")
+    pos = np.shape(state["position"])
+    dim = context.points.shape[-1]
+    if not pos or pos[-1] not in (dim, 2 if context.height_m is not None else dim):
+        raise InputError(f"state['position']: last axis {pos[-1:] or 'missing'} does not match "
+                         f"the {dim}-D context.points")
+    zz = check_dtype(z, "z").astype(float, copy=False)
+    check_shapes("z", zz.shape, "the rows predicted from state and context",
+                 pos[:-1] + (context.rows,))
+    return zz
 
 
 @dataclass(frozen=True)
@@ -592,7 +640,8 @@ class Observation:
                              f"{self.context.rows}")
         object.__setattr__(self, "z", z)
         if self.std is not None:
-            s = np.asarray(self.std, dtype=float)
+            s = check_dtype(self.std, "std").astype(float)
+            check_shapes("std", s.shape, "z", z.shape)
             object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
 
     @property
