@@ -39,7 +39,8 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import check_dtype, check_real, check_shapes
+from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_real,
+                                      check_shapes, refuse_infinite)
 
 __all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
@@ -294,7 +295,7 @@ class Context:
     height_m: float | None = None
 
     def __post_init__(self) -> None:
-        pts = check_dtype(self.points, "points").astype(float)
+        pts = as_float_array(self.points, "points")
         if pts.ndim < 2:
             raise InputError(f"points: expected shape (..., m, P), got {pts.shape}")
         object.__setattr__(self, "points", pts)
@@ -315,10 +316,10 @@ class Context:
         if self.height_m is not None:
             object.__setattr__(self, "height_m", check_real(self.height_m, "height_m"))
         if self.std is not None:
-            s = check_dtype(self.std, "std").astype(float)
-            if s.shape[-1:] != (m,) or np.any(s[np.isfinite(s)] <= 0):
-                raise InputError(f"std: expected {m} positive per-row standard deviations, "
-                                 f"got shape {s.shape}")
+            s = row_std(self.std, "std")
+            if s.shape[-1:] != (m,):
+                raise InputError(f"std: expected {m} per-row standard deviations on the last "
+                                 f"axis, got shape {s.shape}")
             object.__setattr__(self, "std", s)
 
     @property
@@ -562,6 +563,28 @@ class MeasurementModel:
         return wrap_angle(z) if self.angular else z
 
 
+def row_std(value, name: str) -> np.ndarray:
+    """Per-row standard deviations as given by a user: real, NaN (the model's) or within
+    ``[POSITIVE_FLOOR, MAGNITUDE_LIMIT]``.
+
+    Parameters
+    ----------
+    value : array_like
+    name : str
+        For the messages.
+
+    Returns
+    -------
+    ndarray
+    """
+    s = refuse_infinite(as_float_array(value, name, allow_nan=True), name)
+    given = s[np.isfinite(s)]
+    if np.any(given < POSITIVE_FLOOR):
+        raise InputError(f"{name}: standard deviations must be at least {POSITIVE_FLOOR:g} "
+                         f"(NaN: the model's), got {float(given.min())!r}")
+    return s
+
+
 def checked_call(z, state, context: Context, reads: tuple[str, ...] = ("position",)
                  ) -> np.ndarray:
     """The arguments of a model's ``logpdf`` checked at the boundary: ``z`` real numbers
@@ -631,17 +654,15 @@ class Observation:
     def __post_init__(self) -> None:
         if not isinstance(self.model, MeasurementModel):
             raise InputError(f"model: expected a MeasurementModel, got {type(self.model).__name__}")
-        z = np.asarray(self.z)
-        if z.dtype.kind not in "fiu":
-            raise InputError(f"z: expected real numbers, got dtype {z.dtype}")
-        z = z.astype(float)
+        z = as_float_array(self.z, "z", allow_nan=True)
         if z.shape[-1:] != (self.context.rows,):
             raise InputError(f"z: last axis has {z.shape[-1:] or 'no'} rows but the context has "
                              f"{self.context.rows}")
         object.__setattr__(self, "z", z)
         if self.std is not None:
-            s = check_dtype(self.std, "std").astype(float)
-            check_shapes("std", s.shape, "z", z.shape)
+            s = row_std(self.std, "std")
+            if check_shapes("std", s.shape, "z", z.shape) != z.shape:
+                raise InputError(f"std: shape {s.shape} does not broadcast to z's {z.shape}")
             object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
 
     @property

@@ -49,8 +49,8 @@ def range_geometry(position: np.ndarray, anchors: np.ndarray, height_m: float | 
     D = x.shape[-1]
     if height_m is None:
         if a.shape[-1] != D:
-            raise InputError(f"anchors: {a.shape[-1]} coordinates but positions have {D} "
-                             "(give height_m for 2-D positions with 3-D anchors)")
+            raise InputError(f"anchors (context.points): {a.shape[-1]} coordinates but "
+                             f"positions have {D} (give height_m for 2-D positions with 3-D anchors)")
         diff = x[..., None, :] - a
         dist = np.sqrt(np.sum(diff**2, axis=-1))
     else:
