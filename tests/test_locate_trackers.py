@@ -66,6 +66,19 @@ def rmse(folder: Path, out: str) -> float:
     return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
 
 
+def test_ekf_track_warns_when_the_stated_noise_makes_it_diverge(log):
+    """Ranges of 0.1 m sigma: stated as 0.1 m the track holds and nothing is said; stated
+    as 0.005 m the filter refuses most ranges and one warning names range_std_m."""
+    res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.1", out="ok.csv")
+    assert res.exit_code == 0 and "diverged" not in res.stderr, res.output
+    res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.005",
+                 out="div.csv")
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.stderr.splitlines() if "diverged" in ln]
+    assert len(lines) == 1 and lines[0].startswith("warning: ")
+    assert "range_std_m=0.005 too small" in lines[0]
+
+
 def test_ekf_track_follows_the_tag_and_smoothing_helps(log):
     res = locate(log, "ekf-track", f"tag_height_m={HEIGHT}", "range_std_m=0.1", out="ekf.csv")
     assert res.exit_code == 0, res.output

@@ -392,12 +392,7 @@ def oracle(est: pd.DataFrame, scenario: Scenario, time_scale: float = 1.0) -> st
 
 # Known failures not yet fixed: (id, method, outcome, regex on the detail); each needs a
 # regression test in test_fuzz_known.py.
-KNOWN: list[tuple[str, str, str, str]] = [
-    # pf on the walking scenario (200 particles, seed 3): a third of the rows metres off the
-    # truth while claiming under 2 m (the truth oracle's finding; pf's start and
-    # uncertainty are being reworked)
-    ("pf-overconfident", "pf", "confidently wrong", r"confidently wrong"),
-]
+KNOWN: list[tuple[str, str, str, str]] = []
 
 
 def known(method: str, outcome: str, detail: str) -> str | None:

@@ -40,9 +40,13 @@ from radioloc.core.errors import GeometryError, RadiolocError
 from radioloc.core.results import Estimate, Track
 from radioloc.estimators import (
     ESTIMATORS,
+    GENERIC_ESTIMATORS,
+    BatchSmoother,
     ClosedFormTracker,
+    ExtendedKalmanFilter,
     GridFilter,
     GridGeometry,
+    LeastSquares,
     LocalML,
     MixtureLocalizer,
     MixtureTracker,
@@ -51,10 +55,12 @@ from radioloc.estimators import (
     NetworkRLS,
     NewtonTracker,
     P2PParticleFilter,
+    ParticleFilter,
     RangeEKF,
     Ransac,
 )
 from radioloc.models import (
+    BearingModel,
     ConstantAcceleration,
     ConstantVelocity,
     DiagMixture,
@@ -63,11 +69,13 @@ from radioloc.models import (
     LogDistanceGaussian,
     LosNlosRange,
     RandomWalk,
+    RangeModel,
     StickyLinkChain,
     TrapezoidModel,
     UniformDisk,
     WhiteAccelerationCV,
 )
+from radioloc.models.measurement import Context, Observation
 
 TALLY: Counter = Counter()
 #: seconds a library call may take before it counts as a hang
@@ -335,6 +343,100 @@ def case_mixture_tracker() -> Case:
                 lambda s, a: MixtureTracker(**s).run(**a))
 
 
+# ---- the generic estimators: Observation inputs (a model, values, a context) -------------
+
+def _observations(a: dict, model) -> Observation:
+    return Observation(model, a["z"], Context(points=a["points"], std=a.get("context_std")),
+                       a.get("std"))
+
+
+def _generic_fields(track: bool) -> dict[str, Field]:
+    # z: Gaussian range noise, a negative value is a sample (as in RangeEKF); NaN: missing
+    out = {"z": Field(nan_ok=True), "points": Field(extra_ok=True),
+           "std": Field(nan_ok=True, neg_ok=False, zero_ok=False, drop_ok=True),
+           "context_std": Field(nan_ok=True, neg_ok=False, zero_ok=False, names=("std",))}
+    if track:
+        out.update({"time": Field(), "prior_mean": Field(), "prior_cov": Field(neg_ok=False)})
+    return out
+
+
+def _least_squares(settings: dict, a: dict, model):
+    """LeastSquares flags a fit it cannot bound (``diagnostics['degenerate']``, a NaN
+    covariance, ``converged`` False) instead of raising: the flag counts as its refusal."""
+    est = LeastSquares(**settings).locate(_observations(a, model))
+    if np.any(est.diagnostics["degenerate"]):
+        raise GeometryError("problem flagged degenerate by LeastSquares")
+    return est
+
+
+def case_least_squares() -> Case:
+    truth = np.array([7.0, 12.0])
+    z = np.linalg.norm(ANCHORS - truth, axis=-1)
+    return Case("LeastSquares", {"loss_scale": 1.0, "max_iterations": 50},
+                {"z": z, "points": ANCHORS.copy(), "std": np.full(4, 0.05),
+                 "context_std": np.full(4, 0.05)},
+                {**_generic_fields(False),
+                 "loss_scale": Field(setting=True, neg_ok=False, zero_ok=False),
+                 "max_iterations": Field(setting=True, integer=True, neg_ok=False,
+                                         zero_ok=False)},
+                lambda s, a: _least_squares(s, a, RangeModel(std_m=0.05)),
+                truth, 1e-3)
+
+
+def _generic_walk():
+    t, truth, r, start = _walk(seed=5, T=10)
+    return t, truth[0], r[0], start[0]
+
+
+def _track_case(name, make, settings, extra_fields, model=None, **kw) -> Case:
+    t, truth, r, start = _generic_walk()
+    args = {"z": r, "points": ANCHORS.copy(), "std": np.full(r.shape, 0.05),
+            "context_std": np.full(4, 0.05), "time": t,
+            "prior_mean": np.r_[start, 0.0, 0.0], "prior_cov": np.eye(4)}
+
+    def solve(s, a):
+        return make(**s).run(_observations(a, model or RangeModel(std_m=0.05)), a["time"],
+                             prior_mean=a["prior_mean"], prior_cov=a["prior_cov"], **kw)
+    return Case(name, settings, args, {**_generic_fields(True), **extra_fields}, solve)
+
+
+def case_extended_kalman() -> Case:
+    return _track_case("ExtendedKalmanFilter",
+                       lambda **s: ExtendedKalmanFilter(WhiteAccelerationCV(0.05, 2), **s),
+                       {"gate": 16.0},
+                       {"gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True)})
+
+
+def case_generic_particle() -> Case:
+    return _track_case("ParticleFilter",
+                       lambda **s: ParticleFilter(WhiteAccelerationCV(0.05, 2), **s),
+                       {"n_particles": 200, "seed": 1},
+                       {"n_particles": Field(setting=True, integer=True, neg_ok=False,
+                                             zero_ok=False),
+                        "ess_threshold": Field(setting=True, neg_ok=False)})
+
+
+def case_batch_smoother() -> Case:
+    return _track_case("BatchSmoother",
+                       lambda **s: BatchSmoother(WhiteAccelerationCV(0.05, 2), **s),
+                       {"max_iterations": 30},
+                       {"max_iterations": Field(setting=True, integer=True, neg_ok=False,
+                                                zero_ok=False)})
+
+
+def case_bearing_least_squares() -> Case:
+    """The generic least squares on angles of arrival (a model other than ranges)."""
+    truth = np.array([7.0, 12.0])
+    d = truth - ANCHORS
+    z = np.arctan2(d[:, 1], d[:, 0])
+    return Case("LeastSquares/aoa", {},
+                {"z": z, "points": ANCHORS.copy(), "std": np.full(4, 0.01),
+                 "context_std": np.full(4, 0.01)},
+                {**_generic_fields(False)},
+                lambda s, a: _least_squares(s, a, BearingModel(std_rad=0.01)),
+                truth, 1e-3)
+
+
 CASES: dict[str, Callable[[], Case]] = {
     "Multilateration": case_multilateration, "NetworkRLS": case_network_rls,
     "NetworkEKF": case_network_ekf, "RangeEKF": case_range_ekf,
@@ -342,10 +444,12 @@ CASES: dict[str, Callable[[], Case]] = {
     "ClosedFormTracker": case_closed_form, "NewtonTracker": case_newton,
     "GridFilter": case_grid, "MixtureLocalizer": case_mixture_localizer,
     "MixtureTracker": case_mixture_tracker,
+    "LeastSquares": case_least_squares, "ExtendedKalmanFilter": case_extended_kalman,
+    "ParticleFilter": case_generic_particle, "BatchSmoother": case_batch_smoother,
+    "LeastSquares/aoa": case_bearing_least_squares,
 }
-# the generic estimators (Observation inputs) are not fuzzed here yet
-assert set(CASES) == {c.__name__ for c in ESTIMATORS if not c.tags.generic}, \
-    "a new estimator needs a fuzz case"
+assert {c.__name__ for c in ESTIMATORS} | {c.__name__ for c in GENERIC_ESTIMATORS} \
+    <= {k.split("/")[0] for k in CASES}, "a new estimator needs a fuzz case"
 
 
 # ---- mutations -------------------------------------------------------------------------
@@ -456,8 +560,8 @@ def mutations(draw, case: Case) -> tuple[Case, Mutation]:
     elif kind == "leading_axis":
         new = np.broadcast_to(arr, (3,) + arr.shape).copy()
     elif kind == "drop_axis":
-        if spec.drop_ok and arr.ndim >= 2:
-            new = arr[0]                 # one row for the whole batch: broadcasts, valid
+        if spec.drop_ok and arr.ndim >= 1:
+            new = arr[0]                 # one row (or value) for the whole batch: valid
             invalid = False
         else:
             new = arr[..., 0] if arr.ndim else np.zeros((2, 2, 2))

@@ -105,6 +105,33 @@ def check_shapes(name_a: str, shape_a: tuple[int, ...], name_b: str,
                          f"{tuple(shape_b)}) do not broadcast together") from None
 
 
+def paired_arrays(name_a: str, a: object, name_b: str, b: object
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Two arguments of a model's density as float arrays that broadcast together.
+
+    Parameters
+    ----------
+    name_a, name_b : str
+        Argument names, for the messages.
+    a, b : array_like
+        The arguments as the user passed them.
+
+    Returns
+    -------
+    tuple of ndarray
+        Both as float64 (not broadcast).
+
+    Raises
+    ------
+    InputError
+        A complex, bool, object or text argument, or shapes that do not broadcast, naming
+        the argument(s).
+    """
+    x, y = check_dtype(a, name_a), check_dtype(b, name_b)
+    check_shapes(name_a, x.shape, name_b, y.shape)
+    return x.astype(float, copy=False), y.astype(float, copy=False)
+
+
 def _first_bad_index(mask: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(mask)[0])
 

@@ -50,7 +50,7 @@ from scipy.special import logsumexp
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import MAX_PARTICLES, as_float_array, check_int
+from radioloc.core.validation import MAX_PARTICLES, as_float_array, check_int, check_positive
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.resampling import get_scheme, systematic
@@ -451,9 +451,7 @@ class ParticleFilter(RecursiveEstimator):
             raise ConfigError(f"resample: expected a function (weights, rng) -> indices, got "
                               f"{type(resample).__name__}")
         self.resample = resample
-        if not np.isfinite(ess_threshold) or not 0.0 <= ess_threshold:
-            raise ConfigError(f"ess_threshold: must be a number >= 0, got {ess_threshold!r}")
-        self.ess_threshold = float(ess_threshold)
+        self.ess_threshold = check_positive(ess_threshold, "ess_threshold", allow_zero=True)
         if np.ndim(seed) == 0 and (int(seed) != seed or seed < 0):
             raise ConfigError(f"seed: must be an integer >= 0, got {seed!r}")
         self.seed = seed

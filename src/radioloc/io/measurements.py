@@ -67,6 +67,9 @@ class Measurements:
 
     def __post_init__(self) -> None:
         f = self.frame
+        if not isinstance(f, pd.DataFrame):
+            raise InputError(f"measurements: expected a DataFrame (or Measurements.read / "
+                             f"from_arrays), got {type(f).__name__}")
         missing = [c for c in ("time", "node", "peer", "kind", "value") if c not in f.columns]
         if missing:
             raise InputError(f"measurements: missing column(s) {', '.join(missing)}")

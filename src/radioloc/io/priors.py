@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import InputError
-from radioloc.io.logs import _ids, _numeric, _read_csv, _require_columns
+from radioloc.io.logs import LIMITS, _check_magnitude, _ids, _numeric, _read_csv, _require_columns
 
 PRIOR_COLUMNS = ("node", "x", "y", "var_x", "var_y")
 
@@ -46,7 +46,8 @@ def read_node_priors(path: Path | str) -> pd.DataFrame:
     Raises
     ------
     InputError
-        Missing column, non-numeric or non-finite value, variance <= 0, duplicate node;
+        Missing column, non-numeric or non-finite value, a coordinate or variance beyond
+        :data:`radioloc.io.logs.LIMITS`, variance <= 0, duplicate node;
         the message names the file, line and column.
     """
     frame = _read_csv(path, "priors")
@@ -55,7 +56,10 @@ def read_node_priors(path: Path | str) -> pd.DataFrame:
     for c in PRIOR_COLUMNS[1:]:
         out[c] = _numeric(frame, c, path)
     out["line"] = np.arange(2, len(frame) + 2)
+    for c in ("x", "y"):
+        _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"], "m", path)
     for c in ("var_x", "var_y"):
+        _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"] ** 2, "m^2", path)
         bad = out[c] <= 0
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])

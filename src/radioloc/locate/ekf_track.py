@@ -9,6 +9,13 @@ Measurements are processed as they arrive: the rows of a node that share one tim
 one update, whatever anchors they reach (one anchor at a time is fine); a time with no
 measurement to a known anchor is not a step. Rows whose peer is not an anchor are not used.
 
+Divergence (:func:`divergence`): a track whose innovations stay far outside their band (the
+normalised innovation squared per measurement over windows of ``NIS_WINDOW`` steps, a gated
+row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
+``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span,
+is reported by one warning naming the noise options (a stated noise too small for the log
+makes the filter refuse the measurements and coast on its motion model).
+
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
 
@@ -35,8 +42,11 @@ odometry rows are not steps: the steps stay the times of the measurements to anc
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
@@ -58,6 +68,13 @@ TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTIO
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
+#: Divergence check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
+#: windowed NIS per measurement, fraction of windows beyond it that flags a track.
+NIS_WINDOW = 50
+NIS_FACTOR = 2.0
+NIS_FRACTION = 0.3
+#: Fewest steps of a track that the divergence check judges.
+NIS_MIN_STEPS = 10
 
 
 def motion_model(kind: str, q: float, dim: int):
@@ -441,6 +458,48 @@ def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, sm
     return run_tracker(times, [obs], anchors, dict(s, bias=0.0, odometry_std=None), gate, smooth)
 
 
+def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
+    """Signs that a track has diverged (see the module docstring).
+
+    Parameters
+    ----------
+    track : Track
+        From :func:`run_tracker`, with diagnostics ``nis``, ``measurements_used`` and
+        ``gated`` per step.
+    anchors : ndarray, shape (M, 2|3)
+    gate : float or None
+        The innovation gate (a gated row counts as this NIS; 16 without a gate).
+
+    Returns
+    -------
+    dict or None
+        ``windows_out`` (fraction of windows beyond the band), ``gated`` (fraction of the
+        measurements refused) and ``outside_m`` (largest distance outside the anchors' box),
+        when the track diverged; None otherwise.
+    """
+    d = track.diagnostics
+    nis = np.nan_to_num(np.asarray(d.get("nis", []), dtype=float))
+    used = np.asarray(d.get("measurements_used", np.zeros(nis.size)), dtype=float)
+    refused = np.asarray(d.get("gated", np.zeros(nis.size)), dtype=float)
+    if nis.size < NIS_MIN_STEPS:
+        return None
+    w = np.ones(min(NIS_WINDOW, nis.size))
+    total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
+    n = np.convolve(used + refused, w, "valid")
+    ok = n > 0
+    band = NIS_FACTOR * chi2.ppf(0.999, np.maximum(n, 1))
+    windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
+    xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
+    span = float(np.linalg.norm(hi - lo))
+    outside_m = float(outside.max()) if outside.size else 0.0
+    if windows_out > NIS_FRACTION or (span > 0 and outside_m > span):
+        return {"windows_out": windows_out, "outside_m": outside_m,
+                "gated": float(refused.sum() / max(refused.sum() + used.sum(), 1))}
+    return None
+
+
 def _window(obs: Observation, seg: slice) -> Observation:
     return Observation(obs.model, obs.z[seg], obs.context,
                        None if obs.std is None else obs.std[seg])
@@ -549,7 +608,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             parts.append((node, times, obs, segments(times, s["max_gap_s"])))
     if not parts:
         raise GeometryError("method ekf-track: no measurement to an anchor in the measurements")
-    tables = []
+    tables, diverged = [], []
     with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
         for node, times, obs, segs in parts:
             for n, seg in enumerate(segs):
@@ -563,7 +622,12 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
                     raise GeometryError(f"method ekf-track: node {node!r} from time "
                                         f"{float(times[seg][0])!r}: {exc}") from None
                 tables.append(track_table(node, times[seg], track, restart=n > 0))
+                sign = divergence(track, anchors, gate)
+                if sign is not None:
+                    diverged.append((node, float(times[seg][0]), sign))
                 bar.advance()
+    if diverged:
+        warn_divergence(diverged, len(tables), opts)
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     counts: dict[str, int] = {}
@@ -575,5 +639,27 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         "measurements_gated": int(out["gated"].sum()) if "gated" in out else 0,
         "steps": len(out), "restarts": int(out["restart"].sum()),
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
-        "odometry_std_m": s["odometry_std"]}
+        "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
     return out
+
+
+def warn_divergence(diverged: list, n_tracks: int, noise: dict) -> None:
+    """One warning for the tracks :func:`divergence` flagged.
+
+    Parameters
+    ----------
+    diverged : list of (node, start time, dict)
+    n_tracks : int
+        Tracks run.
+    noise : dict
+        The noise options in force (named as the likely cause).
+    """
+    node, t0, sign = max(diverged, key=lambda d: (d[2]["windows_out"], d[2]["outside_m"]))
+    stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
+    warnings.warn(
+        f"method ekf-track: {len(diverged)} of {n_tracks} track(s) look diverged (worst: node "
+        f"{node!r} from time {t0!r}: innovations above {NIS_FACTOR:g} times their 99.9 % band "
+        f"in {100 * sign['windows_out']:.0f} % of {NIS_WINDOW}-step windows, "
+        f"{100 * sign['gated']:.0f} % of the measurements gated, up to "
+        f"{sign['outside_m']:.3g} m outside the anchors' box); {stated} too small for this "
+        "log?", stacklevel=2)

@@ -21,7 +21,12 @@ import numpy as np
 from scipy.special import log_ndtr
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import LENGTH_LIMIT_M, check_positive, check_probability
+from radioloc.core.validation import (
+    LENGTH_LIMIT_M,
+    check_positive,
+    check_probability,
+    paired_arrays,
+)
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -133,7 +138,8 @@ class LosNlosRange:
         ndarray, shape (..., 2)
             Log-densities under NLOS (index 0) and LOS (index 1).
         """
-        e = np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)
+        m, d = paired_arrays("measured", measured, "true_ranges", true_ranges)
+        e = m - d
         return np.stack([emg_logpdf(e, self.los_std_m, self.nlos_mean_m),
                          gaussian_logpdf(e, self.los_std_m)], axis=-1)
 

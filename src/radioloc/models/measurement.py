@@ -39,6 +39,8 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_real,
+                                      check_shapes, refuse_infinite)
 
 __all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
@@ -293,7 +295,7 @@ class Context:
     height_m: float | None = None
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.points, dtype=float)
+        pts = as_float_array(self.points, "points")
         if pts.ndim < 2:
             raise InputError(f"points: expected shape (..., m, P), got {pts.shape}")
         object.__setattr__(self, "points", pts)
@@ -307,15 +309,17 @@ class Context:
                                      f"{v.dtype} of shape {v.shape}")
                 object.__setattr__(self, name, v)
         if self.reference is not None:
-            ref = np.asarray(self.reference, dtype=float)
+            ref = check_dtype(self.reference, "reference").astype(float)
             if ref.shape[-2:] != pts.shape[-2:]:
                 raise InputError(f"reference: shape {ref.shape} does not match points {pts.shape}")
             object.__setattr__(self, "reference", ref)
+        if self.height_m is not None:
+            object.__setattr__(self, "height_m", check_real(self.height_m, "height_m"))
         if self.std is not None:
-            s = np.asarray(self.std, dtype=float)
-            if s.shape[-1:] != (m,) or np.any(s[np.isfinite(s)] <= 0):
-                raise InputError(f"std: expected {m} positive per-row standard deviations, "
-                                 f"got shape {s.shape}")
+            s = row_std(self.std, "std")
+            if s.shape[-1:] != (m,):
+                raise InputError(f"std: expected {m} per-row standard deviations on the last "
+                                 f"axis, got shape {s.shape}")
             object.__setattr__(self, "std", s)
 
     @property
@@ -532,6 +536,7 @@ class MeasurementModel:
         -------
         ndarray, shape (..., m)
         """
+        z = checked_call(z, state, context, self.reads)
         r = self.residual(z, self.predict(state, context)) - self.noise_mean(context)
         lp = gaussian_logpdf(r, self.std(context))
         return np.where(np.isnan(r), 0.0, lp)
@@ -556,6 +561,72 @@ class MeasurementModel:
         v = np.einsum("...ij,...j->...i", L, rng.standard_normal(z_hat.shape))
         z = z_hat + self.noise_mean(context) + v
         return wrap_angle(z) if self.angular else z
+
+
+def row_std(value, name: str) -> np.ndarray:
+    """Per-row standard deviations as given by a user: real, NaN (the model's) or within
+    ``[POSITIVE_FLOOR, MAGNITUDE_LIMIT]``.
+
+    Parameters
+    ----------
+    value : array_like
+    name : str
+        For the messages.
+
+    Returns
+    -------
+    ndarray
+    """
+    s = refuse_infinite(as_float_array(value, name, allow_nan=True), name)
+    given = s[np.isfinite(s)]
+    if np.any(given < POSITIVE_FLOOR):
+        raise InputError(f"{name}: standard deviations must be at least {POSITIVE_FLOOR:g} "
+                         f"(NaN: the model's), got {float(given.min())!r}")
+    return s
+
+
+def checked_call(z, state, context: Context, reads: tuple[str, ...] = ("position",)
+                 ) -> np.ndarray:
+    """The arguments of a model's ``logpdf`` checked at the boundary: ``z`` real numbers
+    whose shape broadcasts with the rows the state and context predict.
+
+    Parameters
+    ----------
+    z : array_like, shape (..., m)
+    state : mapping
+        Named components of a batch of states, ``position`` (..., P) among them.
+    context : Context
+    reads : tuple of str
+        The components the model reads (:attr:`MeasurementModel.reads`).
+
+    Returns
+    -------
+    ndarray
+        ``z`` as float64.
+
+    Raises
+    ------
+    InputError
+        Naming ``state``, ``z`` or ``context.points``.
+    """
+    if not isinstance(context, Context):
+        raise InputError(f"context: expected a Context, got {type(context).__name__}")
+    if not isinstance(state, Mapping) or "position" not in state:
+        raise InputError("state: expected a mapping of named components with 'position' "
+                         f"(StateLayout.split), got {type(state).__name__}")
+    missing = [k for k in reads if k not in state]
+    if missing:
+        raise InputError(f"state: the model reads {', '.join(missing)}, absent from the "
+                         f"state's components {sorted(state)}")
+    pos = np.shape(state["position"])
+    dim = context.points.shape[-1]
+    if not pos or pos[-1] not in (dim, 2 if context.height_m is not None else dim):
+        raise InputError(f"state['position']: last axis {pos[-1:] or 'missing'} does not match "
+                         f"the {dim}-D context.points")
+    zz = check_dtype(z, "z").astype(float, copy=False)
+    check_shapes("z", zz.shape, "the rows predicted from state and context",
+                 pos[:-1] + (context.rows,))
+    return zz
 
 
 @dataclass(frozen=True)
@@ -583,16 +654,15 @@ class Observation:
     def __post_init__(self) -> None:
         if not isinstance(self.model, MeasurementModel):
             raise InputError(f"model: expected a MeasurementModel, got {type(self.model).__name__}")
-        z = np.asarray(self.z)
-        if z.dtype.kind not in "fiu":
-            raise InputError(f"z: expected real numbers, got dtype {z.dtype}")
-        z = z.astype(float)
+        z = as_float_array(self.z, "z", allow_nan=True)
         if z.shape[-1:] != (self.context.rows,):
             raise InputError(f"z: last axis has {z.shape[-1:] or 'no'} rows but the context has "
                              f"{self.context.rows}")
         object.__setattr__(self, "z", z)
         if self.std is not None:
-            s = np.asarray(self.std, dtype=float)
+            s = row_std(self.std, "std")
+            if check_shapes("std", s.shape, "z", z.shape) != z.shape:
+                raise InputError(f"std: shape {s.shape} does not broadcast to z's {z.shape}")
             object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
 
     @property

@@ -13,8 +13,8 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import check_positive
-from radioloc.models.measurement import Context, MeasurementModel
+from radioloc.core.validation import check_positive, paired_arrays
+from radioloc.models.measurement import Context, MeasurementModel, checked_call
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -49,8 +49,8 @@ def range_geometry(position: np.ndarray, anchors: np.ndarray, height_m: float | 
     D = x.shape[-1]
     if height_m is None:
         if a.shape[-1] != D:
-            raise InputError(f"anchors: {a.shape[-1]} coordinates but positions have {D} "
-                             "(give height_m for 2-D positions with 3-D anchors)")
+            raise InputError(f"anchors (context.points): {a.shape[-1]} coordinates but "
+                             f"positions have {D} (give height_m for 2-D positions with 3-D anchors)")
         diff = x[..., None, :] - a
         dist = np.sqrt(np.sum(diff**2, axis=-1))
     else:
@@ -122,7 +122,8 @@ class GaussianRange:
         -------
         ndarray
         """
-        z = (np.asarray(measured, dtype=float) - np.asarray(true_ranges, dtype=float)) / self.std_m
+        m, d = paired_arrays("measured", measured, "true_ranges", true_ranges)
+        z = (m - d) / self.std_m
         return -0.5 * z**2 - np.log(self.std_m) - 0.5 * _LOG_2PI
 
 
@@ -229,6 +230,7 @@ class RangeModel(MeasurementModel):
         return float(self.noise.moments()[0])
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
+        z = checked_call(z, state, context, self.reads)
         z_hat = self.predict(state, context)
         if context.std is not None or isinstance(self.noise, GaussianRange):
             return super().logpdf(z, state, context)

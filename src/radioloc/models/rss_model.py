@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.models.measurement import Context, MeasurementModel
+from radioloc.models.measurement import Context, MeasurementModel, checked_call
 from radioloc.models.ranging import range_geometry
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
 from radioloc.models.rssi_trapezoid import TrapezoidModel
@@ -126,7 +126,7 @@ class TrapezoidRssModel(MeasurementModel):
         -------
         ndarray, shape (..., m)
         """
-        z = np.asarray(z, dtype=float)
+        z = checked_call(z, state, context, self.reads)
         miss = np.isnan(z)
         d, _ = range_geometry(state["position"], context.points, context.height_m)
         rssi = np.where(miss, 0.0, z)

@@ -21,7 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import as_float_array, check_positive, check_real
+from radioloc.core.validation import (
+    as_float_array,
+    check_positive,
+    check_real,
+    check_shapes,
+)
 
 
 @dataclass(frozen=True)
@@ -138,6 +143,7 @@ class LogDistanceGaussian:
         """
         d = as_float_array(dist, "dist", nonnegative=True)
         r = as_float_array(rssi, "rssi")
+        check_shapes("dist", d.shape, "rssi", r.shape)
         return np.exp(-0.5 * ((r - self.mean(d)) / self.s) ** 2)
 
     def logpdf(self, rssi, dist) -> np.ndarray:
@@ -154,8 +160,10 @@ class LogDistanceGaussian:
         -------
         ndarray
         """
-        z = (as_float_array(rssi, "rssi") - self.mean(as_float_array(dist, "dist",
-                                                                     nonnegative=True))) / self.s
+        r = as_float_array(rssi, "rssi")
+        d = as_float_array(dist, "dist", nonnegative=True)
+        check_shapes("rssi", r.shape, "dist", d.shape)
+        z = (r - self.mean(d)) / self.s
         return -0.5 * z * z - np.log(self.s) - 0.5 * np.log(2.0 * np.pi)
 
     def sample(self, dist, rng: np.random.Generator) -> np.ndarray:

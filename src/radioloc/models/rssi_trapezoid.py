@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import as_float_array, check_positive, check_shapes
 from radioloc.models.rssi_logdistance import device_offset as _device_offset
 
 RSSI_LEVELS = 101
@@ -147,6 +147,7 @@ class TrapezoidModel:
         """
         d = as_float_array(dist, "dist", nonnegative=True)
         i = as_rssi(rssi)
+        check_shapes("dist", d.shape, "rssi", np.shape(i))
         return trapezoid(d, self.mu[i], self.tau[i], self.sigma[i])
 
     def density(self, dist, rssi) -> np.ndarray:

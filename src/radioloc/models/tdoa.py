@@ -52,7 +52,12 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
-from radioloc.models.measurement import Context, MeasurementModel, gaussian_logpdf
+from radioloc.models.measurement import (
+    Context,
+    MeasurementModel,
+    checked_call,
+    gaussian_logpdf,
+)
 from radioloc.models.ranging import range_geometry
 
 __all__ = ["TdoaModel", "shared_reference"]
@@ -215,6 +220,7 @@ class TdoaModel(MeasurementModel):
         -------
         ndarray, shape (..., m)
         """
+        z = checked_call(z, state, context, self.reads)
         r = self.residual(z, self.predict(state, context))
         R = self.noise_cov(context)
         miss = np.isnan(r)
