@@ -619,8 +619,10 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
               for b, (node, times, _, restart) in enumerate(tracks)]
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
-    counts = {k: int(np.isfinite(o.z).sum()) for _, _, obs, _ in parts for o in obs
-              for k in [o.model.kind]}
+    counts: dict[str, int] = {}
+    for _, _, obs, _ in parts:
+        for o in obs:
+            counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
     out.attrs["summary"] = {
         "nodes": len(parts), "ranges": counts.get("range", 0), "measurements": counts,
         "measurements_gated": int(out["gated"].sum()) if "gated" in out else 0,
