@@ -60,12 +60,15 @@ def main(sizes: tuple[int, int] = (1_000_000, 100_000), startup: bool = True,
         small = tmp / "log40"
         write_long_log(40, small, tags=2, anchors=4)
         first, _ = cpu_of_command(_locate(small, "ekf-track", tmp / "a.csv"), env)
-        warm, mem = cpu_of_command(_locate(small, "ekf-track", tmp / "b.csv"), env)
-        print(f"locate start-up (40 rows): {first:.2f} s CPU first run, {warm:.2f} s after")
-        rows.append(_row("radioloc locate start-up, 40-row log (after the first run)", warm,
-                         f"first run {first:.2f} s CPU (fills the bytecode cache); "
-                         f"peak memory of the commands so far {mem:.0f} MB"))
+        if startup:
+            warm, mem = cpu_of_command(_locate(small, "ekf-track", tmp / "b.csv"), env)
+            print(f"locate start-up (40 rows): {first:.2f} s CPU first run, {warm:.2f} s after")
+            rows.append(_row("radioloc locate start-up, 40-row log (after the first run)", warm,
+                             f"first run {first:.2f} s CPU (fills the bytecode cache); "
+                             f"peak memory of the commands so far {mem:.0f} MB"))
         for method, n in (("ekf-track", sizes[0]), ("pf", sizes[1])):
+            if method not in methods:
+                continue
             folder = tmp / f"log{n}"
             write_long_log(n, folder)
             cpu, mem = cpu_of_command(_locate(folder, method, tmp / f"{method}.csv"), env)
