@@ -23,38 +23,60 @@ The cores they share are here too: :func:`kalman_predict` / :func:`kalman_update
 nonlinear least-squares driver).
 """
 
-from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
-from radioloc.estimators.batch_smoother import BatchSmoother
-from radioloc.estimators.closed_form import ClosedFormTracker
-from radioloc.estimators.ekf import NetworkEKF
-from radioloc.estimators.ekf_tracker import RangeEKF
-from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
-from radioloc.estimators.grid import GridFilter, GridGeometry
-from radioloc.estimators.kalman import GaussianState, kalman_predict, kalman_update, rts_smooth
-from radioloc.estimators.least_squares import LeastSquares
-from radioloc.estimators.los_nlos_em import fit_los_nlos
-from radioloc.estimators.mixture_localization import (
-    MixtureLocalizer,
-    MixtureTracker,
-    posterior_mixture,
-)
-from radioloc.estimators.multilateration import Multilateration
-from radioloc.estimators.nlls import NLLSResult, solve_nlls
-from radioloc.estimators.nlls_newton import NewtonTracker
-from radioloc.estimators.p2p_particle import OnlineEM, P2PParticleFilter
-from radioloc.estimators.particle_filter import ParticleFilter
-from radioloc.estimators.pf_smoother import backward_simulation
-from radioloc.estimators.rls import NetworkRLS
-from radioloc.estimators.snapshot_baselines import LocalML, Ransac
+from radioloc.core.lazy import lazy_exports
+
+#: public name -> the submodule defining it (imported on first access)
+_WHERE = {
+    "RecursiveEstimator": "base",
+    "SnapshotEstimator": "base",
+    "BatchSmoother": "batch_smoother",
+    "ClosedFormTracker": "closed_form",
+    "NetworkEKF": "ekf",
+    "RangeEKF": "ekf_tracker",
+    "ExtendedKalmanFilter": "extended_kalman",
+    "GridFilter": "grid",
+    "GridGeometry": "grid",
+    "GaussianState": "kalman",
+    "kalman_predict": "kalman",
+    "kalman_update": "kalman",
+    "rts_smooth": "kalman",
+    "LeastSquares": "least_squares",
+    "fit_los_nlos": "los_nlos_em",
+    "MixtureLocalizer": "mixture_localization",
+    "MixtureTracker": "mixture_localization",
+    "posterior_mixture": "mixture_localization",
+    "Multilateration": "multilateration",
+    "NLLSResult": "nlls",
+    "solve_nlls": "nlls",
+    "NewtonTracker": "nlls_newton",
+    "OnlineEM": "p2p_particle",
+    "P2PParticleFilter": "p2p_particle",
+    "ParticleFilter": "particle_filter",
+    "backward_simulation": "pf_smoother",
+    "NetworkRLS": "rls",
+    "LocalML": "snapshot_baselines",
+    "Ransac": "snapshot_baselines",
+}
+_getattr, __dir__ = lazy_exports(__name__, _WHERE)
 
 #: the estimators over any measurement model (``tags.generic``; ``Observation`` inputs)
-GENERIC_ESTIMATORS = (ExtendedKalmanFilter, ParticleFilter, LeastSquares, BatchSmoother)
+_GENERIC = ("ExtendedKalmanFilter", "ParticleFilter", "LeastSquares", "BatchSmoother")
 
 #: every estimator class of the toolkit (the contract tests run each: the paper
 #: estimators on their own arrays, the generic ones on every model their tags accept)
-ESTIMATORS = (Multilateration, NetworkRLS, NetworkEKF, RangeEKF, P2PParticleFilter, LocalML,
-              Ransac, ClosedFormTracker, NewtonTracker, GridFilter, MixtureLocalizer,
-              MixtureTracker) + GENERIC_ESTIMATORS
+_ALL = ("Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter",
+        "LocalML", "Ransac", "ClosedFormTracker", "NewtonTracker", "GridFilter",
+        "MixtureLocalizer", "MixtureTracker") + _GENERIC
+
+
+def __getattr__(name: str) -> object:
+    """``GENERIC_ESTIMATORS`` and ``ESTIMATORS`` (tuples of classes), or a lazy export."""
+    if name == "GENERIC_ESTIMATORS":
+        return tuple(_getattr(n) for n in _GENERIC)
+    if name == "ESTIMATORS":
+        return tuple(_getattr(n) for n in _ALL)
+    return _getattr(name)
+
 
 __all__ = [
     "Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleFilter", "LocalML",

@@ -383,26 +383,36 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             rows.append((o.model, o.z, ctx, f"observations[{i}]"))
         return self._update(state, rows, ungated)
 
-    def _update(self, state: FilterState, rows, ungated) -> tuple[FilterState, dict]:
+    def _update(self, state: FilterState, rows, ungated, checked: bool = False
+                ) -> tuple[FilterState, dict]:
+        """Update with ``rows`` (model, z, context, name); ``checked``: the models and the
+        values were checked by the caller (:meth:`run` does so once for all steps)."""
         layout = self._layout_of(state)
-        for model, _, _, name in rows:
+        if not checked:
+            self._check_models(layout, [r[0] for r in rows], [r[3] for r in rows])
+        mean, cov = state.mean, state.covariance
+        infos = []
+        for model, z, ctx, name in rows:
+            mean, cov, info = self._update_one(mean, cov, layout, model, z, ctx, ungated, name,
+                                               checked)
+            infos.append(info)
+        info = infos[0] if len(infos) == 1 else _combine(infos)
+        return FilterState(check_finite_output(mean, "EKF state"), cov, state.time, layout), info
+
+    def _check_models(self, layout: StateLayout, models, names) -> None:
+        """Refuse a model the filter cannot take or the layout does not hold."""
+        for model, name in zip(models, names):
             self.tags.require(model, f"{name}.model", type(self).__name__)
             try:
                 layout.check(model)
             except InputError as exc:
                 raise InputError(f"{name}.model: {exc}") from None
-        mean, cov = state.mean, state.covariance
-        infos = []
-        for model, z, ctx, name in rows:
-            mean, cov, info = self._update_one(mean, cov, layout, model, z, ctx, ungated, name)
-            infos.append(info)
-        info = infos[0] if len(infos) == 1 else _combine(infos)
-        return FilterState(check_finite_output(mean, "EKF state"), cov, state.time, layout), info
 
     def _update_one(self, mean, cov, layout: StateLayout, model: MeasurementModel, z, ctx: Context,
-                    ungated, name: str):
+                    ungated, name: str, checked: bool = False):
         """One kind's rows: gate, (iterated) Kalman update, diagnostics."""
-        z = refuse_infinite(np.asarray(z, dtype=float), f"{name}.z") - model.noise_mean(ctx)
+        z = np.asarray(z, dtype=float)
+        z = (z if checked else refuse_infinite(z, f"{name}.z")) - model.noise_mean(ctx)
         z_hat, H = layout.measure(model, mean, ctx)
         nu = model.residual(z, z_hat)
         R = model.noise_cov(ctx)
@@ -525,14 +535,24 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                             state.time, layout)
         steps, infos = [], []
         streak = np.zeros(batch, dtype=np.int64)     # steps in a row with every row gated
+        self._check_models(layout, [o.model for o in obs],
+                           [f"observations[{i}]" for i in range(len(obs))])
+        chunk = TRANSITION_CHUNK
         for k in range(T):
-            pred = self.predict(state, dts[..., k], None if u is None else u[..., k, :])
+            if u is not None:
+                pred = self.predict(state, dts[..., k], u[..., k, :])
+            else:
+                if k % chunk == 0:   # F and Q of the next steps in one call
+                    Fs, Qs = self.transition(layout, dts[..., k:k + chunk])
+                x, P = kalman_predict(state.mean, state.covariance, Fs[..., k % chunk, :, :],
+                                      Qs[..., k % chunk, :, :])
+                pred = FilterState(x, P, state.time + dts[..., k], layout)
             rows, heard = [], 0
             for i, o in enumerate(obs):
                 z, ctx = o.at(k)
                 rows.append((o.model, z, ctx, f"observations[{i}]"))
                 heard = heard + np.isfinite(z).sum(axis=-1)
-            state, info = self._update(pred, rows, streak >= self.gate_patience)
+            state, info = self._update(pred, rows, streak >= self.gate_patience, checked=True)
             streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
                               np.where(heard > 0, 0, streak))
             steps.append((pred, state))
@@ -564,6 +584,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                              f"{layout.size}")
         return layout
 
+
+#: steps whose transitions :meth:`ExtendedKalmanFilter.run` computes in one call
+TRANSITION_CHUNK = 256
 
 #: per-step diagnostics of an update and their axes after the batch axes
 _INFO_AXES = {"innovation": 1, "innovation_covariance": 2, "nis": 0, "measurements_used": 0,

@@ -187,12 +187,13 @@ class Measurements:
         sel = self.frame[self.frame["mask"] & (self.frame["node"] == node)
                          & (self.frame["kind"] == kind)]
         t = self.times(node) if times is None else np.asarray(times, dtype=float)
-        if slots is None:
-            slots = sorted(set(zip(sel["peer"], sel["reference"])))
-        index = {s: k for k, s in enumerate(slots)}
         g = sel.groupby(["time", "peer", "reference"], sort=False, as_index=False).agg(
             value=("value", "mean"), std=("std", "mean"))
-        slot = np.array([index.get(s, -1) for s in zip(g["peer"], g["reference"])], dtype=int)
+        keys = pd.MultiIndex.from_arrays([g["peer"].astype(object), g["reference"].astype(object)])
+        if slots is None:
+            slots = sorted(keys.unique())
+        slot = (pd.MultiIndex.from_tuples(slots, names=keys.names).get_indexer(keys)
+                if slots else np.full(len(g), -1)).astype(int)
         if np.any(slot < 0):
             k = int(np.flatnonzero(slot < 0)[0])
             raise InputError(f"measurements: node {node!r}, kind {kind!r}: peer "

@@ -354,6 +354,20 @@ def _check_output(name: str, out: pd.DataFrame) -> None:
                            f"at time {out['time'].iloc[i]!r}")
 
 
+def method(name: str) -> LocateMethod | None:
+    """The method ``name``, importing only its module when the module is named after it
+    (``ekf-track``: ``ekf_track``); else every method's (:func:`methods`). None if unknown."""
+    import importlib
+
+    if name not in _METHODS and name.replace("-", "_").isidentifier():
+        try:
+            importlib.import_module(f"radioloc.locate.{name.replace('-', '_')}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"radioloc.locate.{name.replace('-', '_')}":
+                raise
+    return _METHODS.get(name) or methods().get(name)
+
+
 def methods() -> dict[str, LocateMethod]:
     """All registered methods by name."""
     import importlib
@@ -451,14 +465,14 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     RuntimeError
         The method returned no position columns or a non-finite value (a method bug).
     """
-    known = methods()
-    if name not in known:
-        raise ConfigError(f"unknown method {name!r}; known: {', '.join(known)}")
+    chosen = method(name)
+    if chosen is None:
+        raise ConfigError(f"unknown method {name!r}; known: {', '.join(methods())}")
     skip = _plausibility_skip(request)
-    check_request(known[name], request)
+    check_request(chosen, request)
     request.parsed["no_check"] = skip
-    check_plausible(known[name], request, skip)
-    out = known[name].fn(request)
+    check_plausible(chosen, request, skip)
+    out = chosen.fn(request)
     _check_output(name, out)
     summary = dict(out.attrs.get("summary", {}))
     out = order_rows(out, list(dict.fromkeys(request.measurements["node"])))

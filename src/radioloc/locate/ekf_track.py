@@ -383,6 +383,79 @@ def tracker_motion(s: dict):
     return motion_model(s["motion"], s["q"], s["dim"])
 
 
+def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias: bool = False,
+                   bias_prior_std_m: float = 3.0, clock: bool = False) -> ExtendedKalmanFilter:
+    """The generic :class:`ExtendedKalmanFilter` the trackers run (motion model of ``s``).
+
+    Parameters
+    ----------
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`tracker_settings`.
+    gate : float or None
+    anchor_bias : bool
+        A range bias per anchor in the state.
+    bias_prior_std_m : float
+    clock : bool
+        The receiver's clock offset and drift in the state (pseudoranges).
+
+    Returns
+    -------
+    ExtendedKalmanFilter
+    """
+    dim = s["dim"]
+    motion = tracker_motion(s)
+    return ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
+                                layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
+                                                   clock=2 if clock else 0,
+                                                   n_bias=len(anchors) if anchor_bias else 0),
+                                clock_offset_std_m_per_sqrt_s=s["clock_offset_q"],
+                                clock_drift_std_m_per_s_per_sqrt_s=s["clock_drift_q"])
+
+
+def reads_clock(observations: list) -> bool:
+    """Whether a model of ``observations`` reads the receiver clock offset."""
+    return any("clock_offset" in o.model.reads for o in observations)
+
+
+def track_prior(ekf: ExtendedKalmanFilter, times: np.ndarray, observations: list,
+                anchors: np.ndarray, s: dict, anchor_bias: bool = False
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Prior mean and variances of one track (see the module docstring for the start).
+
+    Parameters
+    ----------
+    ekf : ExtendedKalmanFilter
+        From :func:`tracker_filter`.
+    times : ndarray, shape (T,)
+    observations : list of Observation
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`tracker_settings`.
+    anchor_bias : bool
+
+    Returns
+    -------
+    mean, var : ndarray, shape (n,)
+        Over the filter's state layout for ``observations``.
+    """
+    dim = s["dim"]
+    pos, offset = start_state(times, observations, anchors, s, anchor_bias)
+    layout = ekf.state_layout(observations)
+    mean = np.zeros(layout.size)
+    var = np.full(layout.size, PRIOR_SPEED_STD ** 2)
+    mean[:dim] = pos
+    var[:dim] = s["prior_std"] ** 2
+    extra = slice(layout.motion_size, layout.size)
+    var[extra] = ekf.init(np.zeros(layout.motion_size), np.eye(layout.motion_size),
+                          observations=observations).covariance.diagonal()[extra]
+    if "anchor_bias" in layout.slices:
+        mean[layout.slices["anchor_bias"]] = offset
+    elif "clock_offset" in layout.slices:          # a pseudorange receiver's clock
+        mean[layout.slices["clock_offset"]] = offset
+    return mean, var
+
+
 def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
                 gate: float | None, smooth: bool, anchor_bias: bool = False,
                 bias_prior_std_m: float = 3.0, controls: np.ndarray | None = None):
@@ -409,30 +482,76 @@ def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
     -------
     Track
     """
-    dim = s["dim"]
-    pos, offset = start_state(times, observations, anchors, s, anchor_bias)
-    motion = tracker_motion(s)
-    clock = 2 if any("clock_offset" in o.model.reads for o in observations) else 0
-    ekf = ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
-                               layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
-                                                  clock=clock,
-                                                  n_bias=len(anchors) if anchor_bias else 0),
-                               clock_offset_std_m_per_sqrt_s=s["clock_offset_q"],
-                               clock_drift_std_m_per_s_per_sqrt_s=s["clock_drift_q"])
-    layout = ekf.state_layout(observations)
-    mean = np.zeros(layout.size)
-    var = np.full(layout.size, PRIOR_SPEED_STD ** 2)
-    mean[:dim] = pos
-    var[:dim] = s["prior_std"] ** 2
-    extra = slice(layout.motion_size, layout.size)
-    var[extra] = ekf.init(np.zeros(layout.motion_size), np.eye(layout.motion_size),
-                          observations=observations).covariance.diagonal()[extra]
-    if "anchor_bias" in layout.slices:
-        mean[layout.slices["anchor_bias"]] = offset
-    elif "clock_offset" in layout.slices:          # a pseudorange receiver's clock
-        mean[layout.slices["clock_offset"]] = offset
+    ekf = tracker_filter(anchors, s, gate, anchor_bias, bias_prior_std_m, reads_clock(observations))
+    mean, var = track_prior(ekf, times, observations, anchors, s, anchor_bias)
     return ekf.run(observations, times, prior_mean=mean, prior_cov=np.diag(var),
                    controls=controls, smooth=smooth)
+
+
+def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
+                 ) -> tuple[np.ndarray, list[Observation]]:
+    """Tracks as one batch for :meth:`ExtendedKalmanFilter.run`, aligned by step index.
+
+    Each track keeps its own times (the batch's time array is ``(B, T)``); a shorter track
+    is padded at its end with its last time (a step of zero length) and absent rows, which
+    leave its state unchanged. The rows of each kind are the union of the tracks' slots
+    (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
+    the update skips. Rows of a step are independent, so each track's result equals its
+    own run.
+
+    Parameters
+    ----------
+    times : list of ndarray, shape (T_b,)
+    observations : list of list of Observation
+        Per track, ``z`` of shape ``(T_b, S)``; the same model for a kind in every track.
+
+    Returns
+    -------
+    times : ndarray, shape (B, T)
+        ``T = max T_b``.
+    observations : list of Observation
+        One per kind, ``z`` and ``std`` of shape ``(B, T, S)``.
+    """
+    B, T = len(times), max(t.size for t in times)
+    t = np.empty((B, T))
+    for b, tb in enumerate(times):
+        t[b, :tb.size], t[b, tb.size:] = tb, tb[-1]
+    kinds: dict[str, list] = {}
+    for b, obs in enumerate(observations):
+        for o in obs:
+            kinds.setdefault(o.model.kind, []).append((b, o))
+    out = []
+    for members in kinds.values():
+        slots: dict[tuple[int, int], int] = {}
+        for _, o in members:
+            ctx = o.context
+            ref = (ctx.reference_index if ctx.reference_index is not None
+                   else np.full(ctx.rows, -1))
+            for key in zip(ctx.index.tolist(), ref.tolist()):
+                slots.setdefault(key, len(slots))
+        z = np.full((B, T, len(slots)), np.nan)
+        std = np.full_like(z, np.nan) if any(o.std is not None for _, o in members) else None
+        points = np.empty((len(slots),) + members[0][1].context.points.shape[-1:])
+        reference = None if members[0][1].context.reference is None else np.empty_like(points)
+        for b, o in members:
+            ctx = o.context
+            ref = (ctx.reference_index if ctx.reference_index is not None
+                   else np.full(ctx.rows, -1))
+            cols = np.array([slots[k] for k in zip(ctx.index.tolist(), ref.tolist())], dtype=int)
+            z[b, :o.steps, cols] = o.z.T
+            if o.std is not None:
+                std[b, :o.steps, cols] = o.std.T
+            points[cols] = ctx.points
+            if reference is not None:
+                reference[cols] = ctx.reference
+        first = members[0][1].context
+        keys = np.array(list(slots), dtype=int).reshape(-1, 2)
+        ctx = Context(points=points, index=keys[:, 0],
+                      reference=reference,
+                      reference_index=None if first.reference_index is None else keys[:, 1],
+                      height_m=first.height_m)
+        out.append(Observation(members[0][1].model, z, ctx, std))
+    return t, out
 
 
 def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, smooth: bool):
@@ -608,24 +727,41 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             parts.append((node, times, obs, segments(times, s["max_gap_s"])))
     if not parts:
         raise GeometryError("method ekf-track: no measurement to an anchor in the measurements")
+    tracks = []   # (node, times, observations, restart, controls) of every track
+    for node, times, obs, segs in parts:
+        for n, seg in enumerate(segs):
+            controls = (None if s["odometry_std"] is None else
+                        odometry_controls(meas, node, times[seg], s["dim"]))
+            tracks.append((node, times[seg], [_window(o, seg) for o in obs], n > 0, controls))
+    ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
+                         any(reads_clock(tr[2]) for tr in tracks))
+    means, variances = [], []
+    for node, times, obs, _, _ in tracks:
+        try:
+            mean, var = track_prior(ekf, times, obs, anchors, s, anchor_bias)
+        except GeometryError as exc:
+            raise GeometryError(f"method ekf-track: node {node!r} from time "
+                                f"{float(times[0])!r}: {exc}") from None
+        means.append(mean)
+        variances.append(var)
+    t, batch = stack_tracks([tr[1] for tr in tracks], [tr[2] for tr in tracks])
+    controls = None
+    if s["odometry_std"] is not None:   # padded steps have zero length and no displacement
+        controls = np.zeros(t.shape + (s["dim"],))
+        for b, tr in enumerate(tracks):
+            controls[b, : tr[1].size] = tr[4]
+    with progress(1, "ekf-track: tracks") as bar:
+        track = ekf.run(batch, t, prior_mean=np.stack(means),
+                        prior_cov=np.stack([np.diag(v) for v in variances]), controls=controls,
+                        smooth=s["smooth"])
+        bar.advance()
     tables, diverged = [], []
-    with progress(sum(len(p[3]) for p in parts), "ekf-track: tracks") as bar:
-        for node, times, obs, segs in parts:
-            for n, seg in enumerate(segs):
-                controls = (None if s["odometry_std"] is None else
-                            odometry_controls(meas, node, times[seg], s["dim"]))
-                try:
-                    track = run_tracker(times[seg], [_window(o, seg) for o in obs], anchors, s,
-                                        gate, s["smooth"], anchor_bias,
-                                        request.option("bias_prior_std_m", 3.0), controls)
-                except GeometryError as exc:
-                    raise GeometryError(f"method ekf-track: node {node!r} from time "
-                                        f"{float(times[seg][0])!r}: {exc}") from None
-                tables.append(track_table(node, times[seg], track, restart=n > 0))
-                sign = divergence(track, anchors, gate)
-                if sign is not None:
-                    diverged.append((node, float(times[seg][0]), sign))
-                bar.advance()
+    for b, (node, times, _, restart, _) in enumerate(tracks):
+        one = track[b, :times.size]
+        tables.append(track_table(node, times, one, restart=restart))
+        sign = divergence(one, anchors, gate)
+        if sign is not None:
+            diverged.append((node, float(times[0]), sign))
     if diverged:
         warn_divergence(diverged, len(tables), opts)
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")

@@ -2,31 +2,55 @@
 Kalman filter needs: ``F(dt)``/``Q(dt)`` for motion, ``moments()`` and
 :func:`range_geometry` for ranges) that any estimator they fit takes as arguments."""
 
-from radioloc.models.los_nlos import LosNlosRange, StickyLinkChain
-from radioloc.models.fingerprint_mixture import FingerprintMixture, zone_posterior
-from radioloc.models.mixture import (REDUCTIONS, DiagMixture, linear_predict, merge_groups, outer,
-                                     product, product_on, reduce)
-from radioloc.models.mixture_calibration import em_calibration, progressive_calibration
-from radioloc.models.motion import (
-    BoundedSpeedCV,
-    ConstantAcceleration,
-    ConstantVelocity,
-    InputDriven,
-    RandomWalk,
-    UniformDisk,
-    WhiteAccelerationCV,
-)
-from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
-from radioloc.models.ranging import GaussianRange, RangeModel, range_geometry
-from radioloc.models.bearing import BearingModel
-from radioloc.models.clock import ClockModel
-from radioloc.models.pseudorange import PseudorangeModel
-from radioloc.models.rss_model import RssModel, TrapezoidRssModel
-from radioloc.models.tdoa import TdoaModel
-from radioloc.models.progressive_bayes import ProgressionInfo, isd, progressive_reduce
-from radioloc.models.rssi_logdistance import LogDistanceGaussian, device_offset
-from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100, fit_trapezoid_model
-from radioloc.models.single_sensor import SquaredRangeModel
+from radioloc.core.lazy import lazy_exports
+
+#: public name -> the submodule defining it (imported on first access)
+_WHERE = {
+    "LosNlosRange": "los_nlos",
+    "StickyLinkChain": "los_nlos",
+    "FingerprintMixture": "fingerprint_mixture",
+    "zone_posterior": "fingerprint_mixture",
+    "REDUCTIONS": "mixture",
+    "DiagMixture": "mixture",
+    "linear_predict": "mixture",
+    "merge_groups": "mixture",
+    "outer": "mixture",
+    "product": "mixture",
+    "product_on": "mixture",
+    "reduce": "mixture",
+    "em_calibration": "mixture_calibration",
+    "progressive_calibration": "mixture_calibration",
+    "BoundedSpeedCV": "motion",
+    "ConstantAcceleration": "motion",
+    "ConstantVelocity": "motion",
+    "InputDriven": "motion",
+    "RandomWalk": "motion",
+    "UniformDisk": "motion",
+    "WhiteAccelerationCV": "motion",
+    "Context": "measurement",
+    "MeasurementModel": "measurement",
+    "Observation": "measurement",
+    "StateLayout": "measurement",
+    "GaussianRange": "ranging",
+    "RangeModel": "ranging",
+    "range_geometry": "ranging",
+    "BearingModel": "bearing",
+    "ClockModel": "clock",
+    "PseudorangeModel": "pseudorange",
+    "RssModel": "rss_model",
+    "TrapezoidRssModel": "rss_model",
+    "TdoaModel": "tdoa",
+    "ProgressionInfo": "progressive_bayes",
+    "isd": "progressive_bayes",
+    "progressive_reduce": "progressive_bayes",
+    "LogDistanceGaussian": "rssi_logdistance",
+    "device_offset": "rssi_logdistance",
+    "TrapezoidModel": "rssi_trapezoid",
+    "dbm_to_rssi100": "rssi_trapezoid",
+    "fit_trapezoid_model": "rssi_trapezoid",
+    "SquaredRangeModel": "single_sensor",
+}
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE)
 
 __all__ = [
     "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "InputDriven", "UniformDisk",
