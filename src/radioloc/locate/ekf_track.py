@@ -409,8 +409,8 @@ def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias
                                 layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
                                                    clock=2 if clock else 0,
                                                    n_bias=len(anchors) if anchor_bias else 0),
-                                clock_offset_std_m_per_sqrt_s=s["clock_offset_q"],
-                                clock_drift_std_m_per_s_per_sqrt_s=s["clock_drift_q"])
+                                clock_offset_std_m_per_sqrt_s=s.get("clock_offset_q", 1.0),
+                                clock_drift_std_m_per_s_per_sqrt_s=s.get("clock_drift_q", 1.0))
 
 
 def reads_clock(observations: list) -> bool:
