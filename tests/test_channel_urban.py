@@ -20,11 +20,15 @@ def test_urban_experiment_smoke(tmp_path):
     assert np.isnan(r.first_path_m[off][~heard]).all() and np.isnan(r.sic_m[:, off][:, ~heard]).all()
     df = exp.run_block(cfg, np.arange(4), block_generator(0, 0))
     runs = df[df["table"] == "runs"]
-    assert set(runs["estimator"]) == {"rls", "ekf"} and runs["step"].max() == cfg.rounds
+    # the paper's estimators, and the same two on the controls' ranges (unbiased, first path)
+    assert {"rls", "ekf"} <= set(runs["estimator"]) and runs["step"].max() == cfg.rounds
+    assert set(runs["estimator"]) <= {f"{e}{c}" for e in ("rls", "ekf")
+                                      for c in ("", "_unbiased", "_first_path")}
     assert np.isfinite(runs[runs["estimator"] == "ekf"]["error_m"]).all()
     assert set(runs["scenario"]) == {0, 1}                           # run r uses placement r % 2
     final = df[df["table"] == "final"]
-    assert len(final) == 2 * 4 * 6 and np.isfinite(final[final["estimator"] == "ekf"]["error_m"]).all()
+    ests = set(runs["estimator"])
+    assert len(final) == len(ests) * 4 * 6 and np.isfinite(final[final["estimator"] == "ekf"]["error_m"]).all()
     # the scenario rows are the simulated network's
     nodes = df[(df["table"] == "nodes") & (df["scenario"] == 0)].sort_values("node")
     np.testing.assert_allclose(nodes[["x", "y"]].to_numpy(float), pos)

@@ -159,6 +159,11 @@ def test_gn_refuses_the_asynchronous_rows_naming_node_and_time(tmp_path):
     folder = _write(*measurement_rows(load_dynamic(RUN)), tmp_path)
     res = runner.invoke(app, ["locate", str(folder / "measurements.csv"), "--anchors",
                               str(folder / "anchors.csv"), "--method", "gn"])
+    assert res.exit_code != 0          # the anchors are nearly coplanar for a 3-D fix
+    assert "coplanar" in str(res.output) + str(res.exception)
+    res = runner.invoke(app, ["locate", str(folder / "measurements.csv"), "--anchors",
+                              str(folder / "anchors.csv"), "--method", "gn", "-o",
+                              "no_check=geometry"])
     assert res.exit_code != 0
     assert "has ranges to 1 anchor(s)" in str(res.output) + str(res.exception)
 

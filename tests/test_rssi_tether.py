@@ -135,12 +135,12 @@ def test_experiment_smoke(tmp_path, monkeypatch):
     assert set(runs["compass"]) == {False, True} and len(runs) == 2 * 2 * 2 * 40
     assert set(runs["variant"]) == {"main", "cells_1m"}
     assert np.isfinite(runs["error_odom_m"]).all()
-    assert set(df["table"]) == {"runs", "model", "fig3", "fig6", "team"}
+    assert set(df["table"]) == {"runs", "model", "fig3", "fig6", "team", "vsweep"}
     team = df[df["table"] == "team"]
     assert len(team) == 2 * 2 * 2 * 2 * 40          # runs x trackers x share x compass x steps
     # a block without run 0 holds no figure rows
     other = exp.run_block(cfg, np.arange(2, 4), block_generator(0, 1))
-    assert set(other["table"]) == {"runs", "team"}
+    assert set(other["table"]) == {"runs", "team", "vsweep"}
     summary = exp.summarize(cfg, df, tmp_path)
     names = {m.name for m in summary.metrics}
     assert {"mean_error_m_following_compass", "peak_error_m_following_nocompass", "time_to_localize_s",
@@ -184,7 +184,8 @@ def test_locate_grid_rssi_finds_static_node(tmp_path):
     meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value", "line"])
     out = run_method("grid-rssi", LocateRequest(meas, anchors, calibration=path,
                                                 options={"cell_m": "0.5"}))
-    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m"] and len(out) == 10
+    assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "cov_xx", "cov_xy",
+                                 "cov_yy"] and len(out) == 10
     assert np.hypot(out["x"].iloc[-1] - 7.0, out["y"].iloc[-1] - 12.0) < 1.0
     with pytest.raises(InputError, match="calibration"):
         run_method("grid-rssi", LocateRequest(meas, anchors))
