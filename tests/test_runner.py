@@ -76,7 +76,8 @@ def test_reproduce_writes_results_summary_and_figures(tmp_path):
             "claims"} <= set(summary)
     assert summary["runs"] == 200 and summary["full"] is False
     for m in summary["metrics"]:
-        assert set(m) == {"name", "value", "paper", "unit", "note", "ci_low", "ci_high"}
+        assert set(m) == {"name", "value", "paper", "unit", "note", "ci_low", "ci_high",
+                          "predicted"}
         assert isinstance(m["value"], float)
     for c in summary["claims"]:
         assert {"claim", "holds", "verdict", "estimate", "ci_low", "ci_high", "n"} <= set(c)

@@ -257,8 +257,12 @@ class P000MonteCarlo(Experiment):
                     Metric.over_runs(f"{name}_final_error_m_{tag}", fin[kept], None, "m",
                            f"{what}: mean position error at iteration {config.iterations}, "
                            "all nodes, runs that did not diverge"),
-                    Metric.over_runs(f"{name}_final_error_m_all_runs_{tag}", fin, None, "m",
-                           f"{what}: mean final error over all runs, diverged ones included"),
+                    (Metric.over_runs(f"{name}_final_error_m_all_runs_{tag}", fin, None, "m",
+                                      f"{what}: mean final error over all runs, diverged ones "
+                                      "included") if np.all(np.isfinite(fin)) else
+                     Metric(f"{name}_final_error_m_all_runs_{tag}", float(np.mean(fin)), None,
+                            "m", f"{what}: mean final error over all runs, diverged ones "
+                            "included (a run diverged to infinity: no interval)")),
                     Metric(f"{name}_final_trimmed_mean_error_m_{tag}", float(trimmed[-1]), None,
                            "m", f"{what}: {config.trim_fraction:.0%}-trimmed mean over runs "
                            "of the final error"),

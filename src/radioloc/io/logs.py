@@ -109,6 +109,14 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
     names = [c.strip() if preserve_case else c.strip().lower() for c in first.split(",")]
     if "" in names or len(set(names)) != len(names):
         return None
+    # every line (the header's included) must have as many cells: count its commas
+    raw = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    ends = np.flatnonzero(raw == 10)
+    if not text.endswith("\n"):
+        ends = np.append(ends, raw.size)
+    commas = np.concatenate([[0], np.cumsum(raw == 44)])[ends]
+    if np.any(np.diff(np.concatenate([[0], commas])) != len(names) - 1):
+        return None
     try:
         frame = pd.read_csv(io.StringIO(text), header=None, skiprows=1, names=range(len(names)),
                             dtype=str, na_filter=False, skipinitialspace=True,
