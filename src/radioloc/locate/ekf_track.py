@@ -133,6 +133,15 @@ def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.
     return np.sqrt(d2)
 
 
+def column_medians(values: np.ndarray) -> np.ndarray:
+    """Median of each column of ``values`` ``(T, S)`` over its finite entries (NaN for a
+    column with none)."""
+    med = np.full(values.shape[1], np.nan)
+    heard = np.isfinite(values).any(axis=0)
+    med[heard] = np.nanmedian(values[:, heard], axis=0)
+    return med
+
+
 def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height: float | None,
                    bias: float, init_s: float, common_offset: bool = False):
     """Horizontal start position from the median ranges of the first ``init_s`` seconds.
@@ -172,13 +181,11 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
     GeometryError
         Fewer than three anchors heard in the window (and in the whole log).
     """
-    window = times <= times[0] + init_s
-    med = np.full(R.shape[1], np.nan)
-    heard = np.isfinite(R[window]).any(axis=0)
-    med[heard] = np.nanmedian(R[window][:, heard], axis=0)
+    med = column_medians(R[times <= times[0] + init_s])
+    heard = np.isfinite(med)
     if heard.sum() < 3:   # widen to the whole log rather than give up
-        heard = np.isfinite(R).any(axis=0)
-        med[heard] = np.nanmedian(R[:, heard], axis=0)
+        med = column_medians(R)
+        heard = np.isfinite(med)
     if heard.sum() < 3:
         raise GeometryError(f"ranges to {int(heard.sum())} anchor(s) only; the start position "
                             "needs three")
@@ -348,13 +355,7 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = []
-    for o in observations:
-        z = o.z[window]
-        heard = np.isfinite(z).any(axis=0)
-        med = np.full(z.shape[1], np.nan)
-        med[heard] = np.nanmedian(z[:, heard], axis=0)
-        medians.append(Observation(o.model, med, o.context))
+    medians = [Observation(o.model, column_medians(o.z[window]), o.context) for o in observations]
     fit = LeastSquares(loss="huber").locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
