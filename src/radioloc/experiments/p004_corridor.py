@@ -25,7 +25,6 @@ posterior's uncertainty is calibrated (NEES = mean of (error / std)^2, 1 if cali
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -942,11 +941,9 @@ def write_docs_snippet(summary_json: Path | str, out_md: Path | str) -> Path:
     Path
         ``out_md``.
     """
-    record = json.loads(Path(summary_json).read_text())
-    out = Path(out_md)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(docs_snippet(record))
-    return out
+    from radioloc.report.snippet import write_docs_snippet as write
+
+    return write(summary_json, out_md, docs_snippet)
 
 
 if __name__ == "__main__":                      # python -m ... SUMMARY_JSON OUT_MD

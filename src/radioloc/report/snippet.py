@@ -59,8 +59,8 @@ def docs_snippet(record: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_docs_snippet(summary_json: Path | str, out_md: Path | str) -> Path:
-    """Write :func:`docs_snippet` of a ``summary.json`` file to ``out_md``.
+def write_docs_snippet(summary_json: Path | str, out_md: Path | str, render=None) -> Path:
+    """Write the snippet of a ``summary.json`` file to ``out_md``.
 
     Parameters
     ----------
@@ -68,6 +68,9 @@ def write_docs_snippet(summary_json: Path | str, out_md: Path | str) -> Path:
         ``OUT/<id>/summary.json``.
     out_md : path
         The snippet, e.g. ``docs/generated/p000-montecarlo.md``.
+    render : callable, optional
+        ``record -> markdown``; default :func:`docs_snippet` (an experiment with its own
+        tables passes its writer).
 
     Returns
     -------
@@ -77,7 +80,7 @@ def write_docs_snippet(summary_json: Path | str, out_md: Path | str) -> Path:
     record = json.loads(Path(summary_json).read_text())
     out = Path(out_md)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(docs_snippet(record))
+    out.write_text((render or docs_snippet)(record))
     return out
 
 
