@@ -7,13 +7,21 @@ The state is ``x = [x_1; ...; x_K]`` (eq. (13)), static, so the prediction is th
 eq. (23)); the next master starts from that estimate. A missing link (NaN range, or a
 false mask entry) is a row skipped by the update.
 
-Each packet is :func:`range_jacobian` (eq. (15)-eq. (17)) followed by the toolkit's one
-Kalman update, :func:`radioloc.estimators.kalman.kalman_update`: the Joseph form
+Each packet is one update of the generic
+:class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` (``backend="numpy"``):
+the state is a :class:`~radioloc.models.pair_range.NetworkLayout` of the ``K`` nodes, the
+packet an :class:`~radioloc.models.measurement.Observation` of
+:class:`~radioloc.models.pair_range.PairRangeModel` rows ``|x_p - x_k|``, ``p != k``
+(eq. (15); its Jacobian is eq. (16)-eq. (17), as :func:`range_jacobian` prints it), and the
+update is the toolkit's one Kalman update,
+:func:`radioloc.estimators.kalman.kalman_update`: the Joseph form
 ``(I - L H^T) S (I - L H^T)^T + L R L^T``, algebraically eq. (21) but symmetric and
-positive semi-definite in floating point. ``backend="numpy"`` runs exactly that;
-``backend="numba"`` (the default) runs its compiled form,
-:func:`radioloc.estimators.kalman_compiled.network_ekf_packets`, which takes the used rows
-only and uses the two nonzero blocks of each row of ``H``; the two agree to rounding.
+positive semi-definite in floating point. The masters' packets follow one another, each
+linearised at the estimate its predecessor left (eq. (20), eq. (24): the nodes are static,
+the prediction is the identity). ``backend="numba"`` (the default) runs the compiled form
+of the same update, :func:`radioloc.estimators.kalman_compiled.network_ekf_packets`, which
+takes the used rows only and uses the two nonzero blocks of each row of ``H``; the two
+agree to rounding.
 
 :class:`NetworkEKF` advances a batch of ``R`` independent runs: state ``(R, 2K)``.
 """
@@ -30,10 +38,13 @@ from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import check_finite_output, check_positive
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.kalman import kalman_update, normalised_innovation_squared
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.estimators.kalman_compiled import network_ekf_packets
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
+from radioloc.models.measurement import Observation
+from radioloc.models.motion import RandomWalk
+from radioloc.models.pair_range import NetworkLayout, PairRangeModel, packet_context
 
 __all__ = ["NetworkEKF", "EKFState", "range_jacobian"]
 
@@ -145,9 +156,10 @@ class NetworkEKF(RecursiveEstimator):
     range_var_m2 : float
         ``sigma_v^2``, the diagonal of ``R_k`` (eq. (15)), m^2.
     backend : {"numba", "numpy"}
-        ``"numpy"``: each packet by :func:`range_jacobian` and
-        :func:`~radioloc.estimators.kalman.kalman_update`; ``"numba"``: by their compiled
-        form (:func:`~radioloc.estimators.kalman_compiled.network_ekf_packets`).
+        ``"numpy"``: each packet by the generic
+        :class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` update with
+        :class:`~radioloc.models.pair_range.PairRangeModel` rows; ``"numba"``: by its
+        compiled form (:func:`~radioloc.estimators.kalman_compiled.network_ekf_packets`).
 
     Raises
     ------
@@ -171,6 +183,9 @@ class NetworkEKF(RecursiveEstimator):
     def __init__(self, range_var_m2: float = 900.0, backend: str = DEFAULT_BACKEND) -> None:
         self.range_var_m2 = check_positive(range_var_m2, "range_var_m2")
         self.backend = check_backend(backend)
+        #: the packet rows' model and the filter that updates with them (no gate: eq. (19))
+        self.model = PairRangeModel(std_m=float(np.sqrt(self.range_var_m2)))
+        self.filter = ExtendedKalmanFilter(RandomWalk(0.0), gate=None)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
         """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. (25)).
@@ -250,18 +265,29 @@ class NetworkEKF(RecursiveEstimator):
 
     def _packet(self, state: EKFState, master: np.ndarray, rho: np.ndarray,
                 valid: np.ndarray) -> EKFState:
-        """One packet per run in NumPy: eq. (15)-eq. (17), then the Kalman update."""
+        """One packet per run in NumPy: the generic EKF update with the master's rows."""
         R, K = state.runs, state.nodes
-        h, H = range_jacobian(state.position, master, valid)
-        innovation = np.where(valid, rho - h, np.nan)
-        mean, cov, S, ok = kalman_update(state.mean, state.covariance, innovation, H,
-                                         R_diag=np.full((R, K), self.range_var_m2), valid=valid)
+        context, others = packet_context(master, K)
+        used = np.take_along_axis(valid, others, axis=-1)
+        z = np.where(used, np.take_along_axis(rho, others, axis=-1), np.nan)
+        layout = NetworkLayout(dim=2, nodes=K)
+        distance = self.model.predict(layout.split(state.mean), context)
+        scale = np.maximum(np.max(np.abs(state.mean), axis=-1), 1.0)
+        coincident = used & (distance <= 1e-9 * scale[:, None])
+        if np.any(coincident):
+            r, row = (int(i) for i in np.argwhere(coincident)[0])
+            k, p = int(master[r]), int(others[r, row])
+            raise GeometryError(f"run {r}: nodes {k} and {p} have coincident position "
+                                "estimates; the range Jacobian is undefined", index=(r,),
+                                detail=f"nodes {k} and {p} have coincident estimates")
+        prior = FilterState(state.mean, state.covariance, 0.0, layout)
+        post, info = self.filter.update(prior, Observation(self.model, z, context))
         rr = np.arange(R)
         nis = state.nis.copy()
-        nis[rr, master] = normalised_innovation_squared(innovation, S, ok)
-        used = state.used.copy()
-        used[rr, master] = ok.sum(axis=-1)
-        return EKFState(check_finite_output(mean, "ekf mean"), cov, nis, used)
+        nis[rr, master] = info["nis"]
+        n_used = state.used.copy()
+        n_used[rr, master] = info["measurements_used"]
+        return EKFState(check_finite_output(post.mean, "ekf mean"), post.covariance, nis, n_used)
 
     def iterate(self, state: EKFState, ranges: np.ndarray, mask: np.ndarray | None = None
                 ) -> EKFState:
