@@ -208,10 +208,12 @@ class PairRangeModel(RangeModel):
         z_hat = self.predict(state, context)
         z = check_dtype(z, "z").astype(float, copy=False)
         try:
-            np.broadcast_shapes(z.shape, z_hat.shape)
+            ok = z.shape[-1:] == z_hat.shape[-1:] and bool(np.broadcast_shapes(z.shape, z_hat.shape))
         except ValueError:
-            raise InputError(f"z: shape {z.shape} does not broadcast with the rows predicted "
-                             f"from state and context {z_hat.shape}") from None
+            ok = False
+        if not ok:
+            raise InputError(f"z: shape {z.shape} does not match the rows predicted from state "
+                             f"and context {z_hat.shape}")
         if context.std is not None or isinstance(self.noise, GaussianRange):
             r = z - z_hat - self.noise_mean(context)
             lp = gaussian_logpdf(r, self.std(context))
