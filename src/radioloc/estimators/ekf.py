@@ -102,7 +102,9 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
     Row ``p`` of ``H_k^T`` holds ``u^T = (x_p - x_k)^T / |x_p - x_k|`` in column block ``p``
     and ``-u^T`` in column block ``k``. eq. (17) prints the same sign for both blocks; the
     derivative of ``|x_p - x_k|`` with respect to ``x_k`` is the negative of that with
-    respect to ``x_p``, which is what is implemented here.
+    respect to ``x_p``, which is what is implemented here. The rows are those of
+    :class:`~radioloc.models.pair_range.PairRangeModel` on the packet's node pairs
+    (:func:`~radioloc.models.pair_range.packet_context`), placed at row ``p``.
 
     Parameters
     ----------
@@ -126,12 +128,24 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
         If a valid row has the master and node ``p`` at the same estimated position.
     """
     R, K, _ = position.shape
-    rr = np.arange(R)
     if valid is None:
         valid = np.ones((R, K), dtype=bool)
-        valid[rr, master] = False
-    diff = position - position[rr, master][:, None, :]              # x_p - x_k
-    h = np.sqrt(np.einsum("rkd,rkd->rk", diff, diff))
+        valid[np.arange(R), master] = False
+    h = _distances_to_master(position, master, valid)
+    context, others = packet_context(master, K)
+    rows = PairRangeModel(std_m=1.0).jacobian({"position": position.reshape(R, 2 * K)},
+                                              context)["position"]           # (R, K - 1, 2K)
+    H = np.zeros((R, K, 2 * K))
+    np.put_along_axis(H, others[..., None], rows, axis=-2)
+    return h, np.where(valid[..., None], H, 0.0)
+
+
+def _distances_to_master(position: np.ndarray, master: np.ndarray, valid: np.ndarray
+                         ) -> np.ndarray:
+    """``|x_p - x_k|`` ``(R, K)``; a GeometryError when a valid link joins coincident
+    estimates (its Jacobian is undefined)."""
+    rr = np.arange(position.shape[0])
+    h = np.linalg.norm(position - position[rr, master][:, None, :], axis=-1)
     scale = np.maximum(np.max(np.abs(position), axis=(1, 2)), 1.0)
     coincident = valid & (h <= 1e-9 * scale[:, None])
     if np.any(coincident):
@@ -139,12 +153,7 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
         raise GeometryError(f"run {r}: nodes {int(master[r])} and {p} have coincident position "
                             "estimates; the range Jacobian is undefined", index=(r,),
                             detail=f"nodes {int(master[r])} and {p} have coincident estimates")
-    u = np.where(valid[..., None], diff / np.where(h > 0, h, 1.0)[..., None], 0.0)
-    H = np.zeros((R, K, K, 2))
-    kk = np.arange(K)
-    H[:, kk, kk, :] = u                                              # d h_p / d x_p = +u^T
-    H[rr, :, master, :] = -u                                         # d h_p / d x_k = -u^T
-    return h, H.reshape(R, K, 2 * K)
+    return h
 
 
 class NetworkEKF(RecursiveEstimator):
@@ -176,6 +185,8 @@ class NetworkEKF(RecursiveEstimator):
     rigid alignment); its frame (translation, rotation) is fixed only by the priors and
     moves by up to about two of the filter's claimed standard deviations (about 1 m with
     1 m priors on a five-node network). The order is the paper's model, kept as written.
+    It is the whole effect: relabelled nodes whose packets are fed (by :meth:`step`) in the
+    original masters' order give the original estimate, relabelled, to rounding.
     """
 
     name = "ekf"
@@ -267,22 +278,16 @@ class NetworkEKF(RecursiveEstimator):
                 valid: np.ndarray) -> EKFState:
         """One packet per run in NumPy: the generic EKF update with the master's rows."""
         R, K = state.runs, state.nodes
-        context, others = packet_context(master, K)
-        used = np.take_along_axis(valid, others, axis=-1)
-        z = np.where(used, np.take_along_axis(rho, others, axis=-1), np.nan)
-        layout = NetworkLayout(dim=2, nodes=K)
-        distance = self.model.predict(layout.split(state.mean), context)
-        scale = np.maximum(np.max(np.abs(state.mean), axis=-1), 1.0)
-        coincident = used & (distance <= 1e-9 * scale[:, None])
-        if np.any(coincident):
-            r, row = (int(i) for i in np.argwhere(coincident)[0])
-            k, p = int(master[r]), int(others[r, row])
-            raise GeometryError(f"run {r}: nodes {k} and {p} have coincident position "
-                                "estimates; the range Jacobian is undefined", index=(r,),
-                                detail=f"nodes {k} and {p} have coincident estimates")
-        prior = FilterState(state.mean, state.covariance, 0.0, layout)
-        post, info = self.filter.update(prior, Observation(self.model, z, context))
         rr = np.arange(R)
+        _distances_to_master(state.position, master, valid)
+        # one context for every run when they share the master (the paper's schedule)
+        shared = bool(np.all(master == master[0]))
+        context, others = packet_context(master[0] if shared else master, K)
+        others = np.broadcast_to(others, (R, K - 1))
+        z = np.where(np.take_along_axis(valid, others, axis=-1),
+                     np.take_along_axis(rho, others, axis=-1), np.nan)
+        prior = FilterState(state.mean, state.covariance, 0.0, NetworkLayout(dim=2, nodes=K))
+        post, info = self.filter.update(prior, Observation(self.model, z, context))
         nis = state.nis.copy()
         nis[rr, master] = info["nis"]
         n_used = state.used.copy()

@@ -198,11 +198,13 @@ class PairRangeModel(RangeModel):
         diff = xi - xj
         d = np.sqrt(np.sum(diff ** 2, axis=-1))
         u = diff / np.maximum(d, self.min_distance_m)[..., None]             # (..., m, D)
-        K = np.shape(state["position"])[-1] // u.shape[-1]
-        k = np.arange(K)
-        sign = (i[..., None] == k).astype(float) - (j[..., None] == k)       # (..., m, K)
-        J = sign[..., :, None] * u[..., None, :]                             # (..., m, K, D)
-        return {"position": J.reshape(J.shape[:-2] + (K * u.shape[-1],))}
+        D = u.shape[-1]
+        K = np.shape(state["position"])[-1] // D
+        # +u in node i's block, -u in node j's (a known point's rows: a spare block K)
+        J = np.zeros(u.shape[:-1] + (K + 1, D))
+        np.put_along_axis(J, i[..., None, None], u[..., None, :], axis=-2)
+        np.put_along_axis(J, np.where(j >= 0, j, K)[..., None, None], -u[..., None, :], axis=-2)
+        return {"position": J[..., :K, :].reshape(u.shape[:-1] + (K * D,))}
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         z_hat = self.predict(state, context)
