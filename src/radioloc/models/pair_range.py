@@ -128,8 +128,8 @@ class PairContext(Context):
 
 def _ends(position: np.ndarray, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                           np.ndarray]:
-    """Both ends of every row: ``(x_i, x_j or the known point, i, j)`` as ``(..., m, D)``
-    and ``(..., m)``, and the nodes reshaped ``(..., K, D)``."""
+    """Both ends of every row, ``x_i`` and ``x_j`` (or the row's known point), ``(..., m, D)``,
+    and the node indices ``i``, ``j`` broadcast to the same batch, ``(..., m)``."""
     if not isinstance(context, PairContext):
         raise InputError(f"context: a PairRangeModel needs a PairContext (the nodes of each "
                          f"row), got {type(context).__name__}")
