@@ -194,9 +194,9 @@ class NetworkEKF(RecursiveEstimator):
     def __init__(self, range_var_m2: float = 900.0, backend: str = DEFAULT_BACKEND) -> None:
         self.range_var_m2 = check_positive(range_var_m2, "range_var_m2")
         self.backend = check_backend(backend)
-        #: the packet rows' model and the filter that updates with them (no gate: eq. (19))
-        self.model = PairRangeModel(std_m=float(np.sqrt(self.range_var_m2)))
-        self.filter = ExtendedKalmanFilter(RandomWalk(0.0), gate=None)
+        # the packet rows' model and the filter that updates with them (no gate: eq. (19))
+        self._model = PairRangeModel(std_m=float(np.sqrt(self.range_var_m2)))
+        self._filter = ExtendedKalmanFilter(RandomWalk(0.0), gate=None)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
         """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. (25)).
@@ -287,7 +287,7 @@ class NetworkEKF(RecursiveEstimator):
         z = np.where(np.take_along_axis(valid, others, axis=-1),
                      np.take_along_axis(rho, others, axis=-1), np.nan)
         prior = FilterState(state.mean, state.covariance, 0.0, NetworkLayout(dim=2, nodes=K))
-        post, info = self.filter.update(prior, Observation(self.model, z, context))
+        post, info = self._filter.update(prior, Observation(self._model, z, context))
         nis = state.nis.copy()
         nis[rr, master] = info["nis"]
         n_used = state.used.copy()

@@ -117,7 +117,17 @@ class PairContext(Context):
         object.__setattr__(self, "pairs", p.astype(np.intp, copy=False))
 
     def take(self, rows: np.ndarray) -> "PairContext":
-        """The context of a subset of rows (see :meth:`Context.take`)."""
+        """The context of a subset of rows (see :meth:`Context.take`).
+
+        Parameters
+        ----------
+        rows : ndarray
+            An index array or a boolean mask over the rows.
+
+        Returns
+        -------
+        PairContext
+        """
         sub = super().take(rows)
         r = np.asarray(rows)
         pairs = np.compress(r, self.pairs, axis=-2) if r.dtype == bool \
