@@ -292,7 +292,7 @@ class NetworkEKF(RecursiveEstimator):
         nis[rr, master] = info["nis"]
         n_used = state.used.copy()
         n_used[rr, master] = info["measurements_used"]
-        return EKFState(check_finite_output(post.mean, "ekf mean"), post.covariance, nis, n_used)
+        return EKFState(post.mean, post.covariance, nis, n_used)
 
     def iterate(self, state: EKFState, ranges: np.ndarray, mask: np.ndarray | None = None
                 ) -> EKFState:

@@ -139,7 +139,8 @@ class PairContext(Context):
 def _ends(position: np.ndarray, context: Context) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                           np.ndarray]:
     """Both ends of every row, ``x_i`` and ``x_j`` (or the row's known point), ``(..., m, D)``,
-    and the node indices ``i``, ``j`` broadcast to the same batch, ``(..., m)``."""
+    and the node indices ``i``, ``j`` ``(m,)`` or, with per-state pairs, broadcast to the
+    states' batch ``(..., m)``."""
     if not isinstance(context, PairContext):
         raise InputError(f"context: a PairRangeModel needs a PairContext (the nodes of each "
                          f"row), got {type(context).__name__}")
@@ -154,14 +155,17 @@ def _ends(position: np.ndarray, context: Context) -> tuple[np.ndarray, np.ndarra
         raise InputError(f"context.pairs: node {int(max(i.max(), j.max()))} is outside the "
                          f"{K} nodes of the state")
     nodes = pos.reshape(pos.shape[:-1] + (K, D))
-    batch = np.broadcast_shapes(nodes.shape[:-2], i.shape[:-1], context.points.shape[:-2])
-    nodes_b = np.broadcast_to(nodes, batch + (K, D))
-    i_b = np.broadcast_to(i, batch + i.shape[-1:])
-    j_b = np.broadcast_to(j, batch + j.shape[-1:])
-    xi = np.take_along_axis(nodes_b, i_b[..., None], axis=-2)
-    xj = np.take_along_axis(nodes_b, np.maximum(j_b, 0)[..., None], axis=-2)
-    xj = np.where((j_b >= 0)[..., None], xj, context.points)
-    return xi, xj, i_b, j_b
+    if i.ndim == 1:                                   # the same pairs for every state
+        xi, xj = nodes[..., i, :], nodes[..., np.maximum(j, 0), :]
+    else:
+        batch = np.broadcast_shapes(nodes.shape[:-2], i.shape[:-1])
+        nodes = np.broadcast_to(nodes, batch + (K, D))
+        i = np.broadcast_to(i, batch + i.shape[-1:])
+        j = np.broadcast_to(j, batch + j.shape[-1:])
+        xi = np.take_along_axis(nodes, i[..., None], axis=-2)
+        xj = np.take_along_axis(nodes, np.maximum(j, 0)[..., None], axis=-2)
+    xj = np.where((j >= 0)[..., None], xj, context.points)
+    return xi, xj, i, j
 
 
 @dataclass(frozen=True)
@@ -212,8 +216,9 @@ class PairRangeModel(RangeModel):
         K = np.shape(state["position"])[-1] // D
         # +u in node i's block, -u in node j's (a known point's rows: a spare block K)
         J = np.zeros(u.shape[:-1] + (K + 1, D))
+        i, j = np.broadcast_to(i, u.shape[:-1]), np.broadcast_to(np.where(j >= 0, j, K), u.shape[:-1])
         np.put_along_axis(J, i[..., None, None], u[..., None, :], axis=-2)
-        np.put_along_axis(J, np.where(j >= 0, j, K)[..., None, None], -u[..., None, :], axis=-2)
+        np.put_along_axis(J, j[..., None, None], -u[..., None, :], axis=-2)
         return {"position": J[..., :K, :].reshape(u.shape[:-1] + (K * D,))}
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
