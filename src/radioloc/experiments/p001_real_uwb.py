@@ -347,7 +347,9 @@ class RealUwbHanyang(Experiment):
             ax.set_ylabel("y [m]")
         axes[-1, 0].set_xlabel("x [m]")
         axes[0, 0].legend(ncol=5, loc="upper right", fontsize=7)
-        save(fig, out_dir / "trajectories.png")
+        save(fig, out_dir / "trajectories.png", caption=(
+            "Hanyang outdoor UWB runs, one per row: the RTK reference (the part the authors "
+            "score dotted) and the tracks of pf, ekf-track and the data set's ESKF."))
 
 
 def _request(meas: pd.DataFrame, anchors: pd.DataFrame, options: dict) -> LocateRequest:

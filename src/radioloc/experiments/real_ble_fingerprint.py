@@ -217,7 +217,10 @@ class BleFingerprintExperiment(Experiment):
         ax.set_ylabel("empirical CDF")
         ax.set_title("BLE fingerprints (Kolakowski 2021), robot test run")
         ax.legend()
-        save(fig, out_dir / "error_cdf.png")
+        save(fig, out_dir / "error_cdf.png", caption=(
+            "Empirical CDF of the position error on the robot test run of the BLE fingerprint "
+            "data set (Kolakowski 2021): mixture models (EM, progressive, cross-validated; "
+            "one-shot solid, tracking dashed) against weighted kNN."))
 
         fig, ax = figure()
         first = results[results["method"] == "gmm_em_tracking"]
@@ -231,5 +234,7 @@ class BleFingerprintExperiment(Experiment):
         ax.set_ylabel("y [m]")
         ax.set_title("Robot test run: reference and estimates")
         ax.legend(fontsize=8, loc="center")
-        save(fig, out_dir / "track.png")
+        save(fig, out_dir / "track.png", caption=(
+            "The robot test run seen from above: the LiDAR SLAM reference, the mixture "
+            "tracker's path (EM models) and the weighted kNN estimates."))
         return Summary(metrics, claims, notes)
