@@ -880,7 +880,7 @@ class TetherExperiment(Experiment):
             run = int(info.dropna(subset=["t_loc"])["run"].iloc[0]) if info["t_loc"].notna().any() else int(info["run"].iloc[0])
             g = sub[sub["run"] == run]
             med = sub.groupby("time_s")["error_m"].median()
-            fig, ax = figure(width=8, height=4)
+            fig, ax = figure(width=8, height=4.4, layout="constrained")
             ax.plot(g["time_s"], g["error_m"], color=COLORS["ours"], label=f"localization error, run {run}")
             ax.plot(g["time_s"], g["true_distance_m"], color=COLORS["truth"], ls="--", label=f"true distance, run {run}")
             ax.plot(med.index, med.values, color=COLORS["bound"], lw=0.8, alpha=0.7, label="median error over all runs")
@@ -890,7 +890,8 @@ class TetherExperiment(Experiment):
             ax.set_xlabel("time [s]")
             ax.set_ylabel("[m]")
             ax.set_title(f"Fig. {num}: localization {'with' if comp else 'without'} orientation sensing")
-            ax.legend(loc="upper right", fontsize=8)
+            fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2,
+                       fontsize=8)
             save(fig, out_dir / f"fig{num}_{name}.png", caption=(
                 f"Fig. {num} of paper 003: localization {'with' if comp else 'without'} "
                 f"orientation sensing: localization error and true distance against time in run "
