@@ -146,12 +146,8 @@ def plot_locate(frame: pd.DataFrame, path: Path, *, anchors: pd.DataFrame | None
         A ``locate`` output table.
     path : Path
         Figure file (suffix in :data:`PLOT_SUFFIXES`).
-    anchors : DataFrame, optional
-    reference : DataFrame, optional
-        From :func:`radioloc.io.read_reference`.
-    errors : DataFrame, optional
-        From :func:`radioloc.locate.scoring.reference_errors`.
-    title : str
+    anchors, reference, errors, title
+        As :func:`locate_figure`.
     summary : dict, optional
         The run summary (``summary.json``) shown by an ``.html`` page; default: the
         method's summary in ``frame.attrs["summary"]``.
