@@ -4,7 +4,8 @@
 the same seed gives the same frame (no hidden global state, so results cannot depend on
 which process or worker ran the block), and the frame has a ``run`` column holding exactly
 the block's run indices. Columns the experiment declares as timings (CPU seconds) are
-measurements of the machine and are left out of the comparison.
+measurements of the machine and are left out of the comparison. Every figure ``summarize``
+writes has a caption in ``captions.json`` that says more than the file name.
 """
 
 import dataclasses
@@ -17,6 +18,7 @@ import pytest
 from radioloc.core.errors import DataUnavailable
 from radioloc.core.rng import block_generator
 from radioloc.experiments.base import registry
+from radioloc.report.captions import is_file_name, read_captions
 
 EXPERIMENTS = sorted(registry())
 
@@ -87,3 +89,9 @@ def test_run_block_is_deterministic_and_summarize_only_reads_the_table(exp_id, t
         d = json.loads(json.dumps(m.as_dict()))
         if d["ci_low"] is not None:
             assert d["ci_low"] <= d["ci_high"], m.name
+    figures = sorted(tmp_path.glob("*.png"))          # every figure has a caption saying more
+    captions = read_captions(tmp_path)                # than its file name
+    assert figures, "summarize() wrote no figure"
+    for f in figures:
+        assert f.stem in captions, f"{f.name}: no caption in captions.json"
+        assert not is_file_name(captions[f.stem], f.stem), f"{f.name}: {captions[f.stem]!r}"

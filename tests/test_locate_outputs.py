@@ -150,13 +150,6 @@ def test_summary_reference_errors_and_plot(tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_plot_html_is_refused_before_any_work(tmp_path):
-    res = runner.invoke(app, ["locate", MEAS, "--anchors", ANCHORS, "--plot",
-                              str(tmp_path / "t.html")])
-    assert res.exit_code == 2 and ".html page is not available" in res.output
-    assert not (tmp_path / "t.html").exists()
-
-
 def test_tum_and_geojson_exports(tmp_path):
     res = runner.invoke(app, ["locate", MEAS, "--anchors", ANCHORS, "--out",
                               str(tmp_path / "t.tum")])

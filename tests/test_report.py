@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from radioloc.report.html import (claims_score, figure_caption, gap_class, headline_metrics,
                                   render, scoreboard, write_index)
 
@@ -23,7 +25,8 @@ def fake_record(eid: str, paper: str = "001", holds=(True, False), skipped: str 
 
 
 def write_fake_report(out: Path) -> Path:
-    """A small report: three experiments (one skipped) with figures of several sizes."""
+    """A small report: three experiments (one skipped) with figures of several sizes; beta's
+    figure is written without a caption (a folder from before captions were recorded)."""
     from radioloc.report.style import figure, save
 
     records = [fake_record("alpha", "000", (True, True, True)),
@@ -36,11 +39,10 @@ def write_fake_report(out: Path) -> Path:
         fig, ax = figure(width=width, height=3.5)
         ax.plot([0, 1, 2], [0, 1, 0.5], label="ours")
         ax.legend()
-        save(fig, out / "alpha" / f"{name}.png")
+        save(fig, out / "alpha" / f"{name}.png", caption=f"What {name} shows, in words.")
     fig, ax = figure()
     ax.plot([0, 1], [1, 0])
-    save(fig, out / "beta" / "fig1_rmse.png")
-    (out / "beta" / "captions.json").write_text(json.dumps({"fig1_rmse": "Custom caption."}))
+    fig.savefig(out / "beta" / "fig1_rmse.png")
     return write_index(out, {"alpha": "First experiment.", "beta": "Second."})
 
 
@@ -111,7 +113,8 @@ def test_page_leads_with_the_scoreboard_and_folds_tables(tmp_path):
     page = index.read_text()
     assert page.index('class="scoreboard"') < page.index('<section id="alpha">')
     assert page.count("<details>") >= 2 and "All 6 metrics" in page
-    assert "Reproduces Fig. 4(a) of paper 000." in page and "Custom caption." in page
+    assert "What fig4a_error_cdf shows, in words." in page
+    assert "Rmse. Reproduces Fig. 1 of paper 001." in page        # no captions.json
     # figures in paper order, then the others
     assert page.index("fig3_map.png") < page.index("fig4a_error_cdf.png") < page.index("extra_view.png")
     assert "4 of 5 claims" in page and "2 of 3 experiments ran" in page
@@ -155,3 +158,51 @@ def test_claims_show_verdict_and_interval_and_metrics_their_interval(tmp_path):
     page = render([r], tmp_path)
     assert "undecided at this size" in page and "95% CI [-0.1, 0.5]" in page
     assert "<td class=\"num\">[0.9, 1.1]</td>" in page and "95% CI</th>" in page
+
+
+def test_save_records_the_caption_and_refuses_a_file_name(tmp_path):
+    """The caption goes to captions.json beside the PNG (and into the report); an empty
+    caption or one that repeats the file name is refused before any file is written."""
+    from radioloc.core.errors import ConfigError
+    from radioloc.report.captions import is_file_name, read_captions
+    from radioloc.report.style import figure, save
+
+    for bad, name in (("", "a.png"), ("  ", "a.png"), ("Error CDF.", "error_cdf.png"),
+                      ("error-cdf", "fig4a_error_cdf.png"), ("Fig4a error cdf", "fig4a_error_cdf.png")):
+        fig, ax = figure()
+        with pytest.raises(ConfigError, match=name.replace(".", "[.]")):
+            save(fig, tmp_path / name, caption=bad)
+        assert not (tmp_path / name).exists()
+    assert not (tmp_path / "captions.json").exists()
+    assert not is_file_name("CDF of the position error of two methods.", "error_cdf")
+    fig, ax = figure()
+    save(fig, tmp_path / "one.png", caption="First  figure,\n one line.")
+    save(fig, tmp_path / "two.png", caption="Second figure.")
+    save(fig, tmp_path / "one.png", caption="First figure, again.")
+    assert read_captions(tmp_path) == {"one": "First figure, again.", "two": "Second figure."}
+    (tmp_path / "captions.json").write_text("not json")
+    assert read_captions(tmp_path) == {}
+
+
+def test_a_legend_outside_the_axes_is_kept_in_the_png(tmp_path):
+    """A legend placed right of the axes widens the PNG instead of being cut at the
+    figure's edge; with a constrained layout the figure legend fits inside."""
+    from matplotlib.image import imread
+
+    from radioloc.report.style import figure, save
+
+    widths = {}
+    for name, outside in (("inside", False), ("outside", True)):
+        fig, ax = figure(width=4.0, height=3.0)
+        ax.plot([0, 1], [0, 1], label="a long label of the curve that would be clipped")
+        if outside:
+            ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0))
+        widths[name] = imread(save(fig, tmp_path / f"{name}.png", caption=f"Legend {name}.")).shape[1]
+    assert widths["outside"] > widths["inside"] + 100
+    fig, ax = figure(width=4.0, height=3.0, layout="constrained")
+    ax.plot([0, 1], [0, 1], label="a label")
+    legend = fig.legend(loc="outside right upper")
+    save(fig, tmp_path / "constrained.png", caption="Figure legend outside the axes.")
+    box = legend.get_window_extent()
+    assert box.x1 <= fig.bbox.x1 + 1 and box.x0 >= fig.bbox.x0 - 1
+    assert not ax.get_window_extent().overlaps(box)

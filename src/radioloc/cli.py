@@ -303,7 +303,7 @@ def locate(
     calibration: Annotated[Optional[Path], typer.Option(help="Calibration file for methods that use one.")] = None,
     option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Method option key=value (repeatable).")] = None,
     smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf); with --reference also the error against time.")] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (one is drawn on standard error when a run lasts more than 2 s).")] = False,
 ) -> None:
@@ -364,7 +364,8 @@ def locate(
                                                                  "highlight": False}))
     if plot is not None:
         plot_locate(estimates, plot, anchors=anchor_table, reference=ref_table, errors=errors,
-                    title=f"radioloc locate --method {method}: {Path(measurements).name}")
+                    title=f"radioloc locate --method {method}: {Path(measurements).name}",
+                    summary=summary)
         written.append(plot)
     if not to_stdout and Path(out).is_file():          # not a device such as /dev/stdout
         target = Path(out).with_name(Path(out).stem + ".summary.json")

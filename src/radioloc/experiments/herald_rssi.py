@@ -388,7 +388,11 @@ class HeraldRssi(Experiment):
         ax.set_ylabel("fraction of runs")
         ax.set_title(f"Static localization after {config.steps} readings")
         ax.legend(fontsize=8)
-        save(fig, out_dir / "herald_model_and_errors.png")
+        save(fig, out_dir / "herald_model_and_errors.png", caption=(
+            "Herald BLE RSSI against distance: the trapezoid model's support and the "
+            "log-distance mean fitted on one session over the other session's readings (left), "
+            f"and the CDF of the static-phone position error of the grid filter after "
+            f"{config.steps} readings with either model (right)."))
         notes = [f"train {config.train_session}: {n_train} readings; test {config.test_session}: {n_test}",
                  "different phone pairs in the two sessions (Samsung A20/Pixel 2 vs Pixel 2/Pixel 3)"]
         return Summary(metrics, claims, notes)

@@ -425,12 +425,12 @@ class P000MonteCarlo(Experiment):
     def _plot(self, config: P000Config, cur: pd.DataFrame, rv: float, path: Path,
               wt: dict, medians: pd.DataFrame) -> None:
         it = cur.index.to_numpy()
-        fig, (ax, leg) = figure(2, 1, height=5.2, gridspec_kw={"height_ratios": [5, 1]})
+        fig, ax = figure(width=9.6, height=4.4, layout="constrained")
         for m in METHODS:
             ax.plot(it, self._curve(cur, f"{m}_err_", wt, "_m"), STYLE[m], color=COLOR[m],
-                    label=LABELS[m] + " (mean error, runs that did not diverge)")
+                    label=f"{LABELS[m]}: mean")
             ax.plot(medians.index, medians[m], STYLE[m], color=COLOR[m], lw=0.8, alpha=0.6,
-                    label=LABELS[m] + " (median)")
+                    label=f"{LABELS[m]}: median")
         ax.plot(it, np.sqrt(self._curve(cur, "crb_", wt, "_m2")), LINESTYLES["bound"],
                 color=COLORS["bound"], lw=2, label="CRB (RMSE bound)")
         ax.set_yscale("log")
@@ -440,9 +440,16 @@ class P000MonteCarlo(Experiment):
         ax.set_title(f"K={config.nodes} nodes, range noise variance {rv:g} m$^2$, "
                      f"{config.runs} runs")
         ax.grid(True, which="both", alpha=0.3)
-        leg.axis("off")
-        leg.legend(*ax.get_legend_handles_labels(), loc="center", ncol=2, fontsize=8)
-        save(fig, path)
+        fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=8,
+                   title="thick: mean of the runs that\ndid not diverge; thin: median",
+                   title_fontsize=8)
+        num = 1 if rv == config.range_var_m2[0] else 2
+        save(fig, path, caption=(
+            f"Fig. {num} of paper 000: average position estimation error versus iteration "
+            f"number for the RLS-based (dashed) and EKF-based (solid) positioning algorithms, "
+            f"range variance sigma_v^2 = {rv:g} m^2. Ours adds the variant RLS with a "
+            "noise-weighted prior (dash-dot) and the CRB (dotted); thick lines are the mean "
+            "over the runs that did not diverge, thin lines the median over all runs."))
 
     def _plot_classes(self, config: P000Config, cur: pd.DataFrame, rv: float,
                       path: Path) -> None:
@@ -476,4 +483,8 @@ class P000MonteCarlo(Experiment):
             if h:
                 g.legend(h, lab, loc="center", ncol=1, fontsize=8)
         fig.suptitle(f"By node class, range noise variance {rv:g} m$^2$, {config.runs} runs")
-        save(fig, path)
+        save(fig, path, caption=(
+            f"Average position error versus iteration, GPS-assisted nodes (left) and "
+            f"unassisted nodes (right) apart, range variance {rv:g} m^2: RLS as printed "
+            "(dashed), EKF (solid), the noise-weighted-prior RLS variant (dash-dot) and the "
+            "CRB (dotted), mean over the runs that did not diverge."))

@@ -329,7 +329,8 @@ class RealUwbHanyang(Experiment):
 
     @staticmethod
     def _figure(results, names, out_dir) -> None:
-        fig, axes = figure(len(names), 1, width=8.0, height=2.4 * len(names), squeeze=False)
+        fig, axes = figure(len(names), 1, width=8.0, height=2.4 * len(names) + 0.5,
+                           squeeze=False, layout="constrained")
         for ax, n in zip(axes[:, 0], names):
             g = results[(results.name == n) & (results.replicate == 0)]
             ref = g[g.method == "ekf-track"] if "ekf-track" in g.method.values else g[g.method == "pf"]
@@ -346,8 +347,11 @@ class RealUwbHanyang(Experiment):
             ax.set_title(n)
             ax.set_ylabel("y [m]")
         axes[-1, 0].set_xlabel("x [m]")
-        axes[0, 0].legend(ncol=5, loc="upper right", fontsize=7)
-        save(fig, out_dir / "trajectories.png")
+        fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=5,
+                   fontsize=8, markerscale=4)
+        save(fig, out_dir / "trajectories.png", caption=(
+            "Hanyang outdoor UWB runs, one per row: the RTK reference (the part the authors "
+            "score dotted) and the tracks of pf, ekf-track and the data set's ESKF."))
 
 
 def _request(meas: pd.DataFrame, anchors: pd.DataFrame, options: dict) -> LocateRequest:

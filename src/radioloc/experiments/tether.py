@@ -769,7 +769,8 @@ class TetherExperiment(Experiment):
     @staticmethod
     def _fig_sharing(bars, team, config, out_dir):
         labels = list(dict.fromkeys(b[0] for b in bars))
-        fig, axes = figure(1, 3 if len(team) else 2, width=15 if len(team) else 10, height=4.6)
+        fig, axes = figure(1, 3 if len(team) else 2, width=15 if len(team) else 10, height=4.6,
+                           layout="constrained")
         colors = ["C0", "C7", "C1", "C2"]
         for ax, (cname, title) in zip(axes, (("compass", "with compass"),
                                              ("nocompass", "without compass"))):
@@ -784,7 +785,8 @@ class TetherExperiment(Experiment):
             ax.set_xticks(xs, ["initial frame", "current odometry frame"])
             ax.set_ylabel("mean following error [m] (+- 2 s.e.)")
             ax.set_title(f"following error, {title}")
-        axes[0].legend(fontsize=7, loc="upper right")
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center",
+                   ncol=len(labels), fontsize=8)
         if len(team):
             ax = axes[2]
             for (share, comp), g in team.groupby(["share", "compass"]):
@@ -797,7 +799,12 @@ class TetherExperiment(Experiment):
             ax.set_title("team of trackers: error vs time (initial frame)")
             ax.legend(fontsize=7)
         fig.suptitle("Inter-robot sharing: the trackee's odometry (paper) and a team's readings (ours)")
-        save(fig, out_dir / "fig_sharing.png")
+        save(fig, out_dir / "fig_sharing.png", caption=(
+            "Mean following error (bars, +- 2 standard errors) of one tracker with and without "
+            "the trackee's shared odometry (the paper's sharing) and, ours beyond the paper, of "
+            "a team of trackers each alone or sharing their readings, with and without a "
+            "compass, in the initial and the current odometry frame"
+            + ("; right: the team's median error against time." if len(team) else ".")))
 
     # ---- figures ---------------------------------------------------------------------
     @staticmethod
@@ -818,35 +825,52 @@ class TetherExperiment(Experiment):
         axes[0].set_ylabel("RSSI (0..100)")
         fig.colorbar(im, ax=axes[1], label="L(dist | rssi)")
         fig.suptitle(f"Fig. 2: RSSI/distance likelihood from {config.calibration_pairs} simulated calibration pairs")
-        save(fig, out_dir / "fig2_model.png")
+        save(fig, out_dir / "fig2_model.png", caption=(
+            "Fig. 2 of paper 003: the RSSI/distance likelihood model before (a) and after (b) "
+            "post-processing; each horizontal slice is the trapezoidal distribution D_i for the "
+            f"RSSI value i on the vertical axis (here from {config.calibration_pairs} simulated "
+            "calibration pairs; darker = more likely, colour bar L(dist | rssi))."))
 
     @classmethod
     def _fig_donuts(cls, config, rows, out_dir):
         geom = _geometry(config)
         trackee = np.array(cls.FIG3_TRACKEE)
         trackers = np.array(cls.FIG3_TRACKERS)
-        fig, axes = figure(2, 3, width=11, height=7.4)
-        for i in range(len(trackers)):
-            g = rows[rows["step"] == i].sort_values(["y", "x"])
-            lik = g["likelihood"].to_numpy().reshape(geom.h, geom.w)
-            post = g["posterior"].to_numpy().reshape(geom.h, geom.w)
-            rssi = int(g["rssi"].iloc[0])
-            for ax, img, lab in ((axes[0, i], lik, f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI {rssi}"),
-                                 (axes[1, i], post, f"({'def'[i]}) grid after {i + 1} update(s)")):
-                ax.imshow(img, origin="lower", extent=geom.extent(), cmap="Greys")
-                ax.plot(*trackers[:i + 1].T, "o", color=COLORS["ours"], ms=5, label="tracker positions")
+        fig, axes = figure(2, 3, width=12, height=7.6, layout="constrained")
+        steps = [rows[rows["step"] == i].sort_values(["y", "x"]) for i in range(len(trackers))]
+        for r, (col, label) in enumerate((("likelihood", "likelihood L(d | RSSI)"),
+                                          ("posterior", "cell probability"))):
+            top = max(float(g[col].max()) for g in steps)
+            for i, g in enumerate(steps):
+                ax = axes[r, i]
+                img = g[col].to_numpy().reshape(geom.h, geom.w)
+                im = ax.imshow(img, origin="lower", extent=geom.extent(), cmap="viridis",
+                               vmin=0.0, vmax=top)
+                ax.plot(*trackers[:i + 1].T, "o", color="white", mec="k", ms=6,
+                        label="tracker positions")
                 for j, q in enumerate(trackers[:i + 1]):
-                    ax.annotate(str(j + 1), q, xytext=(4, 4), textcoords="offset points", color=COLORS["ours"])
-                ax.plot(*trackee, "s", color=COLORS["baseline"], mfc="none", ms=8, label="trackee (true)")
-                ax.axhline(0, ls="--", lw=0.6, color="k")
-                ax.axvline(0, ls="--", lw=0.6, color="k")
-                ax.set_title(lab, fontsize=9)
+                    ax.annotate(str(j + 1), q, xytext=(4, 4), textcoords="offset points",
+                                color="white", fontweight="bold")
+                ax.plot(*trackee, "s", color=COLORS["baseline"], mfc="none", mew=2, ms=9,
+                        label="trackee (true)")
+                ax.axhline(0, ls="--", lw=0.6, color="white")
+                ax.axvline(0, ls="--", lw=0.6, color="white")
+                ax.set_title(f"({'abc'[i]}) L at tracker pos. {i + 1}, RSSI "
+                             f"{int(g['rssi'].iloc[0])}" if r == 0 else
+                             f"({'def'[i]}) grid after {i + 1} update(s)", fontsize=9)
                 ax.grid(False)
                 ax.set_xlabel("x [m]")
                 ax.set_ylabel("y [m]")
+            fig.colorbar(im, ax=axes[r, :], label=label, shrink=0.9)
         axes[0, 0].legend(loc="lower left", fontsize=7)
-        fig.suptitle("Fig. 3: distance likelihoods of three readings (top) and the grid posterior (bottom)")
-        save(fig, out_dir / "fig3_updates.png")
+        fig.suptitle("Fig. 3: distance likelihoods of three readings (top) and the grid "
+                     "posterior (bottom); brighter = more likely")
+        save(fig, out_dir / "fig3_updates.png", caption=(
+            "Fig. 3 of paper 003: distance distributions from multiple RSSI measurements "
+            "((a)-(c)) and the resulting progression of the probability grid ((d)-(f)). Here "
+            "brighter cells are more likely (colour bars: likelihood 0-1, cell probability); "
+            "dashed lines mark the origin of the tracker's coordinate system, the square the "
+            "trackee's true location, numbered dots the tracker's three positions."))
 
     @staticmethod
     def _fig_traces(results, per, out_dir):
@@ -856,7 +880,7 @@ class TetherExperiment(Experiment):
             run = int(info.dropna(subset=["t_loc"])["run"].iloc[0]) if info["t_loc"].notna().any() else int(info["run"].iloc[0])
             g = sub[sub["run"] == run]
             med = sub.groupby("time_s")["error_m"].median()
-            fig, ax = figure(width=8, height=4)
+            fig, ax = figure(width=8, height=4.4, layout="constrained")
             ax.plot(g["time_s"], g["error_m"], color=COLORS["ours"], label=f"localization error, run {run}")
             ax.plot(g["time_s"], g["true_distance_m"], color=COLORS["truth"], ls="--", label=f"true distance, run {run}")
             ax.plot(med.index, med.values, color=COLORS["bound"], lw=0.8, alpha=0.7, label="median error over all runs")
@@ -866,8 +890,13 @@ class TetherExperiment(Experiment):
             ax.set_xlabel("time [s]")
             ax.set_ylabel("[m]")
             ax.set_title(f"Fig. {num}: localization {'with' if comp else 'without'} orientation sensing")
-            ax.legend(loc="upper right", fontsize=8)
-            save(fig, out_dir / f"fig{num}_{name}.png")
+            fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2,
+                       fontsize=8)
+            save(fig, out_dir / f"fig{num}_{name}.png", caption=(
+                f"Fig. {num} of paper 003: localization {'with' if comp else 'without'} "
+                f"orientation sensing: localization error and true distance against time in run "
+                f"{run} (the run localized first), the median error over all runs and the time "
+                "the trackee is localized and starts moving (dotted)."))
 
     @staticmethod
     def _fig_snapshots(config, rows, out_dir):
@@ -893,4 +922,9 @@ class TetherExperiment(Experiment):
         axes[0, 0].legend(loc="lower left", fontsize=7)
         fig.suptitle(f"Fig. 6: grid while following (run localized earliest of {config.example_runs}); "
                      f"cell width {config.cell_m:g} m")
-        save(fig, out_dir / "fig6_snapshots.png")
+        save(fig, out_dir / "fig6_snapshots.png", caption=(
+            "Fig. 6 of paper 003: two time series of tracking screenshots of a moving target "
+            "without ((a)-(c)) and with ((d)-(f)) orientation information. Blue shading "
+            f"indicates grid cell probabilities (darker = more likely, scaled per panel); cell "
+            f"width {config.cell_m:g} m; grey dot: the tracker, square: the trackee (true), green "
+            "dot: the estimate."))

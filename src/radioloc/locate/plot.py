@@ -1,10 +1,13 @@
-"""``radioloc locate --plot FILE.png``: anchors, tracks and their uncertainty.
+"""``radioloc locate --plot FILE.png|html``: anchors, tracks and their uncertainty.
 
 Left panel: the anchors (triangles), each node's track with its 95 % uncertainty ellipses at
 about twenty steps (where the method gives a covariance), rows with a gated range (crosses)
 or an NLOS probability above one half (circles), and the reference trajectory (dashed) with
 ``--reference``. Right panel, with ``--reference``: each node's error against time.
-Drawn with matplotlib's Agg backend (no display needed); PNG, SVG and PDF by the suffix.
+Drawn with matplotlib's Agg backend (no display needed); PNG, SVG and PDF by the suffix, or
+an HTML page (:mod:`radioloc.locate.plot_html`: the figure as inline SVG beside the run
+summary, the reference errors and a section per node). In an SVG each node's track is the
+element ``id="track-K"`` (K: the node's place in the table).
 """
 
 from __future__ import annotations
@@ -18,8 +21,8 @@ from radioloc.core.errors import ConfigError
 from radioloc.core.results import Track
 from radioloc.locate.table import covariance_of
 
-#: Figure formats ``--plot`` writes (by suffix).
-PLOT_SUFFIXES = (".png", ".svg", ".pdf")
+#: Formats ``--plot`` writes (by suffix).
+PLOT_SUFFIXES = (".png", ".svg", ".pdf", ".html")
 
 
 def check_plot_path(path: Path) -> None:
@@ -28,12 +31,12 @@ def check_plot_path(path: Path) -> None:
     Raises
     ------
     ConfigError
-        The suffix is not one of :data:`PLOT_SUFFIXES` (an ``.html`` page is not written).
+        The suffix is not one of :data:`PLOT_SUFFIXES`.
     """
     if Path(path).suffix.lower() not in PLOT_SUFFIXES:
         raise ConfigError(f"--plot {path}: the figure is written as "
                           f"{', '.join(s.lstrip('.').upper() for s in PLOT_SUFFIXES)} (by the "
-                          "suffix); an interactive .html page is not available")
+                          "suffix)")
 
 
 def node_tracks(frame: pd.DataFrame) -> dict[str, Track]:
@@ -57,17 +60,15 @@ def node_tracks(frame: pd.DataFrame) -> dict[str, Track]:
     return out
 
 
-def plot_locate(frame: pd.DataFrame, path: Path, *, anchors: pd.DataFrame | None = None,
-                reference: pd.DataFrame | None = None, errors: pd.DataFrame | None = None,
-                title: str = "") -> Path:
-    """Draw a ``locate`` output (see the module docstring) to ``path``.
+def locate_figure(frame: pd.DataFrame, *, anchors: pd.DataFrame | None = None,
+                  reference: pd.DataFrame | None = None, errors: pd.DataFrame | None = None,
+                  title: str = ""):
+    """The figure of a ``locate`` output (see the module docstring).
 
     Parameters
     ----------
     frame : DataFrame
         A ``locate`` output table.
-    path : Path
-        Figure file (suffix in :data:`PLOT_SUFFIXES`).
     anchors : DataFrame, optional
     reference : DataFrame, optional
         From :func:`radioloc.io.read_reference`.
@@ -77,25 +78,24 @@ def plot_locate(frame: pd.DataFrame, path: Path, *, anchors: pd.DataFrame | None
 
     Returns
     -------
-    Path
+    matplotlib.figure.Figure
+        With an Agg canvas, not registered with pyplot.
     """
-    check_plot_path(path)
     import matplotlib
-
-    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-
-    from radioloc.core.atomic import atomic_write_with
 
     panels = 2 if errors is not None else 1
     fig = Figure(figsize=(6.5 * panels, 5.5), layout="constrained")
+    FigureCanvasAgg(fig)
     axes = fig.subplots(1, panels, squeeze=False)[0]
     ax = axes[0]
     colors = matplotlib.colormaps["tab10"].colors
     tracks = node_tracks(frame)
     for k, (node, track) in enumerate(tracks.items()):
         c = colors[k % len(colors)]
-        track.plot(ax, every=max(1, track.steps // 20), color=c, label=node, lw=1.2)
+        track.plot(ax, every=max(1, track.steps // 20), color=c, label=node, lw=1.2,
+                   gid=f"track-{k}")
         rows = frame[frame["node"] == node]
         if "gated" in rows and (rows["gated"] > 0).any():
             g = rows[rows["gated"] > 0]
@@ -132,6 +132,40 @@ def plot_locate(frame: pd.DataFrame, path: Path, *, anchors: pd.DataFrame | None
         ex.set_ylim(bottom=0)
         ex.grid(alpha=0.3)
         ex.legend(fontsize=7)
+    return fig
+
+
+def plot_locate(frame: pd.DataFrame, path: Path, *, anchors: pd.DataFrame | None = None,
+                reference: pd.DataFrame | None = None, errors: pd.DataFrame | None = None,
+                title: str = "", summary: dict | None = None) -> Path:
+    """Draw a ``locate`` output (see the module docstring) to ``path``.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        A ``locate`` output table.
+    path : Path
+        Figure file (suffix in :data:`PLOT_SUFFIXES`).
+    anchors, reference, errors, title
+        As :func:`locate_figure`.
+    summary : dict, optional
+        The run summary (``summary.json``) shown by an ``.html`` page; default: the
+        method's summary in ``frame.attrs["summary"]``.
+
+    Returns
+    -------
+    Path
+    """
+    check_plot_path(path)
+    from radioloc.core.atomic import atomic_write_text, atomic_write_with
+
+    fig = locate_figure(frame, anchors=anchors, reference=reference, errors=errors,
+                        title=title)
     fmt = Path(path).suffix.lower().lstrip(".")
+    if fmt == "html":
+        from radioloc.locate.plot_html import locate_page
+
+        return atomic_write_text(path, locate_page(frame, fig, summary=summary, errors=errors,
+                                                   title=title))
     atomic_write_with(path, lambda f: fig.savefig(f, format=fmt, dpi=120), binary=True)
     return Path(path)

@@ -6,9 +6,9 @@ with the gap coloured (the relative gap only where ours and the paper's are with
 :data:`~radioloc.report.tables.GAP_FACTOR`; a departure the paper itself predicts is marked
 as such, apart from our gaps), and a link to the experiment's section. Each section then shows the claims (holds / does
 not hold / undecided at this size, with the confidence interval that decided each), the figures at
-full width with a caption naming the paper figure they reproduce (from the file name
-``figN[a-z]_*.png``, or from an optional ``captions.json`` ``{file stem: caption}`` in the
-experiment's folder), and the full metric table (with each metric's confidence interval
+full width with their captions (``captions.json`` in the experiment's folder, recorded by
+:func:`radioloc.report.style.save`; for a folder written without one, a caption made from the
+file name ``figN[a-z]_*.png``), and the full metric table (with each metric's confidence interval
 over runs, where it has one) folded in a ``<details>`` element.
 
 Nothing here imports pyplot or switches the matplotlib backend.
@@ -22,6 +22,7 @@ import re
 from pathlib import Path
 from typing import Any, Iterable
 
+from radioloc.report.captions import read_captions
 from radioloc.report.tables import (GAP_FACTOR, PREDICTED, claim_evidence, fmt, gap_is_meaningful,
                                     interval, metric_gap, verdict)
 
@@ -222,16 +223,6 @@ def _metric_table(record: dict[str, Any]) -> str:
             f'<tbody>{rows}</tbody></table></div></details>')
 
 
-def _captions(folder: Path) -> dict[str, str]:
-    path = folder / "captions.json"
-    if path.is_file():
-        try:
-            return {str(k): str(v) for k, v in json.loads(path.read_text()).items()}
-        except (ValueError, AttributeError):
-            return {}
-    return {}
-
-
 def _figure_order(path: Path) -> tuple:
     m = re.match(r"fig(\d+)([a-z]?)", path.stem)
     return (0, int(m.group(1)), m.group(2), path.stem) if m else (1, 0, "", path.stem)
@@ -276,7 +267,7 @@ def experiment_section(record: dict[str, Any], out: Path, description: str = "")
         parts.append(f'<p><b>Claims of the paper, checked on our numbers</b></p>'
                      f'<ul class="claims">{items}</ul>')
     folder = out / record["experiment"]
-    captions = _captions(folder)
+    captions = read_captions(folder)
     for f in sorted(folder.glob("*.png"), key=_figure_order):
         src = _esc(f.relative_to(out).as_posix())
         cap = captions.get(f.stem) or figure_caption(f.stem, str(record["paper"]))
