@@ -3,7 +3,8 @@ with the generic extended Kalman filter (:class:`radioloc.estimators.ExtendedKal
 
 Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: ranges, time
 differences, angles of arrival, pseudoranges; :func:`radioloc.locate.adapter.default_models`
-picks the model of each), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
+picks the model of each; RSS with a log-distance model per anchor from the anchors file,
+:mod:`radioloc.locate.path_loss`), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
 (WiFi RTT offsets, antenna delays), learnt online from a common offset fitted at the start.
 Measurements are processed as they arrive: the rows of a node that share one time stamp are
 one update, whatever anchors they reach (one anchor at a time is fine); a time with no
@@ -58,6 +59,7 @@ from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
+from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
@@ -67,7 +69,7 @@ from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
 #: The measurement kinds the trackers read (odometry: the control input of the motion).
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss") + MOTION_KINDS
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
@@ -727,6 +729,8 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
+        models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     parts = []
     for node in log.nodes:
         times, obs = node_observations(log, table, node, models, height_m=s["height"])
