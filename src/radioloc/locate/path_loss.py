@@ -26,8 +26,7 @@ D_REF_M = 1.0
 
 
 def fit_path_loss(measurements: pd.DataFrame, track: pd.DataFrame, anchors: pd.DataFrame,
-                  min_rows: int = 20, n_bounds: tuple[float, float] | None = None
-                  ) -> pd.DataFrame:
+                  min_rows: int = 20) -> pd.DataFrame:
     """Fit each anchor's log-distance RSS model against the distances from a track.
 
     Parameters
@@ -42,10 +41,6 @@ def fit_path_loss(measurements: pd.DataFrame, track: pd.DataFrame, anchors: pd.D
         ``id, x, y[, z]``.
     min_rows : int
         Fewest rows an anchor needs for a fit.
-    n_bounds : (float, float), optional
-        Bounds of the path-loss exponent: a fit outside them is clipped to the nearer bound
-        and ``a`` refitted at that exponent (a negative exponent, RSS growing with distance,
-        is what a track's errors and multipath can give in a small room). None: unbounded.
 
     Returns
     -------
@@ -78,15 +73,8 @@ def fit_path_loss(measurements: pd.DataFrame, track: pd.DataFrame, anchors: pd.D
     for k, a in enumerate(anchors["id"]):
         mine = (rows["peer"] == a).to_numpy()
         if mine.sum() >= min_rows:
-            r = rows["value"].to_numpy(float)[mine]
-            fit = LogDistanceGaussian.fit(r, dist[mine], D_REF_M)
-            a, n, s = fit.a, fit.n, fit.s
-            if n_bounds is not None and not n_bounds[0] <= n <= n_bounds[1]:
-                n = float(np.clip(n, *n_bounds))
-                x = 10.0 * n * np.log10(np.maximum(dist[mine], D_REF_M))
-                a = float(np.mean(r + x))
-                s = max(float(np.std(r + x - a)), 1e-6)
-            out.loc[out.index[k], list(ANCHOR_RSS_COLUMNS)] = (a, n, s)
+            fit = LogDistanceGaussian.fit(rows["value"].to_numpy(float)[mine], dist[mine], D_REF_M)
+            out.loc[out.index[k], list(ANCHOR_RSS_COLUMNS)] = (fit.a, fit.n, fit.s)
     return out
 
 
