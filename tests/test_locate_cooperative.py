@@ -7,10 +7,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from radioloc.core.errors import ConfigError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.locate.base import LocateRequest, run_method
-from radioloc.locate.cooperative import peer_ranges
+from radioloc.locate.cooperative import align_peer_ranges, peer_ranges
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.motion import WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
@@ -147,3 +147,29 @@ def test_coupling_rows_update_like_the_same_rows_given_as_observations():
                       coupling=lambda k, state: [Observation(model, r[k, 3:], second.context)])
     np.testing.assert_allclose(coupled.position, both.position, atol=1e-9)
     np.testing.assert_allclose(coupled.covariance, both.covariance, atol=1e-9)
+
+
+def test_align_peer_ranges_recovers_a_clock_offset_and_a_bias():
+    """Ranges between two tags logged on a clock 37 s behind theirs, 1.5 m long: the
+    tracks alone give the offset and the bias back; a range log that cannot reach the
+    tracks names time_s."""
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 120.0, 0.5)
+    a = np.stack([10 + 8 * np.cos(t / 9), 5 + 3 * np.sin(t / 5)], -1)
+    b = np.stack([12 + 2 * np.cos(t / 4), 9 + 6 * np.sin(t / 7)], -1)
+    track = pd.concat([pd.DataFrame({"time": t, "node": n, "x": p[:, 0], "y": p[:, 1]})
+                       for n, p in (("T1", a), ("T2", b))])
+    own = np.arange(0.0, 70.0, 0.7)                         # the range log's clock
+    def at(p, times):
+        return np.stack([np.interp(times, t, p[:, 0]), np.interp(times, t, p[:, 1])], -1)
+
+    d = np.linalg.norm(at(a, own + 37.0) - at(b, own + 37.0), axis=-1)
+    fit = align_peer_ranges(own, d + 1.5 + 0.2 * rng.standard_normal(own.size), track,
+                            "T1", "T2", step_s=0.5)
+    assert fit["offset_s"] == pytest.approx(37.0, abs=0.5)
+    assert fit["bias_m"] == pytest.approx(1.5, abs=0.1)
+    assert fit["correlation"] > 0.95 > fit["runner_up"]
+    with pytest.raises(InputError, match="time_s"):
+        align_peer_ranges(own + 1000.0, d, track, "T1", "T2", max_offset_s=100.0)
+    with pytest.raises(InputError, match="'T9'"):
+        align_peer_ranges(own, d, track, "T1", "T9")

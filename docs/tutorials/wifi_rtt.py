@@ -27,8 +27,11 @@ Variant rows, each scored beside the tracker it extends:
       radioloc locate canteen-1/rss/measurements.csv --anchors canteen-1/anchors_rss.csv \\
           --method ekf-track -o anchor_bias=1 -o range_std_m=1.5 --out canteen-1/rss.csv
 
-The phone-to-phone ranges are no variant: their log's clock is not aligned with the phones'
-logs, and the offset cannot be recovered from the data (docs/your-own-log/wifi-rtt.md).
+- `ekf-track + phone-to-phone, aligned on the tracks`: the phone-to-phone RTT log has a
+  clock of its own; its offset (and the range's bias) is taken where the range correlates
+  best with the distance between the two RTT-only tracks
+  (:func:`radioloc.locate.cooperative.align_peer_ranges`, no truth), its rows are added to
+  the log as ranges from M1 to M2, and `ekf-track -o cooperative=1` uses them.
 """
 
 from __future__ import annotations
@@ -42,7 +45,8 @@ import pandas as pd
 from radioloc.cli import app
 from radioloc.io import datasets
 from radioloc.io.logs import read_anchors, read_measurements
-from radioloc.io.wifi_rtt import VENUES, circles
+from radioloc.io.wifi_rtt import VENUES, circles, load_peer_ranges
+from radioloc.locate.cooperative import align_peer_ranges
 from radioloc.locate.path_loss import fit_path_loss
 
 #: The tracker's options: ranges biased per AP (anchor_bias), WiFi RTT noise of about 1.5 m.
@@ -51,7 +55,8 @@ TRACKER = ("-o", "anchor_bias=1", "-o", "range_std_m=1.5")
 BASELINE_M = {"Canteen": 2.82, "Conference Room": 7.19, "Library": 4.28}
 #: The variant with RSS, and the row it extends (its gain or loss is against that row).
 RSS_VARIANT = "ekf-track + RSS, self-calibrated"
-BASE_OF = {RSS_VARIANT: "ekf-track"}
+PEER_VARIANT = "ekf-track + phone-to-phone, aligned on the tracks"
+BASE_OF = {RSS_VARIANT: "ekf-track", PEER_VARIANT: "ekf-track"}
 
 
 def radioloc(*args) -> None:
@@ -72,7 +77,8 @@ def main(out: str | Path = "tutorial-wifi-rtt", small: bool = False) -> pd.DataF
     root = datasets.require("wifi-rtt-haiyaoyu")
     rows = []
     for venue in VENUES:
-        errs = {"gn": [], "ekf-track": [], "ekf-track --smooth": [], RSS_VARIANT: []}
+        errs = {"gn": [], "ekf-track": [], "ekf-track --smooth": [], RSS_VARIANT: [],
+                PEER_VARIANT: []}
         for circle in circles(root, venue)[: 1 if small else None]:
             run = out / f"{venue.replace(' ', '-').lower()}-{circle}"
             # 1. Convert one circle (both phones, nodes M1 and M2) to the locate schema.
@@ -96,6 +102,22 @@ def main(out: str | Path = "tutorial-wifi-rtt", small: bool = False) -> pd.DataF
             radioloc("locate", rss_log, "--anchors", run / "anchors_rss.csv", "--method",
                      "ekf-track", *TRACKER, "--quiet", "--out", run / "ekf_rss.csv")
             errs[RSS_VARIANT].append(errors(run / "ekf_rss.csv", ref))
+            # 4. Phone-to-phone ranges: their clock aligned on the RTT-only tracks.
+            peer = load_peer_ranges(root, venue, circle)
+            fit = align_peer_ranges(peer.time_s, peer.range_m, pd.read_csv(run / "ekf.csv"),
+                                    "M1", "M2")
+            meas = pd.read_csv(log)
+            rows = pd.DataFrame({"time": (peer.time_s + fit["offset_s"]).round(6), "node": "M1",
+                                 "peer": "M2", "kind": "range",
+                                 "value": peer.range_m - fit["bias_m"]})
+            rows = rows[(rows.value > 0) & rows.time.between(meas.time.min(), meas.time.max())]
+            (run / "coop").mkdir(exist_ok=True)
+            pd.concat([meas, rows]).sort_values(["time", "node"], kind="stable").to_csv(
+                run / "coop" / "measurements.csv", index=False)
+            radioloc("locate", run / "coop" / "measurements.csv", "--anchors", anchors,
+                     "--method", "ekf-track", *TRACKER, "-o", "cooperative=1", "--quiet",
+                     "--out", run / "ekf_coop.csv")
+            errs[PEER_VARIANT].append(errors(run / "ekf_coop.csv", ref))
             for key, name in (("gn", "gn.csv"), ("ekf-track", "ekf.csv"),
                               ("ekf-track --smooth", "ekf_smooth.csv")):
                 errs[key].append(errors(run / name, ref))

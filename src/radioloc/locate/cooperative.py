@@ -23,6 +23,9 @@ after its last time stays put: a step of zero length with no rows). Each track's
 taken at its own times, where it equals the track of the plain run when no tag-to-tag row
 reaches it (the motion models are continuous-time, so splitting an interval changes
 nothing). A row is used when both tags have a track running at its time.
+
+Tag-to-tag ranges logged on a clock of their own can be put on the tags' clock by
+:func:`align_peer_ranges` (no truth: the two tags' tracks without them).
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from radioloc.core.errors import InputError
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
 
-__all__ = ["peer_ranges", "CooperativeBatch", "cooperative_batch"]
+__all__ = ["peer_ranges", "CooperativeBatch", "cooperative_batch", "align_peer_ranges"]
 
 
 def peer_ranges(measurements: pd.DataFrame, anchor_ids) -> pd.DataFrame:
@@ -212,3 +216,73 @@ def _on_grid(obs: Observation, steps: np.ndarray, size: int) -> Observation:
         std = np.full_like(z, np.nan)
         std[steps] = obs.std
     return Observation(obs.model, z, obs.context, std)
+
+
+def align_peer_ranges(time_s: np.ndarray, range_m: np.ndarray, track: pd.DataFrame,
+                      node: str, peer: str, max_offset_s: float = 300.0, step_s: float = 0.5
+                      ) -> dict:
+    """Clock offset and bias of tag-to-tag ranges logged on a clock of their own.
+
+    The offset ``tau`` maximises the correlation between the ranges and the distance between
+    the two tags' tracks (computed without these ranges) at ``time_s + tau``, over offsets
+    in ``[-max_offset_s, max_offset_s]`` at which at least half of the rows fall within both
+    tracks; the bias is the median of ``range - distance`` there. Nothing else is read.
+    A distance that changes little, or repeats (tags walking one loop), leaves ``tau``
+    poorly determined: ``correlation`` and ``runner_up`` (the best correlation at least
+    20 s away) say how well.
+
+    Parameters
+    ----------
+    time_s : ndarray, shape (K,)
+        Times of the ranges on their own clock, seconds.
+    range_m : ndarray, shape (K,)
+    track : DataFrame
+        ``time, node, x, y`` of both tags (a ``locate`` output).
+    node, peer : str
+        The two tags.
+    max_offset_s, step_s : float
+        Offsets searched, seconds.
+
+    Returns
+    -------
+    dict
+        ``offset_s`` (add it to ``time_s``), ``bias_m`` (subtract it from the ranges),
+        ``correlation``, ``runner_up``.
+
+    Raises
+    ------
+    InputError
+        A tag without a track, or no offset placing half of the rows within the tracks.
+    """
+    t = np.asarray(time_s, dtype=float)
+    r = np.asarray(range_m, dtype=float)
+    ends = []
+    for name in (node, peer):
+        one = track[track["node"] == name].sort_values("time")
+        if one.empty:
+            raise InputError(f"track: no row of node {name!r}")
+        ends.append(one)
+    lo = max(e["time"].iloc[0] for e in ends)
+    hi = min(e["time"].iloc[-1] for e in ends)
+
+    def distance(times):
+        xy = [np.stack([np.interp(times, e["time"], e[c]) for c in ("x", "y")], -1) for e in ends]
+        return np.linalg.norm(xy[0] - xy[1], axis=-1)
+
+    offsets = np.arange(-max_offset_s, max_offset_s + step_s / 2, step_s)
+    rho = np.full(offsets.size, -np.inf)
+    for i, tau in enumerate(offsets):
+        inside = (t + tau >= lo) & (t + tau <= hi)
+        if inside.sum() >= max(3, t.size / 2):
+            d = distance(t[inside] + tau)
+            if np.std(d) > 0 and np.std(r[inside]) > 0:
+                rho[i] = np.corrcoef(r[inside], d)[0, 1]
+    if not np.isfinite(rho).any():
+        raise InputError(f"time_s: no offset within {max_offset_s:g} s puts half of the "
+                         "ranges within both tracks")
+    k = int(np.argmax(rho))
+    far = np.abs(offsets - offsets[k]) >= 20.0
+    inside = (t + offsets[k] >= lo) & (t + offsets[k] <= hi)
+    bias = float(np.median(r[inside] - distance(t[inside] + offsets[k])))
+    return {"offset_s": float(offsets[k]), "bias_m": bias, "correlation": float(rho[k]),
+            "runner_up": float(rho[far].max()) if far.any() else float("nan")}
