@@ -107,12 +107,12 @@ def main(out: str | Path = "tutorial-wifi-rtt", small: bool = False) -> pd.DataF
             fit = align_peer_ranges(peer.time_s, peer.range_m, pd.read_csv(run / "ekf.csv"),
                                     "M1", "M2")
             meas = pd.read_csv(log)
-            rows = pd.DataFrame({"time": (peer.time_s + fit["offset_s"]).round(6), "node": "M1",
-                                 "peer": "M2", "kind": "range",
-                                 "value": peer.range_m - fit["bias_m"]})
-            rows = rows[(rows.value > 0) & rows.time.between(meas.time.min(), meas.time.max())]
+            p2p = pd.DataFrame({"time": (peer.time_s + fit["offset_s"]).round(6), "node": "M1",
+                                "peer": "M2", "kind": "range",
+                                "value": peer.range_m - fit["bias_m"]})
+            p2p = p2p[(p2p.value > 0) & p2p.time.between(meas.time.min(), meas.time.max())]
             (run / "coop").mkdir(exist_ok=True)
-            pd.concat([meas, rows]).sort_values(["time", "node"], kind="stable").to_csv(
+            pd.concat([meas, p2p]).sort_values(["time", "node"], kind="stable").to_csv(
                 run / "coop" / "measurements.csv", index=False)
             radioloc("locate", run / "coop" / "measurements.csv", "--anchors", anchors,
                      "--method", "ekf-track", *TRACKER, "-o", "cooperative=1", "--quiet",
