@@ -693,9 +693,10 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
                             "to anchors as they arrive: ranges (optionally with a bias per "
-                            "anchor), time differences, angles, pseudoranges (constant "
-                            "velocity or random walk, or driven by odometry rows; RTS "
-                            "smoother with -o smooth=1)",
+                            "anchor), time differences, angles, pseudoranges, RSS (a "
+                            "path-loss model per anchor in the anchors file), ranges between "
+                            "nodes with -o cooperative=1 (constant velocity or random walk, "
+                            "or driven by odometry rows; RTS smoother with -o smooth=1)",
                options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
