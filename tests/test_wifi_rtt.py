@@ -7,7 +7,7 @@ import pytest
 from radioloc.core.errors import InputError
 from radioloc.io import datasets
 from radioloc.io.logs import read_anchors, read_measurements
-from radioloc.io.wifi_rtt import circles, load_anchors, load_run
+from radioloc.io.wifi_rtt import circles, load_anchors, load_peer_ranges, load_run
 
 ROOT = datasets.find("wifi-rtt-haiyaoyu")
 pytestmark = pytest.mark.skipif(ROOT is None, reason="wifi-rtt-haiyaoyu data set not present "
@@ -64,3 +64,11 @@ def test_bad_venue_and_circle_name_the_field():
         load_run(ROOT, "Canteen", 8)
     with pytest.raises(InputError, match="phone"):
         load_run(ROOT, "Canteen", 1, "M3")
+
+
+def test_phone_to_phone_log_reads_on_its_own_clock():
+    peer = load_peer_ranges(ROOT, "Canteen", 1)
+    assert list(peer.columns) == ["time_s", "range_m", "range_std_m", "rss_dbm"]
+    assert peer["time_s"].iloc[0] == 0.0 and (peer["range_m"] > 0).all() and len(peer) > 100
+    with pytest.raises(InputError, match="circles of Canteen"):
+        load_peer_ranges(ROOT, "Canteen", 8)

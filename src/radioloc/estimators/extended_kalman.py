@@ -477,7 +477,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                         {"state": state.mean, "state_covariance": state.covariance})
 
     def run(self, observations: Observation | Sequence[Observation], time=None, *, prior_mean,
-            prior_cov, controls=None, smooth: bool = False) -> Track:
+            prior_cov, controls=None, smooth: bool = False, coupling=None) -> Track:
         """Filter (or smooth) a series of observations.
 
         Parameters
@@ -493,6 +493,12 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             Displacement per step for an input-driven motion model.
         smooth : bool
             Return the Rauch-Tung-Striebel smoothed track instead of the filtered one.
+        coupling : callable, optional
+            ``coupling(k, state) -> list of Observation``: rows of step ``k`` that depend on
+            the batch's estimates after the step's own rows (ranges between members of the
+            batch, each peer's estimate acting as a moving anchor; see
+            :mod:`radioloc.locate.cooperative`). ``z`` of shape ``batch + (m,)``, the same
+            ``m`` at every step (NaN: absent); they are a second update of the step.
 
         Returns
         -------
@@ -553,6 +559,11 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 rows.append((o.model, z, ctx, f"observations[{i}]"))
                 heard = heard + np.isfinite(z).sum(axis=-1)
             state, info = self._update(pred, rows, streak >= self.gate_patience, checked=True)
+            if coupling is not None:
+                extra = coupling(k, state)
+                state, more = self.update(state, extra, streak >= self.gate_patience)
+                info = _combine([info, more])
+                heard = heard + sum(np.isfinite(o.z).sum(axis=-1) for o in extra)
             streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
                               np.where(heard > 0, 0, streak))
             steps.append((pred, state))

@@ -56,6 +56,9 @@ from radioloc.core.errors import InputError
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
 MOTION_KINDS = ("odometry_dx", "odometry_dy")
+#: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss
+#: exponent, residual standard deviation (dB).
+ANCHOR_RSS_COLUMNS = ("rss_a_dbm", "rss_n", "rss_std_db")
 KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
@@ -322,7 +325,9 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``; and, when the
         file has them, ``std_m`` (prior standard deviation of a rough anchor, NaN: surveyed)
         and ``bias_m`` (a range bias that ``locate`` subtracts, written by ``radioloc
-        calibrate``). With a ``time`` column (seconds, on the measurements' clock) an anchor
+        calibrate``), and the per-anchor RSS model ``rss_a_dbm, rss_n, rss_std_db``
+        (:data:`ANCHOR_RSS_COLUMNS`, written by
+        :func:`radioloc.locate.path_loss.fit_path_loss`). With a ``time`` column (seconds, on the measurements' clock) an anchor
         may move: each of its rows is its position at that time (rows sorted by time
         within an anchor; :func:`radioloc.locate.adapter.anchor_points` interpolates
         between them); an empty time marks a fixed anchor (one row).
@@ -346,6 +351,9 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
+    for c in ANCHOR_RSS_COLUMNS:                     # a per-anchor RSS path-loss model
+        if c in frame.columns:
+            out[c] = _optional_number(frame, c, path)
     tracked = "time" in frame.columns
     if tracked:                                      # a moving anchor: one row per position
         out["time"] = _optional_number(frame, "time", path)

@@ -3,7 +3,8 @@
 Two phones (``M1``, ``M2``) walk loops ("circles") among 6 or 8 access points; for every AP
 at each sample a phone logs the RTT range, the standard deviation it reports, and the RSS
 (see the set's ``SOURCE.md``). This module reads one circle of one phone into arrays:
-:func:`load_run`. The truth (the ``Ground Truth`` position and the ``True Distance``
+:func:`load_run`; and the phone-to-phone ranges of a circle, on their own clock:
+:func:`load_peer_ranges`. The truth (the ``Ground Truth`` position and the ``True Distance``
 columns) is returned apart, in ``truth_xy``, for scoring only; an AP not measured is written
 as 0 in all its columns and is read as missing (NaN), never as a range of 0 m.
 """
@@ -19,7 +20,8 @@ import pandas as pd
 
 from radioloc.core.errors import InputError
 
-__all__ = ["WifiRttRun", "VENUES", "PHONES", "circles", "load_anchors", "load_run"]
+__all__ = ["WifiRttRun", "VENUES", "PHONES", "circles", "load_anchors", "load_run",
+           "load_peer_ranges"]
 
 #: Venue folder names of the set.
 VENUES = ("Canteen", "Conference Room", "Library")
@@ -148,3 +150,39 @@ def load_run(root: Path | str, venue: str, circle: str | int, phone: str = "M1")
     imu = frame[[c for c in _IMU if c in frame.columns]].reset_index(drop=True)
     return WifiRttRun(venue, circle, phone, frame[time_col].to_numpy(dtype=float) / 1000.0,
                       [f"AP{j}" for j in aps], ranges, stds, rssv, imu, truth)
+
+
+def load_peer_ranges(root: Path | str, venue: str, circle: str | int) -> pd.DataFrame:
+    """Read the phone-to-phone RTT log of one circle (``rtt-log-*.csv``).
+
+    Its clock starts at its own 0 and is not aligned with the phones' logs (the set's
+    ``SOURCE.md``): see :func:`radioloc.locate.cooperative.align_peer_ranges`.
+
+    Parameters
+    ----------
+    root : path
+        The data set folder.
+    venue : str
+        One of :data:`VENUES`.
+    circle : str or int
+        A circle folder of the venue.
+
+    Returns
+    -------
+    DataFrame
+        ``time_s`` (the log's own clock), ``range_m``, ``range_std_m``, ``rss_dbm``; rows
+        without a range (empty or 0) left out.
+    """
+    folder = _venue_dir(root, venue) / str(circle)
+    files = sorted(folder.glob("rtt-log-*.csv")) if folder.is_dir() else []
+    if not files:
+        raise InputError(f"{folder}: no phone-to-phone log rtt-log-*.csv (circles of {venue}: "
+                         f"{', '.join(circles(root, venue))})")
+    frame = pd.read_csv(files[0], encoding="utf-8-sig")
+    frame.columns = [c.strip() for c in frame.columns]
+    out = pd.DataFrame({"time_s": pd.to_numeric(frame["Time Stamp (ms)"], errors="coerce") / 1000.0,
+                        "range_m": pd.to_numeric(frame["M1-M2 RTT Distance (m)"], errors="coerce"),
+                        "range_std_m": pd.to_numeric(frame["RTT std (m)"], errors="coerce"),
+                        "rss_dbm": pd.to_numeric(frame["RSS (dBm)"], errors="coerce")})
+    keep = np.isfinite(out["time_s"]) & np.isfinite(out["range_m"]) & (out["range_m"] > 0)
+    return out[keep].reset_index(drop=True)

@@ -3,11 +3,14 @@ with the generic extended Kalman filter (:class:`radioloc.estimators.ExtendedKal
 
 Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: ranges, time
 differences, angles of arrival, pseudoranges; :func:`radioloc.locate.adapter.default_models`
-picks the model of each), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
+picks the model of each; RSS with a log-distance model per anchor from the anchors file,
+:mod:`radioloc.locate.path_loss`), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
 (WiFi RTT offsets, antenna delays), learnt online from a common offset fitted at the start.
 Measurements are processed as they arrive: the rows of a node that share one time stamp are
 one update, whatever anchors they reach (one anchor at a time is fine); a time with no
-measurement to a known anchor is not a step. Rows whose peer is not an anchor are not used.
+measurement to a known anchor is not a step. Ranges whose peer is another node (tag-to-tag)
+are used with ``-o cooperative=1`` only (:mod:`radioloc.locate.cooperative`: the peer's
+estimate as a moving anchor); otherwise they are left out.
 
 Divergence (:func:`divergence`): a track whose innovations stay far outside their band (the
 normalised innovation squared per measurement over windows of ``NIS_WINDOW`` steps, a gated
@@ -54,7 +57,9 @@ from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.logs import range_arrays
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
+from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
+from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
@@ -64,7 +69,7 @@ from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
 #: The measurement kinds the trackers read (odometry: the control input of the motion).
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss") + MOTION_KINDS
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
@@ -249,6 +254,9 @@ OPTIONS = {
     "max_gap_s": Option("a gap longer than this between a node's ranges restarts its track "
                         "from a new start fix (default 5 s)", float, min=0, min_exclusive=True,
                         max=1e9),
+    "cooperative": Option("1: use ranges between nodes, each peer's latest estimate as a "
+                          "moving anchor, its uncertainty along the line of sight added to the "
+                          "range variance (default 0: such rows are left out)", bool),
     **ODOMETRY_OPTIONS,
 }
 
@@ -685,9 +693,10 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
                             "to anchors as they arrive: ranges (optionally with a bias per "
-                            "anchor), time differences, angles, pseudoranges (constant "
-                            "velocity or random walk, or driven by odometry rows; RTS "
-                            "smoother with -o smooth=1)",
+                            "anchor), time differences, angles, pseudoranges, RSS (a "
+                            "path-loss model per anchor in the anchors file), ranges between "
+                            "nodes with -o cooperative=1 (constant velocity or random walk, "
+                            "or driven by odometry rows; RTS smoother with -o smooth=1)",
                options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
@@ -721,6 +730,8 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
+        models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     parts = []
     for node in log.nodes:
         times, obs = node_observations(log, table, node, models, height_m=s["height"])
@@ -745,7 +756,17 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
                                 f"{float(times[0])!r}: {exc}") from None
         means.append(mean)
         variances.append(var)
-    t, batch = stack_tracks([tr[1] for tr in tracks], [tr[2] for tr in tracks])
+    peers = (peer_ranges(meas, table["id"]) if request.option("cooperative", False, bool)
+             else None)
+    coop = None
+    if peers is not None and len(peers):
+        if s["odometry_std"] is not None:
+            raise ConfigError("option cooperative: not with odometry rows")
+        coop = cooperative_batch([tr[:3] for tr in tracks], peers,
+                                 RangeModel(std_m=opts["range_std_m"]), s["dim"])
+        t, batch = coop.time, coop.observations
+    else:
+        t, batch = stack_tracks([tr[1] for tr in tracks], [tr[2] for tr in tracks])
     controls = None
     if s["odometry_std"] is not None:   # padded steps have zero length and no displacement
         controls = np.zeros(t.shape + (s["dim"],))
@@ -754,11 +775,11 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     with progress(1, "ekf-track: tracks") as bar:
         track = ekf.run(batch, t, prior_mean=np.stack(means),
                         prior_cov=np.stack([np.diag(v) for v in variances]), controls=controls,
-                        smooth=s["smooth"])
+                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling)
         bar.advance()
     tables, diverged = [], []
     for b, (node, times, _, restart, _) in enumerate(tracks):
-        one = track[b, :times.size]
+        one = track[b, :times.size] if coop is None else coop.track_of(track, b)
         tables.append(track_table(node, times, one, restart=restart))
         sign = divergence(one, anchors, gate)
         if sign is not None:
