@@ -332,7 +332,7 @@ def _components(p: Problem, step: int) -> dict:
 
 # ---- the generic estimators over the cases ----------------------------------------------
 #: settings of the small runs (a constructor parameter of that name gets this value)
-SMALL_SETTINGS = {"n_particles": 500}
+SMALL_SETTINGS = {"n_particles": 500, "cell_m": 0.2}
 #: settings that are rates (per second): divided by the problem's time scale, so that a
 #: scaled problem is the same model (the batch smoother's clock and bias random walk)
 RATE_SETTINGS = {"extra_q": 1e-6}
@@ -362,16 +362,18 @@ def pairs() -> list:
 
 
 def make_estimator(cls, problem: Problem, runs: slice = slice(None)):
-    """``cls`` with the small settings: the problem's motion model first for a recursive
-    estimator, a seed per run where it takes ``seed`` (so a run draws the same alone as in
-    a batch), rates scaled with time."""
+    """``cls`` with the small settings: the problem's motion model (its ``motion``
+    parameter) for a recursive estimator, a seed per run where it takes ``seed`` (so a run
+    draws the same alone as in a batch), rates scaled with time."""
     import inspect
     params = inspect.signature(cls).parameters
     kw = {k: v for k, v in SMALL_SETTINGS.items() if k in params}
     kw.update({k: v / problem.time_scale for k, v in RATE_SETTINGS.items() if k in params})
     if "seed" in params:
         kw["seed"] = SEEDS[runs]
-    return cls(problem.motion, **kw) if cls.tags.recursive else cls(**kw)
+    if cls.tags.recursive:
+        kw["motion"] = problem.motion
+    return cls(**kw)
 
 
 def solve(cls, problem: Problem, runs: slice = slice(None)):
