@@ -33,8 +33,10 @@ import numpy as np
 from radioloc.models import (
     BearingModel,
     Context,
+    DiagMixture,
     LogDistanceGaussian,
     LosNlosRange,
+    MixtureRssModel,
     Observation,
     PseudorangeModel,
     RangeModel,
@@ -71,11 +73,12 @@ def rotation(theta: float, dim: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Part:
-    """The rows of one observation: a model (``make(theta, perm)`` builds it for a scene
-    rotated by ``theta`` with its anchor table relabelled by ``perm``), the anchor-table
-    row of each measurement row, and of its reference (time differences)."""
+    """The rows of one observation: a model (``make(theta, perm, shift)`` builds it for a
+    scene rotated by ``theta``, then translated by ``shift``, with its anchor table
+    relabelled by ``perm``), the anchor-table row of each measurement row, and of its
+    reference (time differences)."""
 
-    make: Callable[[float, np.ndarray], object]
+    make: Callable[[float, np.ndarray, np.ndarray], object]
     rows: np.ndarray
     reference: np.ndarray | None = None
 
@@ -159,7 +162,7 @@ class ModelCase:
 
     @property
     def models(self) -> list:
-        return [p.make(0.0, np.arange(len(ANCHORS_2D))) for p in self.parts]
+        return [p.make(0.0, np.arange(len(ANCHORS_2D)), np.zeros(self.dim)) for p in self.parts]
 
     def _truth(self) -> np.ndarray:
         rng = np.random.default_rng(100 + self.seed)
@@ -240,7 +243,7 @@ class ModelCase:
         t = np.zeros(self.dim) if shift is None else np.asarray(shift, float)
         anchors = (self.anchors @ R.T + t)[perm]
         z = self.values() if z is None else z
-        models = [p.make(theta, perm) for p in self.parts]
+        models = [p.make(theta, perm, t) for p in self.parts]
         obs = []
         for m, v, (order, ctx) in zip(models, z, self._contexts(anchors, new_of_old)):
             obs.append(Observation(model=m, z=v[..., order], context=ctx))
@@ -264,16 +267,33 @@ class ModelCase:
 
 
 def _fixed(model) -> Callable:
-    return lambda theta, perm: model
+    return lambda theta, perm, shift: model
 
 
 def _bearing(component: str):
     yaw = np.linspace(-0.4, 0.5, len(ANCHORS_2D))          # one frame per anchor
 
-    def make(theta, perm):
+    def make(theta, perm, shift):
         return BearingModel(std_rad=0.004, component=component,
                             orientation_rad=(yaw + theta)[perm])
     return make
+
+
+#: calibration places of the fingerprint mixture (every 2 m over the tracks' area)
+PLACES = np.stack(np.meshgrid(np.arange(3.0, 28.0, 2.0), np.arange(0.0, 13.0, 2.0)),
+                  -1).reshape(-1, 2)
+
+
+def _fingerprint(theta, perm, shift):
+    """Paper 004's per-station mixtures on the places, the signal mean falling with the
+    distance to the station's anchor; isotropic position variances, so that the rotated
+    places are the rotated model."""
+    d = np.linalg.norm(PLACES[None] - ANCHORS_2D[:, None], axis=-1)           # (A, K)
+    nu = -40.0 - 20.0 * np.log10(np.maximum(d, 0.5))
+    pos = PLACES @ rotation(theta, 2).T + np.asarray(shift, float)[:2]
+    means = np.concatenate([np.broadcast_to(pos, d.shape + (2,)), nu[..., None]], -1)
+    mix = DiagMixture.create(np.ones(d.shape), means, np.full(d.shape + (3,), 0.5))
+    return MixtureRssModel(mix[np.asarray(perm)])
 
 
 ALL = np.arange(len(ANCHORS_2D))
@@ -302,6 +322,7 @@ CASES = {c.name: c for c in [
                                                                   d_ref_m=0.5))), ALL)], 0.8,
               seed=7),
     ModelCase("rss-trapezoid", 2, [Part(_fixed(TrapezoidRssModel(TRAPEZOIDS)), ALL)], 1.0, seed=8),
+    ModelCase("rss-fingerprint", 2, [Part(_fingerprint, ALL)], 1.0, seed=9),
 ]}
 
 

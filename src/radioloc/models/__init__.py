@@ -39,6 +39,7 @@ _WHERE = {
     "PseudorangeModel": "pseudorange",
     "RssModel": "rss_model",
     "TrapezoidRssModel": "rss_model",
+    "MixtureRssModel": "mixture_rss",
     "TdoaModel": "tdoa",
     "ProgressionInfo": "progressive_bayes",
     "isd": "progressive_bayes",
@@ -61,4 +62,5 @@ __all__ = [
     "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS", "merge_groups",
     "progressive_reduce", "isd", "ProgressionInfo",
     "TdoaModel", "BearingModel", "PseudorangeModel", "ClockModel", "RssModel", "TrapezoidRssModel",
+    "MixtureRssModel",
 ]
