@@ -647,19 +647,38 @@ class GridFilter(RecursiveEstimator):
     displacement: ShiftGrid) and ``extra_blur_m`` (an extra blur radius, e.g. Algorithm 4's
     ``|odometry step|`` before the frames are synchronised) to :meth:`predict`.
 
+    Any measurement model: :meth:`run` and :meth:`step` also take
+    :class:`~radioloc.models.measurement.Observation` inputs of any model whose tags fit
+    (``tags``: a ``logpdf`` on 2-D positions, reading the position only): range (Gaussian,
+    LOS/NLOS), time difference, bearing, RSS (log-distance, trapezoid, calibration
+    mixture), ... The update is Algorithm 1 with ``L_i = exp(sum logpdf(z | l_i) - max)``
+    over every row of every observation of the step (:meth:`update_observations`); the
+    paper's readings ``(tracker_xy, rssi)`` with ``model`` are the same filter with the
+    model's likelihood (a configuration: same grids to rounding with ``epsilon = 0``). The
+    grid is the filter's ``geometry`` or, without one, a square grid of ``cell_m`` cells
+    around each run's Gaussian prior (``prior_mean``, ``prior_cov``; :meth:`prior_grid`).
+    A motion model with velocity (``WhiteAccelerationCV``, ``ConstantVelocity``) is
+    carried as the prior's velocity, which the grid drifts with, and its position noise
+    blurs the grid (:meth:`drift`): the grid holds positions only.
+
     Parameters
     ----------
-    geometry : GridGeometry
-        The grid (cells in the filter's frame).
-    model : object with ``likelihood(dist, rssi)``
-        Sensor model ``L(dist | rssi)``: :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`,
-        :class:`~radioloc.models.rssi_logdistance.LogDistanceGaussian`, ...
-    epsilon : float
-        Minimum cell probability (Algorithm 1); ``epsilon k <= 1``.
+    geometry : GridGeometry, optional
+        The grid (cells in the filter's frame); None: a grid around each run's prior.
+    model : object with ``likelihood(dist, rssi)``, optional
+        Sensor model ``L(dist | rssi)`` of the readings form:
+        :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`,
+        :class:`~radioloc.models.rssi_logdistance.LogDistanceGaussian`, ... (observations
+        carry their own models).
+    epsilon : float, optional
+        Minimum cell probability (Algorithm 1); ``epsilon k <= 1``. Default ``1e-6`` with a
+        readings ``model`` (the paper-003 experiments), else ``1e-12`` (a floor of
+        ``1e-6`` per cell would outweigh a posterior narrower than the grid).
     blur_m : float
         BlurGrid radius per step (the paper's ``gamma``), metres.
-    motion : RandomWalk, optional
-        Position-only motion model whose ``Q(dt)`` sets the blur instead of ``blur_m``.
+    motion : motion model, optional
+        2-D: a random walk (``RandomWalk``) whose ``Q(dt)`` sets the blur instead of
+        ``blur_m``, or a model with velocity (observations with ``prior_mean``: see above).
     location : {"mean", "peak"}
         What :meth:`estimate` reports as the position: the grid mean (the posterior mean,
         default), or GetLocation (Algorithm 2, the paper's: peak cell plus an
@@ -674,6 +693,11 @@ class GridFilter(RecursiveEstimator):
         as compiled kernels (:mod:`radioloc.estimators.grid_compiled`); ``"numpy"``: every
         operation runs its NumPy definition (:func:`probability_update`,
         :func:`blur_grid`, ...). The two agree to rounding (within 1e-10 relative).
+    cell_m : float
+        Cell side of the grids built around the priors, metres.
+    span_m : float, optional
+        Their half-width, metres; default four times the largest prior position standard
+        deviation of the batch.
 
     Raises
     ------
@@ -686,13 +710,15 @@ class GridFilter(RecursiveEstimator):
                 reads=("position",))
 
     def __init__(self, geometry: GridGeometry | None = None, model: Any = None, *,
-                 epsilon: float = 1e-6, blur_m: float = 0.0, motion: Any = None,
+                 epsilon: float | None = None, blur_m: float = 0.0, motion: Any = None,
                  location: str = "mean", blur: str = "fft", backend: str = "numba",
                  cell_m: float = 0.25, span_m: float | None = None) -> None:
         if geometry is not None and not isinstance(geometry, GridGeometry):
             raise ConfigError(f"geometry: expected a GridGeometry, got {type(geometry).__name__}")
         if model is not None and not callable(getattr(model, "likelihood", None)):
             raise ConfigError(f"model: needs a likelihood(dist, rssi) method, got {type(model).__name__}")
+        if epsilon is None:
+            epsilon = 1e-6 if model is not None else 1e-12
         eps = check_probability(epsilon, "epsilon")
         if geometry is not None and eps * geometry.k > 1:
             raise ConfigError(f"epsilon: {eps} x {geometry.k} cells exceeds 1")
