@@ -279,8 +279,8 @@ def _bearing(component: str):
     return make
 
 
-#: calibration places of the fingerprint mixture (every 2 m over the tracks' area)
-PLACES = np.stack(np.meshgrid(np.arange(3.0, 28.0, 2.0), np.arange(0.0, 13.0, 2.0)),
+#: calibration places of the fingerprint mixture (every 3 m over the tracks' area)
+PLACES = np.stack(np.meshgrid(np.arange(3.0, 28.0, 3.0), np.arange(0.0, 13.0, 3.0)),
                   -1).reshape(-1, 2)
 
 
@@ -292,7 +292,7 @@ def _fingerprint(theta, perm, shift):
     nu = -40.0 - 20.0 * np.log10(np.maximum(d, 0.5))
     pos = PLACES @ rotation(theta, 2).T + np.asarray(shift, float)[:2]
     means = np.concatenate([np.broadcast_to(pos, d.shape + (2,)), nu[..., None]], -1)
-    mix = DiagMixture.create(np.ones(d.shape), means, np.full(d.shape + (3,), 0.5))
+    mix = DiagMixture.create(np.ones(d.shape), means, np.full(d.shape + (3,), 1.5))
     return MixtureRssModel(mix[np.asarray(perm)])
 
 

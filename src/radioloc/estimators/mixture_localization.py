@@ -413,12 +413,22 @@ class MixtureState:
 class MixtureTracker(RecursiveEstimator):
     """Recursive Bayesian tracking with mixture densities (Sect. 4, Fig. 7).
 
+    Observations: :meth:`run` also takes an
+    :class:`~radioloc.models.measurement.Observation` of a
+    :class:`~radioloc.models.mixture_rss.MixtureRssModel` (the calibration mixtures as a
+    measurement model, rows the stations) with a Gaussian prior (``prior_mean``,
+    ``prior_cov``), the form of the generic estimators (``tags``: kind
+    ``"rss_fingerprint"``). Other likelihoods are not taken: the filter step is the
+    product with the measurement density in mixture form (the conditioned calibration
+    mixtures, eq. (2)), which a general ``logpdf`` does not give; the grid and particle
+    filters take those.
+
     Parameters
     ----------
-    models : DiagMixture
+    models : DiagMixture, optional
         Per-base-station calibration models, batch shape ``(..., S)``, dimension ``D + 1``
-        (as for :class:`MixtureLocalizer`).
-    motion : UniformDisk or BoundedSpeedCV
+        (as for :class:`MixtureLocalizer`); None: given by the observations' model.
+    motion : UniformDisk, BoundedSpeedCV or WhiteAccelerationCV
         ``UniformDisk`` (the paper's model): the next position is uniform in the disk of
         radius ``v_max * dt`` (paper: ``v_max`` = 1.5 m/s); ``v_max = 0`` is a static user
         (no prediction); the state is the position. ``BoundedSpeedCV`` (ours, a velocity
@@ -426,6 +436,8 @@ class MixtureTracker(RecursiveEstimator):
         constant-velocity transition with white acceleration (kept axis-aligned:
         :func:`radioloc.models.mixture.linear_predict`); before the first measurement the
         velocity is uniform in the ball of radius ``v_max`` (:func:`uniform_ball`).
+        ``WhiteAccelerationCV``: the same transition, with the velocity from a prior on
+        the whole state (no ``v_max``).
     max_components : int
         Bound on the components of every density.
     reduction : str
