@@ -34,6 +34,8 @@ from radioloc.models import (
     BearingModel,
     Context,
     DiagMixture,
+    FingerprintMixture,
+    FingerprintScanModel,
     LogDistanceGaussian,
     LosNlosRange,
     MixtureRssModel,
@@ -296,6 +298,21 @@ def _fingerprint(theta, perm, shift):
     return MixtureRssModel(mix[np.asarray(perm)])
 
 
+def _scan(theta, perm, shift):
+    """A shared-place fingerprint model on the same places: access point ``k`` at the
+    anchor, detected with a probability falling with the distance, its reading the same
+    log-distance mean (4 dB^2)."""
+    d = np.linalg.norm(PLACES[:, None] - ANCHORS_2D, axis=-1)                # (K, A)
+    pos = PLACES @ rotation(theta, 2).T + np.asarray(shift, float)[:2]
+    k = len(PLACES)
+    fm = FingerprintMixture(pos, np.full((k, 2), 1.5), np.full(k, -np.log(k)),
+                            np.clip(1.2 - d / 30.0, 0.05, 0.95)[:, perm],
+                            (-40.0 - 20.0 * np.log10(np.maximum(d, 0.5)))[:, perm],
+                            np.full(d.shape, 4.0), np.ones(d.shape[1], bool),
+                            np.zeros((k, 0), np.int64))
+    return FingerprintScanModel(fm)
+
+
 ALL = np.arange(len(ANCHORS_2D))
 OTHERS = ALL[1:]
 
@@ -323,6 +340,7 @@ CASES = {c.name: c for c in [
               seed=7),
     ModelCase("rss-trapezoid", 2, [Part(_fixed(TrapezoidRssModel(TRAPEZOIDS)), ALL)], 1.0, seed=8),
     ModelCase("rss-fingerprint", 2, [Part(_fingerprint, ALL)], 1.0, seed=9),
+    ModelCase("rss-scan", 2, [Part(_scan, ALL)], 1.2, seed=10),
 ]}
 
 

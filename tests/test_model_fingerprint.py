@@ -1,8 +1,13 @@
-"""Paper 004's calibration mixtures as a measurement model (``MixtureRssModel``): its
-likelihood against the mixture's own densities, its sampler against its predicted mean,
-its refusals, and the mixture tracker fed through observations of it. The generic contract
-loops run it through every estimator whose tags take it (``rss-fingerprint`` in
-``tests/model_cases.py``)."""
+"""The fingerprint models as measurement models.
+
+- Paper 004's calibration mixtures (``MixtureRssModel``): its likelihood against the
+  mixture's own densities, its sampler against its predicted mean, its refusals, and the
+  mixture tracker fed through observations of it.
+- The shared-place WiFi model (``FingerprintScanModel``): its rows against the fingerprint
+  model's own scan likelihood, absent rows, its sampler, its refusals.
+
+The generic contract loops run both through every estimator whose tags take them
+(``rss-fingerprint`` and ``rss-scan`` in ``tests/model_cases.py``)."""
 
 from __future__ import annotations
 
@@ -136,3 +141,68 @@ def test_mixture_tracker_refuses_other_models_and_missing_station_models():
     bad = Observation(MODEL, np.zeros((3, 2)), Context(points=STATIONS[:2]))
     with pytest.raises(InputError, match="context.index"):
         MixtureTracker(motion=UniformDisk(1.5)).run(bad, np.arange(3.0))
+
+
+# ---- the shared-place fingerprint model (WiFi scans) --------------------------------------
+def _scan_model():
+    from radioloc.models import FingerprintMixture, FingerprintScanModel
+    rng = np.random.default_rng(7)
+    k, s = 12, 5
+    fm = FingerprintMixture(rng.uniform(0, 10, (k, 2)), rng.uniform(0.5, 2.0, (k, 2)),
+                            np.log(np.full(k, 1.0 / k)), rng.uniform(0.1, 0.9, (k, s)),
+                            rng.uniform(-80, -40, (k, s)), rng.uniform(4, 25, (k, s)),
+                            np.ones(s, bool), np.zeros((k, 0), np.int64))
+    return fm, FingerprintScanModel(fm)
+
+
+def test_scan_rows_sum_to_the_fingerprint_models_own_scan_likelihood():
+    """Sum of the rows = ``log sum_j r_j(x) exp(log L_j(scan))`` with ``log L_j`` from the
+    fingerprint model's own ``loglik`` (NaN there = not detected), for any row order."""
+    fm, model = _scan_model()
+    scan = np.array([-55.0, np.nan, -71.0, np.nan, -48.0])        # loglik's form
+    z = np.where(np.isnan(scan), model.not_detected, scan)
+    x = np.array([[2.0, 3.0], [7.5, 1.0], [5.0, 9.0]])
+    d = x[:, None, :] - fm.positions
+    lx = fm.log_prior - 0.5 * np.sum(d * d / fm.position_variances
+                                     + np.log(2 * np.pi * fm.position_variances), axis=-1)
+    lr = lx - np.log(np.exp(lx).sum(-1, keepdims=True))
+    want = np.log(np.sum(np.exp(lr + fm.loglik(scan[None])), axis=-1))
+    for rows in (np.arange(5), np.array([3, 0, 4, 1, 2])):
+        ctx = Context(points=np.zeros((5, 2)), index=rows)
+        got = model.logpdf(np.broadcast_to(z[rows], (3, 5)), {"position": x}, ctx).sum(-1)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+
+
+def test_scan_absent_rows_are_left_out():
+    _, model = _scan_model()
+    x = np.array([[4.0, 4.0]])
+    z = np.array([[-60.0, model.not_detected, np.nan, -50.0, np.nan]])
+    full = model.logpdf(z, {"position": x}, Context(points=np.zeros((5, 2)), index=np.arange(5)))
+    kept = np.array([0, 1, 3])
+    part = model.logpdf(z[:, kept], {"position": x},
+                        Context(points=np.zeros((3, 2)), index=kept))
+    assert full[0, 2] == 0.0 and full[0, 4] == 0.0
+    np.testing.assert_allclose(full.sum(-1), part.sum(-1), rtol=0, atol=1e-12)
+
+
+def test_scan_sampler_detects_at_the_models_rate():
+    fm, model = _scan_model()
+    n = 20000
+    x = np.array([3.0, 6.0])
+    ctx = Context(points=np.zeros((5, 2)), index=np.arange(5))
+    draws = model.sample({"position": np.broadcast_to(x, (n, 2))}, ctx, np.random.default_rng(1))
+    lr = model.place_log_weights({"position": x}, ctx)
+    rate = np.exp(lr) @ fm.detect
+    seen = (draws != model.not_detected).mean(axis=0)
+    assert np.all(np.abs(seen - rate) < 4 * np.sqrt(rate * (1 - rate) / n)), (seen, rate)
+
+
+def test_scan_model_is_likelihood_only_and_names_bad_input():
+    _, model = _scan_model()
+    assert GridFilter.tags.accepts(model) and ParticleFilter.tags.accepts(model)
+    assert not ExtendedKalmanFilter.tags.accepts(model)
+    assert not MixtureTracker.tags.accepts(model)
+    with pytest.raises(ConfigError, match="FingerprintScanModel"):
+        model.predict({"position": X}, CTX)
+    with pytest.raises(InputError, match="context.index"):
+        model.logpdf(np.zeros((3, 3)), {"position": X}, Context(points=STATIONS[:3]))
