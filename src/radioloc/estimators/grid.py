@@ -12,6 +12,12 @@ algorithms:
 * :func:`blur_grid` and :func:`shift_grid` (BlurGrid, ShiftGrid of Algorithm 4), with
   :func:`floor_normalise`.
 
+The same filter takes :class:`~radioloc.models.measurement.Observation` inputs of any
+measurement model with a log-likelihood on 2-D positions (``GridFilter.tags``): the
+likelihood of Algorithm 1 is then ``exp(sum of the model's logpdf at the cell centres)``,
+on the filter's grid or on a grid built around each run's Gaussian prior; the paper's
+RSSI readings are one configuration of it.
+
 ``GridFilter(backend="numba")`` (the default) runs its update with a
 :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`, and its recursive blur, through the
 compiled kernels of :mod:`radioloc.estimators.grid_compiled`; ``backend="numpy"`` runs the
@@ -616,11 +622,12 @@ class GridState:
         -------
         GridState
         """
-        p = self.p[index]
-        keep = (lambda a: None if a is None else np.atleast_1d(a[index]) if a.ndim == 1
-                else a[index] if a[index].ndim == 2 else a[index][None])
-        return GridState(p if p.ndim == 3 else p[None], self.time, keep(self.offset),
-                         keep(self.velocity), keep(self.pvv), self.geometry)
+        def keep(a):
+            if a is None:
+                return None
+            return a[index] if np.ndim(a[index]) == np.ndim(a) else a[index][None]
+        return GridState(keep(self.p), self.time, keep(self.offset), keep(self.velocity),
+                         keep(self.pvv), self.geometry)
 
 
 _LOCATIONS = ("mean", "peak")
