@@ -58,6 +58,22 @@ def test_zero_noise_gives_the_truth_within_a_cell(model, measure):
     assert np.all(np.sqrt(np.trace(track.covariance[:, -1], axis1=-2, axis2=-1)) < CELL_M)
 
 
+def test_two_kinds_in_one_step_multiply():
+    """A range to one anchor and a bearing from another (crossing the range circle at a
+    wide angle) fix the position together, the range alone does not: their likelihoods
+    multiply on the cells."""
+    ctx = Context(points=ANCHORS[:1])
+    rng_obs = Observation(RangeModel(std_m=0.01), _ranges(TRUTH)[:, None, :1], ctx)
+    brg = Observation(BearingModel(std_rad=5e-4), _bearings(TRUTH)[:, None, 3:],
+                      Context(points=ANCHORS[3:]))
+    f = GridFilter(cell_m=CELL_M)
+    prior = dict(prior_mean=TRUTH + [0.7, -0.4], prior_cov=4.0 * np.eye(2))
+    both = f.run([rng_obs, brg], **prior).position[:, -1]
+    assert np.all(np.linalg.norm(both - TRUTH, axis=-1) < CELL_M)
+    alone = f.run(rng_obs, **prior).position[:, -1]
+    assert np.all(np.linalg.norm(alone - TRUTH, axis=-1) > 5 * CELL_M)
+
+
 def test_moving_the_anchors_moves_the_estimate():
     base = _snapshot(RangeModel(std_m=0.05), _ranges(TRUTH)).position[:, -1]
     moved = _snapshot(RangeModel(std_m=0.05), _ranges(TRUTH + [1.0, 0.0])).position[:, -1]
