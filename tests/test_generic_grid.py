@@ -91,7 +91,8 @@ def test_claimed_covariance_matches_the_errors():
     track = GridFilter(cell_m=0.05).run(obs, prior_mean=start, prior_cov=0.25 * np.eye(2))
     e = track.position[:, -1] - truth
     nees = np.einsum("bi,bij,bj->b", e, np.linalg.inv(track.covariance[:, -1]), e)
-    assert 1.5 < nees.mean() < 2.7, nees.mean()
+    # the mean of 40 chi-square(2) draws: 2 +- 0.32 (1.54 here); the band is 2.5 of those
+    assert 1.2 < nees.mean() < 2.8, nees.mean()
 
 
 def _readings(seed=5, T=6):
