@@ -371,7 +371,7 @@ def _components(p: Problem, step: int) -> dict:
 
 # ---- the generic estimators over the cases ----------------------------------------------
 #: settings of the small runs (a constructor parameter of that name gets this value)
-SMALL_SETTINGS = {"n_particles": 500, "cell_m": 0.2, "max_components": 8}
+SMALL_SETTINGS = {"n_particles": 500, "cell_m": 0.25, "max_components": 8}
 #: settings that are rates (per second): divided by the problem's time scale, so that a
 #: scaled problem is the same model (the batch smoother's clock and bias random walk)
 RATE_SETTINGS = {"extra_q": 1e-6}
