@@ -1,6 +1,7 @@
 """The network EKF and RLS of paper 000: the compiled backend against the NumPy definition
-(range_jacobian + kalman_update per packet, eq. (13)-eq. (25); NetworkRLS.step per master,
-eq. (8)-eq. (11)) through the public API, and the invariants of both."""
+(the generic EKF update of PairRangeModel rows per packet, eq. (13)-eq. (25);
+NetworkRLS.step per master, eq. (8)-eq. (11)) through the public API, and the invariants
+of both."""
 
 import numpy as np
 import pytest
@@ -8,8 +9,12 @@ import pytest
 from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.core.geometry import pairwise_distances
 from radioloc.estimators.ekf import NetworkEKF, range_jacobian
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.estimators.kalman import kalman_update
 from radioloc.estimators.rls import NetworkRLS
+from radioloc.models.measurement import Observation
+from radioloc.models.motion import RandomWalk
+from radioloc.models.pair_range import NetworkLayout, PairContext, PairRangeModel
 
 TOL = 1e-10
 
@@ -52,18 +57,27 @@ def test_ekf_step_with_per_run_masters_and_mask_backends_agree():
     np.testing.assert_array_equal(out[0].used, out[1].used)
 
 
-def test_ekf_numpy_backend_is_kalman_update_of_the_range_jacobian():
+def test_ekf_numpy_backend_is_the_generic_ekf_update_of_pair_ranges():
     _, prior, var, rho = _draws(2, R=4)
     ekf = NetworkEKF(range_var_m2=900.0, backend="numpy")
     s = ekf.init(prior, var)
     master = np.full(4, 2)
     got = ekf.step(s, master, rho[:, 0, 2])
+    # the generic filter, one observation of the rows p -> master (p != master)
+    others = np.array([0, 1, 3, 4, 5])
+    ctx = PairContext(points=np.zeros((5, 2)), pairs=np.stack([others, np.full(5, 2)], -1))
+    state = FilterState(s.mean, s.covariance, 0.0, NetworkLayout(dim=2, nodes=6))
+    ref, _ = ExtendedKalmanFilter(RandomWalk(0.0), gate=None).update(
+        state, Observation(PairRangeModel(std_m=30.0), rho[:, 0, 2, others], ctx))
+    np.testing.assert_array_equal(got.mean, ref.mean)
+    np.testing.assert_array_equal(got.covariance, ref.covariance)
+    # and, to rounding, eq. (19)-eq. (23) with the Jacobian of eq. (16)-eq. (17)
     valid = np.isfinite(rho[:, 0, 2]) & (np.arange(6) != 2)
     h, H = range_jacobian(s.position, master, valid)
     mean, cov, _, _ = kalman_update(s.mean, s.covariance, np.where(valid, rho[:, 0, 2] - h, np.nan),
                                     H, R_diag=np.full((4, 6), 900.0), valid=valid)
-    np.testing.assert_array_equal(got.mean, mean)
-    np.testing.assert_array_equal(got.covariance, cov)
+    _close(got.mean, mean)
+    _close(got.covariance, cov)
 
 
 @pytest.mark.parametrize("backend", ["numba", "numpy"])

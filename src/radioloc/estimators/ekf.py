@@ -7,13 +7,21 @@ The state is ``x = [x_1; ...; x_K]`` (eq. (13)), static, so the prediction is th
 eq. (23)); the next master starts from that estimate. A missing link (NaN range, or a
 false mask entry) is a row skipped by the update.
 
-Each packet is :func:`range_jacobian` (eq. (15)-eq. (17)) followed by the toolkit's one
-Kalman update, :func:`radioloc.estimators.kalman.kalman_update`: the Joseph form
+Each packet is one update of the generic
+:class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` (``backend="numpy"``):
+the state is a :class:`~radioloc.models.pair_range.NetworkLayout` of the ``K`` nodes, the
+packet an :class:`~radioloc.models.measurement.Observation` of
+:class:`~radioloc.models.pair_range.PairRangeModel` rows ``|x_p - x_k|``, ``p != k``
+(eq. (15); its Jacobian is eq. (16)-eq. (17), as :func:`range_jacobian` prints it), and the
+update is the toolkit's one Kalman update,
+:func:`radioloc.estimators.kalman.kalman_update`: the Joseph form
 ``(I - L H^T) S (I - L H^T)^T + L R L^T``, algebraically eq. (21) but symmetric and
-positive semi-definite in floating point. ``backend="numpy"`` runs exactly that;
-``backend="numba"`` (the default) runs its compiled form,
-:func:`radioloc.estimators.kalman_compiled.network_ekf_packets`, which takes the used rows
-only and uses the two nonzero blocks of each row of ``H``; the two agree to rounding.
+positive semi-definite in floating point. The masters' packets follow one another, each
+linearised at the estimate its predecessor left (eq. (20), eq. (24): the nodes are static,
+the prediction is the identity). ``backend="numba"`` (the default) runs the compiled form
+of the same update, :func:`radioloc.estimators.kalman_compiled.network_ekf_packets`, which
+takes the used rows only and uses the two nonzero blocks of each row of ``H``; the two
+agree to rounding.
 
 :class:`NetworkEKF` advances a batch of ``R`` independent runs: state ``(R, 2K)``.
 """
@@ -30,10 +38,13 @@ from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import check_finite_output, check_positive
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.kalman import kalman_update, normalised_innovation_squared
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.estimators.kalman_compiled import network_ekf_packets
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
+from radioloc.models.measurement import Observation
+from radioloc.models.motion import RandomWalk
+from radioloc.models.pair_range import NetworkLayout, PairRangeModel, packet_context
 
 __all__ = ["NetworkEKF", "EKFState", "range_jacobian"]
 
@@ -91,7 +102,9 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
     Row ``p`` of ``H_k^T`` holds ``u^T = (x_p - x_k)^T / |x_p - x_k|`` in column block ``p``
     and ``-u^T`` in column block ``k``. eq. (17) prints the same sign for both blocks; the
     derivative of ``|x_p - x_k|`` with respect to ``x_k`` is the negative of that with
-    respect to ``x_p``, which is what is implemented here.
+    respect to ``x_p``, which is what is implemented here. The rows are those of
+    :class:`~radioloc.models.pair_range.PairRangeModel` on the packet's node pairs
+    (:func:`~radioloc.models.pair_range.packet_context`), placed at row ``p``.
 
     Parameters
     ----------
@@ -115,12 +128,24 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
         If a valid row has the master and node ``p`` at the same estimated position.
     """
     R, K, _ = position.shape
-    rr = np.arange(R)
     if valid is None:
         valid = np.ones((R, K), dtype=bool)
-        valid[rr, master] = False
-    diff = position - position[rr, master][:, None, :]              # x_p - x_k
-    h = np.sqrt(np.einsum("rkd,rkd->rk", diff, diff))
+        valid[np.arange(R), master] = False
+    h = _distances_to_master(position, master, valid)
+    context, others = packet_context(master, K)
+    rows = PairRangeModel(std_m=1.0).jacobian({"position": position.reshape(R, 2 * K)},
+                                              context)["position"]           # (R, K - 1, 2K)
+    H = np.zeros((R, K, 2 * K))
+    np.put_along_axis(H, others[..., None], rows, axis=-2)
+    return h, np.where(valid[..., None], H, 0.0)
+
+
+def _distances_to_master(position: np.ndarray, master: np.ndarray, valid: np.ndarray
+                         ) -> np.ndarray:
+    """``|x_p - x_k|`` ``(R, K)``; a GeometryError when a valid link joins coincident
+    estimates (its Jacobian is undefined)."""
+    rr = np.arange(position.shape[0])
+    h = np.linalg.norm(position - position[rr, master][:, None, :], axis=-1)
     scale = np.maximum(np.max(np.abs(position), axis=(1, 2)), 1.0)
     coincident = valid & (h <= 1e-9 * scale[:, None])
     if np.any(coincident):
@@ -128,12 +153,7 @@ def range_jacobian(position: np.ndarray, master: np.ndarray, valid: np.ndarray |
         raise GeometryError(f"run {r}: nodes {int(master[r])} and {p} have coincident position "
                             "estimates; the range Jacobian is undefined", index=(r,),
                             detail=f"nodes {int(master[r])} and {p} have coincident estimates")
-    u = np.where(valid[..., None], diff / np.where(h > 0, h, 1.0)[..., None], 0.0)
-    H = np.zeros((R, K, K, 2))
-    kk = np.arange(K)
-    H[:, kk, kk, :] = u                                              # d h_p / d x_p = +u^T
-    H[rr, :, master, :] = -u                                         # d h_p / d x_k = -u^T
-    return h, H.reshape(R, K, 2 * K)
+    return h
 
 
 class NetworkEKF(RecursiveEstimator):
@@ -145,9 +165,10 @@ class NetworkEKF(RecursiveEstimator):
     range_var_m2 : float
         ``sigma_v^2``, the diagonal of ``R_k`` (eq. (15)), m^2.
     backend : {"numba", "numpy"}
-        ``"numpy"``: each packet by :func:`range_jacobian` and
-        :func:`~radioloc.estimators.kalman.kalman_update`; ``"numba"``: by their compiled
-        form (:func:`~radioloc.estimators.kalman_compiled.network_ekf_packets`).
+        ``"numpy"``: each packet by the generic
+        :class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` update with
+        :class:`~radioloc.models.pair_range.PairRangeModel` rows; ``"numba"``: by its
+        compiled form (:func:`~radioloc.estimators.kalman_compiled.network_ekf_packets`).
 
     Raises
     ------
@@ -164,6 +185,8 @@ class NetworkEKF(RecursiveEstimator):
     rigid alignment); its frame (translation, rotation) is fixed only by the priors and
     moves by up to about two of the filter's claimed standard deviations (about 1 m with
     1 m priors on a five-node network). The order is the paper's model, kept as written.
+    It is the whole effect: relabelled nodes whose packets are fed (by :meth:`step`) in the
+    original masters' order give the original estimate, relabelled, to rounding.
     """
 
     name = "ekf"
@@ -171,6 +194,9 @@ class NetworkEKF(RecursiveEstimator):
     def __init__(self, range_var_m2: float = 900.0, backend: str = DEFAULT_BACKEND) -> None:
         self.range_var_m2 = check_positive(range_var_m2, "range_var_m2")
         self.backend = check_backend(backend)
+        # the packet rows' model and the filter that updates with them (no gate: eq. (19))
+        self._model = PairRangeModel(std_m=float(np.sqrt(self.range_var_m2)))
+        self._filter = ExtendedKalmanFilter(RandomWalk(0.0), gate=None)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
         """Initial state ``x(0|0)`` and ``Sigma(0|0) = diag(prior_var)`` (eq. (25)).
@@ -250,18 +276,23 @@ class NetworkEKF(RecursiveEstimator):
 
     def _packet(self, state: EKFState, master: np.ndarray, rho: np.ndarray,
                 valid: np.ndarray) -> EKFState:
-        """One packet per run in NumPy: eq. (15)-eq. (17), then the Kalman update."""
+        """One packet per run in NumPy: the generic EKF update with the master's rows."""
         R, K = state.runs, state.nodes
-        h, H = range_jacobian(state.position, master, valid)
-        innovation = np.where(valid, rho - h, np.nan)
-        mean, cov, S, ok = kalman_update(state.mean, state.covariance, innovation, H,
-                                         R_diag=np.full((R, K), self.range_var_m2), valid=valid)
         rr = np.arange(R)
+        _distances_to_master(state.position, master, valid)
+        # one context for every run when they share the master (the paper's schedule)
+        shared = bool(np.all(master == master[0]))
+        context, others = packet_context(master[0] if shared else master, K)
+        others = np.broadcast_to(others, (R, K - 1))
+        z = np.where(np.take_along_axis(valid, others, axis=-1),
+                     np.take_along_axis(rho, others, axis=-1), np.nan)
+        prior = FilterState(state.mean, state.covariance, 0.0, NetworkLayout(dim=2, nodes=K))
+        post, info = self._filter.update(prior, Observation(self._model, z, context))
         nis = state.nis.copy()
-        nis[rr, master] = normalised_innovation_squared(innovation, S, ok)
-        used = state.used.copy()
-        used[rr, master] = ok.sum(axis=-1)
-        return EKFState(check_finite_output(mean, "ekf mean"), cov, nis, used)
+        nis[rr, master] = info["nis"]
+        n_used = state.used.copy()
+        n_used[rr, master] = info["measurements_used"]
+        return EKFState(post.mean, post.covariance, nis, n_used)
 
     def iterate(self, state: EKFState, ranges: np.ndarray, mask: np.ndarray | None = None
                 ) -> EKFState:
