@@ -10,7 +10,8 @@ noise (``model_cases.tolerance_m``: the case's, times ``SAMPLING_FACTOR`` for a 
 filter), batch equals one-by-one (``1e-9``: the particle filter takes one seed per run, so
 a run draws the same alone as in the batch), a NaN measurement skipped, and a translated
 scene translating the estimate. A model the tags refuse is refused with a
-:class:`ConfigError` naming it.
+:class:`ConfigError` naming it (a dimension the estimator lacks: an error naming the
+dimension).
 """
 
 from __future__ import annotations
