@@ -35,18 +35,11 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.models.fingerprint_mixture import FingerprintMixture
-from radioloc.models.measurement import Context, MeasurementModel, checked_call
+from radioloc.models.measurement import (Context, MeasurementModel, checked_call,
+                                         gaussian_logpdf)
+from radioloc.models.mixture import component_logpdf, log_sum_exp
 
 __all__ = ["FingerprintScanModel"]
-
-_LOG2PI = float(np.log(2.0 * np.pi))
-
-
-def _logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
-    top = np.max(a, axis=axis, keepdims=True)
-    top = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.log(np.sum(np.exp(a - top), axis=axis)) + np.squeeze(top, axis=axis)
 
 
 @dataclass(frozen=True)
@@ -106,12 +99,8 @@ class FingerprintScanModel(MeasurementModel):
         if x.shape[-1:] != (fm.dim,):
             raise InputError(f"state['position']: last axis {x.shape[-1:]} does not match the "
                              f"model's {fm.dim} position coordinates")
-        c = fm.positions.mean(axis=0)              # about the places' centre: no cancellation
-        xc, pc, iv = x - c, fm.positions - c, 1.0 / fm.position_variances
-        quad = (xc * xc) @ iv.T - 2.0 * xc @ (pc * iv).T + np.sum(pc * pc * iv, axis=-1)
-        lx = fm.log_prior - 0.5 * (quad + np.sum(np.log(fm.position_variances), axis=-1)
-                                   + fm.dim * _LOG2PI)
-        return lx - _logsumexp(lx)[..., None]
+        lx = fm.log_prior + component_logpdf(x, fm.positions, fm.position_variances)
+        return lx - log_sum_exp(lx)[..., None]
 
     def _row_terms(self, z: np.ndarray, context: Context) -> np.ndarray:
         """``log q_j,k(r)(z_r)`` ``(..., m, K)`` (0 where the row is absent or dropped)."""
@@ -120,7 +109,7 @@ class FingerprintScanModel(MeasurementModel):
         miss, off = np.isnan(z), z == self.not_detected
         m = np.where(miss | off, 0.0, z)[..., None]
         miss, off = miss[..., None], off[..., None]
-        det = np.log(p) - 0.5 * ((m - mu) ** 2 / v + np.log(v) + _LOG2PI)
+        det = np.log(p) + gaussian_logpdf(m - mu, np.sqrt(v))
         out = np.where(off, np.log1p(-p), det)
         return np.where(miss | ~fm.active[idx][:, None], 0.0, out)
 
@@ -143,7 +132,7 @@ class FingerprintScanModel(MeasurementModel):
         z = checked_call(z, state, context, self.reads)
         lr = self.place_log_weights(state, context)[..., None, :]          # (..., 1, K)
         cum = np.cumsum(self._row_terms(z, context), axis=-2)               # (..., m, K)
-        total = _logsumexp(lr + cum)                                         # (..., m)
+        total = log_sum_exp(lr + cum)                                         # (..., m)
         before = np.concatenate([np.zeros(total.shape[:-1] + (1,)), total[..., :-1]], -1)
         return total - before
 

@@ -40,20 +40,11 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.models.measurement import Context, MeasurementModel, checked_call
-from radioloc.models.mixture import DiagMixture
+from radioloc.models.measurement import (Context, MeasurementModel, checked_call,
+                                         gaussian_logpdf)
+from radioloc.models.mixture import DiagMixture, component_logpdf, log_sum_exp
 
 __all__ = ["MixtureRssModel"]
-
-_LOG2PI = float(np.log(2.0 * np.pi))
-
-
-def _logsumexp(a: np.ndarray) -> np.ndarray:
-    """``log sum exp`` over the last axis (``-inf`` where every term is)."""
-    top = np.max(a, axis=-1, keepdims=True)
-    top = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.log(np.sum(np.exp(a - top), axis=-1)) + top[..., 0]
 
 
 @dataclass(frozen=True)
@@ -147,17 +138,9 @@ class MixtureRssModel(MeasurementModel):
         if x.shape[-1:] != (self.dim,):
             raise InputError(f"state['position']: last axis {x.shape[-1:]} does not match the "
                              f"models' {self.dim} position coordinates")
-        # |x - mu|^2 / var expanded into products over the coordinates (no (..., m, K, D)
-        # array), about the components' centre c (no cancellation far from the origin)
-        c = mu.reshape(-1, self.dim).mean(axis=0)
-        xc, mc, iv = x - c, mu - c, 1.0 / var
-        quad = (np.tensordot(xc * xc, iv, axes=([-1], [-1]))
-                - 2.0 * np.tensordot(xc, mc * iv, axes=([-1], [-1]))
-                + np.sum(mc * mc * iv, axis=-1))                         # (..., m, K)
         with np.errstate(divide="ignore"):
-            logw = np.log(w)
-        lx = logw - 0.5 * (quad + np.sum(np.log(var), axis=-1) + self.dim * _LOG2PI)
-        return lx - _logsumexp(lx)[..., None], nu, v
+            lx = np.log(w) + component_logpdf(x, mu, var)                  # (..., m, K)
+        return lx - log_sum_exp(lx)[..., None], nu, v
 
     def predict(self, state, context: Context) -> np.ndarray:
         """The conditional mean ``E[m | x]`` of every row, ``(..., m)``.
@@ -205,8 +188,8 @@ class MixtureRssModel(MeasurementModel):
         log_r, nu, v = self.responsibilities(state, context)
         miss = np.isnan(z)
         m = np.where(miss, 0.0, z)[..., None]
-        lm = -0.5 * ((m - nu) ** 2 / v + np.log(v) + _LOG2PI)
-        return np.where(miss, 0.0, _logsumexp(log_r + lm))
+        lm = gaussian_logpdf(m - nu, np.sqrt(v))
+        return np.where(miss, 0.0, log_sum_exp(log_r + lm))
 
     def sample(self, state, context: Context, rng: np.random.Generator) -> np.ndarray:
         """A draw from ``p(m | x)`` of every row: a component by its responsibility, then
