@@ -33,8 +33,12 @@ import numpy as np
 from radioloc.models import (
     BearingModel,
     Context,
+    DiagMixture,
+    FingerprintMixture,
+    FingerprintScanModel,
     LogDistanceGaussian,
     LosNlosRange,
+    MixtureRssModel,
     Observation,
     PseudorangeModel,
     RangeModel,
@@ -71,11 +75,12 @@ def rotation(theta: float, dim: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Part:
-    """The rows of one observation: a model (``make(theta, perm)`` builds it for a scene
-    rotated by ``theta`` with its anchor table relabelled by ``perm``), the anchor-table
-    row of each measurement row, and of its reference (time differences)."""
+    """The rows of one observation: a model (``make(theta, perm, shift)`` builds it for a
+    scene rotated by ``theta``, then translated by ``shift``, with its anchor table
+    relabelled by ``perm``), the anchor-table row of each measurement row, and of its
+    reference (time differences)."""
 
-    make: Callable[[float, np.ndarray], object]
+    make: Callable[[float, np.ndarray, np.ndarray], object]
     rows: np.ndarray
     reference: np.ndarray | None = None
 
@@ -159,7 +164,7 @@ class ModelCase:
 
     @property
     def models(self) -> list:
-        return [p.make(0.0, np.arange(len(ANCHORS_2D))) for p in self.parts]
+        return [p.make(0.0, np.arange(len(ANCHORS_2D)), np.zeros(self.dim)) for p in self.parts]
 
     def _truth(self) -> np.ndarray:
         rng = np.random.default_rng(100 + self.seed)
@@ -240,7 +245,7 @@ class ModelCase:
         t = np.zeros(self.dim) if shift is None else np.asarray(shift, float)
         anchors = (self.anchors @ R.T + t)[perm]
         z = self.values() if z is None else z
-        models = [p.make(theta, perm) for p in self.parts]
+        models = [p.make(theta, perm, t) for p in self.parts]
         obs = []
         for m, v, (order, ctx) in zip(models, z, self._contexts(anchors, new_of_old)):
             obs.append(Observation(model=m, z=v[..., order], context=ctx))
@@ -264,16 +269,48 @@ class ModelCase:
 
 
 def _fixed(model) -> Callable:
-    return lambda theta, perm: model
+    return lambda theta, perm, shift: model
 
 
 def _bearing(component: str):
     yaw = np.linspace(-0.4, 0.5, len(ANCHORS_2D))          # one frame per anchor
 
-    def make(theta, perm):
+    def make(theta, perm, shift):
         return BearingModel(std_rad=0.004, component=component,
                             orientation_rad=(yaw + theta)[perm])
     return make
+
+
+#: calibration places of the fingerprint mixture (every 3 m over the tracks' area)
+PLACES = np.stack(np.meshgrid(np.arange(3.0, 28.0, 3.0), np.arange(0.0, 13.0, 3.0)),
+                  -1).reshape(-1, 2)
+
+
+def _fingerprint(theta, perm, shift):
+    """Paper 004's per-station mixtures on the places, the signal mean falling with the
+    distance to the station's anchor; isotropic position variances, so that the rotated
+    places are the rotated model."""
+    d = np.linalg.norm(PLACES[None] - ANCHORS_2D[:, None], axis=-1)           # (A, K)
+    nu = -40.0 - 20.0 * np.log10(np.maximum(d, 0.5))
+    pos = PLACES @ rotation(theta, 2).T + np.asarray(shift, float)[:2]
+    means = np.concatenate([np.broadcast_to(pos, d.shape + (2,)), nu[..., None]], -1)
+    mix = DiagMixture.create(np.ones(d.shape), means, np.full(d.shape + (3,), 1.5))
+    return MixtureRssModel(mix[np.asarray(perm)])
+
+
+def _scan(theta, perm, shift):
+    """A shared-place fingerprint model on the same places: access point ``k`` at the
+    anchor, detected with a probability falling with the distance, its reading the same
+    log-distance mean (4 dB^2)."""
+    d = np.linalg.norm(PLACES[:, None] - ANCHORS_2D, axis=-1)                # (K, A)
+    pos = PLACES @ rotation(theta, 2).T + np.asarray(shift, float)[:2]
+    k = len(PLACES)
+    fm = FingerprintMixture(pos, np.full((k, 2), 1.5), np.full(k, -np.log(k)),
+                            np.clip(1.2 - d / 30.0, 0.05, 0.95)[:, perm],
+                            (-40.0 - 20.0 * np.log10(np.maximum(d, 0.5)))[:, perm],
+                            np.full(d.shape, 4.0), np.ones(d.shape[1], bool),
+                            np.zeros((k, 0), np.int64))
+    return FingerprintScanModel(fm)
 
 
 ALL = np.arange(len(ANCHORS_2D))
@@ -302,6 +339,8 @@ CASES = {c.name: c for c in [
                                                                   d_ref_m=0.5))), ALL)], 0.8,
               seed=7),
     ModelCase("rss-trapezoid", 2, [Part(_fixed(TrapezoidRssModel(TRAPEZOIDS)), ALL)], 1.0, seed=8),
+    ModelCase("rss-fingerprint", 2, [Part(_fingerprint, ALL)], 1.0, seed=9),
+    ModelCase("rss-scan", 2, [Part(_scan, ALL)], 1.2, seed=10),
 ]}
 
 
@@ -332,7 +371,7 @@ def _components(p: Problem, step: int) -> dict:
 
 # ---- the generic estimators over the cases ----------------------------------------------
 #: settings of the small runs (a constructor parameter of that name gets this value)
-SMALL_SETTINGS = {"n_particles": 500}
+SMALL_SETTINGS = {"n_particles": 500, "cell_m": 0.25, "max_components": 8}
 #: settings that are rates (per second): divided by the problem's time scale, so that a
 #: scaled problem is the same model (the batch smoother's clock and bias random walk)
 RATE_SETTINGS = {"extra_q": 1e-6}
@@ -362,16 +401,18 @@ def pairs() -> list:
 
 
 def make_estimator(cls, problem: Problem, runs: slice = slice(None)):
-    """``cls`` with the small settings: the problem's motion model first for a recursive
-    estimator, a seed per run where it takes ``seed`` (so a run draws the same alone as in
-    a batch), rates scaled with time."""
+    """``cls`` with the small settings: the problem's motion model (its ``motion``
+    parameter) for a recursive estimator, a seed per run where it takes ``seed`` (so a run
+    draws the same alone as in a batch), rates scaled with time."""
     import inspect
     params = inspect.signature(cls).parameters
     kw = {k: v for k, v in SMALL_SETTINGS.items() if k in params}
     kw.update({k: v / problem.time_scale for k, v in RATE_SETTINGS.items() if k in params})
     if "seed" in params:
         kw["seed"] = SEEDS[runs]
-    return cls(problem.motion, **kw) if cls.tags.recursive else cls(**kw)
+    if cls.tags.recursive:
+        kw["motion"] = problem.motion
+    return cls(**kw)
 
 
 def solve(cls, problem: Problem, runs: slice = slice(None)):

@@ -273,7 +273,8 @@ def test_every_estimator_has_a_case():
     assert set(ESTIMATORS) <= classes
     # a generic estimator needs no case: test_contract_generic.py runs it on every model
     # case of tests/model_cases.py its tags accept
-    assert set(CASES) == {cls for cls in ESTIMATORS if not cls.tags.generic}
+    # (a generic one with a paper form of its inputs, the grid filter, keeps its case)
+    assert {cls for cls in ESTIMATORS if not cls.tags.generic} <= set(CASES) <= set(ESTIMATORS)
     for cls in ESTIMATORS:
         assert issubclass(cls, SnapshotEstimator)
         if cls.tags.generic:

@@ -9,7 +9,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.grid import GridFilter, GridGeometry, GridState, blur_grid, grid_moments
-from radioloc.models.motion import ConstantVelocity, RandomWalk
+from radioloc.models.motion import ConstantAcceleration, ConstantVelocity, RandomWalk
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
 from radioloc.models.rssi_trapezoid import fit_trapezoid_model
 
@@ -197,7 +197,8 @@ def test_bad_input_raises_naming_the_field():
     ({"epsilon": -1.0}, "epsilon"),
     ({"blur_m": -0.1}, "blur_m"),
     ({"blur_m": 0.2, "motion": RandomWalk(0.1)}, "blur_m"),
-    ({"motion": ConstantVelocity(0.1)}, "motion"),
+    ({"motion": ConstantAcceleration(0.1)}, "motion"),
+    ({"motion": ConstantVelocity(0.1, dim=3)}, "motion"),
     ({"location": "median"}, "location"),
 ])
 def test_bad_settings_raise_at_construction(kwargs, field):

@@ -13,7 +13,8 @@ Recursive estimators filter a series: ``init``, ``step``, ``estimate`` and
 - ``ParticleFilter`` (recursive): any motion model and any measurement models
   (``Observation`` inputs), with the discrete row states of paper 001 summed out exactly;
 - ``ClosedFormTracker``, ``NewtonTracker`` (snapshot): paper 002;
-- ``GridFilter`` (recursive): paper 003;
+- ``GridFilter`` (recursive): paper 003, and any model with a log-likelihood on 2-D
+  positions (``Observation`` inputs);
 - ``MixtureLocalizer`` (snapshot), ``MixtureTracker`` (recursive): paper 004;
 - ``LeastSquares`` (snapshot), ``BatchSmoother`` (whole trajectory): any measurement model,
   robust and max-mixture LOS/NLOS losses.
@@ -72,7 +73,7 @@ _ALL = ("Multilateration", "NetworkRLS", "NetworkEKF", "RangeEKF", "P2PParticleF
 def __getattr__(name: str) -> object:
     """``GENERIC_ESTIMATORS`` and ``ESTIMATORS`` (tuples of classes), or a lazy export."""
     if name == "GENERIC_ESTIMATORS":
-        return tuple(_getattr(n) for n in _GENERIC)
+        return tuple(c for c in (_getattr(n) for n in _ALL) if c.tags.generic)
     if name == "ESTIMATORS":
         return tuple(_getattr(n) for n in _ALL)
     return _getattr(name)

@@ -47,6 +47,10 @@ class Tags:
     generic : bool
         Whether it takes :class:`~radioloc.models.measurement.Observation` inputs of any
         model it supports (the generic estimators), or only its paper's arrays.
+    reads : tuple of str or None
+        State components it can estimate (names of
+        :data:`~radioloc.models.measurement.COMPONENTS`); a model that reads another is
+        refused. None: any (the state grows to what the models read).
     """
 
     kinds: tuple[str, ...] | None = ("range",)
@@ -56,6 +60,7 @@ class Tags:
     missing: str = "skip"
     modes: bool = False
     generic: bool = False
+    reads: tuple[str, ...] | None = None
 
     def accepts(self, model: Any) -> bool:
         """Whether a measurement model fits these tags (its kind, and what it offers)."""
@@ -63,6 +68,8 @@ class Tags:
             return False
         if self.uses == "jacobian" and not getattr(model, "gaussian", True):
             return False  # a likelihood-only model has no h(x) to linearise
+        if self.reads is not None and not set(getattr(model, "reads", ())) <= set(self.reads):
+            return False
         need = ("predict", "jacobian", "noise_cov") if self.uses == "jacobian" else ("predict", "logpdf")
         return all(hasattr(model, n) for n in need)
 
@@ -88,6 +95,9 @@ class Tags:
         kind = getattr(model, "kind", None)
         if self.kinds is not None and kind not in self.kinds:
             why = f"kind {kind!r} is not one of {', '.join(self.kinds)}"
+        elif self.reads is not None and not set(getattr(model, "reads", ())) <= set(self.reads):
+            extra = sorted(set(model.reads) - set(self.reads))
+            why = f"it reads {', '.join(extra)}, which the estimator's state does not hold"
         elif self.uses == "jacobian":
             why = ("it has no measurement function to linearise (a likelihood-only model: use "
                    "an estimator whose tags.uses is 'logpdf')")

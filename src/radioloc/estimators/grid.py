@@ -12,6 +12,12 @@ algorithms:
 * :func:`blur_grid` and :func:`shift_grid` (BlurGrid, ShiftGrid of Algorithm 4), with
   :func:`floor_normalise`.
 
+The same filter takes :class:`~radioloc.models.measurement.Observation` inputs of any
+measurement model with a log-likelihood on 2-D positions (``GridFilter.tags``): the
+likelihood of Algorithm 1 is then ``exp(sum of the model's logpdf at the cell centres)``,
+on the filter's grid or on a grid built around each run's Gaussian prior; the paper's
+RSSI readings are one configuration of it.
+
 ``GridFilter(backend="numba")`` (the default) runs its update with a
 :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`, and its recursive blur, through the
 compiled kernels of :mod:`radioloc.estimators.grid_compiled`; ``backend="numpy"`` runs the
@@ -27,7 +33,7 @@ RSSI, blur radius, shift) have a leading batch axis.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -36,9 +42,12 @@ from radioloc.core.backend import check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_array,
-                                      check_positive, check_probability)
+                                      check_memory, check_positive, check_probability,
+                                      refuse_infinite)
 from radioloc.estimators import grid_compiled as _c
-from radioloc.estimators.base import RecursiveEstimator
+from radioloc.estimators.base import RecursiveEstimator, Tags
+from radioloc.estimators.observation_rows import observation_list
+from radioloc.models.measurement import Context, Observation
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
 
 _BLURS = ("fft", "recursive")
@@ -575,10 +584,26 @@ class GridState:
         Posterior grid of each run (sums to 1, every cell ``>= epsilon``).
     time : float
         Time of the state, seconds.
+    offset : ndarray, shape (B, 2), optional
+        Where each run's grid sits: the cell centres are ``offset + l_i`` (a grid built
+        around each run's prior, which moves with ``velocity``); None: the filter's
+        geometry as it is.
+    velocity : ndarray, shape (B, 2), optional
+        Constant velocity the grid drifts with (m/s), from the prior of a motion model
+        with velocity; None: no drift.
+    pvv : ndarray, shape (B,), optional
+        The prior's per-axis velocity variance (m^2/s^2), blurred in at each step.
+    geometry : GridGeometry, optional
+        The grid of a state built around the prior (cells relative to ``offset``); None:
+        the filter's.
     """
 
     p: np.ndarray
     time: float = 0.0
+    offset: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    pvv: np.ndarray | None = None
+    geometry: GridGeometry | None = None
 
     @property
     def batch(self) -> int:
@@ -597,8 +622,12 @@ class GridState:
         -------
         GridState
         """
-        p = self.p[index]
-        return GridState(p if p.ndim == 3 else p[None], self.time)
+        def keep(a):
+            if a is None:
+                return None
+            return a[index] if np.ndim(a[index]) == np.ndim(a) else a[index][None]
+        return GridState(keep(self.p), self.time, keep(self.offset), keep(self.velocity),
+                         keep(self.pvv), self.geometry)
 
 
 _LOCATIONS = ("mean", "peak")
@@ -625,19 +654,38 @@ class GridFilter(RecursiveEstimator):
     displacement: ShiftGrid) and ``extra_blur_m`` (an extra blur radius, e.g. Algorithm 4's
     ``|odometry step|`` before the frames are synchronised) to :meth:`predict`.
 
+    Any measurement model: :meth:`run` and :meth:`step` also take
+    :class:`~radioloc.models.measurement.Observation` inputs of any model whose tags fit
+    (``tags``: a ``logpdf`` on 2-D positions, reading the position only): range (Gaussian,
+    LOS/NLOS), time difference, bearing, RSS (log-distance, trapezoid, calibration
+    mixture), ... The update is Algorithm 1 with ``L_i = exp(sum logpdf(z | l_i) - max)``
+    over every row of every observation of the step (:meth:`update_observations`); the
+    paper's readings ``(tracker_xy, rssi)`` with ``model`` are the same filter with the
+    model's likelihood (a configuration: same grids to rounding with ``epsilon = 0``). The
+    grid is the filter's ``geometry`` or, without one, a square grid of ``cell_m`` cells
+    around each run's Gaussian prior (``prior_mean``, ``prior_cov``; :meth:`prior_grid`).
+    A motion model with velocity (``WhiteAccelerationCV``, ``ConstantVelocity``) is
+    carried as the prior's velocity, which the grid drifts with, and its position noise
+    blurs the grid (:meth:`drift`): the grid holds positions only.
+
     Parameters
     ----------
-    geometry : GridGeometry
-        The grid (cells in the filter's frame).
-    model : object with ``likelihood(dist, rssi)``
-        Sensor model ``L(dist | rssi)``: :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`,
-        :class:`~radioloc.models.rssi_logdistance.LogDistanceGaussian`, ...
-    epsilon : float
-        Minimum cell probability (Algorithm 1); ``epsilon k <= 1``.
+    geometry : GridGeometry, optional
+        The grid (cells in the filter's frame); None: a grid around each run's prior.
+    model : object with ``likelihood(dist, rssi)``, optional
+        Sensor model ``L(dist | rssi)`` of the readings form:
+        :class:`~radioloc.models.rssi_trapezoid.TrapezoidModel`,
+        :class:`~radioloc.models.rssi_logdistance.LogDistanceGaussian`, ... (observations
+        carry their own models).
+    epsilon : float, optional
+        Minimum cell probability (Algorithm 1); ``epsilon k <= 1``. Default ``1e-6`` with a
+        readings ``model`` (the paper-003 experiments), else ``1e-12`` (a floor of
+        ``1e-6`` per cell would outweigh a posterior narrower than the grid).
     blur_m : float
         BlurGrid radius per step (the paper's ``gamma``), metres.
-    motion : RandomWalk, optional
-        Position-only motion model whose ``Q(dt)`` sets the blur instead of ``blur_m``.
+    motion : motion model, optional
+        2-D: a random walk (``RandomWalk``) whose ``Q(dt)`` sets the blur instead of
+        ``blur_m``, or a model with velocity (observations with ``prior_mean``: see above).
     location : {"mean", "peak"}
         What :meth:`estimate` reports as the position: the grid mean (the posterior mean,
         default), or GetLocation (Algorithm 2, the paper's: peak cell plus an
@@ -652,6 +700,11 @@ class GridFilter(RecursiveEstimator):
         as compiled kernels (:mod:`radioloc.estimators.grid_compiled`); ``"numpy"``: every
         operation runs its NumPy definition (:func:`probability_update`,
         :func:`blur_grid`, ...). The two agree to rounding (within 1e-10 relative).
+    cell_m : float
+        Cell side of the grids built around the priors, metres.
+    span_m : float, optional
+        Their half-width, metres; default four times the largest prior position standard
+        deviation of the batch.
 
     Raises
     ------
@@ -660,23 +713,32 @@ class GridFilter(RecursiveEstimator):
     """
 
     name = "grid"
+    tags = Tags(kinds=None, uses="logpdf", dims=(2,), recursive=True, generic=True,
+                reads=("position",))
 
-    def __init__(self, geometry: GridGeometry, model: Any, *, epsilon: float = 1e-6,
-                 blur_m: float = 0.0, motion: Any = None, location: str = "mean",
-                 blur: str = "fft", backend: str = "numba") -> None:
-        if not isinstance(geometry, GridGeometry):
+    def __init__(self, geometry: GridGeometry | None = None, model: Any = None, *,
+                 epsilon: float | None = None, blur_m: float = 0.0, motion: Any = None,
+                 location: str = "mean", blur: str = "fft", backend: str = "numba",
+                 cell_m: float = 0.25, span_m: float | None = None) -> None:
+        if geometry is not None and not isinstance(geometry, GridGeometry):
             raise ConfigError(f"geometry: expected a GridGeometry, got {type(geometry).__name__}")
-        if not callable(getattr(model, "likelihood", None)):
+        if model is not None and not callable(getattr(model, "likelihood", None)):
             raise ConfigError(f"model: needs a likelihood(dist, rssi) method, got {type(model).__name__}")
+        if epsilon is None:
+            epsilon = 1e-6 if model is not None else 1e-12
         eps = check_probability(epsilon, "epsilon")
-        if eps * geometry.k > 1:
+        if geometry is not None and eps * geometry.k > 1:
             raise ConfigError(f"epsilon: {eps} x {geometry.k} cells exceeds 1")
         blur_v = check_positive(blur_m, "blur_m", allow_zero=True, maximum=LENGTH_LIMIT_M)
+        self.cell_m = check_positive(cell_m, "cell_m", maximum=LENGTH_LIMIT_M)
+        self.span_m = None if span_m is None else check_positive(span_m, "span_m",
+                                                                 maximum=LENGTH_LIMIT_M)
         if motion is not None:
-            if not callable(getattr(motion, "Q", None)) or getattr(motion, "state_dim", None) != 2 \
-                    or getattr(motion, "dim", None) != 2:
-                raise ConfigError("motion: the grid holds 2-D positions only; expected a "
-                                  f"position-only 2-D model such as RandomWalk, got {motion!r}")
+            if not callable(getattr(motion, "Q", None)) or getattr(motion, "dim", None) != 2 \
+                    or getattr(motion, "state_dim", None) not in (2, 4):
+                raise ConfigError("motion: the grid holds 2-D positions only; expected a 2-D "
+                                  "random walk (RandomWalk) or a model with velocity "
+                                  f"(WhiteAccelerationCV, ConstantVelocity), got {motion!r}")
             if blur_v > 0:
                 raise ConfigError("blur_m: give either blur_m or a motion model, not both")
         if location not in _LOCATIONS:
@@ -694,7 +756,8 @@ class GridFilter(RecursiveEstimator):
         self.backend = backend
 
     # ---- the contract -------------------------------------------------------------
-    def init(self, batch: int | None = None, *, prior=None, time: float = 0.0) -> GridState:
+    def init(self, batch: int | None = None, *, prior=None, time: float = 0.0,
+             prior_mean=None, prior_cov=None) -> GridState:
         """The filter state before the first reading.
 
         Parameters
@@ -705,16 +768,23 @@ class GridFilter(RecursiveEstimator):
             Prior grids instead (normalised, floored at ``epsilon`` and renormalised).
         time : float
             Time of the state, seconds.
+        prior_mean, prior_cov : array_like, shape (B, n) and (n, n) or (B, n, n), optional
+            A Gaussian prior instead, on the state of the motion model (``n = 2``: the
+            position; ``n = 4``: position and velocity, whose mean the grid drifts with):
+            its position density on the cells of the filter's geometry or, without one, of
+            a grid of ``cell_m`` cells around each run's prior mean (:meth:`prior_grid`).
 
         Returns
         -------
         GridState
         """
+        if prior_mean is not None or prior_cov is not None:
+            return self._gaussian_prior(prior_mean, prior_cov, time)
         if prior is None:
             if batch is None or int(batch) != batch or batch < 1:
                 raise InputError(f"batch: expected a positive number of runs, got {batch!r}")
-            return GridState(self.geometry.uniform(int(batch)), float(time))
-        p = _check_grid(prior, self.geometry)
+            return GridState(self._fixed_geometry("init").uniform(int(batch)), float(time))
+        p = _check_grid(prior, self._fixed_geometry("init"))
         total = p.sum(axis=(1, 2), keepdims=True)
         if np.any(total <= 0):
             raise InputError(f"prior: grid {int(np.flatnonzero(total.ravel() <= 0)[0])} has no mass")
@@ -729,10 +799,10 @@ class GridFilter(RecursiveEstimator):
             raise InputError(f"state: expected a GridState, got {type(state).__name__}")
         p = state.p
         if cells or not (isinstance(p, np.ndarray) and p.dtype == np.float64 and p.ndim == 3):
-            p = _check_grid(p, self.geometry)
-        elif p.shape[1:] != (self.geometry.h, self.geometry.w):
-            _check_grid(p, self.geometry)
-        return GridState(np.ascontiguousarray(p), state.time)
+            p = _check_grid(p, self._geom(state))
+        elif p.shape[1:] != (self._geom(state).h, self._geom(state).w):
+            _check_grid(p, self._geom(state))
+        return replace(state, p=np.ascontiguousarray(p))
 
     def blur_radius(self, dt: float) -> float:
         """Blur radius of the motion model over ``dt`` seconds.
@@ -776,7 +846,7 @@ class GridFilter(RecursiveEstimator):
         """
         state = self._check_state(state)
         dt = check_positive(dt, "dt", allow_zero=True)
-        B, geom, p = state.batch, self.geometry, state.p
+        B, geom, p = state.batch, self._geom(state), state.p
         if shift_m is not None:
             shift = _check_batch(shift_m, "shift_m", B, (2,))
             moved = np.any(shift != 0.0, axis=-1)
@@ -787,7 +857,7 @@ class GridFilter(RecursiveEstimator):
         if blur.any():
             raw, excess = _blur_raw(p, s, self.epsilon, self.blur, self.backend)
             p = np.where(blur[:, None, None], floor_normalise(raw, self.epsilon, excess), p)
-        return GridState(p, state.time + dt)
+        return replace(state, p=p, time=state.time + dt)
 
     def _radius(self, B: int, dt: float, extra_blur_m) -> np.ndarray:
         radius = np.full(B, self.blur_radius(dt))
@@ -817,6 +887,7 @@ class GridFilter(RecursiveEstimator):
         GridState
             The posterior state (same time).
         """
+        self._paper_inputs()
         state = self._check_state(state)
         B = state.batch
         r = as_float_array(rssi, "rssi", allow_nan=True)
@@ -835,10 +906,10 @@ class GridFilter(RecursiveEstimator):
         if not valid.any():
             return state
         if valid.all():
-            return GridState(self._posterior(state.p, None, xy, r), state.time)
+            return replace(state, p=self._posterior(state.p, None, xy, r))
         post = self._posterior(state.p, None, np.where(valid[:, None], xy, 0.0),
                                np.where(valid, r, r[valid][0]))
-        return GridState(np.where(valid[:, None, None], post, state.p), state.time)
+        return replace(state, p=np.where(valid[:, None, None], post, state.p))
 
     def _posterior(self, prior: np.ndarray, excess, xy: np.ndarray, r: np.ndarray) -> np.ndarray:
         """Algorithm 1 of every run, of the prior ``floor_normalise(prior, eps, excess)``
@@ -864,7 +935,7 @@ class GridFilter(RecursiveEstimator):
             prior = floor_normalise(prior, eps, excess)
         return probability_update(prior, geom, xy, r, self.model, eps)
 
-    def step(self, state: GridState, tracker_xy, rssi, *, dt: float = 1.0, shift_m=None,
+    def step(self, state: GridState, tracker_xy, rssi=None, *, dt: float = 1.0, shift_m=None,
              extra_blur_m=None) -> GridState:
         """One filter step: :meth:`predict` then :meth:`update`.
 
@@ -872,8 +943,11 @@ class GridFilter(RecursiveEstimator):
         ----------
         state : GridState
             Current state (not modified).
-        tracker_xy : array_like, shape (B, 2)
-            Where each reading was taken, metres (NaN allowed where ``rssi`` is NaN).
+        tracker_xy : array_like, shape (B, 2), or Observation(s)
+            Where each reading was taken, metres (NaN allowed where ``rssi`` is NaN); or
+            the observations of this step (``z`` ``(B, m)``, any model the tags accept),
+            then ``rssi`` is not given: the grid drifts and blurs over ``dt`` by the motion
+            model and is multiplied by every model's likelihood (:meth:`update_observations`).
         rssi : array_like, shape (B,)
             One reading per run; NaN = prediction only.
         dt : float
@@ -888,6 +962,12 @@ class GridFilter(RecursiveEstimator):
         GridState
             The new state at ``time + dt``.
         """
+        if _is_observations(tracker_xy):
+            if rssi is not None or shift_m is not None or extra_blur_m is not None:
+                raise InputError("rssi: observations carry their own values (give neither "
+                                 "rssi, shift_m nor extra_blur_m with them)")
+            return self.update_observations(self.drift(state, dt), tracker_xy)
+        self._paper_inputs()
         if shift_m is None:
             # every run blurred and updated: the floor of the blur applied by the update
             # (the same grids as predict then update, one pass less)
@@ -895,7 +975,7 @@ class GridFilter(RecursiveEstimator):
                 raise InputError(f"state: expected a GridState, got {type(state).__name__}")
             dt = check_positive(dt, "dt", allow_zero=True)
             B = state.batch
-            s = self._radius(B, dt, extra_blur_m) / self.geometry.cell_m
+            s = self._radius(B, dt, extra_blur_m) / self._geom(state).cell_m
             state = self._check_state(state, cells=not (
                 self.backend == "numba" and self.blur == "recursive"
                 and np.all(s >= RECURSIVE_MIN_SIGMA)))
@@ -904,7 +984,8 @@ class GridFilter(RecursiveEstimator):
             if (r.shape == (B,) and xy.shape == (B, 2) and np.all(s > 0)
                     and np.all(np.isfinite(r)) and np.all(np.isfinite(xy))):
                 raw, excess = _blur_raw(state.p, s, self.epsilon, self.blur, self.backend)
-                return GridState(self._posterior(raw, excess, xy, r), state.time + dt)
+                return replace(state, p=self._posterior(raw, excess, xy, r),
+                               time=state.time + dt)
         pred = self.predict(state, dt=dt, shift_m=shift_m, extra_blur_m=extra_blur_m)
         return self.update(pred, tracker_xy, rssi)
 
@@ -927,19 +1008,28 @@ class GridFilter(RecursiveEstimator):
             ``grid_mean`` ``(B, 2)``.
         """
         state = self._check_state(state)
-        mean, cov = grid_moments(state.p, self.geometry)
-        pos = mean if self.location == "mean" else get_location(state.p, self.geometry)
-        diag = {"uncertainty_m": get_uncertainty(state.p, self.geometry), "grid_mean": mean}
+        geom = self._geom(state)
+        mean, cov = grid_moments(state.p, geom)
+        pos = mean if self.location == "mean" else get_location(state.p, geom)
+        if state.offset is not None:
+            mean, pos = mean + state.offset, pos + state.offset
+        diag = {"uncertainty_m": get_uncertainty(state.p, geom), "grid_mean": mean}
         return Estimate(pos, cov, state.time, diag)
 
-    def run(self, tracker_xy, rssi, *, time=None, dt: float = 1.0, shift_m=None,
-            extra_blur_m=None, state: GridState | None = None) -> Track:
-        """Filter a whole series of readings.
+    def run(self, tracker_xy, rssi=None, *, time=None, dt: float = 1.0, shift_m=None,
+            extra_blur_m=None, state: GridState | None = None, prior_mean=None,
+            prior_cov=None) -> Track:
+        """Filter a whole series of readings, or of observations of any model.
+
+        ``run(observations, time=None, *, prior_mean, prior_cov)`` is the generic form
+        (:meth:`run_observations`); ``run(tracker_xy, rssi, ...)`` the paper's readings
+        with the filter's ``model``.
 
         Parameters
         ----------
-        tracker_xy : array_like, shape (B, T, 2)
-            Where each reading was taken, metres (NaN allowed where ``rssi`` is NaN).
+        tracker_xy : array_like, shape (B, T, 2), or Observation(s)
+            Where each reading was taken, metres (NaN allowed where ``rssi`` is NaN); or
+            the observations (then the second argument is ``time``).
         rssi : array_like, shape (B, T)
             Readings; NaN = no reading at that step (prediction only).
         time : array_like, shape (T,), optional
@@ -960,6 +1050,17 @@ class GridFilter(RecursiveEstimator):
             ``diagnostics``: ``uncertainty_m``, ``grid_mean`` and ``measurements_used``
             (1 where a reading entered the update) per step.
         """
+        if _is_observations(tracker_xy):
+            if shift_m is not None or extra_blur_m is not None:
+                raise InputError("shift_m: not taken with observations (give the motion "
+                                 "model instead)")
+            return self.run_observations(tracker_xy, rssi if time is None else time,
+                                         prior_mean=prior_mean, prior_cov=prior_cov,
+                                         state=state)
+        self._paper_inputs()
+        if prior_mean is not None or prior_cov is not None:
+            raise InputError("prior_mean: a Gaussian prior is taken with observations; with "
+                             "readings give state=GridFilter.init(prior=...)")
         r = as_float_array(rssi, "rssi", ndim=2, allow_nan=True)
         B, T = r.shape
         xy = as_float_array(tracker_xy, "tracker_xy", allow_nan=True)
@@ -990,3 +1091,314 @@ class GridFilter(RecursiveEstimator):
             out.append(Estimate(est.position, est.covariance, est.time,
                                 {**est.diagnostics, "measurements_used": used}))
         return track_from_steps(out, time=t)
+    # ---- any measurement model: Observation inputs ------------------------------------
+    def _geom(self, state: GridState) -> GridGeometry:
+        return state.geometry if state.geometry is not None else self._fixed_geometry("state")
+
+    def _fixed_geometry(self, where: str) -> GridGeometry:
+        if self.geometry is None:
+            raise ConfigError(f"geometry: {where} needs the filter's GridGeometry (without one, "
+                              "give prior_mean and prior_cov: a grid around each run's prior)")
+        return self.geometry
+
+    def _paper_inputs(self) -> None:
+        """Refuse readings ``(tracker_xy, rssi)`` without the paper's model and grid."""
+        if self.model is None:
+            raise ConfigError("model: readings (tracker_xy, rssi) need the filter's "
+                              "likelihood(dist, rssi) model; give observations instead")
+        self._fixed_geometry("readings (tracker_xy, rssi)")
+
+    @property
+    def _state_size(self) -> int:
+        return 2 if self.motion is None else int(self.motion.state_dim)
+
+    def prior_grid(self, prior_cov) -> GridGeometry:
+        """The grid built around each run's prior when the filter has no geometry: square,
+        ``cell_m`` cells, centred on the prior mean (the state's ``offset``), half-width
+        ``span_m`` or four times the largest position standard deviation of the batch.
+
+        Parameters
+        ----------
+        prior_cov : ndarray, shape (..., n, n)
+
+        Returns
+        -------
+        GridGeometry
+            In the frame of the prior mean.
+        """
+        cov = np.asarray(prior_cov, dtype=float)[..., :2, :2]
+        half = self.span_m
+        if half is None:
+            half = 4.0 * float(np.sqrt(np.max(np.linalg.eigvalsh(cov))))
+        n = max(2, 2 * int(np.ceil(half / self.cell_m - 1e-9)))
+        return GridGeometry.centred(n, n, self.cell_m)
+
+    def _gaussian_prior(self, prior_mean, prior_cov, time: float) -> GridState:
+        n = self._state_size
+        if prior_mean is None or prior_cov is None:
+            raise InputError("prior_mean: give both prior_mean and prior_cov")
+        mean = as_float_array(prior_mean, "prior_mean", min_ndim=1)
+        if mean.ndim > 2 or mean.shape[-1] != n:
+            raise InputError(f"prior_mean: expected shape (B, {n}) (the state of "
+                             f"{self.motion or 'a position grid'}), got {mean.shape}")
+        mean = mean.reshape(-1, n)
+        B = mean.shape[0]
+        cov = as_float_array(prior_cov, "prior_cov", min_ndim=2)
+        if cov.shape[-2:] != (n, n) or cov.shape[:-2] not in ((), (B,)):
+            raise InputError(f"prior_cov: expected shape ({n}, {n}) or ({B}, {n}, {n}), got "
+                             f"{cov.shape}")
+        cov = np.broadcast_to(cov, (B, n, n))
+        try:
+            np.linalg.cholesky(cov[:, :2, :2])
+        except np.linalg.LinAlgError:
+            raise InputError("prior_cov: the position block is not positive definite") from None
+        if self.geometry is None:
+            geom, offset = self.prior_grid(cov), mean[:, :2].copy()
+            check_memory(8.0 * 4 * B * geom.k, "span_m", "the grids around the priors")
+            if self.epsilon * geom.k > 1:
+                raise ConfigError(f"epsilon: {self.epsilon} x {geom.k} cells exceeds 1 (raise "
+                                  "cell_m or lower span_m)")
+            d = _cell_points(geom)[None]                                  # (1, h, w, 2)
+        else:
+            geom, offset = None, None
+            d = _cell_points(self.geometry)[None] - mean[:, None, None, :2]
+        info = np.linalg.inv(cov[:, :2, :2])
+        lq = -0.5 * np.einsum("bhwi,bij,bhwj->bhw", d, info, d)
+        p = np.maximum(np.exp(lq - lq.max(axis=(1, 2), keepdims=True)), 0.0)
+        p = np.maximum(p / p.sum(axis=(1, 2), keepdims=True), self.epsilon)
+        p = p / p.sum(axis=(1, 2), keepdims=True)
+        vel = pvv = None
+        if n == 4:
+            vel = mean[:, 2:4].copy()
+            pvv = 0.5 * (cov[:, 2, 2] + cov[:, 3, 3])
+        return GridState(p, float(time), offset, vel, pvv, geom)
+
+    def drift(self, state: GridState, dt: float) -> GridState:
+        """Prediction of the generic form over ``dt``: the grid drifts with the state's
+        velocity (its frame moves when it was built around the prior; ShiftGrid on the
+        filter's geometry) and is blurred by the position variance the motion model
+        accrues, ``Q(dt)[0, 0]`` (or ``blur_m^2`` per step), plus ``dt^2`` times the
+        prior's velocity variance (the velocity is not re-estimated: the grid carries
+        positions only).
+
+        Parameters
+        ----------
+        state : GridState
+        dt : float
+            Seconds (>= 0; 0 leaves the state as it is).
+
+        Returns
+        -------
+        GridState
+        """
+        state = self._check_state(state)
+        dt = check_positive(dt, "dt", allow_zero=True)
+        if dt == 0:
+            return state
+        geom, p, offset, B = self._geom(state), state.p, state.offset, state.batch
+        if state.velocity is not None:
+            step = state.velocity * dt
+            if offset is not None:
+                offset = offset + step
+            else:
+                moved = np.any(step != 0.0, axis=-1)
+                if moved.any():
+                    p = np.where(moved[:, None, None], shift_grid(p, geom, step, self.epsilon), p)
+        var = np.full(B, self.blur_radius(dt) ** 2)
+        if state.pvv is not None:
+            var = var + dt * dt * state.pvv
+        s = np.sqrt(var) / geom.cell_m
+        blur = s > 0
+        if blur.any():
+            raw, excess = _blur_raw(p, s, self.epsilon, self.blur, self.backend)
+            p = np.where(blur[:, None, None], floor_normalise(raw, self.epsilon, excess), p)
+        return replace(state, p=p, offset=offset, time=state.time + dt)
+
+    def update_observations(self, state: GridState, observations) -> GridState:
+        """Bayes' rule on the cells with any models' likelihoods (Algorithm 1 with
+        ``L_i = exp(sum_rows logpdf(z | l_i) - max_i)``): ``p_i <- max(p_i L_i, eps)``,
+        normalised. A run with no finite value is left as it is.
+
+        Parameters
+        ----------
+        state : GridState
+        observations : Observation or sequence of Observation
+            One step: ``z`` ``(B, m)`` or ``(m,)``, rows NaN where absent.
+
+        Returns
+        -------
+        GridState
+        """
+        obs = self._checked(observations)
+        state = self._check_state(state)
+        rows = []
+        for o in obs:
+            z = refuse_infinite(o.z, "z")
+            rows.append((o.model, z, o.context))
+        new, _ = self._update_rows(state, rows)
+        return new
+
+    def _checked(self, observations) -> list[Observation]:
+        obs = observation_list(observations)
+        for i, o in enumerate(obs):
+            self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
+            dim = o.context.points.shape[-1]
+            if dim != 2 and o.context.height_m is None:
+                raise ConfigError(f"observations[{i}].model: {type(self).__name__} holds 2-D "
+                                  f"positions; the rows of {type(o.model).__name__} have "
+                                  f"{dim}-D points (give context.height_m for 3-D anchors)")
+        return obs
+
+    def _update_rows(self, state: GridState, rows) -> tuple[GridState, np.ndarray]:
+        """The update of :meth:`update_observations` on ``(model, z (B, m), context)``
+        rows; also returns the number of finite values per run."""
+        geom, B = self._geom(state), state.batch
+        pos = _cell_points(geom)[None]
+        if state.offset is not None:
+            pos = pos + state.offset[:, None, None, :]
+        pos = np.broadcast_to(pos, (B, geom.h, geom.w, 2))
+        lp = np.zeros((B, geom.h, geom.w))
+        heard = np.zeros(B, dtype=np.int64)
+        for i, (model, z, ctx) in enumerate(rows):
+            z = np.broadcast_to(z, (B, z.shape[-1]))
+            zc = np.broadcast_to(z[:, None, None, :], (B, geom.h, geom.w, z.shape[-1]))
+            with np.errstate(invalid="ignore"):     # NaN rows: the model gives them 0
+                lp = lp + model.logpdf(zc, {"position": pos}, _on_cells(ctx)).sum(axis=-1)
+            heard = heard + np.isfinite(z).sum(axis=-1)
+            if np.isnan(lp).any():
+                raise InputError(f"observations[{i}]: {type(model).__name__}.logpdf gave NaN "
+                                 f"for run {int(np.flatnonzero(np.isnan(lp).any(axis=(1, 2)))[0])}")
+        top = lp.max(axis=(1, 2), keepdims=True)
+        ok = np.isfinite(top)
+        lik = np.where(ok, np.exp(lp - np.where(ok, top, 0.0)), 0.0)
+        post = np.maximum(state.p * lik, self.epsilon)
+        total = post.sum(axis=(1, 2), keepdims=True)
+        post = np.where(total > 0, post / np.where(total > 0, total, 1.0), 1.0 / geom.k)
+        return replace(state, p=np.where(heard[:, None, None] > 0, post, state.p)), heard
+
+    def run_observations(self, observations, time=None, *, prior_mean=None, prior_cov=None,
+                         state: GridState | None = None) -> Track:
+        """Filter observations of any model the tags accept (a log-likelihood on
+        positions, ``Tags(uses="logpdf")``; 2-D positions).
+
+        Each step drifts and blurs the grid (:meth:`drift`; the first step is at the
+        prior's time and is not predicted), then multiplies it by the likelihood of every
+        observation's rows at the cells (:meth:`update_observations`).
+
+        Parameters
+        ----------
+        observations : Observation or sequence of Observation
+            ``z`` ``(..., T, m)`` each, the same ``T``; NaN rows are absent.
+        time : array_like, shape (T,), optional
+            Step times, seconds, non-decreasing; default ``0..T-1``.
+        prior_mean, prior_cov : array_like, optional
+            Gaussian prior at ``time[0]`` on the motion model's state (:meth:`init`);
+            without them the filter's geometry starts uniform (the paper's prior).
+        state : GridState, optional
+            A state to start from instead (B runs: the observations' batch axes flattened).
+
+        Returns
+        -------
+        Track
+            ``position`` ``(..., T, 2)``, ``covariance`` ``(..., T, 2, 2)``, ``time``;
+            diagnostics ``uncertainty_m``, ``grid_mean`` and ``measurements_used`` (values
+            that entered the update) per step.
+        """
+        obs = self._checked(observations)
+        T = None
+        for i, o in enumerate(obs):
+            if o.z.ndim < 2:
+                raise InputError(f"observations[{i}].z: expected shape (..., T, m), got {o.z.shape}")
+            refuse_infinite(o.z, f"observations[{i}].z")
+            if T is None:
+                T = o.steps
+            elif o.steps != T:
+                raise InputError(f"observations[{i}].z: {o.steps} steps, observations[0] has {T}")
+        t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
+        if t.shape != (T,):
+            raise InputError(f"time: expected {T} steps, got shape {t.shape}")
+        if np.any(np.diff(t) < 0):
+            raise InputError("time: must be non-decreasing")
+        shapes = [o.z.shape[:-2] for o in obs] + [o.at(0)[1].points.shape[:-2] for o in obs]
+        if prior_mean is not None:
+            shapes.append(np.shape(prior_mean)[:-1])
+        try:
+            batch = np.broadcast_shapes(*shapes)
+        except ValueError:
+            raise InputError(f"observations: batch shapes {shapes} do not broadcast") from None
+        B = int(np.prod(batch, dtype=np.int64))
+        if state is not None:
+            if not isinstance(state, GridState) or state.batch != B:
+                raise InputError(f"state: expected a GridState of {B} runs")
+        elif prior_mean is not None or prior_cov is not None:
+            if prior_mean is None or prior_cov is None:
+                raise InputError("prior_mean: give both prior_mean and prior_cov")
+            n = self._state_size
+            mean = as_float_array(prior_mean, "prior_mean", min_ndim=1)
+            if mean.shape[-1] != n:
+                raise InputError(f"prior_mean: last axis must hold the {n} entries of the state "
+                                 f"of {self.motion or 'a position grid'}, got shape {mean.shape}")
+            cov = as_float_array(prior_cov, "prior_cov", min_ndim=2)
+            if cov.ndim > 2:
+                cov = np.broadcast_to(cov, batch + cov.shape[-2:]).reshape((B,) + cov.shape[-2:])
+            state = self._gaussian_prior(np.broadcast_to(mean, batch + (n,)).reshape(B, n), cov,
+                                         float(t[0]))
+        else:
+            state = self.init(B, time=float(t[0]))
+        out = []
+        for k in range(T):
+            if k:
+                state = self.drift(state, float(t[k] - t[k - 1]))
+            rows = [(o.model,) + _flat_step(*o.at(k), batch) for o in obs]
+            state, heard = self._update_rows(state, rows)
+            est = self.estimate(state)
+            out.append(_unflatten(Estimate(est.position, est.covariance, est.time,
+                                           {**est.diagnostics, "measurements_used": heard}),
+                                  batch))
+        return track_from_steps(out, time=t)
+
+
+def _is_observations(value) -> bool:
+    """Whether an argument holds observations (the generic form) rather than readings."""
+    if isinstance(value, Observation):
+        return True
+    return isinstance(value, (list, tuple)) and bool(value) and isinstance(value[0], Observation)
+
+
+def _cell_points(geom: GridGeometry) -> np.ndarray:
+    """Cell centres ``(h, w, 2)`` in ``(x, y)`` order."""
+    gx, gy = np.meshgrid(geom.x, geom.y)
+    return np.stack([gx, gy], axis=-1)
+
+
+def _on_cells(ctx: Context) -> Context:
+    """A context whose batch axes ``(B, m, ...)`` gain the grid's two axes ``(B, 1, 1, m)``
+    (a context without batch axes broadcasts as it is)."""
+    def cells(a, base):
+        return a if a is None or a.ndim <= base else a[:, None, None]
+    return replace(ctx, points=cells(ctx.points, 2), reference=cells(ctx.reference, 2),
+                   std=cells(ctx.std, 1))
+
+
+def _flat_step(z: np.ndarray, ctx: Context, batch: tuple[int, ...]
+               ) -> tuple[np.ndarray, Context]:
+    """One step's values ``(B, m)`` and context with the batch axes flattened."""
+    B = int(np.prod(batch, dtype=np.int64))
+    m = z.shape[-1]
+    z = np.broadcast_to(z, batch + (m,)).reshape(B, m)
+
+    def flat(a, base):
+        if a is None or a.ndim <= base:
+            return a
+        return np.broadcast_to(a, batch + a.shape[-base:]).reshape((B,) + a.shape[-base:])
+    return z, replace(ctx, points=flat(ctx.points, 2), reference=flat(ctx.reference, 2),
+                      std=flat(ctx.std, 1))
+
+
+def _unflatten(est: Estimate, batch: tuple[int, ...]) -> Estimate:
+    """An estimate of ``B`` flattened runs with its batch axes restored."""
+    def back(a):
+        a = np.asarray(a)
+        return a.reshape(batch + a.shape[1:])
+    return Estimate(back(est.position), back(est.covariance), est.time,
+                    {k: back(v) for k, v in est.diagnostics.items()})

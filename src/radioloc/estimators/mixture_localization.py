@@ -31,15 +31,19 @@ from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import MAX_COMPONENTS, as_float_array, check_int, check_memory
-from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator
+from radioloc.core.validation import (MAX_COMPONENTS, as_float_array, check_int, check_memory,
+                                      refuse_infinite)
+from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator, Tags
+from radioloc.estimators.observation_rows import observation_list
 from radioloc.models.fingerprint_mixture import FingerprintMixture, place_moments, place_weights
 from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
                                      convolve, linear_predict, merge_groups, outer,
                                      pad_components, product, product_on, reduce, select,
                                      uniform_ball)
 from radioloc.models.mixture_compiled import product_batch
-from radioloc.models.motion import BoundedSpeedCV, UniformDisk
+from radioloc.models.measurement import Observation
+from radioloc.models.mixture_rss import MixtureRssModel
+from radioloc.models.motion import BoundedSpeedCV, UniformDisk, WhiteAccelerationCV
 
 __all__ = ["MixtureLocalizer", "MixtureTracker", "MixtureState", "posterior_mixture",
            "TRACKER_REDUCTIONS"]
@@ -409,12 +413,22 @@ class MixtureState:
 class MixtureTracker(RecursiveEstimator):
     """Recursive Bayesian tracking with mixture densities (Sect. 4, Fig. 7).
 
+    Observations: :meth:`run` also takes an
+    :class:`~radioloc.models.measurement.Observation` of a
+    :class:`~radioloc.models.mixture_rss.MixtureRssModel` (the calibration mixtures as a
+    measurement model, rows the stations) with a Gaussian prior (``prior_mean``,
+    ``prior_cov``), the form of the generic estimators (``tags``: kind
+    ``"rss_fingerprint"``). Other likelihoods are not taken: the filter step is the
+    product with the measurement density in mixture form (the conditioned calibration
+    mixtures, eq. (2)), which a general ``logpdf`` does not give; the grid and particle
+    filters take those.
+
     Parameters
     ----------
-    models : DiagMixture
+    models : DiagMixture, optional
         Per-base-station calibration models, batch shape ``(..., S)``, dimension ``D + 1``
-        (as for :class:`MixtureLocalizer`).
-    motion : UniformDisk or BoundedSpeedCV
+        (as for :class:`MixtureLocalizer`); None: given by the observations' model.
+    motion : UniformDisk, BoundedSpeedCV or WhiteAccelerationCV
         ``UniformDisk`` (the paper's model): the next position is uniform in the disk of
         radius ``v_max * dt`` (paper: ``v_max`` = 1.5 m/s); ``v_max = 0`` is a static user
         (no prediction); the state is the position. ``BoundedSpeedCV`` (ours, a velocity
@@ -422,6 +436,8 @@ class MixtureTracker(RecursiveEstimator):
         constant-velocity transition with white acceleration (kept axis-aligned:
         :func:`radioloc.models.mixture.linear_predict`); before the first measurement the
         velocity is uniform in the ball of radius ``v_max`` (:func:`uniform_ball`).
+        ``WhiteAccelerationCV``: the same transition, with the velocity from a prior on
+        the whole state (no ``v_max``).
     max_components : int
         Bound on the components of every density.
     reduction : str
@@ -470,12 +486,15 @@ class MixtureTracker(RecursiveEstimator):
     """
 
     name = "mixture-tracker"
+    tags = Tags(kinds=("rss_fingerprint",), uses="logpdf", dims=(1, 2), recursive=True,
+                generic=True, reads=("position",))
 
-    def __init__(self, models: DiagMixture, motion: UniformDisk | BoundedSpeedCV,
+    def __init__(self, models: DiagMixture | None = None,
+                 motion: UniformDisk | BoundedSpeedCV | WhiteAccelerationCV | None = None,
                  max_components: int = 16, reduction: str = "continuous",
                  backend: str = DEFAULT_BACKEND) -> None:
         self.backend = check_backend(backend)
-        self.models = _check_models(models)
+        self.models = None if models is None else _check_models(models)
         self.max_components = _check_max_components(max_components)
         if not isinstance(reduction, str) or reduction not in TRACKER_REDUCTIONS:
             raise InputError(f"reduction: must be one of {', '.join(TRACKER_REDUCTIONS)}, "
@@ -485,23 +504,25 @@ class MixtureTracker(RecursiveEstimator):
         #: the reduction of the fixed densities (measurement density, calibration area,
         #: a prior with too many components): West/Runnalls for the continuous tracker
         self.base_reduction = "runnalls" if self.continuous else reduction
-        if not isinstance(motion, (UniformDisk, BoundedSpeedCV)):
-            raise InputError(f"motion: expected radioloc.models.motion.UniformDisk or "
-                             f"BoundedSpeedCV, got {type(motion).__name__}")
-        if motion.dim != self.models.dim - 1:
+        if not isinstance(motion, (UniformDisk, WhiteAccelerationCV)):
+            raise InputError(f"motion: expected radioloc.models.motion.UniformDisk, "
+                             f"BoundedSpeedCV or WhiteAccelerationCV, got {type(motion).__name__}")
+        if self.models is not None and motion.dim != self.models.dim - 1:
             raise InputError(f"motion: dim {motion.dim} differs from the models' position "
                              f"dimension {self.models.dim - 1}")
-        if motion.dim > 2 and (isinstance(motion, BoundedSpeedCV) or motion.v_max_m_per_s > 0):
-            raise InputError("motion: the disk mixture supports 1 or 2 position coordinates")
+        if motion.dim > 2 and (isinstance(motion, WhiteAccelerationCV)
+                               or motion.v_max_m_per_s > 0):
+            raise InputError(f"motion: the tracker supports 1 or 2 position coordinates "
+                             f"(1-D, 2-D), got dim {motion.dim}")
         self.motion = motion
-        self.velocity = isinstance(motion, BoundedSpeedCV)
-        self._localizer = MixtureLocalizer(models, max_components, self.base_reduction,
-                                           backend=self.backend)
+        self.velocity = isinstance(motion, WhiteAccelerationCV)
+        self._localizer = None if models is None else MixtureLocalizer(
+            models, max_components, self.base_reduction, backend=self.backend)
 
     @property
     def dim(self) -> int:
         """Position coordinates D."""
-        return self.models.dim - 1
+        return self.motion.dim
 
     @property
     def state_dim(self) -> int:
@@ -516,6 +537,11 @@ class MixtureTracker(RecursiveEstimator):
         continuous tracker: each position component with the moment-matched ball."""
         if not self.velocity:
             return pos
+        if not isinstance(self.motion, BoundedSpeedCV):
+            raise InputError(f"prior: {type(self.motion).__name__} gives no velocity prior "
+                             "(no v_max): give a prior on the whole state (prior_mean, "
+                             "prior_cov with the velocity, or a DiagMixture of dimension "
+                             f"{self.state_dim})")
         joint = outer(pos, uniform_ball(self.motion.v_max_m_per_s, self.dim))
         if self.continuous:
             return merge_groups(joint, pos.n_components, "outer")
@@ -529,6 +555,7 @@ class MixtureTracker(RecursiveEstimator):
         DiagMixture
             Batch shape ``models.batch_shape[:-1]``, at most ``max_components`` components.
         """
+        self._require_models("a flat prior (the calibration area)")
         marg = self.models.marginal(list(range(self.dim)))
         s, k = marg.batch_shape[-1], marg.n_components
         lead = marg.batch_shape[:-1]
@@ -619,8 +646,11 @@ class MixtureTracker(RecursiveEstimator):
             kept = select(informed, merged, prior)
         else:
             filtered, kept = meas, prior
-        first = self._with_velocity(meas)
-        post = select(received & informed, filtered, select(received, first, kept))
+        if np.any(received & ~informed):
+            post = select(received & informed, filtered,
+                          select(received, self._with_velocity(meas), kept))
+        else:
+            post = select(received, filtered, kept)
         return MixtureState(compact(post), informed | received,
                             np.broadcast_to(used, meas.batch_shape), state.time + dt)
 
@@ -667,7 +697,7 @@ class MixtureTracker(RecursiveEstimator):
         MixtureState
             The new state.
         """
-        m = self._localizer._check_rss(rss_t, "rss_t")
+        m = self._require_models("step")._check_rss(rss_t, "rss_t")
         dt = self._check_dt(dt)
         meas, received = self._localizer.density_and_mask(m)
         used = np.isfinite(m).sum(-1)
@@ -694,18 +724,31 @@ class MixtureTracker(RecursiveEstimator):
             "measurements_used": np.asarray(state.used),
             **_with_mixture(state.mixture, self.max_components)})
 
-    def run(self, rss: object, time: object, prior: DiagMixture | None = None) -> Track:
+    def _require_models(self, where: str) -> MixtureLocalizer:
+        if self._localizer is None:
+            raise InputError(f"models: {where} needs the tracker's station models (give "
+                             "models, or observations of a MixtureRssModel)")
+        return self._localizer
+
+    def run(self, rss: object, time: object = None, prior: DiagMixture | None = None, *,
+            prior_mean=None, prior_cov=None) -> Track:
         """Track every run of a batch through a series of measurement vectors.
+
+        ``run(observations, time, *, prior_mean, prior_cov)`` is the form of the generic
+        estimators (:meth:`run_observations`).
 
         Parameters
         ----------
-        rss : array_like, shape (..., T, S)
+        rss : array_like, shape (..., T, S), or Observation
             Signal strengths per step, NaN = not received (a step with no station received
-            is a prediction only).
+            is a prediction only); or an observation of a
+            :class:`~radioloc.models.mixture_rss.MixtureRssModel`.
         time : array_like, shape (T,)
             Step times in seconds, non-decreasing (the first step is not predicted).
         prior : DiagMixture, optional
             Prior density (see :meth:`init`).
+        prior_mean, prior_cov : array_like, optional
+            A Gaussian prior on the tracker's state instead (observations only).
 
         Returns
         -------
@@ -713,7 +756,17 @@ class MixtureTracker(RecursiveEstimator):
             ``position`` ``(..., T, D)``, ``covariance`` ``(..., T, D, D)``, ``time``;
             per-step diagnostics as in :meth:`estimate`.
         """
-        m = self._localizer._check_rss(rss, min_ndim=2)
+        if isinstance(rss, Observation) or (isinstance(rss, (list, tuple)) and rss
+                                            and isinstance(rss[0], Observation)):
+            if prior is not None:
+                raise InputError("prior: with observations give prior_mean and prior_cov")
+            return self.run_observations(rss, time, prior_mean=prior_mean, prior_cov=prior_cov)
+        if prior_mean is not None or prior_cov is not None:
+            raise InputError("prior_mean: taken with observations; with readings give prior "
+                             "(a DiagMixture)")
+        if time is None:
+            raise InputError("time: give the step times of the readings")
+        m = self._require_models("run")._check_rss(rss, min_ndim=2)
         t = as_float_array(time, "time", ndim=1)
         if t.shape[0] != m.shape[-2]:
             raise InputError(f"time: {t.shape[0]} steps, rss has {m.shape[-2]}")
@@ -736,6 +789,74 @@ class MixtureTracker(RecursiveEstimator):
             state = self._update(state, mi, received[..., i], used[..., i], float(dts[i]))
             steps.append(self.estimate(state))
         return track_from_steps(steps, t)
+
+
+    def run_observations(self, observations, time=None, *, prior_mean=None,
+                         prior_cov=None) -> Track:
+        """Track through observations of a
+        :class:`~radioloc.models.mixture_rss.MixtureRssModel` (paper 004's calibration
+        mixtures as a measurement model): its rows are stations (``context.index``), its
+        mixtures the tracker's station models, and the filter that of :meth:`run` on the
+        readings placed in their station columns.
+
+        Parameters
+        ----------
+        observations : Observation or a sequence of one
+            ``z`` ``(..., T, m)``; NaN = not received.
+        time : array_like, shape (T,), optional
+            Step times, seconds (default ``0..T-1``).
+        prior_mean, prior_cov : array_like, optional
+            Gaussian prior on the state (``(..., n)``, ``(n, n)`` or ``(..., n, n)``,
+            ``n`` = :attr:`state_dim`): one component with the diagonal of ``prior_cov``
+            (the mixture is axis-aligned). Without it, the calibration area (and, with
+            velocity, the ball of ``BoundedSpeedCV``).
+
+        Returns
+        -------
+        Track
+        """
+        obs = observation_list(observations)
+        if len(obs) != 1:
+            raise InputError(f"observations: the mixture tracker takes one observation (its "
+                             f"rows the stations), got {len(obs)}")
+        o = obs[0]
+        self.tags.require(o.model, "observations[0].model", type(self).__name__)
+        model: MixtureRssModel = o.model
+        if model.dim != self.dim:
+            raise InputError(f"observations[0].model: {model.dim}-D positions, the motion "
+                             f"model's are {self.dim}-D")
+        z = refuse_infinite(o.z, "observations[0].z")
+        if z.ndim < 2:
+            raise InputError(f"observations[0].z: expected shape (..., T, m), got {z.shape}")
+        idx = o.context.index
+        if idx is None or np.any((idx < 0) | (idx >= model.n_stations)) \
+                or np.unique(idx).size != idx.size:
+            raise InputError("observations[0].context.index: give each row's station, once "
+                             f"each, among the model's {model.n_stations}")
+        rss = np.full(z.shape[:-1] + (model.n_stations,), np.nan)
+        rss[..., idx] = z
+        t = np.arange(z.shape[-2], dtype=float) if time is None else time
+        prior = None
+        if prior_mean is not None or prior_cov is not None:
+            if prior_mean is None or prior_cov is None:
+                raise InputError("prior_mean: give both prior_mean and prior_cov")
+            n = self.state_dim
+            mean = as_float_array(prior_mean, "prior_mean", min_ndim=1)
+            cov = as_float_array(prior_cov, "prior_cov", min_ndim=2)
+            if mean.shape[-1] != n or cov.shape[-2:] != (n, n):
+                raise InputError(f"prior_mean: expected shape (..., {n}) and prior_cov "
+                                 f"(..., {n}, {n}) (the tracker's state), got {mean.shape} "
+                                 f"and {cov.shape}")
+            var = np.diagonal(cov, axis1=-2, axis2=-1)
+            if np.any(~(var > 0)):
+                raise InputError("prior_cov: the diagonal must be positive")
+            shape = np.broadcast_shapes(mean.shape, var.shape)
+            prior = DiagMixture(np.ones(shape[:-1] + (1,)),
+                                np.broadcast_to(mean, shape)[..., None, :],
+                                np.broadcast_to(var, shape)[..., None, :])
+        tracker = self if self.models is model.models else MixtureTracker(
+            model.models, self.motion, self.max_components, self.reduction, self.backend)
+        return tracker.run(rss, t, prior)
 
 
 def _station_order(rss: np.ndarray) -> np.ndarray:

@@ -39,6 +39,8 @@ _WHERE = {
     "PseudorangeModel": "pseudorange",
     "RssModel": "rss_model",
     "TrapezoidRssModel": "rss_model",
+    "MixtureRssModel": "mixture_rss",
+    "FingerprintScanModel": "fingerprint_scan",
     "TdoaModel": "tdoa",
     "ProgressionInfo": "progressive_bayes",
     "isd": "progressive_bayes",
@@ -61,4 +63,5 @@ __all__ = [
     "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS", "merge_groups",
     "progressive_reduce", "isd", "ProgressionInfo",
     "TdoaModel", "BearingModel", "PseudorangeModel", "ClockModel", "RssModel", "TrapezoidRssModel",
+    "MixtureRssModel", "FingerprintScanModel",
 ]

@@ -234,6 +234,55 @@ class DiagMixture:
         return DiagMixture(weights, self.means[..., keep], self.variances[..., keep])
 
 
+def log_sum_exp(a: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``log sum exp`` along ``axis`` (``-inf`` where every term is), in plain NumPy
+    (several times faster than ``scipy.special.logsumexp`` on the large arrays of a
+    likelihood evaluated on a grid).
+
+    Parameters
+    ----------
+    a : ndarray
+    axis : int
+
+    Returns
+    -------
+    ndarray
+        ``a`` without ``axis``.
+    """
+    top = np.max(a, axis=axis, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.log(np.sum(np.exp(a - top), axis=axis)) + np.squeeze(top, axis=axis)
+
+
+def component_logpdf(points: np.ndarray, means: np.ndarray, variances: np.ndarray
+                     ) -> np.ndarray:
+    """``log N(x; mu_j, diag v_j)`` of every point under every axis-aligned component.
+
+    The squared distance is expanded into products over the coordinates (no array of
+    shape points x components x D) about the components' centre (no cancellation far from
+    the origin).
+
+    Parameters
+    ----------
+    points : ndarray, shape (..., D)
+    means, variances : ndarray, shape (C..., D)
+        Components (any leading shape ``C...``).
+
+    Returns
+    -------
+    ndarray, shape (..., C...)
+    """
+    x = np.asarray(points, dtype=float)
+    d = means.shape[-1]
+    c = means.reshape(-1, d).mean(axis=0)
+    xc, mc, iv = x - c, means - c, 1.0 / variances
+    quad = (np.tensordot(xc * xc, iv, axes=([-1], [-1]))
+            - 2.0 * np.tensordot(xc, mc * iv, axes=([-1], [-1]))
+            + np.sum(mc * mc * iv, axis=-1))
+    return -0.5 * (quad + np.sum(np.log(variances), axis=-1) + d * _LOG2PI)
+
+
 def _safe_log(w: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore"):
         return np.log(w)
