@@ -38,6 +38,7 @@ from radioloc.models import (
     FingerprintScanModel,
     LogDistanceGaussian,
     LosNlosRange,
+    MeasurementModel,
     MixtureRssModel,
     Observation,
     PseudorangeModel,
@@ -63,6 +64,25 @@ TAG_HEIGHT_M = 1.5
 #: trapezoids of paper 003's form: reading ``k`` <-> distance ``30 - 0.3 k`` metres
 TRAPEZOIDS = TrapezoidModel(mu=np.clip(30.0 - 0.3 * np.arange(101.0), 0.3, None),
                             tau=np.full(101, 0.3), sigma=np.full(101, 0.6), count=np.ones(101))
+
+
+class MinimalBearing(MeasurementModel):
+    """Angle of the node seen from each point, ``atan2(y - y_a, x - x_a)`` in radians, with
+    only ``predict`` and ``std``: the Jacobian is the base class's numerical one and the
+    wrapped Gaussian ``logpdf`` the base class's (a model as small as a user may write)."""
+
+    kind = "aoa"
+    angular = True
+
+    def __init__(self, std_rad: float) -> None:
+        self.std_rad = std_rad
+
+    def predict(self, state, context):
+        d = state["position"][..., None, :] - context.points
+        return np.arctan2(d[..., 1], d[..., 0])
+
+    def std(self, context):
+        return self.row_std(self.std_rad, context)
 
 
 def rotation(theta: float, dim: int) -> np.ndarray:

@@ -16,6 +16,8 @@ from radioloc.models.measurement import Context, MeasurementModel, Observation
 from radioloc.models.motion import WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
+from model_cases import MinimalBearing
+
 ANCHORS = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 30.0], [30.0, 30.0]])
 RING = np.c_[30 * np.cos(np.arange(8) * np.pi / 4), 30 * np.sin(np.arange(8) * np.pi / 4)] + 15
 
@@ -35,22 +37,6 @@ class Position(MeasurementModel):
     def std(self, context):
         return self.row_std(self.std_m, context)
 
-
-class Bearing(MeasurementModel):
-    """Angle of the node seen from each point, ``atan2``: only ``predict`` and ``std``."""
-
-    kind: ClassVar[str] = "aoa"
-    angular: ClassVar[bool] = True
-
-    def __init__(self, std_rad: float) -> None:
-        self.std_rad = std_rad
-
-    def predict(self, state, context):
-        d = state["position"][..., None, :] - context.points
-        return np.arctan2(d[..., 1], d[..., 0])
-
-    def std(self, context):
-        return self.row_std(self.std_rad, context)
 
 
 def simulate(runs, steps, dt=0.1, q=0.5, seed=0):
@@ -198,7 +184,7 @@ def test_robust_loss_beats_linear_with_outliers():
 def test_runs_a_bearing_model_with_a_numerical_jacobian():
     motion, x, t, rng = simulate(2, 50, seed=7)
     pts = np.array([[-20.0, 0.0], [0.0, -20.0], [40.0, 40.0]])
-    model = Bearing(0.01)
+    model = MinimalBearing(0.01)
     ctx = Context(points=pts)
     z = model.sample({"position": x[..., :2]}, ctx, rng)
     tr = BatchSmoother(motion).run(Observation(model, z, ctx), t, prior_mean=x[:, 0],

@@ -21,26 +21,11 @@ from radioloc.models.measurement import Context, MeasurementModel, Observation, 
 from radioloc.models.motion import ConstantVelocity, RandomWalk
 from radioloc.models.ranging import RangeModel
 
+from model_cases import MinimalBearing
+
 ANCHORS = np.array([[0.0, 0.0], [30.0, 0.0], [30.0, 20.0], [0.0, 20.0]])
 DT = 0.2
 
-
-class Bearing(MeasurementModel):
-    """Angle of arrival at a sensor: ``atan2(y - y_a, x - x_a)``, radians (test-local:
-    only ``predict`` and ``std``; the Jacobian is the base class's numerical one)."""
-
-    kind: ClassVar[str] = "aoa"
-    angular: ClassVar[bool] = True
-
-    def __init__(self, std_rad: float) -> None:
-        self.std_rad = std_rad
-
-    def predict(self, state, context):
-        d = state["position"][..., None, :] - context.points
-        return np.arctan2(d[..., 1], d[..., 0])
-
-    def std(self, context):
-        return self.row_std(self.std_rad, context)
 
 
 class Pseudorange(MeasurementModel):
@@ -294,7 +279,7 @@ def test_a_bearing_model_with_a_numerical_jacobian_tracks_across_the_wrap():
     rng = np.random.default_rng(9)
     sensors = np.array([[40.0, 4.0], [40.0, 10.0], [20.0, -10.0]])
     truth = cv_track(20, 60, rng, start=(8.0, 0.0, 0.0, 0.5))
-    model = Bearing(0.01)
+    model = MinimalBearing(0.01)
     obs = ranges(truth, model, rng, anchors=sensors)
     assert np.any(np.abs(np.diff(obs.z[..., 0], axis=-1)) > np.pi)   # the wrap is crossed
     mean, cov = prior(truth, rng)
@@ -309,7 +294,7 @@ def test_several_kinds_in_one_step():
     rng = np.random.default_rng(10)
     truth = cv_track(20, 40, rng)
     rng_obs = ranges(truth, RangeModel(std_m=0.3), rng, anchors=ANCHORS[:2])
-    aoa = ranges(truth, Bearing(0.02), rng, anchors=ANCHORS[2:3])
+    aoa = ranges(truth, MinimalBearing(0.02), rng, anchors=ANCHORS[2:3])
     mean, cov = prior(truth, rng)
     ekf = ExtendedKalmanFilter(ConstantVelocity(0.05))
     both = ekf.run([rng_obs, aoa], np.arange(40) * DT, prior_mean=mean, prior_cov=cov)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -10,28 +9,14 @@ import pytest
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
+from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
+
+from model_cases import MinimalBearing
 
 RING = np.c_[20 * np.cos(np.arange(8) * np.pi / 4), 20 * np.sin(np.arange(8) * np.pi / 4)]
 SQUARE = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
 
-
-class Bearing(MeasurementModel):
-    """Angle of the node seen from each point, ``atan2``: only ``predict`` and ``std``."""
-
-    kind: ClassVar[str] = "aoa"
-    angular: ClassVar[bool] = True
-
-    def __init__(self, std_rad: float) -> None:
-        self.std_rad = std_rad
-
-    def predict(self, state, context):
-        d = state["position"][..., None, :] - context.points
-        return np.arctan2(d[..., 1], d[..., 0])
-
-    def std(self, context):
-        return self.row_std(self.std_rad, context)
 
 
 def ranges(x, anchors, std=0.0, rng=None):
@@ -55,7 +40,7 @@ def test_zero_noise_converges_to_the_truth_2d_3d_and_mixed_kinds():
                                x3, atol=1e-6)
     # bearings only (numerical Jacobian), and bearings with ranges at once; angles near +-pi
     pts = np.array([[20.0, 5.0], [20.0, 4.0], [-5.0, 0.0]])
-    b = Observation(Bearing(0.01), Bearing(0.01).predict({"position": x}, Context(points=pts)),
+    b = Observation(MinimalBearing(0.01), MinimalBearing(0.01).predict({"position": x}, Context(points=pts)),
                     Context(points=pts))
     np.testing.assert_allclose(LeastSquares().locate(b, initial=x + 0.5).position, x, atol=1e-6)
     mixed = LeastSquares().locate([range_obs(ranges(x, SQUARE[:2]), SQUARE[:2]), b])

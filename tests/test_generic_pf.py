@@ -12,9 +12,11 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.particle_filter import ParticleFilter
 from radioloc.estimators.resampling import stratified
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.measurement import Context, MeasurementModel, Observation
+from radioloc.models.measurement import Context, Observation
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
+
+from model_cases import MinimalBearing
 
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 20.0], [0.0, 20.0]])
 
@@ -34,20 +36,6 @@ def _ranges(truth, noise_std, rng, anchors=ANCHORS):
 def _prior(start=(5.0, 5.0), std=1.0):
     return np.array([*start, 0.0, 0.0]), np.diag([std**2, std**2, 1.0, 1.0])
 
-
-class Bearing(MeasurementModel):
-    """Angle of arrival at a station, atan2 of the offset: only predict and std (the
-    numerical Jacobian and the wrapped Gaussian logpdf come from the base class)."""
-
-    kind = "aoa"
-    angular = True
-
-    def predict(self, state, context):
-        d = state["position"][..., None, :] - context.points
-        return np.arctan2(d[..., 1], d[..., 0])
-
-    def std(self, context):
-        return self.row_std(0.02, context)
 
 
 @pytest.mark.parametrize("model", [RangeModel(std_m=0.01),
@@ -197,7 +185,7 @@ def test_a_model_with_only_predict_and_std_tracks_a_target():
     z = (z + np.pi) % (2 * np.pi) - np.pi
     m0, P0 = _prior()
     track = ParticleFilter(WhiteAccelerationCV(0.05), n_particles=1000, seed=0).run(
-        Observation(Bearing(), z, Context(points=stations)), t, prior_mean=m0, prior_cov=P0)
+        Observation(MinimalBearing(0.02), z, Context(points=stations)), t, prior_mean=m0, prior_cov=P0)
     assert np.linalg.norm(track.position - truth, axis=-1)[10:].mean() < 0.3
 
 
@@ -209,7 +197,7 @@ def test_two_observations_in_one_step_and_the_smoother():
     bearings = np.arctan2(d[..., 1], d[..., 0]) + 0.05 * rng.standard_normal((2, 25, 2))
     ranges = _ranges(truth, 0.5, rng)
     obs = [Observation(RangeModel(std_m=0.5), ranges, Context(points=ANCHORS)),
-           Observation(Bearing(), bearings, Context(points=stations), std=0.05)]
+           Observation(MinimalBearing(0.02), bearings, Context(points=stations), std=0.05)]
     m0, P0 = _prior()
     pf = ParticleFilter(WhiteAccelerationCV(0.05), n_particles=500, seed=0)
     filt = pf.run(obs, t, prior_mean=m0, prior_cov=P0)
