@@ -91,7 +91,7 @@ def _open_table(path: Path):
 
 
 def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
-    """:func:`_read_csv` by pandas' C parser for a plain file, else None.
+    """:func:`_read_csv` by a CSV parser in C for a plain file, else None.
 
     Plain: no quote character, the header on line 1, every line (none blank or of empty
     cells) with as many cells as the header, unique non-empty column names. Then each row
@@ -110,20 +110,19 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
     if "" in names or len(set(names)) != len(names):
         return None
     # every line (the header's included) must have as many cells: count its commas
-    raw = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    data = text.encode("utf-8")
+    raw = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(raw == 10)
+    returns = np.flatnonzero(raw == 13)
+    if returns.size and (returns[-1] + 1 == raw.size or np.any(raw[returns + 1] != 10)):
+        return None                              # a line break other than \n or \r\n
     if not text.endswith("\n"):
         ends = np.append(ends, raw.size)
-    commas = np.concatenate([[0], np.cumsum(raw == 44)])[ends]
-    if np.any(np.diff(np.concatenate([[0], commas])) != len(names) - 1):
+    commas = np.searchsorted(np.flatnonzero(raw == 44), ends)   # commas before each line end
+    if np.any(np.diff(commas, prepend=0) != len(names) - 1):
         return None
-    try:
-        frame = pd.read_csv(io.StringIO(text), header=None, skiprows=1, names=range(len(names)),
-                            dtype=str, na_filter=False, skipinitialspace=True,
-                            skip_blank_lines=False, engine="c", on_bad_lines="error")
-    except (ValueError, pd.errors.ParserError):
-        return None
-    if frame.empty:
+    frame = _plain_cells(data, len(names))
+    if frame is None or frame.empty:
         return None
     empty = np.ones(len(frame), dtype=bool)
     for c in frame.columns:
@@ -131,11 +130,47 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
         if col.isna().any():
             return None
         empty &= (col.str.strip() == "").to_numpy()
+        if not empty.any():   # a cell with text in every row: no row of empty cells
+            break
     if empty.any():
         return None
     frame.columns = names
     frame = frame.astype(str)
     frame.attrs["lines"] = np.arange(2, len(frame) + 2)
+    return frame
+
+
+def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
+    """The cells below the header of a plain CSV (see :func:`_read_plain_csv`) as text,
+    spaces after a comma skipped; None if the parser refuses the file.
+
+    pyarrow's CSV reader when installed (no quoting), else pandas' C parser.
+    """
+    try:
+        from pyarrow import csv as pa_csv
+        import pyarrow as pa
+        import pyarrow.compute as pc
+    except ImportError:
+        try:
+            return pd.read_csv(io.BytesIO(data), header=None, skiprows=1, names=range(width),
+                               dtype=str, na_filter=False, skipinitialspace=True,
+                               skip_blank_lines=False, engine="c", on_bad_lines="error")
+        except (ValueError, pd.errors.ParserError):
+            return None
+    names = [str(j) for j in range(width)]
+    try:
+        table = pa_csv.read_csv(
+            io.BytesIO(data),
+            read_options=pa_csv.ReadOptions(use_threads=False, skip_rows=1, column_names=names),
+            parse_options=pa_csv.ParseOptions(quote_char=False, ignore_empty_lines=False),
+            convert_options=pa_csv.ConvertOptions(column_types={n: pa.string() for n in names},
+                                                  strings_can_be_null=False))
+    except (pa.ArrowInvalid, ValueError):
+        return None
+    if b", " in data or b"\n " in data or data.startswith(b" "):   # spaces to skip
+        table = pa.table([pc.utf8_ltrim(table.column(n), characters=" ") for n in names], names)
+    frame = table.to_pandas()
+    frame.columns = range(width)
     return frame
 
 
@@ -241,8 +276,38 @@ def _require_columns(frame: pd.DataFrame, columns: Iterable[str], path: Path | s
                          f"found {', '.join(frame.columns)}")
 
 
+def _floats(cells: pd.Series) -> np.ndarray | None:
+    """``cells`` (stripped text) as numbers by pyarrow's parser when every one is a finite
+    number; None otherwise (or without pyarrow), for the general parser to word the error."""
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+    except ImportError:
+        return None
+    try:
+        values = pc.cast(pa.array(cells), pa.float64()).to_numpy(zero_copy_only=False)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError):
+        return None
+    return values if np.isfinite(values).all() else None
+
+
+def _text(frame: pd.DataFrame, column: str, lower: bool = False) -> pd.Series:
+    """The cells of ``column`` stripped (and lower-cased), worked out once per distinct cell."""
+    cells = frame[column].astype(str)
+    codes, distinct = pd.factorize(cells)
+    text = pd.Series(distinct, dtype=cells.dtype).str.strip()
+    if lower:
+        text = text.str.lower()
+    if np.array_equal(text.to_numpy(), np.asarray(distinct, dtype=object)):
+        return cells
+    return pd.Series(text.array.take(codes), index=cells.index, name=cells.name)
+
+
 def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     raw = frame[column].astype(str).str.strip()
+    fast = _floats(raw)
+    if fast is not None:
+        return pd.Series(fast, index=raw.index, name=raw.name)
     values = pd.to_numeric(raw, errors="coerce").astype(float)
     bad = values.isna() & (raw.str.lower() != "nan") | (raw == "")
     if bad.any():
@@ -282,12 +347,12 @@ MISSING_IDS = frozenset(v.lower() for v in (
 
 
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    ids = frame[column].astype(str).str.strip()
+    ids = _text(frame, column)
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
         raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': empty id")
-    missing = ids.str.lower().isin(MISSING_IDS)
+    missing = ids.isin([i for i in ids.unique() if i.lower() in MISSING_IDS])
     if missing.any():
         i = int(np.flatnonzero(missing.to_numpy())[0])
         raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': id "
@@ -409,7 +474,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "time": _numeric(frame, "time", path),
         "node": _ids(frame, "node", path),
         "peer": _ids(frame, "peer", path),
-        "kind": frame["kind"].astype(str).str.strip().str.lower(),
+        "kind": _text(frame, "kind", lower=True),
         "value": _numeric(frame, "value", path),
         "line": frame.attrs["lines"],
     })
@@ -473,7 +538,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")
     if anchors is not None:
-        known = set(anchors["id"]) | set(out["node"])
+        known = set(anchors["id"]) | set(out["node"].unique())
         if (i := _first(~out["peer"].isin(known).to_numpy() & ~is_motion)) is not None:
             fail(i, f"column 'peer': unknown anchor or node {out['peer'].iloc[i]!r} (not in the "
                     "anchors file nor a node)")
