@@ -672,15 +672,70 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     Floats are written in their shortest exact decimal form, so that reading the file back
     gives the same numbers bit for bit (distinct time stamps stay distinct).
     """
+    def write_csv(f) -> None:
+        text = csv_text(frame)
+        if text is None:
+            frame.to_csv(f, index=False)
+        else:
+            f.write(text)
+
     if path is None or str(path) == "-":
-        frame.to_csv(sys.stdout, index=False)
+        write_csv(sys.stdout)
     elif Path(path).suffix.lower() == ".parquet":
         from radioloc.io.datasets import _need_pyarrow
 
         _need_pyarrow()
         atomic_write_with(path, lambda f: frame.to_parquet(f, index=False), binary=True)
     else:
-        atomic_write_with(path, lambda f: frame.to_csv(f, index=False))
+        atomic_write_with(path, write_csv)
+
+
+#: Characters that make the CSV writer quote a cell.
+_QUOTED = (",", '"', "\r", "\n")
+
+
+def csv_text(frame: pd.DataFrame) -> str | None:
+    """The text ``frame.to_csv(index=False)`` writes, built a column at a time, or None for a
+    frame it does not cover (a text cell that needs quoting or is missing, a column that is
+    not float64, integer, boolean or text, a single column).
+
+    Floats in their shortest exact form (``repr``), a missing float as an empty cell.
+
+    Parameters
+    ----------
+    frame : DataFrame
+
+    Returns
+    -------
+    str or None
+    """
+    import os
+
+    names = [str(c) for c in frame.columns]
+    if len(names) < 2 or any(q in c for c in names for q in _QUOTED):
+        return None
+    cells = []
+    for name in frame.columns:
+        col = frame[name]
+        kind = col.dtype.kind
+        if col.dtype == np.float64:
+            text = [repr(v) for v in col.tolist()]
+            if col.isna().any():
+                text = ["" if t == "nan" else t for t in text]
+        elif kind in "iub":
+            text = [str(v) for v in col.tolist()]
+        elif kind in "OUT" or isinstance(col.dtype, pd.StringDtype):
+            if col.isna().any() or not all(isinstance(v, str) for v in col.unique()):
+                return None
+            distinct = col.unique()
+            if any(q in v for v in distinct for q in _QUOTED):
+                return None
+            text = col.tolist()
+        else:
+            return None
+        cells.append(text)
+    end = os.linesep
+    return end.join([",".join(names)] + [",".join(row) for row in zip(*cells)]) + end
 
 
 def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
@@ -729,7 +784,7 @@ def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
         raise InputError("measurements: no range to an anchor")
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     positions = anchors[dims].to_numpy(dtype=float)
-    nodes = list(dict.fromkeys(rows["node"]))
+    nodes = list(rows["node"].unique())
     rows = rows.groupby(["time", "node", "peer"], sort=True, as_index=False)["value"].mean()
     times, t_idx = np.unique(rows["time"].to_numpy(dtype=float), return_inverse=True)
     n_idx = rows["node"].map({n: i for i, n in enumerate(nodes)}).to_numpy()
