@@ -536,7 +536,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         state = FilterState(np.broadcast_to(state.mean, batch + (layout.size,)),
                             np.broadcast_to(state.covariance, batch + (layout.size,) * 2),
                             state.time, layout)
-        steps, infos = [], []
+        record: dict[str, np.ndarray] = {}    # per step: batch + (T,) + the value's axes
         streak = np.zeros(batch, dtype=np.int64)     # steps in a row with every row gated
         self._check_models(layout, [o.model for o in obs],
                            [f"observations[{i}]" for i in range(len(obs))])
@@ -561,19 +561,19 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             state, info = self._update(pred, rows, streak >= self.gate_patience, checked=True)
             streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
                               np.where(heard > 0, 0, streak))
-            steps.append((pred, state))
-            infos.append(info)
-        nb = len(batch)
-        means = np.stack([s.mean for _, s in steps], axis=nb)
-        covs = np.stack([s.covariance for _, s in steps], axis=nb)
+            _record(record, "state", state.mean, k, batch, T, 1)
+            _record(record, "state_covariance", state.covariance, k, batch, T, 2)
+            if smooth:
+                _record(record, "predicted_mean", pred.mean, k, batch, T, 1)
+                _record(record, "predicted_covariance", pred.covariance, k, batch, T, 2)
+            for key, trailing in _INFO_AXES.items():
+                _record(record, key, info[key], k, batch, T, trailing)
+        means, covs = record.pop("state"), record.pop("state_covariance")
         if smooth:
             F = np.broadcast_to(self.transition(layout, dts)[0], batch + (T,) + (layout.size,) * 2)
-            means, covs = rts_smooth(means, covs,
-                                     np.stack([p.mean for p, _ in steps], axis=nb),
-                                     np.stack([p.covariance for p, _ in steps], axis=nb), F)
-        diag = {"state": means, "state_covariance": covs}
-        for key, trailing in _INFO_AXES.items():
-            diag[key] = _stack_steps([i[key] for i in infos], batch, trailing)
+            means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
+                                     record.pop("predicted_covariance"), F)
+        diag = {"state": means, "state_covariance": covs, **record}
         D = layout.dim
         return Track(means[..., :D], covs[..., :D, :D], t, diag)
 
@@ -597,16 +597,16 @@ _INFO_AXES = {"innovation": 1, "innovation_covariance": 2, "nis": 0, "measuremen
               "gated": 0}
 
 
-def _stack_steps(arrays: list[np.ndarray], batch: tuple[int, ...], trailing: int) -> np.ndarray:
-    """Per-step arrays ``(..., *rest)`` (``rest``: the last ``trailing`` axes) stacked on a
-    step axis after the batch axes: ``batch + (T,) + rest``."""
-    shapes = {a.shape for a in arrays}
-    if len(shapes) == 1:
-        shape = shapes.pop()
-        if len(shape) == len(batch) + trailing and shape[:len(batch)] == batch:   # full batch
-            return np.stack(arrays, axis=len(batch))
-    return np.stack([np.broadcast_to(a, batch + a.shape[a.ndim - trailing:]) for a in arrays],
-                    axis=len(batch))
+def _record(record: dict, key: str, value: np.ndarray, step: int, batch: tuple[int, ...],
+            steps: int, trailing: int) -> None:
+    """Write one step's ``value`` (its last ``trailing`` axes after batch axes, which may
+    broadcast) at ``step`` of ``record[key]``, allocated ``batch + (steps,) + those axes`` at
+    the first step."""
+    value = np.asarray(value)
+    if key not in record:
+        rest = value.shape[value.ndim - trailing:]
+        record[key] = np.empty(batch + (steps,) + rest, dtype=value.dtype)
+    record[key][(Ellipsis, step) + (slice(None),) * trailing] = value
 
 
 def _as_observations(observations) -> list[Observation]:

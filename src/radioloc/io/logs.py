@@ -40,12 +40,14 @@ temporary name and renamed, so it is complete or absent.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
+import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -77,49 +79,43 @@ def _line(frame: pd.DataFrame, i: int) -> int:
     return int(lines[i]) if lines is not None and i < len(lines) else i + 2
 
 
-def _open_table(path: Path):
-    """A text stream of the table: the CSV file itself, or a Parquet file's cells as CSV."""
-    import io
-
+def _table_text(path: Path) -> str:
+    """The text of the table: the CSV file itself, or a Parquet file's cells as CSV."""
     if path.suffix.lower() == ".parquet":
         from radioloc.io.datasets import read_table_text
 
-        return io.StringIO(read_table_text(path).to_csv(index=False))
+        return read_table_text(path).to_csv(index=False)
     from radioloc.core.textfile import decode_text
 
-    return io.StringIO(decode_text(path.read_bytes(), path), newline="")
+    return decode_text(path.read_bytes(), path)
+
+
+def _open_table(path: Path):
+    """A text stream of :func:`_table_text`."""
+    return io.StringIO(_table_text(path), newline="")
 
 
 def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
     """:func:`_read_csv` by a CSV parser in C for a plain file, else None.
 
     Plain: no quote character, the header on line 1, every line (none blank or of empty
-    cells) with as many cells as the header, unique non-empty column names. Then each row
-    is one line, so the result (cells, line numbers) is the one of the general reader,
-    which reads every other file and words every error.
+    cells) with as many cells as the header, lines ending in ``\n`` or ``\r\n``, unique
+    non-empty column names. Then each row is one line, so the result (cells, line
+    numbers) is the one of the general reader, which reads every other file and words
+    every error.
     """
     try:
-        with _open_table(path) as fh:
-            text = fh.read()
+        data = _table_bytes(path)
     except (OSError, InputError):
         return None
-    if '"' in text or not text or text[0] in "\r\n":
+    if b'"' in data or not data or data[:1] in (b"\r", b"\n"):
         return None
-    first = text.split("\n", 1)[0].rstrip("\r")
+    if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
+        return None                              # a line break other than \n or \r\n
+    end = data.find(b"\n")
+    first = (data if end < 0 else data[:end]).decode("utf-8").rstrip("\r")
     names = [c.strip() if preserve_case else c.strip().lower() for c in first.split(",")]
     if "" in names or len(set(names)) != len(names):
-        return None
-    # every line (the header's included) must have as many cells: count its commas
-    data = text.encode("utf-8")
-    raw = np.frombuffer(data, dtype=np.uint8)
-    ends = np.flatnonzero(raw == 10)
-    returns = np.flatnonzero(raw == 13)
-    if returns.size and (returns[-1] + 1 == raw.size or np.any(raw[returns + 1] != 10)):
-        return None                              # a line break other than \n or \r\n
-    if not text.endswith("\n"):
-        ends = np.append(ends, raw.size)
-    commas = np.searchsorted(np.flatnonzero(raw == 44), ends)   # commas before each line end
-    if np.any(np.diff(commas, prepend=0) != len(names) - 1):
         return None
     frame = _plain_cells(data, len(names))
     if frame is None or frame.empty:
@@ -140,9 +136,24 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
     return frame
 
 
+def _table_bytes(path: Path) -> bytes:
+    """:func:`_table_text` as UTF-8 bytes (the file's own bytes when they are UTF-8 without
+    a byte-order mark)."""
+    if path.suffix.lower() == ".parquet":
+        return _table_text(path).encode("utf-8")
+    from radioloc.core.textfile import decode_text
+
+    raw = path.read_bytes()
+    text = decode_text(raw, path)        # refuses bytes that are not text
+    if raw.startswith((codecs.BOM_UTF8, codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return text.encode("utf-8")
+    return raw
+
+
 def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
     """The cells below the header of a plain CSV (see :func:`_read_plain_csv`) as text,
-    spaces after a comma skipped; None if the parser refuses the file.
+    spaces after a comma skipped; None if a line has another number of cells than
+    ``width`` or the parser refuses the file.
 
     pyarrow's CSV reader when installed (no quoting), else pandas' C parser.
     """
@@ -151,6 +162,14 @@ def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
         import pyarrow as pa
         import pyarrow.compute as pc
     except ImportError:
+        # every line (the header's included) must have as many cells: count its commas
+        raw = np.frombuffer(data, dtype=np.uint8)
+        ends = np.flatnonzero(raw == 10)
+        if not data.endswith(b"\n"):
+            ends = np.append(ends, raw.size)
+        commas = np.searchsorted(np.flatnonzero(raw == 44), ends)   # before each line end
+        if np.any(np.diff(commas, prepend=0) != width - 1):
+            return None
         try:
             return pd.read_csv(io.BytesIO(data), header=None, skiprows=1, names=range(width),
                                dtype=str, na_filter=False, skipinitialspace=True,
@@ -158,7 +177,7 @@ def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
         except (ValueError, pd.errors.ParserError):
             return None
     names = [str(j) for j in range(width)]
-    try:
+    try:   # refuses a line with more or fewer cells; a blank line is a row of empty cells
         table = pa_csv.read_csv(
             io.BytesIO(data),
             read_options=pa_csv.ReadOptions(use_threads=False, skip_rows=1, column_names=names),
@@ -304,7 +323,11 @@ def _text(frame: pd.DataFrame, column: str, lower: bool = False) -> pd.Series:
 
 
 def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    raw = frame[column].astype(str).str.strip()
+    cells = frame[column].astype(str)
+    fast = _floats(cells)                # cells without spaces around the number
+    if fast is not None:
+        return pd.Series(fast, index=cells.index, name=cells.name)
+    raw = cells.str.strip()
     fast = _floats(raw)
     if fast is not None:
         return pd.Series(fast, index=raw.index, name=raw.name)
@@ -673,11 +696,12 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     gives the same numbers bit for bit (distinct time stamps stay distinct).
     """
     def write_csv(f) -> None:
-        text = csv_text(frame)
-        if text is None:
+        chunks = csv_chunks(frame)
+        if chunks is None:
             frame.to_csv(f, index=False)
         else:
-            f.write(text)
+            for text in chunks:
+                f.write(text)
 
     if path is None or str(path) == "-":
         write_csv(sys.stdout)
@@ -694,48 +718,57 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
 _QUOTED = (",", '"', "\r", "\n")
 
 
-def csv_text(frame: pd.DataFrame) -> str | None:
-    """The text ``frame.to_csv(index=False)`` writes, built a column at a time, or None for a
-    frame it does not cover (a text cell that needs quoting or is missing, a column that is
-    not float64, integer, boolean or text, a single column).
+def csv_chunks(frame: pd.DataFrame, rows: int = 50_000) -> Iterator[str] | None:
+    """The text ``frame.to_csv(index=False)`` writes, in pieces of ``rows`` rows (built a
+    column at a time), or None for a frame this does not cover: a text cell that needs
+    quoting or is missing, a column that is not float64, integer, boolean or text, a single
+    column.
 
     Floats in their shortest exact form (``repr``), a missing float as an empty cell.
 
     Parameters
     ----------
     frame : DataFrame
+    rows : int
 
     Returns
     -------
-    str or None
+    iterator of str, or None
+        The header line first.
     """
-    import os
-
     names = [str(c) for c in frame.columns]
     if len(names) < 2 or any(q in c for c in names for q in _QUOTED):
         return None
-    cells = []
+    kinds = []
     for name in frame.columns:
         col = frame[name]
-        kind = col.dtype.kind
         if col.dtype == np.float64:
-            text = [repr(v) for v in col.tolist()]
-            if col.isna().any():
-                text = ["" if t == "nan" else t for t in text]
-        elif kind in "iub":
-            text = [str(v) for v in col.tolist()]
-        elif kind in "OUT" or isinstance(col.dtype, pd.StringDtype):
-            if col.isna().any() or not all(isinstance(v, str) for v in col.unique()):
+            kinds.append("float")
+        elif col.dtype.kind in "iub":
+            kinds.append("int")
+        elif isinstance(col.dtype, pd.StringDtype) or (
+                col.dtype.kind in "OU" and not isinstance(col.dtype, pd.CategoricalDtype)):
+            if col.isna().any() or not all(isinstance(v, str) and not any(q in v for q in _QUOTED)
+                                           for v in col.unique()):
                 return None
-            distinct = col.unique()
-            if any(q in v for v in distinct for q in _QUOTED):
-                return None
-            text = col.tolist()
+            kinds.append("text")
         else:
             return None
-        cells.append(text)
     end = os.linesep
-    return end.join([",".join(names)] + [",".join(row) for row in zip(*cells)]) + end
+
+    def cells(values: list, kind: str) -> list[str]:
+        if kind == "float":
+            return [repr(v) if v == v else "" for v in values]
+        return [str(v) for v in values] if kind == "int" else values
+
+    def pieces() -> Iterator[str]:
+        yield ",".join(names) + end
+        for start in range(0, len(frame), rows):
+            part = frame.iloc[start:start + rows]
+            columns = [cells(part[c].tolist(), kind) for c, kind in zip(frame.columns, kinds)]
+            yield end.join(map(",".join, zip(*columns))) + end
+
+    return pieces()
 
 
 def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
