@@ -124,18 +124,18 @@ def kalman_update(mean: np.ndarray, cov: np.ndarray, innovation: np.ndarray, H: 
         R = np.asarray(R_diag, dtype=float)[..., :, None] * _eye(m)
     both = ok[..., :, None] & ok[..., None, :]
     R = np.where(both, np.asarray(R, dtype=float), _eye(m))
-    if np.any((np.diagonal(R, axis1=-2, axis2=-1) <= 0) & ok):
+    if ((R.diagonal(0, -2, -1) <= 0) & ok).any():
         raise InputError("measurement noise: variance must be > 0 for every measurement used")
     nu = np.where(ok, nu, 0.0)
     H = np.where(ok[..., :, None], H, 0.0)
-    PHt = cov @ np.swapaxes(H, -1, -2)                           # (..., n, m)
+    PHt = cov @ H.swapaxes(-1, -2)                               # (..., n, m)
     S = H @ PHt + R
     S = symmetrise(S)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)   # P H^T S^-1
+    K = np.linalg.solve(S, PHt.swapaxes(-1, -2)).swapaxes(-1, -2)           # P H^T S^-1
     x = mean + np.einsum("...ij,...j->...i", K, nu)
     n = mean.shape[-1]
     IKH = _eye(n) - K @ H
-    P = IKH @ cov @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    P = IKH @ cov @ IKH.swapaxes(-1, -2) + K @ R @ K.swapaxes(-1, -2)
     return x, symmetrise(P), S, ok
 
 

@@ -607,7 +607,8 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
     n = np.convolve(used + refused, w, "valid")
     ok = n > 0
-    band = NIS_FACTOR * 2 * gammaincinv(np.maximum(n, 1) / 2, 0.999)   # chi-square 99.9 % point
+    counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
+    band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
     windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
     xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
     lo, hi = box.min(axis=0), box.max(axis=0)
