@@ -529,8 +529,9 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
             k = int(np.flatnonzero(back)[0])
             line = frame["line"].to_numpy()[order][k] if "line" in frame.columns else k + 2
             warnings.warn(f"{where}: {int(back.sum())} row(s) go back in time within their node "
-                          f"(first: line {int(line)}, node {names[code_s[k]]!r}, time {time_s[k]:g} after "
-                          f"{running[k - 1]:g}); they are used in time order", stacklevel=3)
+                          f"(first: line {int(line)}, node {names[code_s[k]]!r}, time "
+                          f"{time_s[k]:g} after {running[k - 1]:g}); they are used in time order",
+                          stacklevel=3)
     if max_gap_s is None or "time_units" in skip:
         return
     srt = np.lexsort((time, node))

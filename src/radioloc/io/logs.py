@@ -182,8 +182,8 @@ def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
             io.BytesIO(data),
             read_options=pa_csv.ReadOptions(use_threads=False, skip_rows=1, column_names=names),
             parse_options=pa_csv.ParseOptions(quote_char=False, ignore_empty_lines=False),
-            convert_options=pa_csv.ConvertOptions(column_types={n: pa.string() for n in names},
-                                                  strings_can_be_null=False))
+            convert_options=pa_csv.ConvertOptions(   # pandas' own string type: no copy
+                column_types={n: pa.large_string() for n in names}, strings_can_be_null=False))
     except (pa.ArrowInvalid, ValueError):
         return None
     if b", " in data or b"\n " in data or data.startswith(b" "):   # spaces to skip

@@ -157,12 +157,13 @@ class Measurements:
         -------
         dict of str to Measurements
         """
-        f = self.frame[self.frame["mask"]]
+        f = self.frame
         codes, names = pd.factorize(f["node"], sort=True)
+        codes = np.where(f["mask"].to_numpy(), codes, -1)          # -1: masked out
         order = np.argsort(codes, kind="stable")
         edges = np.searchsorted(codes[order], np.arange(len(names) + 1))
-        f = f.iloc[order]
-        return {str(n): Measurements(f.iloc[a:b]) for n, a, b in zip(names, edges[:-1], edges[1:])}
+        return {str(n): Measurements(f.take(order[a:b]))
+                for n, a, b in zip(names, edges[:-1], edges[1:]) if b > a}
 
     def select(self, *, kind: str | Sequence[str] | None = None,
                node: str | Sequence[str] | None = None) -> "Measurements":
