@@ -527,9 +527,11 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
         back[1:] = same & (time_s[1:] < running[:-1])
         if back.any():
             k = int(np.flatnonzero(back)[0])
-            line = frame["line"].to_numpy()[order][k] if "line" in frame.columns else k + 2
+            line = (float(frame["line"].to_numpy(dtype=float)[order[k]])
+                    if "line" in frame.columns else np.nan)
+            first = f"line {int(line)}" if np.isfinite(line) else f"row {int(order[k])}"
             warnings.warn(f"{where}: {int(back.sum())} row(s) go back in time within their node "
-                          f"(first: line {int(line)}, node {names[code_s[k]]!r}, time "
+                          f"(first: {first}, node {names[code_s[k]]!r}, time "
                           f"{time_s[k]:g} after {running[k - 1]:g}); they are used in time order",
                           stacklevel=3)
     if max_gap_s is None or "time_units" in skip:
