@@ -118,6 +118,11 @@ class RunGenerators:
                              f"got {shape}")
         per = shape[nb:]
         flat_where = None if where is None else np.broadcast_to(where, self.batch_shape).ravel()
+        if method in ("random", "standard_normal") and flat_where is None and not kwargs:
+            out = np.empty((len(self.generators),) + per)      # filled in place, run by run
+            for g, part in zip(self.generators, out):
+                getattr(g, method)(size=per, out=part)
+            return out.reshape(shape)
         parts = []
         for i, g in enumerate(self.generators):
             if flat_where is not None and not flat_where[i]:
@@ -274,14 +279,17 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
         z *= motion.std_m
         z += particles if control is None else particles + control
         return z
-    if np.ndim(dt):                             # a step length per particle set
-        dt = np.asarray(dt, dtype=float)[..., None]
     if type(motion).sample is not MotionModel.sample:
-        return motion.sample(particles, dt, rng, control=control)
+        return motion.sample(particles, np.asarray(dt, dtype=float)[..., None] if np.ndim(dt)
+                             else dt, rng, control=control)
     n = particles.shape[-1]
-    F = np.asarray(motion.F(dt))
+    F = np.asarray(motion.F(dt))                              # (n, n) or (..., n, n)
     if F.shape == (n, n) and np.array_equal(F, np.eye(n)):        # random walk: F = I
         mean = particles if control is None else particles.copy()
+        if control is not None:
+            mean[..., : motion.dim] += control
+    elif F.ndim > 2:                                          # one F per particle set
+        mean = particles @ np.swapaxes(F, -1, -2)
         if control is not None:
             mean[..., : motion.dim] += control
     else:
@@ -295,7 +303,7 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
         return z
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
-    return mean + np.einsum("...ij,...j->...i", factor, z)
+    return mean + z @ np.swapaxes(factor, -1, -2)           # one Q per particle set
 
 
 def mode_update(prior: np.ndarray, mode_loglik: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -86,7 +86,9 @@ from radioloc.models.ranging import RangeModel
 #: Residuals further than this many robust standard deviations from their median are left
 #: out of the EM fit.
 TRIM = 20.0
-#: Fewest steps of the start window of :func:`start_state`.
+#: Residuals fitted by EM at most (see :func:`fit_residuals`).
+EM_SAMPLES = 2500
+#: Fewest steps of the start window of :func:`start_states`.
 START_STEPS = 3
 #: Factor on the covariance of the start state.
 START_INFLATION = 4.0
@@ -273,7 +275,9 @@ def fit_residuals(e: np.ndarray) -> tuple[LosNlosRange, float, dict]:
 
     Residuals more than ``TRIM`` robust standard deviations (1.4826 MAD) from their median
     are left out: the mixture has no component for ranges much too short, and one such
-    range would inflate ``s_LOS``; the causal gate of the filter handles them.
+    range would inflate ``s_LOS``; the causal gate of the filter handles them. Of more than
+    ``EM_SAMPLES`` residuals, ``EM_SAMPLES`` evenly spaced in log order are fitted (the
+    parameters' sampling error is then about 2 %; the fit's cost grows with the samples).
 
     Parameters
     ----------
@@ -295,8 +299,11 @@ def fit_residuals(e: np.ndarray) -> tuple[LosNlosRange, float, dict]:
         raise InputError(f"method pf: the log holds {e.size} range(s) to anchors{outliers}; "
                          f"fitting its LOS/NLOS model by EM needs at least {MIN_SAMPLES}: give a "
                          "longer log, or use --method ekf-track")
+    kept = e[keep]
+    if kept.size > EM_SAMPLES:
+        kept = kept[np.linspace(0, kept.size - 1, EM_SAMPLES).round().astype(np.int64)]
     with threadpool_limits(limits=1, user_api="blas"):   # L-BFGS-B's tiny BLAS calls
-        fit = fit_los_nlos(e[keep], fit_bias=True, alpha0=0.9, los_std0=mad,
+        fit = fit_los_nlos(kept, fit_bias=True, alpha0=0.9, los_std0=mad,
                            nlos_mean0=max(5 * mad, 0.1))
     return fit.model, fit.bias_m, {"samples": int(keep.sum()), "trimmed": int((~keep).sum())}
 
@@ -578,6 +585,62 @@ def batches(segs: list[Segment], particles: int, state_dim: int, keep: bool) -> 
     return out
 
 
+#: Steps over which :class:`Misfit` averages (the weight of older steps decays by
+#: ``1 - 1 / MISFIT_STEPS`` per step).
+MISFIT_STEPS = 20
+#: A range's squared innovation counts at most this many times its predicted variance in
+#: :class:`Misfit` (one gross outlier then moves the floor little).
+MISFIT_CLIP = 16.0
+
+
+class Misfit:
+    """Position covariance implied by innovations larger than the filter predicts (see the
+    module docstring), for a batch of ``B`` filters.
+
+    Parameters
+    ----------
+    B : int
+    clip : float
+        A range's squared innovation counts at most ``clip`` times its predicted variance.
+
+    Attributes
+    ----------
+    covariance : ndarray, shape (B, 2, 2)
+        ``eps^2 (A / n)^-1`` after the last :meth:`update`.
+    """
+
+    def __init__(self, B: int, clip: float) -> None:
+        self.clip = float(clip)
+        self.excess = np.zeros(B)         # decayed sum of min(nu^2, clip S) - S
+        self.count = np.zeros(B)          # decayed number of ranges
+        self.steps = np.zeros(B)          # decayed number of steps with a range
+        self.info = np.zeros((B, 2, 2))   # decayed sum of u u^T
+        self.covariance = np.zeros((B, 2, 2))
+
+    def update(self, nu: np.ndarray, S: np.ndarray, u: np.ndarray, finite: np.ndarray) -> None:
+        """Take one step's innovations.
+
+        Parameters
+        ----------
+        nu, S : ndarray, shape (B, M)
+            Innovations (NaN where ``finite`` is False) and their predicted variances.
+        u : ndarray, shape (B, M, 2)
+            Unit vectors from the anchors to the predicted position.
+        finite : ndarray of bool, shape (B, M)
+        """
+        keep = 1.0 - 1.0 / MISFIT_STEPS
+        with np.errstate(invalid="ignore"):
+            c = np.where(finite, np.minimum(nu * nu, self.clip * S) - S, 0.0)
+        self.excess = keep * self.excess + c.sum(axis=-1)
+        self.count = keep * self.count + finite.sum(axis=-1)
+        self.steps = keep * self.steps + finite.any(axis=-1)
+        w = finite[..., None] * u
+        self.info = keep * self.info + np.einsum("bmi,bmj->bij", w, u)
+        eps2 = np.maximum(self.excess, 0.0) / np.maximum(self.count, 1e-12)
+        per_step = self.info / np.maximum(self.steps, 1e-12)[:, None, None] + 1e-6 * np.eye(2)
+        self.covariance = eps2[:, None, None] * np.linalg.inv(per_step)
+
+
 def horizontal(r: np.ndarray, anchors: np.ndarray, height: float | None) -> np.ndarray:
     """Ranges (..., M) projected to the horizontal plane at the node height (3-D anchors)."""
     if anchors.shape[1] != 3:
@@ -602,6 +665,7 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
         if controls is not None:
             controls[b, :g.times.size] = g.controls
     dts = np.diff(t, axis=1, prepend=t[:, :1])
+    F, Q = motion.F(dts), motion.Q(dts)                                    # (B, T, n, n)
     mean0, cov0 = start_states([(g.times, g.ranges - g.bias) for g in group], anchors, s,
                                [g.model.los_std_m for g in group],
                                [f"method pf: node {g.node!r}" for g in group])
@@ -618,26 +682,31 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
     moments = np.array([g.model.moments() for g in group])        # (B, 2): mean, variance
     keep = "fixed-lag" in outputs or "backward" in outputs
     gate = opts["gate"]
-    means, covs = np.empty((T, B, n)), np.empty((T, B, n, n))
+    means, covs, extra = np.empty((T, B, n)), np.empty((T, B, n, n)), np.empty((T, B, 2, 2))
     history, ancestors = [], []
     streak = np.zeros(B, dtype=np.int64)
     gated = np.zeros((B, T), dtype=np.int64)
     p_nlos = np.zeros((B, T))
+    misfit = Misfit(B, MISFIT_CLIP)
+    kernel = float(K) ** (-1.0 / 3.0)        # Silverman's h^2 for K particles in 2-D
     for k in range(T):
         row = r[:, k]
-        if gate:
-            # causal gate: residual to the range from the predicted mean, over its variance
-            finite = np.isfinite(row)
+        finite = np.isfinite(row)
+        # innovation of each range: its residual to the range from the predicted mean, and
+        # its variance (particle spread along the line of sight, misfit, mixture)
+        pred = np.einsum("bij,bj->bi", F[:, k, :2], state.mean)                 # (B, 2)
+        if controls is not None:
+            pred = pred + controls[:, k]
+        diff = pred[:, None, :] - xy                                             # (B, M, 2)
+        d = np.sqrt(np.sum(diff * diff, axis=-1))
+        u = diff / np.maximum(d, 1e-9)[..., None]
+        P = (F[:, k] @ state.covariance @ np.swapaxes(F[:, k], -1, -2) + Q[:, k])[:, :2, :2]
+        S = np.einsum("bmi,bij,bmj->bm", u, P + misfit.covariance, u) + moments[:, 1:]
+        nu = row - d - moments[:, :1]
+        misfit.update(nu, S, u, finite)
+        if gate:   # causal gate
             active = (streak < GATE_PATIENCE) & finite.any(axis=-1)
-            pred = motion.predict(state.mean, dts[:, k])[:, :2]                 # (B, 2)
-            if controls is not None:
-                pred = pred + controls[:, k]
-            diff = pred[:, None, :] - xy                                         # (B, M, 2)
-            d = np.sqrt(np.sum(diff * diff, axis=-1))
-            u = diff / np.maximum(d, 1e-9)[..., None]
-            spread = np.einsum("bmi,bij,bmj->bm", u, state.covariance[:, :2, :2], u) + \
-                moments[:, 1:]
-            out = finite & active[:, None] & ((row - d - moments[:, :1]) ** 2 > gate * spread)
+            out = finite & active[:, None] & (nu * nu > gate * S)
             count = out.sum(axis=-1)
             streak = np.where(active & (count == finite.sum(axis=-1)), streak + 1, 0)
             gated[:, k] = count
@@ -646,6 +715,7 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
                         control=None if controls is None else controls[:, k])
         bar.advance()
         means[k], covs[k] = state.mean, state.covariance
+        extra[k] = misfit.covariance + kernel * P
         used = state.links >= 0
         if used.any():   # the largest NLOS probability among the ranges used
             p_nlos[:, k] = np.max(np.where(used, 1.0 - state.link_los.mean(axis=-2), 0.0),
@@ -657,18 +727,19 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
     for b, g in enumerate(group):
         size = g.times.size
         flags = {"gated": gated[b, :size], "p_nlos": p_nlos[b, :size]}
+        floor = extra[:size, b]
         tracks = {}
         if "filtered" in outputs:
-            tracks["filtered"] = Track(means[:size, b, :2], covs[:size, b, :2, :2], g.times,
-                                       flags)
+            tracks["filtered"] = Track(means[:size, b, :2], covs[:size, b, :2, :2] + floor,
+                                       g.times, flags)
         if "fixed-lag" in outputs:
             mean, cov = fixed_lag([h[b] for h in history[:size]],
                                   [a[b] for a in ancestors[:size]], opts["lag"])
-            tracks["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2], g.times, flags)
+            tracks["fixed-lag"] = Track(mean[:, :2], cov[:, :2, :2] + floor, g.times, flags)
         if "backward" in outputs:
             mean, cov = backward_simulation([h[b] for h in history[:size]], g.times, motion,
                                             opts["trajectories"],
                                             np.random.default_rng(g.seed.spawn(1)[0]))
-            tracks["backward"] = Track(mean[:, :2], cov[:, :2, :2], g.times, flags)
+            tracks["backward"] = Track(mean[:, :2], cov[:, :2, :2] + floor, g.times, flags)
         out.append(tracks)
     return out, int(state.resets.sum())
