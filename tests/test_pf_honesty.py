@@ -4,6 +4,8 @@ covariance" in :mod:`radioloc.locate.pf`)."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -45,3 +47,14 @@ def test_errors_stay_within_three_claimed_sigmas(particles, los_std_m):
     if particles == 900 and los_std_m is None:     # the defaults: cautious, not useless
         assert 0.25 <= np.median(medians) <= 1.0, medians
         assert rmse < 0.15
+
+
+def test_a_stated_range_error_far_below_the_ranges_is_named_in_one_warning():
+    log = walk_log(0, epochs=150, gap=False)
+    with pytest.warns(UserWarning, match=r"los_std_m=0\.001.*too small") as record:
+        run_method("pf", request(log, los_std_m=0.001))
+    assert len([w for w in record if "method pf" in str(w.message)]) == 1
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        run_method("pf", request(log))
+    assert not [w for w in record if "method pf" in str(w.message)]

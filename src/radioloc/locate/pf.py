@@ -98,6 +98,7 @@ collapses onto one particle and claims a covariance of zero.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 import zlib
 
 import numpy as np
@@ -482,6 +483,8 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
             out, r = _filter([segs[i] for i in g], anchors, s, outputs, opts, bar)
             tracks.update(zip(g, out))
             resets += r
+    warn_misfit([(sg.node, float(sg.times[0]), tracks[i]["misfit"]) for i, sg in enumerate(segs)],
+                models)
     result = {}
     for k in outputs:
         tables = [track_table(sg.node, sg.times, tracks[i][k], restart=sg.restart)
@@ -491,6 +494,34 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
             tables, per_node, seed=seed, particles=particles, filter_resets=resets,
             smoother=None if k == "filtered" else k, model=fitted)
     return result
+
+
+#: Fraction of a segment's steps with the misfit term above the particles' covariance
+#: beyond which :func:`warn_misfit` warns.
+MISFIT_WARN = 0.5
+
+
+def warn_misfit(shares: list[tuple[str, float, float]], models: dict) -> None:
+    """One warning for the segments whose innovations exceed the LOS/NLOS model's spread at
+    more than ``MISFIT_WARN`` of their steps (the reported uncertainty is then mostly the
+    misfit term of the module docstring).
+
+    Parameters
+    ----------
+    shares : list of (node, start time, fraction of steps)
+    models : dict of node to (LosNlosRange, bias_m)
+    """
+    bad = [x for x in shares if x[2] > MISFIT_WARN]
+    if not bad:
+        return
+    node, t0, share = max(bad, key=lambda x: x[2])
+    m = models[node][0]
+    warnings.warn(
+        f"method pf: {len(bad)} of {len(shares)} track(s) meet ranges farther from their "
+        f"prediction than the LOS/NLOS model allows (worst: node {node!r} from time {t0!r}, "
+        f"at {100 * share:.0f} % of its steps); the reported uncertainty includes that "
+        f"misfit; los_std_m={m.los_std_m:g}, nlos_mean_m={m.nlos_mean_m:g} too small for "
+        "this log?", stacklevel=2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -697,8 +728,9 @@ def horizontal(r: np.ndarray, anchors: np.ndarray, height: float | None) -> np.n
 
 
 def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[dict], int]:
-    """The particle-filter tracks of a batch of segments (see the module docstring), and
-    the number of resets."""
+    """The particle-filter tracks of a batch of segments (see the module docstring), each
+    with ``"misfit"``, the fraction of its steps whose :class:`Misfit` covariance exceeds
+    the particles' (trace), and the number of resets."""
     B, T, M = len(group), max(g.times.size for g in group), anchors.shape[0]
     K = opts["particles"]
     motion = tracker_motion(dict(s, dim=2))
@@ -730,6 +762,7 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
     keep = "fixed-lag" in outputs or "backward" in outputs
     gate = opts["gate"]
     means, covs, extra = np.empty((T, B, n)), np.empty((T, B, n, n)), np.empty((T, B, 2, 2))
+    dominant = np.zeros((B, T), dtype=bool)      # the misfit term exceeds the particles'
     history, ancestors = [], []
     streak = np.zeros(B, dtype=np.int64)
     gated = np.zeros((B, T), dtype=np.int64)
@@ -763,6 +796,8 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
         bar.advance()
         means[k], covs[k] = state.mean, state.covariance
         extra[k] = misfit.covariance + kernel * P
+        dominant[:, k] = np.trace(misfit.covariance, axis1=-2, axis2=-1) > \
+            np.trace(state.covariance[:, :2, :2], axis1=-2, axis2=-1)
         used = state.links >= 0
         if used.any():   # the largest NLOS probability among the ranges used
             p_nlos[:, k] = np.max(np.where(used, 1.0 - state.link_los.mean(axis=-2), 0.0),
@@ -788,5 +823,6 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
                                             opts["trajectories"],
                                             np.random.default_rng(g.seed.spawn(1)[0]))
             tracks["backward"] = Track(mean[:, :2], cov[:, :2, :2] + floor, g.times, flags)
+        tracks["misfit"] = float(dominant[b, :size].mean())
         out.append(tracks)
     return out, int(state.resets.sum())
