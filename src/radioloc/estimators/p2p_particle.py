@@ -13,7 +13,10 @@ recursion of Sect. IV::
 approximation of Fig. 3: neighbour positions are the neighbours' estimates sent as
 messages; anchors are known. Everything is batched over
 leading axes ``(runs, vehicles)``, particles and links; :meth:`P2PParticleFilter.run` is a
-loop over :meth:`P2PParticleFilter.step`.
+loop over :meth:`P2PParticleFilter.step`. A step takes a step length per filter, and its
+draws from one generator or from one per filter
+(:class:`~radioloc.estimators.particle_filter.RunGenerators`: a batch then gives each
+filter what it gives alone, as ``locate --method pf`` runs the segments of a log).
 
 Each part of a step is defined once here in NumPy (``backend="numpy"``): the prediction
 (line 3, the motion model's draws), the particle-link update (:func:`_link_update_numpy`,
