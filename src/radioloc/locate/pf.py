@@ -105,7 +105,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
@@ -119,7 +119,7 @@ from radioloc.locate.ekf_track import (
     range_rows,
     segments,
     stack_tracks,
-    track_prior,
+    track_priors,
     track_summary,
     track_table,
     tracker_filter,
@@ -210,21 +210,13 @@ def ekf_tracks(items: list[tuple[np.ndarray, np.ndarray]], anchors, s: dict,
     s0 = dict(s, bias=0.0, odometry_std=None)
     ekf = tracker_filter(anchors, s0, gate)
     ctx = Context(points=anchors, index=np.arange(len(anchors)), height_m=s["height"])
-    obs, means, variances = [], [], []
-    for b, ((times, R), std) in enumerate(zip(items, range_std)):
-        o = [Observation(RangeModel(std_m=std), R, ctx, np.full(R.shape, std))]
-        try:
-            mean, var = track_prior(ekf, times, o, anchors, s0)
-        except GeometryError as exc:
-            if labels is None:
-                raise
-            raise GeometryError(f"{labels[b]}: {exc}") from None
-        obs.append(o)
-        means.append(mean)
-        variances.append(var)
+    obs = [[Observation(RangeModel(std_m=std), R, ctx, np.full(R.shape, std))]
+           for (_, R), std in zip(items, range_std)]
+    prior_mean, prior_cov = track_priors(
+        ekf, [(None if labels is None else labels[b], times, o)
+              for b, ((times, _), o) in enumerate(zip(items, obs))], anchors, s0)
     t, batch = stack_tracks([times for times, _ in items], obs)
-    track = ekf.run(batch, t, prior_mean=np.stack(means),
-                    prior_cov=np.stack([np.diag(v) for v in variances]), smooth=smooth)
+    track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov, smooth=smooth)
     return [track[b, :times.size] for b, (times, _) in enumerate(items)]
 
 
