@@ -60,7 +60,7 @@ class HeadingModel(MeasurementModel):
 
     std_rad: float
     offset_rad: float = 0.0
-    min_speed_mps: float = 0.2
+    min_speed_mps: float = 0.5
 
     kind: ClassVar[str] = "heading"
     reads: ClassVar[tuple[str, ...]] = ("velocity",)
