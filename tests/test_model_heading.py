@@ -40,17 +40,18 @@ def test_predict_is_the_velocity_direction_plus_the_offset_wrapped():
     assert model.residual(z_meas, z_hat)[0] == pytest.approx(-0.003, abs=1e-12)
 
 
-def test_low_speed_jacobian_shrinks_to_zero_at_standstill():
+def test_below_min_speed_the_row_is_skipped():
     model = HeadingModel(std_rad=0.2, min_speed_mps=0.5)
-    speeds = np.array([0.0, 1e-6, 0.05, 0.25, 0.5, 1.0, 4.0])
+    speeds = np.array([0.0, 1e-6, 0.25, 0.49, 0.5, 1.0, 4.0])
     v = np.stack([speeds, np.zeros_like(speeds)], axis=-1)
-    gain = np.linalg.norm(model.jacobian({"velocity": v}, ONE_ROW)["velocity"][:, 0], axis=-1)
-    assert np.all(np.isfinite(gain))
-    assert gain[0] == 0.0
-    # below the floor |H| = |v| / v0^2, at and above it the exact 1 / |v|
-    np.testing.assert_allclose(gain[1:4], speeds[1:4] / 0.25)
-    np.testing.assert_allclose(gain[4:], 1.0 / speeds[4:])
-    assert gain.max() == pytest.approx(1.0 / 0.5)
+    z_hat = model.predict({"velocity": v}, ONE_ROW)[:, 0]
+    H = model.jacobian({"velocity": v}, ONE_ROW)["velocity"][:, 0]
+    slow = speeds < 0.5
+    assert np.all(np.isnan(z_hat[slow])) and np.all(z_hat[~slow] == 0.0)
+    assert np.all(H[slow] == 0.0)
+    np.testing.assert_allclose(np.linalg.norm(H[~slow], axis=-1), 1.0 / speeds[~slow])
+    lp = model.logpdf(np.full((7, 1), 1.0), {"position": np.zeros((7, 2)), "velocity": v}, ONE_ROW)
+    assert np.all(lp[slow] == 0.0) and np.all(lp[~slow] < 0.0)
 
 
 def test_sample_and_logpdf_use_std_rad():

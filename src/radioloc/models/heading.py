@@ -12,13 +12,13 @@ magnetometer's frame, e.g. clockwise from magnetic north once its sign is flippe
 In 3-D only the horizontal velocity counts. Residuals wrap (``angular = True``).
 
 The Jacobian is analytic, ``d h / d (v_x, v_y) = (-v_y, v_x) / |v|^2``. The direction of
-a slow velocity is ill defined: ``|v|^2`` is floored at ``min_speed_mps^2``, so below that
-speed the Jacobian shrinks in proportion to the speed, to zero at standstill, instead of
-growing as ``1 / |v|``. That is the linearised form of a heading noise that grows as the
-speed falls, ``std_rad * min_speed_mps / |v|`` below ``min_speed_mps``: a filter standing
-still is not turned by its heading rows (the noise of the protocol depends on the rows'
-context only, so the speed enters through the Jacobian; the innovation of a heading row
-at standstill is large against ``std_rad`` and a NIS gate refuses it).
+a slow velocity is undefined, and an extended Kalman update linearised there turns a
+velocity that is mostly noise by the full angle of the innovation, which lengthens it
+(the linear step is tangential): repeated, the speed grows without bound. So a state
+slower than ``min_speed_mps`` predicts NaN (Jacobian zero), and every estimator skips
+the row there (a NaN innovation is a missing row; :meth:`logpdf` gives 0): in effect the
+heading noise is infinite below ``min_speed_mps``. The noise of the protocol depends on
+the rows' context only, so this switch is how the speed enters.
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ class HeadingModel(MeasurementModel):
         Rotation from the map's frame to the sensor's: a row reads the velocity's
         direction plus this angle.
     min_speed_mps : float
-        Speed below which the heading is treated as ill defined (the Jacobian is
-        scaled down by ``(|v| / min_speed_mps)^2``), m/s (> 0).
+        Speed below which the heading is undefined: the prediction is NaN (the row is
+        skipped), m/s (> 0).
 
     Examples
     --------
@@ -74,14 +74,19 @@ class HeadingModel(MeasurementModel):
     def predict(self, state, context: Context) -> np.ndarray:
         v = np.asarray(state["velocity"], dtype=float)
         h = np.arctan2(v[..., 1], v[..., 0]) + self.offset_rad
+        h = np.where(self._moving(v), h, np.nan)
         return wrap_angle(np.broadcast_to(h[..., None], h.shape + (context.rows,)))
+
+    def _moving(self, v: np.ndarray) -> np.ndarray:
+        return v[..., 0] ** 2 + v[..., 1] ** 2 >= self.min_speed_mps ** 2
 
     def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
         v = np.asarray(state["velocity"], dtype=float)
-        speed2 = np.maximum(v[..., 0] ** 2 + v[..., 1] ** 2, self.min_speed_mps ** 2)
+        moving = self._moving(v)
+        speed2 = np.where(moving, v[..., 0] ** 2 + v[..., 1] ** 2, 1.0)
         row = np.zeros(v.shape)
-        row[..., 0] = -v[..., 1] / speed2
-        row[..., 1] = v[..., 0] / speed2
+        row[..., 0] = np.where(moving, -v[..., 1] / speed2, 0.0)
+        row[..., 1] = np.where(moving, v[..., 0] / speed2, 0.0)
         return {"velocity": np.broadcast_to(row[..., None, :], v.shape[:-1] + (context.rows, v.shape[-1])).copy()}
 
     def std(self, context: Context) -> np.ndarray:
