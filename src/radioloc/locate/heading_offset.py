@@ -22,7 +22,7 @@ from radioloc.models.measurement import wrap_angle
 __all__ = ["estimate_heading_offset", "remove_heading_offset", "track_direction"]
 
 
-def track_direction(track: pd.DataFrame, node: str, times: np.ndarray, window_s: float = 2.0
+def track_direction(track: pd.DataFrame, node: str, times: np.ndarray, window_s: float = 10.0
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Direction and speed of a node's track at ``times``, by the central difference of
     its positions (interpolated linearly) ``window_s`` apart.
@@ -55,7 +55,7 @@ def track_direction(track: pd.DataFrame, node: str, times: np.ndarray, window_s:
 
 
 def estimate_heading_offset(measurements: pd.DataFrame, track: pd.DataFrame,
-                            min_speed_mps: float = 0.5, window_s: float = 2.0,
+                            min_speed_mps: float = 0.1, window_s: float = 10.0,
                             min_rows: int = 20) -> pd.DataFrame:
     """Each node's heading offset: the circular mean of its ``heading`` rows minus its
     track's direction where the track is faster than ``min_speed_mps``.
