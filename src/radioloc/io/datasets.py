@@ -781,7 +781,6 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
         ``measurements``, ``anchors``, ``reference`` (``time, node, x, y``).
     """
     from radioloc.io.wifi_rtt import PHONES, load_anchors, load_run
-    from radioloc.models.measurement import wrap_angle
 
     ext = _ext(fmt)
     root = Path(root) if root is not None else require("wifi-rtt-haiyaoyu")
@@ -800,7 +799,7 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
             azimuth = run.imu["Azimuth"].to_numpy(dtype=float)
             rows.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
                                       "peer": "imu", "kind": "heading",
-                                      "value": wrap_angle(-azimuth),
+                                      "value": np.angle(np.exp(-1j * azimuth)),
                                       "std": np.nan}))
         refs.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
                                   "x": run.truth_xy[:, 0], "y": run.truth_xy[:, 1]}))
