@@ -44,7 +44,9 @@ odometry rows are not steps: the steps stay the times of the measurements to anc
 
 Heading rows (a phone's compass azimuth turned into the anchors' frame) measure the
 direction of the velocity (:class:`~radioloc.models.heading.HeadingModel`, ``heading_std_rad``):
-an update of the constant-velocity state like any other row (not with ``rw`` or odometry).
+an update of the constant-velocity state like any other row, so a time with a heading
+alone is a step too (not with ``rw`` or odometry; a node with heading rows only has no
+start).
 """
 
 from __future__ import annotations
