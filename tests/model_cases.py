@@ -36,6 +36,7 @@ from radioloc.models import (
     DiagMixture,
     FingerprintMixture,
     FingerprintScanModel,
+    HeadingModel,
     LogDistanceGaussian,
     LosNlosRange,
     MeasurementModel,
@@ -301,6 +302,12 @@ def _bearing(component: str):
     return make
 
 
+def _heading(theta, perm, shift):
+    """The direction of the velocity: the sensor's frame stays put when the scene turns, so
+    its offset turns the other way."""
+    return HeadingModel(std_rad=0.02, offset_rad=-theta, min_speed_mps=0.1)
+
+
 #: calibration places of the fingerprint mixture (every 3 m over the tracks' area)
 PLACES = np.stack(np.meshgrid(np.arange(3.0, 28.0, 3.0), np.arange(0.0, 13.0, 3.0)),
                   -1).reshape(-1, 2)
@@ -361,6 +368,9 @@ CASES = {c.name: c for c in [
     ModelCase("rss-trapezoid", 2, [Part(_fixed(TrapezoidRssModel(TRAPEZOIDS)), ALL)], 1.0, seed=8),
     ModelCase("rss-fingerprint", 2, [Part(_fingerprint, ALL)], 1.0, seed=9),
     ModelCase("rss-scan", 2, [Part(_scan, ALL)], 1.2, seed=10),
+    # a heading fixes no position: with ranges, and no snapshot (the speed is unobserved)
+    ModelCase("range-heading", 2, [Part(_fixed(RangeModel(std_m=0.05)), ALL),
+                                   Part(_heading, ALL[:1])], 0.15, snapshot=False, seed=11),
 ]}
 
 
@@ -381,7 +391,8 @@ def check_invariance(case: ModelCase, problem: Problem, atol: float = 1e-7) -> N
 
 
 def _components(p: Problem, step: int) -> dict:
-    comps = {"position": p.truth[:, step]}
+    D = p.truth.shape[-1]
+    comps = {"position": p.truth[:, step], "velocity": p.prior_mean[:, D:2 * D]}
     if p.layout.clock:
         comps["clock_offset"] = np.full(B, CLOCK_M)
     if p.layout.n_bias:

@@ -57,6 +57,18 @@ def test_export_with_rss_adds_rss_rows(tmp_path):
     assert set(meas["kind"]) == {"range", "rss"}
 
 
+def test_export_with_heading_writes_the_negated_azimuth(tmp_path):
+    paths = datasets.export("wifi-rtt", tmp_path, venue="Canteen", circle=1, heading=True)
+    meas = read_measurements(paths["measurements"], anchors=read_anchors(paths["anchors"]))
+    assert set(meas["kind"]) == {"range", "heading"}
+    run = load_run(ROOT, "Canteen", 1, "M2")
+    head = meas[(meas["kind"] == "heading") & (meas["node"] == "M2")]
+    assert len(head) == run.time_s.size and set(head["peer"]) == {"imu"}
+    # the compass turns clockwise: the row is minus the azimuth, within (-pi, pi]
+    diff = np.angle(np.exp(1j * (head["value"].to_numpy() + run.imu["Azimuth"].to_numpy())))
+    np.testing.assert_allclose(diff, 0.0, atol=1e-6)
+
+
 def test_bad_venue_and_circle_name_the_field():
     with pytest.raises(InputError, match="venue"):
         load_run(ROOT, "Kitchen", 1)

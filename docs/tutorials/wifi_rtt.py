@@ -32,6 +32,18 @@ Variant rows, each scored beside the tracker it extends:
   best with the distance between the two RTT-only tracks
   (:func:`radioloc.locate.cooperative.align_peer_ranges`, no truth), its rows are added to
   the log as ranges from M1 to M2, and `ekf-track -o cooperative=1` uses them.
+
+- `ekf-track + heading (IMU azimuth)`: each phone's azimuth is written as `heading` rows
+  (the direction of the walk, an IMU input); its offset to the map's frame is the circular
+  mean of the azimuth minus the direction of the RTT-only track above, one per phone and
+  circle (:func:`radioloc.locate.heading_offset.estimate_heading_offset`, no truth):
+
+      radioloc datasets export wifi-rtt --venue Canteen --circle 1 --heading --out canteen-1/heading
+      log = read_measurements("canteen-1/heading/measurements.csv")
+      remove_heading_offset(log, estimate_heading_offset(log, pd.read_csv("canteen-1/track.csv"))
+                            ).to_csv("canteen-1/heading/map.csv", index=False)     # Python
+      radioloc locate canteen-1/heading/map.csv --anchors canteen-1/anchors.csv \\
+          --method ekf-track -o anchor_bias=1 -o range_std_m=1.5 --out canteen-1/heading.csv
 """
 
 from __future__ import annotations
@@ -47,6 +59,7 @@ from radioloc.io import datasets
 from radioloc.io.logs import read_anchors, read_measurements
 from radioloc.io.wifi_rtt import VENUES, circles, load_peer_ranges
 from radioloc.locate.cooperative import align_peer_ranges
+from radioloc.locate.heading_offset import estimate_heading_offset, remove_heading_offset
 from radioloc.locate.path_loss import fit_path_loss
 
 #: The tracker's options: ranges biased per AP (anchor_bias), WiFi RTT noise of about 1.5 m.
@@ -56,7 +69,8 @@ BASELINE_M = {"Canteen": 2.82, "Conference Room": 7.19, "Library": 4.28}
 #: The variant with RSS, and the row it extends (its gain or loss is against that row).
 RSS_VARIANT = "ekf-track + RSS, self-calibrated"
 PEER_VARIANT = "ekf-track + phone-to-phone, aligned on the tracks"
-BASE_OF = {RSS_VARIANT: "ekf-track", PEER_VARIANT: "ekf-track"}
+HEADING_VARIANT = "ekf-track + heading (IMU azimuth)"
+BASE_OF = {RSS_VARIANT: "ekf-track", PEER_VARIANT: "ekf-track", HEADING_VARIANT: "ekf-track"}
 
 
 def radioloc(*args) -> None:
@@ -78,7 +92,7 @@ def main(out: str | Path = "tutorial-wifi-rtt", small: bool = False) -> pd.DataF
     rows = []
     for venue in VENUES:
         errs = {"gn": [], "ekf-track": [], "ekf-track --smooth": [], RSS_VARIANT: [],
-                PEER_VARIANT: []}
+                PEER_VARIANT: [], HEADING_VARIANT: []}
         for circle in circles(root, venue)[: 1 if small else None]:
             run = out / f"{venue.replace(' ', '-').lower()}-{circle}"
             # 1. Convert one circle (both phones, nodes M1 and M2) to the locate schema.
@@ -118,6 +132,15 @@ def main(out: str | Path = "tutorial-wifi-rtt", small: bool = False) -> pd.DataF
                      "--method", "ekf-track", *TRACKER, "-o", "cooperative=1", "--quiet",
                      "--out", run / "ekf_coop.csv")
             errs[PEER_VARIANT].append(errors(run / "ekf_coop.csv", ref))
+            # 5. The phones' azimuth as heading rows, turned into the map by the RTT-only track.
+            radioloc("datasets", "export", "wifi-rtt", "--venue", venue, "--circle", circle,
+                     "--heading", "--out", run / "heading")
+            head = read_measurements(run / "heading" / "measurements.csv").drop(columns="line")
+            remove_heading_offset(head, estimate_heading_offset(head, pd.read_csv(run / "ekf.csv"))
+                                  ).to_csv(run / "heading" / "map.csv", index=False)
+            radioloc("locate", run / "heading" / "map.csv", "--anchors", anchors, "--method",
+                     "ekf-track", *TRACKER, "--quiet", "--out", run / "ekf_heading.csv")
+            errs[HEADING_VARIANT].append(errors(run / "ekf_heading.csv", ref))
             for key, name in (("gn", "gn.csv"), ("ekf-track", "ekf.csv"),
                               ("ekf-track --smooth", "ekf_smooth.csv")):
                 errs[key].append(errors(run / name, ref))

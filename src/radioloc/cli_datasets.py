@@ -83,6 +83,7 @@ def export_dataset(
     circle: Annotated[str, typer.Option(help="wifi-rtt: circle folder of the venue, e.g. 1.")] = "1",
     rss: Annotated[bool, typer.Option("--rss", help="wifi-rtt: also write the RSS rows.")] = False,
     phone_std: Annotated[bool, typer.Option("--phone-std", help="wifi-rtt: write the phone's reported range std as the std column.")] = False,
+    heading: Annotated[bool, typer.Option("--heading", help="wifi-rtt: also write the phone's azimuth as heading rows (compass frame: remove its offset to the map before tracking).")] = False,
 ) -> None:
     """Write a data set in the `radioloc locate` formats (measurements, anchors, reference,
     and a fingerprint calibration file for the fingerprint sets)."""
@@ -96,7 +97,7 @@ def export_dataset(
         elif ds.name == "ujiindoorloc":
             opts.update(building=building, floor=floor, min_detections=min_detections)
         elif ds.name == "wifi-rtt-haiyaoyu":
-            opts.update(venue=venue, circle=circle, rss=rss, phone_std=phone_std)
+            opts.update(venue=venue, circle=circle, rss=rss, phone_std=phone_std, heading=heading)
         paths = export(ds.name, out, **opts)
     except RadiolocError as exc:
         _fail(exc)

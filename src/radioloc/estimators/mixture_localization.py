@@ -816,11 +816,12 @@ class MixtureTracker(RecursiveEstimator):
         Track
         """
         obs = observation_list(observations)
+        for i, o in enumerate(obs):
+            self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
         if len(obs) != 1:
             raise InputError(f"observations: the mixture tracker takes one observation (its "
                              f"rows the stations), got {len(obs)}")
         o = obs[0]
-        self.tags.require(o.model, "observations[0].model", type(self).__name__)
         model: MixtureRssModel = o.model
         if model.dim != self.dim:
             raise InputError(f"observations[0].model: {model.dim}-D positions, the motion "

@@ -739,7 +739,7 @@ def _rss_run(out: Path, ext: str, time: np.ndarray, node: str, ids: list[str],
 
 
 def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | int = 1,
-                    rss: bool = False, phone_std: bool = False,
+                    rss: bool = False, phone_std: bool = False, heading: bool = False,
                     root: Path | str | None = None, fmt: str = "csv") -> dict[str, Path]:
     """Write one circle of the WiFi RTT set in the ``radioloc locate`` schema.
 
@@ -750,7 +750,12 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
     written (as the ``std`` column) only with ``phone_std``. The truth columns
     (true distances, ground truth) are never written as measurements; the ground truth goes
     to ``reference``. An AP written as 0 (not measured) has no row. The phone-to-phone
-    ranges are not written: their clock is not aligned with the phones' logs.
+    ranges are not written: their clock is not aligned with the phones' logs. With
+    ``heading``, each sample's ``Azimuth`` (the phone's orientation, an IMU input) becomes a
+    ``heading`` row (peer ``imu``): negated, as the compass turns clockwise and the map's
+    angles counter-clockwise, so the row is the map heading plus an unknown offset (the
+    rotation between magnetic north and the map's x axis) to remove before tracking
+    (:func:`radioloc.locate.heading_offset.estimate_heading_offset`).
 
     Parameters
     ----------
@@ -764,6 +769,8 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
         Also write the RSS rows (for methods that use ``rss``).
     phone_std : bool
         Write the phone's reported standard deviation as the ``std`` column.
+    heading : bool
+        Also write the phone's azimuth as ``heading`` rows (sensor frame).
     root : path, optional
         The data set folder (default :func:`require`).
     fmt : {"csv", "parquet"}
@@ -788,6 +795,12 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
         for kind, value, std in kinds:
             rows.append(pd.DataFrame({"time": t, "node": phone, "peer": np.tile(run.ap_ids, n),
                                       "kind": kind, "value": value.ravel(), "std": std.ravel()}))
+        if heading:
+            azimuth = run.imu["Azimuth"].to_numpy(dtype=float)
+            rows.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
+                                      "peer": "imu", "kind": "heading",
+                                      "value": np.angle(np.exp(-1j * azimuth)),
+                                      "std": np.nan}))
         refs.append(pd.DataFrame({"time": np.round(run.time_s, 6), "node": phone,
                                   "x": run.truth_xy[:, 0], "y": run.truth_xy[:, 1]}))
     meas = pd.concat(rows, ignore_index=True)

@@ -15,7 +15,9 @@ column      meaning
             offset), or ``odometry_dx`` / ``odometry_dy`` (the node's displacement
             along +x / +y of the anchors' frame since its previous odometry row,
             metres; the two come in pairs with the same time; ``peer`` names the
-            sensor, any id)
+            sensor, any id), or ``heading`` (the direction of the node's motion, e.g. a
+            phone's compass azimuth, radians, counter-clockwise from +x of the
+            anchors' frame; ``peer`` names the sensor, any id)
 ``value``   the measured value (number; a range must be >= 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
             anchor); empty for other kinds
@@ -61,7 +63,9 @@ MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss
 #: exponent, residual standard deviation (dB).
 ANCHOR_RSS_COLUMNS = ("rss_a_dbm", "rss_n", "rss_std_db")
-KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + MOTION_KINDS
+#: Kinds a node measures of itself (their ``peer`` names the sensor, any id).
+SELF_KINDS = MOTION_KINDS + ("heading",)
+KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + SELF_KINDS
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
 LIMITS = {
@@ -547,10 +551,10 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_rss & (value < LIMITS["rss_min_dbm"]))) is not None:
         fail(i, f"column 'value': rss {value[i]:g} dBm is below the plausible minimum of "
                 f"{LIMITS['rss_min_dbm']:g} dBm")
-    is_aoa = out["kind"].isin(("aoa", "aoa_elevation")).to_numpy()
+    is_aoa = out["kind"].isin(("aoa", "aoa_elevation", "heading")).to_numpy()
     if (i := _first(is_aoa & (np.abs(value) > 2 * np.pi))) is not None:
-        fail(i, f"column 'value': angle {value[i]:g} is beyond 2 pi: aoa is in radians "
-                "(degrees?)")
+        fail(i, f"column 'value': angle {value[i]:g} is beyond 2 pi: {out['kind'].iloc[i]} is in "
+                "radians (degrees?)")
     is_pseudo = (out["kind"] == "pseudorange").to_numpy()
     if (i := _first(is_pseudo & (np.abs(value) > LIMITS["pseudorange_m"]))) is not None:
         fail(i, f"column 'value': pseudorange {value[i]:g} m is beyond the limit of "
@@ -565,6 +569,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     is_motion = out["kind"].isin(MOTION_KINDS).to_numpy()
     if is_motion.any():
         _check_odometry(out, is_motion, fail)
+    is_motion = out["kind"].isin(SELF_KINDS).to_numpy()
     if (i := _first((out["node"] == out["peer"]).to_numpy() & ~is_motion)) is not None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")

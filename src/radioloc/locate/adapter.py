@@ -20,7 +20,7 @@ from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
 __all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
-           "default_models", "MODEL_KINDS"]
+           "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
 MODEL_KINDS = {
@@ -29,7 +29,10 @@ MODEL_KINDS = {
     "aoa": "aoa_std_rad",
     "aoa_elevation": "aoa_std_rad",
     "pseudorange": "pseudorange_std_m",
+    "heading": "heading_std_rad",
 }
+#: Kinds a node measures of itself (no anchor: ``peer`` names the sensor).
+SELF_MODEL_KINDS = ("heading",)
 
 
 def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:
@@ -98,7 +101,7 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
         Kinds present in the log (others are ignored here; the method refuses them).
     options : mapping
         Sigmas by the names of :data:`MODEL_KINDS` (``range_std_m`` ...); defaults 0.3 m,
-        0.3 m, 0.05 rad, 5 m.
+        0.3 m, 0.05 rad, 5 m, 0.3 rad.
     anchor_bias : bool
         Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
     range_noise : range-error model, optional
@@ -109,6 +112,7 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     dict of str to MeasurementModel
     """
     from radioloc.models.bearing import BearingModel
+    from radioloc.models.heading import HeadingModel
     from radioloc.models.pseudorange import PseudorangeModel
     from radioloc.models.ranging import RangeModel
     from radioloc.models.tdoa import TdoaModel
@@ -128,6 +132,8 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
                                      component="azimuth" if kind == "aoa" else "elevation")
         elif kind == "pseudorange":
             out[kind] = PseudorangeModel(std_m=sigma(kind, 5.0))
+        elif kind == "heading":
+            out[kind] = HeadingModel(std_rad=sigma(kind, 0.3))
     return out
 
 
@@ -154,7 +160,8 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ``z`` of shape ``(T, S)``; NaN where a slot has no measurement at a step.
 
     Rows whose peer is another node (cooperative ranges) are left out: they are for the
-    network methods. With moving anchors (:func:`moving_anchors`) the context's points
+    network methods. Rows of :data:`SELF_MODEL_KINDS` (a heading) have no anchor: one slot
+    per sensor, points at the origin, index -1. With moving anchors (:func:`moving_anchors`) the context's points
     are ``(T, S, D)``: each anchor where it was at each step (:func:`anchor_points`).
 
     Raises
@@ -167,11 +174,18 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
     points = None if moving else anchor_positions(anchors)
     index = {a: i for i, a in enumerate(ids)}
     sel = measurements.select(kind=list(models), node=node)
-    sel = Measurements(sel.frame[sel.frame["peer"].isin(index)])
+    sel = Measurements(sel.frame[sel.frame["peer"].isin(index)
+                                 | sel.frame["kind"].isin(SELF_MODEL_KINDS)])
     time = sel.times(node)
     out = []
     for kind in sel.kinds:
         grid = sel.grid(kind, node, times=time)
+        if kind in SELF_MODEL_KINDS:
+            ctx = Context(points=np.zeros((len(grid.peers), 2 + ("z" in anchors.columns))),
+                          index=np.full(len(grid.peers), -1))
+            out.append(Observation(models[kind], grid.value, ctx,
+                                   std=grid.std if np.isfinite(grid.std).any() else None))
+            continue
         for what, ids in (("peer", grid.peers), ("reference", grid.references)):
             bad = [p for p in ids if p not in index and not (what == "reference" and p == "")]
             if bad:

@@ -41,6 +41,12 @@ the position, moved at each step by the odometry's displacement over the step (t
 control input) with a random walk of diffusion ``odometry_std_m^2`` about it
 (:mod:`radioloc.locate.odometry`); options ``motion`` and ``q`` do not apply then. The
 odometry rows are not steps: the steps stay the times of the measurements to anchors.
+
+Heading rows (a phone's compass azimuth turned into the anchors' frame) measure the
+direction of the velocity (:class:`~radioloc.models.heading.HeadingModel`, ``heading_std_rad``):
+an update of the constant-velocity state like any other row, so a time with a heading
+alone is a step too (not with ``rw`` or odometry; a node with heading rows only has no
+start).
 """
 
 from __future__ import annotations
@@ -69,7 +75,7 @@ from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
 #: The measurement kinds the trackers read (odometry: the control input of the motion).
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss") + MOTION_KINDS
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", "heading") + MOTION_KINDS
 
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
@@ -235,6 +241,8 @@ OPTIONS = {
                           float, min=0, min_exclusive=True, max=10),
     "pseudorange_std_m": Option("pseudorange error standard deviation, m (default 5)", float,
                                 min=0, min_exclusive=True, max=1e6),
+    "heading_std_rad": Option("heading (direction of motion) error standard deviation, rad "
+                              "(default 0.3)", float, min=0, min_exclusive=True, max=10),
     "clock_offset_std_m_per_sqrt_s": Option("pseudoranges: white frequency noise of the "
                                             "receiver clock offset (times c), m/sqrt(s) "
                                             "(default 1)", float, min=0, max=1e6),
@@ -769,6 +777,9 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
+        raise ConfigError("heading rows: the heading is the direction of the velocity, which "
+                          "only the constant-velocity motion (motion=cv, no odometry) holds")
     if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
         models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     parts = []

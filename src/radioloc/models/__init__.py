@@ -35,6 +35,7 @@ _WHERE = {
     "RangeModel": "ranging",
     "range_geometry": "ranging",
     "BearingModel": "bearing",
+    "HeadingModel": "heading",
     "ClockModel": "clock",
     "PseudorangeModel": "pseudorange",
     "RssModel": "rss_model",
@@ -62,6 +63,6 @@ __all__ = [
     "BoundedSpeedCV", "FingerprintMixture", "zone_posterior", "device_offset",
     "product", "product_on", "outer", "linear_predict", "reduce", "REDUCTIONS", "merge_groups",
     "progressive_reduce", "isd", "ProgressionInfo",
-    "TdoaModel", "BearingModel", "PseudorangeModel", "ClockModel", "RssModel", "TrapezoidRssModel",
+    "TdoaModel", "BearingModel", "HeadingModel", "PseudorangeModel", "ClockModel", "RssModel", "TrapezoidRssModel",
     "MixtureRssModel", "FingerprintScanModel",
 ]
