@@ -1,4 +1,4 @@
-"""Multilateration (Gauss-Newton / Levenberg-Marquardt through the NLLS driver) and the anchor CRB."""
+"""Multilateration (Gauss-Newton / Levenberg-Marquardt through the generic least squares) and the anchor CRB."""
 
 import numpy as np
 import pytest
@@ -160,15 +160,16 @@ def test_flag_mode_marks_degenerate_problems_instead_of_raising():
 
 
 def _count_solved_problems(monkeypatch):
-    """Wrap the NLLS driver of multilateration; returns the list of batch sizes solved."""
-    import radioloc.estimators.multilateration as mod
+    """Wrap the least squares that multilateration configures; returns the list of batch
+    sizes solved."""
+    from radioloc.estimators.least_squares import LeastSquares
     sizes = []
-    real = mod.solve_nlls
+    real = LeastSquares.solve
 
-    def counting(residuals, x0, **kw):
-        sizes.append(int(np.prod(np.shape(x0)[:-1])))
-        return real(residuals, x0, **kw)
-    monkeypatch.setattr(mod, "solve_nlls", counting)
+    def counting(self, observations, *, initial=None):
+        sizes.append(int(np.prod(np.shape(initial)[:-1])))
+        return real(self, observations, initial=initial)
+    monkeypatch.setattr(LeastSquares, "solve", counting)
     return sizes
 
 
