@@ -5,10 +5,11 @@ check can be overruled, and a correct log passes every method."""
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
-from radioloc.core.plausibility import (CHECKS, anchor_problem, check_ranges, check_rss,
+from radioloc.core.plausibility import (CHECKS, anchor_problem, check_ranges, check_rss, check_time,
                                         parse_skip, range_scale)
 from reliability_helpers import assert_one_line_error, invoke, lines
 
@@ -160,3 +161,13 @@ def test_array_checks_are_unit_free():
     with pytest.raises(InputError, match="RSS in mW"):
         check_rss(np.array([1e-7, 2e-7]))
     check_rss(np.array([-70.0, -60.0]))
+
+
+@pytest.mark.parametrize("line", [None, np.nan])
+def test_time_backwards_in_a_table_built_in_python_names_the_row(line):
+    frame = pd.DataFrame({"time": [0.0, 1.0, 0.5, 2.0], "node": ["t", "t", "t", "t"],
+                          "peer": "A1", "kind": "range", "value": 1.0})
+    if line is not None:
+        frame["line"] = line
+    with pytest.warns(UserWarning, match=r"1 row\(s\) go back in time .*first: row 2, node 't'"):
+        check_time(frame)

@@ -471,7 +471,8 @@ def _epoch_matrix(rows: pd.DataFrame, ids: list[str]) -> np.ndarray:
     new = np.r_[True, (ts[1:] != ts[:-1]) | (ns[1:] != ns[:-1])]
     epoch = np.empty(order.size, dtype=np.int64)
     epoch[order] = np.cumsum(new) - 1
-    col = rows["peer"].map({a: k for k, a in enumerate(ids)}).to_numpy()
+    peer, distinct = pd.factorize(rows["peer"])
+    col = pd.Index(ids).get_indexer(distinct)[peer]
     n = int(epoch.max()) + 1
     if n > MAX_EPOCHS:                          # keep an even sample of the epochs
         pick = np.zeros(n, bool)
@@ -515,12 +516,10 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
     frame = measurements
     if "line" in frame.columns and not frame["line"].is_monotonic_increasing:
         frame = frame.sort_values("line", kind="stable")
-    names = frame["node"].to_numpy()
-    node = pd.factorize(names)[0]
+    node, names = pd.factorize(frame["node"])
     time = frame["time"].to_numpy(dtype=float)
     order = np.argsort(node, kind="stable")          # file order within each node
     code_s, time_s = node[order], time[order]
-    node_s = names[order]
     same = code_s[1:] == code_s[:-1]
     if "time_order" not in skip and same.any():
         running = pd.Series(time_s).groupby(code_s).cummax().to_numpy()
@@ -528,10 +527,13 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
         back[1:] = same & (time_s[1:] < running[:-1])
         if back.any():
             k = int(np.flatnonzero(back)[0])
-            line = frame["line"].to_numpy()[order][k] if "line" in frame.columns else k + 2
+            line = (float(frame["line"].to_numpy(dtype=float)[order[k]])
+                    if "line" in frame.columns else np.nan)
+            first = f"line {int(line)}" if np.isfinite(line) else f"row {int(order[k])}"
             warnings.warn(f"{where}: {int(back.sum())} row(s) go back in time within their node "
-                          f"(first: line {int(line)}, node {node_s[k]!r}, time {time_s[k]:g} after "
-                          f"{running[k - 1]:g}); they are used in time order", stacklevel=3)
+                          f"(first: {first}, node {names[code_s[k]]!r}, time "
+                          f"{time_s[k]:g} after {running[k - 1]:g}); they are used in time order",
+                          stacklevel=3)
     if max_gap_s is None or "time_units" in skip:
         return
     srt = np.lexsort((time, node))
@@ -591,7 +593,7 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
                         & measurements["peer"].isin(set(anchors["id"]))]
     if rows.empty:
         return
-    ids = sorted(set(rows["peer"]))
+    ids = sorted(rows["peer"].unique())
     pos = anchors.set_index("id").loc[ids, cols].to_numpy(dtype=float)
     R = _epoch_matrix(rows, ids)
     check_ranges(R, pos, dim=dim, where="measurements", ids=ids,

@@ -380,21 +380,23 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         rows = []
         for i, o in enumerate(obs):
             ctx = o.context if o.std is None else replace(o.context, std=o.std)
-            rows.append((o.model, o.z, ctx, f"observations[{i}]"))
+            rows.append((o.model, o.z, ctx, f"observations[{i}]", None))
         return self._update(state, rows, ungated)
 
     def _update(self, state: FilterState, rows, ungated, checked: bool = False
                 ) -> tuple[FilterState, dict]:
-        """Update with ``rows`` (model, z, context, name); ``checked``: the models and the
-        values were checked by the caller (:meth:`run` does so once for all steps)."""
+        """Update with ``rows`` (model, z, context, name, noise); ``noise`` is the model's
+        ``(noise_mean, noise_cov)`` in that context, or None to work it out here;
+        ``checked``: the models and the values were checked by the caller (:meth:`run` does
+        so once for all steps)."""
         layout = self._layout_of(state)
         if not checked:
             self._check_models(layout, [r[0] for r in rows], [r[3] for r in rows])
         mean, cov = state.mean, state.covariance
         infos = []
-        for model, z, ctx, name in rows:
+        for model, z, ctx, name, noise in rows:
             mean, cov, info = self._update_one(mean, cov, layout, model, z, ctx, ungated, name,
-                                               checked)
+                                               checked, noise)
             infos.append(info)
         info = infos[0] if len(infos) == 1 else _combine(infos)
         return FilterState(check_finite_output(mean, "EKF state"), cov, state.time, layout), info
@@ -409,13 +411,14 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 raise InputError(f"{name}.model: {exc}") from None
 
     def _update_one(self, mean, cov, layout: StateLayout, model: MeasurementModel, z, ctx: Context,
-                    ungated, name: str, checked: bool = False):
+                    ungated, name: str, checked: bool = False, noise=None):
         """One kind's rows: gate, (iterated) Kalman update, diagnostics."""
+        noise_mean, R = noise if noise is not None else (model.noise_mean(ctx),
+                                                         model.noise_cov(ctx))
         z = np.asarray(z, dtype=float)
-        z = (z if checked else refuse_infinite(z, f"{name}.z")) - model.noise_mean(ctx)
+        z = (z if checked else refuse_infinite(z, f"{name}.z")) - noise_mean
         z_hat, H = layout.measure(model, mean, ctx)
         nu = model.residual(z, z_hat)
-        R = model.noise_cov(ctx)
         gated = np.zeros(nu.shape[:-1], dtype=np.int64)
         if self.gate is not None:
             # predicted variance of each row alone: H_m P H_m' + R_mm
@@ -539,10 +542,13 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         state = FilterState(np.broadcast_to(state.mean, batch + (layout.size,)),
                             np.broadcast_to(state.covariance, batch + (layout.size,) * 2),
                             state.time, layout)
-        steps, infos = [], []
+        record: dict[str, np.ndarray] = {}    # per step: batch + (T,) + the value's axes
         streak = np.zeros(batch, dtype=np.int64)     # steps in a row with every row gated
         self._check_models(layout, [o.model for o in obs],
                            [f"observations[{i}]" for i in range(len(obs))])
+        # the noise of a context that is the same at every step: worked out once
+        noise = [(o.model.noise_mean(o.context), o.model.noise_cov(o.context))
+                 if o.static_context else None for o in obs]
         chunk = TRANSITION_CHUNK
         for k in range(T):
             if u is not None:
@@ -556,7 +562,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             rows, heard = [], 0
             for i, o in enumerate(obs):
                 z, ctx = o.at(k)
-                rows.append((o.model, z, ctx, f"observations[{i}]"))
+                rows.append((o.model, z, ctx, f"observations[{i}]", noise[i]))
                 heard = heard + np.isfinite(z).sum(axis=-1)
             state, info = self._update(pred, rows, streak >= self.gate_patience, checked=True)
             if coupling is not None:
@@ -566,21 +572,19 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 heard = heard + sum(np.isfinite(o.z).sum(axis=-1) for o in extra)
             streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
                               np.where(heard > 0, 0, streak))
-            steps.append((pred, state))
-            infos.append(info)
-        nb = len(batch)
-        means = np.stack([s.mean for _, s in steps], axis=nb)
-        covs = np.stack([s.covariance for _, s in steps], axis=nb)
+            _record(record, "state", state.mean, k, batch, T, 1)
+            _record(record, "state_covariance", state.covariance, k, batch, T, 2)
+            if smooth:
+                _record(record, "predicted_mean", pred.mean, k, batch, T, 1)
+                _record(record, "predicted_covariance", pred.covariance, k, batch, T, 2)
+            for key, trailing in _INFO_AXES.items():
+                _record(record, key, info[key], k, batch, T, trailing)
+        means, covs = record.pop("state"), record.pop("state_covariance")
         if smooth:
-            F = np.stack([np.broadcast_to(self.transition(layout, dts[..., k])[0],
-                                          batch + (layout.size,) * 2) for k in range(T)], axis=nb)
-            means, covs = rts_smooth(means, covs,
-                                     np.stack([p.mean for p, _ in steps], axis=nb),
-                                     np.stack([p.covariance for p, _ in steps], axis=nb), F)
-        diag = {"state": means, "state_covariance": covs}
-        for key, trailing in _INFO_AXES.items():
-            diag[key] = np.stack([np.broadcast_to(i[key], batch + i[key].shape[i[key].ndim - trailing:])
-                                  for i in infos], axis=nb)
+            F = np.broadcast_to(self.transition(layout, dts)[0], batch + (T,) + (layout.size,) * 2)
+            means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
+                                     record.pop("predicted_covariance"), F)
+        diag = {"state": means, "state_covariance": covs, **record}
         D = layout.dim
         return Track(means[..., :D], covs[..., :D, :D], t, diag)
 
@@ -602,6 +606,18 @@ TRANSITION_CHUNK = 256
 #: per-step diagnostics of an update and their axes after the batch axes
 _INFO_AXES = {"innovation": 1, "innovation_covariance": 2, "nis": 0, "measurements_used": 0,
               "gated": 0}
+
+
+def _record(record: dict, key: str, value: np.ndarray, step: int, batch: tuple[int, ...],
+            steps: int, trailing: int) -> None:
+    """Write one step's ``value`` (its last ``trailing`` axes after batch axes, which may
+    broadcast) at ``step`` of ``record[key]``, allocated ``batch + (steps,) + those axes`` at
+    the first step."""
+    value = np.asarray(value)
+    if key not in record:
+        rest = value.shape[value.ndim - trailing:]
+        record[key] = np.empty(batch + (steps,) + rest, dtype=value.dtype)
+    record[key][(Ellipsis, step) + (slice(None),) * trailing] = value
 
 
 def _as_observations(observations) -> list[Observation]:

@@ -21,6 +21,7 @@ which leaves the mean and covariance unchanged by that row.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -120,29 +121,38 @@ def kalman_update(mean: np.ndarray, cov: np.ndarray, innovation: np.ndarray, H: 
     if (R is None) == (R_diag is None):
         raise InputError("kalman_update: give exactly one of R and R_diag")
     if R is None:
-        R = np.asarray(R_diag, dtype=float)[..., :, None] * np.eye(m)
-    R = np.broadcast_to(np.asarray(R, dtype=float), ok.shape + (m,))
+        R = np.asarray(R_diag, dtype=float)[..., :, None] * _eye(m)
     both = ok[..., :, None] & ok[..., None, :]
-    R = np.where(both, R, np.eye(m))
-    if np.any(np.diagonal(R, axis1=-2, axis2=-1)[ok] <= 0):
+    R = np.where(both, np.asarray(R, dtype=float), _eye(m))
+    if ((R.diagonal(0, -2, -1) <= 0) & ok).any():
         raise InputError("measurement noise: variance must be > 0 for every measurement used")
     nu = np.where(ok, nu, 0.0)
     H = np.where(ok[..., :, None], H, 0.0)
-    PHt = cov @ np.swapaxes(H, -1, -2)                           # (..., n, m)
+    PHt = cov @ H.swapaxes(-1, -2)                               # (..., n, m)
     S = H @ PHt + R
     S = symmetrise(S)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)   # P H^T S^-1
+    K = np.linalg.solve(S, PHt.swapaxes(-1, -2)).swapaxes(-1, -2)           # P H^T S^-1
     x = mean + np.einsum("...ij,...j->...i", K, nu)
     n = mean.shape[-1]
-    IKH = np.eye(n) - K @ H
-    P = IKH @ cov @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    IKH = _eye(n) - K @ H
+    P = IKH @ cov @ IKH.swapaxes(-1, -2) + K @ R @ K.swapaxes(-1, -2)
     return x, symmetrise(P), S, ok
+
+
+@lru_cache(maxsize=64)
+def _eye(n: int) -> np.ndarray:
+    """The identity of size ``n`` (one read-only array per size)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
 
 
 def normalised_innovation_squared(innovation: np.ndarray, S: np.ndarray,
                                   used: np.ndarray) -> np.ndarray:
     """NIS ``nu^T S^-1 nu`` over the used measurements ``(...)`` (0 where none were used)."""
-    nu = np.where(used, np.nan_to_num(innovation), 0.0)
+    nu = np.where(used, innovation, 0.0)
+    if not np.all(np.isfinite(nu)):
+        nu = np.nan_to_num(nu)
     return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 

@@ -13,7 +13,10 @@ recursion of Sect. IV::
 approximation of Fig. 3: neighbour positions are the neighbours' estimates sent as
 messages; anchors are known. Everything is batched over
 leading axes ``(runs, vehicles)``, particles and links; :meth:`P2PParticleFilter.run` is a
-loop over :meth:`P2PParticleFilter.step`.
+loop over :meth:`P2PParticleFilter.step`. A step takes a step length per filter, and its
+draws from one generator or from one per filter
+(:class:`~radioloc.estimators.particle_filter.RunGenerators`: a batch then gives each
+filter what it gives alone, as ``locate --method pf`` runs the segments of a log).
 
 Each part of a step is defined once here in NumPy (``backend="numpy"``): the prediction
 (line 3, the motion model's draws), the particle-link update (:func:`_link_update_numpy`,
@@ -49,6 +52,7 @@ The parameters of the range model can be estimated inside the filter by online E
 from __future__ import annotations
 
 import copy
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +67,8 @@ from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, 
                                       check_probability)
 from radioloc.estimators import pf_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.particle_filter import mode_update, sample_motion, weighted_moments
+from radioloc.estimators.particle_filter import (RunGenerators, mode_update, sample_motion,
+                                                 weighted_moments)
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import (LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf,
                                       sticky_transition)
@@ -413,7 +418,8 @@ STREAMS = 16
 def _standard_normal(rng, shape, backend):
     """``shape`` standard normal draws from ``rng`` (large draws: see ``DRAW_PARALLEL``)."""
     size = int(np.prod(shape, dtype=np.int64))
-    if size < DRAW_PARALLEL or getattr(rng.bit_generator, "seed_seq", None) is None:
+    if size < DRAW_PARALLEL or isinstance(rng, RunGenerators) or \
+            getattr(rng.bit_generator, "seed_seq", None) is None:
         return rng.standard_normal(shape)
     children, out = rng.spawn(STREAMS), np.empty(size)
     if backend == "numba":
@@ -627,7 +633,8 @@ class P2PParticleFilter(RecursiveEstimator):
                              em_steps=np.zeros(batch, dtype=np.int64) if em else None)
 
     def step(self, state: ParticleState, ranges, node_positions, rng: np.random.Generator,
-             control=None, dt: float | np.ndarray = 1.0) -> ParticleState:
+             control=None, dt: float | np.ndarray = 1.0, *, check: bool = True
+             ) -> ParticleState:
         """One step of Algorithm 2 for every vehicle of every batch entry.
 
         Parameters
@@ -641,13 +648,24 @@ class P2PParticleFilter(RecursiveEstimator):
         node_positions : array_like, shape (..., N, J, 2) or (..., J, 2)
             Positions each vehicle assumes for node ``j`` (the neighbours' messages and the
             known anchors); the second form is shared by every vehicle.
-        rng : numpy.random.Generator
-            Source of the prediction noise and the resampling.
+        rng : numpy.random.Generator or RunGenerators
+            Source of the prediction noise and the resampling (a
+            :class:`~radioloc.estimators.particle_filter.RunGenerators` over the batch
+            shape ``(..., N)``: each filter draws from its own generator, so that a batch
+            gives what its filters give one by one).
         control : array_like, shape (..., N, 2), optional
             Displacement reading of each vehicle for this step (INS); required by an
             input-driven motion model.
-        dt : float or ndarray
-            Step length in seconds (used by time-based motion models).
+        dt : float or ndarray, shape (..., N)
+            Step length in seconds (used by time-based motion models), for every filter
+            or one per filter (0 for a filter with nothing to do at this step: no
+            motion noise, and with no range its particles keep their place).
+        check : bool
+            Validate the inputs. False: the caller has checked them once for a whole
+            log (``ranges`` a float array finite or NaN, ``node_positions`` of shape
+            ``(..., N, J, 2)`` finite wherever there is a range, ``control`` given
+            exactly when the motion model is input-driven); this saves their cost at
+            every step.
 
         Returns
         -------
@@ -656,6 +674,11 @@ class P2PParticleFilter(RecursiveEstimator):
         """
         D = self.motion.dim
         batch = state.batch_shape
+        if not check:
+            theta = np.asarray(ranges)
+            return self._step(state, theta, ~np.isnan(theta), node_positions, rng,
+                              None if control is None else np.asarray(control)[..., None, :],
+                              dt)
         theta = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
         if theta.shape[:-1] != batch:
             raise InputError(f"ranges: leading shape {theta.shape[:-1]} differs from the "
@@ -695,6 +718,15 @@ class P2PParticleFilter(RecursiveEstimator):
         th = gather_packed(np.where(mask, theta, 0.0), links)                 # (..., N, L)
         where_prev = np.where(valid, _previous_slots(state.links, links, mask.shape[-1]), -1)
         params = self._params(state)
+        work = int(np.prod(links.shape, dtype=np.int64)) * max(k, 1)
+        with _c.threads_for(work) if self.backend == "numba" else nullcontext():
+            return self._update(state, mask, rng, u, dt, links, valid, node_xy, th, where_prev,
+                                params)
+
+    def _update(self, state, mask, rng, u, dt, links, valid, node_xy, th, where_prev, params):
+        """Lines 3 to 14 of :meth:`_step` on the packed links of the step."""
+        D = self.motion.dim
+        k = state.particles.shape[-2]
         em = self.online_em is not None
         # line 3: propagate every particle through the motion model
         particles = sample_motion(self.motion, state.particles, dt, rng, u,
@@ -714,8 +746,11 @@ class P2PParticleFilter(RecursiveEstimator):
         # reset on degeneracy: few distinct ancestors
         reset = distinct < self.reset_fraction * k
         if np.any(reset):
-            particles[reset, :, :D] = mean[reset][:, None, :D] + self.reset_std_m * \
-                rng.standard_normal((int(reset.sum()), k, D))
+            if isinstance(rng, RunGenerators):          # each run's draws from its own stream
+                z = rng.standard_normal(reset.shape + (k, D), where=reset)[reset]
+            else:
+                z = rng.standard_normal((int(reset.sum()), k, D))
+            particles[reset, :, :D] = mean[reset][:, None, :D] + self.reset_std_m * z
             with np.errstate(invalid="ignore"):
                 mean_post = np.exp(post[..., 1] - np.logaddexp(post[..., 0], post[..., 1]))
             q[reset] = np.where(valid, np.nan_to_num(mean_post), 0.0)[reset][:, None, :]

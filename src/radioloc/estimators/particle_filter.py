@@ -76,10 +76,11 @@ class RunGenerators:
 
     Parameters
     ----------
-    seed : int or array_like of int
+    seed : int, array_like of int, or list of numpy.random.SeedSequence
         An int ``s``: run ``i`` uses the ``i``-th child of ``SeedSequence(s)``
         (``SeedSequence(s).spawn(B)[i]``); an array of the batch shape: run ``i`` uses
-        ``default_rng(seed[i])`` (give a run its own seed to reproduce it alone).
+        ``default_rng(seed[i])`` (give a run its own seed to reproduce it alone); a list of
+        one ``SeedSequence`` per run (flat order): run ``i`` uses ``default_rng(seed[i])``.
     batch_shape : tuple of int
         The runs.
     """
@@ -87,7 +88,13 @@ class RunGenerators:
     def __init__(self, seed, batch_shape: tuple[int, ...]) -> None:
         self.batch_shape = tuple(int(b) for b in batch_shape)
         count = int(np.prod(self.batch_shape, dtype=int))
-        if np.ndim(seed) == 0:
+        if isinstance(seed, (list, tuple)) and seed and \
+                all(isinstance(s, np.random.SeedSequence) for s in seed):
+            if len(seed) != count:
+                raise InputError(f"seed: expected {count} seed sequences (one per run), got "
+                                 f"{len(seed)}")
+            self.generators = [np.random.default_rng(s) for s in seed]
+        elif np.ndim(seed) == 0:
             children = np.random.SeedSequence(int(seed)).spawn(count)
             self.generators = [np.random.default_rng(c) for c in children]
         else:
@@ -111,6 +118,11 @@ class RunGenerators:
                              f"got {shape}")
         per = shape[nb:]
         flat_where = None if where is None else np.broadcast_to(where, self.batch_shape).ravel()
+        if method in ("random", "standard_normal") and flat_where is None and not kwargs:
+            out = np.empty((len(self.generators),) + per)      # filled in place, run by run
+            for g, part in zip(self.generators, out):
+                getattr(g, method)(size=per, out=part)
+            return out.reshape(shape)
         parts = []
         for i, g in enumerate(self.generators):
             if flat_where is not None and not flat_where[i]:
@@ -248,8 +260,9 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
     ----------
     motion : motion model
     particles : ndarray, shape (..., K, n)
-    dt : float
-        Step length, seconds.
+    dt : float or ndarray, shape (...)
+        Step length, seconds: one for every particle set, or one per set (the batch
+        axes of ``particles`` before ``K``).
     rng : numpy.random.Generator or RunGenerators
     control : ndarray, shape (..., 1, D), optional
         Displacement reading of an input-driven model.
@@ -267,11 +280,16 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
         z += particles if control is None else particles + control
         return z
     if type(motion).sample is not MotionModel.sample:
-        return motion.sample(particles, dt, rng, control=control)
+        return motion.sample(particles, np.asarray(dt, dtype=float)[..., None] if np.ndim(dt)
+                             else dt, rng, control=control)
     n = particles.shape[-1]
-    F = np.asarray(motion.F(dt))
+    F = np.asarray(motion.F(dt))                              # (n, n) or (..., n, n)
     if F.shape == (n, n) and np.array_equal(F, np.eye(n)):        # random walk: F = I
         mean = particles if control is None else particles.copy()
+        if control is not None:
+            mean[..., : motion.dim] += control
+    elif F.ndim > 2:                                          # one F per particle set
+        mean = particles @ np.swapaxes(F, -1, -2)
         if control is not None:
             mean[..., : motion.dim] += control
     else:
@@ -285,7 +303,7 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
         return z
     if factor.ndim == 2:                                    # one Q for every particle
         return mean + z @ factor.T
-    return mean + np.einsum("...ij,...kj->...ki", factor, z)
+    return mean + z @ np.swapaxes(factor, -1, -2)           # one Q per particle set
 
 
 def mode_update(prior: np.ndarray, mode_loglik: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

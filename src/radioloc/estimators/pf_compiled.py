@@ -24,15 +24,44 @@ numbers: made by NumPy before the kernels run, or, for large normal draws, by nu
   :func:`link_update`.
 
 ``prange`` runs over (filter, chunk of particles) tasks, so one filter of 10^5 particles
-uses every core as well as twenty filters of 900.
+uses every core as well as twenty filters of 900. A step with less work than
+``SERIAL_WORK`` runs them on the calling thread (:func:`threads_for`): waking and
+parking the other threads at every step of a small filter costs more processor time than
+the work (the kernels give the same numbers on any number of threads).
 """
 
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
+from typing import Iterator
 
+import numba
 import numpy as np
 from numba import njit, prange
+
+#: Particle-link evaluations of a step below which its kernels run on one thread.
+SERIAL_WORK = 1 << 18
+
+
+@contextmanager
+def threads_for(work: int) -> Iterator[None]:
+    """Run the kernels called inside on one thread when ``work`` is below ``SERIAL_WORK``.
+
+    Parameters
+    ----------
+    work : int
+        Particle-link evaluations (or particles) of the step.
+    """
+    if work >= SERIAL_WORK or numba.get_num_threads() == 1:
+        yield
+        return
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 _SQRT1_2 = math.sqrt(0.5)

@@ -40,12 +40,14 @@ temporary name and renamed, so it is complete or absent.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import io
+import os
 import sys
 import warnings
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -80,53 +82,46 @@ def _line(frame: pd.DataFrame, i: int) -> int:
     return int(lines[i]) if lines is not None and i < len(lines) else i + 2
 
 
-def _open_table(path: Path):
-    """A text stream of the table: the CSV file itself, or a Parquet file's cells as CSV."""
-    import io
-
+def _table_text(path: Path) -> str:
+    """The text of the table: the CSV file itself, or a Parquet file's cells as CSV."""
     if path.suffix.lower() == ".parquet":
         from radioloc.io.datasets import read_table_text
 
-        return io.StringIO(read_table_text(path).to_csv(index=False))
+        return read_table_text(path).to_csv(index=False)
     from radioloc.core.textfile import decode_text
 
-    return io.StringIO(decode_text(path.read_bytes(), path), newline="")
+    return decode_text(path.read_bytes(), path)
+
+
+def _open_table(path: Path):
+    """A text stream of :func:`_table_text`."""
+    return io.StringIO(_table_text(path), newline="")
 
 
 def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
-    """:func:`_read_csv` by pandas' C parser for a plain file, else None.
+    """:func:`_read_csv` by a CSV parser in C for a plain file, else None.
 
     Plain: no quote character, the header on line 1, every line (none blank or of empty
-    cells) with as many cells as the header, unique non-empty column names. Then each row
-    is one line, so the result (cells, line numbers) is the one of the general reader,
-    which reads every other file and words every error.
+    cells) with as many cells as the header, lines ending in ``\n`` or ``\r\n``, unique
+    non-empty column names. Then each row is one line, so the result (cells, line
+    numbers) is the one of the general reader, which reads every other file and words
+    every error.
     """
     try:
-        with _open_table(path) as fh:
-            text = fh.read()
+        data = _table_bytes(path)
     except (OSError, InputError):
         return None
-    if '"' in text or not text or text[0] in "\r\n":
+    if b'"' in data or not data or data[:1] in (b"\r", b"\n"):
         return None
-    first = text.split("\n", 1)[0].rstrip("\r")
+    if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
+        return None                              # a line break other than \n or \r\n
+    end = data.find(b"\n")
+    first = (data if end < 0 else data[:end]).decode("utf-8").rstrip("\r")
     names = [c.strip() if preserve_case else c.strip().lower() for c in first.split(",")]
     if "" in names or len(set(names)) != len(names):
         return None
-    # every line (the header's included) must have as many cells: count its commas
-    raw = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    ends = np.flatnonzero(raw == 10)
-    if not text.endswith("\n"):
-        ends = np.append(ends, raw.size)
-    commas = np.concatenate([[0], np.cumsum(raw == 44)])[ends]
-    if np.any(np.diff(np.concatenate([[0], commas])) != len(names) - 1):
-        return None
-    try:
-        frame = pd.read_csv(io.StringIO(text), header=None, skiprows=1, names=range(len(names)),
-                            dtype=str, na_filter=False, skipinitialspace=True,
-                            skip_blank_lines=False, engine="c", on_bad_lines="error")
-    except (ValueError, pd.errors.ParserError):
-        return None
-    if frame.empty:
+    frame = _plain_cells(data, len(names))
+    if frame is None or frame.empty:
         return None
     empty = np.ones(len(frame), dtype=bool)
     for c in frame.columns:
@@ -134,11 +129,70 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
         if col.isna().any():
             return None
         empty &= (col.str.strip() == "").to_numpy()
+        if not empty.any():   # a cell with text in every row: no row of empty cells
+            break
     if empty.any():
         return None
     frame.columns = names
     frame = frame.astype(str)
     frame.attrs["lines"] = np.arange(2, len(frame) + 2)
+    return frame
+
+
+def _table_bytes(path: Path) -> bytes:
+    """:func:`_table_text` as UTF-8 bytes (the file's own bytes when they are UTF-8 without
+    a byte-order mark)."""
+    if path.suffix.lower() == ".parquet":
+        return _table_text(path).encode("utf-8")
+    from radioloc.core.textfile import decode_text
+
+    raw = path.read_bytes()
+    text = decode_text(raw, path)        # refuses bytes that are not text
+    if raw.startswith((codecs.BOM_UTF8, codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return text.encode("utf-8")
+    return raw
+
+
+def _plain_cells(data: bytes, width: int) -> pd.DataFrame | None:
+    """The cells below the header of a plain CSV (see :func:`_read_plain_csv`) as text,
+    spaces after a comma skipped; None if a line has another number of cells than
+    ``width`` or the parser refuses the file.
+
+    pyarrow's CSV reader when installed (no quoting), else pandas' C parser.
+    """
+    try:
+        from pyarrow import csv as pa_csv
+        import pyarrow as pa
+        import pyarrow.compute as pc
+    except ImportError:
+        # every line (the header's included) must have as many cells: count its commas
+        raw = np.frombuffer(data, dtype=np.uint8)
+        ends = np.flatnonzero(raw == 10)
+        if not data.endswith(b"\n"):
+            ends = np.append(ends, raw.size)
+        commas = np.searchsorted(np.flatnonzero(raw == 44), ends)   # before each line end
+        if np.any(np.diff(commas, prepend=0) != width - 1):
+            return None
+        try:
+            return pd.read_csv(io.BytesIO(data), header=None, skiprows=1, names=range(width),
+                               dtype=str, na_filter=False, skipinitialspace=True,
+                               skip_blank_lines=False, engine="c", on_bad_lines="error")
+        except (ValueError, pd.errors.ParserError):
+            return None
+    names = [str(j) for j in range(width)]
+    try:   # refuses a line with more or fewer cells; a blank line is a row of empty cells
+        table = pa_csv.read_csv(
+            io.BytesIO(data),
+            read_options=pa_csv.ReadOptions(use_threads=False, skip_rows=1, column_names=names),
+            parse_options=pa_csv.ParseOptions(quote_char=False, ignore_empty_lines=False),
+            convert_options=pa_csv.ConvertOptions(   # pandas' own string type: no copy
+                column_types={n: pa.large_string() for n in names}, strings_can_be_null=False))
+    except (pa.ArrowInvalid, ValueError):
+        return None
+    if b", " in data or b"\n " in data or data.startswith(b" "):   # spaces to skip
+        table = pa.table([pc.utf8_ltrim(table.column(n), characters=" ") for n in names], names)
+    frame = table.to_pandas()
+    frame.columns = range(width)
     return frame
 
 
@@ -244,8 +298,42 @@ def _require_columns(frame: pd.DataFrame, columns: Iterable[str], path: Path | s
                          f"found {', '.join(frame.columns)}")
 
 
+def _floats(cells: pd.Series) -> np.ndarray | None:
+    """``cells`` (stripped text) as numbers by pyarrow's parser when every one is a finite
+    number; None otherwise (or without pyarrow), for the general parser to word the error."""
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+    except ImportError:
+        return None
+    try:
+        values = pc.cast(pa.array(cells), pa.float64()).to_numpy(zero_copy_only=False)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError):
+        return None
+    return values if np.isfinite(values).all() else None
+
+
+def _text(frame: pd.DataFrame, column: str, lower: bool = False) -> pd.Series:
+    """The cells of ``column`` stripped (and lower-cased), worked out once per distinct cell."""
+    cells = frame[column].astype(str)
+    codes, distinct = pd.factorize(cells)
+    text = pd.Series(distinct, dtype=cells.dtype).str.strip()
+    if lower:
+        text = text.str.lower()
+    if np.array_equal(text.to_numpy(), np.asarray(distinct, dtype=object)):
+        return cells
+    return pd.Series(text.array.take(codes), index=cells.index, name=cells.name)
+
+
 def _numeric(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    raw = frame[column].astype(str).str.strip()
+    cells = frame[column].astype(str)
+    fast = _floats(cells)                # cells without spaces around the number
+    if fast is not None:
+        return pd.Series(fast, index=cells.index, name=cells.name)
+    raw = cells.str.strip()
+    fast = _floats(raw)
+    if fast is not None:
+        return pd.Series(fast, index=raw.index, name=raw.name)
     values = pd.to_numeric(raw, errors="coerce").astype(float)
     bad = values.isna() & (raw.str.lower() != "nan") | (raw == "")
     if bad.any():
@@ -285,12 +373,12 @@ MISSING_IDS = frozenset(v.lower() for v in (
 
 
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    ids = frame[column].astype(str).str.strip()
+    ids = _text(frame, column)
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
         raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': empty id")
-    missing = ids.str.lower().isin(MISSING_IDS)
+    missing = ids.isin([i for i in ids.unique() if i.lower() in MISSING_IDS])
     if missing.any():
         i = int(np.flatnonzero(missing.to_numpy())[0])
         raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': id "
@@ -417,7 +505,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "time": _numeric(frame, "time", path),
         "node": _ids(frame, "node", path),
         "peer": _ids(frame, "peer", path),
-        "kind": frame["kind"].astype(str).str.strip().str.lower(),
+        "kind": _text(frame, "kind", lower=True),
         "value": _numeric(frame, "value", path),
         "line": frame.attrs["lines"],
     })
@@ -481,7 +569,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")
     if anchors is not None:
-        known = set(anchors["id"]) | set(out["node"])
+        known = set(anchors["id"]) | set(out["node"].unique())
         if (i := _first(~out["peer"].isin(known).to_numpy() & ~is_motion)) is not None:
             fail(i, f"column 'peer': unknown anchor or node {out['peer'].iloc[i]!r} (not in the "
                     "anchors file nor a node)")
@@ -615,15 +703,80 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     Floats are written in their shortest exact decimal form, so that reading the file back
     gives the same numbers bit for bit (distinct time stamps stay distinct).
     """
+    def write_csv(f) -> None:
+        chunks = csv_chunks(frame)
+        if chunks is None:
+            frame.to_csv(f, index=False)
+        else:
+            for text in chunks:
+                f.write(text)
+
     if path is None or str(path) == "-":
-        frame.to_csv(sys.stdout, index=False)
+        write_csv(sys.stdout)
     elif Path(path).suffix.lower() == ".parquet":
         from radioloc.io.datasets import _need_pyarrow
 
         _need_pyarrow()
         atomic_write_with(path, lambda f: frame.to_parquet(f, index=False), binary=True)
     else:
-        atomic_write_with(path, lambda f: frame.to_csv(f, index=False))
+        atomic_write_with(path, write_csv)
+
+
+#: Characters that make the CSV writer quote a cell.
+_QUOTED = (",", '"', "\r", "\n")
+
+
+def csv_chunks(frame: pd.DataFrame, rows: int = 50_000) -> Iterator[str] | None:
+    """The text ``frame.to_csv(index=False)`` writes, in pieces of ``rows`` rows (built a
+    column at a time), or None for a frame this does not cover: a text cell that needs
+    quoting or is missing, a column that is not float64, integer, boolean or text, a single
+    column.
+
+    Floats in their shortest exact form (``repr``), a missing float as an empty cell.
+
+    Parameters
+    ----------
+    frame : DataFrame
+    rows : int
+
+    Returns
+    -------
+    iterator of str, or None
+        The header line first.
+    """
+    names = [str(c) for c in frame.columns]
+    if len(names) < 2 or any(q in c for c in names for q in _QUOTED):
+        return None
+    kinds = []
+    for name in frame.columns:
+        col = frame[name]
+        if col.dtype == np.float64:
+            kinds.append("float")
+        elif col.dtype.kind in "iub":
+            kinds.append("int")
+        elif isinstance(col.dtype, pd.StringDtype) or (
+                col.dtype.kind in "OU" and not isinstance(col.dtype, pd.CategoricalDtype)):
+            if col.isna().any() or not all(isinstance(v, str) and not any(q in v for q in _QUOTED)
+                                           for v in col.unique()):
+                return None
+            kinds.append("text")
+        else:
+            return None
+    end = os.linesep
+
+    def cells(values: list, kind: str) -> list[str]:
+        if kind == "float":
+            return [repr(v) if v == v else "" for v in values]
+        return [str(v) for v in values] if kind == "int" else values
+
+    def pieces() -> Iterator[str]:
+        yield ",".join(names) + end
+        for start in range(0, len(frame), rows):
+            part = frame.iloc[start:start + rows]
+            columns = [cells(part[c].tolist(), kind) for c, kind in zip(frame.columns, kinds)]
+            yield end.join(map(",".join, zip(*columns))) + end
+
+    return pieces()
 
 
 def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
@@ -672,7 +825,7 @@ def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
         raise InputError("measurements: no range to an anchor")
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     positions = anchors[dims].to_numpy(dtype=float)
-    nodes = list(dict.fromkeys(rows["node"]))
+    nodes = list(rows["node"].unique())
     rows = rows.groupby(["time", "node", "peer"], sort=True, as_index=False)["value"].mean()
     times, t_idx = np.unique(rows["time"].to_numpy(dtype=float), return_inverse=True)
     n_idx = rows["node"].map({n: i for i, n in enumerate(nodes)}).to_numpy()

@@ -475,6 +475,6 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     out = chosen.fn(request)
     _check_output(name, out)
     summary = dict(out.attrs.get("summary", {}))
-    out = order_rows(out, list(dict.fromkeys(request.measurements["node"])))
+    out = order_rows(out, list(request.measurements["node"].unique()))
     out.attrs["summary"] = summary
     return out

@@ -49,7 +49,7 @@ import warnings
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
@@ -465,6 +465,44 @@ def track_prior(ekf: ExtendedKalmanFilter, times: np.ndarray, observations: list
     return mean, var
 
 
+def track_priors(ekf: ExtendedKalmanFilter, tracks: list[tuple[str | None, np.ndarray, list]],
+                 anchors: np.ndarray, s: dict, anchor_bias: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked priors of several tracks (:func:`track_prior` of each), for one batch.
+
+    Parameters
+    ----------
+    ekf : ExtendedKalmanFilter
+    tracks : list of (label, times (T_b,), observations)
+        ``label`` leads the message of a start that fails (``None``: the error as raised).
+    anchors : ndarray, shape (M, 2|3)
+    s : dict
+        From :func:`tracker_settings`.
+    anchor_bias : bool
+
+    Returns
+    -------
+    prior_mean : ndarray, shape (B, n)
+    prior_cov : ndarray, shape (B, n, n)
+
+    Raises
+    ------
+    GeometryError
+        The start window of a track does not fix a start position.
+    """
+    means, variances = [], []
+    for label, times, obs in tracks:
+        try:
+            mean, var = track_prior(ekf, times, obs, anchors, s, anchor_bias)
+        except GeometryError as exc:
+            if label is None:
+                raise
+            raise GeometryError(f"{label}: {exc}") from None
+        means.append(mean)
+        variances.append(var)
+    return np.stack(means), np.stack([np.diag(v) for v in variances])
+
+
 def run_tracker(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
                 gate: float | None, smooth: bool, anchor_bias: bool = False,
                 bias_prior_std_m: float = 3.0, controls: np.ndarray | None = None):
@@ -615,7 +653,8 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
     n = np.convolve(used + refused, w, "valid")
     ok = n > 0
-    band = NIS_FACTOR * chi2.ppf(0.999, np.maximum(n, 1))
+    counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
+    band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
     windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
     xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
     lo, hi = box.min(axis=0), box.max(axis=0)
@@ -733,8 +772,8 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
         models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     parts = []
-    for node in log.nodes:
-        times, obs = node_observations(log, table, node, models, height_m=s["height"])
+    for node, rows in log.by_node().items():
+        times, obs = node_observations(rows, table, node, models, height_m=s["height"])
         if times.size:
             parts.append((node, times, obs, segments(times, s["max_gap_s"])))
     if not parts:
@@ -747,15 +786,9 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             tracks.append((node, times[seg], [_window(o, seg) for o in obs], n > 0, controls))
     ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
                          any(reads_clock(tr[2]) for tr in tracks))
-    means, variances = [], []
-    for node, times, obs, _, _ in tracks:
-        try:
-            mean, var = track_prior(ekf, times, obs, anchors, s, anchor_bias)
-        except GeometryError as exc:
-            raise GeometryError(f"method ekf-track: node {node!r} from time "
-                                f"{float(times[0])!r}: {exc}") from None
-        means.append(mean)
-        variances.append(var)
+    prior_mean, prior_cov = track_priors(
+        ekf, [(f"method ekf-track: node {node!r} from time {float(times[0])!r}", times, obs)
+              for node, times, obs, _, _ in tracks], anchors, s, anchor_bias)
     peers = (peer_ranges(meas, table["id"]) if request.option("cooperative", False, bool)
              else None)
     coop = None
@@ -773,8 +806,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         for b, tr in enumerate(tracks):
             controls[b, : tr[1].size] = tr[4]
     with progress(1, "ekf-track: tracks") as bar:
-        track = ekf.run(batch, t, prior_mean=np.stack(means),
-                        prior_cov=np.stack([np.diag(v) for v in variances]), controls=controls,
+        track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov, controls=controls,
                         smooth=s["smooth"], coupling=None if coop is None else coop.coupling)
         bar.advance()
     tables, diverged = [], []

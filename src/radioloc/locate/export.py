@@ -148,7 +148,7 @@ def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
             return []
         atomic_write_with(path, lambda f: f.write(text))
         return [Path(path)]
-    nodes = list(dict.fromkeys(frame["node"]))
+    nodes = list(frame["node"].unique())
     if stdout:
         if len(nodes) > 1:
             raise ConfigError("--format tum: one trajectory per file; with several nodes give "

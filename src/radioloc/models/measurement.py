@@ -34,6 +34,7 @@ measurement that every estimator skips.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import ClassVar, Mapping
 
 import numpy as np
@@ -113,7 +114,7 @@ class StateLayout:
         if int(self.n_bias) != self.n_bias or self.n_bias < 0:
             raise InputError(f"n_bias: must be a whole number >= 0, got {self.n_bias!r}")
 
-    @property
+    @cached_property
     def sizes(self) -> dict[str, int]:
         """Size of each component present, in state order."""
         d = self.dim
@@ -130,7 +131,7 @@ class StateLayout:
             out["anchor_bias"] = int(self.n_bias)
         return out
 
-    @property
+    @cached_property
     def slices(self) -> dict[str, slice]:
         """Slice of each component present in the state vector."""
         out, start = {}, 0
@@ -139,7 +140,7 @@ class StateLayout:
             start += size
         return out
 
-    @property
+    @cached_property
     def size(self) -> int:
         """Length ``n`` of the state vector."""
         return sum(self.sizes.values())
@@ -239,9 +240,7 @@ class StateLayout:
             ``d h / d x``; zero in the columns of components the model does not read.
         """
         self.check(model)
-        comps = self.split(state)
-        z_hat = model.predict(comps, context)
-        parts = model.jacobian(comps, context)
+        z_hat, parts = model.predict_with_jacobian(self.split(state), context)
         H = np.zeros(z_hat.shape + (self.size,))
         for name, block in parts.items():
             sl = self.slices[name]
@@ -441,6 +440,24 @@ class MeasurementModel:
         dict
         """
         return numerical_jacobian(self, state, context)
+
+    def predict_with_jacobian(self, state: States, context: Context
+                              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`predict` and :meth:`jacobian` at one state (a model whose two share work,
+        such as the geometry of a range, overrides this to do it once).
+
+        Parameters
+        ----------
+        state : dict
+            Named components of a batch of states (:meth:`StateLayout.split`).
+        context : Context
+
+        Returns
+        -------
+        z_hat : ndarray, shape (..., m)
+        jacobian : dict
+        """
+        return self.predict(state, context), self.jacobian(state, context)
 
     def residual(self, z: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
         """``z - z_hat``, wrapped to ``(-pi, pi]`` for an angular model.
@@ -670,6 +687,18 @@ class Observation:
         """Number of time steps ``T`` (the second-to-last axis of ``z``)."""
         return self.z.shape[-2]
 
+    @property
+    def moving(self) -> bool:
+        """Whether the context's points change with the step (``(..., T, m, P)``)."""
+        pts = self.context.points
+        return pts.ndim >= 3 and pts.shape[-3] == self.steps and pts.ndim == self.z.ndim + 1
+
+    @property
+    def static_context(self) -> bool:
+        """Whether :meth:`at` gives the same context at every step (no moving points, no
+        per-step ``std``), so that what depends on the context alone is worked out once."""
+        return self.std is None and not self.moving
+
     def at(self, step: int) -> tuple[np.ndarray, Context]:
         """``(z_t, context_t)`` of one time step.
 
@@ -683,7 +712,7 @@ class Observation:
         tuple of (ndarray, Context)
         """
         ctx = self.context
-        if ctx.points.ndim >= 3 and ctx.points.shape[-3] == self.steps and ctx.points.ndim == self.z.ndim + 1:
+        if self.moving:
             ctx = replace(ctx, points=ctx.points[..., step, :, :],
                           reference=None if ctx.reference is None else ctx.reference[..., step, :, :])
         if self.std is not None:

@@ -201,17 +201,20 @@ class RangeModel(MeasurementModel):
         return np.take(state["anchor_bias"], context.index, axis=-1)
 
     def predict(self, state, context: Context) -> np.ndarray:
-        d, _ = range_geometry(state["position"], context.points, context.height_m)
-        return d + self._bias_of(state, context)
+        return self.predict_with_jacobian(state, context)[0]
 
     def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        _, u = range_geometry(state["position"], context.points, context.height_m)
+        return self.predict_with_jacobian(state, context)[1]
+
+    def predict_with_jacobian(self, state, context: Context
+                              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        d, u = range_geometry(state["position"], context.points, context.height_m)
         out = {"position": u}
         if self.anchor_bias:
             n_bias = np.shape(state["anchor_bias"])[-1]
             onehot = (context.index[:, None] == np.arange(n_bias)).astype(float)
             out["anchor_bias"] = np.broadcast_to(onehot, u.shape[:-1] + (n_bias,))
-        return out
+        return d + self._bias_of(state, context), out
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(np.sqrt(self.noise.moments()[1]), context)
