@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from model_cases import MinimalBearing
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.least_squares import LeastSquares
@@ -14,8 +15,6 @@ from radioloc.estimators.snapshot_baselines import LocalML, log_likelihood
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
-
-from model_cases import MinimalBearing
 
 POINTS = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0], [12.0, 27.0]])
 B = 40

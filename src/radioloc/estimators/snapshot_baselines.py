@@ -21,11 +21,11 @@ from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
                                       check_positive)
 from radioloc.estimators.base import SnapshotEstimator, Tags
-from radioloc.estimators.pf_compiled import snapshot_scores
-from radioloc.estimators.local_search import search
 from radioloc.estimators.least_squares import LeastSquares
-from radioloc.models.los_nlos import LosNlosRange
+from radioloc.estimators.local_search import search
 from radioloc.estimators.observation_rows import observation_list
+from radioloc.estimators.pf_compiled import snapshot_scores
+from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
 
