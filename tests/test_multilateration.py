@@ -1,4 +1,4 @@
-"""Multilateration (Gauss-Newton / Levenberg-Marquardt through the NLLS driver) and the anchor CRB."""
+"""Multilateration (Gauss-Newton / Levenberg-Marquardt through the generic least squares) and the anchor CRB."""
 
 import numpy as np
 import pytest
@@ -8,7 +8,10 @@ from hypothesis import strategies as st
 from radioloc.bounds.anchors import range_crb
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.geometry import distances
+from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.multilateration import Multilateration
+from radioloc.models.measurement import Context, Observation
+from radioloc.models.ranging import RangeModel
 
 SQUARE = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [0.0, 100.0]])
 coord = st.floats(1.0, 99.0, allow_nan=False)
@@ -160,15 +163,16 @@ def test_flag_mode_marks_degenerate_problems_instead_of_raising():
 
 
 def _count_solved_problems(monkeypatch):
-    """Wrap the NLLS driver of multilateration; returns the list of batch sizes solved."""
-    import radioloc.estimators.multilateration as mod
+    """Wrap the least squares that multilateration configures; returns the list of batch
+    sizes solved."""
+    from radioloc.estimators.least_squares import LeastSquares
     sizes = []
-    real = mod.solve_nlls
+    real = LeastSquares.solve
 
-    def counting(residuals, x0, **kw):
-        sizes.append(int(np.prod(np.shape(x0)[:-1])))
-        return real(residuals, x0, **kw)
-    monkeypatch.setattr(mod, "solve_nlls", counting)
+    def counting(self, observations, *, initial=None):
+        sizes.append(int(np.prod(np.shape(initial)[:-1])))
+        return real(self, observations, initial=initial)
+    monkeypatch.setattr(LeastSquares, "solve", counting)
     return sizes
 
 
@@ -227,3 +231,19 @@ def test_a_range_beyond_any_consistent_geometry_is_refused_naming_ranges():
     r = np.array([[1e20, 25.9, 10.6, 24.3], [21.3, 9.8, 26.4, 18.3]])
     with pytest.raises(InputError, match=r"^ranges: the ranges of problem \(0,\) put the node"):
         Multilateration(range_std_m=0.01).locate(r, a)
+
+
+@pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
+def test_a_well_posed_fix_is_the_generic_least_squares_fix(method):
+    """Multilateration is LeastSquares with Gaussian range rows (weights 1 / std^2): on
+    spread anchors both give the same fix and covariance."""
+    rng = np.random.default_rng(9)
+    truth = rng.uniform(5, 95, (100, 2))
+    r = distances(truth[:, None], SQUARE) + rng.normal(0, 0.5, (100, 4))
+    w = rng.uniform(0.5, 2.0, (100, 4))
+    fit = Multilateration(method, range_std_m=0.5, max_iter=200).locate(r, SQUARE, weights=w)
+    obs = Observation(RangeModel(std_m=0.5), r, Context(points=SQUARE), std=0.5 / np.sqrt(w))
+    ref = LeastSquares(method=method, max_iterations=200).locate(obs, initial=truth)
+    assert fit.converged.all() and ref.diagnostics["converged"].all()
+    np.testing.assert_allclose(fit.position, ref.position, atol=1e-7)
+    np.testing.assert_allclose(fit.covariance, ref.covariance, rtol=1e-6)

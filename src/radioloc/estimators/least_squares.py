@@ -30,7 +30,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate
 from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
 from radioloc.estimators.base import SnapshotEstimator, Tags
-from radioloc.estimators.nlls import solve_nlls
+from radioloc.estimators.nlls import NLLSResult, solve_nlls
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
 from radioloc.estimators.robust_loss import check_loss
 from radioloc.models.measurement import Observation, StateLayout
@@ -171,6 +171,25 @@ class LeastSquares(SnapshotEstimator):
             raise ConfigError(f"los_nlos: expected a LosNlosRange, got {type(los_nlos).__name__}")
         self.los_nlos = los_nlos
 
+    def solve(self, observations: Observation | Sequence[Observation], *,
+              initial: np.ndarray | None = None) -> NLLSResult:
+        """The driver's fit of every problem, before the covariance and diagnostics of
+        :meth:`locate` (for estimators built on this one that read the cost, the
+        information ``J^T W J`` or the convergence flags themselves).
+
+        Parameters
+        ----------
+        observations, initial
+            As for :meth:`locate`.
+
+        Returns
+        -------
+        NLLSResult
+            Over the full state; ``cost`` is the sum of the rows' loss terms
+            (``sum ((r_i - mu_i) / s_i)^2`` for the linear loss).
+        """
+        return self._fit(observations, initial)[0]
+
     def locate(self, observations: Observation | Sequence[Observation], *,
                initial: np.ndarray | None = None) -> Estimate:
         """Fit every problem of the batch.
@@ -200,6 +219,30 @@ class LeastSquares(SnapshotEstimator):
         InputError
             An observation, the layout or ``initial`` does not fit (the message names it).
         """
+        fit, rows, used, layout = self._fit(observations, initial)
+        n = layout.size
+        info = fit.normal_matrix
+        n_used = used.sum(-1)
+        with np.errstate(all="ignore"):
+            cond = np.linalg.cond(np.where(np.all(np.isfinite(info), (-2, -1))[..., None, None],
+                                           info, np.eye(n)))
+        degenerate = ((n_used < n) | ~np.isfinite(cond) | (cond > COND_LIMIT)
+                      | ~np.all(np.isfinite(fit.x), -1))
+        safe = np.where(degenerate[..., None, None], np.eye(n), info)
+        cov = np.where(degenerate[..., None, None], np.nan, np.linalg.inv(safe))
+        r = np.where(used, fit.residuals, 0.0)
+        rms = np.sqrt(np.sum(r ** 2, -1) / np.maximum(n_used, 1))
+        u = rows.standardised(fit.x, fit.residuals)
+        inliers = np.sum(used & (np.abs(np.where(used, u, np.inf)) <= INLIER_SIGMAS), -1)
+        sl = layout.slices["position"]
+        return Estimate(fit.x[..., sl], cov[..., sl, sl], None, {
+            "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
+            "iterations": fit.iterations, "residual_rms_m": rms, "inliers": inliers,
+            "measurements_used": n_used, "degenerate": degenerate, "state": fit.x,
+            "state_covariance": cov})
+
+    def _fit(self, observations, initial):
+        """The fit, the row stack, the rows used ``(..., M)`` and the state layout."""
         obs = observation_list(observations)
         for i, o in enumerate(obs):
             self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
@@ -234,22 +277,4 @@ class LeastSquares(SnapshotEstimator):
                             max_iter=self.max_iterations, tol=self.tol, row_terms=huber.terms).x
         fit = solve_nlls(rows.residuals, x0, weights=used.astype(float), method=self.method,
                          max_iter=self.max_iterations, tol=self.tol, row_terms=rows.terms)
-        info = fit.normal_matrix
-        n_used = used.sum(-1)
-        with np.errstate(all="ignore"):
-            cond = np.linalg.cond(np.where(np.all(np.isfinite(info), (-2, -1))[..., None, None],
-                                           info, np.eye(n)))
-        degenerate = ((n_used < n) | ~np.isfinite(cond) | (cond > COND_LIMIT)
-                      | ~np.all(np.isfinite(fit.x), -1))
-        safe = np.where(degenerate[..., None, None], np.eye(n), info)
-        cov = np.where(degenerate[..., None, None], np.nan, np.linalg.inv(safe))
-        r = np.where(used, fit.residuals, 0.0)
-        rms = np.sqrt(np.sum(r ** 2, -1) / np.maximum(n_used, 1))
-        u = rows.standardised(fit.x, fit.residuals)
-        inliers = np.sum(used & (np.abs(np.where(used, u, np.inf)) <= INLIER_SIGMAS), -1)
-        sl = layout.slices["position"]
-        return Estimate(fit.x[..., sl], cov[..., sl, sl], None, {
-            "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
-            "iterations": fit.iterations, "residual_rms_m": rms, "inliers": inliers,
-            "measurements_used": n_used, "degenerate": degenerate, "state": fit.x,
-            "state_covariance": cov})
+        return fit, rows, used, layout

@@ -96,7 +96,7 @@ def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray)
 def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
            coarse_half_width_m: float, coarse_points: int = 21,
            refine: tuple[tuple[float, int], ...] = ((0.5, 21), (0.05, 21)),
-           centre: np.ndarray | None = None) -> np.ndarray:
+           centre: np.ndarray | None = None, circles: np.ndarray | None = None) -> np.ndarray:
     """Maximise ``objective`` over circle intersections and a coarse grid, then refine.
 
     The coarse grid is centred on the mean of the valid centres (the origin where none),
@@ -122,13 +122,16 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
     centre : ndarray, shape (..., 2), optional
         Centre of a local search (broadcast against the batch axes); default: a global
         search around the centroid of the points heard.
+    circles : ndarray of bool, shape (..., L), optional
+        Which valid rows are range circles whose intersections are candidates (the
+        others, e.g. bearings, only place the grid); default: every valid row.
 
     Returns
     -------
     ndarray, shape (..., 2)
         The best candidate found.
     """
-    pts, ok = circle_intersections(centres, radii, valid)
+    pts, ok = circle_intersections(centres, radii, valid if circles is None else circles)
     if centre is None:
         w = valid.astype(float)
         centroid = (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]

@@ -1,9 +1,11 @@
 """Batched multilateration from ranges to known anchors (snapshot estimator).
 
 :class:`Multilateration` solves ``min_x sum_i w_i (r_i - ||x - a_i||)^2`` for a whole batch
-of independent problems at once with the toolkit's one nonlinear least-squares driver
-(:func:`radioloc.estimators.nlls.solve_nlls`, Gauss-Newton or Levenberg-Marquardt), from
-the closed-form start of :func:`linear_initial`. ``ranges`` is ``(..., M)`` and
+of independent problems at once: a configuration of the generic snapshot least squares
+(:class:`~radioloc.estimators.least_squares.LeastSquares` with a Gaussian
+:class:`~radioloc.models.ranging.RangeModel`, Gauss-Newton or Levenberg-Marquardt) from
+the closed-form start of :func:`linear_initial`, with the geometry checks of a range fix
+around it (flat anchors, saddle points, mirror fixes, singular information). ``ranges`` is ``(..., M)`` and
 ``anchors`` ``(M, D)`` or ``(..., M, D)``; a NaN range (or a weight of 0) is a missing
 range, so epochs that hear different anchor sets share one array.
 """
@@ -17,7 +19,9 @@ from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_array, check_int,
                                       check_positive)
 from radioloc.estimators.base import SnapshotEstimator
-from radioloc.estimators.nlls import solve_nlls
+from radioloc.estimators.least_squares import LeastSquares
+from radioloc.models.measurement import Context, Observation
+from radioloc.models.ranging import RangeModel
 
 __all__ = ["Multilateration", "anchor_phrase", "linear_initial"]
 
@@ -93,16 +97,11 @@ def _flat_anchors(anchors: np.ndarray, used: np.ndarray) -> tuple[np.ndarray, st
                   "them fit the ranges equally")
 
 
-def _range_residuals(r: np.ndarray, a: np.ndarray):
-    """Residual function ``pos -> (r - ||pos - a||, d||pos - a|| / dpos)`` of
-    :func:`radioloc.estimators.nlls.solve_nlls` for ranges ``(..., M)`` to anchors
+def _range_cost(pos: np.ndarray, r: np.ndarray, a: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``sum_i w_i (r_i - ||pos - a_i||)^2`` ``(...)`` for ranges ``(..., M)`` to anchors
     ``(..., M, D)``."""
-    def residuals(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        diff = pos[..., None, :] - a
-        dist = np.sqrt(np.sum(diff**2, axis=-1))
-        J = diff / np.maximum(dist, 1e-12)[..., None]     # d||x - a_i|| / dx
-        return r - dist, J
-    return residuals
+    dist = np.sqrt(np.sum((pos[..., None, :] - a) ** 2, axis=-1))
+    return np.sum(w * (r - dist) ** 2, axis=-1)
 
 
 class Multilateration(SnapshotEstimator):
@@ -111,8 +110,8 @@ class Multilateration(SnapshotEstimator):
     Parameters
     ----------
     method : {"gauss-newton", "levenberg-marquardt"}
-        Step of :func:`radioloc.estimators.nlls.solve_nlls` (Gauss-Newton with step
-        halving, or Levenberg-Marquardt).
+        Step of the least squares (:func:`radioloc.estimators.nlls.solve_nlls`:
+        Gauss-Newton with step halving, or Levenberg-Marquardt).
     range_std_m : float, optional
         Range error standard deviation used for the covariance. Default: estimated from
         the residuals of each problem (``M - D`` degrees of freedom).
@@ -153,6 +152,22 @@ class Multilateration(SnapshotEstimator):
         self.max_iter = check_int(max_iter, "max_iter", minimum=1, maximum=MAX_ITERATIONS)
         self.tol_m = check_positive(tol_m, "tol_m", allow_zero=True)
 
+    def _solve(self, r, a, w, x0, max_iter: int | None = None):
+        """The least-squares fit (:meth:`LeastSquares.solve
+        <radioloc.estimators.least_squares.LeastSquares.solve>`) of ranges ``r`` ``(..., M)``
+        to anchors ``a`` ``(..., M, D)`` with weights ``w`` (0: missing) from ``x0``.
+
+        The rows are a :class:`~radioloc.models.ranging.RangeModel` observation with the
+        standard deviation ``w^-1/2`` each (1 m with unit weights), so the driver's cost is
+        ``sum w (r - ||x - a||)^2`` and its information ``J^T W J``."""
+        with np.errstate(divide="ignore"):
+            std = np.where(w > 0, 1.0 / np.sqrt(np.where(w > 0, w, 1.0)), 1.0)
+        obs = Observation(RangeModel(std_m=1.0), np.where(w > 0, r, np.nan), Context(points=a),
+                          std=std)
+        lsq = LeastSquares(method=self.method, tol=self.tol_m,
+                           max_iterations=self.max_iter if max_iter is None else max_iter)
+        return lsq.solve(obs, initial=x0)
+
     def _leave_saddles(self, fit, r, a, w):
         """Re-solve the problems whose fit is a saddle point of the cost, not a minimum.
 
@@ -186,13 +201,12 @@ class Multilateration(SnapshotEstimator):
         for sign in (1.0, -1.0):
             trial = x_s[..., None, :] + sign * lengths[..., None] * down[..., None, :]  # (k, T, D)
             with np.errstate(all="ignore"):
-                res, _ = _range_residuals(rs[..., None, :], as_[..., None, :, :])(trial)
-                cost = np.sum(ws[..., None, :] * res ** 2, axis=-1)
+                cost = _range_cost(trial, rs[..., None, :], as_[..., None, :, :],
+                                   ws[..., None, :])
             cost = np.where(np.isfinite(cost), cost, np.inf)
             pick = np.argmin(cost, axis=-1)
             start = np.take_along_axis(trial, pick[..., None, None], axis=-2)[..., 0, :]
-            sub = solve_nlls(_range_residuals(rs, as_), start, weights=ws,
-                             method=self.method, max_iter=self.max_iter, tol=self.tol_m)
+            sub = self._solve(rs, as_, ws, start)
             if best is None:
                 best = sub
             else:
@@ -261,8 +275,7 @@ class Multilateration(SnapshotEstimator):
         normal = vt[..., d - 1, :]                              # least-spread direction
         offset = np.einsum("...d,...d->...", fit.x - centroid, normal)
         mirror = fit.x - 2.0 * offset[..., None] * normal
-        res_m, _ = _range_residuals(r, a)(mirror)
-        c_mirror = np.sum(w * res_m ** 2, axis=-1)
+        c_mirror = _range_cost(mirror, r, a, w)
         dof = np.maximum(n_used - d, 1)
         scale = np.maximum(sv[..., 0], 1.0)
         distinct = 1e-6 * scale + 10.0 * self.tol_m
@@ -295,9 +308,7 @@ class Multilateration(SnapshotEstimator):
         alt.cost = np.array(c_mirror, copy=True)
         alt.converged = np.zeros(fit.cost.shape, dtype=bool)
         if np.any(maybe):
-            sub = solve_nlls(_range_residuals(r[maybe], a[maybe]), mirror[maybe],
-                             weights=w[maybe], method=self.method, max_iter=self.max_iter,
-                             tol=self.tol_m)
+            sub = self._solve(r[maybe], a[maybe], w[maybe], mirror[maybe])
             sub, _ = self._leave_saddles(sub, r[maybe], a[maybe], w[maybe])
             for k, v in vars(sub).items():
                 getattr(alt, k)[maybe] = v
@@ -415,8 +426,7 @@ class Multilateration(SnapshotEstimator):
 
         flat, flat_detail = _flat_anchors(a, used)
         self._degenerate(flat, flat_detail)
-        fit = solve_nlls(_range_residuals(r, a), x0, weights=w, method=self.method,
-                         max_iter=self.max_iter, tol=self.tol_m)
+        fit = self._solve(r, a, w, x0)
         fit, _ = self._leave_saddles(fit, r, a, w)
         fit, ambiguous, amb_detail, _ = self._resolve_mirror(fit, r, a, used, w, n_used,
                                                              origin)
@@ -438,8 +448,7 @@ class Multilateration(SnapshotEstimator):
         settled = np.zeros(batch, dtype=bool)
         open_ = ~fit.converged & ~flat & ~ambiguous & ~singular
         if np.any(open_):
-            more = solve_nlls(_range_residuals(r[open_], a[open_]), fit.x[open_],
-                              weights=w[open_], method=self.method, max_iter=1, tol=self.tol_m)
+            more = self._solve(r[open_], a[open_], w[open_], fit.x[open_], max_iter=1)
             s2_now = (np.full(more.cost.shape, self.range_std_m**2) if self.range_std_m
                       is not None else fit.cost[open_] / np.maximum(n_used[open_] - d, 1))
             with np.errstate(all="ignore"):

@@ -9,6 +9,8 @@ the number of links heard, not with the number of candidate nodes.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
@@ -18,15 +20,16 @@ from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
                                       check_positive)
-from radioloc.estimators.base import SnapshotEstimator
-from radioloc.estimators.pf_compiled import snapshot_scores
-from radioloc.estimators.local_search import search
+from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
+from radioloc.estimators.local_search import search
+from radioloc.estimators.observation_rows import observation_list
+from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
 
-__all__ = ["LocalML", "Ransac"]
+__all__ = ["LocalML", "Ransac", "log_likelihood"]
 
 def _residuals(x: np.ndarray, centres: np.ndarray, ranges: np.ndarray) -> np.ndarray:
     """``theta - ||x_c - centre||`` for candidates ``x (..., C, 2)``: ``(..., C, L)``."""
@@ -85,14 +88,98 @@ def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return th, cen, valid
 
 
-class LocalML(SnapshotEstimator):
-    """Local maximum-likelihood position under the LOS/NLOS mixture (paper 001, Sect. V).
+def _paper_range_model(model) -> bool:
+    """Whether ``model`` is paper 001's configuration: a LOS/NLOS range without anchor bias
+    (the one the compiled scores hold)."""
+    return (isinstance(model, RangeModel) and isinstance(model.noise, LosNlosRange)
+            and not model.anchor_bias)
 
-    Maximises ``sum_m log(alpha p_LOS + (1 - alpha) p_NLOS)`` over the candidates of
+
+def _candidate_axis(obs: Observation) -> tuple[np.ndarray, Context]:
+    """``z`` and context of ``obs`` with an axis for the candidates before the rows (on
+    the arrays that have batch axes), so a state ``(..., C, D)`` predicts ``(..., C, m)``."""
+    ctx = obs.context if obs.std is None else replace(obs.context, std=obs.std)
+
+    def row(v, k):
+        return v if v is None or v.ndim <= k else np.expand_dims(v, -k - 1)
+    return row(obs.z, 1), replace(ctx, points=row(ctx.points, 2),
+                                  reference=row(ctx.reference, 2), std=row(ctx.std, 1))
+
+
+def log_likelihood(observations: list[Observation], x: np.ndarray) -> np.ndarray:
+    """``sum_rows log p(z | x)`` of every candidate ``x`` ``(..., C, 2)``: ``(..., C)``,
+    through each observation model's ``logpdf`` (a missing row contributes 0).
+
+    Parameters
+    ----------
+    observations : list of Observation
+        Snapshot values ``z`` ``(..., m)`` of models reading the position only.
+    x : ndarray, shape (..., C, 2)
+        Candidate positions.
+
+    Returns
+    -------
+    ndarray, shape (..., C)
+    """
+    total = 0.0
+    for o in observations:
+        z, ctx = _candidate_axis(o)
+        with np.errstate(invalid="ignore"):      # NaN rows (missing) score 0
+            total = total + np.sum(o.model.logpdf(z, {"position": x}, ctx), axis=-1)
+    return total
+
+
+def _search_rows(observations: list[Observation], batch: tuple[int, ...]):
+    """The points heard ``(..., L, 2)``, the range circles' radii ``(..., L)`` (0 where not
+    a circle) and the masks of rows heard and of circles ``(..., L)`` of the candidate
+    search (range rows of 2-D points without anchor bias are circles)."""
+    pts, radii, heard, circle = [], [], [], []
+    for o in observations:
+        ctx = o.context
+        p = np.broadcast_to(ctx.points[..., :2], batch + (ctx.rows, 2))
+        z = np.broadcast_to(o.z, batch + (ctx.rows,))
+        ok = np.isfinite(z)
+        is_circle = (o.model.kind == "range" and "anchor_bias" not in o.model.reads
+                     and ctx.height_m is None and ctx.points.shape[-1] == 2)
+        pts.append(p)
+        heard.append(ok)
+        circle.append(ok & is_circle)
+        radii.append(np.where(ok & is_circle, z, 0.0))
+    return (np.concatenate(pts, -2), np.concatenate(radii, -1), np.concatenate(heard, -1),
+            np.concatenate(circle, -1))
+
+
+def _batch_shape(observations: list[Observation]) -> tuple[int, ...]:
+    """The batch shape of the observations' values and points (an :class:`InputError`
+    where they do not broadcast)."""
+    shapes = [o.z.shape[:-1] for o in observations]
+    shapes += [o.context.points.shape[:-2] for o in observations]
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        raise InputError("observations: batch shapes do not broadcast: "
+                         + ", ".join(str(s) for s in shapes)) from None
+
+
+def _range_tolerance_m(model, context: Context) -> float:
+    """Three standard deviations of a range row's error (of the LOS error under the
+    LOS/NLOS mixture): the residual under which two fixes fit equally well."""
+    los = getattr(getattr(model, "noise", None), "los_std_m", None)
+    return 3.0 * float(los if los is not None else np.nanmax(model.std(context)))
+
+
+class LocalML(SnapshotEstimator):
+    """Local maximum-likelihood position over any measurement model with a log-density
+    (paper 001, Sect. V: the genie-aided ML under the LOS/NLOS mixture).
+
+    Maximises ``sum_rows log p(z | x)`` (the models' ``logpdf``; paper 001:
+    ``sum_m log(alpha p_LOS + (1 - alpha) p_NLOS)``) over the candidates of
     :func:`radioloc.estimators.local_search.search`: the pairwise intersections of the
     range circles plus a coarse grid of half width ``radius_m`` around the mean of the
     points heard (the node is within ``radius_m`` of every one), polished by two finer
-    local grids. A global search heuristic, not a certified optimum.
+    local grids (half widths 0.5 m and 0.05 m). A global search heuristic, not a certified
+    optimum; a model without range rows has only the grid, so its spacing
+    ``2 radius_m / (coarse_points - 1)`` must stay within the first polish (1 m).
 
     With ``search_radius_m`` set, the search is local instead: the coarse grid (half width
     ``search_radius_m``) and the admissible circle intersections lie around a search
@@ -101,8 +188,12 @@ class LocalML(SnapshotEstimator):
 
     Parameters
     ----------
-    measurement : LosNlosRange
-        The mixture range model.
+    measurement : LosNlosRange or MeasurementModel or None
+        The model of the ``ranges`` given to :meth:`locate` as arrays: a
+        :class:`~radioloc.models.los_nlos.LosNlosRange` (the paper's configuration,
+        ``RangeModel(noise=measurement)``) or any range model with a ``logpdf``. None:
+        :meth:`locate` takes :class:`~radioloc.models.measurement.Observation`\\ s only
+        (which carry their models).
     radius_m : float
         Half width of the coarse grid (the communication radius).
     coarse_points : int
@@ -111,42 +202,53 @@ class LocalML(SnapshotEstimator):
         Half width of a local search around the centre passed to :meth:`locate`; default
         None: the global search above.
     on_degenerate : {"flag", "raise"}
-        A global search whose points heard are coincident or collinear, or whose fix has a
-        mirror image that fits the ranges as well (:func:`radioloc.core.validation.ambiguous_fixes`,
-        within ``3 los_std_m``), is ``"flag"``-ged in ``diagnostics["degenerate"]``
-        (default: the highway geometry of paper 001 is nearly collinear by nature) or
-        ``"raise"``-s a :class:`GeometryError` naming the first such problem.
+        A global search whose range points heard are coincident or collinear, or whose fix
+        has a mirror image that fits the ranges as well
+        (:func:`radioloc.core.validation.ambiguous_fixes`, within three standard
+        deviations of the range error, of the LOS error under the mixture), is
+        ``"flag"``-ged in ``diagnostics["degenerate"]`` (default: the highway geometry of
+        paper 001 is nearly collinear by nature) or ``"raise"``-s a
+        :class:`GeometryError` naming the first such problem. Rows of other kinds are not
+        checked.
     backend : {"numba", "numpy"}
-        The objective (the sum over the links of the model's log-density of the residuals)
-        as array expressions (``"numpy"``, the definition) or one compiled pass per
-        candidate (:func:`~radioloc.estimators.pf_compiled.snapshot_scores`); equal to
-        rounding.
+        For the paper's configuration given as arrays, the objective as the models'
+        ``logpdf`` (``"numpy"``, the definition) or one compiled pass per candidate
+        (:func:`~radioloc.estimators.pf_compiled.snapshot_scores`); equal to rounding.
+        Every other model (and every ``Observation`` input) uses the definition.
     """
 
     name = "local-ml"
+    tags = Tags(kinds=None, uses="logpdf", dims=(2,), reads=("position",))
 
-    def __init__(self, measurement: LosNlosRange, radius_m: float, coarse_points: int = 21,
+    def __init__(self, measurement, radius_m: float, coarse_points: int = 21,
                  search_radius_m: float | None = None, on_degenerate: str = "flag",
                  backend: str = DEFAULT_BACKEND) -> None:
         self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.backend = check_backend(backend)
-        if not isinstance(measurement, LosNlosRange):
-            raise ConfigError(f"measurement: expected LosNlosRange, got {type(measurement).__name__}")
+        if isinstance(measurement, LosNlosRange):
+            measurement = RangeModel(noise=measurement)
+        if measurement is not None:
+            self.tags.require(measurement, "measurement", type(self).__name__)
+            if measurement.kind != "range":
+                raise ConfigError(f"measurement: ranges given as arrays need a range model, got "
+                                  f"{type(measurement).__name__} (pass Observations instead)")
         self.measurement = measurement
         self.radius_m = check_positive(radius_m, "radius_m")
         self.coarse_points = check_int(coarse_points, "coarse_points", minimum=2, maximum=4096)
         self.search_radius_m = (None if search_radius_m is None
                                 else check_positive(search_radius_m, "search_radius_m"))
 
-    def locate(self, ranges, centres, search_centre=None) -> Estimate:
+    def locate(self, ranges, centres=None, search_centre=None) -> Estimate:
         """Maximum-likelihood positions for a batch of snapshots.
 
         Parameters
         ----------
-        ranges : array_like, shape (..., L)
-            Measured ranges to the points; NaN = absent link.
+        ranges : array_like, shape (..., L), or Observation or sequence of Observation
+            Measured ranges to the points (NaN = absent link) under ``measurement``; or
+            observations of any models reading the 2-D position (values ``(..., m)``,
+            leading batch axes; NaN = missing row), ``centres`` then None.
         centres : array_like, shape (..., L, 2) (broadcast against ``ranges``)
-            Positions of the points ranged to.
+            Positions of the points ranged to (with arrays only).
         search_centre : array_like, shape (..., 2), optional
             Centre of the local search; required when ``search_radius_m`` is set, ignored
             (must be None) otherwise.
@@ -155,39 +257,66 @@ class LocalML(SnapshotEstimator):
         -------
         Estimate
             ``position`` (..., 2), no covariance; diagnostics ``log_likelihood`` at the
-            estimate and ``measurements_used``.
+            estimate, ``measurements_used`` and (global search) ``degenerate``.
         """
-        th, cen, valid = _packed(ranges, centres)
-        model = self.measurement
+        compiled = None
+        if isinstance(ranges, Observation) or (isinstance(ranges, (list, tuple)) and ranges
+                                               and isinstance(ranges[0], Observation)):
+            if centres is not None:
+                raise InputError("centres: observations carry their points (context.points)")
+            obs = self._checked(observation_list(ranges))
+        else:
+            if self.measurement is None:
+                raise InputError("ranges: this LocalML has no measurement model; pass "
+                                 "Observations")
+            if centres is None:
+                raise InputError("centres: required with ranges given as an array")
+            th, cen, valid = _packed(ranges, centres)
+            obs = [Observation(self.measurement, np.where(valid, th, np.nan), Context(points=cen))]
+            if self.backend == "numba" and _paper_range_model(self.measurement):
+                compiled = (self.measurement.noise.mixture_constants(), th, cen, valid)
+        batch = _batch_shape(obs)
+        pts, radii, heard, circle = _search_rows(obs, batch)
         half = self.radius_m
         if self.search_radius_m is not None:
             if search_centre is None:
                 raise InputError("search_centre: required by a local search (search_radius_m set)")
             search_centre = as_float_array(search_centre, "search_centre", min_ndim=1, last_dim=2)
             try:
-                search_centre = np.broadcast_to(search_centre, th.shape[:-1] + (2,))
+                search_centre = np.broadcast_to(search_centre, batch + (2,))
             except ValueError:
                 raise InputError(f"search_centre: shape {search_centre.shape} does not fit "
-                                 f"ranges {th.shape}") from None
+                                 f"the batch {batch}") from None
             half = self.search_radius_m
         elif search_centre is not None:
             raise InputError("search_centre: only a local search (search_radius_m set) takes one")
 
-        consts = model.mixture_constants()
-
         def objective(x):
-            if self.backend == "numpy":
-                e = _residuals(x, cen, th)
-                lp = model.logpdf(e, 0.0)
-                return np.sum(np.where(valid[..., None, :], lp, 0.0), axis=-1)
-            return _scores(0, consts, x, cen, th, valid)
-        x = search(objective, cen, th, valid, half, self.coarse_points, centre=search_centre)
+            if compiled is None:
+                return log_likelihood(obs, x)
+            consts, th_, cen_, valid_ = compiled
+            return _scores(0, consts, x, cen_, th_, valid_)
+        x = search(objective, pts, radii, heard, half, self.coarse_points, centre=search_centre,
+                   circles=circle)
         diag = {"log_likelihood": objective(x[..., None, :])[..., 0],
-                "measurements_used": valid.sum(axis=-1)}
+                "measurements_used": heard.sum(axis=-1)}
         if self.search_radius_m is None:
-            diag["degenerate"] = _degenerate(x, cen, th, valid, 3.0 * model.los_std_m,
-                                             self.on_degenerate)
+            tol = [_range_tolerance_m(o.model, o.context) for o in obs if o.model.kind == "range"]
+            diag["degenerate"] = (_degenerate(x, pts, radii, circle, min(tol), self.on_degenerate)
+                                  if tol else np.zeros(batch, dtype=bool))
         return Estimate(x, None, None, diag)
+
+    def _checked(self, obs: list[Observation]) -> list[Observation]:
+        """Refuse a model the tags do not take, or rows whose points give no 2-D position."""
+        for i, o in enumerate(obs):
+            self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
+            dim = o.context.points.shape[-1] - (1 if o.context.height_m is not None else 0)
+            if dim != 2:
+                raise ConfigError(f"observations[{i}].context.points: {type(self).__name__} "
+                                  f"searches 2-D positions; the rows have {dim}-D points")
+            if np.any(np.isinf(o.z)):
+                raise InputError(f"observations[{i}].z: infinite value (NaN marks a missing row)")
+        return obs
 
 
 class Ransac(SnapshotEstimator):
