@@ -17,7 +17,7 @@ from radioloc.core.geometry import distances
 from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
-                                      check_positive)
+                                      check_positive, check_ranges, range_noise_std)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.estimators.local_search import search
@@ -63,11 +63,13 @@ def _degenerate(x, centres, ranges, used, tol_m, action) -> np.ndarray:
     return mask
 
 
-def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid."""
+def _packed(ranges, centres, std_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid;
+    ``std_m`` the range noise of :func:`check_ranges`."""
     r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
     if np.any(np.isinf(r)):
         raise InputError("ranges: infinite value (NaN marks an absent link)")
+    check_ranges(r, "ranges", std_m)
     c = as_float_array(centres, "centres", min_ndim=2, last_dim=2, allow_nan=True)
     try:
         c = np.broadcast_to(c, r.shape + (2,))
@@ -157,7 +159,7 @@ class LocalML(SnapshotEstimator):
             ``position`` (..., 2), no covariance; diagnostics ``log_likelihood`` at the
             estimate and ``measurements_used``.
         """
-        th, cen, valid = _packed(ranges, centres)
+        th, cen, valid = _packed(ranges, centres, range_noise_std(self.measurement))
         model = self.measurement
         half = self.radius_m
         if self.search_radius_m is not None:
@@ -244,7 +246,7 @@ class Ransac(SnapshotEstimator):
             ``stalled``, ``iterations`` of the refit, ``inliers`` (count),
             ``residual_rms_m`` over the inliers and ``measurements_used``.
         """
-        th, cen, valid = _packed(ranges, centres)
+        th, cen, valid = _packed(ranges, centres, self.threshold_m)   # its noise scale
         thr = self.threshold_m
 
         def consensus(x):

@@ -16,7 +16,8 @@ column      meaning
             along +x / +y of the anchors' frame since its previous odometry row,
             metres; the two come in pairs with the same time; ``peer`` names the
             sensor, any id)
-``value``   the measured value (number; a range must be >= 0)
+``value``   the measured value (number; a range must be >= 0, or above -6 times the
+            row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
             anchor); empty for other kinds
 ``std``     optional: the standard deviation of this measurement in the value's unit
@@ -52,6 +53,7 @@ import pandas as pd
 
 from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
+from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
@@ -437,8 +439,16 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     is_range = (out["kind"] == "range").to_numpy()
     is_rss = (out["kind"] == "rss").to_numpy()
     value = out["value"].to_numpy()
-    if (i := _first(is_range & (value < 0))) is not None:
-        fail(i, f"column 'value': negative range {value[i]:g}")
+    std = out["std"].to_numpy(float) if "std" in out.columns else 0.0
+    floor = np.broadcast_to(range_floor_m(std), value.shape)       # the library's rule
+    if (i := _first(is_range & (value < floor))) is not None:
+        fail(i, f"column 'value': negative range {value[i]:g}" + (
+            f" (below {-floor[i]:g} m: {NEGATIVE_RANGE_SIGMAS:g} times the row's std)"
+            if floor[i] < 0 else " (a range is a distance >= 0; a row's std allows a noisy "
+            f"range down to -{NEGATIVE_RANGE_SIGMAS:g} std)"))
+    if np.any(noisy := is_range & (value < 0)):       # accepted: a noisy short range, read as 0
+        out.loc[noisy, "value"] = 0.0
+        value = out["value"].to_numpy()
     if (i := _first(is_range & (value > LIMITS["range_m"]))) is not None:
         fail(i, f"column 'value': range {value[i]:g} m is beyond the limit of "
                 f"{LIMITS['range_m']:g} m")
