@@ -348,6 +348,10 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
+    if "bias_std_m" in frame.columns:                # its standard deviation (calibrate)
+        out["bias_std_m"] = _optional_number(frame, "bias_std_m", path, minimum=0.0)
+        _check_magnitude(frame, out["bias_std_m"].fillna(0.0), "bias_std_m",
+                         LIMITS["range_m"], "m", path)
     tracked = "time" in frame.columns
     if tracked:                                      # a moving anchor: one row per position
         out["time"] = _optional_number(frame, "time", path)
@@ -518,6 +522,9 @@ def _check_odometry(out: pd.DataFrame, is_motion: np.ndarray, fail) -> None:
 def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | None) -> pd.DataFrame:
     """Ranges corrected by the anchors' ``bias_m`` (a calibrated anchors file): each range to
     an anchor minus that anchor's bias, floored at 0. Unchanged when there is no ``bias_m``.
+    A corrected range below 0 by more than the negative-range rule allows
+    (:func:`~radioloc.core.validation.check_ranges`, with the row's ``std`` and the
+    anchor's ``bias_std_m`` as its noise) is refused, naming the line.
 
     Parameters
     ----------
@@ -532,8 +539,28 @@ def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | Non
         return measurements
     bias = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_m"])))
     is_range = (measurements["kind"] == "range") & bias.notna()
+    value = measurements["value"].to_numpy(float)
+    # the negative-range rule on the corrected range: the row's std and the bias's own
+    # standard deviation (bias_std_m of a calibrated file) set how far below 0 it may go
+    var = np.zeros(len(value))
+    if "std" in measurements.columns:
+        var += np.nan_to_num(measurements["std"].to_numpy(float)) ** 2
+    if "bias_std_m" in anchors.columns:
+        bias_sd = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_std_m"])))
+        var += np.nan_to_num(bias_sd.to_numpy(float)) ** 2
+    b = bias.to_numpy(float)
+    floor = range_floor_m(np.sqrt(var), np.nan_to_num(b))
+    if (i := _first(is_range.to_numpy() & (value < floor))) is not None:
+        where = f"line {int(measurements['line'].iloc[i])}, " if "line" in measurements else ""
+        raise InputError(
+            f"measurements: {where}column 'value': range {value[i]:g} m to anchor "
+            f"{measurements['peer'].iloc[i]!r} is below that anchor's bias_m {b[i]:g} m "
+            f"(corrected, a negative range beyond {NEGATIVE_RANGE_SIGMAS:g} standard "
+            "deviations of the row's std and the anchor's bias_std_m): bias_m in another "
+            "unit, or the wrong anchors file?")
     out = measurements.copy()
-    out.loc[is_range, "value"] = np.maximum(out.loc[is_range, "value"] - bias[is_range], 0.0)
+    out.loc[is_range, "value"] = np.maximum(value[is_range.to_numpy()] - b[is_range.to_numpy()],
+                                            0.0)
     return out
 
 
