@@ -817,7 +817,8 @@ class P2PParticleFilter(RecursiveEstimator):
             (..., N, T, J), ``resets`` (cumulative) and, with online EM,
             ``em_parameters`` (..., N, T, 3).
         """
-        r = check_ranges(as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True), "ranges", range_noise_std(self.measurement))
+        r = check_ranges(as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True), "ranges",
+                         range_noise_std(self.measurement))
         n_veh, T, J = r.shape[-3:]
         if anchors is None:
             a = np.zeros((0, 2))
