@@ -97,9 +97,19 @@ def test_a_noise_level_lets_network_rls_take_a_noisy_range():
         NetworkRLS(forgetting=0.7, range_var_m2=0.01).run(**_with(case, "ranges", idx, -0.7))
 
 
-@pytest.mark.parametrize("method", ["gn", "gn3", "ekf-track", "pf", "rls", "ekf"])
+def _range_methods() -> list[str]:
+    from radioloc.locate.base import methods
+
+    return sorted(n for n, m in methods().items() if m.kinds is None or "range" in m.kinds)
+
+
+@pytest.mark.parametrize("method", _range_methods() + ["gn3"])
 def test_locate_refuses_a_negative_range_naming_its_line(scenarios, workdir, method):
-    sc = scenarios[method]
+    """Every locate method that reads ranges (the network ones with their priors, the
+    others with the anchors of gn's scenario)."""
+    sc = scenarios[method if method in scenarios else "gn"]
+    sc = type(sc)(**{**sc.__dict__, "method": sc.method if method == "gn3" else method,
+                     "options": {}})
     rows = [list(r) for r in sc.rows]
     rows[3][4] = "-4.5"
     meas = workdir / f"neg-{method}.csv"
