@@ -136,3 +136,20 @@ def test_locate_takes_a_noisy_negative_range_with_its_std(scenarios, workdir, me
         else:
             assert res.exit_code == 2 and "line 3, column 'value': negative range -0.7" \
                 in res.output, res.output
+
+
+def test_range_model_density_applies_the_rule():
+    """RangeModel.logpdf (and mode_logpdf of the LOS/NLOS noise): a range below -6 sigma of
+    its noise (the row's std, else the model's LOS one) is refused naming z and the index."""
+    from radioloc.models import LosNlosRange, RangeModel
+    from radioloc.models.measurement import Context
+
+    state = {"position": np.array([[1.0, 2.0]])}
+    ctx = Context(points=np.array([[0.0, 0.0], [10.0, 0.0]]))
+    for model in (RangeModel(std_m=0.1), RangeModel(noise=LosNlosRange(0.1, 2.0, 0.9))):
+        assert np.all(np.isfinite(model.logpdf(np.array([[-0.5, 9.0]]), state, ctx)))
+        with pytest.raises(InputError, match=r"^z: range -0\.7 at index \(0, 0\)"):
+            model.mode_logpdf(np.array([[-0.7, 9.0]]), state, ctx)
+    with_std = Context(points=ctx.points, std=np.array([1.0, 0.1]))
+    assert np.isfinite(RangeModel(std_m=0.1).logpdf(np.array([[-5.0, 9.0]]), state,
+                                                     with_std)).all()
