@@ -489,8 +489,9 @@ def refuse_infinite(arr: np.ndarray, name: str) -> np.ndarray:
     return arr
 
 
-#: A measured range below ``-NEGATIVE_RANGE_SIGMAS`` standard deviations of its noise (plus
-#: a negative bias, if the model has one) is refused (:func:`check_ranges`). A distance is
+#: A measured range more than ``NEGATIVE_RANGE_SIGMAS`` standard deviations of its noise
+#: below 0 (below a known range bias, if the caller subtracts one) is refused
+#: (:func:`check_ranges`); without a noise level, every negative range is. A distance is
 #: >= 0, but a noisy measurement of a short one may fall slightly below 0: a zero-mean
 #: Gaussian error reaches -6 sigma with probability 1e-9, so no honest measurement is
 #: refused, while a sign slip, an offset or a wrong column is.
