@@ -388,3 +388,13 @@ def test_generic_filters_with_batched_points(name):
     else:
         assert outcome == "success", detail
         assert case.solve(case.settings, case.args).position.shape == (3, 10, 2)
+
+
+def test_range_observation_with_row_and_context_std_that_do_not_broadcast():
+    """Observation of ranges with std (10, 4) and context.std (3, 4): the negative-range
+    rule's per-row sigma raised numpy's ValueError; now an error naming both."""
+    std = CASES["ExtendedKalmanFilter"]().args["context_std"]
+    detail = _clean(_mutated("ExtendedKalmanFilter",
+                             context_std=np.broadcast_to(std, (3,) + std.shape).copy()),
+                    ("std",))
+    assert "context.std (shape (3, 4))" in detail

@@ -677,7 +677,10 @@ class Observation:
         ndarray, broadcastable to ``z``
         """
         sigma = self.model.row_std(range_noise_std(self.model), self.context)
-        return sigma if self.std is None else np.where(np.isfinite(self.std), self.std, sigma)
+        if self.std is None:
+            return sigma
+        check_shapes("std", self.std.shape, "context.std", np.shape(sigma))
+        return np.where(np.isfinite(self.std), self.std, sigma)
 
     @property
     def steps(self) -> int:
