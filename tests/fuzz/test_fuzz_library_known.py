@@ -398,3 +398,11 @@ def test_range_observation_with_row_and_context_std_that_do_not_broadcast():
                              context_std=np.broadcast_to(std, (3,) + std.shape).copy()),
                     ("std",))
     assert "context.std (shape (3, 4))" in detail
+
+
+def test_batch_smoother_subnormal_prior_covariance_names_prior_cov():
+    """prior_cov = 5e-324 I gave an infinite information matrix and NaN covariances from
+    BatchSmoother.run; now an error naming prior_cov and the variance."""
+    cov = CASES["BatchSmoother"]().args["prior_cov"]
+    detail = _clean(_mutated("BatchSmoother", prior_cov=cov * 5e-324), ("prior_cov",))
+    assert "below the supported floor" in detail
