@@ -117,7 +117,8 @@ def test_rls_backends_agree(seed, forgetting):
     R, K = 9, 6
     truth = rng.uniform(0, 1000, (R, K, 2))
     prior = truth + rng.normal(0, 30, truth.shape)
-    ests = [NetworkRLS(forgetting=forgetting, backend=b) for b in ("numba", "numpy")]
+    ests = [NetworkRLS(forgetting=forgetting, range_var_m2=900.0, backend=b)
+            for b in ("numba", "numpy")]
     states = [e.init(prior, np.full(truth.shape, 900.0)) for e in ests]
     for _ in range(3):
         rho = pairwise_distances(truth) + rng.normal(0, 30, (R, K, K))

@@ -207,7 +207,7 @@ def test_bad_input_raises_toolkit_errors():
     with pytest.raises(InputError, match="ranges"):
         closed_form(np.r_[r[:-1], np.inf], s, **kw)
     with pytest.raises(InputError, match="ranges"):
-        closed_form(np.r_[r[:-1], -1.0], s, **kw)
+        closed_form(np.r_[r[:-1], -2.0], s, **kw)     # below -6 sigma (sigma 0.32 m)
     with pytest.raises(InputError, match="sensor_path"):
         closed_form(r, s[:-1], **kw)
     with pytest.raises(InputError, match="reference_index"):

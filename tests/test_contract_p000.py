@@ -40,7 +40,7 @@ def _network(R=3, K=5, N=6, std=1.0, seed=1, prior_std=(2.0, 20.0)):
     return truth, prior, var, rho
 
 
-NETWORK = {"rls": lambda: NetworkRLS(forgetting=0.8), "ekf": lambda: NetworkEKF(range_var_m2=1.0)}
+NETWORK = {"rls": lambda: NetworkRLS(forgetting=0.8, range_var_m2=1.0), "ekf": lambda: NetworkEKF(range_var_m2=1.0)}
 
 
 # ---------------------------------------------------------------- Multilateration

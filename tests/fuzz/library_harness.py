@@ -145,6 +145,7 @@ def _network(seed=1, K=4, N=3):
     truth = rng.uniform(0, 30, (B, K, 2))
     d = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=-1)
     ranges = np.broadcast_to(d[:, None], (B, N, K, K)).copy()
+    ranges[..., np.arange(K), np.arange(K)] = np.nan      # a node's range to itself: unused
     prior = truth + rng.normal(0, 1.0, truth.shape)
     return ranges, prior
 
@@ -155,8 +156,8 @@ def case_network_rls() -> Case:
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"forgetting": Field(setting=True, neg_ok=False, zero_ok=False),
                  "range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
-                 # Gaussian range noise (paper 000): a negative measured range is a sample
-                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
+                 # no range noise given: every negative range is refused (check_ranges)
+                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkRLS(**s).run(**a))
 
@@ -166,8 +167,8 @@ def case_network_ekf() -> Case:
     return Case("NetworkEKF", {"range_var_m2": 0.01},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False),
-                 # Gaussian range noise (paper 000): a negative measured range is a sample
-                 "ranges": Field(nan_ok=True), "prior_mean": Field(),
+                 # a range below -6 noise sigmas (0.6 m here) is refused (check_ranges)
+                 "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
                 lambda s, a: NetworkEKF(**s).run(**a))
 
@@ -190,8 +191,8 @@ def case_range_ekf() -> Case:
                  "prior_cov": np.eye(4)},
                 {"anchors": Field(setting=True), "range_bias_m": Field(setting=True),
                  "gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
-                 # a measured range may be slightly negative (noise): RangeEKF takes it
-                 "ranges": Field(nan_ok=True), "time": Field(),
+                 # slightly negative (within 6 sigmas): taken; the mutation's -r-1: refused
+                 "ranges": Field(nan_ok=True, neg_ok=False), "time": Field(),
                  "prior_mean": Field(), "prior_cov": Field(neg_ok=False)},
                 lambda s, a: RangeEKF(**s).run(a["ranges"], a["time"], prior_mean=a["prior_mean"],
                                                prior_cov=a["prior_cov"]))
@@ -209,8 +210,8 @@ def case_particle_filter() -> Case:
                 {"particles": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
                  "init_std": Field(setting=True, neg_ok=False),
                  "reset_std_m": Field(setting=True, neg_ok=False, zero_ok=False),
-                 # LOS ranges are Gaussian: a slightly negative one is a measurement
-                 "ranges": Field(nan_ok=True), "initial": Field(),
+                 # LOS ranges are Gaussian: below -6 LOS sigmas a range is refused
+                 "ranges": Field(nan_ok=True, neg_ok=False), "initial": Field(),
                  "anchors": Field(), "controls": Field()},
                 lambda s, a: P2PParticleFilter(**s).run(
                     a["ranges"], a["initial"], np.random.default_rng(5), anchors=a["anchors"],
@@ -231,7 +232,7 @@ def case_local_ml() -> Case:
                 {"ranges": r, "centres": centres},
                 {"radius_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  "coarse_points": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
-                 "ranges": Field(nan_ok=True), "centres": Field()},
+                 "ranges": Field(nan_ok=True, neg_ok=False), "centres": Field()},
                 lambda s, a: LocalML(**s).locate(**a), truth, 0.1)
 
 
@@ -242,9 +243,8 @@ def case_ransac() -> Case:
                 {"threshold_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  "radius_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False),
-                 # a measured range of a node metres away can be negative under zero-mean
-                 # noise (the highway simulation draws some): accepted, as by LocalML
-                 "ranges": Field(nan_ok=True), "centres": Field()},
+                 # the inlier threshold is Ransac's noise scale: below -6 of it, refused
+                 "ranges": Field(nan_ok=True, neg_ok=False), "centres": Field()},
                 lambda s, a: Ransac(**s).locate(**a), truth, 0.01)
 
 
@@ -351,8 +351,8 @@ def _observations(a: dict, model) -> Observation:
 
 
 def _generic_fields(track: bool) -> dict[str, Field]:
-    # z: Gaussian range noise, a negative value is a sample (as in RangeEKF); NaN: missing
-    out = {"z": Field(nan_ok=True), "points": Field(extra_ok=True),
+    # z: below -6 sigmas of its noise a range is refused (check_ranges); NaN: missing
+    out = {"z": Field(nan_ok=True, neg_ok=False), "points": Field(extra_ok=True),
            "std": Field(nan_ok=True, neg_ok=False, zero_ok=False, drop_ok=True),
            "context_std": Field(nan_ok=True, neg_ok=False, zero_ok=False, names=("std",))}
     if track:
@@ -432,7 +432,7 @@ def case_bearing_least_squares() -> Case:
     return Case("LeastSquares/aoa", {},
                 {"z": z, "points": ANCHORS.copy(), "std": np.full(4, 0.01),
                  "context_std": np.full(4, 0.01)},
-                {**_generic_fields(False)},
+                {**_generic_fields(False), "z": Field(nan_ok=True)},     # angles: any sign
                 lambda s, a: _least_squares(s, a, BearingModel(std_rad=0.01)),
                 truth, 1e-3)
 
@@ -546,7 +546,7 @@ def mutations(draw, case: Case) -> tuple[Case, Mutation]:
         new = arr * 5e-324 if arr.ndim else np.float64(5e-324)
     elif kind == "negative":
         new = _set_one(arr, index, -abs(float(arr[index])) - 1.0)
-        invalid = not spec.neg_ok
+        invalid = not spec.neg_ok and bool(np.isfinite(new[index]))   # NaN stays missing
     elif kind == "zero":
         new = _set_one(arr, index, 0.0)
         invalid = not spec.zero_ok

@@ -362,3 +362,47 @@ def test_closed_form_missing_ranges_name_ranges(track):
     r[track, 3] = np.nan
     detail = _clean(_mutated("ClosedFormTracker", ranges=r), ("ranges",))
     assert "sensor_path" not in detail and f"track {track}" in detail
+
+
+def test_batch_smoother_time_with_an_extra_batch_axis_names_time():
+    """time of shape (3, T) for observations without a batch raised numpy's ValueError
+    inside BatchSmoother.run (broadcast_to); now an error naming time."""
+    t = CASES["BatchSmoother"]().args["time"]
+    detail = _clean(_mutated("BatchSmoother", time=np.broadcast_to(t, (3,) + t.shape).copy()),
+                    ("time",))
+    assert "time: batch shape (3,)" in detail
+
+
+@pytest.mark.parametrize("name", ["BatchSmoother", "ParticleFilter"])
+def test_generic_filters_with_batched_points(name):
+    """context.points with a leading axis of 3 and z of T = 10 steps: BatchSmoother named
+    neither argument ("batch shapes do not broadcast: (10,), (10,), (3,)") and ParticleFilter
+    raised numpy's ValueError in its weight update; now the smoother names z and
+    context.points, and the particle filter, like the EKF, runs a batch of 3."""
+    pts = CASES[name]().args["points"]
+    case = _mutated(name, points=np.broadcast_to(pts, (3,) + pts.shape).copy())
+    outcome, detail = classify_call(lambda: case.solve(case.settings, case.args),
+                                    names=("points",))
+    if name == "BatchSmoother":
+        assert outcome == "error" and "observations[0].context.points (3,)" in detail, detail
+    else:
+        assert outcome == "success", detail
+        assert case.solve(case.settings, case.args).position.shape == (3, 10, 2)
+
+
+def test_range_observation_with_row_and_context_std_that_do_not_broadcast():
+    """Observation of ranges with std (10, 4) and context.std (3, 4): the negative-range
+    rule's per-row sigma raised numpy's ValueError; now an error naming both."""
+    std = CASES["ExtendedKalmanFilter"]().args["context_std"]
+    detail = _clean(_mutated("ExtendedKalmanFilter",
+                             context_std=np.broadcast_to(std, (3,) + std.shape).copy()),
+                    ("std",))
+    assert "context.std (shape (3, 4))" in detail
+
+
+def test_batch_smoother_subnormal_prior_covariance_names_prior_cov():
+    """prior_cov = 5e-324 I gave an infinite information matrix and NaN covariances from
+    BatchSmoother.run; now an error naming prior_cov and the variance."""
+    cov = CASES["BatchSmoother"]().args["prior_cov"]
+    detail = _clean(_mutated("BatchSmoother", prior_cov=cov * 5e-324), ("prior_cov",))
+    assert "below the supported floor" in detail

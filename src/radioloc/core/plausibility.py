@@ -267,7 +267,7 @@ def range_scale(R: np.ndarray, anchors: np.ndarray) -> float | None:
         if 1 / (10 * RANGE_FACTOR) <= long_ <= 10 * RANGE_FACTOR:
             return 1.0
         fits = [k for k, _ in _UNITS if 1 / (10 * RANGE_FACTOR) <= long_ / k <= 10 * RANGE_FACTOR]
-        return min(fits, key=lambda k: abs(np.log(long_ / k / 0.5)), default=long_)
+        return min(fits, key=lambda k: abs(np.log(long_ / k / 0.5)), default=max(long_, 1e-300))
     if long_ <= RANGE_FACTOR and short >= 1 / RANGE_FACTOR:
         return 1.0
     for k, _ in _UNITS:
@@ -335,6 +335,9 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
             side = "longer" if factor > 1 else "shorter"
             cause = {"mm": "ranges in mm (or anchors in km)?", "cm": "ranges in cm?",
                      "km": "ranges in km?"}.get(unit, "ranges or anchors in the wrong unit?")
+            if factor < 1e-12:
+                raise InputError(f"{where}: the ranges are (nearly) all 0 m while the anchors "
+                                 f"are {_span(a):.3g} m apart{_hint('range_units')}")
             raise InputError(
                 f"{where}: {cause} The ranges are about {max(factor, 1 / factor):.3g} times "
                 f"{side} than anchors {_span(a):.3g} m apart allow (triangle inequality); "

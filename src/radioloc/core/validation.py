@@ -487,3 +487,109 @@ def refuse_infinite(arr: np.ndarray, name: str) -> np.ndarray:
         raise InputError(f"{name}: infinite value at index {idx} (NaN marks a missing "
                          "measurement)")
     return arr
+
+
+#: A measured range more than ``NEGATIVE_RANGE_SIGMAS`` standard deviations of its noise
+#: below 0 (below a known range bias, if the caller subtracts one) is refused
+#: (:func:`check_ranges`); without a noise level, every negative range is. A distance is
+#: >= 0, but a noisy measurement of a short one may fall slightly below 0: a zero-mean
+#: Gaussian error reaches -6 sigma with probability 1e-9, so no honest measurement is
+#: refused, while a sign slip, an offset or a wrong column is.
+NEGATIVE_RANGE_SIGMAS = 6.0
+
+
+def range_noise_std(noise: object) -> float:
+    """The standard deviation that bounds a range-noise model's negative tail.
+
+    Parameters
+    ----------
+    noise : object or None
+        A range-error model: the LOS/NLOS mixture (its ``los_std_m``: NLOS errors are
+        positive), a Gaussian (its ``std_m``), a model holding one as ``noise``, or None
+        (no noise model: 0).
+
+    Returns
+    -------
+    float
+        Metres.
+    """
+    for attribute in ("los_std_m", "std_m"):
+        value = getattr(noise, attribute, None)
+        if value is not None:
+            return float(value)
+    inner = getattr(noise, "noise", None)           # a range model holding its noise model
+    return 0.0 if inner is None else range_noise_std(inner)
+
+
+def range_floor_m(std_m: object = 0.0, bias_m: object = 0.0) -> np.ndarray:
+    """The smallest measured range accepted: ``bias_m - NEGATIVE_RANGE_SIGMAS * std_m``.
+
+    Parameters
+    ----------
+    std_m : float or array_like
+        Range noise standard deviation, metres (NaN counts as 0: no noise level given).
+    bias_m : float or array_like
+        A known range bias that the caller subtracts from every range, metres.
+
+    Returns
+    -------
+    ndarray
+        The floor (0 where neither is given).
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        s = np.nan_to_num(np.asarray(std_m, dtype=float), nan=0.0)
+        return np.nan_to_num(np.asarray(bias_m, dtype=float)) - NEGATIVE_RANGE_SIGMAS * s
+
+
+def check_ranges(ranges: np.ndarray, name: str, std_m: object = 0.0, *,
+                 bias_m: object = 0.0, used: np.ndarray | None = None) -> np.ndarray:
+    """The one rule on negative measured ranges, applied by every estimator and model that
+    takes ranges and by the log reader.
+
+    A range is refused when it lies below ``bias_m - NEGATIVE_RANGE_SIGMAS * std_m``
+    (a bias-corrected range below ``-6 std_m``); ``std_m`` is the range noise the caller
+    works with (0 when it has none: then every negative range is refused). NaN (a missing
+    range) and entries not ``used`` pass.
+
+    Parameters
+    ----------
+    ranges : ndarray
+        Measured ranges, metres (already checked for dtype and infinities).
+    name : str
+        Argument name for the message.
+    std_m : float or array_like
+        Noise standard deviation, broadcastable to ``ranges`` (NaN entries count as 0).
+    bias_m : float or array_like
+        A known range bias the caller subtracts from every range (default 0).
+    used : ndarray of bool, optional
+        The entries the caller uses (default all).
+
+    Returns
+    -------
+    ndarray
+        ``ranges``.
+
+    Raises
+    ------
+    InputError
+        Naming ``name``, the index of the first range below its floor, the value and the
+        floor.
+    """
+    r = np.asarray(ranges, dtype=float)
+    floor = range_floor_m(std_m, bias_m)
+    check_shapes(name, r.shape, "its noise standard deviations", floor.shape)
+    with np.errstate(invalid="ignore"):
+        bad = r < floor
+    if used is not None:
+        bad = bad & np.asarray(used, dtype=bool)
+    if np.any(bad):
+        idx = _first_bad_index(bad)
+        fl = float(np.broadcast_to(floor, bad.shape)[idx])
+        value = float(np.broadcast_to(r, bad.shape)[idx])
+        if fl == 0.0:
+            raise InputError(f"{name}: negative range {value:.6g} at index {idx} (a range is a "
+                             "distance >= 0; no noise level is given that allows it)")
+        raise InputError(f"{name}: range {value:.6g} at index {idx} is below its floor of "
+                         f"{fl:.4g} m ({NEGATIVE_RANGE_SIGMAS:g} standard deviations of its "
+                         "noise below 0, plus any range bias)")
+    return r

@@ -35,7 +35,8 @@ from scipy.linalg import LinAlgError, solveh_banded
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
-from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
+from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array, check_int,
+                                      check_positive, check_shapes)
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
@@ -220,6 +221,12 @@ class BatchSmoother(RecursiveEstimator):
         except ValueError:
             raise InputError(f"prior_mean, prior_cov: shapes {m0.shape}, {P0.shape} do not "
                              f"broadcast to the batch {batch}") from None
+        small = np.diagonal(P0, axis1=-2, axis2=-1) < POSITIVE_FLOOR
+        if np.any(small):
+            idx = tuple(int(i) for i in np.argwhere(small)[0])
+            raise InputError(f"prior_cov: variance {np.diagonal(P0, axis1=-2, axis2=-1)[idx]!r} "
+                             f"at {idx} is below the supported floor of {POSITIVE_FLOOR:g} "
+                             "(its inverse would overflow)")
         try:
             np.linalg.cholesky(symmetrise(P0))
         except np.linalg.LinAlgError:
@@ -356,6 +363,9 @@ class BatchSmoother(RecursiveEstimator):
                 raise InputError(f"time: expected {T} steps, got shape {t.shape}")
             if np.any(np.diff(t, axis=-1) < 0):
                 raise InputError("time: must be non-decreasing")
+        if check_shapes("time", t.shape[:-1], "the observations' batch", batch) != batch:
+            raise InputError(f"time: batch shape {t.shape[:-1]} does not broadcast to the "
+                             f"observations' {batch}")
         dt = np.broadcast_to(np.diff(t, axis=-1), batch + (T - 1,))
         n = layout.size
         F, Qinv = self._transition(layout, dt)

@@ -217,7 +217,8 @@ class ClosedFormTracker(SnapshotEstimator):
             track), or a singular noise
             covariance (zero motion and channel noise).
         """
-        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True)
+        r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True,
+                                  std_m=np.sqrt(self.range_var))
         n = r.shape[-1]
         T, t_k = resolve_sampling(n, k, sample_period_s, time)
         batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self.range_var.shape[:-1])

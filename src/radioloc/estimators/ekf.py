@@ -36,7 +36,7 @@ from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import check_finite_output, check_positive
+from radioloc.core.validation import check_finite_output, check_positive, check_ranges
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.estimators.kalman_compiled import network_ekf_packets
@@ -247,6 +247,7 @@ class NetworkEKF(RecursiveEstimator):
         """
         R, K = state.runs, state.nodes
         master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
+        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2), used=valid)
         return self._apply(state, master[:, None], rho[:, None], valid[:, None])
 
     def _apply(self, state: EKFState, masters: np.ndarray, rho: np.ndarray,
@@ -320,6 +321,7 @@ class NetworkEKF(RecursiveEstimator):
         if np.any(bad):
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"ranges: infinite value at (run, master, node) {idx}")
+        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2), used=valid)
         masters = np.broadcast_to(np.arange(K), (R, K))
         return self._apply(state, masters, np.where(valid, rho, 0.0), valid)
 

@@ -18,7 +18,7 @@ import numpy as np
 from radioloc.core.errors import InputError
 from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Track, track_from_steps
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import as_float_array, check_positive, check_ranges, range_noise_std
 from radioloc.estimators.ekf_tracker import RangeEKF
 
 __all__ = ["run_peer_ekf"]
@@ -35,7 +35,8 @@ def run_peer_ekf(ekf: RangeEKF, ranges, initial, *, init_std_m: float, anchors=N
     ranges : array_like, shape (..., N, T, J)
         Ranges from vehicle ``k`` at step ``t`` to node ``j``, ``J = N + M`` (the N
         vehicles first, a vehicle's range to itself NaN, then the M anchors); NaN = no
-        link (skipped). A negative range (noise on two nodes a few cm apart) is used as 0.
+        link (skipped). A slightly negative range (noise on two nodes a few cm apart;
+        :func:`~radioloc.core.validation.check_ranges`) is used as 0.
     initial : array_like, shape (..., N, n)
         Prior mean (position first; n = ``ekf.motion.state_dim``).
     init_std_m : float
@@ -60,6 +61,7 @@ def run_peer_ekf(ekf: RangeEKF, ranges, initial, *, init_std_m: float, anchors=N
     r = as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True)
     if np.any(np.isinf(r)):
         raise InputError("ranges: infinite value (NaN marks an absent link)")
+    check_ranges(r, "ranges", range_noise_std(ekf.measurement), bias_m=ekf.range_bias_m)
     n_veh, T, J = r.shape[-3:]
     a = np.zeros((0, 2)) if anchors is None else as_float_array(anchors, "anchors", min_ndim=2,
                                                                   last_dim=2)

@@ -20,7 +20,8 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import as_float_array, check_positive, check_real, refuse_infinite
+from radioloc.core.validation import (as_float_array, check_positive, check_ranges, check_real,
+                                      range_noise_std, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.models.measurement import Context, Observation
@@ -169,7 +170,8 @@ class RangeEKF(RecursiveEstimator):
         r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
         if r.shape[-1] != a.shape[-2]:
             raise InputError(f"ranges: {r.shape[-1]} per row but {a.shape[-2]} anchors")
-        refuse_infinite(r, "ranges")
+        check_ranges(refuse_infinite(r, "ranges"), "ranges", range_noise_std(self.measurement),
+                     bias_m=self.range_bias_m)
         return self._filter.update(state, self._observation(r, a), ungated)
 
     def step(self, state: FilterState, ranges, dt=0.0, anchors=None, control=None
@@ -239,7 +241,8 @@ class RangeEKF(RecursiveEstimator):
             ``nis``, ``measurements_used``, ``gated`` (per step).
         """
         r = as_float_array(ranges, "ranges", min_ndim=2, allow_nan=True)
-        refuse_infinite(r, "ranges")
+        check_ranges(refuse_infinite(r, "ranges"), "ranges", range_noise_std(self.measurement),
+                     bias_m=self.range_bias_m)
         T, M = r.shape[-2:]
         if anchor_path is not None:
             a = as_float_array(anchor_path, "anchor_path", min_ndim=3)

@@ -17,7 +17,7 @@ import numpy as np
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_array, check_int,
-                                      check_positive)
+                                      check_positive, check_ranges)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.models.measurement import Context, Observation
@@ -394,11 +394,12 @@ class Multilateration(SnapshotEstimator):
         a = np.broadcast_to(a, batch + a.shape[-2:]) - origin[..., None, :]
         w = np.where(np.isnan(r), 0.0, w)                 # NaN = missing range
         used = w > 0
-        bad = used & ~(np.isfinite(r) & (r >= 0))
+        bad = used & ~np.isfinite(r)
         if np.any(bad):
             idx = _first(bad)
             raise InputError(f"ranges: invalid range {r[idx]} at index {idx} "
-                             "(must be finite and >= 0, or NaN for a missing range)")
+                             "(must be finite, or NaN for a missing range)")
+        check_ranges(r, "ranges", self.range_std_m or 0.0, used=used)
         r = np.where(used, r, 0.0)
         n_used = used.sum(axis=-1)
         if np.any(n_used < d + 1):

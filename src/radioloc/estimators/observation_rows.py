@@ -114,13 +114,16 @@ class RowStack:
 
     def batch_shape(self, x_batch: tuple[int, ...]) -> tuple[int, ...]:
         """Batch shape of the rows for states of batch shape ``x_batch``."""
-        shapes = [x_batch] + [z.shape[:-1] for _, z, _, _ in self.items]
-        shapes += [c.points.shape[:-2] for _, _, c, _ in self.items]
+        named = [("the steps", x_batch)]
+        named += [(f"observations[{i}].z", z.shape[:-1]) for i, (_, z, _, _) in
+                  enumerate(self.items)]
+        named += [(f"observations[{i}].context.points", c.points.shape[:-2])
+                  for i, (_, _, c, _) in enumerate(self.items)]
         try:
-            return np.broadcast_shapes(*shapes)
+            return np.broadcast_shapes(*(s for _, s in named))
         except ValueError:
             raise InputError("observations: batch shapes do not broadcast: "
-                             + ", ".join(str(s) for s in shapes)) from None
+                             + ", ".join(f"{k} {s}" for k, s in named)) from None
 
     def values(self, batch: tuple[int, ...]) -> np.ndarray:
         """The stacked measured values ``(..., M)`` (NaN = missing row)."""

@@ -64,7 +64,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.links import gather_packed, pack_mask, scatter_packed
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
-                                      check_probability)
+                                      check_probability, check_ranges, range_noise_std)
 from radioloc.estimators import pf_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.particle_filter import (RunGenerators, mode_update, sample_motion,
@@ -685,6 +685,7 @@ class P2PParticleFilter(RecursiveEstimator):
                              f"filter's {batch}")
         if np.any(np.isinf(theta)):
             raise InputError("ranges: infinite value (NaN marks an absent link)")
+        check_ranges(theta, "ranges", range_noise_std(self.measurement))
         mask = np.isfinite(theta)
         nodes = as_float_array(node_positions, "node_positions", min_ndim=2, last_dim=2,
                                allow_nan=True)
@@ -851,7 +852,8 @@ class P2PParticleFilter(RecursiveEstimator):
             (..., N, T, J), ``resets`` (cumulative) and, with online EM,
             ``em_parameters`` (..., N, T, 3).
         """
-        r = as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True)
+        r = check_ranges(as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True), "ranges",
+                         range_noise_std(self.measurement))
         n_veh, T, J = r.shape[-3:]
         if anchors is None:
             a = np.zeros((0, 2))

@@ -740,10 +740,15 @@ class ParticleFilter(RecursiveEstimator):
             u = as_float_array(controls, "controls", min_ndim=2, last_dim=self.motion.dim)
             if u.shape[-2] != T:
                 raise InputError(f"controls: expected {T} steps on axis -2, got {u.shape}")
+        # batch axes: those of z and those of the reference points (a step's context)
+        named = [(f"observations[{i}].{k}", s) for i, o in enumerate(obs)
+                 for k, s in (("z", o.z.shape[:-2]), ("context.points",
+                                                      o.at(0)[1].points.shape[:-2]))]
         try:
-            batch = np.broadcast_shapes(*(o.z.shape[:-2] for o in obs))
+            batch = np.broadcast_shapes(*(s for _, s in named))
         except ValueError:
-            raise InputError("observations: batch axes of z do not broadcast") from None
+            raise InputError("observations: batch axes do not broadcast: "
+                             + ", ".join(f"{k} {s}" for k, s in named)) from None
         state = self.init(prior_mean, prior_cov, obs, time=t[0], batch_shape=batch)
         dts = np.diff(t, prepend=t[0])
         estimates, history, weights = [], [], []

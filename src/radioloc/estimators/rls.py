@@ -35,7 +35,8 @@ from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
 from radioloc.core.results import Estimate, Track
-from radioloc.core.validation import as_float_array, check_finite_output, check_positive
+from radioloc.core.validation import (as_float_array, check_finite_output, check_positive,
+                                      check_ranges)
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.kalman_compiled import network_rls_iteration
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
@@ -146,8 +147,9 @@ class NetworkRLS(RecursiveEstimator):
         ``prior_scale = sigma_z^2`` of :func:`transformed_noise_var` at the prior means
         (needs ``range_var_m2``).
     range_var_m2 : float, optional
-        Range noise variance ``sigma_v^2`` (m^2), used only by
-        ``prior_scale="transformed-noise"``.
+        Range noise variance ``sigma_v^2`` (m^2), used by ``prior_scale="transformed-noise"``
+        and by the negative-range rule (:func:`~radioloc.core.validation.check_ranges`:
+        without it every negative range is refused).
     backend : {"numba", "numpy"}
         :meth:`iterate` by the compiled kernel
         (:func:`~radioloc.estimators.kalman_compiled.network_rls_iteration`) or as ``K``
@@ -241,6 +243,7 @@ class NetworkRLS(RecursiveEstimator):
         """
         R, K = state.runs, state.nodes
         master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
+        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2 or 0.0), used=valid)
         ref = state.position if reference is None else as_float_array(
             reference, "reference", ndim=3, last_dim=2)
         A, z, w = pair_rows(ref, rho, valid)
@@ -301,6 +304,7 @@ class NetworkRLS(RecursiveEstimator):
         if np.any(bad):
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"ranges: infinite value at (run, master, node) {idx}")
+        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2 or 0.0), used=valid)
         if self.backend == "numpy":
             start = state.position
             for k in range(K):

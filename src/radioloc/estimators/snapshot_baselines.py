@@ -19,7 +19,7 @@ from radioloc.core.geometry import distances
 from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
-                                      check_positive)
+                                      check_positive, check_ranges, range_noise_std)
 from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.local_search import search
@@ -66,11 +66,13 @@ def _degenerate(x, centres, ranges, used, tol_m, action) -> np.ndarray:
     return mask
 
 
-def _packed(ranges, centres) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid."""
+def _packed(ranges, centres, std_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid;
+    ``std_m`` the range noise of :func:`check_ranges`."""
     r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
     if np.any(np.isinf(r)):
         raise InputError("ranges: infinite value (NaN marks an absent link)")
+    check_ranges(r, "ranges", std_m)
     c = as_float_array(centres, "centres", min_ndim=2, last_dim=2, allow_nan=True)
     try:
         c = np.broadcast_to(c, r.shape + (2,))
@@ -271,7 +273,7 @@ class LocalML(SnapshotEstimator):
                                  "Observations")
             if centres is None:
                 raise InputError("centres: required with ranges given as an array")
-            th, cen, valid = _packed(ranges, centres)
+            th, cen, valid = _packed(ranges, centres, range_noise_std(self.measurement))
             obs = [Observation(self.measurement, np.where(valid, th, np.nan), Context(points=cen))]
             if self.backend == "numba" and _paper_range_model(self.measurement):
                 compiled = (self.measurement.noise.mixture_constants(), th, cen, valid)
@@ -373,7 +375,7 @@ class Ransac(SnapshotEstimator):
             ``stalled``, ``iterations`` of the refit, ``inliers`` (count),
             ``residual_rms_m`` over the inliers and ``measurements_used``.
         """
-        th, cen, valid = _packed(ranges, centres)
+        th, cen, valid = _packed(ranges, centres, self.threshold_m)   # its noise scale
         thr = self.threshold_m
 
         def consensus(x):

@@ -183,7 +183,7 @@ class P000MonteCarlo(Experiment):
         for rv in config.range_var_m2:
             rho = iteration_ranges(truth, N, rv, rng)                      # (R, N, K, K)
             estimators = {
-                "rls": NetworkRLS(forgetting=config.forgetting),
+                "rls": NetworkRLS(forgetting=config.forgetting, range_var_m2=rv),
                 "ekf": NetworkEKF(range_var_m2=rv),
                 "rlsw": NetworkRLS(forgetting=config.forgetting, prior_scale="transformed-noise",
                                    range_var_m2=rv)}

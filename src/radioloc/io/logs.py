@@ -18,7 +18,8 @@ column      meaning
             sensor, any id), or ``heading`` (the direction of the node's motion, e.g. a
             phone's compass azimuth, radians, counter-clockwise from +x of the
             anchors' frame; ``peer`` names the sensor, any id)
-``value``   the measured value (number; a range must be >= 0)
+``value``   the measured value (number; a range must be >= 0, or above -6 times the
+            row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
             anchor); empty for other kinds
 ``std``     optional: the standard deviation of this measurement in the value's unit
@@ -56,6 +57,7 @@ import pandas as pd
 
 from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
+from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
@@ -446,6 +448,10 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     for c in ANCHOR_RSS_COLUMNS:                     # a per-anchor RSS path-loss model
         if c in frame.columns:
             out[c] = _optional_number(frame, c, path)
+    if "bias_std_m" in frame.columns:                # its standard deviation (calibrate)
+        out["bias_std_m"] = _optional_number(frame, "bias_std_m", path, minimum=0.0)
+        _check_magnitude(frame, out["bias_std_m"].fillna(0.0), "bias_std_m",
+                         LIMITS["range_m"], "m", path)
     tracked = "time" in frame.columns
     if tracked:                                      # a moving anchor: one row per position
         out["time"] = _optional_number(frame, "time", path)
@@ -537,8 +543,16 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     is_range = (out["kind"] == "range").to_numpy()
     is_rss = (out["kind"] == "rss").to_numpy()
     value = out["value"].to_numpy()
-    if (i := _first(is_range & (value < 0))) is not None:
-        fail(i, f"column 'value': negative range {value[i]:g}")
+    std = out["std"].to_numpy(float) if "std" in out.columns else 0.0
+    floor = np.broadcast_to(range_floor_m(std), value.shape)       # the library's rule
+    if (i := _first(is_range & (value < floor))) is not None:
+        fail(i, f"column 'value': negative range {value[i]:g}" + (
+            f" (below {-floor[i]:g} m: {NEGATIVE_RANGE_SIGMAS:g} times the row's std)"
+            if floor[i] < 0 else " (a range is a distance >= 0; a row's std allows a noisy "
+            f"range down to -{NEGATIVE_RANGE_SIGMAS:g} std)"))
+    if np.any(noisy := is_range & (value < 0)):       # accepted: a noisy short range, read as 0
+        out.loc[noisy, "value"] = 0.0
+        value = out["value"].to_numpy()
     if (i := _first(is_range & (value > LIMITS["range_m"]))) is not None:
         fail(i, f"column 'value': range {value[i]:g} m is beyond the limit of "
                 f"{LIMITS['range_m']:g} m")
@@ -609,6 +623,9 @@ def _check_odometry(out: pd.DataFrame, is_motion: np.ndarray, fail) -> None:
 def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | None) -> pd.DataFrame:
     """Ranges corrected by the anchors' ``bias_m`` (a calibrated anchors file): each range to
     an anchor minus that anchor's bias, floored at 0. Unchanged when there is no ``bias_m``.
+    A corrected range below 0 by more than the negative-range rule allows
+    (:func:`~radioloc.core.validation.check_ranges`, with the row's ``std`` and the
+    anchor's ``bias_std_m`` as its noise) is refused, naming the line.
 
     Parameters
     ----------
@@ -623,8 +640,28 @@ def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | Non
         return measurements
     bias = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_m"])))
     is_range = (measurements["kind"] == "range") & bias.notna()
+    value = measurements["value"].to_numpy(float)
+    # the negative-range rule on the corrected range: the row's std and the bias's own
+    # standard deviation (bias_std_m of a calibrated file) set how far below 0 it may go
+    var = np.zeros(len(value))
+    if "std" in measurements.columns:
+        var += np.nan_to_num(measurements["std"].to_numpy(float)) ** 2
+    if "bias_std_m" in anchors.columns:
+        bias_sd = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_std_m"])))
+        var += np.nan_to_num(bias_sd.to_numpy(float)) ** 2
+    b = bias.to_numpy(float)
+    floor = range_floor_m(np.sqrt(var), np.nan_to_num(b))
+    if (i := _first(is_range.to_numpy() & (value < floor))) is not None:
+        where = f"line {int(measurements['line'].iloc[i])}, " if "line" in measurements else ""
+        raise InputError(
+            f"measurements: {where}column 'value': range {value[i]:g} m to anchor "
+            f"{measurements['peer'].iloc[i]!r} is below that anchor's bias_m {b[i]:g} m "
+            f"(corrected, a negative range beyond {NEGATIVE_RANGE_SIGMAS:g} standard "
+            "deviations of the row's std and the anchor's bias_std_m): bias_m in another "
+            "unit, or the wrong anchors file?")
     out = measurements.copy()
-    out.loc[is_range, "value"] = np.maximum(out.loc[is_range, "value"] - bias[is_range], 0.0)
+    out.loc[is_range, "value"] = np.maximum(value[is_range.to_numpy()] - b[is_range.to_numpy()],
+                                            0.0)
     return out
 
 

@@ -21,7 +21,13 @@ import pandas as pd
 from radioloc.core.errors import InputError
 from radioloc.estimators.anchor_calibration import AnchorCalibration, calibrate_anchors
 
-__all__ = ["calibrate_log", "calibration_table"]
+__all__ = ["calibrate_log", "calibration_table", "MISFIT_RATIO"]
+
+#: With the linear loss, a solution whose range residual rms exceeds this many ``std_m`` is
+#: refused: Gaussian ranges of that standard deviation give an rms near ``std_m`` (above
+#: 3 ``std_m`` with a negligible probability), while a unit slip, biased ranges calibrated
+#: without a bias, or a wrong anchor give a fit that is confidently wrong.
+MISFIT_RATIO = 3.0
 
 
 def _prior_std(anchors: pd.DataFrame) -> np.ndarray:
@@ -84,6 +90,12 @@ def calibrate_log(measurements: pd.DataFrame, anchors: pd.DataFrame, *, std_m: f
     result = calibrate_anchors(anchors[dims].to_numpy(dtype=float), prior_std,
                                anchor_ranges=anchor_ranges, tag_ranges=tag_ranges, std_m=std_m,
                                estimate_bias=bias, bias_prior_std_m=bias_prior_std_m, loss=loss)
+    if loss == "linear" and result.residual_rms_m > MISFIT_RATIO * std_m:
+        raise InputError(
+            f"calibrate: the ranges do not fit the anchors: the range residual rms at the "
+            f"solution is {result.residual_rms_m:.3g} m, {result.residual_rms_m / std_m:.3g} "
+            f"times --std-m ({std_m:g} m); ranges or anchors in another unit, biased ranges "
+            "without --bias, outliers (give a robust --loss) or a --std-m too small")
     return result, {"anchor_ranges": int(len(aa)), "tag_ranges": int(len(tag)),
                     "tag_epochs": int(epochs), "rough_anchors": int((prior_std > 0).sum())}
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from radioloc.core.errors import GeometryError
+from radioloc.core.errors import GeometryError, InputError
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.robust_loss import LOSSES
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
@@ -174,13 +174,17 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     -------
     DataFrame
         ``time, node, x, y[, z], uncertainty_m``, covariance columns, ``measurements``
-        (rows used) and ``inliers`` (within 3 sigma), one row per epoch fixed.
+        (rows used) and ``inliers`` (within 3 sigma), one row per epoch fixed. An epoch
+        with more rows than unknowns whose fix leaves most of them beyond 3 sigma fits no
+        position: it is refused (or left out with ``on_degenerate=skip``).
 
     Raises
     ------
     GeometryError
         An epoch that does not fix the position, without ``on_degenerate=skip`` (naming the
         node and the time).
+    InputError
+        An epoch whose measurements fit no position, without ``on_degenerate=skip``.
     """
     table = request.require_anchors("lsq")
     log = Measurements(request.measurements)
@@ -213,6 +217,18 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     position = np.concatenate([f.position for f in fits])[keep]
     cov = np.concatenate([f.covariance for f in fits])[keep]
     bad = d["degenerate"][keep]
+    # a fix that leaves most of its rows beyond 3 sigma explains none of them: a sign or
+    # unit slip, a wrong anchor (its covariance (J' W J)^-1 would claim a precision it lacks)
+    used, inl = d["measurements_used"][keep], d["inliers"][keep]
+    misfit = ~bad & (used > unknowns) & (2 * inl < used)
+    if misfit.any() and not ep.skip:
+        i = int(np.flatnonzero(misfit)[0])
+        raise InputError(f"method lsq: {ep.where(int(ep.solvable[i]))}: the measurements do not "
+                         f"fit one position: {int(used[i] - inl[i])} of {int(used[i])} rows lie "
+                         "beyond 3 sigma of the best fix (a sign or unit slip, a wrong anchor or "
+                         "reference, outliers: -o loss=tukey, or sigmas far too small); -o "
+                         "on_degenerate=skip leaves such epochs out")
+    bad = bad | misfit
     cov = np.where(bad[:, None, None], np.eye(cov.shape[-1]), cov)
     out = epoch_table(ep, position, cov, bad,
                       detail="the measurements do not fix the position (singular or "

@@ -40,8 +40,8 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_real,
-                                      check_shapes, refuse_infinite)
+from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_ranges,
+                                      check_real, check_shapes, range_noise_std, refuse_infinite)
 
 __all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
@@ -681,6 +681,23 @@ class Observation:
             if check_shapes("std", s.shape, "z", z.shape) != z.shape:
                 raise InputError(f"std: shape {s.shape} does not broadcast to z's {z.shape}")
             object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
+        if self.model.kind == "range":
+            check_ranges(z, "z", self.range_std_m())
+
+    def range_std_m(self) -> np.ndarray:
+        """Per-row noise standard deviations of the negative-range rule
+        (:func:`~radioloc.core.validation.check_ranges`): the row's ``std`` where given, else
+        the context's, else the model's (its LOS standard deviation for a LOS/NLOS noise).
+
+        Returns
+        -------
+        ndarray, broadcastable to ``z``
+        """
+        sigma = self.model.row_std(range_noise_std(self.model), self.context)
+        if self.std is None:
+            return sigma
+        check_shapes("std", self.std.shape, "context.std", np.shape(sigma))
+        return np.where(np.isfinite(self.std), self.std, sigma)
 
     @property
     def steps(self) -> int:

@@ -13,7 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import check_positive, paired_arrays
+from radioloc.core.validation import check_positive, check_ranges, paired_arrays, range_noise_std
 from radioloc.models.measurement import Context, MeasurementModel, checked_call
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -234,6 +234,7 @@ class RangeModel(MeasurementModel):
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         z = checked_call(z, state, context, self.reads)
+        check_ranges(z, "z", self.row_std(range_noise_std(self), context))
         z_hat = self.predict(state, context)
         if context.std is not None or isinstance(self.noise, GaussianRange):
             return super().logpdf(z, state, context)
@@ -255,9 +256,10 @@ class RangeModel(MeasurementModel):
         -------
         ndarray, shape (..., m, modes)
         """
-        z_hat = self.predict(state, context)
         if self.modes == 1:
             return self.logpdf(z, state, context)[..., None]
+        check_ranges(np.asarray(z, dtype=float), "z", self.row_std(range_noise_std(self), context))
+        z_hat = self.predict(state, context)
         lp = self.noise.logpdf_by_state(z, z_hat)
         return np.where(np.isnan(lp), 0.0, lp)
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import as_float_array, check_positive, check_ranges
 from radioloc.models.track_noise import (
     accumulated_noise_covariance,
     squared_noise_covariance,
@@ -333,7 +333,8 @@ class SquaredRangeModel:
         return np.swapaxes(white, -1, -2) @ white
 
 
-def validate_inputs(ranges, sensor, reference_index, *, allow_nan: bool = False):
+def validate_inputs(ranges, sensor, reference_index, *, allow_nan: bool = False,
+                    std_m: object = 0.0):
     """Boundary checks shared by the paper-002 estimators and bounds.
 
     Parameters
@@ -346,6 +347,9 @@ def validate_inputs(ranges, sensor, reference_index, *, allow_nan: bool = False)
         k; ``None`` is the last sample n-1; negative values count from the end.
     allow_nan : bool
         Whether NaN ranges (missing samples) are allowed.
+    std_m : float or array_like
+        Range noise standard deviation of :func:`~radioloc.core.validation.check_ranges`
+        (0: every negative range is refused).
 
     Returns
     -------
@@ -364,9 +368,7 @@ def validate_inputs(ranges, sensor, reference_index, *, allow_nan: bool = False)
     r = as_float_array(ranges, "ranges", min_ndim=1, allow_nan=True)
     if np.any(np.isinf(r)):
         raise InputError("ranges: must be finite (NaN marks a missing sample)")
-    if np.any(r[np.isfinite(r)] < 0):
-        bad = tuple(int(i) for i in np.argwhere(r < 0)[0])
-        raise InputError(f"ranges: negative range {r[bad]} at index {bad}")
+    check_ranges(r, "ranges", std_m)
     if not allow_nan and np.any(np.isnan(r)):
         bad = tuple(int(i) for i in np.argwhere(np.isnan(r))[0])
         raise InputError(f"ranges: sample n = {bad[-1]} is NaN (index {bad}); the closed form "
