@@ -633,7 +633,7 @@ def export_hanyang(out: Path | str, *, run: str = "LOS/A/1", root: Path | str | 
         ``measurements``, ``anchors``, ``reference`` (RTK truth, tag at ``z + 1 m`` as the
         authors' code assumes), ``ls`` and ``eskf`` (the set's own estimates, where present).
     """
-    from radioloc.io.hanyang import TAG_HEIGHT_OFFSET_M, load_dynamic
+    from radioloc.io.hanyang import load_dynamic
 
     if not epoch_s >= 0:
         raise ConfigError(f"epoch_s: must be >= 0 (0: the raw rows), got {epoch_s}")
