@@ -60,7 +60,6 @@ from scipy.special import gammaincinv
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
-from radioloc.io.logs import range_arrays
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
@@ -105,35 +104,6 @@ def motion_model(kind: str, q: float, dim: int):
     WhiteAccelerationCV or RandomWalk
     """
     return WhiteAccelerationCV(q, dim) if kind == "cv" else RandomWalk(q, dim)
-
-
-def range_rows(request: LocateRequest, method: str):
-    """Ranges to anchors as one ``(T, M)`` array per node (NaN: no range at that time).
-
-    Duplicate ``(time, node, peer)`` measurements are averaged
-    (:func:`radioloc.io.range_arrays`); nodes in the order of their names.
-
-    Parameters
-    ----------
-    request : LocateRequest
-    method : str
-        For messages.
-
-    Returns
-    -------
-    anchors : ndarray, shape (M, 2) or (M, 3)
-    per_node : list of (node, times (T,), ranges (T, M))
-    """
-    table = request.require_anchors(method)
-    rows = request.kind("range", method)
-    if not rows["peer"].isin(set(table["id"])).any():
-        raise GeometryError(f"method {method}: no range to an anchor in the measurements")
-    times, anchors, ranges, nodes = range_arrays(rows, table)
-    out = []
-    for n in np.argsort(nodes, kind="stable"):
-        has = np.isfinite(ranges[:, n]).any(axis=-1)
-        out.append((nodes[n], times[has], ranges[has, n]))
-    return anchors, out
 
 
 def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.ndarray:
@@ -720,7 +690,7 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
     tables : list of DataFrame
         From :func:`track_table`.
     per_node : list of (node, times, ranges)
-        From :func:`range_rows`.
+        From :func:`radioloc.locate.adapter.anchor_ranges`.
     **extra
         Further entries.
 
