@@ -192,6 +192,28 @@ def test_ekf_track_on_consistent_kinds_is_right(scenarios, workdir, name):
     assert oracle(pd.read_csv(io.StringIO(res.stdout), dtype={"node": str}), sc) is None
 
 
+@pytest.mark.parametrize("name,kinds,std", [("tdoa", ("tdoa",), 0.05), ("aoa", ("aoa",), 0.01),
+                                            ("pseudorange", ("pseudorange",), 0.1),
+                                            ("odometry", ("range", "odometry_dx",
+                                                          "odometry_dy"), 0.05)])
+def test_ekf_track_noise_beyond_the_stated_std_is_not_called_a_slip(scenarios, workdir, name,
+                                                                    kinds, std):
+    """Rows with five times the noise their option states diverge for want of noise, not
+    for a slip: a success with the divergence warning naming the noise options."""
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    rows = [list(r) for r in scenarios[name].rows]
+    for r in rows[1:]:
+        if r[3] in kinds:
+            r[4] = repr(float(r[4]) + rng.normal(0.0, 5 * std))
+    sc, meas, args = _case(workdir, scenarios, name, rows, name=f"{name}-noisy")
+    res = run(args)
+    outcome, detail = classify(res, sc, meas)
+    assert outcome == "success", detail
+    assert "look diverged" in res.stderr and "too small for this log?" in res.stderr, res.stderr
+
+
 @pytest.mark.parametrize("mistake", ["ranges_mm", "ranges_km", "anchors_km", "no_bias_flag"])
 def test_calibrate_misfit_is_refused(workdir, mistake):
     """calibrate put a rough anchor 19.6 m to 11 km off claiming 5 cm to 2 m (ranges in mm or

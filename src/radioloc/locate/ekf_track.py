@@ -17,7 +17,10 @@ normalised innovation squared per measurement over windows of ``NIS_WINDOW`` ste
 row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
 ``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span,
 is reported by one warning naming the noise options (a stated noise too small for the log
-makes the filter refuse the measurements and coast on its motion model).
+makes the filter refuse the measurements and coast on its motion model). When the values of
+one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
+of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
+consistent, the log is refused instead, by an error naming the kind and the slip.
 
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
@@ -770,8 +773,9 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         slip = likely_slip(request.measurements,
                            lambda log: not track_log(request, log)[1])
         if slip is not None:
-            raise InputError(f"method ekf-track: the {slip[0]} rows fit no track ({len(diverged)} "
-                             f"of {n_tracks} diverged), and fit once mapped back: {slip[1]}")
+            kinds, how, question = slip
+            raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
+                             f"of {n_tracks} diverged) but do once {how}: {question}")
         warn_divergence(diverged, n_tracks, noise)
     return out
 

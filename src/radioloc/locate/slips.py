@@ -19,25 +19,26 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import RadiolocError
+from radioloc.sim.measurements import SPEED_OF_LIGHT_M_PER_S
 
-C_M_PER_NS = 299_792_458.0 * 1e-9
-
-#: ``(kinds, undo, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
-#: what the schema means, and the question that names the slip.
-SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str]] = [
-    (("tdoa",), np.negative, "tdoa values with the wrong sign (reference minus peer)?"),
-    (("tdoa",), lambda v: v / 1e3, "tdoa values in mm?"),
-    (("aoa",), np.negative, "aoa values counted clockwise?"),
-    (("aoa",), lambda v: math.pi / 2 - v, "aoa values as compass bearings (clockwise from "
-                                          "north)?"),
-    (("aoa",), np.radians, "aoa values in degrees?"),
-    (("aoa_elevation",), np.negative, "aoa_elevation values with the wrong sign?"),
-    (("aoa_elevation",), np.radians, "aoa_elevation values in degrees?"),
-    (("pseudorange",), lambda v: v * 1e3, "pseudoranges in km?"),
-    (("pseudorange",), lambda v: v * C_M_PER_NS, "pseudoranges in ns?"),
-    (("pseudorange",), lambda v: v / 1e3, "pseudoranges in mm?"),
-    (("odometry_dx", "odometry_dy"), np.negative, "odometry with the wrong sign?"),
-    (("odometry_dx", "odometry_dy"), lambda v: v / 1e3, "odometry in mm?"),
+#: ``(kinds, undo, how, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
+#: what the schema means (``how`` says what it does), and the question that names the slip.
+SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]] = [
+    (("tdoa",), np.negative, "negated", "tdoa values with the wrong sign (reference minus "
+                                        "peer)?"),
+    (("tdoa",), lambda v: v / 1e3, "divided by 1000", "tdoa values in mm?"),
+    (("aoa",), np.negative, "negated", "aoa values counted clockwise?"),
+    (("aoa",), lambda v: math.pi / 2 - v, "as pi/2 minus the value",
+     "aoa values as compass bearings (clockwise from north)?"),
+    (("aoa",), np.radians, "converted from degrees", "aoa values in degrees?"),
+    (("aoa_elevation",), np.negative, "negated", "aoa_elevation values with the wrong sign?"),
+    (("aoa_elevation",), np.radians, "converted from degrees",
+     "aoa_elevation values in degrees?"),
+    (("pseudorange",), lambda v: v * 1e3, "times 1000", "pseudoranges in km?"),
+    (("pseudorange",), lambda v: v * SPEED_OF_LIGHT_M_PER_S * 1e-9, "times c (from ns)", "pseudoranges in ns?"),
+    (("pseudorange",), lambda v: v / 1e3, "divided by 1000", "pseudoranges in mm?"),
+    (("odometry_dx", "odometry_dy"), np.negative, "negated", "odometry with the wrong sign?"),
+    (("odometry_dx", "odometry_dy"), lambda v: v / 1e3, "divided by 1000", "odometry in mm?"),
 ]
 
 
@@ -65,7 +66,7 @@ def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
 
 
 def likely_slip(measurements: pd.DataFrame,
-                consistent: Callable[[pd.DataFrame], bool]) -> tuple[str, str] | None:
+                consistent: Callable[[pd.DataFrame], bool]) -> tuple[str, str, str] | None:
     """The slip of :data:`SLIPS` whose undoing makes a diverged log consistent.
 
     Parameters
@@ -78,12 +79,13 @@ def likely_slip(measurements: pd.DataFrame,
 
     Returns
     -------
-    (kinds, question) or None
-        The first kind(s) whose slip explains the divergence, and the question naming it;
+    (kinds, how, question) or None
+        The first kind(s) whose slip explains the divergence, what undoes it, and the
+        question naming it;
         None when no single slip does.
     """
     present = set(measurements["kind"].unique())
-    for kinds, undo, question in SLIPS:
+    for kinds, undo, how, question in SLIPS:
         if not present.intersection(kinds):
             continue
         mapped = undo_slip(measurements, kinds, undo)
@@ -94,5 +96,5 @@ def likely_slip(measurements: pd.DataFrame,
         except (RadiolocError, ArithmeticError):
             ok = False
         if ok:
-            return " and ".join(kinds), question
+            return " and ".join(kinds), how, question
     return None
