@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pandas as pd
@@ -24,8 +24,8 @@ from radioloc.sim.measurements import SPEED_OF_LIGHT_M_PER_S
 #: ``(kinds, undo, how, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
 #: what the schema means (``how`` says what it does), and the question that names the slip.
 SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]] = [
-    (("tdoa",), np.negative, "negated", "tdoa values with the wrong sign (reference minus "
-                                        "peer)?"),
+    (("tdoa",), np.negative, "negated",
+     "tdoa values with the wrong sign (reference minus peer)?"),
     (("tdoa",), lambda v: v / 1e3, "divided by 1000", "tdoa values in mm?"),
     (("aoa",), np.negative, "negated", "aoa values counted clockwise?"),
     (("aoa",), lambda v: math.pi / 2 - v, "as pi/2 minus the value",
