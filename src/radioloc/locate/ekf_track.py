@@ -17,7 +17,10 @@ normalised innovation squared per measurement over windows of ``NIS_WINDOW`` ste
 row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
 ``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span,
 is reported by one warning naming the noise options (a stated noise too small for the log
-makes the filter refuse the measurements and coast on its motion model).
+makes the filter refuse the measurements and coast on its motion model). When the values of
+one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
+of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
+consistent, the log is refused instead, by an error naming the kind and the slip.
 
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
@@ -68,6 +71,7 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
+from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
@@ -734,12 +738,43 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         per time stamp at which the node has a measurement (the filtered state, or the
         smoothed one with ``smooth=1``).
     """
+    out, diverged, n_tracks, noise = track_log(request, request.measurements)
+    if diverged:
+        slip = likely_slip(request.measurements,
+                           lambda log: not track_log(request, log)[1])
+        if slip is not None:
+            kinds, how, question = slip
+            raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
+                             f"of {n_tracks} diverged) but do once {how}: {question}")
+        warn_divergence(diverged, n_tracks, noise)
+    return out
+
+
+def track_log(request: LocateRequest, meas: pd.DataFrame):
+    """Every node's track from the log ``meas`` (the body of ``locate --method ekf-track``).
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Anchors and options.
+    meas : DataFrame
+        The measurements (the request's, or a copy with one kind's values mapped).
+
+    Returns
+    -------
+    out : DataFrame
+        The tracks' rows, with ``attrs["summary"]``.
+    diverged : list of (node, start time, dict)
+        The tracks :func:`divergence` flags.
+    n_tracks : int
+    noise : dict
+        The noise options in force.
+    """
     table = request.require_anchors("ekf-track")
     anchors = anchor_positions(table)
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
     anchor_bias = bool(request.option("anchor_bias", False, bool))
-    meas = request.measurements
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
@@ -797,8 +832,6 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         sign = divergence(one, anchors, gate)
         if sign is not None:
             diverged.append((node, float(times[0]), sign))
-    if diverged:
-        warn_divergence(diverged, len(tables), opts)
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     counts: dict[str, int] = {}
@@ -811,7 +844,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         "steps": len(out), "restarts": int(out["restart"].sum()),
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
         "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
-    return out
+    return out, diverged, len(tables), opts
 
 
 def warn_divergence(diverged: list, n_tracks: int, noise: dict) -> None:
