@@ -15,8 +15,10 @@ estimate as a moving anchor); otherwise they are left out.
 Divergence (:func:`divergence`): a track whose innovations stay far outside their band (the
 normalised innovation squared per measurement over windows of ``NIS_WINDOW`` steps, a gated
 row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
-``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span,
-is reported by one warning naming the noise options (a stated noise too small for the log
+``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span
+while refusing more than ``GATED_FRACTION`` of its measurements or with some window beyond
+the band (a tag far from a compact anchor cluster, with consistent innovations, is not
+flagged), is reported by one warning naming the noise options (a stated noise too small for the log
 makes the filter refuse the measurements and coast on its motion model). When the values of
 one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
 of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
@@ -87,6 +89,8 @@ PRIOR_SPEED_STD = 3.0
 NIS_WINDOW = 50
 NIS_FACTOR = 2.0
 NIS_FRACTION = 0.3
+#: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
+GATED_FRACTION = 0.05
 #: Fewest steps of a track that the divergence check judges.
 NIS_MIN_STEPS = 10
 
@@ -643,9 +647,10 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
     span = float(np.linalg.norm(hi - lo))
     outside_m = float(outside.max()) if outside.size else 0.0
-    if windows_out > NIS_FRACTION or (span > 0 and outside_m > span):
-        return {"windows_out": windows_out, "outside_m": outside_m,
-                "gated": float(refused.sum() / max(refused.sum() + used.sum(), 1))}
+    gated = float(refused.sum() / max(refused.sum() + used.sum(), 1))
+    away = span > 0 and outside_m > span and (windows_out > 0 or gated > GATED_FRACTION)
+    if windows_out > NIS_FRACTION or away:
+        return {"windows_out": windows_out, "outside_m": outside_m, "gated": gated}
     return None
 
 
