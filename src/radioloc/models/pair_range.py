@@ -203,6 +203,12 @@ class PairRangeModel(RangeModel):
         if self.anchor_bias:
             raise InputError("anchor_bias: not supported by PairRangeModel")
 
+    def predict_with_jacobian(self, state, context: Context
+                              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`predict` and :meth:`jacobian` of the pair (not :class:`RangeModel`'s
+        shared geometry to known points)."""
+        return self.predict(state, context), self.jacobian(state, context)
+
     def predict(self, state, context: Context) -> np.ndarray:
         xi, xj, _, _ = _ends(state["position"], context)
         return np.sqrt(np.sum((xi - xj) ** 2, axis=-1))
