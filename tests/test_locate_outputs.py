@@ -1,5 +1,5 @@
 """`radioloc locate` outputs: reproducible, one row per (time, node), covariance columns,
-summary, reference errors, plot and export formats; the Python side (Track, range_arrays)."""
+summary, reference errors, plot and export formats; the Python side (Track, anchor_ranges)."""
 
 import json
 import warnings
@@ -15,7 +15,9 @@ from radioloc.cli import app
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.results import Track
 from radioloc.estimators.ekf_tracker import RangeEKF
-from radioloc.io import range_arrays, read_anchors, read_measurements
+from radioloc.io import read_anchors, read_measurements
+from radioloc.io.measurements import Measurements
+from radioloc.locate.adapter import anchor_ranges, default_models, node_observations
 from radioloc.locate.base import LocateRequest, methods, run_method
 from radioloc.locate.pf import fixed_lag
 from radioloc.locate.plot import node_tracks
@@ -209,18 +211,40 @@ def test_range_ekf_gates_by_default_as_the_cli_does():
         ekf.run(r, prior_mean=[10, 12, 0], prior_cov=np.eye(4))
 
 
-def test_range_arrays_turns_the_long_table_into_estimator_arrays():
+def test_anchor_ranges_gives_each_node_a_column_per_anchor():
     meas, a, _ = example()
     extra = meas.iloc[[0]].assign(value=meas.value.iloc[0] + 1.0)   # a duplicate row
-    times, anchors, ranges, nodes = range_arrays(pd.concat([meas, extra]), a)
-    assert ranges.shape == (5, 2, 4) and nodes == ["tag1", "tag2"]
-    np.testing.assert_array_equal(anchors, a[["x", "y"]].to_numpy())
-    assert ranges[0, 0, 0] == pytest.approx(meas.value.iloc[0] + 0.5)
+    peer = meas.iloc[[0]].assign(peer="tag2")                        # a tag-to-tag range
+    alone = peer.assign(node="tag3", peer="tag1")                    # a node with no anchor
+    per_node = anchor_ranges(Measurements(pd.concat([meas, extra, peer, alone])), a, "pf")
+    assert [n for n, _, _ in per_node] == ["tag1", "tag2"]
+    for node, times, ranges in per_node:
+        assert ranges.shape == (5, 4)
+        np.testing.assert_array_equal(times, np.unique(meas.time[meas.node == node]))
+    assert per_node[0][2][0, 0] == pytest.approx(meas.value.iloc[0] + 0.5)
+    # the columns follow the anchors table, and hold the node's range observation
+    log = Measurements(meas)
+    _, _, flipped = anchor_ranges(log, a.iloc[::-1], "pf")[1]
+    np.testing.assert_array_equal(flipped, per_node[1][2][:, ::-1])
+    _, (obs,) = node_observations(log, a, "tag2", default_models(["range"], {}))
+    np.testing.assert_array_equal(per_node[1][2][:, obs.context.index], obs.z)
     partial = meas[~((meas.node == "tag2") & (meas.time == 1.0))]
-    _, _, r2, _ = range_arrays(partial, a)
-    assert np.isnan(r2[1, 1]).all() and np.isfinite(r2[1, 0]).all()
-    with pytest.raises(InputError, match="no range to an anchor"):
-        range_arrays(meas.assign(kind="rss"), a)
+    (_, t1, r1), (_, t2, r2) = anchor_ranges(Measurements(partial), a, "pf")
+    assert 1.0 in t1 and 1.0 not in t2 and r2.shape == (4, 4)
+    with pytest.raises(InputError, match="method pf: the measurements hold no 'range' rows"):
+        anchor_ranges(Measurements(meas.assign(kind="rss")), a, "pf")
+    with pytest.raises(GeometryError, match="method smoother: no range to an anchor"):
+        anchor_ranges(Measurements(meas.assign(peer=np.where(meas.node == "tag1", "tag2", "tag1"))),
+                      a, "smoother")
+
+
+@pytest.mark.parametrize("name", ["pf", "smoother"])
+def test_a_node_without_a_start_is_named(name):
+    meas, a, _ = example()
+    few = pd.DataFrame({"time": [0.0, 0.0, 1.0], "node": "tag3", "peer": list(a.id[[0, 1, 0]]),
+                        "kind": "range", "value": [5.0, 6.0, 5.5], "line": 0})
+    with pytest.raises(GeometryError, match=f"method {name}: node 'tag3'.*anchor"):
+        run_method(name, LocateRequest(pd.concat([meas, few], ignore_index=True), a))
 
 
 def test_coverage_counts_an_error_outside_a_point_claim(tmp_path):

@@ -280,3 +280,23 @@ def test_pf_backward_smoother_from_the_cli(log):
                  out="pf_b.csv")
     assert res.exit_code == 0, res.output
     assert rmse(log, "pf_b.csv") < rmse(log, "pf_f.csv")
+
+
+def test_divergence_leaves_a_consistent_track_far_from_a_compact_cluster_alone():
+    """Anchors on a 2.6 m cluster, a tag 50 m away: consistent innovations and almost no gated
+    ranges are no sign of divergence; the same track refusing 30 % of its ranges is."""
+    from radioloc.core.results import Track
+    from radioloc.locate.ekf_track import divergence
+
+    cluster = np.array([[2.6, -0.9], [2.6, 0.9], [0.7, 0.9]])
+    steps = 400
+    rng = np.random.default_rng(0)
+    xy = np.c_[np.linspace(0.0, 50.0, steps), np.zeros(steps)]
+    used = np.full(steps, 3.0)
+    quiet = {"nis": rng.chisquare(3, steps), "measurements_used": used,
+             "gated": np.zeros(steps)}
+    assert divergence(Track(position=xy, diagnostics=quiet), cluster, 16.0) is None
+    refused = (rng.random(steps) < 0.3).astype(float)
+    noisy = dict(quiet, measurements_used=used - refused, gated=refused)
+    sign = divergence(Track(position=xy, diagnostics=noisy), cluster, 16.0)
+    assert sign is not None and sign["outside_m"] > 40

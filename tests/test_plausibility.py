@@ -171,3 +171,29 @@ def test_time_backwards_in_a_table_built_in_python_names_the_row(line):
         frame["line"] = line
     with pytest.warns(UserWarning, match=r"1 row\(s\) go back in time .*first: row 2, node 't'"):
         check_time(frame)
+
+
+def test_likely_slip_names_the_one_map_that_makes_the_log_consistent():
+    """A tracker's verdict that only the negated tdoa rows satisfy: that slip is named; a
+    verdict no map satisfies (or one that raises the toolkit's error) names none; the other
+    kinds' values are left as they are."""
+    from radioloc.locate.slips import likely_slip, undo_slip
+
+    log = pd.DataFrame({"kind": ["tdoa", "tdoa", "range"], "value": [1.5, -2.0, 4.0]})
+    truth = np.array([-1.5, 2.0, 4.0])
+
+    def consistent(m: pd.DataFrame) -> bool:
+        return bool(np.allclose(m["value"].to_numpy(), truth))
+
+    assert likely_slip(log, consistent) == ("tdoa", "negated",
+                                            "tdoa values with the wrong sign (reference minus "
+                                            "peer)?")
+    assert likely_slip(log.assign(value=truth), consistent) is None   # no map makes it fit
+
+    def refuses(m: pd.DataFrame) -> bool:
+        raise InputError("no track")
+
+    assert likely_slip(log, refuses) is None
+    mm = undo_slip(log, ("tdoa",), lambda v: v / 1e3)
+    np.testing.assert_allclose(mm["value"], [1.5e-3, -2e-3, 4.0])
+    np.testing.assert_allclose(log["value"], [1.5, -2.0, 4.0])     # the input is not changed

@@ -256,3 +256,12 @@ def test_measurements_table_refuses_a_non_frame():
 
     with pytest.raises(InputError, match="measurements: expected a DataFrame"):
         Measurements([[0.0, "a", "A1", "range", 1.0]])
+
+
+def test_a_range_below_a_large_bias_names_the_bias_argument():
+    from radioloc.core.validation import check_ranges
+
+    with pytest.raises(InputError, match=r"range_bias_m 1e\+12 m .*is range_bias_m right\?"):
+        check_ranges(np.array([9.8, 3.0]), "ranges", 0.1, bias_m=1e12, bias_name="range_bias_m")
+    with pytest.raises(InputError, match=r"^ranges: range -1 at index \(1,\) .* below 0\)$"):
+        check_ranges(np.array([9.8, -1.0]), "ranges", 0.1)

@@ -395,13 +395,7 @@ def oracle(est: pd.DataFrame, scenario: Scenario, time_scale: float = 1.0) -> st
 
 # Known failures not yet fixed: (id, method, outcome, regex on the detail); each needs a
 # regression test in test_fuzz_known.py.
-KNOWN: list[tuple[str, str, str, str]] = [
-    # ekf-track follows measurements that no position explains (a tdoa or aoa sign slip,
-    # pseudoranges in km or ns, odometry in mm or of the wrong sign) and reports a small
-    # covariance: the filter does not test its innovations against their band (NIS)
-    ("ekf-track-inconsistent", "ekf-track", "confidently wrong",
-     r"^\[(tdoa_sign|aoa_clockwise|pseudorange_km|pseudorange_ns|odometry_mm|odometry_sign)\]"),
-]
+KNOWN: list[tuple[str, str, str, str]] = []
 
 
 def known(method: str, outcome: str, detail: str) -> str | None:

@@ -542,7 +542,8 @@ def range_floor_m(std_m: object = 0.0, bias_m: object = 0.0) -> np.ndarray:
 
 
 def check_ranges(ranges: np.ndarray, name: str, std_m: object = 0.0, *,
-                 bias_m: object = 0.0, used: np.ndarray | None = None) -> np.ndarray:
+                 bias_m: object = 0.0, used: np.ndarray | None = None,
+                 bias_name: str = "the range bias") -> np.ndarray:
     """The one rule on negative measured ranges, applied by every estimator and model that
     takes ranges and by the log reader.
 
@@ -563,6 +564,8 @@ def check_ranges(ranges: np.ndarray, name: str, std_m: object = 0.0, *,
         A known range bias the caller subtracts from every range (default 0).
     used : ndarray of bool, optional
         The entries the caller uses (default all).
+    bias_name : str
+        What the message calls ``bias_m`` (the caller's argument name) when it sets the floor.
 
     Returns
     -------
@@ -589,7 +592,13 @@ def check_ranges(ranges: np.ndarray, name: str, std_m: object = 0.0, *,
         if fl == 0.0:
             raise InputError(f"{name}: negative range {value:.6g} at index {idx} (a range is a "
                              "distance >= 0; no noise level is given that allows it)")
+        bias = float(np.broadcast_to(np.asarray(bias_m, dtype=float), bad.shape)[idx])
+        if bias != 0.0:
+            raise InputError(f"{name}: range {value:.6g} at index {idx} is below its floor of "
+                             f"{fl:.4g} m ({bias_name} {bias:.4g} m less "
+                             f"{NEGATIVE_RANGE_SIGMAS:g} standard deviations of its noise); "
+                             f"is {bias_name} right?")
         raise InputError(f"{name}: range {value:.6g} at index {idx} is below its floor of "
                          f"{fl:.4g} m ({NEGATIVE_RANGE_SIGMAS:g} standard deviations of its "
-                         "noise below 0, plus any range bias)")
+                         "noise below 0)")
     return r

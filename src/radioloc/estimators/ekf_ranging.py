@@ -61,7 +61,8 @@ def run_peer_ekf(ekf: RangeEKF, ranges, initial, *, init_std_m: float, anchors=N
     r = as_float_array(ranges, "ranges", min_ndim=3, allow_nan=True)
     if np.any(np.isinf(r)):
         raise InputError("ranges: infinite value (NaN marks an absent link)")
-    check_ranges(r, "ranges", range_noise_std(ekf.measurement), bias_m=ekf.range_bias_m)
+    check_ranges(r, "ranges", range_noise_std(ekf.measurement), bias_m=ekf.range_bias_m,
+                 bias_name="range_bias_m")
     n_veh, T, J = r.shape[-3:]
     a = np.zeros((0, 2)) if anchors is None else as_float_array(anchors, "anchors", min_ndim=2,
                                                                   last_dim=2)

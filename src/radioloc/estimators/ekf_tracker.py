@@ -171,7 +171,7 @@ class RangeEKF(RecursiveEstimator):
         if r.shape[-1] != a.shape[-2]:
             raise InputError(f"ranges: {r.shape[-1]} per row but {a.shape[-2]} anchors")
         check_ranges(refuse_infinite(r, "ranges"), "ranges", range_noise_std(self.measurement),
-                     bias_m=self.range_bias_m)
+                     bias_m=self.range_bias_m, bias_name="range_bias_m")
         return self._filter.update(state, self._observation(r, a), ungated)
 
     def step(self, state: FilterState, ranges, dt=0.0, anchors=None, control=None
@@ -242,7 +242,7 @@ class RangeEKF(RecursiveEstimator):
         """
         r = as_float_array(ranges, "ranges", min_ndim=2, allow_nan=True)
         check_ranges(refuse_infinite(r, "ranges"), "ranges", range_noise_std(self.measurement),
-                     bias_m=self.range_bias_m)
+                     bias_m=self.range_bias_m, bias_name="range_bias_m")
         T, M = r.shape[-2:]
         if anchor_path is not None:
             a = as_float_array(anchor_path, "anchor_path", min_ndim=3)

@@ -11,7 +11,6 @@ _WHERE = {
     "LIMITS": "logs",
     "check_kinds": "logs",
     "check_output_path": "logs",
-    "range_arrays": "logs",
     "read_cells": "logs",
     "read_anchors": "logs",
     "read_measurements": "logs",
@@ -28,4 +27,4 @@ _WHERE = {
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE)
 
 __all__ = ["authors_rmse", "authors_window", "authors_reference", "measurement_rows", "UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
-           "range_arrays", "read_measurements", "read_reference", "read_table_text", "write_estimates", "write_table"]
+           "read_measurements", "read_reference", "read_table_text", "write_estimates", "write_table"]

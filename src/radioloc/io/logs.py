@@ -821,62 +821,6 @@ def csv_chunks(frame: pd.DataFrame, rows: int = 50_000) -> Iterator[str] | None:
     return pieces()
 
 
-def range_arrays(measurements: pd.DataFrame, anchors: pd.DataFrame
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
-    """A long measurement table as an estimator's arrays: ranges from each node to the anchors.
-
-    Rows of kind ``range`` whose peer is an anchor are kept (others are left out); duplicate
-    ``(time, node, peer)`` rows are averaged.
-
-    Parameters
-    ----------
-    measurements : DataFrame
-        As returned by :func:`read_measurements` (``time, node, peer, kind, value``).
-    anchors : DataFrame
-        As returned by :func:`read_anchors` (``id, x, y[, z]``).
-
-    Returns
-    -------
-    times : ndarray, shape (T,)
-        Every time stamp at which some node has a range to an anchor, increasing.
-    anchor_positions : ndarray, shape (M, D)
-        The anchors' coordinates in the order of the anchors table (D = 2 or 3).
-    ranges : ndarray, shape (T, N, M)
-        Range from node ``n`` to anchor ``m`` at time ``t``, metres; NaN where none.
-    nodes : list of str
-        Node ids in the order they first appear in ``measurements``.
-
-    Raises
-    ------
-    InputError
-        No range to an anchor in the table.
-
-    Examples
-    --------
-    >>> import pandas as pd
-    >>> meas = pd.DataFrame({"time": [0.0, 0.0, 1.0], "node": ["t", "t", "t"],
-    ...                      "peer": ["A", "B", "A"], "kind": "range", "value": [1.0, 2.0, 1.5]})
-    >>> anchors = pd.DataFrame({"id": ["A", "B"], "x": [0.0, 3.0], "y": [0.0, 0.0]})
-    >>> times, a, r, nodes = range_arrays(meas, anchors)
-    >>> r.shape, nodes
-    ((2, 1, 2), ['t'])
-    """
-    rows = measurements[(measurements["kind"] == "range")
-                        & measurements["peer"].isin(set(anchors["id"]))]
-    if rows.empty:
-        raise InputError("measurements: no range to an anchor")
-    dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
-    positions = anchors[dims].to_numpy(dtype=float)
-    nodes = list(rows["node"].unique())
-    rows = rows.groupby(["time", "node", "peer"], sort=True, as_index=False)["value"].mean()
-    times, t_idx = np.unique(rows["time"].to_numpy(dtype=float), return_inverse=True)
-    n_idx = rows["node"].map({n: i for i, n in enumerate(nodes)}).to_numpy()
-    a_idx = rows["peer"].map({a: i for i, a in enumerate(anchors["id"])}).to_numpy()
-    ranges = np.full((times.size, len(nodes), len(positions)), np.nan)
-    ranges[t_idx, n_idx, a_idx] = rows["value"].to_numpy(dtype=float)
-    return times, positions, ranges, nodes
-
-
 def read_reference(path: Path | str) -> pd.DataFrame:
     """Read a reference trajectory CSV (``time[, node], x, y[, z]``), e.g. the
     ``reference.csv`` written by ``radioloc datasets export``.

@@ -15,12 +15,12 @@ from typing import Mapping
 import numpy as np
 import pandas as pd
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import GeometryError, InputError
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
 __all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
-           "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
+           "anchor_ranges", "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
 MODEL_KINDS = {
@@ -205,3 +205,60 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std))
     return time, out
+
+
+def anchor_ranges(measurements: Measurements, anchors: pd.DataFrame, method: str
+                  ) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Each node's ranges to the anchors as one ``(T, A)`` array: a column per anchor.
+
+    The range :class:`~radioloc.models.measurement.Observation` of each node
+    (:func:`node_observations`) with its slots spread to the anchors' columns, in the order
+    of the anchors table, for the methods whose filters index ranges by anchor (``pf``,
+    ``smoother``). Duplicate ``(time, node, peer)`` rows are averaged; ranges to peers that
+    are not anchors are left out, and so is a node with none.
+
+    Parameters
+    ----------
+    measurements : Measurements
+    anchors : DataFrame
+        ``id, x, y[, z]``, fixed anchors.
+    method : str
+        For messages.
+
+    Returns
+    -------
+    list of (node, times (T,), ranges (T, A))
+        Nodes sorted; ``times`` the node's time stamps with a range to an anchor; NaN where
+        an anchor has no range at a time.
+
+    Raises
+    ------
+    InputError
+        No range rows.
+    GeometryError
+        No range to an anchor.
+
+    Examples
+    --------
+    >>> log = Measurements.from_arrays([0.0, 0.0, 1.0], "t", ["A", "B", "A"], "range",
+    ...                                [1.0, 2.0, 1.5])
+    >>> anchors = pd.DataFrame({"id": ["A", "B"], "x": [0.0, 3.0], "y": [0.0, 0.0]})
+    >>> [(node, t.tolist(), r.tolist()) for node, t, r in anchor_ranges(log, anchors, "pf")]
+    [('t', [0.0, 1.0], [[1.0, 2.0], [1.5, nan]])]
+    """
+    rows = measurements.select(kind="range")
+    if not len(rows):
+        raise InputError(f"method {method}: the measurements hold no 'range' rows")
+    rows = Measurements(rows.frame.assign(reference=""))    # a range has one reference point
+    models = default_models(["range"], {})
+    width = len(anchor_positions(anchors))
+    out = []
+    for node, own in rows.by_node().items():
+        times, obs = node_observations(own, anchors, node, models)
+        if times.size:
+            ranges = np.full((times.size, width), np.nan)
+            ranges[:, obs[0].context.index] = obs[0].z
+            out.append((node, times, ranges))
+    if not out:
+        raise GeometryError(f"method {method}: no range to an anchor in the measurements")
+    return out

@@ -27,10 +27,12 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
+from radioloc.io.measurements import Measurements
+from radioloc.locate.adapter import anchor_positions, anchor_ranges
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
-from radioloc.locate.ekf_track import (PRIOR_SPEED_STD, motion_model, range_rows, segments,
-                                       start_position, track_table, tracker_settings)
+from radioloc.locate.ekf_track import (PRIOR_SPEED_STD, motion_model, segments, start_position,
+                                       track_table, tracker_settings)
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
@@ -79,7 +81,9 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     InputError, ConfigError, GeometryError
         As ``locate --method ekf-track`` (a bad option names it); odometry rows.
     """
-    anchors, per_node = range_rows(request, "smoother")
+    table = request.require_anchors("smoother")
+    anchors = anchor_positions(table)
+    per_node = anchor_ranges(Measurements(request.measurements), table, "smoother")
     s = tracker_settings(request, anchors)
     if s["odometry_std"] is not None:
         raise InputError("smoother: the batch smoother does not use odometry rows; remove them "
@@ -100,7 +104,8 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                     raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs "
                                      "2-D tracking (give tag_height_m) or los_std_m, "
                                      "nlos_mean_m and alpha")
-                los_nlos, bias, _ = fit_model(times, R, anchors, s, parts)
+                los_nlos, bias, _ = fit_model(times, R, anchors, s, parts,
+                                                label=f"method smoother: node {node!r}")
                 floor = request.option("min_los_std_m", 0.15)
                 if los_nlos.los_std_m < floor:
                     los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
@@ -117,15 +122,14 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
         ctx = Context(points=anchors, height_m=s["height"])
         for seg in parts:
             t, r = times[seg], R[seg] - bias
-            xy0 = start_position(t, r, anchors, s["height"], 0.0, s["init_s"])
             k = smoother.motion.state_dim
             mean = np.zeros(k)
-            mean[:2] = xy0
             var = np.full(k, PRIOR_SPEED_STD ** 2)
             var[:s["dim"]] = s["prior_std"] ** 2
             if s["dim"] == 3:
                 mean[2] = float(np.mean(anchors[:, 2]))
             try:
+                mean[:2] = start_position(t, r, anchors, s["height"], 0.0, s["init_s"])
                 track = smoother.run(Observation(RangeModel(std_m=std), r, ctx), t,
                                      prior_mean=mean, prior_cov=np.diag(var))
             except GeometryError as exc:

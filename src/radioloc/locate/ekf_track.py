@@ -15,9 +15,14 @@ estimate as a moving anchor); otherwise they are left out.
 Divergence (:func:`divergence`): a track whose innovations stay far outside their band (the
 normalised innovation squared per measurement over windows of ``NIS_WINDOW`` steps, a gated
 row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
-``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span,
-is reported by one warning naming the noise options (a stated noise too small for the log
-makes the filter refuse the measurements and coast on its motion model).
+``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span
+while refusing more than ``GATED_FRACTION`` of its measurements or with some window beyond
+the band (a tag far from a compact anchor cluster, with consistent innovations, is not
+flagged), is reported by one warning naming the noise options (a stated noise too small for the log
+makes the filter refuse the measurements and coast on its motion model). When the values of
+one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
+of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
+consistent, the log is refused instead, by an error naming the kind and the slip.
 
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
@@ -60,7 +65,6 @@ from scipy.special import gammaincinv
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
-from radioloc.io.logs import range_arrays
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
@@ -69,6 +73,7 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
+from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
@@ -84,6 +89,8 @@ PRIOR_SPEED_STD = 3.0
 NIS_WINDOW = 50
 NIS_FACTOR = 2.0
 NIS_FRACTION = 0.3
+#: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
+GATED_FRACTION = 0.05
 #: Fewest steps of a track that the divergence check judges.
 NIS_MIN_STEPS = 10
 
@@ -105,35 +112,6 @@ def motion_model(kind: str, q: float, dim: int):
     WhiteAccelerationCV or RandomWalk
     """
     return WhiteAccelerationCV(q, dim) if kind == "cv" else RandomWalk(q, dim)
-
-
-def range_rows(request: LocateRequest, method: str):
-    """Ranges to anchors as one ``(T, M)`` array per node (NaN: no range at that time).
-
-    Duplicate ``(time, node, peer)`` measurements are averaged
-    (:func:`radioloc.io.range_arrays`); nodes in the order of their names.
-
-    Parameters
-    ----------
-    request : LocateRequest
-    method : str
-        For messages.
-
-    Returns
-    -------
-    anchors : ndarray, shape (M, 2) or (M, 3)
-    per_node : list of (node, times (T,), ranges (T, M))
-    """
-    table = request.require_anchors(method)
-    rows = request.kind("range", method)
-    if not rows["peer"].isin(set(table["id"])).any():
-        raise GeometryError(f"method {method}: no range to an anchor in the measurements")
-    times, anchors, ranges, nodes = range_arrays(rows, table)
-    out = []
-    for n in np.argsort(nodes, kind="stable"):
-        has = np.isfinite(ranges[:, n]).any(axis=-1)
-        out.append((nodes[n], times[has], ranges[has, n]))
-    return anchors, out
 
 
 def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.ndarray:
@@ -669,9 +647,10 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
     span = float(np.linalg.norm(hi - lo))
     outside_m = float(outside.max()) if outside.size else 0.0
-    if windows_out > NIS_FRACTION or (span > 0 and outside_m > span):
-        return {"windows_out": windows_out, "outside_m": outside_m,
-                "gated": float(refused.sum() / max(refused.sum() + used.sum(), 1))}
+    gated = float(refused.sum() / max(refused.sum() + used.sum(), 1))
+    away = span > 0 and outside_m > span and (windows_out > 0 or gated > GATED_FRACTION)
+    if windows_out > NIS_FRACTION or away:
+        return {"windows_out": windows_out, "outside_m": outside_m, "gated": gated}
     return None
 
 
@@ -720,7 +699,7 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
     tables : list of DataFrame
         From :func:`track_table`.
     per_node : list of (node, times, ranges)
-        From :func:`range_rows`.
+        From :func:`radioloc.locate.adapter.anchor_ranges`.
     **extra
         Further entries.
 
@@ -764,12 +743,43 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         per time stamp at which the node has a measurement (the filtered state, or the
         smoothed one with ``smooth=1``).
     """
+    out, diverged, n_tracks, noise = track_log(request, request.measurements)
+    if diverged:
+        slip = likely_slip(request.measurements,
+                           lambda log: not track_log(request, log)[1])
+        if slip is not None:
+            kinds, how, question = slip
+            raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
+                             f"of {n_tracks} diverged) but do once {how}: {question}")
+        warn_divergence(diverged, n_tracks, noise)
+    return out
+
+
+def track_log(request: LocateRequest, meas: pd.DataFrame):
+    """Every node's track from the log ``meas`` (the body of ``locate --method ekf-track``).
+
+    Parameters
+    ----------
+    request : LocateRequest
+        Anchors and options.
+    meas : DataFrame
+        The measurements (the request's, or a copy with one kind's values mapped).
+
+    Returns
+    -------
+    out : DataFrame
+        The tracks' rows, with ``attrs["summary"]``.
+    diverged : list of (node, start time, dict)
+        The tracks :func:`divergence` flags.
+    n_tracks : int
+    noise : dict
+        The noise options in force.
+    """
     table = request.require_anchors("ekf-track")
     anchors = anchor_positions(table)
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
     anchor_bias = bool(request.option("anchor_bias", False, bool))
-    meas = request.measurements
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
@@ -827,8 +837,6 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         sign = divergence(one, anchors, gate)
         if sign is not None:
             diverged.append((node, float(times[0]), sign))
-    if diverged:
-        warn_divergence(diverged, len(tables), opts)
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     counts: dict[str, int] = {}
@@ -841,7 +849,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         "steps": len(out), "restarts": int(out["restart"].sum()),
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
         "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
-    return out
+    return out, diverged, len(tables), opts
 
 
 def warn_divergence(diverged: list, n_tracks: int, noise: dict) -> None:

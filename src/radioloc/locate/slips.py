@@ -1,0 +1,100 @@
+"""Likely slips in a log's values: a sign, a unit or an axis convention that makes the rows of
+one kind fit no track, and that a tracker can name when it diverges.
+
+:data:`SLIPS` lists, per kind, the slips a log is known to make (tdoa as reference minus
+peer, angles clockwise, pseudoranges in km or ns, odometry in mm or of the wrong sign) as the
+map that undoes each. :func:`likely_slip` undoes them one at a time and asks the tracker
+whether the log is consistent then: a slip is named only when the log as given diverges and
+the log with that one kind's values mapped back does not, so a consistent log is never
+blamed.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import RadiolocError
+from radioloc.sim.measurements import SPEED_OF_LIGHT_M_PER_S
+
+#: ``(kinds, undo, how, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
+#: what the schema means (``how`` says what it does), and the question that names the slip.
+SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]] = [
+    (("tdoa",), np.negative, "negated",
+     "tdoa values with the wrong sign (reference minus peer)?"),
+    (("tdoa",), lambda v: v / 1e3, "divided by 1000", "tdoa values in mm?"),
+    (("aoa",), np.negative, "negated", "aoa values counted clockwise?"),
+    (("aoa",), lambda v: math.pi / 2 - v, "as pi/2 minus the value",
+     "aoa values as compass bearings (clockwise from north)?"),
+    (("aoa",), np.radians, "converted from degrees", "aoa values in degrees?"),
+    (("aoa_elevation",), np.negative, "negated", "aoa_elevation values with the wrong sign?"),
+    (("aoa_elevation",), np.radians, "converted from degrees",
+     "aoa_elevation values in degrees?"),
+    (("pseudorange",), lambda v: v * 1e3, "times 1000", "pseudoranges in km?"),
+    (("pseudorange",), lambda v: v * SPEED_OF_LIGHT_M_PER_S * 1e-9, "times c (from ns)", "pseudoranges in ns?"),
+    (("pseudorange",), lambda v: v / 1e3, "divided by 1000", "pseudoranges in mm?"),
+    (("odometry_dx", "odometry_dy"), np.negative, "negated", "odometry with the wrong sign?"),
+    (("odometry_dx", "odometry_dy"), lambda v: v / 1e3, "divided by 1000", "odometry in mm?"),
+]
+
+
+def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
+              undo: Callable[[np.ndarray], np.ndarray]) -> pd.DataFrame:
+    """The log with the values of the rows of ``kinds`` mapped by ``undo``.
+
+    Parameters
+    ----------
+    measurements : DataFrame
+        Columns ``kind`` and ``value`` at least.
+    kinds : tuple of str
+    undo : callable
+        Elementwise map of the values.
+
+    Returns
+    -------
+    DataFrame
+        A copy.
+    """
+    rows = measurements["kind"].isin(kinds).to_numpy()
+    value = measurements["value"].to_numpy(dtype=float).copy()
+    value[rows] = undo(value[rows])
+    return measurements.assign(value=value)
+
+
+def likely_slip(measurements: pd.DataFrame,
+                consistent: Callable[[pd.DataFrame], bool]) -> tuple[str, str, str] | None:
+    """The slip of :data:`SLIPS` whose undoing makes a diverged log consistent.
+
+    Parameters
+    ----------
+    measurements : DataFrame
+        The log as given (which the caller found inconsistent).
+    consistent : callable
+        ``consistent(log) -> bool``: the tracker's verdict on a log (no track diverged). An
+        error the toolkit raises on a mapped log counts as not consistent.
+
+    Returns
+    -------
+    (kinds, how, question) or None
+        The first kind(s) whose slip explains the divergence, what undoes it, and the
+        question naming it;
+        None when no single slip does.
+    """
+    present = set(measurements["kind"].unique())
+    for kinds, undo, how, question in SLIPS:
+        if not present.intersection(kinds):
+            continue
+        mapped = undo_slip(measurements, kinds, undo)
+        try:
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                ok = consistent(mapped)
+        except (RadiolocError, ArithmeticError):
+            ok = False
+        if ok:
+            return " and ".join(kinds), how, question
+    return None
