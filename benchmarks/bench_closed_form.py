@@ -38,7 +38,7 @@ def cpu_best_of(fn, repeat=3):
 def data(runs, n, rng):
     sensor = circular_sensor_path(n, 5.0, 1.3)
     tracks = random_tracks(runs, n, T, Q, rng, box_m=2.0, speed_std=1.0)
-    r = noisy_ranges(tracks[..., :2], sensor, XI, rng)
+    r = noisy_ranges(tracks[..., :2], sensor, std_m=np.sqrt(XI), rng=rng)
     truth = tracks[:, -1]
     return r, sensor, truth + rng.normal(0, 1, truth.shape)
 
@@ -71,7 +71,7 @@ def main(sizes=(10, 30, 60), runs: int = 1000) -> list[dict]:
         batched Newton) and the EKF per track.
     """
     rng = np.random.default_rng(0)
-    blue = ClosedFormTracker(Q, XI)
+    blue = ClosedFormTracker(Q, std_m=np.sqrt(XI))
     newton = NewtonTracker(max_iter=20)
     ekf = RangeEKF(ConstantVelocity(Q), GaussianRange(float(np.sqrt(XI))), gate=None)
     prior = (np.zeros((1, 4)), np.diag([100.0, 100.0, 9.0, 9.0]))

@@ -35,7 +35,7 @@ def main(n: int = 20_000) -> list[dict]:
     ranges = np.abs(distances(truth[:, None], anchors) + rng.normal(0, 1.0, (n, 4)))
 
     t0 = time.perf_counter()
-    fit = Multilateration(range_std_m=1.0).locate(ranges, anchors)
+    fit = Multilateration(std_m=1.0).locate(ranges, anchors)
     t_ours = time.perf_counter() - t0
 
     m = min(n, 2000)

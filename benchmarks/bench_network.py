@@ -33,7 +33,7 @@ def draws(runs: int, seed: int = 0):
 
 
 def ours(prior, var, rho, method, clock=time.perf_counter):
-    est = NetworkEKF(range_var_m2=RANGE_VAR) if method == "ekf" else NetworkRLS()
+    est = NetworkEKF(std_m=np.sqrt(RANGE_VAR)) if method == "ekf" else NetworkRLS()
     s = est.init(prior, var)
     t = clock()
     for n in range(ITER):
@@ -94,7 +94,7 @@ def full_monte_carlo(runs: int = 5000, iterations: int = 50, measured_runs: int 
         var = np.broadcast_to(np.where(np.arange(K) < 3, 100.0, 1e4)[None, :, None], truth.shape)
         prior = truth + rng.normal(size=truth.shape) * np.sqrt(var)
         d = pairwise_distances(truth)
-        for est in (NetworkRLS(), NetworkEKF(range_var_m2=noise)):
+        for est in (NetworkRLS(), NetworkEKF(std_m=np.sqrt(noise))):
             # the simulated ranges are drawn before the clock starts (the simulator is not
             # the estimators' time)
             rho = d + np.sqrt(noise) * rng.normal(size=(iterations,) + d.shape)

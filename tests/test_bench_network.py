@@ -36,7 +36,7 @@ def _close(a, b):
 @pytest.mark.parametrize("K", [6, 4])
 def test_ekf_backends_agree(K):
     _, prior, var, rho = _draws(K, R=9, K=K, N=5)
-    got, ref = (NetworkEKF(900.0, backend=b).run(rho, prior, var) for b in ("numba", "numpy"))
+    got, ref = (NetworkEKF(std_m=30.0, backend=b).run(rho, prior, var) for b in ("numba", "numpy"))
     _close(got.position, ref.position)
     _close(got.covariance, ref.covariance)
     for name in ("nis", "measurements_used"):
@@ -50,7 +50,7 @@ def test_ekf_step_with_per_run_masters_and_mask_backends_agree():
     mask = np.random.default_rng(9).random((5, 6)) > 0.3
     out = []
     for b in ("numba", "numpy"):
-        ekf = NetworkEKF(range_var_m2=400.0, backend=b)
+        ekf = NetworkEKF(std_m=20.0, backend=b)
         out.append(ekf.step(ekf.init(prior, var), master, ranges, mask))
     _close(out[0].mean, out[1].mean)
     _close(out[0].covariance, out[1].covariance)
@@ -59,7 +59,7 @@ def test_ekf_step_with_per_run_masters_and_mask_backends_agree():
 
 def test_ekf_numpy_backend_is_the_generic_ekf_update_of_pair_ranges():
     _, prior, var, rho = _draws(2, R=4)
-    ekf = NetworkEKF(range_var_m2=900.0, backend="numpy")
+    ekf = NetworkEKF(std_m=30.0, backend="numpy")
     s = ekf.init(prior, var)
     master = np.full(4, 2)
     got = ekf.step(s, master, rho[:, 0, 2])
@@ -99,7 +99,7 @@ def test_ekf_noise_free_ranges_converge_to_the_truth(backend):
     truth, _, _, _ = _draws(4, R=3, missing=0.0)
     prior = truth + np.random.default_rng(1).normal(0, 5.0, truth.shape)
     rho = np.broadcast_to(pairwise_distances(truth)[:, None], (3, 30, 6, 6))
-    track = NetworkEKF(range_var_m2=1e-4, backend=backend).run(rho, prior, np.full(truth.shape, 25.0))
+    track = NetworkEKF(std_m=0.01, backend=backend).run(rho, prior, np.full(truth.shape, 25.0))
     # exact ranges fix the network up to a rigid motion: every inter-node distance converges
     np.testing.assert_allclose(pairwise_distances(track.position[:, :, -1]),
                                pairwise_distances(truth), atol=0.05)
@@ -117,7 +117,7 @@ def test_rls_backends_agree(seed, forgetting):
     R, K = 9, 6
     truth = rng.uniform(0, 1000, (R, K, 2))
     prior = truth + rng.normal(0, 30, truth.shape)
-    ests = [NetworkRLS(forgetting=forgetting, range_var_m2=900.0, backend=b)
+    ests = [NetworkRLS(forgetting=forgetting, std_m=30.0, backend=b)
             for b in ("numba", "numpy")]
     states = [e.init(prior, np.full(truth.shape, 900.0)) for e in ests]
     for _ in range(3):

@@ -32,9 +32,9 @@ def test_range_bound_equals_the_closed_form():
     layout = StateLayout(dim=2)
     ctx = Context(points=ANCHORS)
     np.testing.assert_allclose(fisher_information(model, x, ctx, layout),
-                               range_fisher_information(x, ANCHORS, 0.09), rtol=1e-12)
+                               range_fisher_information(x, ANCHORS, std_m=0.3), rtol=1e-12)
     bound = crb(model, x, ctx, layout)
-    np.testing.assert_allclose(bound.position, range_crb(x, ANCHORS, 0.09), rtol=1e-10)
+    np.testing.assert_allclose(bound.position, range_crb(x, ANCHORS, std_m=0.3), rtol=1e-10)
     np.testing.assert_allclose(bound.rmse_m, np.sqrt(np.trace(bound.position, axis1=-2, axis2=-1)))
 
 

@@ -26,7 +26,7 @@ def circle(n, step=1.3, radius=5.0):
 def closed_form(r, sensor, *, sample_period_s=T, accel_var, range_var=0.0, covariance_state=None,
                 **settings):
     """The tracker's full-state output as (state, state_covariance, estimate)."""
-    est = ClosedFormTracker(accel_var, range_var, **settings).locate(
+    est = ClosedFormTracker(accel_var, std_m=np.sqrt(range_var), **settings).locate(
         r, sensor, sample_period_s, covariance_state=covariance_state)
     return est.diagnostics["state"], est.diagnostics["state_covariance"], est
 

@@ -23,8 +23,8 @@ def _tracks(rng, runs, n, q=0.15, xi=0.1, sensor=None):
     return np.abs(r + rng.normal(0, np.sqrt(xi), r.shape)), sensor
 
 
-def _both(r, s, *args, **kw):
-    return [ClosedFormTracker(*args, backend=b, **kw).locate(r, s, T).diagnostics
+def _both(r, s, q, xi, **kw):
+    return [ClosedFormTracker(q, std_m=np.sqrt(xi), backend=b, **kw).locate(r, s, T).diagnostics
             for b in ("numba", "numpy")]
 
 
@@ -69,7 +69,7 @@ def test_a_missing_first_sample_gives_the_estimate_without_it(backend):
     n = 30
     r, s = _tracks(rng, 3, n)
     r[1, 0] = np.nan
-    tr = ClosedFormTracker(0.15, 0.1, backend=backend)
+    tr = ClosedFormTracker(0.15, std_m=np.sqrt(0.1), backend=backend)
     got = tr.locate(r, s, T).diagnostics["state"][1]
     cut = tr.locate(r[1, 1:], s[1:], T).diagnostics["state"]
     np.testing.assert_allclose(got, cut, rtol=0, atol=1e-9 * np.abs(cut).max())
@@ -79,7 +79,7 @@ def test_a_missing_first_sample_gives_the_estimate_without_it(backend):
 def test_batch_equals_one_by_one_and_batch_shape(backend):
     r, s = _tracks(np.random.default_rng(5), 6, 15)
     r[3, 9] = np.nan
-    tr = ClosedFormTracker(0.15, 0.1, backend=backend)
+    tr = ClosedFormTracker(0.15, std_m=np.sqrt(0.1), backend=backend)
     batch = tr.locate(r.reshape(2, 3, 15), s, T)
     assert batch.position.shape == (2, 3, 2)
     for i in range(6):
@@ -94,7 +94,7 @@ def test_noise_free_track_is_recovered(backend):
     n = 20
     sensor = circular_sensor_path(n, 5.0, 1.3)
     truth = np.array([1.0, 0.5]) + (np.arange(n) - (n - 1))[:, None] * T * [0.8, -0.2]
-    est = ClosedFormTracker(1e-12, 1e-10, backend=backend).locate(
+    est = ClosedFormTracker(1e-12, std_m=1e-5, backend=backend).locate(
         np.linalg.norm(truth - sensor, axis=-1), sensor, T)
     np.testing.assert_allclose(est.diagnostics["state"], [1.0, 0.5, 0.8, -0.2], atol=1e-6)
 
@@ -102,12 +102,12 @@ def test_noise_free_track_is_recovered(backend):
 @pytest.mark.parametrize("backend", ["numba", "numpy"])
 def test_converged_and_stalled_flags_follow_their_rules(backend):
     r, s = _tracks(np.random.default_rng(20), 40, 30)
-    got = ClosedFormTracker(0.15, 0.1, stopping="criterion", tol=1e-9, max_iter=15,
+    got = ClosedFormTracker(0.15, std_m=np.sqrt(0.1), stopping="criterion", tol=1e-9, max_iter=15,
                             backend=backend).locate(r, s, T).diagnostics
     assert got["stalled"].any()                         # tol = 1e-9: most tracks stall
     assert not np.any(got["stalled"] & got["converged"])
     assert np.all(got["iterations"][got["stalled"]] >= 1)
-    loose = ClosedFormTracker(0.15, 0.1, max_iter=50, backend=backend).locate(r, s, T)
+    loose = ClosedFormTracker(0.15, std_m=np.sqrt(0.1), max_iter=50, backend=backend).locate(r, s, T)
     assert loose.diagnostics["converged"].all() and not loose.diagnostics["stalled"].any()
 
 
@@ -117,10 +117,10 @@ def test_bad_input_raises(backend):
     s = circular_sensor_path(n, 5.0, 1.3)
     r = np.tile(np.linalg.norm(np.array([1.0, 0.5]) - s, axis=-1), (20, 1))
     with pytest.raises(GeometryError, match="singular"):
-        ClosedFormTracker(0.0, 0.0, backend=backend).locate(r, s, T)
+        ClosedFormTracker(0.0, std_m=0.0, backend=backend).locate(r, s, T)
     r, s = _tracks(np.random.default_rng(37), 20, n)
     r[5, 2:10] = np.nan                          # 1 of 9 difference rows left
     with pytest.raises(GeometryError, match="ranges.*track 5"):
-        ClosedFormTracker(0.15, 0.1, backend=backend).locate(r, s, T)
+        ClosedFormTracker(0.15, std_m=np.sqrt(0.1), backend=backend).locate(r, s, T)
     with pytest.raises(ConfigError, match="backend"):
-        ClosedFormTracker(0.15, 0.1, backend="cuda")
+        ClosedFormTracker(0.15, std_m=np.sqrt(0.1), backend="cuda")

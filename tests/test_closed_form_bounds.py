@@ -38,7 +38,7 @@ def test_lemma1_and_2_bound_does_not_grow_when_a_sample_is_added(seed, n, noisy)
     k = int(rng.integers(0, n))
     state = np.r_[rng.uniform(-2, 2, 2), rng.normal(0, 1, 2)]
     sensor = random_path(rng, n + 1)
-    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1 if noisy else 0.0,
+    kw = dict(sample_period_s=T, accel_var=0.15, std_m=np.sqrt(0.1) if noisy else 0.0,
               reference_index=k)
     small = differenced_crb(state, sensor[:n], **kw)
     large = differenced_crb(state, sensor, **kw)
@@ -51,7 +51,7 @@ def test_differenced_crb_equals_blue_covariance_at_truth():
     sensor = random_path(rng, n)
     state = np.array([0.5, -0.2, 0.3, 1.0])
     r = rng.uniform(3, 6, n)
-    kw = dict(accel_var=0.15, range_var=0.1, reference_index=7)
+    kw = dict(accel_var=0.15, std_m=np.sqrt(0.1), reference_index=7)
     est = ClosedFormTracker(**kw).locate(r, sensor, T, covariance_state=state)
     crb = differenced_crb(state, sensor, sample_period_s=T, **kw)
     np.testing.assert_allclose(est.diagnostics["state_covariance"], crb, rtol=1e-9)
@@ -64,7 +64,7 @@ def test_raw_range_crb_without_motion_noise_is_the_gaussian_range_crb():
     sensor = random_path(rng, n)
     state = np.array([0.5, -0.2, 0.3, 1.0])
     k = 5
-    crb = raw_range_crb(state, sensor, sample_period_s=T, accel_var=0.0, range_var=xi,
+    crb = raw_range_crb(state, sensor, sample_period_s=T, accel_var=0.0, std_m=np.sqrt(xi),
                         reference_index=k)
 
     def h(b):
@@ -80,7 +80,7 @@ def test_raw_range_bound_is_tighter_than_differenced_bound_on_average():
     n = 40
     sensor = random_path(rng, n)
     states = np.c_[rng.uniform(-2, 2, (50, 2)), rng.normal(0, 1, (50, 2))]
-    kw = dict(sample_period_s=T, accel_var=0.15, range_var=0.1)
+    kw = dict(sample_period_s=T, accel_var=0.15, std_m=np.sqrt(0.1))
     d = differenced_crb(states, sensor, **kw)
     r = raw_range_crb(states, sensor, **kw)
     assert np.mean(np.trace(r, axis1=1, axis2=2)) < np.mean(np.trace(d, axis1=1, axis2=2))
@@ -90,7 +90,7 @@ def test_bound_rejects_unidentifiable_geometry():
     n = 10
     sensor = np.zeros((n, 2))
     with pytest.raises(GeometryError):
-        differenced_crb(np.ones(4), sensor, sample_period_s=T, accel_var=0.1, range_var=0.1)
+        differenced_crb(np.ones(4), sensor, sample_period_s=T, accel_var=0.1, std_m=np.sqrt(0.1))
 
 
 # ---- Newton ----------------------------------------------------------------------------

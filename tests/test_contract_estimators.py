@@ -74,7 +74,7 @@ def case_multilateration():
     rng = np.random.default_rng(0)
     truth = _truth(rng)
     r = np.linalg.norm(truth[:, None] - ANCHORS, axis=-1) + 0.01 * rng.standard_normal((B, 4))
-    est = Multilateration(range_std_m=0.01)
+    est = Multilateration(std_m=0.01)
     r_nan = np.c_[r, np.full(B, np.nan)]
     a5 = np.r_[ANCHORS, [[15.0, 30.0]]]
     return Case(lambda i: est.locate(r[i], ANCHORS), truth,
@@ -93,7 +93,7 @@ def _network(seed=1, K=5, N=6, std=0.05):
 
 def case_network_ekf():
     truth, ranges, prior = _network()
-    ekf = NetworkEKF(range_var_m2=0.05**2)
+    ekf = NetworkEKF(std_m=0.05)
     nan = ranges.copy()
     nan[:, 2, 0, 3] = nan[:, 2, 3, 0] = np.nan
     # batch axes (runs, nodes) lead, then time: truth per node repeated over iterations
@@ -188,7 +188,7 @@ def _single_sensor(seed, n=12, T=0.5):
 
 def case_closed_form():
     sensor, truth, r, T, _ = _single_sensor(8)
-    cf = ClosedFormTracker(accel_var=1e-6, range_var=1e-4)
+    cf = ClosedFormTracker(accel_var=1e-6, std_m=0.01)
     nan = r.copy()
     nan[:, 4] = np.nan      # its difference rows are dropped
     return Case(lambda i: cf.locate(r[i], sensor, T), truth,

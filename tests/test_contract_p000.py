@@ -40,14 +40,14 @@ def _network(R=3, K=5, N=6, std=1.0, seed=1, prior_std=(2.0, 20.0)):
     return truth, prior, var, rho
 
 
-NETWORK = {"rls": lambda: NetworkRLS(forgetting=0.8, range_var_m2=1.0), "ekf": lambda: NetworkEKF(range_var_m2=1.0)}
+NETWORK = {"rls": lambda: NetworkRLS(forgetting=0.8, std_m=1.0), "ekf": lambda: NetworkEKF(std_m=1.0)}
 
 
 # ---------------------------------------------------------------- Multilateration
 
 def test_multilateration_result_type_shapes_and_xy_order():
     truth, ranges = _snapshot_problem()
-    est = Multilateration(range_std_m=0.5)
+    est = Multilateration(std_m=0.5)
     assert isinstance(est, SnapshotEstimator)
     fit = est.locate(ranges, ANCHORS)
     assert isinstance(fit, Estimate)
@@ -77,7 +77,7 @@ def test_multilateration_nan_range_equals_dropping_it():
     truth, ranges = _snapshot_problem()
     with_nan = ranges.copy()
     with_nan[:, 2] = np.nan
-    est = Multilateration(range_std_m=0.5)
+    est = Multilateration(std_m=0.5)
     a = est.locate(with_nan, ANCHORS)
     b = est.locate(np.delete(ranges, 2, axis=1), np.delete(ANCHORS, 2, axis=0))
     np.testing.assert_allclose(a.position, b.position, atol=1e-9)
@@ -88,7 +88,7 @@ def test_multilateration_nan_range_equals_dropping_it():
 def test_multilateration_zero_noise_converges_to_the_truth():
     truth, _ = _snapshot_problem()
     for method in ("gauss-newton", "levenberg-marquardt"):
-        fit = Multilateration(method, range_std_m=1.0, max_iter=200).locate(
+        fit = Multilateration(method, std_m=1.0, max_iter=200).locate(
             distances(truth[:, None], ANCHORS), ANCHORS)
         np.testing.assert_allclose(fit.position, truth, atol=1e-6)
         assert fit.diagnostics["converged"].all()
@@ -97,7 +97,7 @@ def test_multilateration_zero_noise_converges_to_the_truth():
 def test_multilateration_translating_the_scene_translates_the_estimate():
     truth, ranges = _snapshot_problem()
     shift = np.array([1234.5, -678.9])
-    est = Multilateration(range_std_m=0.5)
+    est = Multilateration(std_m=0.5)
     a = est.locate(ranges, ANCHORS)
     b = est.locate(ranges, ANCHORS + shift)
     np.testing.assert_allclose(b.position, a.position + shift, atol=1e-6)
@@ -192,7 +192,7 @@ def test_network_nan_link_equals_masked_link(name):
 
 def test_ekf_nan_packet_is_a_no_op():
     truth, prior, var, rho = _network()
-    est = NetworkEKF(range_var_m2=1.0)
+    est = NetworkEKF(std_m=1.0)
     s = est.init(prior, var)
     out = est.step(s, 2, np.full((3, 5), np.nan))
     np.testing.assert_array_equal(out.mean, s.mean)
@@ -208,7 +208,7 @@ def test_network_zero_noise_converges_to_the_truth(name):
     prior = np.where(np.arange(6)[None, :, None] < 3, truth, prior)
     n = 60 if name == "ekf" else 400
     rho = np.broadcast_to(pairwise_distances(truth)[:, None], (2, n, 6, 6))
-    est = NetworkEKF(range_var_m2=1e-2) if name == "ekf" else NetworkRLS(forgetting=0.7)
+    est = NetworkEKF(std_m=0.1) if name == "ekf" else NetworkRLS(forgetting=0.7)
     final = est.run(rho, prior, var).position[:, :, -1]
     if name == "ekf":
         assert np.abs(final - truth).max() < 1e-3 * np.abs(prior - truth).max()
@@ -252,5 +252,5 @@ def test_network_bad_settings():
         NetworkRLS(forgetting=0.0)
     with pytest.raises(ConfigError, match="prior_scale"):
         NetworkRLS(prior_scale=-1.0)
-    with pytest.raises(ConfigError, match="range_var_m2"):
-        NetworkEKF(range_var_m2=float("nan"))
+    with pytest.raises(ConfigError, match="std_m"):
+        NetworkEKF(std_m=float("nan"))

@@ -31,15 +31,15 @@ def noisy_batch(runs=6, n=N, seed=3):
     rng = np.random.default_rng(seed)
     tracks = random_tracks(runs, n, T, 0.15, rng, box_m=2.0, speed_std=1.0)
     sensor = circular_sensor_path(n, 5.0, 1.3)
-    return sensor, noisy_ranges(tracks[..., :2], sensor, 0.1, rng), tracks
+    return sensor, noisy_ranges(tracks[..., :2], sensor, std_m=np.sqrt(0.1), rng=rng), tracks
 
 
 def blue(**kw):
-    return ClosedFormTracker(accel_var=0.15, range_var=0.1, **kw)
+    return ClosedFormTracker(accel_var=0.15, std_m=np.sqrt(0.1), **kw)
 
 
 def exact_blue(**kw):
-    return ClosedFormTracker(accel_var=0.0, range_var=1e-10, **kw)
+    return ClosedFormTracker(accel_var=0.0, std_m=1e-5, **kw)
 
 
 # ---- types and shapes -------------------------------------------------------------------
@@ -205,8 +205,8 @@ def test_nan_range_is_skipped_by_newton():
 def test_bad_settings_raise_at_construction():
     with pytest.raises(ConfigError, match="accel_var"):
         ClosedFormTracker(accel_var=-1.0)
-    with pytest.raises(InputError, match="range_var"):
-        ClosedFormTracker(accel_var=0.1, range_var=-0.1)
+    with pytest.raises(InputError, match="std_m"):
+        ClosedFormTracker(accel_var=0.1, std_m=-0.1)
     with pytest.raises(ConfigError, match="weighting"):
         ClosedFormTracker(accel_var=0.1, weighting="wls")
     with pytest.raises(ConfigError, match="stopping"):

@@ -111,7 +111,7 @@ def scene_multilateration():
     def solve(R, t, perm, ts):
         a = _apply(R, t, ANCHORS)
         p = np.arange(len(a)) if perm is None else perm
-        return _final(Multilateration(range_std_m=0.05).locate(r[:, p], a[p]))
+        return _final(Multilateration(std_m=0.05).locate(r[:, p], a[p]))
     return Scene(solve)
 
 
@@ -222,7 +222,7 @@ def scene_closed_form():
     sensor, r, T, _ = _single_sensor(8)
 
     def solve(R, t, perm, ts):
-        return _final(ClosedFormTracker(accel_var=1e-6, range_var=1e-4).locate(
+        return _final(ClosedFormTracker(accel_var=1e-6, std_m=0.01).locate(
             r, _apply(R, t, sensor), T * ts))
     return Scene(solve, permutable=False, tol_m=1e-5)
 
@@ -310,7 +310,7 @@ def scene_mixture_tracker():
 SCENES: dict[type, Callable[[], Scene]] = {
     Multilateration: scene_multilateration,
     NetworkRLS: lambda: scene_network(NetworkRLS, forgetting=0.7),
-    NetworkEKF: lambda: scene_network(NetworkEKF, range_var_m2=0.05**2),
+    NetworkEKF: lambda: scene_network(NetworkEKF, std_m=0.05),
     RangeEKF: scene_range_ekf, P2PParticleFilter: scene_particle_filter,
     LocalML: scene_local_ml, Ransac: scene_ransac, ClosedFormTracker: scene_closed_form,
     NewtonTracker: scene_newton, GridFilter: scene_grid,
@@ -488,7 +488,7 @@ def test_network_ekf_relabelling_nodes_moves_only_the_frame_within_its_claim(see
     stays within three of its claimed standard deviations."""
     from radioloc.core.alignment import rigid_aligned_error
     perm = np.random.default_rng(seed).permutation(5)
-    base, back, sd = _relabelled_network(NetworkEKF, perm, range_var_m2=0.05**2)
+    base, back, sd = _relabelled_network(NetworkEKF, perm, std_m=0.05)
     moved = np.linalg.norm(back - base, axis=-1)
     assert moved.max() > 1e-3, "relabelling no longer changes the EKF: update its docstring"
     assert np.all(moved <= 3.0 * sd), f"moved {moved} m, claimed sd {sd} m"

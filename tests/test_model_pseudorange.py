@@ -63,7 +63,7 @@ def test_ml_estimate_with_clock_offset_reaches_the_crb():
     print(f"pseudorange 3-D with clock offset: RMSE / sqrt(trace CRB) = {ratio:.3f}")
     assert 0.85 < ratio < 1.15, ratio
     # estimating the offset costs accuracy: the bound exceeds the one of known-offset ranges
-    known = range_crb(truth, SOURCES_3D, 0.01**2)
+    known = range_crb(truth, SOURCES_3D, std_m=0.01)
     assert np.trace(bound.position) > 1.2 * np.trace(known)
 
 

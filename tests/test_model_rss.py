@@ -68,7 +68,7 @@ def test_rss_information_is_that_of_ranges_with_distance_scaled_noise():
     range_std = CHANNEL.s * np.log(10.0) * d / (10.0 * CHANNEL.n)
     np.testing.assert_allclose(
         fisher_information(RssModel(CHANNEL), x, Context(points=anchors), StateLayout(dim=2)),
-        range_fisher_information(x, anchors, range_std**2), rtol=1e-10)
+        range_fisher_information(x, anchors, std_m=range_std), rtol=1e-10)
 
 
 def test_trapezoid_likelihood_on_positions():

@@ -21,7 +21,7 @@ coord = st.floats(1.0, 99.0, allow_nan=False)
 @given(x=coord, y=coord)
 def test_noise_free_ranges_give_the_true_position(x, y):
     truth = np.array([x, y])
-    fit = Multilateration(range_std_m=1.0).locate(distances(truth, SQUARE), SQUARE)
+    fit = Multilateration(std_m=1.0).locate(distances(truth, SQUARE), SQUARE)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
     assert fit.diagnostics["converged"] and not fit.diagnostics["stalled"]
 
@@ -29,7 +29,7 @@ def test_noise_free_ranges_give_the_true_position(x, y):
 def test_three_dimensions_with_five_anchors():
     anchors = np.array([[0, 0, 0], [10, 0, 1], [0, 10, 2], [10, 10, 8], [5, 5, 10.0]])
     truth = np.array([3.0, 6.0, 4.0])
-    fit = Multilateration(range_std_m=0.1).locate(distances(truth, anchors), anchors)
+    fit = Multilateration(std_m=0.1).locate(distances(truth, anchors), anchors)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
 
 
@@ -51,7 +51,7 @@ def test_nan_range_is_a_missing_range(weights):
     truth = np.array([30.0, 40.0])
     r = distances(truth, SQUARE)
     r[2] = np.nan
-    fit = Multilateration(range_std_m=0.5).locate(r, SQUARE, weights=weights)
+    fit = Multilateration(std_m=0.5).locate(r, SQUARE, weights=weights)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
 
 
@@ -60,9 +60,9 @@ def test_monte_carlo_covariance_matches_the_crb_at_small_noise():
     truth = np.array([20.0, 70.0])
     std = 0.05
     r = distances(truth, SQUARE) + rng.normal(0, std, (4000, 4))
-    fit = Multilateration(range_std_m=std).locate(r, SQUARE)
+    fit = Multilateration(std_m=std).locate(r, SQUARE)
     emp = np.cov((fit.position - truth).T)
-    crb = range_crb(truth, SQUARE, std**2)
+    crb = range_crb(truth, SQUARE, std_m=std)
     np.testing.assert_allclose(np.trace(emp), np.trace(crb), rtol=0.1)
     np.testing.assert_allclose(fit.covariance[0], crb, rtol=1e-3)
 
@@ -78,13 +78,13 @@ def test_levenberg_marquardt_agrees_with_gauss_newton():
     rng = np.random.default_rng(4)
     truth = rng.uniform(0, 100, (50, 2))
     r = distances(truth[:, None], SQUARE) + rng.normal(0, 1.0, (50, 4))
-    gn = Multilateration(range_std_m=1.0).locate(r, SQUARE)
-    lm = Multilateration("levenberg-marquardt", range_std_m=1.0, max_iter=200).locate(r, SQUARE)
+    gn = Multilateration(std_m=1.0).locate(r, SQUARE)
+    lm = Multilateration("levenberg-marquardt", std_m=1.0, max_iter=200).locate(r, SQUARE)
     assert lm.diagnostics["converged"].all()
     np.testing.assert_allclose(lm.position, gn.position, atol=1e-6)
 
 
-@pytest.mark.parametrize("setting", [dict(method="newton"), dict(range_std_m=0.0),
+@pytest.mark.parametrize("setting", [dict(method="newton"), dict(std_m=0.0),
                                      dict(max_iter=0), dict(tol_m=-1.0)])
 def test_bad_settings_are_config_errors(setting):
     from radioloc.core.errors import ConfigError
@@ -106,7 +106,7 @@ def test_collinear_anchors_are_a_geometry_error():
     line = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0]])
     truth = np.array([12.0, 5.0])
     with pytest.raises(GeometryError, match="collinear"):
-        Multilateration(range_std_m=1.0).locate(distances(truth, line), line)
+        Multilateration(std_m=1.0).locate(distances(truth, line), line)
 
 
 def test_shape_mismatch_is_an_input_error():
@@ -117,7 +117,7 @@ def test_shape_mismatch_is_an_input_error():
 def test_crb_of_collinear_anchors_is_a_geometry_error():
     line = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
     with pytest.raises(GeometryError, match="singular"):
-        range_crb(np.array([5.0, 0.0]), line, 1.0)
+        range_crb(np.array([5.0, 0.0]), line, std_m=1.0)
 
 
 def test_collinear_anchors_refuse_the_mirror_ambiguity():
@@ -145,7 +145,7 @@ def test_nearly_collinear_anchors_with_noise_give_an_ambiguous_fix_error():
     truth = np.array([7.0, 20.0])
     r = np.linalg.norm(a - truth, axis=-1) + np.array([0.05, -0.03, 0.02, -0.04])
     with pytest.raises(GeometryError, match="ambiguous fix") as err:
-        Multilateration(range_std_m=0.05).locate(r, a)
+        Multilateration(std_m=0.05).locate(r, a)
     assert err.value.index == ()
 
 
@@ -193,7 +193,7 @@ def test_only_the_near_ties_are_solved_again_and_flagged_ambiguous(monkeypatch):
     a = np.concatenate([good, line[None]])
     truth = np.array([7.0, 20.0])
     r = np.linalg.norm(a - truth, axis=-1) + np.array([0.05, -0.03, 0.02, -0.04])
-    fit = Multilateration(range_std_m=0.05, on_degenerate="flag").locate(r, a)
+    fit = Multilateration(std_m=0.05, on_degenerate="flag").locate(r, a)
     assert sizes == [6, 1]                      # the nearly collinear problem only
     np.testing.assert_array_equal(fit.diagnostics["ambiguous"], [0, 0, 0, 0, 0, 1])
     np.testing.assert_array_equal(fit.diagnostics["degenerate"], [0, 0, 0, 0, 0, 1])
@@ -206,7 +206,7 @@ def test_nearly_coplanar_3d_anchors_are_called_coplanar_not_collinear():
     truth = np.array([3.0, 4.0, 6.0])
     r = np.linalg.norm(a - truth, axis=-1) + np.array([0.03, -0.02, 0.01, -0.03, 0.02])
     with pytest.raises(GeometryError, match="ambiguous fix") as err:
-        Multilateration(range_std_m=0.05).locate(r, a)
+        Multilateration(std_m=0.05).locate(r, a)
     assert "coplanar" in str(err.value) and "collinear" not in str(err.value)
 
 
@@ -230,7 +230,7 @@ def test_a_range_beyond_any_consistent_geometry_is_refused_naming_ranges():
     a = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0]])
     r = np.array([[1e20, 25.9, 10.6, 24.3], [21.3, 9.8, 26.4, 18.3]])
     with pytest.raises(InputError, match=r"^ranges: the ranges of problem \(0,\) put the node"):
-        Multilateration(range_std_m=0.01).locate(r, a)
+        Multilateration(std_m=0.01).locate(r, a)
 
 
 @pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
@@ -241,7 +241,7 @@ def test_a_well_posed_fix_is_the_generic_least_squares_fix(method):
     truth = rng.uniform(5, 95, (100, 2))
     r = distances(truth[:, None], SQUARE) + rng.normal(0, 0.5, (100, 4))
     w = rng.uniform(0.5, 2.0, (100, 4))
-    fit = Multilateration(method, range_std_m=0.5, max_iter=200).locate(r, SQUARE, weights=w)
+    fit = Multilateration(method, std_m=0.5, max_iter=200).locate(r, SQUARE, weights=w)
     obs = Observation(RangeModel(std_m=0.5), r, Context(points=SQUARE), std=0.5 / np.sqrt(w))
     ref = LeastSquares(method=method, max_iterations=200).locate(obs, initial=truth)
     assert fit.converged.all() and ref.diagnostics["converged"].all()

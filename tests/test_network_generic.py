@@ -216,7 +216,7 @@ def _network(seed, R=2, N=4):
 def test_network_ekf_iteration_is_the_generic_update_master_after_master():
     _, ranges, prior = _network(0)
     R = prior.shape[0]
-    ekf = NetworkEKF(range_var_m2=0.05**2, backend="numpy")
+    ekf = NetworkEKF(std_m=0.05, backend="numpy")
     got = ekf.iterate(ekf.init(prior, 1.0), ranges[:, 0])
     layout = NetworkLayout(dim=2, nodes=K)
     state = FilterState(prior.reshape(R, 2 * K), np.eye(2 * K) + np.zeros((R, 1, 1)), 0.0, layout)
@@ -231,7 +231,7 @@ def test_network_ekf_iteration_is_the_generic_update_master_after_master():
 def test_network_ekf_coincident_estimates_raise_naming_run_and_nodes():
     _, ranges, prior = _network(1)
     prior[1, 3] = prior[1, 0]
-    ekf = NetworkEKF(range_var_m2=1.0, backend="numpy")
+    ekf = NetworkEKF(std_m=1.0, backend="numpy")
     with pytest.raises(GeometryError, match="run 1: nodes 0 and 3"):
         ekf.iterate(ekf.init(prior, 1.0), ranges[:, 0])
 
@@ -246,7 +246,7 @@ def test_relabelling_the_nodes_with_the_masters_in_the_same_order_changes_nothin
     R = prior.shape[0]
     perm = np.array([3, 0, 4, 2, 1])                # new label j is old node perm[j]
     inv = np.argsort(perm)                          # old node i is new label inv[i]
-    ekf = NetworkEKF(range_var_m2=0.05**2, backend=backend)
+    ekf = NetworkEKF(std_m=0.05, backend=backend)
     base = ekf.init(prior, 1.0)
     other = ekf.init(prior[:, perm], 1.0)
     relabelled = ranges[:, :, perm][:, :, :, perm]

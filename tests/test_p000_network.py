@@ -131,7 +131,7 @@ def test_rls_bad_input():
         RLS.init(prior, np.zeros_like(var))
     with pytest.raises(ConfigError, match="forgetting"):
         NetworkRLS(forgetting=1.5)
-    with pytest.raises(ConfigError, match="range_var_m2"):
+    with pytest.raises(ConfigError, match="std_m"):
         NetworkRLS(prior_scale="transformed-noise")
 
 
@@ -168,7 +168,7 @@ def test_jacobian_master_block_has_opposite_sign():
 def test_one_ekf_update_equals_hand_computation():
     pos = np.array([[0.0, 0.0], [3.0, 4.0], [10.0, 0.0]])
     var = np.array([[4.0, 4.0], [1.0, 1.0], [9.0, 9.0]])
-    ekf = NetworkEKF(range_var_m2=2.0)
+    ekf = NetworkEKF(std_m=np.sqrt(2.0))
     s = ekf.init(pos[None], var[None])
     z = np.array([[0.0, 5.5, 9.0]])
     out = ekf.step(s, 0, z)
@@ -187,7 +187,7 @@ def test_one_ekf_update_equals_hand_computation():
 def test_ekf_zero_noise_converges_to_truth():
     _, truth, prior, var = _network(R=4, prior_std=(1e-3, 20.0))
     D = pairwise_distances(truth)
-    ekf = NetworkEKF(range_var_m2=1e-2)
+    ekf = NetworkEKF(std_m=0.1)
     s = ekf.init(prior, var)
     start = np.max(np.abs(prior - truth))
     for _ in range(50):
@@ -200,7 +200,7 @@ def test_ekf_batched_equals_one_by_one_with_missing_links():
     D = pairwise_distances(truth)
     rho = D + 10 * rng.normal(size=D.shape)
     mask = rng.uniform(size=D.shape) > 0.3
-    ekf = NetworkEKF(range_var_m2=100.0)
+    ekf = NetworkEKF(std_m=10.0)
     batch = ekf.iterate(ekf.init(prior, var), rho, mask)
     for r in range(4):
         one = ekf.iterate(ekf.init(prior[r:r + 1], var[r:r + 1]), rho[r:r + 1], mask[r:r + 1])
@@ -210,7 +210,7 @@ def test_ekf_batched_equals_one_by_one_with_missing_links():
 
 def test_ekf_fully_masked_packet_is_a_no_op():
     _, truth, prior, var = _network(R=2)
-    ekf = NetworkEKF(range_var_m2=9.0)
+    ekf = NetworkEKF(std_m=3.0)
     s = ekf.init(prior, var)
     out = ekf.step(s, np.array([1, 4]), np.full((2, 6), np.nan), np.zeros((2, 6), bool))
     np.testing.assert_allclose(out.mean, s.mean)
@@ -220,7 +220,7 @@ def test_ekf_fully_masked_packet_is_a_no_op():
 def test_ekf_coincident_nodes_raise():
     pos = np.zeros((1, 3, 2))
     pos[0, 2] = [5.0, 5.0]
-    ekf = NetworkEKF(range_var_m2=1.0)
+    ekf = NetworkEKF(std_m=1.0)
     s = ekf.init(pos, np.ones((1, 3, 2)))
     with pytest.raises(GeometryError, match="coincident"):
         ekf.step(s, 0, np.array([[0.0, 1.0, 7.0]]))
@@ -228,11 +228,11 @@ def test_ekf_coincident_nodes_raise():
 
 def test_ekf_bad_input():
     _, truth, prior, var = _network(R=2)
-    ekf = NetworkEKF(range_var_m2=1.0)
+    ekf = NetworkEKF(std_m=1.0)
     s = ekf.init(prior, var)
     rho = pairwise_distances(truth)[:, 0]
-    with pytest.raises(ConfigError, match="range_var"):
-        NetworkEKF(range_var_m2=0.0)
+    with pytest.raises(ConfigError, match="std_m"):
+        NetworkEKF(std_m=0.0)
     with pytest.raises(InputError, match="master_idx"):
         ekf.step(s, -1, rho)
     with pytest.raises(InputError, match="prior_mean"):
@@ -243,7 +243,7 @@ def test_ekf_bad_input():
 @given(seed=st.integers(0, 10_000), k=st.integers(0, 5))
 def test_ekf_update_shrinks_covariance_and_keeps_it_symmetric(seed, k):
     rng, truth, prior, var = _network(R=3, seed=seed)
-    ekf = NetworkEKF(range_var_m2=4.0)
+    ekf = NetworkEKF(std_m=2.0)
     s = ekf.init(prior, var)
     rho = pairwise_distances(truth)[:, k] + rng.normal(size=(3, 6))
     out = ekf.step(s, k, rho)
@@ -272,7 +272,7 @@ def test_rls_is_equivariant_to_rigid_motions(seed, shift, angle):
 def test_network_information_matches_jacobian_and_has_the_rigid_null_space():
     from radioloc.bounds.cooperative import network_crb, network_range_information, node_crb_trace
     _, truth, _, var = _network(R=2)
-    info = network_range_information(truth, 4.0)
+    info = network_range_information(truth, std_m=2.0)
     # the same information from the EKF Jacobians of the K masters
     ref = np.zeros_like(info)
     for k in range(6):
@@ -281,12 +281,13 @@ def test_network_information_matches_jacobian_and_has_the_rigid_null_space():
     np.testing.assert_allclose(info, ref, atol=1e-12)
     # translations and the rotation are unobservable from ranges: rank 2K - 3
     assert np.all(np.linalg.matrix_rank(info, tol=1e-9) == 9)
-    crb = network_crb(truth, 4.0, var, counts=10.0)
+    crb = network_crb(truth, std_m=2.0, prior_var=var, counts=10.0)
     assert np.all(node_crb_trace(crb) > 0)
-    more = network_crb(truth, 4.0, var, counts=20.0)
+    more = network_crb(truth, std_m=2.0, prior_var=var, counts=20.0)
     assert np.all(node_crb_trace(more) < node_crb_trace(crb))
     from radioloc.bounds.cooperative import network_crb_node_traces
-    seq = network_crb_node_traces(truth, 4.0, var, np.array([0.0, 10.0, 20.0]))
+    seq = network_crb_node_traces(truth, std_m=2.0, prior_var=var,
+                                  counts=np.array([0.0, 10.0, 20.0]))
     np.testing.assert_allclose(seq[0], (var[..., 0] + var[..., 1]), rtol=1e-9)
     np.testing.assert_allclose(seq[1], node_crb_trace(crb), rtol=1e-8)
     np.testing.assert_allclose(seq[2], node_crb_trace(more), rtol=1e-8)
@@ -296,7 +297,7 @@ def test_network_crb_coincident_nodes_raise():
     from radioloc.bounds.cooperative import network_crb
     pos = np.zeros((1, 3, 2))
     with pytest.raises(GeometryError, match="coincide"):
-        network_crb(pos, 1.0, np.ones((1, 3, 2)))
+        network_crb(pos, std_m=1.0, prior_var=np.ones((1, 3, 2)))
 
 
 # ---------------------------------------------------------------- experiment
@@ -389,7 +390,7 @@ def test_rigid_aligned_error_ignores_rigid_motions(seed, shift, angle):
 def test_ekf_is_equivariant_to_translations(seed, shift):
     rng, truth, prior, var = _network(R=2, seed=seed)
     rho = pairwise_distances(truth) + rng.normal(size=(2, 6, 6))
-    ekf = NetworkEKF(range_var_m2=4.0)
+    ekf = NetworkEKF(std_m=2.0)
     a = ekf.iterate(ekf.init(prior, var), rho)
     b = ekf.iterate(ekf.init(prior + shift, var), rho)
     np.testing.assert_allclose(b.position, a.position + shift, atol=1e-6 * (1 + abs(shift)))

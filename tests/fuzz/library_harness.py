@@ -130,10 +130,10 @@ def _rng(seed):
 def case_multilateration() -> Case:
     truth = np.array([[7.0, 12.0], [21.0, 4.0]])
     r = np.linalg.norm(truth[:, None] - ANCHORS, axis=-1)
-    return Case("Multilateration", {"range_std_m": 0.01},
+    return Case("Multilateration", {"std_m": 0.01},
                 {"ranges": r, "anchors": ANCHORS.copy(), "weights": np.ones(r.shape),
                  "initial": truth + 1.5},
-                {"range_std_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
+                {"std_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "anchors": Field(extra_ok=True),
                  "weights": Field(neg_ok=False), "initial": Field(drop_ok=True)},
@@ -155,7 +155,7 @@ def case_network_rls() -> Case:
     return Case("NetworkRLS", {"forgetting": 0.7},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
                 {"forgetting": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
+                 "std_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
                  # no range noise given: every negative range is refused (check_ranges)
                  "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
@@ -164,9 +164,9 @@ def case_network_rls() -> Case:
 
 def case_network_ekf() -> Case:
     ranges, prior = _network(2)
-    return Case("NetworkEKF", {"range_var_m2": 0.01},
+    return Case("NetworkEKF", {"std_m": 0.1},
                 {"ranges": ranges, "prior_mean": prior, "prior_var": np.full(prior.shape, 1.0)},
-                {"range_var_m2": Field(setting=True, neg_ok=False, zero_ok=False),
+                {"std_m": Field(setting=True, neg_ok=False, zero_ok=False),
                  # a range below -6 noise sigmas (0.6 m here) is refused (check_ranges)
                  "ranges": Field(nan_ok=True, neg_ok=False), "prior_mean": Field(),
                  "prior_var": Field(neg_ok=False)},
@@ -261,10 +261,10 @@ def _single_sensor(seed, n=10, T=0.5):
 
 def case_closed_form() -> Case:
     sensor, truth, r, T, _ = _single_sensor(8)
-    return Case("ClosedFormTracker", {"accel_var": 1e-6, "range_var": 1e-4},
+    return Case("ClosedFormTracker", {"accel_var": 1e-6, "std_m": 0.01},
                 {"ranges": r, "sensor_path": sensor, "sample_period_s": T},
                 {"accel_var": Field(setting=True, neg_ok=False),
-                 "range_var": Field(setting=True, neg_ok=False),
+                 "std_m": Field(setting=True, neg_ok=False),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "sensor_path": Field(extra_ok=True),
                  "sample_period_s": Field(neg_ok=False, zero_ok=False, shape_free=True)},

@@ -81,7 +81,7 @@ def test_fuzz_multilateration_geometry(g, method):
     r = _exact_ranges(anchors, truth)
     scale = max(1.0, float(r.max()))
     outcome, detail = classify_call(
-        lambda: Multilateration(method=method, range_std_m=0.01).locate(r, anchors),
+        lambda: Multilateration(method=method, std_m=0.01).locate(r, anchors),
         names=("anchors", "ranges", "geometry", "collinear", "coincident"),
         truth=truth, tol_m=1e-3 * scale)
     record(outcome, detail, f"Multilateration {method}, {shape} anchors {anchors.tolist()}, "
@@ -99,7 +99,7 @@ def test_fuzz_multilateration_geometry_3d(g, method, std):
     r = _exact_ranges(anchors, truth)
     scale = max(1.0, float(r.max()))
     outcome, detail = classify_call(
-        lambda: Multilateration(method=method, range_std_m=std).locate(r, anchors),
+        lambda: Multilateration(method=method, std_m=std).locate(r, anchors),
         names=("anchors", "ranges", "geometry", "coplanar", "collinear", "coincident"),
         truth=truth, tol_m=1e-3 * scale)
     record(outcome, detail, f"Multilateration 3-D {method} std {std}, {shape} anchors "

@@ -146,7 +146,7 @@ def test_multilateration_near_collinear_and_far_anchors(anchors, truth, method, 
     a, t = np.array(anchors), np.array(truth)
     r = np.linalg.norm(a - t, axis=-1)
     outcome, detail = classify_call(
-        lambda: Multilateration(method=method, range_std_m=std).locate(r, a),
+        lambda: Multilateration(method=method, std_m=std).locate(r, a),
         names=("anchors",), truth=t, tol_m=1e-3 * max(1.0, float(r.max())))
     assert outcome in ("error", "success"), f"{outcome}: {detail}"
 
@@ -270,8 +270,8 @@ def test_multilateration_node_near_the_anchors_line_is_ambiguous(method, std):
     a = np.array(NEAR_LINE)
     r = np.linalg.norm(a - [0.0, 0.5], axis=-1)
     with pytest.raises(GeometryError, match=r"ambiguous fix.*anchors 0, 1, 2 nearly collinear"):
-        Multilateration(method=method, range_std_m=std).locate(r, a)
-    fit = Multilateration(method=method, range_std_m=std, on_degenerate="flag").locate(r, a)
+        Multilateration(method=method, std_m=std).locate(r, a)
+    fit = Multilateration(method=method, std_m=std, on_degenerate="flag").locate(r, a)
     assert bool(fit.diagnostics["ambiguous"]) and np.isnan(fit.covariance).all()
 
 
@@ -318,14 +318,14 @@ def _near_flat_scene(dim, eps, h):
 def test_multilateration_near_flat_anchors_truth_or_ambiguous(dim, eps, h, method, std):
     """Exact ranges: the truth wherever the mirror minimum fits measurably worse (cost gap
     above 4 s^2 with margin), a refusal as ambiguous wherever it fits within the noise the
-    solver assumes (``range_std_m``, else its floor 1e-9 of the anchors' spread)."""
+    solver assumes (``std_m``, else its floor 1e-9 of the anchors' spread)."""
     from radioloc.core.errors import GeometryError
     a, truth = _near_flat_scene(dim, eps, h)
     r = np.linalg.norm(a - truth, axis=-1)
     gap, dist, spread = _mirror_gap(a, truth)
     s2 = std ** 2 if std is not None else (1e-9 * max(spread, 1.0)) ** 2
     try:
-        fit = Multilateration(method=method, range_std_m=std).locate(r, a)
+        fit = Multilateration(method=method, std_m=std).locate(r, a)
     except GeometryError as exc:
         assert "ambiguous" in str(exc) or "coplanar" in str(exc) or "collinear" in str(exc), exc
         assert gap <= 8 * s2, f"refused although the mirror fits worse by {gap:.3g} m^2: {exc}"

@@ -91,10 +91,10 @@ def test_a_noise_level_lets_network_rls_take_a_noisy_range():
     case = CASES["NetworkRLS"]()
     idx = _first_used(case, "ranges")
     args = _with(case, "ranges", idx, -0.5)
-    track = NetworkRLS(forgetting=0.7, range_var_m2=0.01).run(**args)
+    track = NetworkRLS(forgetting=0.7, std_m=0.1).run(**args)
     assert np.all(np.isfinite(track.position))
     with pytest.raises(InputError, match=r"range -0\.7 at index"):
-        NetworkRLS(forgetting=0.7, range_var_m2=0.01).run(**_with(case, "ranges", idx, -0.7))
+        NetworkRLS(forgetting=0.7, std_m=0.1).run(**_with(case, "ranges", idx, -0.7))
 
 
 def _range_methods() -> list[str]:

@@ -12,10 +12,14 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.validation import as_float_array, as_positions
 
+_RANGE_VAR = {"range_var": Renamed("std_m", variance=True)}
 
-def network_range_information(position: np.ndarray, range_var: float | np.ndarray,
+
+@renamed_keywords(_RANGE_VAR, positional=("range_var", "counts"))
+def network_range_information(position: np.ndarray, *, std_m: float | np.ndarray,
                               counts: np.ndarray | float = 1.0) -> np.ndarray:
     """Fisher information ``(..., 2K, 2K)`` of Gaussian ranges between all node pairs.
 
@@ -23,8 +27,10 @@ def network_range_information(position: np.ndarray, range_var: float | np.ndarra
     ----------
     position : (..., K, 2) array, m
         True positions.
-    range_var : float or (..., K, K) array, m^2
-        Variance of one range measurement of each ordered pair.
+    std_m : float or (..., K, K) array
+        Range noise standard deviation of one range of each ordered pair, metres (the
+        paper's ``sigma_v^2 = 900 m^2`` is ``std_m=30``). The old second argument
+        ``range_var`` (m^2) still works with a ``FutureWarning``.
     counts : float or (..., K, K) array
         Number of independent ranges of each ordered pair ``(k, p)`` (k measured p); the
         diagonal is ignored. One iteration of the paper's protocol gives 1 for every
@@ -48,7 +54,8 @@ def network_range_information(position: np.ndarray, range_var: float | np.ndarra
     if np.any(d[..., off] <= 0):
         raise GeometryError("position: two nodes coincide; range information is undefined")
     u = diff / np.where(off, d, 1.0)[..., None]
-    w = np.broadcast_to(np.asarray(counts, float) / np.asarray(range_var, float), d.shape) * off
+    w = np.broadcast_to(np.asarray(counts, float) / np.asarray(std_m, float) ** 2,
+                        d.shape) * off
     c = w + np.swapaxes(w, -1, -2)                 # information of each unordered pair {k, p}
     G = np.einsum("...kp,...kpi,...kpj->...kpij", c, u, u)            # (..., K, K, 2, 2)
     info = -np.swapaxes(G, -3, -2)                 # J[k, :, p, :] = -G_kp for k != p
@@ -58,14 +65,16 @@ def network_range_information(position: np.ndarray, range_var: float | np.ndarra
     return info.reshape(pos.shape[:-2] + (2 * K, 2 * K))
 
 
-def network_crb(position: np.ndarray, range_var: float | np.ndarray, prior_var: np.ndarray,
+@renamed_keywords(_RANGE_VAR, positional=("range_var", "prior_var", "counts"))
+def network_crb(position: np.ndarray, *, std_m: float | np.ndarray, prior_var: np.ndarray,
                 counts: np.ndarray | float = 1.0) -> np.ndarray:
     """Bayesian Cramer-Rao bound ``(..., 2K, 2K)``: ranges plus Gaussian priors.
 
     Parameters
     ----------
     position : (..., K, 2) array, m
-    range_var : float or (..., K, K) array, m^2
+    std_m : float or (..., K, K) array
+        Range noise standard deviation, metres, as in :func:`network_range_information`.
     prior_var : (..., K, 2) array, m^2
         Per-axis prior variances (independent priors).
     counts : float or (..., K, K) array
@@ -76,7 +85,7 @@ def network_crb(position: np.ndarray, range_var: float | np.ndarray, prior_var: 
     (..., 2K, 2K) array
         The bound on the covariance of the stacked positions, m^2.
     """
-    info = network_range_information(position, range_var, counts)
+    info = network_range_information(position, std_m=std_m, counts=counts)
     var = as_float_array(prior_var, "prior_var", nonnegative=True)
     var = np.broadcast_to(var, np.shape(position))
     if np.any(var <= 0):
@@ -104,7 +113,8 @@ def node_crb_trace(crb: np.ndarray) -> np.ndarray:
     return d[..., 0::2] + d[..., 1::2]
 
 
-def network_crb_node_traces(position: np.ndarray, range_var: float | np.ndarray,
+@renamed_keywords(_RANGE_VAR, positional=("range_var", "prior_var", "counts"))
+def network_crb_node_traces(position: np.ndarray, *, std_m: float | np.ndarray,
                             prior_var: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Per-node CRB traces ``(N, ..., K)`` for a sequence of range counts at once.
 
@@ -117,7 +127,8 @@ def network_crb_node_traces(position: np.ndarray, range_var: float | np.ndarray,
     Parameters
     ----------
     position : (..., K, 2) array, m
-    range_var : float or (..., K, K) array, m^2
+    std_m : float or (..., K, K) array
+        Range noise standard deviation, metres, as in :func:`network_range_information`.
     prior_var : (..., K, 2) array, m^2
     counts : (N,) array
         Ranges per ordered pair (e.g. iterations 0..N-1).
@@ -127,7 +138,7 @@ def network_crb_node_traces(position: np.ndarray, range_var: float | np.ndarray,
     (N, ..., K) array
         Per-node traces of the bound for each count, m^2.
     """
-    info = network_range_information(position, range_var)
+    info = network_range_information(position, std_m=std_m)
     var = as_float_array(prior_var, "prior_var", nonnegative=True)
     var = np.broadcast_to(var, np.shape(position))
     if np.any(var <= 0):

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import GeometryError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.single_sensor import SquaredRangeModel, predicted_offsets
 from radioloc.models.track_noise import accumulated_noise_covariance
@@ -41,8 +42,12 @@ def _reference(n: int, reference_index: int | None) -> int:
     return k + n if k < 0 else k
 
 
+_RANGE_VAR = {"range_var": Renamed("std_m", variance=True)}
+
+
+@renamed_keywords(_RANGE_VAR)
 def differenced_crb(state, sensor_path, *, sample_period_s: float, accel_var: float,
-                    range_var=0.0, reference_index: int | None = None,
+                    std_m=0.0, reference_index: int | None = None,
                     accel_excess_kurtosis: float = 0.0,
                     range_excess_kurtosis: float = 0.0) -> np.ndarray:
     """The bound of eq. (23) on ``[x_k, y_k, vx_k, vy_k]``, evaluated at the true state.
@@ -57,8 +62,10 @@ def differenced_crb(state, sensor_path, *, sample_period_s: float, accel_var: fl
         T.
     accel_var : float
         ``delta_g^2`` per axis.
-    range_var : float or array_like, shape (..., n)
-        Channel noise variance ``xi_n``.
+    std_m : float or array_like, shape (..., n)
+        Range noise standard deviation, metres (per sample if an array): the paper's channel
+        noise variance is ``xi_n = std_m^2``. The old keyword ``range_var`` (``xi_n``) still
+        works with a ``FutureWarning``.
     reference_index : int, optional
         k; default n-1.
     accel_excess_kurtosis, range_excess_kurtosis : float
@@ -77,12 +84,14 @@ def differenced_crb(state, sensor_path, *, sample_period_s: float, accel_var: fl
     s = as_float_array(sensor_path, "sensor_path", min_ndim=2, last_dim=2)
     n = s.shape[-2]
     model = SquaredRangeModel(n, _reference(n, reference_index), sample_period_s, accel_var,
-                              range_var, accel_excess_kurtosis, range_excess_kurtosis)
+                              as_float_array(std_m, "std_m", nonnegative=True) ** 2,
+                              accel_excess_kurtosis, range_excess_kurtosis)
     return _inverse(model.fisher_information(beta, s), "differenced_crb")
 
 
+@renamed_keywords(_RANGE_VAR)
 def raw_range_crb(state, sensor_path, *, sample_period_s: float, accel_var: float,
-                  range_var: float, reference_index: int | None = None) -> np.ndarray:
+                  std_m: float, reference_index: int | None = None) -> np.ndarray:
     """Gaussian-approximation CRB of the raw ranges (see the module docstring).
 
     Parameters
@@ -95,8 +104,9 @@ def raw_range_crb(state, sensor_path, *, sample_period_s: float, accel_var: floa
         T.
     accel_var : float
         ``delta_g^2`` per axis.
-    range_var : float
-        Channel noise variance ``xi``.
+    std_m : float
+        Range noise standard deviation, metres (the paper's ``xi = std_m^2``). The old
+        keyword ``range_var`` (``xi``) still works with a ``FutureWarning``.
     reference_index : int, optional
         k; default n-1.
 
@@ -112,7 +122,7 @@ def raw_range_crb(state, sensor_path, *, sample_period_s: float, accel_var: floa
     beta = as_float_array(state, "state", min_ndim=1, last_dim=4)
     s = as_float_array(sensor_path, "sensor_path", min_ndim=2, last_dim=2)
     T = check_positive(sample_period_s, "sample_period_s")
-    xi = check_positive(range_var, "range_var", allow_zero=True)
+    xi = check_positive(std_m, "std_m", allow_zero=True) ** 2
     n = s.shape[-2]
     k = _reference(n, reference_index)
     d = predicted_offsets(beta, s, T, k)
@@ -125,5 +135,5 @@ def raw_range_crb(state, sensor_path, *, sample_period_s: float, accel_var: floa
         white = np.linalg.solve(np.linalg.cholesky(cov), J)
     except np.linalg.LinAlgError:
         raise GeometryError("raw_range_crb: range covariance is singular "
-                            "(range_var = 0 and no motion noise?)") from None
+                            "(std_m = 0 and no motion noise?)") from None
     return _inverse(np.swapaxes(white, -1, -2) @ white, "raw_range_crb")

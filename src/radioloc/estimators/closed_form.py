@@ -30,9 +30,11 @@ import numpy as np
 from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, GeometryError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_finite_output,
-                                      check_int, check_positive)
+                                      check_int, check_positive, check_real,
+                                      range_noise_std)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.kalman_compiled import blue_iterations
 from radioloc.models.single_sensor import (
@@ -97,9 +99,21 @@ class ClosedFormTracker(SnapshotEstimator):
     Parameters
     ----------
     accel_var : float
-        ``delta_g^2`` of eq. (1), per axis, (m/s^2)^2.
-    range_var : float or array_like, shape (n,) or (..., n)
-        Channel noise variance ``xi_n`` in m^2; 0 is the ideal channel of eq. (11).
+        ``delta_g^2`` of eq. (1), per axis, (m/s^2)^2 (the name and unit of
+        :class:`~radioloc.models.motion.ConstantVelocity`'s ``accel_var``).
+    std_m : float or array_like, shape (n,) or (..., n), optional
+        Range noise standard deviation, metres, per sample if an array: the paper's channel
+        noise variance is ``xi_n = std_m^2`` (section 5's ``xi = 0.1 m^2`` is
+        ``std_m=sqrt(0.1)``); 0 (the default) is the ideal channel of eq. (11). The old
+        keyword ``range_var`` (the variance ``xi_n``, also the second positional argument)
+        still works with a ``FutureWarning``.
+    measurement : range-error model, optional
+        Instead of ``std_m``: a range noise model with ``moments()`` (e.g.
+        :class:`~radioloc.models.ranging.GaussianRange`, or
+        :class:`~radioloc.models.los_nlos.LosNlosRange`), as :class:`RangeEKF
+        <radioloc.estimators.ekf_tracker.RangeEKF>` takes. Its mean error is subtracted from
+        the ranges and its variance is ``xi_n``; the fourth moment is still set by
+        ``range_excess_kurtosis``.
     reference_index : int, optional
         k; default the last sample (n-1); negative values count from the end.
     weighting : {"blue", "ols"}
@@ -138,20 +152,39 @@ class ClosedFormTracker(SnapshotEstimator):
     >>> sensor = 5.0 * np.stack([np.cos(ang), np.sin(ang)], -1)
     >>> truth = np.array([1.0, 0.5]) + (np.arange(n) - (n - 1))[:, None] * T * [0.8, -0.2]
     >>> ranges = np.linalg.norm(truth - sensor, axis=-1)
-    >>> est = ClosedFormTracker(accel_var=0.0, range_var=1e-10).locate(ranges, sensor, T)
+    >>> est = ClosedFormTracker(accel_var=0.0, std_m=1e-5).locate(ranges, sensor, T)
     >>> np.round(est.position, 6).tolist(), np.round(est.diagnostics["state"][2:], 6).tolist()
     ([1.0, 0.5], [0.8, -0.2])
     """
 
     name = "closed-form"
 
-    def __init__(self, accel_var: float, range_var=0.0, *, reference_index: int | None = None,
+    @renamed_keywords({"range_var": Renamed("std_m", variance=True)}, positional=("range_var",))
+    def __init__(self, accel_var: float, *, std_m=None, measurement=None,
+                 reference_index: int | None = None,
                  weighting: str = "blue", accel_excess_kurtosis: float = 0.0,
                  range_excess_kurtosis: float = 0.0, tol: float = 0.1**0.5,
                  stopping: str = "change", max_iter: int = 20, cond_limit: float = 1e12,
                  printed_eq14: bool = False, backend: str = DEFAULT_BACKEND) -> None:
         self.accel_var = check_positive(accel_var, "accel_var", allow_zero=True)
-        self.range_var = as_float_array(range_var, "range_var", nonnegative=True)
+        self.measurement = measurement
+        self._mean_m = 0.0
+        if measurement is None:
+            self.std_m = as_float_array(0.0 if std_m is None else std_m, "std_m",
+                                        nonnegative=True)
+            self._range_var = self.std_m**2
+            self._floor_std_m = self.std_m
+        else:
+            if std_m is not None:
+                raise ConfigError("ClosedFormTracker: give std_m or measurement, not both")
+            if not hasattr(measurement, "moments"):
+                raise ConfigError(f"measurement: {type(measurement).__name__} has no moments() "
+                                  "(expected a range-error model such as GaussianRange)")
+            mean, var = measurement.moments()
+            self._mean_m = check_real(mean, "measurement mean error")
+            self._range_var = as_float_array(var, "measurement variance", nonnegative=True)
+            self.std_m = np.sqrt(self._range_var)
+            self._floor_std_m = range_noise_std(measurement)
         if reference_index is not None and not isinstance(reference_index, (int, np.integer)):
             raise ConfigError(f"reference_index: must be an int or None, got {reference_index!r}")
         self.reference_index = None if reference_index is None else int(reference_index)
@@ -218,13 +251,15 @@ class ClosedFormTracker(SnapshotEstimator):
             covariance (zero motion and channel noise).
         """
         r, s, k = validate_inputs(ranges, sensor_path, self.reference_index, allow_nan=True,
-                                  std_m=np.sqrt(self.range_var))
+                                  std_m=self._floor_std_m)
+        if self._mean_m:
+            r = r - self._mean_m                    # the model's mean range error
         n = r.shape[-1]
         T, t_k = resolve_sampling(n, k, sample_period_s, time)
-        batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self.range_var.shape[:-1])
+        batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self._range_var.shape[:-1])
         r = np.broadcast_to(r, batch + (n,))
         s = np.broadcast_to(s, batch + (n, 2))
-        model = SquaredRangeModel(n, k, T, self.accel_var, self.range_var,
+        model = SquaredRangeModel(n, k, T, self.accel_var, self._range_var,
                                   self.accel_excess_kurtosis, self.range_excess_kurtosis,
                                   self.printed_eq14)
         sa, sy, keep = self._differenced_system(r, s, k, model)    # steps 1-2

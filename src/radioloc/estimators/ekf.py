@@ -35,6 +35,7 @@ import numpy as np
 from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import check_finite_output, check_positive, check_ranges
 from radioloc.estimators.base import RecursiveEstimator
@@ -162,8 +163,11 @@ class NetworkEKF(RecursiveEstimator):
 
     Parameters
     ----------
-    range_var_m2 : float
-        ``sigma_v^2``, the diagonal of ``R_k`` (eq. (15)), m^2.
+    std_m : float
+        Range noise standard deviation, metres: ``R_k = std_m^2 I`` (eq. (15)); the paper's
+        ``sigma_v^2 = 900 m^2`` is ``std_m=30`` (the default). The old keyword
+        ``range_var_m2`` (the variance, also the first positional argument) still works
+        with a ``FutureWarning``.
     backend : {"numba", "numpy"}
         ``"numpy"``: each packet by the generic
         :class:`~radioloc.estimators.extended_kalman.ExtendedKalmanFilter` update with
@@ -173,7 +177,7 @@ class NetworkEKF(RecursiveEstimator):
     Raises
     ------
     ConfigError
-        ``range_var_m2`` is not a positive number, or ``backend`` is unknown.
+        ``std_m`` is not a positive number, or ``backend`` is unknown.
 
     Notes
     -----
@@ -191,11 +195,14 @@ class NetworkEKF(RecursiveEstimator):
 
     name = "ekf"
 
-    def __init__(self, range_var_m2: float = 900.0, backend: str = DEFAULT_BACKEND) -> None:
-        self.range_var_m2 = check_positive(range_var_m2, "range_var_m2")
+    @renamed_keywords({"range_var_m2": Renamed("std_m", variance=True)},
+                      positional=("range_var_m2", "backend"))
+    def __init__(self, *, std_m: float = 30.0, backend: str = DEFAULT_BACKEND) -> None:
+        self.std_m = check_positive(std_m, "std_m")
+        self._var_m2 = self.std_m**2
         self.backend = check_backend(backend)
         # the packet rows' model and the filter that updates with them (no gate: eq. (19))
-        self._model = PairRangeModel(std_m=float(np.sqrt(self.range_var_m2)))
+        self._model = PairRangeModel(std_m=self.std_m)
         self._filter = ExtendedKalmanFilter(RandomWalk(0.0), gate=None)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> EKFState:
@@ -247,7 +254,7 @@ class NetworkEKF(RecursiveEstimator):
         """
         R, K = state.runs, state.nodes
         master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
-        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2), used=valid)
+        check_ranges(rho, "ranges", self.std_m, used=valid)
         return self._apply(state, master[:, None], rho[:, None], valid[:, None])
 
     def _apply(self, state: EKFState, masters: np.ndarray, rho: np.ndarray,
@@ -265,7 +272,7 @@ class NetworkEKF(RecursiveEstimator):
         used = np.array(state.used, dtype=np.int64, order="C")
         err = np.full((R, 2), -1, dtype=np.int64)
         network_ekf_packets(mean, cov, kernel_array(masters, np.int64), kernel_array(rho),
-                            kernel_array(valid, np.bool_), self.range_var_m2, nis, used, err)
+                            kernel_array(valid, np.bool_), self._var_m2, nis, used, err)
         if np.any(err[:, 0] >= 0):
             hit = np.flatnonzero(err[:, 0] >= 0)
             r = int(hit[np.argmin(err[hit, 0])])          # the earliest packet, lowest run
@@ -321,7 +328,7 @@ class NetworkEKF(RecursiveEstimator):
         if np.any(bad):
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"ranges: infinite value at (run, master, node) {idx}")
-        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2), used=valid)
+        check_ranges(rho, "ranges", self.std_m, used=valid)
         masters = np.broadcast_to(np.arange(K), (R, K))
         return self._apply(state, masters, np.where(valid, rho, 0.0), valid)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_array, check_int,
                                       check_positive, check_ranges)
@@ -112,9 +113,10 @@ class Multilateration(SnapshotEstimator):
     method : {"gauss-newton", "levenberg-marquardt"}
         Step of the least squares (:func:`radioloc.estimators.nlls.solve_nlls`:
         Gauss-Newton with step halving, or Levenberg-Marquardt).
-    range_std_m : float, optional
-        Range error standard deviation used for the covariance. Default: estimated from
-        the residuals of each problem (``M - D`` degrees of freedom).
+    std_m : float, optional
+        Range error standard deviation, metres, used for the covariance. Default: estimated
+        from the residuals of each problem (``M - D`` degrees of freedom). The old keyword
+        ``range_std_m`` still works with a ``FutureWarning``.
     max_iter : int
         Maximum iterations per problem.
     tol_m : float
@@ -134,7 +136,9 @@ class Multilateration(SnapshotEstimator):
 
     name = "gn"
 
-    def __init__(self, method: str = "gauss-newton", range_std_m: float | None = None,
+    @renamed_keywords({"range_std_m": Renamed("std_m")},
+                      positional=("range_std_m", "max_iter", "tol_m", "on_degenerate"))
+    def __init__(self, method: str = "gauss-newton", *, std_m: float | None = None,
                  max_iter: int = 50, tol_m: float = 1e-9, on_degenerate: str = "raise") -> None:
         if on_degenerate not in ("raise", "flag"):
             raise ConfigError(f"on_degenerate: must be 'raise' or 'flag', got {on_degenerate!r}")
@@ -142,13 +146,13 @@ class Multilateration(SnapshotEstimator):
         if method not in ("gauss-newton", "levenberg-marquardt"):
             raise ConfigError("method: must be 'gauss-newton' or 'levenberg-marquardt', "
                               f"got {method!r}")
-        if range_std_m is not None:
+        if std_m is not None:
             try:
-                range_std_m = check_positive(range_std_m, "range_std_m")
+                std_m = check_positive(std_m, "std_m")
             except InputError as exc:
                 raise ConfigError(str(exc)) from None
         self.method = method
-        self.range_std_m = None if range_std_m is None else float(range_std_m)
+        self.std_m = None if std_m is None else float(std_m)
         self.max_iter = check_int(max_iter, "max_iter", minimum=1, maximum=MAX_ITERATIONS)
         self.tol_m = check_positive(tol_m, "tol_m", allow_zero=True)
 
@@ -259,7 +263,7 @@ class Multilateration(SnapshotEstimator):
         reflection more than ``10 s`` away: closer it is the same fix). Of the two minima the better fit is kept; where
         they are different points (``1e-6`` of the spread apart, beyond the solver's
         tolerance) and their costs differ by at most ``4 s^2`` (``s`` the configured
-        ``range_std_m``, else the residual estimate) the ranges cannot tell them apart
+        ``std_m``, else the residual estimate) the ranges cannot tell them apart
         and the fix is ambiguous. The distance between the two is not compared with
         ``s``: across the line of nearly collinear anchors the position's uncertainty is
         many times ``s`` (a node 0.28 m off such a line with ``s`` = 0.1 m was fixed in
@@ -281,8 +285,8 @@ class Multilateration(SnapshotEstimator):
         distinct = 1e-6 * scale + 10.0 * self.tol_m
 
         def noise_var(other_cost):
-            if self.range_std_m is not None:
-                s2 = np.full(fit.cost.shape, self.range_std_m ** 2)
+            if self.std_m is not None:
+                s2 = np.full(fit.cost.shape, self.std_m ** 2)
             else:
                 s2 = np.minimum(fit.cost, other_cost) / dof
             return np.maximum(s2, (1e-9 * scale) ** 2)
@@ -355,7 +359,7 @@ class Multilateration(SnapshotEstimator):
         -------
         Estimate
             ``position`` ``(..., D)``; ``covariance`` ``s^2 (J^T W J)^-1`` at the solution,
-            with ``s`` the configured ``range_std_m`` or the residual estimate;
+            with ``s`` the configured ``std_m`` or the residual estimate;
             ``diagnostics`` ``converged``, ``stalled``, ``iterations``, ``residual_rms_m``,
             ``degenerate`` (the geometry does not fix the position: flat anchors, an
             ambiguous fix or a singular information matrix) and ``ambiguous`` (a mirror
@@ -399,7 +403,7 @@ class Multilateration(SnapshotEstimator):
             idx = _first(bad)
             raise InputError(f"ranges: invalid range {r[idx]} at index {idx} "
                              "(must be finite, or NaN for a missing range)")
-        check_ranges(r, "ranges", self.range_std_m or 0.0, used=used)
+        check_ranges(r, "ranges", self.std_m or 0.0, used=used)
         r = np.where(used, r, 0.0)
         n_used = used.sum(axis=-1)
         if np.any(n_used < d + 1):
@@ -450,7 +454,7 @@ class Multilateration(SnapshotEstimator):
         open_ = ~fit.converged & ~flat & ~ambiguous & ~singular
         if np.any(open_):
             more = self._solve(r[open_], a[open_], w[open_], fit.x[open_], max_iter=1)
-            s2_now = (np.full(more.cost.shape, self.range_std_m**2) if self.range_std_m
+            s2_now = (np.full(more.cost.shape, self.std_m**2) if self.std_m
                       is not None else fit.cost[open_] / np.maximum(n_used[open_] - d, 1))
             with np.errstate(all="ignore"):
                 sd = np.sqrt(s2_now * np.trace(np.linalg.inv(JtWJ[open_]), axis1=-2, axis2=-1))
@@ -476,8 +480,8 @@ class Multilateration(SnapshotEstimator):
         JtWJ = np.where(degenerate[..., None, None], np.eye(d), JtWJ)
         dof = n_used - d                                  # >= 1: D + 1 ranges are required
         wsum = np.sum(w, axis=-1)
-        if self.range_std_m is not None:
-            s2 = np.full(batch, self.range_std_m**2)
+        if self.std_m is not None:
+            s2 = np.full(batch, self.std_m**2)
         else:
             s2 = fit.cost / dof * (n_used / wsum)
         cov = s2[..., None, None] * np.linalg.inv(JtWJ)

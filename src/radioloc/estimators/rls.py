@@ -34,6 +34,7 @@ import numpy as np
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.geometry import pairwise_distances
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import (as_float_array, check_finite_output, check_positive,
                                       check_ranges)
@@ -76,7 +77,8 @@ class RLSState:
         return self.position.shape[1]
 
 
-def transformed_noise_var(prior_mean: np.ndarray, range_var: float) -> np.ndarray:
+@renamed_keywords({"range_var": Renamed("std_m", variance=True)})
+def transformed_noise_var(prior_mean: np.ndarray, std_m: float) -> np.ndarray:
     """Variance (m^4) of the differenced squared range ``v_{i,j,k}`` of eq. (2) per node.
 
     ``1/2 (rho_i^2 - rho_j^2)`` has noise ``d_i v_i - d_j v_j`` to first order, variance
@@ -87,8 +89,8 @@ def transformed_noise_var(prior_mean: np.ndarray, range_var: float) -> np.ndarra
     ----------
     prior_mean : ndarray, shape (..., K, 2)
         Prior mean positions, metres.
-    range_var : float
-        Range noise variance ``sigma_v^2``, m^2.
+    std_m : float
+        Range noise standard deviation ``sigma_v``, metres.
 
     Returns
     -------
@@ -97,7 +99,7 @@ def transformed_noise_var(prior_mean: np.ndarray, range_var: float) -> np.ndarra
     """
     d2 = pairwise_distances(prior_mean) ** 2
     K = prior_mean.shape[-2]
-    return 2.0 * range_var * d2.sum(axis=-1) / (K - 1)
+    return 2.0 * std_m**2 * d2.sum(axis=-1) / (K - 1)
 
 
 def pair_rows(reference: np.ndarray, ranges: np.ndarray, valid: np.ndarray
@@ -145,11 +147,13 @@ class NetworkRLS(RecursiveEstimator):
         is forgotten at the first update, see the module docstring);
         ``"transformed-noise"`` weights the prior consistently with the rows of eq. (10),
         ``prior_scale = sigma_z^2`` of :func:`transformed_noise_var` at the prior means
-        (needs ``range_var_m2``).
-    range_var_m2 : float, optional
-        Range noise variance ``sigma_v^2`` (m^2), used by ``prior_scale="transformed-noise"``
-        and by the negative-range rule (:func:`~radioloc.core.validation.check_ranges`:
-        without it every negative range is refused).
+        (needs ``std_m``).
+    std_m : float, optional
+        Range noise standard deviation, metres (the paper's ``sigma_v^2 = 900 m^2`` is
+        ``std_m=30``), used by ``prior_scale="transformed-noise"`` and by the negative-range
+        rule (:func:`~radioloc.core.validation.check_ranges`: without it every negative range
+        is refused). The old keyword ``range_var_m2`` (the variance) still works with a
+        ``FutureWarning``.
     backend : {"numba", "numpy"}
         :meth:`iterate` by the compiled kernel
         (:func:`~radioloc.estimators.kalman_compiled.network_rls_iteration`) or as ``K``
@@ -168,23 +172,25 @@ class NetworkRLS(RecursiveEstimator):
 
     name = "rls"
 
-    def __init__(self, forgetting: float = 1.0, prior_scale: float | str = 1.0,
-                 range_var_m2: float | None = None, backend: str = DEFAULT_BACKEND) -> None:
+    @renamed_keywords({"range_var_m2": Renamed("std_m", variance=True)},
+                      positional=("range_var_m2", "backend"))
+    def __init__(self, forgetting: float = 1.0, prior_scale: float | str = 1.0, *,
+                 std_m: float | None = None, backend: str = DEFAULT_BACKEND) -> None:
         if not (0 < check_positive(forgetting, "forgetting") <= 1):
             raise ConfigError(f"forgetting: must lie in (0, 1], got {forgetting!r}")
         if isinstance(prior_scale, str):
             if prior_scale != "transformed-noise":
                 raise ConfigError("prior_scale: a number > 0 or 'transformed-noise', got "
                                   f"{prior_scale!r}")
-            if range_var_m2 is None:
-                raise ConfigError("range_var_m2: needed by prior_scale='transformed-noise'")
+            if std_m is None:
+                raise ConfigError("std_m: needed by prior_scale='transformed-noise'")
         else:
             prior_scale = check_positive(prior_scale, "prior_scale")
-        if range_var_m2 is not None:
-            range_var_m2 = check_positive(range_var_m2, "range_var_m2")
+        if std_m is not None:
+            std_m = check_positive(std_m, "std_m")
         self.forgetting = float(forgetting)
         self.prior_scale = prior_scale
-        self.range_var_m2 = None if range_var_m2 is None else float(range_var_m2)
+        self.std_m = None if std_m is None else float(std_m)
         self.backend = check_backend(backend)
 
     def init(self, prior_mean: np.ndarray, prior_var: np.ndarray) -> RLSState:
@@ -203,7 +209,7 @@ class NetworkRLS(RecursiveEstimator):
         """
         mean, var = check_prior(prior_mean, prior_var)
         if isinstance(self.prior_scale, str):
-            scale = transformed_noise_var(mean, self.range_var_m2)
+            scale = transformed_noise_var(mean, self.std_m)
         else:
             scale = np.full(mean.shape[:2], self.prior_scale)
         info = np.zeros(mean.shape + (2,))
@@ -243,7 +249,7 @@ class NetworkRLS(RecursiveEstimator):
         """
         R, K = state.runs, state.nodes
         master, rho, valid = check_packet(master_idx, ranges, mask, R, K)
-        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2 or 0.0), used=valid)
+        check_ranges(rho, "ranges", self.std_m or 0.0, used=valid)
         ref = state.position if reference is None else as_float_array(
             reference, "reference", ndim=3, last_dim=2)
         A, z, w = pair_rows(ref, rho, valid)
@@ -304,7 +310,7 @@ class NetworkRLS(RecursiveEstimator):
         if np.any(bad):
             idx = tuple(int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"ranges: infinite value at (run, master, node) {idx}")
-        check_ranges(rho, "ranges", np.sqrt(self.range_var_m2 or 0.0), used=valid)
+        check_ranges(rho, "ranges", self.std_m or 0.0, used=valid)
         if self.backend == "numpy":
             start = state.position
             for k in range(K):

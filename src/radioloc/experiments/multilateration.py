@@ -87,8 +87,8 @@ class GaussNewtonMultilateration(Experiment):
         for std in config.range_std_m:
             model = GaussianRange(std)
             measured = np.abs(model.sample(true_ranges, rng))
-            fit = Multilateration(range_std_m=std).locate(measured, anchors)
-            crb = range_crb(truth, anchors, model.variance)
+            fit = Multilateration(std_m=std).locate(measured, anchors)
+            crb = range_crb(truth, anchors, std_m=std)
             frames.append(pd.DataFrame({
                 "run": runs, "range_std_m": std,
                 "x_true": truth[:, 0], "y_true": truth[:, 1],

@@ -181,13 +181,15 @@ class P000MonteCarlo(Experiment):
         cls = {"assisted": net.assisted, "unassisted": ~net.assisted}
         frames = []
         for rv in config.range_var_m2:
-            rho = iteration_ranges(truth, N, rv, rng)                      # (R, N, K, K)
+            std = float(np.sqrt(rv))                                       # sigma_v, m
+            rho = iteration_ranges(truth, N, std_m=std, rng=rng)           # (R, N, K, K)
             estimators = {
-                "rls": NetworkRLS(forgetting=config.forgetting, range_var_m2=rv),
-                "ekf": NetworkEKF(range_var_m2=rv),
+                "rls": NetworkRLS(forgetting=config.forgetting, std_m=std),
+                "ekf": NetworkEKF(std_m=std),
                 "rlsw": NetworkRLS(forgetting=config.forgetting, prior_scale="transformed-noise",
-                                   range_var_m2=rv)}
-            crb = network_crb_node_traces(truth, rv, prior_var, np.arange(N + 1))  # (N+1, R, K)
+                                   std_m=std)}
+            crb = network_crb_node_traces(truth, std_m=std, prior_var=prior_var,
+                                          counts=np.arange(N + 1))       # (N+1, R, K)
             data = {"run": np.repeat(runs, N + 1), "range_var_m2": rv,
                     "iteration": np.tile(np.arange(N + 1), R)}
             for m, est in estimators.items():

@@ -226,8 +226,8 @@ class UrbanRadiolocation(Experiment):
         prior = truth + rng.standard_normal((R, K, 2)) * np.sqrt(prior_var)
         order = np.argsort(rng.random((R, K, S)), axis=-1)          # ACK-set order per master
         rho = ack_set_ranges(ranges, order)                         # (R, S, K, K), NaN = missing
-        estimators = {"rls": NetworkRLS(range_var_m2=config.range_var_m2),
-                      "ekf": NetworkEKF(range_var_m2=config.range_var_m2)}
+        std = float(np.sqrt(config.range_var_m2))                   # sigma_v, m
+        estimators = {"rls": NetworkRLS(std_m=std), "ekf": NetworkEKF(std_m=std)}
         inputs = {name: (est, rho) for name, est in estimators.items()}
         for control in config.controls:         # drawn after the OMP-SIC runs' draws
             ctl = self._control_ranges(control, nets, scen, config, rng)

@@ -135,19 +135,19 @@ def _trackers(config, accel_var):
     kurt = -1.2 if config.use_uniform_moments else 0.0
     step_tol = float(np.sqrt(config.tol))
     common = dict(tol=step_tol, max_iter=config.max_iter)
-    xi = config.range_var
+    std = float(np.sqrt(config.range_var))          # xi = std_m^2
     moments = dict(accel_excess_kurtosis=kurt, range_excess_kurtosis=kurt)
     return {
-        "blue": ClosedFormTracker(accel_var, xi, **moments, **common),
-        "blue_criterion_stop": ClosedFormTracker(accel_var, xi, stopping="criterion",
+        "blue": ClosedFormTracker(accel_var, std_m=std, **moments, **common),
+        "blue_criterion_stop": ClosedFormTracker(accel_var, std_m=std, stopping="criterion",
                                                  **moments, **common),
-        "ols": ClosedFormTracker(accel_var, xi, weighting="ols", **common),
-        "blue_uniform_moments": ClosedFormTracker(accel_var, xi, accel_excess_kurtosis=-1.2,
+        "ols": ClosedFormTracker(accel_var, std_m=std, weighting="ols", **common),
+        "blue_uniform_moments": ClosedFormTracker(accel_var, std_m=std, accel_excess_kurtosis=-1.2,
                                                   range_excess_kurtosis=-1.2, **common),
-        "blue_printed_eq14": ClosedFormTracker(accel_var, xi, printed_eq14=True, **common),
-        "blue_k0": ClosedFormTracker(accel_var, xi, reference_index=0, **moments, **common),
+        "blue_printed_eq14": ClosedFormTracker(accel_var, std_m=std, printed_eq14=True, **common),
+        "blue_k0": ClosedFormTracker(accel_var, std_m=std, reference_index=0, **moments, **common),
         "newton": NewtonTracker(**common),
-        "ekf": RangeEKF(ConstantVelocity(accel_var), GaussianRange(float(np.sqrt(xi))),
+        "ekf": RangeEKF(ConstantVelocity(accel_var), GaussianRange(std),
                         gate=None),
     }
 
@@ -200,10 +200,10 @@ def _methods_on(tracks, config, rng, accel_var, source, runs):
     The causal track of BLUE, OLS, Newton and the EKF (filtered state) is in ``"causal"``
     rows (:func:`_causal_rows`).
     """
-    T, xi = config.sample_period_s, config.range_var
+    T, std = config.sample_period_s, float(np.sqrt(config.range_var))
     n_max = tracks.shape[1]
     sensor_all = circular_sensor_path(n_max, config.sensor_radius_m, config.sensor_step_rad)
-    meas = noisy_ranges(tracks[..., :2], sensor_all, xi, rng)
+    meas = noisy_ranges(tracks[..., :2], sensor_all, std_m=std, rng=rng)
     start_noise = rng.normal(0.0, config.newton_start_std, size=(runs.size, 4))
     prior_noise = rng.normal(0.0, config.newton_start_std, size=(runs.size, 4))
     est = _trackers(config, accel_var)
@@ -223,7 +223,7 @@ def _methods_on(tracks, config, rng, accel_var, source, runs):
         r, s, k = meas[:, :n], sensor_all[:n], n - 1
         truth = tracks[:, k]
         traj_true = tracks[:, :n, :2]
-        kw = dict(sample_period_s=T, accel_var=accel_var, range_var=xi, reference_index=k)
+        kw = dict(sample_period_s=T, accel_var=accel_var, std_m=std, reference_index=k)
         crb_d = differenced_crb(truth, s, **kw)
         crb_r = raw_range_crb(truth, s, **kw)
         bounds = dict(crb_diff_pos=crb_d[:, 0, 0] + crb_d[:, 1, 1],
@@ -313,7 +313,7 @@ def _causal_rows(tracks, meas, sensor_all, filtered, est, config, source, runs):
 
 def _sensitivity_runs(tracks, config, rng, runs):
     """Closed-form error versus the sensor's turn per sample (k = n-1), as table rows."""
-    T, xi = config.sample_period_s, config.range_var
+    T, std = config.sample_period_s, float(np.sqrt(config.range_var))
     blue = _trackers(config, config.accel_var)["blue"]
     frames = []
     for st in SENSITIVITY_STEPS:
@@ -321,7 +321,7 @@ def _sensitivity_runs(tracks, config, rng, runs):
             if n > tracks.shape[1]:
                 continue
             s = circular_sensor_path(n, config.sensor_radius_m, st)
-            r = noisy_ranges(tracks[:, :n, :2], s, xi, rng)
+            r = noisy_ranges(tracks[:, :n, :2], s, std_m=std, rng=rng)
             cf = blue.locate(r, s, T)
             frame = _rows(runs, "synthetic", n, "blue", _err2(cf.position, tracks[:, n - 1, :2]),
                           traj_err2=_traj_err2(cf.diagnostics["trajectory"], tracks[:, :n, :2]),
@@ -350,10 +350,11 @@ def _fig2_rows(config, rng) -> pd.DataFrame:
     T, N = config.sample_period_s, config.fig2_samples
     pos = sine_positions(N)
     sensor = circular_sensor_path(N, config.sensor_radius_m, config.sensor_step_rad)
-    r = noisy_ranges(pos, sensor, config.range_var, rng)
+    std = float(np.sqrt(config.range_var))
+    r = noisy_ranges(pos, sensor, std_m=std, rng=rng)
     accel_var = accel_var_from_positions(pos, T) + config.accel_var
     step_tol = float(np.sqrt(config.tol))
-    blue = ClosedFormTracker(accel_var, config.range_var, tol=step_tol)
+    blue = ClosedFormTracker(accel_var, std_m=std, tol=step_tol)
     newton = NewtonTracker(tol=step_tol, max_iter=config.max_iter)
     start = blue.locate(r[:10], sensor[:10], T).diagnostics["ols_state"]
     rows = []
@@ -377,7 +378,8 @@ def _sensitivity_rows(config) -> pd.DataFrame:
     and versus the reference index k, for a fixed state, as table rows."""
     T, n = config.sample_period_s, max(config.n_values)
     state = np.array(SENSITIVITY_STATE)
-    kw = dict(sample_period_s=T, accel_var=config.accel_var, range_var=config.range_var)
+    kw = dict(sample_period_s=T, accel_var=config.accel_var,
+              std_m=float(np.sqrt(config.range_var)))
     rows = []
     for st in SENSITIVITY_STEPS:
         s = circular_sensor_path(n, config.sensor_radius_m, st)

@@ -78,7 +78,7 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     ep = range_epochs(request, "gn")
     R_ok, a_xyz = ep.R[ep.solvable], ep.points
     try:
-        fit = Multilateration(range_std_m=std, on_degenerate="flag" if ep.skip else "raise"
+        fit = Multilateration(std_m=std, on_degenerate="flag" if ep.skip else "raise"
                               ).locate(R_ok, a_xyz)
     except GeometryError as exc:
         raise epoch_error(ep, exc) from None

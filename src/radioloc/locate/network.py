@@ -182,7 +182,7 @@ def locate_ekf(request: LocateRequest) -> pd.DataFrame:
     """
     net = _network(request, "ekf")
     std = check_positive(request.option("range_std_m", 30.0), "range_std_m")
-    ekf = NetworkEKF(range_var_m2=std**2)
+    ekf = NetworkEKF(std_m=std)
     state = ekf.init(net.prior_mean, net.prior_var)
     estimates, covariances = [], []
     for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order

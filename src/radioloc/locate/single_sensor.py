@@ -142,7 +142,7 @@ def _track(request: LocateRequest, method: str) -> pd.DataFrame:
     tables = []
     for node, grid, has, R, S, period in sensor_windows(request, method):
         try:
-            fit = ClosedFormTracker(accel, std ** 2).locate(R, S, period)
+            fit = ClosedFormTracker(accel, std_m=std).locate(R, S, period)
             state = np.asarray(fit.diagnostics["state"])
             cov = fit.covariance
             if method == "newton":

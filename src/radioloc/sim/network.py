@@ -12,6 +12,7 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.geometry import pairwise_distances
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.validation import check_positive
 
 __all__ = ["NetworkDraw", "draw_network", "iteration_ranges", "prior_variances"]
@@ -91,11 +92,13 @@ def draw_network(rng: np.random.Generator, runs: int, nodes: int, assisted: int,
     return NetworkDraw(truth, prior, var, np.arange(nodes) < assisted)
 
 
-def iteration_ranges(truth: np.ndarray, iterations: int, range_var_m2: float,
+@renamed_keywords({"range_var_m2": Renamed("std_m", variance=True)},
+                  positional=("range_var_m2", "rng"))
+def iteration_ranges(truth: np.ndarray, iterations: int, *, std_m: float,
                      rng: np.random.Generator) -> np.ndarray:
     """Noisy ranges of every ordered pair (master ``k``, node ``i``) at every iteration.
 
-    Each entry gets an independent Gaussian error of variance ``range_var_m2``; ranges
+    Each entry gets an independent Gaussian error of standard deviation ``std_m``; ranges
     are not clipped at 0. The errors are drawn in the order ``(N, R, K, K)``.
 
     Parameters
@@ -104,8 +107,10 @@ def iteration_ranges(truth: np.ndarray, iterations: int, range_var_m2: float,
         True positions, metres.
     iterations : int
         ``N``.
-    range_var_m2 : float
-        Range noise variance, m^2.
+    std_m : float
+        Range noise standard deviation, metres (the paper's ``sigma_v^2 = 900 m^2`` is
+        ``std_m=30``). The old third argument ``range_var_m2`` (m^2) still works with a
+        ``FutureWarning``.
     rng : Generator
 
     Returns
@@ -113,8 +118,8 @@ def iteration_ranges(truth: np.ndarray, iterations: int, range_var_m2: float,
     ndarray, shape (R, N, K, K)
         ``ranges[r, n, k, i]``: range at master ``k`` to node ``i`` in iteration ``n``.
     """
-    check_positive(range_var_m2, "range_var_m2", allow_zero=True)
+    check_positive(std_m, "std_m", allow_zero=True)
     D = pairwise_distances(truth)                                    # (R, K, K)
     R, K = D.shape[:2]
-    noise = rng.normal(size=(int(iterations), R, K, K)) * np.sqrt(range_var_m2)
+    noise = rng.normal(size=(int(iterations), R, K, K)) * std_m
     return D[:, None] + noise.transpose(1, 0, 2, 3)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.motion import ConstantVelocity
 
@@ -81,8 +82,10 @@ def random_tracks(runs: int, n_samples: int, sample_period_s: float, accel_var: 
     return motion.simulate(x0, n_samples, sample_period_s, rng)
 
 
-def noisy_ranges(positions, sensor_path, range_var: float, rng: np.random.Generator) -> np.ndarray:
-    """Ranges with zero-mean uniform noise of variance ``range_var``, folded at zero.
+@renamed_keywords({"range_var": Renamed("std_m", variance=True)}, positional=("range_var", "rng"))
+def noisy_ranges(positions, sensor_path, *, std_m: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Ranges with zero-mean uniform noise of standard deviation ``std_m``, folded at zero.
 
     Parameters
     ----------
@@ -90,20 +93,22 @@ def noisy_ranges(positions, sensor_path, range_var: float, rng: np.random.Genera
         Target positions.
     sensor_path : array_like, shape (n, 2) or (..., n, 2)
         Sensor positions.
-    range_var : float
-        Channel noise variance ``xi``, m^2 (the paper's noise is uniform).
+    std_m : float
+        Range noise standard deviation, metres (the paper's channel noise variance is
+        ``xi = std_m^2``; its noise is uniform). The old third argument ``range_var``
+        (``xi``, m^2) still works with a ``FutureWarning``.
     rng : numpy.random.Generator
         Source of the noise.
 
     Returns
     -------
     ndarray, shape (..., n)
-        ``|r_n + omega_n|``, ``omega_n ~ U(-sqrt(3 xi), sqrt(3 xi))``.
+        ``|r_n + omega_n|``, ``omega_n ~ U(-sqrt(3) std_m, sqrt(3) std_m)``.
     """
     p = as_float_array(positions, "positions", min_ndim=2, last_dim=2)
     s = as_float_array(sensor_path, "sensor_path", min_ndim=2, last_dim=2)
     true_r = np.linalg.norm(p - s, axis=-1)
-    h = np.sqrt(3.0 * check_positive(range_var, "range_var", allow_zero=True))
+    h = np.sqrt(3.0) * check_positive(std_m, "std_m", allow_zero=True)
     return np.abs(true_r + rng.uniform(-h, h, size=true_r.shape))
 
 
