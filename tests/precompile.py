@@ -76,7 +76,7 @@ def _ekf_step():
 
     rng = np.random.default_rng(0)
     truth = rng.uniform(0, 100, (2, 6, 2))
-    ekf = NetworkEKF(range_var_m2=1.0)
+    ekf = NetworkEKF(std_m=1.0)
     state = ekf.init(truth + rng.normal(0, 1, truth.shape), np.ones(truth.shape))
     masters = np.array([1, 4])
     rho = pairwise_distances(truth)[np.arange(2), masters]          # (runs, nodes)

@@ -47,12 +47,13 @@ import shapely
 from radioloc.channel import compiled
 from radioloc.channel.scene import Scene
 from radioloc.core.backend import check_backend
+from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.geometry import segment_intersections
 from radioloc.core.validation import as_positions, check_positive
 
-#: Speed of light [m/s].
-C_LIGHT = 299_792_458.0
+#: Speed of light [m/s] (:data:`radioloc.core.constants.SPEED_OF_LIGHT_M_PER_S`).
+C_LIGHT = SPEED_OF_LIGHT_M_PER_S
 
 #: Path kinds in :attr:`LinkChannels.kind`.
 KIND_LOS, KIND_DIFFRACTION = 0, -1

@@ -18,8 +18,8 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
+from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import RadiolocError
-from radioloc.sim.measurements import SPEED_OF_LIGHT_M_PER_S
 
 #: ``(kinds, undo, how, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
 #: what the schema means (``how`` says what it does), and the question that names the slip.

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.bearing import BearingModel
@@ -24,9 +25,6 @@ from radioloc.models.ranging import range_geometry
 from radioloc.models.tdoa import TdoaModel
 
 __all__ = ["observe", "clock_trajectory", "simulate_tdoa", "simulate_aoa", "SPEED_OF_LIGHT_M_PER_S"]
-
-#: metres per second
-SPEED_OF_LIGHT_M_PER_S = 299_792_458.0
 
 
 def observe(model: MeasurementModel, states: np.ndarray, context: Context,
