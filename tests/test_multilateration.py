@@ -194,7 +194,8 @@ def test_only_the_near_ties_are_solved_again_and_flagged_ambiguous(monkeypatch):
     truth = np.array([7.0, 20.0])
     r = np.linalg.norm(a - truth, axis=-1) + np.array([0.05, -0.03, 0.02, -0.04])
     fit = Multilateration(std_m=0.05, on_degenerate="flag").locate(r, a)
-    assert sizes == [6, 1]                      # the nearly collinear problem only
+    # the nearly collinear problem only: from its reflection, and from where it stopped
+    assert sizes == [6, 1, 1]
     np.testing.assert_array_equal(fit.diagnostics["ambiguous"], [0, 0, 0, 0, 0, 1])
     np.testing.assert_array_equal(fit.diagnostics["degenerate"], [0, 0, 0, 0, 0, 1])
     # the ambiguous fix lies on one side, its mirror on the other: both near |y| = 20
@@ -221,7 +222,7 @@ def test_the_solution_stuck_in_the_worse_basin_is_solved_again(monkeypatch):
     start = truth - 2.0 * ((truth - c) @ normal) * normal + 1.0
     fit = Multilateration().locate(np.linalg.norm(a - truth, axis=-1), a, initial=start)
     np.testing.assert_allclose(fit.position, truth, atol=1e-6)
-    assert sizes == [1, 1]
+    assert sizes == [1, 1, 1]
 
 
 def test_a_range_beyond_any_consistent_geometry_is_refused_naming_ranges():
@@ -247,3 +248,15 @@ def test_a_well_posed_fix_is_the_generic_least_squares_fix(method):
     assert fit.converged.all() and ref.diagnostics["converged"].all()
     np.testing.assert_allclose(fit.position, ref.position, atol=1e-7)
     np.testing.assert_allclose(fit.covariance, ref.covariance, rtol=1e-6)
+
+
+def test_a_solve_stopped_short_across_nearly_coplanar_anchors_is_finished_before_the_mirror():
+    """Two anchors 1e-6 m apart leave three distinct ones: Levenberg-Marquardt stops 0.2 m
+    short in the weak direction, and its reflection leads to the mirror basin; the solution is
+    solved on from where it stopped, and the exact ranges pick the truth."""
+    a = np.array([[0.0, 0.0, 0.0], [0.0, 7.07e-7, 7.07e-7], [0.0, -0.5, 0.5], [1.0, 0.0, 0.0]])
+    truth = np.array([0.0, 0.0, 9.0])
+    r = np.linalg.norm(a - truth, axis=-1)
+    for method in ("levenberg-marquardt", "gauss-newton"):
+        fit = Multilateration(method=method).locate(r, a)
+        np.testing.assert_allclose(fit.position, truth, atol=1e-6)

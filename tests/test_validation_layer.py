@@ -265,3 +265,21 @@ def test_a_range_below_a_large_bias_names_the_bias_argument():
         check_ranges(np.array([9.8, 3.0]), "ranges", 0.1, bias_m=1e12, bias_name="range_bias_m")
     with pytest.raises(InputError, match=r"^ranges: range -1 at index \(1,\) .* below 0\)$"):
         check_ranges(np.array([9.8, -1.0]), "ranges", 0.1)
+
+
+def test_an_infinite_measurement_is_named_by_its_observation_and_index():
+    from radioloc.estimators.batch_smoother import BatchSmoother
+    from radioloc.estimators.least_squares import LeastSquares
+    from radioloc.models.measurement import Context, Observation
+    from radioloc.models.motion import WhiteAccelerationCV
+    from radioloc.models.ranging import RangeModel
+
+    pts = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0]])
+    z = np.array([[np.inf, 20.0, 15.0, 25.0]] * 3)
+    obs = Observation(RangeModel(std_m=0.1), z, Context(points=pts))
+    with pytest.raises(InputError, match=r"^observations\[0\]\.z: .*\(0, 0\)"):
+        LeastSquares().locate(obs)
+    with pytest.raises(InputError, match=r"^observations\[0\]\.z: .*\(0, 0\)"):
+        BatchSmoother(WhiteAccelerationCV(dim=2, q=0.1)).run(obs, np.arange(3.0),
+                                                            prior_mean=np.zeros(4),
+                                                            prior_cov=np.eye(4))

@@ -36,7 +36,7 @@ from scipy.linalg import LinAlgError, solveh_banded
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
 from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array, check_int,
-                                      check_positive, check_shapes)
+                                      check_positive, check_shapes, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
@@ -353,8 +353,8 @@ class BatchSmoother(RecursiveEstimator):
         rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos,
                         self.null_hypothesis)
         batch = rows.batch_shape((T,))[:-1]
-        if any(np.any(np.isinf(o.z)) for o in obs):
-            raise InputError("observations: infinite value (NaN marks a missing row)")
+        for i, o in enumerate(obs):
+            refuse_infinite(o.z, f"observations[{i}].z")
         if time is None:
             t = np.arange(T, dtype=float)
         else:

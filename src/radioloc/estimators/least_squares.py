@@ -28,7 +28,8 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate
-from radioloc.core.validation import MAX_ITERATIONS, as_float_array, check_int, check_positive
+from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_int, check_positive,
+                                      refuse_infinite)
 from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.nlls import NLLSResult, solve_nlls
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
@@ -246,13 +247,12 @@ class LeastSquares(SnapshotEstimator):
         obs = observation_list(observations)
         for i, o in enumerate(obs):
             self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
+            refuse_infinite(o.z, f"observations[{i}].z")
         layout = layout_for(obs, self.layout)
         rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos)
         batch = rows.batch_shape(())
         n, dim = layout.size, layout.dim
         z = rows.values(batch)
-        if np.any(np.isinf(z)):
-            raise InputError("observations: infinite value (NaN marks a missing row)")
         used = np.isfinite(z)
         if initial is None:
             x0 = np.zeros(batch + (n,))

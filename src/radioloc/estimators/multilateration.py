@@ -316,6 +316,18 @@ class Multilateration(SnapshotEstimator):
             sub, _ = self._leave_saddles(sub, r[maybe], a[maybe], w[maybe])
             for k, v in vars(sub).items():
                 getattr(alt, k)[maybe] = v
+            # the solution itself, solved on from where it stopped: across nearly flat
+            # anchors the solver can stop short in the weak direction, and the two basins
+            # are compared at their minima
+            again = self._solve(r[maybe], a[maybe], w[maybe], fit.x[maybe])
+            again, _ = self._leave_saddles(again, r[maybe], a[maybe], w[maybe])
+            gain = np.zeros(maybe.shape, dtype=bool)
+            gain[maybe] = again.cost < fit.cost[maybe] * (1 - 1e-9) - 1e-300
+            if np.any(gain):
+                fit = type(fit)(**{k: np.array(v, copy=True) for k, v in vars(fit).items()})
+                keep = gain[maybe]
+                for k, v in vars(again).items():
+                    getattr(fit, k)[gain] = np.asarray(v)[keep]
         better = maybe & (alt.cost < fit.cost * (1 - 1e-9) - 1e-300)
         s2 = noise_var(alt.cost)
         apart = np.linalg.norm(alt.x - fit.x, axis=-1) > distinct

@@ -712,7 +712,6 @@ class P2PParticleFilter(RecursiveEstimator):
         """:meth:`step` on checked inputs: ``theta`` (..., N, J) finite or NaN, ``mask`` its
         finite entries, ``nodes`` (..., N, J, 2) finite where ``mask``, ``u`` (..., N, 1, D)
         or None."""
-        D = self.motion.dim
         k = state.particles.shape[-2]
         links, valid = pack_mask(mask)                                        # (..., N, L)
         node_xy = gather_packed(nodes, links, axis=-2)                        # (..., N, L, 2)

@@ -19,7 +19,8 @@ from radioloc.core.geometry import distances
 from radioloc.core.links import gather_packed, pack_mask
 from radioloc.core.results import Estimate
 from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_array, check_int,
-                                      check_positive, check_ranges, range_noise_std)
+                                      check_positive, check_ranges, range_noise_std,
+                                      refuse_infinite)
 from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.local_search import search
@@ -316,8 +317,7 @@ class LocalML(SnapshotEstimator):
             if dim != 2:
                 raise ConfigError(f"observations[{i}].context.points: {type(self).__name__} "
                                   f"searches 2-D positions; the rows have {dim}-D points")
-            if np.any(np.isinf(o.z)):
-                raise InputError(f"observations[{i}].z: infinite value (NaN marks a missing row)")
+            refuse_infinite(o.z, f"observations[{i}].z")
         return obs
 
 
