@@ -62,6 +62,7 @@ from radioloc.estimators.kalman import (
     normalised_innovation_squared,
     rts_smooth,
 )
+from radioloc.estimators.observation_rows import common_steps
 from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 
 __all__ = ["ExtendedKalmanFilter", "FilterState", "PRIOR_VARIANCE_LIMIT"]
@@ -511,15 +512,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             ``innovation_covariance``, ``nis``, ``measurements_used``, ``gated`` (per step).
         """
         obs = _as_observations(observations)
-        T = None
-        for i, o in enumerate(obs):
-            if o.z.ndim < 2:
-                raise InputError(f"observations[{i}].z: expected shape (..., T, m), got {o.z.shape}")
-            refuse_infinite(o.z, f"observations[{i}].z")
-            if T is None:
-                T = o.steps
-            elif o.steps != T:
-                raise InputError(f"observations[{i}].z: {o.steps} steps, observations[0] has {T}")
+        T = common_steps(obs)
         t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time")
         if t.shape[-1:] != (T,):
             raise InputError(f"time: expected {T} steps, got shape {t.shape}")

@@ -46,7 +46,7 @@ from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_
                                       refuse_infinite)
 from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator, Tags
-from radioloc.estimators.observation_rows import observation_list
+from radioloc.estimators.observation_rows import common_steps, observation_list
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
 
@@ -1305,15 +1305,7 @@ class GridFilter(RecursiveEstimator):
             that entered the update) per step.
         """
         obs = self._checked(observations)
-        T = None
-        for i, o in enumerate(obs):
-            if o.z.ndim < 2:
-                raise InputError(f"observations[{i}].z: expected shape (..., T, m), got {o.z.shape}")
-            refuse_infinite(o.z, f"observations[{i}].z")
-            if T is None:
-                T = o.steps
-            elif o.steps != T:
-                raise InputError(f"observations[{i}].z: {o.steps} steps, observations[0] has {T}")
+        T = common_steps(obs)
         t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
         if t.shape != (T,):
             raise InputError(f"time: expected {T} steps, got shape {t.shape}")

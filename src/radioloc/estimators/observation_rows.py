@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.validation import refuse_infinite
 from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 from radioloc.estimators.robust_loss import max_mixture_terms, row_terms
 
@@ -39,6 +40,22 @@ def observation_list(observations: Observation | Sequence[Observation]) -> list[
         if not isinstance(o, Observation):
             raise InputError(f"observations[{i}]: expected an Observation, got {type(o).__name__}")
     return items
+
+
+def common_steps(observations: list[Observation]) -> int:
+    """The number of time steps ``T`` that every observation's ``z`` ``(..., T, m)`` shares
+    (an :class:`InputError` names the first that is not a time series, holds an infinite
+    value or has another length)."""
+    T = None
+    for i, o in enumerate(observations):
+        if o.z.ndim < 2:
+            raise InputError(f"observations[{i}].z: expected shape (..., T, m), got {o.z.shape}")
+        refuse_infinite(o.z, f"observations[{i}].z")
+        if T is None:
+            T = o.steps
+        elif o.steps != T:
+            raise InputError(f"observations[{i}].z: {o.steps} steps, observations[0] has {T}")
+    return T
 
 
 def _n_anchors(obs: Observation) -> int:
