@@ -33,9 +33,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import InputError
 from radioloc.models.fingerprint_mixture import FingerprintMixture
-from radioloc.models.measurement import (Context, MeasurementModel, checked_call,
+from radioloc.models.measurement import (Context, LikelihoodModel, checked_call,
                                          gaussian_logpdf)
 from radioloc.models.mixture import component_logpdf, log_sum_exp
 
@@ -43,7 +43,7 @@ __all__ = ["FingerprintScanModel"]
 
 
 @dataclass(frozen=True)
-class FingerprintScanModel(MeasurementModel):
+class FingerprintScanModel(LikelihoodModel):
     """Likelihood of a scan under a shared-place fingerprint model (module docstring).
 
     Parameters
@@ -59,7 +59,8 @@ class FingerprintScanModel(MeasurementModel):
 
     kind: ClassVar[str] = "rss_scan"
     #: an atom at "not detected" and no fixed spread: ``logpdf`` estimators only
-    gaussian: ClassVar[bool] = False
+    why: ClassVar[str] = ("a scan's readings have an atom at 'not detected' (a likelihood on "
+                          "positions: logpdf)")
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, FingerprintMixture):
@@ -135,20 +136,6 @@ class FingerprintScanModel(MeasurementModel):
         total = log_sum_exp(lr + cum)                                         # (..., m)
         before = np.concatenate([np.zeros(total.shape[:-1] + (1,)), total[..., :-1]], -1)
         return total - before
-
-    def _refuse(self, what: str):
-        raise ConfigError(f"FingerprintScanModel has no {what}: a scan's readings have an "
-                          "atom at 'not detected' (a likelihood on positions: logpdf); use an "
-                          "estimator whose tags.uses is 'logpdf'")
-
-    def predict(self, state, context: Context) -> np.ndarray:
-        self._refuse("measurement function h(x)")
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        self._refuse("Jacobian")
-
-    def std(self, context: Context) -> np.ndarray:
-        self._refuse("Gaussian noise")
 
     def sample(self, state, context: Context, rng: np.random.Generator) -> np.ndarray:
         """A scan at each position: a place by ``r_j(x)``, then each access point detected

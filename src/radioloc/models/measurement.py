@@ -39,11 +39,12 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_ranges,
                                       check_real, check_shapes, range_noise_std, refuse_infinite)
 
-__all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "numerical_jacobian",
+__all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "LikelihoodModel",
+           "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -579,6 +580,33 @@ class MeasurementModel:
         z = z_hat + self.noise_mean(context) + v
         return wrap_angle(z) if self.angular else z
 
+
+
+class LikelihoodModel(MeasurementModel):
+    """A model that gives only a log-likelihood on states (:meth:`logpdf`), with no
+    measurement function to linearise and no fixed Gaussian noise: ``gaussian = False``,
+    so :meth:`Tags.accepts <radioloc.estimators.base.Tags.accepts>` hands it to estimators
+    whose ``tags.uses`` is ``"logpdf"`` only, and :meth:`predict`, :meth:`jacobian` and
+    :meth:`std` refuse with a :class:`ConfigError` that says why (:attr:`why`). A subclass
+    defines :meth:`logpdf` (and :meth:`predict` or :meth:`sample` where it has them)."""
+
+    gaussian: ClassVar[bool] = False
+    #: why the model has none of those (completes the refusal message)
+    why: ClassVar[str] = "it is a likelihood on positions (logpdf only)"
+
+    def refuse(self, what: str):
+        """Raise the :class:`ConfigError` for a missing ``what``."""
+        raise ConfigError(f"{type(self).__name__} has no {what}: {self.why}; use an estimator "
+                          "whose tags.uses is 'logpdf'")
+
+    def predict(self, state, context: Context) -> np.ndarray:
+        self.refuse("measurement function h(x)")
+
+    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
+        self.refuse("Jacobian")
+
+    def std(self, context: Context) -> np.ndarray:
+        self.refuse("Gaussian noise")
 
 def row_std(value, name: str) -> np.ndarray:
     """Per-row standard deviations as given by a user: real, NaN (the model's) or within

@@ -39,8 +39,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from radioloc.core.errors import ConfigError, InputError
-from radioloc.models.measurement import (Context, MeasurementModel, checked_call,
+from radioloc.core.errors import InputError
+from radioloc.models.measurement import (Context, LikelihoodModel, checked_call,
                                          gaussian_logpdf)
 from radioloc.models.mixture import DiagMixture, component_logpdf, log_sum_exp
 
@@ -48,7 +48,7 @@ __all__ = ["MixtureRssModel"]
 
 
 @dataclass(frozen=True)
-class MixtureRssModel(MeasurementModel):
+class MixtureRssModel(LikelihoodModel):
     """Likelihood of signal strengths under per-station calibration mixtures (module
     docstring).
 
@@ -73,7 +73,7 @@ class MixtureRssModel(MeasurementModel):
 
     kind: ClassVar[str] = "rss_fingerprint"
     #: no fixed Gaussian noise: ``Tags.accepts`` gives it to ``logpdf`` estimators only
-    gaussian: ClassVar[bool] = False
+    why: ClassVar[str] = "its noise depends on the position (a likelihood on positions: logpdf)"
 
     def __post_init__(self) -> None:
         mix = self.models
@@ -157,17 +157,6 @@ class MixtureRssModel(MeasurementModel):
         """
         log_r, nu, _ = self.responsibilities(state, context)
         return np.sum(np.exp(log_r) * nu, axis=-1)
-
-    def _refuse(self, what: str):
-        raise ConfigError(f"MixtureRssModel has no {what}: its noise depends on the position "
-                          "(a likelihood on positions: logpdf); use an estimator whose "
-                          "tags.uses is 'logpdf'")
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        self._refuse("Jacobian for a Gaussian linearisation")
-
-    def std(self, context: Context) -> np.ndarray:
-        self._refuse("fixed Gaussian noise")
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         """``log p(m | x)`` per row ``(..., m)`` (NaN rows give 0).

@@ -23,9 +23,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import InputError
 from radioloc.core.validation import check_positive
-from radioloc.models.measurement import Context, MeasurementModel, checked_call
+from radioloc.models.measurement import Context, LikelihoodModel, MeasurementModel, checked_call
 from radioloc.models.ranging import range_geometry
 from radioloc.models.rssi_logdistance import LogDistanceGaussian
 from radioloc.models.rssi_trapezoid import TrapezoidModel
@@ -145,7 +145,7 @@ class AnchorRssModel(MeasurementModel):
 
 
 @dataclass(frozen=True)
-class TrapezoidRssModel(MeasurementModel):
+class TrapezoidRssModel(LikelihoodModel):
     """Likelihood-only RSS model over paper 003's trapezoids (see the module docstring).
 
     Parameters
@@ -158,29 +158,13 @@ class TrapezoidRssModel(MeasurementModel):
     model: TrapezoidModel
 
     kind: ClassVar[str] = "rss"
-    #: no measurement function to linearise: ``Tags.accepts`` gives it to ``logpdf``
-    #: estimators only
-    gaussian: ClassVar[bool] = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, TrapezoidModel):
             raise InputError(f"model: expected a TrapezoidModel, got {type(self.model).__name__}")
 
-    def _refuse(self, what: str):
-        raise ConfigError(f"TrapezoidRssModel has no {what}: it is a likelihood on positions "
-                          "(logpdf only); use an estimator whose tags.uses is 'logpdf'")
-
-    def predict(self, state, context: Context) -> np.ndarray:
-        self._refuse("measurement function h(x)")
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        self._refuse("Jacobian")
-
-    def std(self, context: Context) -> np.ndarray:
-        self._refuse("Gaussian noise")
-
     def sample(self, state, context: Context, rng: np.random.Generator) -> np.ndarray:
-        self._refuse("sampler of readings")
+        self.refuse("sampler of readings")
 
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         """``log L(|x - a| | rssi)`` per row ``(..., m)`` (NaN rows give 0; ``-inf`` outside
