@@ -260,3 +260,9 @@ def test_a_solve_stopped_short_across_nearly_coplanar_anchors_is_finished_before
     for method in ("levenberg-marquardt", "gauss-newton"):
         fit = Multilateration(method=method).locate(r, a)
         np.testing.assert_allclose(fit.position, truth, atol=1e-6)
+
+
+def test_a_subnormal_weight_is_refused_naming_weights():
+    r = np.linalg.norm(SQUARE - np.array([8.5, 13.5]), axis=-1)
+    with pytest.raises(InputError, match=r"^weights: 4.94e-324 at index \(0,\) is above 0"):
+        Multilateration(std_m=0.01).locate(r, SQUARE, weights=np.full(4, 5e-324))

@@ -17,8 +17,8 @@ import numpy as np
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.results import Estimate
-from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, as_float_array, check_int,
-                                      check_positive, check_ranges)
+from radioloc.core.validation import (MAGNITUDE_LIMIT, MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array,
+                                      check_int, check_positive, check_ranges)
 from radioloc.estimators.base import SnapshotEstimator
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.models.measurement import Context, Observation
@@ -398,6 +398,11 @@ class Multilateration(SnapshotEstimator):
                              f"anchors' {a.shape[:-2]}") from None
         w = np.ones(r.shape) if weights is None else as_float_array(weights, "weights",
                                                                    nonnegative=True)
+        tiny = (w > 0) & (w < POSITIVE_FLOOR)           # its sigma w^-1/2 would be unbounded
+        if np.any(tiny):
+            idx = tuple(int(i) for i in np.argwhere(tiny)[0])
+            raise InputError(f"weights: {float(w[idx]):.3g} at index {idx} is above 0 and below "
+                             f"{POSITIVE_FLOOR:g} (0 marks a missing range)")
         try:
             w = np.broadcast_to(w, batch + r.shape[-1:]).astype(float)
         except ValueError:
