@@ -283,3 +283,17 @@ def test_an_infinite_measurement_is_named_by_its_observation_and_index():
         BatchSmoother(WhiteAccelerationCV(dim=2, q=0.1)).run(obs, np.arange(3.0),
                                                             prior_mean=np.zeros(4),
                                                             prior_cov=np.eye(4))
+
+
+def test_the_particle_filter_names_an_infinite_measurement():
+    from radioloc.estimators.particle_filter import ParticleFilter
+    from radioloc.models.measurement import Context, Observation
+    from radioloc.models.motion import WhiteAccelerationCV
+    from radioloc.models.ranging import RangeModel
+
+    pts = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0]])
+    z = np.array([[np.inf, 20.0, 15.0, 25.0]] * 3)
+    obs = Observation(RangeModel(std_m=0.1), z, Context(points=pts))
+    with pytest.raises(InputError, match=r"^observations\[0\]\.z: .*\(0, 0\)"):
+        ParticleFilter(WhiteAccelerationCV(dim=2, q=0.1), n_particles=50, seed=1).run(
+            obs, np.arange(3.0), prior_mean=np.zeros(4), prior_cov=np.eye(4))

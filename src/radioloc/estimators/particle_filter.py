@@ -52,6 +52,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import MAX_PARTICLES, as_float_array, check_int, check_positive
 from radioloc.estimators.base import RecursiveEstimator, Tags
+from radioloc.estimators.observation_rows import common_steps
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.resampling import get_scheme, systematic
 from radioloc.models.measurement import Context, Observation, StateLayout
@@ -723,11 +724,7 @@ class ParticleFilter(RecursiveEstimator):
             ``state_covariance``, ``ess``, ``resets`` (..., T).
         """
         obs = _as_observations(observations)
-        T = obs[0].steps if obs[0].z.ndim >= 2 else 0
-        for i, o in enumerate(obs):
-            if o.z.ndim < 2 or o.steps != T:
-                raise InputError(f"observations[{i}]: z must be (..., T, m) with the T = {T} "
-                                 f"steps of observations[0], got shape {o.z.shape}")
+        T = common_steps(obs)
         if T < 1:
             raise InputError("observations: no time step")
         t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
