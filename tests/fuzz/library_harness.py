@@ -264,7 +264,8 @@ def case_closed_form() -> Case:
     return Case("ClosedFormTracker", {"accel_var": 1e-6, "std_m": 0.01},
                 {"ranges": r, "sensor_path": sensor, "sample_period_s": T},
                 {"accel_var": Field(setting=True, neg_ok=False),
-                 "std_m": Field(setting=True, neg_ok=False),
+                 # None is the default: no noise (or give measurement=)
+                 "std_m": Field(setting=True, neg_ok=False, none_ok=True),
                  "max_iter": Field(setting=True, integer=True, neg_ok=False),
                  "ranges": Field(nan_ok=True, neg_ok=False), "sensor_path": Field(extra_ok=True),
                  "sample_period_s": Field(neg_ok=False, zero_ok=False, shape_free=True)},
