@@ -297,7 +297,7 @@ def case_grid() -> Case:
     return Case("GridFilter", {"geometry": GridGeometry.centred(30, 16, 1.0, centre=(15.0, 6.0)),
                                "model": LOGD, "epsilon": 1e-12},
                 {"tracker_xy": xy, "rssi": rssi},
-                {"epsilon": Field(setting=True, neg_ok=False),
+                {"epsilon": Field(setting=True, neg_ok=False, none_ok=True),   # None: its default
                  "blur_m": Field(setting=True, neg_ok=False),
                  "tracker_xy": Field(nan_ok=True), "rssi": Field(nan_ok=True)},
                 lambda s, a: GridFilter(**s).run(a["tracker_xy"], a["rssi"]))
