@@ -378,8 +378,8 @@ def case_least_squares() -> Case:
                  "context_std": np.full(4, 0.05)},
                 {**_generic_fields(False),
                  "loss_scale": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "max_iterations": Field(setting=True, integer=True, neg_ok=False,
-                                         zero_ok=False)},
+                 # 0 iterations is documented: the start is returned
+                 "max_iterations": Field(setting=True, integer=True, neg_ok=False)},
                 lambda s, a: _least_squares(s, a, RangeModel(std_m=0.05)),
                 truth, 1e-3)
 
