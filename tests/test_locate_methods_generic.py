@@ -111,8 +111,9 @@ def test_robust_methods_resist_one_nlos_range(method, options):
         run("lsq", meas)
 
 
-def test_lsq_reads_tdoa_and_aoa_rows():
-    t, pos = truth()
+def tdoa_aoa_log(n_times=8):
+    """Time differences to A0 from the four other anchors and bearings from A0 and A2."""
+    t, pos = truth(n_times)
     rows = []
     rng = np.random.default_rng(3)
     for node, p in pos.items():
@@ -125,7 +126,11 @@ def test_lsq_reads_tdoa_and_aoa_rows():
                 v = p[i] - ANCHORS[a]
                 rows.append((ti, node, IDS[a], "aoa", np.arctan2(v[1], v[0])
                              + 0.002 * rng.standard_normal(), ""))
-    meas = pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value", "reference"])
+    return pd.DataFrame(rows, columns=["time", "node", "peer", "kind", "value", "reference"]), pos
+
+
+def test_lsq_reads_tdoa_and_aoa_rows():
+    meas, pos = tdoa_aoa_log()
     out = run("lsq", meas, tdoa_std_m=0.01, aoa_std_rad=0.002)
     assert len(out) == 16 and error_m(out, pos).max() < 0.1
     assert (out["measurements"] == 6).all() and (out["uncertainty_m"] < 0.1).all()
@@ -179,6 +184,27 @@ def test_bad_options_and_kinds_are_named():
     for method in ("localml", "ransac", "lsq", "smoother"):
         with pytest.raises(InputError, match="rss"):
             run(method, pd.concat([meas, rss.iloc[:3]]))
+
+
+def test_smoother_method_reads_tdoa_and_aoa_rows():
+    """The smoother takes the kinds ekf-track takes: a log of time differences and bearings
+    (no range) is smoothed near the truth, the rows counted per kind; the LOS/NLOS
+    max-mixture, a model of ranges, is refused by name on it."""
+    meas, pos = tdoa_aoa_log(n_times=20)
+    out = run("smoother", meas, tdoa_std_m=0.01, aoa_std_rad=0.002, q=0.01)
+    assert len(out) == 40 and error_m(out, pos).max() < 0.1
+    summary = out.attrs["summary"]
+    assert summary["loss"] == "linear" and summary["measurements"] == {"tdoa": 160, "aoa": 80}
+    bearings = run("smoother", meas[meas.kind == "aoa"], aoa_std_rad=0.002, q=0.01)
+    err = error_m(bearings, pos)
+    assert err.max() < 0.5
+    assert (err < 4 * bearings.sort_values(["node", "time"])["uncertainty_m"].to_numpy()).all()
+    with pytest.raises(ConfigError, match="max-mixture"):
+        run("smoother", meas, loss="max-mixture")
+    ranges, _ = range_log(n_times=20)
+    both = run("smoother", pd.concat([meas, ranges.assign(reference="")]), tdoa_std_m=0.01,
+               aoa_std_rad=0.002, q=0.01, los_std_m=0.05, nlos_mean_m=1.0, alpha=0.9)
+    assert both.attrs["summary"]["loss"] == "max-mixture" and error_m(both, pos).max() < 0.1
 
 
 def test_smoother_method_tracks_each_node_of_a_range_log():
@@ -306,3 +332,15 @@ def test_lsq_fixes_each_epoch_with_the_anchors_where_they_were_at_its_time():
     assert len(out) == 16 and error_m(out, pos).max() < 1e-6
     with pytest.raises(InputError, match="do not fit one position"):   # A0 held at 0 s
         run("lsq", meas, anchors.drop_duplicates("id").drop(columns="time"))
+
+
+@pytest.mark.parametrize("method,options", [("ekf-track", {}), ("smoother", {"loss": "huber"})])
+def test_a_stated_range_bias_is_removed_exactly(method, options):
+    """Ranges all long by c, with ``-o range_bias_m=c``, give the tracks of the unbiased log
+    (the start fix included)."""
+    meas, pos = range_log(std=0.05, n_times=12)
+    base = run(method, meas, range_std_m=0.05, **options)
+    long = meas.assign(value=meas["value"] + 0.7)
+    same = run(method, long, range_std_m=0.05, range_bias_m=0.7, **options)
+    np.testing.assert_allclose(same[["x", "y"]].to_numpy(), base[["x", "y"]].to_numpy(),
+                               atol=1e-6, rtol=0)

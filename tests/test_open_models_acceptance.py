@@ -84,8 +84,9 @@ def _log(kind, rng):
     return frame, xy
 
 
+@pytest.mark.parametrize("method", ["ekf-track", "smoother"])
 @pytest.mark.parametrize("kind,option", [("tdoa", "tdoa_std_m=0.05"), ("aoa", "aoa_std_rad=0.01")])
-def test_new_kinds_run_through_locate(tmp_path, kind, option):
+def test_new_kinds_run_through_locate(tmp_path, kind, option, method):
     frame, xy = _log(kind, np.random.default_rng(5))
     if kind != "tdoa":
         frame = frame.drop(columns="reference")
@@ -93,7 +94,7 @@ def test_new_kinds_run_through_locate(tmp_path, kind, option):
     pd.DataFrame({"id": [f"A{a}" for a in range(6)], "x": ANCHORS[:, 0], "y": ANCHORS[:, 1]}
                  ).to_csv(tmp_path / "a.csv", index=False)
     res = CliRunner().invoke(app, ["locate", str(tmp_path / "m.csv"), "--anchors", str(tmp_path / "a.csv"),
-                                   "--method", "ekf-track", "-o", option, "--out", str(tmp_path / "t.csv")])
+                                   "--method", method, "-o", option, "--out", str(tmp_path / "t.csv")])
     assert res.exit_code == 0, res.output
     out = pd.read_csv(tmp_path / "t.csv")
     err = np.hypot(out.x - xy[:, 0], out.y - xy[:, 1])

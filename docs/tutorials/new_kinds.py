@@ -90,10 +90,12 @@ def main(out: str | Path = "tutorial-new-kinds") -> pd.DataFrame:
     rows = []
     for kind, frame in logs(rng).items():
         frame.to_csv(out / f"{kind}.csv", index=False)
-        radioloc("locate", out / f"{kind}.csv", "--anchors", out / "anchors.csv", "--method",
-                 "ekf-track", *options[kind], "--quiet", "--out", out / f"{kind}-track.csv")
-        rows.append({"log": kind, "command": f"--method ekf-track {' '.join(options[kind])}",
-                     "result": f"track RMSE {rmse(out / f'{kind}-track.csv', xy, t):.2f} m"})
+        for method in ("ekf-track", "smoother"):
+            track = out / f"{kind}-{method}.csv"
+            radioloc("locate", out / f"{kind}.csv", "--anchors", out / "anchors.csv", "--method",
+                     method, *options[kind], "--quiet", "--out", track)
+            rows.append({"log": kind, "command": f"--method {method} {' '.join(options[kind])}",
+                         "result": f"track RMSE {rmse(track, xy, t):.2f} m"})
     anchors, log = calibration_log(rng)
     anchors.to_csv(out / "rough_anchors.csv", index=False)
     log.to_csv(out / "calibration.csv", index=False)

@@ -386,6 +386,31 @@ def check_memory(n_bytes: float, name: str, what: str = "") -> None:
                           "(RADIOLOC_MEMORY_LIMIT_GB)")
 
 
+def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12) -> None:
+    """Refuse covariance matrices ``(..., n, n)`` that are not symmetric positive definite,
+    or whose variances exceed ``max_variance`` (a filter's update would then lose every
+    digit against metre-scale measurements), naming ``name`` and the entry.
+
+    Raises
+    ------
+    InputError
+    """
+    diag = np.diagonal(cov, axis1=-2, axis2=-1)
+    if np.any(diag > max_variance):
+        idx = tuple(int(i) for i in np.argwhere(diag > max_variance)[0])
+        raise InputError(f"{name}: variance {diag[idx]:g} at diagonal index {idx} is beyond "
+                         f"the supported {max_variance:g} (the update would lose every digit "
+                         "against metre-scale measurements)")
+    asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
+        np.swapaxes(cov, -1, -2))) + 1e-300
+    if np.any(asym):
+        raise InputError(f"{name}: not symmetric (entry {tuple(int(i) for i in np.argwhere(asym)[0])})")
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{name}: not symmetric positive definite") from None
+
+
 def check_probability(value: float, name: str) -> float:
     """A scalar in [0, 1] (not a bool, text or None)."""
     v = _scalar(value, name)

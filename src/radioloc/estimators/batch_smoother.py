@@ -179,6 +179,22 @@ class BatchSmoother(RecursiveEstimator):
         except InputError as exc:
             raise ConfigError(str(exc)) from None
 
+    def state_layout(self, observations) -> StateLayout:
+        """The state the smoother estimates for ``observations``: the motion model's
+        kinematic state, then what the models read (a clock offset, per-anchor biases).
+
+        Parameters
+        ----------
+        observations : Observation or sequence of Observation
+
+        Returns
+        -------
+        StateLayout
+        """
+        return layout_for(observation_list(observations),
+                          StateLayout(dim=self.motion.dim,
+                                      order=self.motion.state_dim // self.motion.dim - 1))
+
     # ---- the model of the whole trajectory ----------------------------------------------
     def _transition(self, layout: StateLayout, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``F_t``, ``Q_t^-1`` ``(..., T - 1, n, n)`` of the full layout."""
@@ -348,8 +364,7 @@ class BatchSmoother(RecursiveEstimator):
             raise InputError("observations: each needs values (..., T, m) with the same T, got "
                              + ", ".join(str(o.z.shape) for o in obs))
         T = obs[0].steps
-        layout = layout_for(obs, StateLayout(dim=self.motion.dim,
-                                             order=self.motion.state_dim // self.motion.dim - 1))
+        layout = self.state_layout(obs)
         rows = RowStack(obs, layout, self.loss, self.loss_scale, self.los_nlos,
                         self.null_hypothesis)
         batch = rows.batch_shape((T,))[:-1]

@@ -50,6 +50,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import (
     as_float_array,
+    check_covariance,
     check_finite_output,
     check_positive,
     refuse_infinite,
@@ -284,20 +285,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         if cov.shape[-2] != size:
             raise InputError(f"prior_cov: expected (..., {size}, {size}) like prior_mean, "
                              f"got {cov.shape}")
-        diag = np.diagonal(cov, axis1=-2, axis2=-1)
-        if np.any(diag > PRIOR_VARIANCE_LIMIT):
-            idx = tuple(int(i) for i in np.argwhere(diag > PRIOR_VARIANCE_LIMIT)[0])
-            raise InputError(f"prior_cov: variance {diag[idx]:g} at diagonal index {idx} is beyond "
-                             f"the supported {PRIOR_VARIANCE_LIMIT:g} (the update would lose "
-                             "every digit against metre-scale measurements)")
-        asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
-            np.swapaxes(cov, -1, -2))) + 1e-300
-        if np.any(asym):
-            raise InputError(f"prior_cov: not symmetric (entry {tuple(int(i) for i in np.argwhere(asym)[0])})")
-        try:
-            np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:
-            raise InputError("prior_cov: not symmetric positive definite") from None
+        check_covariance(cov, "prior_cov", PRIOR_VARIANCE_LIMIT)
         try:
             batch = np.broadcast_shapes(mean.shape[:-1], cov.shape[:-2])
         except ValueError:

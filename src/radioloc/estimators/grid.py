@@ -46,8 +46,9 @@ from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_
                                       refuse_infinite)
 from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator, Tags
-from radioloc.estimators.observation_rows import common_steps, observation_list
-from radioloc.models.measurement import Context, Observation
+from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
+                                                  unflatten_estimate, with_candidate_axes)
+from radioloc.models.measurement import Observation
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
 
 _BLURS = ("fft", "recursive")
@@ -1263,7 +1264,7 @@ class GridFilter(RecursiveEstimator):
             z = np.broadcast_to(z, (B, z.shape[-1]))
             zc = np.broadcast_to(z[:, None, None, :], (B, geom.h, geom.w, z.shape[-1]))
             with np.errstate(invalid="ignore"):     # NaN rows: the model gives them 0
-                lp = lp + model.logpdf(zc, {"position": pos}, _on_cells(ctx)).sum(axis=-1)
+                lp = lp + model.logpdf(zc, {"position": pos}, with_candidate_axes(ctx)).sum(axis=-1)
             heard = heard + np.isfinite(z).sum(axis=-1)
             if np.isnan(lp).any():
                 raise InputError(f"observations[{i}]: {type(model).__name__}.logpdf gave NaN "
@@ -1341,10 +1342,10 @@ class GridFilter(RecursiveEstimator):
         for k in range(T):
             if k:
                 state = self.drift(state, float(t[k] - t[k - 1]))
-            rows = [(o.model,) + _flat_step(*o.at(k), batch) for o in obs]
+            rows = [(o.model,) + flatten_step(*o.at(k), batch) for o in obs]
             state, heard = self._update_rows(state, rows)
             est = self.estimate(state)
-            out.append(_unflatten(Estimate(est.position, est.covariance, est.time,
+            out.append(unflatten_estimate(Estimate(est.position, est.covariance, est.time,
                                            {**est.diagnostics, "measurements_used": heard}),
                                   batch))
         return track_from_steps(out, time=t)
@@ -1361,36 +1362,3 @@ def _cell_points(geom: GridGeometry) -> np.ndarray:
     """Cell centres ``(h, w, 2)`` in ``(x, y)`` order."""
     gx, gy = np.meshgrid(geom.x, geom.y)
     return np.stack([gx, gy], axis=-1)
-
-
-def _on_cells(ctx: Context) -> Context:
-    """A context whose batch axes ``(B, m, ...)`` gain the grid's two axes ``(B, 1, 1, m)``
-    (a context without batch axes broadcasts as it is)."""
-    def cells(a, base):
-        return a if a is None or a.ndim <= base else a[:, None, None]
-    return replace(ctx, points=cells(ctx.points, 2), reference=cells(ctx.reference, 2),
-                   std=cells(ctx.std, 1))
-
-
-def _flat_step(z: np.ndarray, ctx: Context, batch: tuple[int, ...]
-               ) -> tuple[np.ndarray, Context]:
-    """One step's values ``(B, m)`` and context with the batch axes flattened."""
-    B = int(np.prod(batch, dtype=np.int64))
-    m = z.shape[-1]
-    z = np.broadcast_to(z, batch + (m,)).reshape(B, m)
-
-    def flat(a, base):
-        if a is None or a.ndim <= base:
-            return a
-        return np.broadcast_to(a, batch + a.shape[-base:]).reshape((B,) + a.shape[-base:])
-    return z, replace(ctx, points=flat(ctx.points, 2), reference=flat(ctx.reference, 2),
-                      std=flat(ctx.std, 1))
-
-
-def _unflatten(est: Estimate, batch: tuple[int, ...]) -> Estimate:
-    """An estimate of ``B`` flattened runs with its batch axes restored."""
-    def back(a):
-        a = np.asarray(a)
-        return a.reshape(batch + a.shape[1:])
-    return Estimate(back(est.position), back(est.covariance), est.time,
-                    {k: back(v) for k, v in est.diagnostics.items()})

@@ -29,12 +29,14 @@ import numpy as np
 
 from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
-from radioloc.core.errors import InputError, RadiolocError
+from radioloc.core.errors import ConfigError, InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import (MAX_COMPONENTS, as_float_array, check_int, check_memory,
-                                      refuse_infinite)
+from radioloc.core.validation import (MAX_COMPONENTS, as_float_array, check_covariance,
+                                      check_int, check_memory, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator, Tags
-from radioloc.estimators.observation_rows import observation_list
+from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
+                                                  unflatten_estimate, with_candidate_axes)
+from radioloc.estimators.progressive_update import progressive_update
 from radioloc.models.fingerprint_mixture import FingerprintMixture, place_moments, place_weights
 from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
                                      convolve, linear_predict, merge_groups, outer,
@@ -413,15 +415,16 @@ class MixtureState:
 class MixtureTracker(RecursiveEstimator):
     """Recursive Bayesian tracking with mixture densities (Sect. 4, Fig. 7).
 
-    Observations: :meth:`run` also takes an
-    :class:`~radioloc.models.measurement.Observation` of a
+    Observations: :meth:`run` also takes
+    :class:`~radioloc.models.measurement.Observation` inputs with a prior (``prior_mean``,
+    ``prior_cov`` or a mixture), the form of the generic estimators (``tags``: any model
+    with a ``logpdf`` of the position). Observations of a
     :class:`~radioloc.models.mixture_rss.MixtureRssModel` (the calibration mixtures as a
-    measurement model, rows the stations) with a Gaussian prior (``prior_mean``,
-    ``prior_cov``), the form of the generic estimators (``tags``: kind
-    ``"rss_fingerprint"``). Other likelihoods are not taken: the filter step is the
-    product with the measurement density in mixture form (the conditioned calibration
-    mixtures, eq. (2)), which a general ``logpdf`` does not give; the grid and particle
-    filters take those.
+    measurement model, rows the stations) take the paper's filter step, the exact product
+    with the measurement density of eq. (2). Other models (ranges, time differences,
+    bearings, path-loss RSS, ...) take a Gaussian-sum filter step: each predicted
+    component is multiplied by the likelihood and moment-matched by a progressive update
+    on Gauss-Hermite nodes (ours; :meth:`run_observations`).
 
     Parameters
     ----------
@@ -486,7 +489,7 @@ class MixtureTracker(RecursiveEstimator):
     """
 
     name = "mixture-tracker"
-    tags = Tags(kinds=("rss_fingerprint",), uses="logpdf", dims=(1, 2), recursive=True,
+    tags = Tags(kinds=None, uses="logpdf", dims=(1, 2), recursive=True,
                 generic=True, reads=("position",))
 
     def __init__(self, models: DiagMixture | None = None,
@@ -758,9 +761,8 @@ class MixtureTracker(RecursiveEstimator):
         """
         if isinstance(rss, Observation) or (isinstance(rss, (list, tuple)) and rss
                                             and isinstance(rss[0], Observation)):
-            if prior is not None:
-                raise InputError("prior: with observations give prior_mean and prior_cov")
-            return self.run_observations(rss, time, prior_mean=prior_mean, prior_cov=prior_cov)
+            return self.run_observations(rss, time, prior_mean=prior_mean, prior_cov=prior_cov,
+                                         prior=prior)
         if prior_mean is not None or prior_cov is not None:
             raise InputError("prior_mean: taken with observations; with readings give prior "
                              "(a DiagMixture)")
@@ -792,35 +794,53 @@ class MixtureTracker(RecursiveEstimator):
 
 
     def run_observations(self, observations, time=None, *, prior_mean=None,
-                         prior_cov=None) -> Track:
-        """Track through observations of a
-        :class:`~radioloc.models.mixture_rss.MixtureRssModel` (paper 004's calibration
-        mixtures as a measurement model): its rows are stations (``context.index``), its
-        mixtures the tracker's station models, and the filter that of :meth:`run` on the
-        readings placed in their station columns.
+                         prior_cov=None, prior: DiagMixture | None = None) -> Track:
+        """Track through observations of any model with a log-likelihood of the position.
+
+        - One observation of a :class:`~radioloc.models.mixture_rss.MixtureRssModel`
+          (paper 004's calibration mixtures as a measurement model): its rows are stations
+          (``context.index``), its mixtures the tracker's station models, and the filter
+          that of :meth:`run` on the readings placed in their station columns (the exact
+          product of eq. (2)).
+        - Any other models (ranges, time differences, bearings, signal strength, ...,
+          several at once): each step predicts every component (as the continuous
+          reduction does: the disk cells of a component merged back into one, or the
+          constant-velocity transition) and multiplies it by the rows' likelihood through
+          the models' ``logpdf``, re-approximated per component by a progressive Gaussian
+          update on Gauss-Hermite nodes
+          (:func:`~radioloc.estimators.progressive_update.progressive_update`). The number
+          of components is that of the prior. A run whose rows have zero likelihood on
+          every node keeps its prediction for that step (``measurements_used`` 0).
 
         Parameters
         ----------
-        observations : Observation or a sequence of one
-            ``z`` ``(..., T, m)``; NaN = not received.
+        observations : Observation or sequence of Observation
+            ``z`` ``(..., T, m)`` each, the same ``T``; NaN = not received.
         time : array_like, shape (T,), optional
             Step times, seconds (default ``0..T-1``).
         prior_mean, prior_cov : array_like, optional
             Gaussian prior on the state (``(..., n)``, ``(n, n)`` or ``(..., n, n)``,
             ``n`` = :attr:`state_dim`): one component with the diagonal of ``prior_cov``
-            (the mixture is axis-aligned). Without it, the calibration area (and, with
-            velocity, the ball of ``BoundedSpeedCV``).
+            (the mixture is axis-aligned). Without it, a mixture tracker's calibration area
+            (and, with velocity, the ball of ``BoundedSpeedCV``); other models need a prior.
+        prior : DiagMixture, optional
+            A mixture prior instead (as for :meth:`init`; not with a
+            :class:`~radioloc.models.mixture_rss.MixtureRssModel`).
 
         Returns
         -------
         Track
+            ``position`` ``(..., T, D)``, ``covariance`` ``(..., T, D, D)``, ``time``;
+            diagnostics as in :meth:`estimate`.
         """
         obs = observation_list(observations)
         for i, o in enumerate(obs):
             self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
-        if len(obs) != 1:
-            raise InputError(f"observations: the mixture tracker takes one observation (its "
-                             f"rows the stations), got {len(obs)}")
+        if len(obs) != 1 or not isinstance(obs[0].model, MixtureRssModel):
+            return self._run_models(obs, time, prior_mean, prior_cov, prior)
+        if prior is not None:
+            raise InputError("prior: with observations of a MixtureRssModel give prior_mean "
+                             "and prior_cov")
         o = obs[0]
         model: MixtureRssModel = o.model
         if model.dim != self.dim:
@@ -837,27 +857,138 @@ class MixtureTracker(RecursiveEstimator):
         rss = np.full(z.shape[:-1] + (model.n_stations,), np.nan)
         rss[..., idx] = z
         t = np.arange(z.shape[-2], dtype=float) if time is None else time
-        prior = None
-        if prior_mean is not None or prior_cov is not None:
-            if prior_mean is None or prior_cov is None:
-                raise InputError("prior_mean: give both prior_mean and prior_cov")
-            n = self.state_dim
-            mean = as_float_array(prior_mean, "prior_mean", min_ndim=1)
-            cov = as_float_array(prior_cov, "prior_cov", min_ndim=2)
-            if mean.shape[-1] != n or cov.shape[-2:] != (n, n):
-                raise InputError(f"prior_mean: expected shape (..., {n}) and prior_cov "
-                                 f"(..., {n}, {n}) (the tracker's state), got {mean.shape} "
-                                 f"and {cov.shape}")
-            var = np.diagonal(cov, axis1=-2, axis2=-1)
-            if np.any(~(var > 0)):
-                raise InputError("prior_cov: the diagonal must be positive")
-            shape = np.broadcast_shapes(mean.shape, var.shape)
-            prior = DiagMixture(np.ones(shape[:-1] + (1,)),
-                                np.broadcast_to(mean, shape)[..., None, :],
-                                np.broadcast_to(var, shape)[..., None, :])
+        prior = self._gaussian_prior(prior_mean, prior_cov)
         tracker = self if self.models is model.models else MixtureTracker(
             model.models, self.motion, self.max_components, self.reduction, self.backend)
         return tracker.run(rss, t, prior)
+
+    def _prior_moments(self, prior_mean, prior_cov) -> tuple[np.ndarray, np.ndarray] | None:
+        """A Gaussian prior on the state, checked: ``(mean (..., n), cov (..., n, n))``, or
+        None when neither is given."""
+        if prior_mean is None and prior_cov is None:
+            return None
+        if prior_mean is None or prior_cov is None:
+            raise InputError("prior_mean: give both prior_mean and prior_cov")
+        n = self.state_dim
+        mean = as_float_array(prior_mean, "prior_mean", min_ndim=1)
+        cov = as_float_array(prior_cov, "prior_cov", min_ndim=2)
+        if mean.shape[-1] != n or cov.shape[-2:] != (n, n):
+            raise InputError(f"prior_mean: expected shape (..., {n}) and prior_cov "
+                             f"(..., {n}, {n}) (the tracker's state), got {mean.shape} "
+                             f"and {cov.shape}")
+        check_covariance(cov, "prior_cov")
+        return mean, cov
+
+    def _gaussian_prior(self, prior_mean, prior_cov) -> DiagMixture | None:
+        """One axis-aligned component from a Gaussian prior on the state (None without)."""
+        moments = self._prior_moments(prior_mean, prior_cov)
+        if moments is None:
+            return None
+        mean, cov = moments
+        var = np.diagonal(cov, axis1=-2, axis2=-1)
+        shape = np.broadcast_shapes(mean.shape, var.shape)
+        return DiagMixture(np.ones(shape[:-1] + (1,)),
+                           np.broadcast_to(mean, shape)[..., None, :],
+                           np.broadcast_to(var, shape)[..., None, :])
+
+    def _predict_full(self, means: np.ndarray, covs: np.ndarray, dt: float):
+        """Prediction of full-covariance components: the constant-velocity transition,
+        or the uniform disk of radius ``r`` moment-matched (covariance
+        ``r^2 / (D + 2)`` per axis added)."""
+        if dt <= 0:
+            return means, covs
+        if self.velocity:
+            F, Q = self.motion.F(dt), self.motion.Q(dt)
+            return means @ F.T, F @ covs @ F.T + Q
+        r = float(self.motion.radius(dt))
+        return means, covs + (r * r / (self.dim + 2)) * np.eye(self.dim)
+
+    def _run_models(self, obs: list[Observation], time, prior_mean, prior_cov,
+                    prior: DiagMixture | None) -> Track:
+        """The generic form of :meth:`run_observations` (its docstring): a Gaussian-sum
+        filter whose components keep full covariances."""
+        for i, o in enumerate(obs):
+            dim = o.context.points.shape[-1] - (1 if o.context.height_m is not None else 0)
+            if dim != self.dim:
+                raise ConfigError(f"observations[{i}].context.points: {dim}-D points, the "
+                                  f"tracker holds {self.dim}-D positions")
+        T = common_steps(obs)
+        t = np.arange(T, dtype=float) if time is None else as_float_array(time, "time", ndim=1)
+        if t.shape != (T,):
+            raise InputError(f"time: expected {T} steps, got shape {t.shape}")
+        if np.any(np.diff(t) < 0):
+            i = int(np.flatnonzero(np.diff(t) < 0)[0]) + 1
+            raise InputError(f"time: decreases at step {i} ({t[i - 1]} -> {t[i]})")
+        n = self.state_dim
+        moments = self._prior_moments(prior_mean, prior_cov)
+        if moments is not None:
+            if prior is not None:
+                raise InputError("prior: give a DiagMixture prior or prior_mean and "
+                                 "prior_cov, not both")
+            mean, cov = moments
+            w0, m0, P0 = np.ones(mean.shape[:-1] + (1,)), mean[..., None, :], cov[..., None, :, :]
+        elif prior is not None:
+            start = self.init(prior).mixture
+            w0, m0 = start.weights, start.means
+            P0 = start.variances[..., None] * np.eye(n)
+        else:
+            raise InputError(f"prior_mean: {type(obs[0].model).__name__} gives no calibration "
+                             "area to start from; give prior_mean and prior_cov (or prior)")
+        shapes = [o.z.shape[:-2] for o in obs] + [o.at(0)[1].points.shape[:-2] for o in obs]
+        try:
+            batch = np.broadcast_shapes(*shapes, w0.shape[:-1], P0.shape[:-3])
+        except ValueError:
+            raise InputError(f"observations: batch shapes {shapes} do not broadcast with the "
+                             f"prior's {w0.shape[:-1]}") from None
+        B = int(np.prod(batch, dtype=np.int64))
+        k = w0.shape[-1]
+        check_memory(8.0 * B * k * 5**self.dim * max(o.context.rows for o in obs) * 4,
+                     "observations", "the mixture tracker's update")
+
+        def flat(a, tail):
+            return np.broadcast_to(a, batch + a.shape[a.ndim - tail:]).reshape(
+                (B,) + a.shape[a.ndim - tail:])
+        w, m, P = flat(w0, 1), flat(m0, 2), flat(P0, 3)
+        out = []
+        for step in range(T):
+            if step:
+                m, P = self._predict_full(m, P, float(t[step] - t[step - 1]))
+            rows = [flatten_step(*o.at(step), batch) for o in obs]
+            heard = sum(np.isfinite(z).sum(-1) for z, _ in rows)
+
+            def loglik(x, rows=rows, step=step):
+                total = 0.0
+                for i, (z, ctx) in enumerate(rows):
+                    with np.errstate(invalid="ignore"):   # NaN rows: the model gives them 0
+                        lp = obs[i].model.logpdf(z[:, None, None, :], {"position": x},
+                                                 with_candidate_axes(ctx, 2)).sum(-1)
+                    if np.isnan(lp).any():
+                        run = int(np.flatnonzero(np.isnan(lp).reshape(B, -1).any(-1))[0])
+                        raise InputError(f"observations[{i}]: {type(obs[i].model).__name__}"
+                                         f".logpdf gave NaN for run {run} at step {step}")
+                    total = total + lp
+                return total
+            w1, m1, P1, explained = progressive_update(w, m, P, loglik, self.dim)
+            used = np.where(explained, heard, 0)
+            on = used > 0
+            w = np.where(on[:, None], w1, w)
+            m = np.where(on[:, None, None], m1, m)
+            P = np.where(on[:, None, None, None], P1, P)
+            out.append(unflatten_estimate(self._estimate_full(w, m, P, used, float(t[step])),
+                                          batch))
+        return track_from_steps(out, t)
+
+    def _estimate_full(self, w, m, P, used, time) -> Estimate:
+        """Mixture mean and covariance of the position of full-covariance components; the
+        diagnostics' mixture holds their per-axis variances."""
+        d = self.dim
+        mean = np.einsum("bk,bki->bi", w, m[..., :d])
+        dm = m[..., :d] - mean[:, None]
+        cov = np.einsum("bk,bkij->bij", w, P[..., :d, :d] + dm[..., :, None] * dm[..., None, :])
+        mix = DiagMixture(w, m, np.diagonal(P, axis1=-2, axis2=-1))
+        return Estimate(mean, cov, time, {"measurements_used": np.asarray(used),
+                                          **_with_mixture(mix, max(self.max_components,
+                                                                   w.shape[-1]))})
 
 
 def _station_order(rss: np.ndarray) -> np.ndarray:

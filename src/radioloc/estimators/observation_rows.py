@@ -19,11 +19,13 @@ from typing import Sequence
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.results import Estimate
 from radioloc.core.validation import refuse_infinite
 from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 from radioloc.estimators.robust_loss import max_mixture_terms, row_terms
 
-__all__ = ["observation_list", "layout_for", "RowStack"]
+__all__ = ["observation_list", "common_steps", "layout_for", "RowStack", "with_candidate_axes",
+           "flatten_step", "unflatten_estimate"]
 
 
 def observation_list(observations: Observation | Sequence[Observation]) -> list[Observation]:
@@ -214,3 +216,39 @@ class RowStack:
             k = self._mixture(mixture, z, x, ctx, std)[3]
             out.append(np.where(np.isfinite(rr), k, -1))
         return np.concatenate(out, axis=-1)
+
+
+def with_candidate_axes(ctx: Context, axes: int = 2) -> Context:
+    """A context whose batch axes ``(B, m, ...)`` gain ``axes`` axes of candidate states
+    after the batch axis, ``(B, 1, ..., 1, m, ...)``, so that a model evaluated at states
+    ``(B, C1, C2, ...)`` broadcasts against it (a context without batch axes broadcasts as
+    it is). The grid filter's cells and the mixture tracker's nodes use it."""
+    def widen(a, base):
+        return a if a is None or a.ndim <= base else a[(slice(None),) + (None,) * axes]
+    return replace(ctx, points=widen(ctx.points, 2), reference=widen(ctx.reference, 2),
+                   std=widen(ctx.std, 1))
+
+
+def flatten_step(z: np.ndarray, ctx: Context, batch: tuple[int, ...]
+                 ) -> tuple[np.ndarray, Context]:
+    """One step's values ``(B, m)`` and context with the batch axes ``batch`` flattened
+    into one of ``B`` runs."""
+    B = int(np.prod(batch, dtype=np.int64))
+    m = z.shape[-1]
+    z = np.broadcast_to(z, batch + (m,)).reshape(B, m)
+
+    def flat(a, base):
+        if a is None or a.ndim <= base:
+            return a
+        return np.broadcast_to(a, batch + a.shape[-base:]).reshape((B,) + a.shape[-base:])
+    return z, replace(ctx, points=flat(ctx.points, 2), reference=flat(ctx.reference, 2),
+                      std=flat(ctx.std, 1))
+
+
+def unflatten_estimate(est: Estimate, batch: tuple[int, ...]) -> Estimate:
+    """An estimate of ``B`` flattened runs with its batch axes ``batch`` restored."""
+    def back(a):
+        a = np.asarray(a)
+        return a.reshape(batch + a.shape[1:])
+    return Estimate(back(est.position), back(est.covariance), est.time,
+                    {k: back(v) for k, v in est.diagnostics.items()})

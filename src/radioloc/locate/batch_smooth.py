@@ -1,14 +1,21 @@
-"""A user's range log smoothed by :class:`~radioloc.estimators.batch_smoother.BatchSmoother`.
+"""A user's log smoothed by :class:`~radioloc.estimators.batch_smoother.BatchSmoother`.
 
 :func:`smooth_log` takes a :class:`~radioloc.locate.base.LocateRequest` (the measurements
-and anchors of ``radioloc locate``) and returns the smoothed track table of every node,
-with the options of the trackers (``-o tag_height_m``, ``q``, ``motion``, ``prior_std_m``,
-``init_s``, ``max_gap_s``, ``range_std_m``) and of ``pf`` (``los_std_m``, ``nlos_mean_m``,
-``alpha`` given, or fitted by EM on the log as ``pf`` fits them:
+and anchors of ``radioloc locate``) and returns the smoothed track table of every node.
+Every kind ``ekf-track`` reads is used, with the same models and sigma options
+(:func:`radioloc.locate.ekf_track.log_models`: ranges, time differences, angles,
+pseudoranges, RSS, headings; not odometry), the same start
+(:func:`radioloc.locate.ekf_track.track_prior`) and the options of the trackers
+(``-o tag_height_m``, ``q``, ``motion``, ``prior_std_m``, ``init_s``, ``max_gap_s``,
+``range_std_m``). The range rows take the options of ``pf`` (``los_std_m``, ``nlos_mean_m``,
+``alpha`` given, or fitted by EM on the node's ranges as ``pf`` fits them:
 :func:`radioloc.locate.pf.fit_model`; the fitted range bias is removed; ``min_los_std_m``
-floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default:
-the LOS/NLOS max-mixture), or a robust loss ``linear``, ``huber``, ``cauchy``, ``tukey``
-with ``loss_scale`` (standard deviations of ``range_std_m``). The max-mixture carries a
+floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default
+when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
+Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
+``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
+receiver clock offset is a random walk of intensity ``clock_offset_std_m_per_sqrt_s^2``
+(no drift state). The max-mixture carries a
 null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
 too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
 ``-o null_weight=0`` removes it). 3-D anchors with
@@ -27,23 +34,25 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
-from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import anchor_positions, anchor_ranges
+from radioloc.locate.adapter import anchor_positions, node_observations
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
-from radioloc.locate.ekf_track import (PRIOR_SPEED_STD, motion_model, segments, start_position,
-                                       track_table, tracker_settings)
+from radioloc.locate.ekf_track import (log_models, motion_model, observation_window,
+                                       reads_clock, segments, track_prior, track_table,
+                                       tracker_filter, tracker_settings)
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.measurement import Context, Observation
-from radioloc.models.ranging import RangeModel
+from radioloc.models.measurement import Observation
 
 __all__ = ["smooth_log", "OPTIONS"]
 
 #: The ``-o`` options of ``locate --method smoother``.
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
-                                       "tag_height_m", "prior_std_m", "init_s", "max_gap_s")}
+                                       "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m",
+                                       "heading_std_rad", "clock_offset_std_m_per_sqrt_s",
+                                       "tag_height_m", "prior_std_m",
+                                       "init_s", "max_gap_s")}
 OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
                                            "min_los_std_m")})
 OPTIONS.update({
@@ -59,87 +68,120 @@ OPTIONS.update({
 })
 
 
-@locate_method("smoother", "Batch MAP smoother of each node's whole track from its ranges to "
-                           "anchors (sparse solve; LOS/NLOS max-mixture by EM on the log, or "
-                           "a robust loss)",
-               options=OPTIONS, kinds=("range",), inputs=("anchors",))
+@locate_method("smoother", "Batch MAP smoother of each node's whole track from its measurements "
+                           "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
+                           "max-mixture of the ranges by EM on the log, or a robust loss)",
+               options=OPTIONS, kinds=("range", "tdoa", "aoa", "aoa_elevation", "pseudorange",
+                                       "rss", "heading"), inputs=("anchors",))
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
-    """Smoothed tracks of every node of a range log (module docstring).
+    """Smoothed tracks of every node of a log (module docstring).
 
     Parameters
     ----------
     request : LocateRequest
-        Range rows, anchors and ``-o`` options.
+        Measurement rows, anchors and ``-o`` options.
 
     Returns
     -------
     DataFrame
-        ``time, node, x, y[, z], uncertainty_m`` at every time stamp with a range.
+        ``time, node, x, y[, z], uncertainty_m`` at every time stamp with a measurement.
 
     Raises
     ------
     InputError, ConfigError, GeometryError
-        As ``locate --method ekf-track`` (a bad option names it); odometry rows.
+        As ``locate --method ekf-track`` (a bad option names it); odometry rows;
+        ``loss=max-mixture`` on a log without ranges.
     """
     table = request.require_anchors("smoother")
     anchors = anchor_positions(table)
-    per_node = anchor_ranges(Measurements(request.measurements), table, "smoother")
     s = tracker_settings(request, anchors)
     if s["odometry_std"] is not None:
         raise InputError("smoother: the batch smoother does not use odometry rows; remove them "
                          "or use ekf-track or pf")
-    loss = request.option("loss", "max-mixture", str)
+    log, opts, models = log_models(request, request.measurements, table, s)
+    has_ranges = "range" in models
+    loss = request.option("loss", "max-mixture" if has_ranges else "linear", str)
     if loss not in ("max-mixture",) + LOSSES:
         raise ConfigError(f"option loss: must be max-mixture or one of {', '.join(LOSSES)}, "
                           f"got {loss!r}")
-    std = request.option("range_std_m", 0.15)
+    if loss == "max-mixture" and not has_ranges:
+        raise ConfigError("option loss=max-mixture: the LOS/NLOS max-mixture is a model of "
+                          "ranges, and the log has no range rows (use a robust loss)")
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
-    tables = []
-    for node, times, R in per_node:
+    s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
+    tables, counts = [], {}
+    for node, rows in log.by_node().items():
+        times, obs = node_observations(rows, table, node, models, height_m=s["height"])
+        if not times.size:
+            continue
         parts = segments(times, s["max_gap_s"])
         los_nlos, bias = None, s["bias"]
-        if loss == "max-mixture":
-            if any(g is None for g in given):
-                if s["dim"] != 2:
-                    raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs "
-                                     "2-D tracking (give tag_height_m) or los_std_m, "
-                                     "nlos_mean_m and alpha")
-                los_nlos, bias, _ = fit_model(times, R, anchors, s, parts,
-                                                label=f"method smoother: node {node!r}")
-                floor = request.option("min_los_std_m", 0.15)
-                if los_nlos.los_std_m < floor:
-                    los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
-                if "range_bias_m" in request.options:
-                    bias = s["bias"]
-            else:
-                los_nlos = LosNlosRange(*given)
+        if loss == "max-mixture" and any(o.model.kind == "range" for o in obs):
+            los_nlos, bias = _range_noise(request, obs, times, anchors, s, parts, node, given)
+        obs = [Observation(o.model, o.z - bias, o.context, o.std) if o.model.kind == "range"
+               else o for o in obs]
+        for o in obs:
+            counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
         null_w = request.option("null_weight", 1e-3)
         null = (null_w, request.option("null_std_m", 10.0)) if los_nlos and null_w else None
+        clock = reads_clock(obs)
         smoother = BatchSmoother(motion_model(s["motion"], s["q"], s["dim"]),
                                  loss="linear" if loss == "max-mixture" else loss,
                                  loss_scale=request.option("loss_scale", 1.0), los_nlos=los_nlos,
-                                 null_hypothesis=null)
-        ctx = Context(points=anchors, height_m=s["height"])
+                                 null_hypothesis=null,
+                                 **({"extra_q": s["clock_offset_q"] ** 2} if clock else {}))
+        ekf = tracker_filter(anchors, s0, None, clock=clock)
         for seg in parts:
-            t, r = times[seg], R[seg] - bias
-            k = smoother.motion.state_dim
-            mean = np.zeros(k)
-            var = np.full(k, PRIOR_SPEED_STD ** 2)
-            var[:s["dim"]] = s["prior_std"] ** 2
-            if s["dim"] == 3:
-                mean[2] = float(np.mean(anchors[:, 2]))
+            t, ob = times[seg], [observation_window(o, seg) for o in obs]
             try:
-                mean[:2] = start_position(t, r, anchors, s["height"], 0.0, s["init_s"])
-                track = smoother.run(Observation(RangeModel(std_m=std), r, ctx), t,
-                                     prior_mean=mean, prior_cov=np.diag(var))
+                mean, var = _on_layout(smoother.state_layout(ob), ekf.state_layout(ob),
+                                       *track_prior(ekf, t, ob, anchors, s0))
+                track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
             tables.append(track_table(node, t, track, restart=seg is not parts[0]))
+    if not tables:
+        raise GeometryError("method smoother: no measurement to an anchor in the measurements")
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
-    out.attrs["summary"] = {"nodes": len(per_node), "steps": len(out),
-                            "ranges": int(sum(np.isfinite(R).sum() for _, _, R in per_node)),
+    out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
+                            "ranges": counts.get("range", 0), "measurements": counts,
                             "restarts": int(out["restart"].sum()), "loss": loss,
-                            "range_std_m": std}
+                            "range_std_m": opts["range_std_m"]}
     return out
+
+
+def _range_noise(request: LocateRequest, obs: list, times: np.ndarray, anchors: np.ndarray,
+                 s: dict, parts: list[slice], node: str, given: list):
+    """The LOS/NLOS model of a node's range rows (given, or fitted by EM on them) and the
+    range bias to remove."""
+    if all(g is not None for g in given):
+        return LosNlosRange(*given), s["bias"]
+    if s["dim"] != 2:
+        raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs 2-D "
+                         "tracking (give tag_height_m) or los_std_m, nlos_mean_m and alpha")
+    rng = next(o for o in obs if o.model.kind == "range")
+    R = np.full((times.size, len(anchors)), np.nan)
+    R[:, rng.context.index] = rng.z
+    los_nlos, bias, _ = fit_model(times, R, anchors, s, parts,
+                                  label=f"method smoother: node {node!r}")
+    floor = request.option("min_los_std_m", 0.15)
+    if los_nlos.los_std_m < floor:
+        los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
+    if "range_bias_m" in request.options:
+        bias = s["bias"]
+    return los_nlos, bias
+
+
+def _on_layout(layout, source, mean: np.ndarray, var: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A prior over the state ``source`` (the trackers' start) carried onto ``layout``
+    (the smoother's), component by component (the smoother's clock has an offset and no
+    drift)."""
+    m, v = np.zeros(layout.size), np.ones(layout.size)
+    have = source.slices
+    for name, sl in layout.slices.items():
+        src = have[name]
+        m[sl], v[sl] = mean[src][:sl.stop - sl.start], var[src][:sl.stop - sl.start]
+    return m, v

@@ -57,6 +57,7 @@ start).
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -654,9 +655,16 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     return None
 
 
-def _window(obs: Observation, seg: slice) -> Observation:
-    return Observation(obs.model, obs.z[seg], obs.context,
-                       None if obs.std is None else obs.std[seg])
+def observation_window(obs: Observation, seg: slice) -> Observation:
+    """The steps ``seg`` of one node's observation (``z`` ``(T, S)``; moving anchors'
+    points ``(T, S, D)`` are cut to the same steps)."""
+    ctx = obs.context
+
+    def cut(a):
+        return a if a is None or a.ndim < 3 else a[seg]
+    if cut(ctx.points) is not ctx.points or cut(ctx.reference) is not ctx.reference:
+        ctx = replace(ctx, points=cut(ctx.points), reference=cut(ctx.reference))
+    return Observation(obs.model, obs.z[seg], ctx, None if obs.std is None else obs.std[seg])
 
 
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
@@ -755,6 +763,49 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     return out
 
 
+def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, s: dict,
+               anchor_bias: bool = False) -> tuple[Measurements, dict, dict]:
+    """The log, the noise options in force and the measurement model of each kind it holds
+    (:func:`radioloc.locate.adapter.default_models`; RSS with a path-loss model per anchor
+    from the anchors file), for the trackers.
+
+    Parameters
+    ----------
+    request : LocateRequest
+    meas : DataFrame
+        The measurements.
+    table : DataFrame
+        The anchors table.
+    s : dict
+        From :func:`tracker_settings`.
+    anchor_bias : bool
+        Range models with a bias per anchor.
+
+    Returns
+    -------
+    log : Measurements
+    noise : dict
+        The sigma options in force (``range_std_m`` at least).
+    models : dict
+        Kind to model.
+
+    Raises
+    ------
+    ConfigError
+        Heading rows without the constant-velocity motion.
+    """
+    log = Measurements(meas)
+    opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
+    opts.setdefault("range_std_m", 0.15)
+    models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
+        raise ConfigError("heading rows: the heading is the direction of the velocity, which "
+                          "only the constant-velocity motion (motion=cv, no odometry) holds")
+    if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
+        models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
+    return log, opts, models
+
+
 def track_log(request: LocateRequest, meas: pd.DataFrame):
     """Every node's track from the log ``meas`` (the body of ``locate --method ekf-track``).
 
@@ -783,15 +834,7 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
-    log = Measurements(meas)
-    opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
-    opts.setdefault("range_std_m", 0.15)
-    models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
-    if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
-        raise ConfigError("heading rows: the heading is the direction of the velocity, which "
-                          "only the constant-velocity motion (motion=cv, no odometry) holds")
-    if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
-        models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
+    log, opts, models = log_models(request, meas, table, s, anchor_bias)
     parts = []
     for node, rows in log.by_node().items():
         times, obs = node_observations(rows, table, node, models, height_m=s["height"])
@@ -804,12 +847,12 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         for n, seg in enumerate(segs):
             controls = (None if s["odometry_std"] is None else
                         odometry_controls(meas, node, times[seg], s["dim"]))
-            tracks.append((node, times[seg], [_window(o, seg) for o in obs], n > 0, controls))
+            tracks.append((node, times[seg], [observation_window(o, seg) for o in obs], n > 0, controls))
     ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
                          any(reads_clock(tr[2]) for tr in tracks))
-    prior_mean, prior_cov = track_priors(
+    prior_mean, prior_cov = track_priors(   # the ranges are already without range_bias_m
         ekf, [(f"method ekf-track: node {node!r} from time {float(times[0])!r}", times, obs)
-              for node, times, obs, _, _ in tracks], anchors, s, anchor_bias)
+              for node, times, obs, _, _ in tracks], anchors, dict(s, bias=0.0), anchor_bias)
     peers = (peer_ranges(meas, table["id"]) if request.option("cooperative", False, bool)
              else None)
     coop = None
