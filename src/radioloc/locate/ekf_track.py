@@ -57,6 +57,7 @@ start).
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -349,7 +350,7 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [Observation(o.model, column_medians(o.z[window]), o.context) for o in observations]
+    medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
     fit = LeastSquares(loss="huber").locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
@@ -583,7 +584,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
                       height_m=first.height_m)
-        out.append(Observation(members[0][1].model, z, ctx, std))
+        out.append(Observation(members[0][1].model, z, ctx, std,
+                               no_check=members[0][1].no_check))
     return t, out
 
 
@@ -655,8 +657,7 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
 
 
 def _window(obs: Observation, seg: slice) -> Observation:
-    return Observation(obs.model, obs.z[seg], obs.context,
-                       None if obs.std is None else obs.std[seg])
+    return replace(obs, z=obs.z[seg], std=None if obs.std is None else obs.std[seg])
 
 
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
@@ -794,7 +795,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     parts = []
     for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"])
+        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
+                                        checked=True)
         if times.size:
             parts.append((node, times, obs, segments(times, s["max_gap_s"])))
     if not parts:
