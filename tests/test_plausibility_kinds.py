@@ -15,7 +15,7 @@ from radioloc.models.bearing import BearingModel
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.pseudorange import PseudorangeModel
 from radioloc.models.tdoa import TdoaModel
-from reliability_helpers import assert_one_line_error, invoke, lines
+from reliability_helpers import assert_one_line_error, lines, locate
 
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0], [10.0, -3.0],
                     [23.0, 7.0]])
@@ -173,13 +173,6 @@ def _write(tmp_path, kind: str, scale: float = 1.0):
     return tmp_path / "m.csv", tmp_path / "a.csv"
 
 
-def _locate(meas, anchors, method, *opts):
-    args = ["locate", meas, "--anchors", anchors, "--method", method]
-    for o in opts:
-        args += ["-o", o]
-    return invoke(args)
-
-
 SLIPS = {
     # kind: (factor, words in the message, check)
     "tdoa": (1e3, "tdoa values in mm?", "tdoa_units"),
@@ -195,10 +188,10 @@ OPTIONS = {"tdoa": ("tdoa_std_m=0.3",), "pseudorange": ("pseudorange_std_m=0.5",
 def test_locate_refuses_each_slip_and_no_check_lets_it_through(tmp_path, kind, method):
     factor, words, check = SLIPS[kind]
     meas, anchors = _write(tmp_path, kind, scale=factor)
-    line = assert_one_line_error(_locate(meas, anchors, method, *OPTIONS[kind]))
+    line = assert_one_line_error(locate(meas, anchors, method, *OPTIONS[kind]))
     assert line.startswith("error: measurements: ") and words in line, line
     assert f"no_check={check}" in line, line
-    res = _locate(meas, anchors, method, *OPTIONS[kind], f"no_check={check}")
+    res = locate(meas, anchors, method, *OPTIONS[kind], f"no_check={check}")
     assert f"no_check={check}" not in res.output, res.output
 
 
@@ -206,7 +199,7 @@ def test_locate_refuses_each_slip_and_no_check_lets_it_through(tmp_path, kind, m
 @pytest.mark.parametrize("kind", list(SLIPS))
 def test_locate_passes_a_correct_noisy_log(tmp_path, kind, method):
     meas, anchors = _write(tmp_path, kind)
-    res = _locate(meas, anchors, method, *OPTIONS[kind])
+    res = locate(meas, anchors, method, *OPTIONS[kind])
     assert res.exit_code == 0, res.output
     body = [ln for ln in lines(res) if not ln.startswith("warning:")]
     xy = np.array([[float(v) for v in ln.split(",")[2:4]] for ln in body[1:]])
