@@ -6,6 +6,7 @@ passes, each slip is refused with one line naming the kind and the likely unit, 
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from radioloc.core.errors import InputError
@@ -140,11 +141,11 @@ def _walk(n: int = 20) -> tuple[np.ndarray, np.ndarray]:
     return t, np.c_[6.0 + 0.5 * t, 5.0 + 0.3 * t]
 
 
-def _write(tmp_path, kind: str, scale: float = 1.0):
+def _write(tmp_path, kind: str, scale: float = 1.0, nlos: tuple[float, float] = (0.1, 0.5)):
     """A tag walking among six anchors: tdoa rows against A0, pseudoranges with a 150 m
     clock offset, or bearings and elevations from 3-D anchors (elevations of 2-5 degrees,
-    so that degrees stay below 2 pi); 0.3 m noise with an NLOS excess on 10 % of the
-    ranges, 0.01 rad on the bearings."""
+    so that degrees stay below 2 pi); 0.3 m noise with an NLOS excess on ``nlos[0]`` of the
+    ranges (mean ``nlos[1]`` m), 0.01 rad on the bearings."""
     t, xy = _walk()
     rng = np.random.default_rng(4)
     ids = [f"A{k}" for k in range(len(ANCHORS))]
@@ -152,7 +153,7 @@ def _write(tmp_path, kind: str, scale: float = 1.0):
     rows = ["time,node,peer,kind,value,reference"]
     for k, tk in enumerate(t):
         if kind in ("tdoa", "pseudorange"):
-            r = _noisy_ranges(xy[k:k + 1], seed=k, nlos_rate=0.1, nlos_mean_m=0.5)[0]
+            r = _noisy_ranges(xy[k:k + 1], seed=k, nlos_rate=nlos[0], nlos_mean_m=nlos[1])[0]
             for a in range(1 if kind == "tdoa" else 0, len(ids)):
                 v = r[a] - r[0] if kind == "tdoa" else r[a] + 150.0 + 2.0 * tk
                 rows.append(f"{float(tk)!r},tag,{ids[a]},{kind},{float(scale * v)!r},"
@@ -205,3 +206,28 @@ def test_locate_passes_a_correct_noisy_log(tmp_path, kind, method):
     xy = np.array([[float(v) for v in ln.split(",")[2:4]] for ln in body[1:]])
     err = np.linalg.norm(xy - _walk()[1], axis=1)
     assert np.median(err) < (3.0 if kind == "tdoa" else 1.5), err
+
+
+def test_a_kind_within_its_bound_is_never_blamed_for_mm():
+    """A tracker that only the tdoa values divided by 1000 satisfy: the slip search names mm
+    when the log was not checked, and not when the tdoa values passed their bound (values
+    in mm would have broken it); other slips of that kind are still tried."""
+    from radioloc.locate.slips import likely_slip
+
+    log = pd.DataFrame({"kind": ["tdoa", "tdoa", "range"], "value": [1.5, -2.0, 4.0]})
+
+    def only_mm(m: pd.DataFrame) -> bool:
+        return bool(np.allclose(m["value"], [1.5e-3, -2e-3, 4.0]))
+
+    assert likely_slip(log, only_mm)[2] == "tdoa values in mm?"
+    assert likely_slip(log, only_mm, bounded={"tdoa"}) is None
+    assert likely_slip(log, lambda m: bool(m["value"].iloc[0] < 0),
+                       bounded={"tdoa"})[1] == "negated"
+
+
+def test_ekf_track_does_not_call_a_metre_log_with_nlos_mm(tmp_path):
+    """0.3 m noise and an NLOS excess (mean 2 m) on 30 % of the ranges, tdoa_std_m=0.5: the
+    track may diverge (a warning), but the log is not refused as tdoa in mm."""
+    meas, anchors = _write(tmp_path, "tdoa", nlos=(0.3, 2.0))
+    res = locate(meas, anchors, "ekf-track", "tdoa_std_m=0.5")
+    assert "in mm?" not in res.output and res.exit_code == 0, res.output

@@ -64,6 +64,7 @@ import pandas as pd
 from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
@@ -746,8 +747,11 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """
     out, diverged, n_tracks, noise = track_log(request, request.measurements)
     if diverged:
+        skipped = request.parsed.get("no_check")     # None: check_log did not run
+        bounded = () if skipped is None else [k for k, name in VALUE_CHECKS.items()
+                                              if name not in skipped]
         slip = likely_slip(request.measurements,
-                           lambda log: not track_log(request, log)[1])
+                           lambda log: not track_log(request, log)[1], bounded=bounded)
         if slip is not None:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
