@@ -34,7 +34,9 @@ check                  refused (or warned) when
 =======================  ==========================================================================
 
 A user overrules a check with ``-o no_check=NAME[,NAME...]`` (or ``no_check=all``), which
-every locate method accepts.
+every locate method accepts. The value checks (the last three) also guard the library: an
+:class:`~radioloc.models.measurement.Observation` of a tdoa, pseudorange or angle model
+applies :func:`check_values` to its values (its ``no_check`` overrules them).
 
 The triangle test needs no assumption about where the node is: for any position,
 ``|r_i - r_j| <= d_ij <= r_i + r_j`` for the true ranges to anchors ``i, j``. Noise and NLOS
@@ -52,9 +54,9 @@ anchors), refused beyond :data:`DIFFERENCE_FACTOR`. Noise and NLOS bias push sin
 across the bound, the median stays far below the factor; a single row beyond it is left to
 the estimator's innovation gate or robust loss (an NLOS bias larger than the anchor
 distance is possible, a log whose rows mostly show one is not). A slip by 1000 (mm) or 100
-(cm) is refused for any scene; ns (3.34 times metres) only where the tag is outside the
-anchors (the median ratio is above 0.6 there), inside it is left to ``ekf-track``'s
-divergence test (:mod:`radioloc.locate.slips`). Pseudoranges in km, or a tdoa of the wrong
+(cm) is refused for any scene; ns (3.34 times metres) only where the tag is mostly well
+outside the anchors (a median ratio above 0.6 in metres); inside, it is left to
+``ekf-track``'s divergence test (:mod:`radioloc.locate.slips`). Pseudoranges in km, or a tdoa of the wrong
 sign, break no bound: they stay the tracker's to name. The angle bound is
 :data:`ANGLE_BOUND_RAD` (``2 pi``: either convention, ``[-pi, pi]`` or ``[0, 2 pi)``;
 ``pi / 2`` for an elevation) times :data:`ANGLE_FACTOR`, on the median magnitude.
@@ -695,10 +697,12 @@ def check_angles(values: np.ndarray, kind: str = "aoa", *, skip: Collection[str]
     """
     if kind not in ANGLE_BOUND_RAD:
         raise ConfigError(f"kind: expected one of {', '.join(ANGLE_BOUND_RAD)}, got {kind!r}")
+    if "angle_units" in skip:
+        return
     v = np.abs(np.asarray(values, dtype=float))
     v = v[np.isfinite(v)]
     bound = ANGLE_BOUND_RAD[kind]
-    if "angle_units" in skip or not v.size or np.median(v) <= ANGLE_FACTOR * bound:
+    if not v.size or np.median(v) <= ANGLE_FACTOR * bound:
         return
     cause = f"{kind} values in degrees?" if v.max() <= 360.0 else f"{kind} values not in radians?"
     raise InputError(f"{where or kind}: {cause} Their median magnitude is "
