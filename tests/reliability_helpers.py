@@ -14,6 +14,14 @@ def invoke(args, **kw):
     return runner.invoke(app, [str(a) for a in args], **kw)
 
 
+def locate(meas, anchors, method, *opts):
+    """Run ``radioloc locate MEAS --anchors ANCHORS --method METHOD -o OPT ...``."""
+    args = ["locate", meas, "--anchors", anchors, "--method", method]
+    for o in opts:
+        args += ["-o", o]
+    return invoke(args)
+
+
 def lines(res) -> list[str]:
     return [ln for ln in res.output.splitlines() if ln.strip()]
 

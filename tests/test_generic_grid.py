@@ -168,7 +168,7 @@ def test_bad_input_is_named():
               prior_cov=np.eye(2))
     three = Context(points=np.c_[ANCHORS, np.ones(4)])
     with pytest.raises(ConfigError, match="BearingModel.*3-D"):
-        f.run(Observation(BearingModel(std_rad=0.01), z, three), prior_mean=TRUTH,
+        f.run(Observation(BearingModel(std_rad=0.01), np.zeros_like(z), three), prior_mean=TRUTH,
               prior_cov=np.eye(2))
     with pytest.raises(InputError, match="prior_mean"):
         f.run(obs, prior_mean=np.zeros((2, 3)), prior_cov=np.eye(2))

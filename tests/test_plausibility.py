@@ -11,7 +11,7 @@ import pytest
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.core.plausibility import (CHECKS, anchor_problem, check_ranges, check_rss, check_time,
                                         parse_skip, range_scale)
-from reliability_helpers import assert_one_line_error, invoke, lines
+from reliability_helpers import assert_one_line_error, invoke, lines, locate
 
 ANCHORS = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0]])
 
@@ -50,13 +50,6 @@ def _write(tmp_path, anchors=ANCHORS, *, range_scale_=1.0, time_scale=1.0, swap=
     return tmp_path / "m.csv", tmp_path / "a.csv"
 
 
-def _locate(meas, anchors, method, *opts):
-    args = ["locate", meas, "--anchors", anchors, "--method", method]
-    for o in opts:
-        args += ["-o", o]
-    return invoke(args)
-
-
 RANGE_METHODS = ("gn", "ekf-track", "pf")
 
 MISTAKES = {
@@ -84,14 +77,14 @@ MISTAKES = {
 def test_range_mistakes_refused_by_every_range_method(tmp_path, mistake, method):
     kw, words, check = MISTAKES[mistake]
     meas, anchors = _write(tmp_path, **kw)
-    line = assert_one_line_error(_locate(meas, anchors, method))
+    line = assert_one_line_error(locate(meas, anchors, method))
     assert words in line and f"no_check={check}" in line, line
 
 
 @pytest.mark.parametrize("method", ("ekf-track", "pf"))
 def test_time_in_milliseconds_refused_by_trackers(tmp_path, method):
     meas, anchors = _write(tmp_path, time_scale=1e3)
-    line = assert_one_line_error(_locate(meas, anchors, method))
+    line = assert_one_line_error(locate(meas, anchors, method))
     assert "time in milliseconds?" in line and "max_gap_s = 5" in line
 
 
@@ -104,18 +97,18 @@ def test_rss_in_milliwatts_refused(tmp_path):
 
 def test_time_backwards_warns_with_a_count(tmp_path):
     meas, anchors = _write(tmp_path, swap=5)
-    res = _locate(meas, anchors, "gn")
+    res = locate(meas, anchors, "gn")
     assert res.exit_code == 0, res.output
     warn = [ln for ln in lines(res) if ln.startswith("warning:")]
     assert len(warn) == 1 and "3 row(s) go back in time" in warn[0] and "node 'tag'" in warn[0]
-    quiet = _locate(meas, anchors, "gn", "no_check=time_order")
+    quiet = locate(meas, anchors, "gn", "no_check=time_order")
     assert quiet.exit_code == 0 and not [ln for ln in lines(quiet) if ln.startswith("warning:")]
 
 
 @pytest.mark.parametrize("method", RANGE_METHODS)
 def test_correct_log_passes_and_lands_on_the_truth(tmp_path, method):
     meas, anchors = _write(tmp_path)
-    res = _locate(meas, anchors, method, *(("seed=1",) if method == "pf" else ()))
+    res = locate(meas, anchors, method, *(("seed=1",) if method == "pf" else ()))
     assert res.exit_code == 0, res.output
     body = [ln for ln in lines(res) if not ln.startswith("warning:")]
     xy = np.array([[float(v) for v in ln.split(",")[2:4]] for ln in body[1:]])
@@ -124,9 +117,9 @@ def test_correct_log_passes_and_lands_on_the_truth(tmp_path, method):
 
 def test_overrule_runs_the_method_and_unknown_check_is_refused(tmp_path):
     meas, anchors = _write(tmp_path, range_scale_=1e2)
-    res = _locate(meas, anchors, "ekf-track", "no_check=range_units")
+    res = locate(meas, anchors, "ekf-track", "no_check=range_units")
     assert "ranges in cm" not in res.output
-    line = assert_one_line_error(_locate(meas, anchors, "gn", "no_check=units"))
+    line = assert_one_line_error(locate(meas, anchors, "gn", "no_check=units"))
     assert "unknown check(s) units" in line and "range_units" in line
     assert parse_skip("all") == frozenset(CHECKS)
     with pytest.raises(ConfigError):

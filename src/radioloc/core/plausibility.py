@@ -4,31 +4,39 @@ One check, shared by every ``radioloc locate`` method and usable by the library'
 estimators, refuses inputs that are well-formed but cannot describe a real scene, with a
 one-line message that names the likely cause:
 
-==================  ==========================================================================
-check               refused (or warned) when
-==================  ==========================================================================
-``geometry``        the anchors ranged to coincide, are collinear (2-D) or coplanar (3-D): the
-                    position and its mirror image fit every range equally (or every
-                    calibration reading of a fingerprint was taken at one place)
-``anchor_units``    the anchors look like lat/lon degrees (every ``|x|, |y| <= 180``, a span of
-                    a fraction of a degree) while the ranges are metres
-``range_units``     the ranges break the triangle inequality with the anchors by a large
-                    factor: ``|r_i - r_j|`` far above the anchor distance ``d_ij`` (ranges in
-                    mm or cm, anchors in km) or ``r_i + r_j`` far below it (ranges in km)
-``anchor_ranges``   the ranges to one anchor break the triangle inequality with the others by
-                    more than the anchor distance (median over epochs and partners), while
-                    the rest agree: its coordinates or id are wrong; or the median over all
-                    pairs does (the ranges fit no position with these anchors)
-``rss_units``       the median RSS (of the log, or of a fingerprint calibration) is >= 0 dBm
-                    (received power of a milliwatt or more: RSS written in mW or W)
-``time_units``      the median time step within a node exceeds the method's ``max_gap_s``
-                    (time in milliseconds: every step would restart the track)
-``time_order``      time goes backwards within a node (a warning that counts the rows; they
-                    are used in time order)
-==================  ==========================================================================
+=======================  ==========================================================================
+check                  refused (or warned) when
+=======================  ==========================================================================
+``geometry``           the anchors ranged to coincide, are collinear (2-D) or coplanar (3-D): the
+                       position and its mirror image fit every range equally (or every
+                       calibration reading of a fingerprint was taken at one place)
+``anchor_units``       the anchors look like lat/lon degrees (every ``|x|, |y| <= 180``, a span of
+                       a fraction of a degree) while the ranges are metres
+``range_units``        the ranges break the triangle inequality with the anchors by a large
+                       factor: ``|r_i - r_j|`` far above the anchor distance ``d_ij`` (ranges in
+                       mm or cm, anchors in km) or ``r_i + r_j`` far below it (ranges in km)
+``anchor_ranges``      the ranges to one anchor break the triangle inequality with the others by
+                       more than the anchor distance (median over epochs and partners), while
+                       the rest agree: its coordinates or id are wrong; or the median over all
+                       pairs does (the ranges fit no position with these anchors)
+``rss_units``          the median RSS (of the log, or of a fingerprint calibration) is >= 0 dBm
+                       (received power of a milliwatt or more: RSS written in mW or W)
+``time_units``         the median time step within a node exceeds the method's ``max_gap_s``
+                       (time in milliseconds: every step would restart the track)
+``time_order``         time goes backwards within a node (a warning that counts the rows; they
+                       are used in time order)
+``tdoa_units``         the time differences break ``|tdoa| <= d(peer, reference)`` by a large
+                       factor (median over the rows): tdoa in mm, cm or ns
+``pseudorange_units``  two pseudoranges of one epoch break ``|rho_i - rho_j| <= d_ij`` by a large
+                       factor (median over the pairs): pseudoranges in mm, cm or ns
+``angle_units``        the median magnitude of an ``aoa``, ``aoa_elevation`` or ``heading`` column
+                       is beyond any angle in radians: angles in degrees
+=======================  ==========================================================================
 
 A user overrules a check with ``-o no_check=NAME[,NAME...]`` (or ``no_check=all``), which
-every locate method accepts.
+every locate method accepts. The value checks (the last three) also guard the library: an
+:class:`~radioloc.models.measurement.Observation` of a tdoa, pseudorange or angle model
+applies :func:`check_values` to its values (its ``no_check`` overrules them).
 
 The triangle test needs no assumption about where the node is: for any position,
 ``|r_i - r_j| <= d_ij <= r_i + r_j`` for the true ranges to anchors ``i, j``. Noise and NLOS
@@ -36,6 +44,22 @@ bias move single pairs across the bound by a fraction; the test uses the median 
 pairs of many epochs and a factor of :data:`RANGE_FACTOR`, so a log with correct units never
 trips it. When no epoch ranges two anchors at once, the median range is compared with the
 anchors' span instead.
+
+The tdoa and pseudorange bounds need no position either: a range difference in metres is at
+most the distance between its two anchors, ``|d(x, a_i) - d(x, a_ref)| <= d(a_i, a_ref)``,
+and a pseudorange's clock offset cancels in the difference of two of one epoch. The
+statistic is the median over the rows (pairs) of ``|difference| / max(d, 1 m)``
+(:func:`difference_ratio`; at most 1 for exact values, about 0.3 for a tag inside the
+anchors), refused beyond :data:`DIFFERENCE_FACTOR`. Noise and NLOS bias push single rows
+across the bound, the median stays far below the factor; a single row beyond it is left to
+the estimator's innovation gate or robust loss (an NLOS bias larger than the anchor
+distance is possible, a log whose rows mostly show one is not). A slip by 1000 (mm) or 100
+(cm) is refused for any scene; ns (3.34 times metres) only where the tag is mostly well
+outside the anchors (a median ratio above 0.6 in metres); inside, it is left to
+``ekf-track``'s divergence test (:mod:`radioloc.locate.slips`). Pseudoranges in km, or a tdoa of the wrong
+sign, break no bound: they stay the tracker's to name. The angle bound is
+:data:`ANGLE_BOUND_RAD` (``2 pi``: either convention, ``[-pi, pi]`` or ``[0, 2 pi)``;
+``pi / 2`` for an elevation) times :data:`ANGLE_FACTOR`, on the median magnitude.
 
 Degenerate anchor sets are refused by every method, static or tracking: a motion prior
 carries a tracker through an epoch that sees too few anchors, but no prior resolves the
@@ -52,6 +76,7 @@ from collections.abc import Collection
 import numpy as np
 import pandas as pd
 
+from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 
 #: The checks, by the name ``-o no_check=NAME`` uses.
@@ -64,7 +89,27 @@ CHECKS = {
     "rss_units": "RSS at or above 0 dBm (written in mW or W)",
     "time_units": "median time step within a node above max_gap_s (milliseconds)",
     "time_order": "time going backwards within a node (warning)",
+    "tdoa_units": "time differences beyond the distance of their two anchors (mm, cm or ns)",
+    "pseudorange_units": "pseudorange differences within an epoch beyond the anchor distance "
+                         "(mm, cm or ns)",
+    "angle_units": "aoa, aoa_elevation or heading values beyond any angle in radians "
+                   "(degrees)",
 }
+#: The checks of one kind's values (:func:`check_values`), by kind.
+VALUE_CHECKS = {"tdoa": "tdoa_units", "pseudorange": "pseudorange_units", "aoa": "angle_units",
+                "aoa_elevation": "angle_units", "heading": "angle_units"}
+#: Median of ``|difference| / max(d, DIFFERENCE_FLOOR_M)`` (at most 1 for exact tdoa or
+#: pseudorange differences) beyond which the rows are refused.
+DIFFERENCE_FACTOR = 2.0
+#: Anchor distances are floored here in the difference ratio: two anchors closer than the
+#: noise of a difference would make noise look like a unit slip.
+DIFFERENCE_FLOOR_M = 1.0
+#: Largest magnitude of an angle in radians, by kind (either convention of the azimuth,
+#: ``[-pi, pi]`` or ``[0, 2 pi)``).
+ANGLE_BOUND_RAD = {"aoa": 2 * np.pi, "aoa_elevation": np.pi / 2, "heading": 2 * np.pi}
+#: Median angle magnitude, as a multiple of :data:`ANGLE_BOUND_RAD`, beyond which a column
+#: is refused.
+ANGLE_FACTOR = 1.25
 #: Median triangle-inequality violation (as a factor) beyond which ranges are refused.
 RANGE_FACTOR = 3.0
 #: Smallest singular value ratio of the centred anchors below which they count as
@@ -76,6 +121,11 @@ ODD_FACTOR = 2.0
 #: Epochs sampled (evenly) for the range statistics: bounds the work on long logs.
 MAX_EPOCHS = 4000
 _UNITS = ((1e3, "mm"), (1e2, "cm"), (1e-3, "km"))
+#: Slips that lengthen a difference: mm, cm, ns (a time in ns is 1 / (c 1e-9) = 3.34 times
+#: the distance in metres).
+_DIFFERENCE_UNITS = ((1e3, "mm"), (1e2, "cm"), (1e9 / SPEED_OF_LIGHT_M_PER_S, "ns"))
+#: Rows (pairs) sampled for the difference statistics.
+MAX_ROWS = 2_000_000
 
 
 def parse_skip(text: str | None) -> frozenset[str]:
@@ -465,8 +515,244 @@ def check_calibration(positions: np.ndarray, rss: np.ndarray, *, skip: Collectio
                          f"places apart{_hint('geometry')}")
 
 
+def _flat_rows(values: np.ndarray, *points: np.ndarray, limit: int
+               ) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    """``values (..., m)`` and their points ``(..., m, D)`` broadcast and flattened to
+    ``(E, m)`` and ``(E, m, D)``: an even sample of at most ``limit`` of the E epochs.
+    None: the shapes do not broadcast (left to the model's own checks)."""
+    v = np.asarray(values, dtype=float)
+    pts = [np.asarray(p, dtype=float) for p in points]
+    if v.ndim == 0 or any(p.ndim == 0 for p in pts):
+        return None
+    try:
+        shape = np.broadcast_shapes(v.shape + pts[0].shape[-1:], *(p.shape for p in pts))
+    except ValueError:
+        return None
+    lead = shape[:-2]
+    vb = np.broadcast_to(v[..., None], shape)[..., 0]
+    pb = [np.broadcast_to(p, shape) for p in pts]
+    if not lead:
+        return vb[None], [p[None] for p in pb]
+    n = int(np.prod(lead))
+    pick = np.linspace(0, n - 1, limit).astype(int) if n > limit else np.arange(n)
+    idx = np.unravel_index(pick, lead)
+    return vb[idx], [p[idx] for p in pb]
+
+
+def difference_ratio(differences: np.ndarray, points: np.ndarray,
+                     reference: np.ndarray) -> tuple[float, int, int] | None:
+    """How range differences compare with the distance of their two anchors.
+
+    Parameters
+    ----------
+    differences : ndarray, shape (...,)
+        Range differences, metres (NaN: absent).
+    points, reference : ndarray, shape (..., D)
+        The two anchors of each difference.
+
+    Returns
+    -------
+    (ratio, beyond, rows) or None
+        ``ratio``: the median of ``|difference| / max(d, DIFFERENCE_FLOOR_M)`` (at most 1
+        for exact differences); ``beyond``: how many rows break ``|difference| <= d``;
+        ``rows``: the finite rows. None: no finite row.
+    """
+    z = np.asarray(differences, dtype=float)
+    d = np.linalg.norm(np.asarray(points, dtype=float) - np.asarray(reference, dtype=float),
+                       axis=-1)
+    ok = np.isfinite(z)
+    if not ok.any():
+        return None
+    z, d = np.abs(z[ok]), np.broadcast_to(d, ok.shape)[ok]
+    return (float(np.median(z / np.maximum(d, DIFFERENCE_FLOOR_M))), int(np.sum(z > d)),
+            int(z.size))
+
+
+def _refuse_differences(stats: tuple[float, int, int] | None, name: str, what: str,
+                        bound: str, rows: str, where: str, skip: Collection[str]) -> None:
+    """Refuse differences whose median ratio exceeds :data:`DIFFERENCE_FACTOR`, naming the
+    unit that explains the ratio (mm, cm, ns)."""
+    if stats is None or name in skip or stats[0] <= DIFFERENCE_FACTOR:
+        return
+    ratio, beyond, count = stats
+    fits = [(k, u) for k, u in _DIFFERENCE_UNITS if ratio / k <= 1.0]
+    unit = min(fits, key=lambda f: abs(np.log(ratio / f[0] / 0.4)))[1] if fits else None
+    cause = f"{what} in {unit}?" if unit else f"{what} in the wrong unit?"
+    raise InputError(f"{where}: {cause} {bound} for any position, but the {rows} break it by "
+                     f"a factor {ratio:.3g} (median; {beyond} of {count} beyond it): give "
+                     f"{what} in metres, as the anchors{_hint(name)}")
+
+
+def check_tdoa(tdoa: np.ndarray, points: np.ndarray, reference: np.ndarray, *,
+               skip: Collection[str] = (), where: str = "tdoa") -> None:
+    """Refuse time differences in another unit than metres (check ``tdoa_units``).
+
+    A range difference obeys ``|tdoa| <= d(peer, reference)`` for any position; the median
+    of ``|tdoa| / max(d, 1 m)`` over the rows beyond :data:`DIFFERENCE_FACTOR` is a unit
+    slip (see the module docstring).
+
+    Parameters
+    ----------
+    tdoa : ndarray, shape (..., m)
+        Range to the row's anchor minus range to its reference anchor, metres (NaN: absent).
+    points : ndarray, shape (..., m, D)
+        The rows' anchors (broadcast against ``tdoa``).
+    reference : ndarray, shape (..., m, D)
+        The rows' reference anchors.
+    skip : collection of str
+        Checks to leave out (``tdoa_units``).
+    where : str
+        What the values are, for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the likely unit (mm, cm, ns).
+    """
+    if "tdoa_units" in skip:
+        return
+    flat = _flat_rows(tdoa, points, reference,
+                      limit=max(16, MAX_ROWS // max(np.shape(tdoa)[-1:] or (1,))))
+    if flat is None:
+        return
+    z, (p, r) = flat
+    _refuse_differences(difference_ratio(z, p, r), "tdoa_units", "tdoa values",
+                        "A time difference obeys |tdoa| <= d(peer, reference)", "rows", where,
+                        skip)
+
+
+def check_pseudoranges(pseudoranges: np.ndarray, points: np.ndarray, *,
+                       skip: Collection[str] = (), where: str = "pseudoranges") -> None:
+    """Refuse pseudoranges in another unit than metres (check ``pseudorange_units``).
+
+    Within one epoch the receiver's clock offset cancels: ``|rho_i - rho_j| <= d_ij`` for
+    any position and offset; the median of ``|rho_i - rho_j| / max(d_ij, 1 m)`` over the
+    pairs of every epoch beyond :data:`DIFFERENCE_FACTOR` is a unit slip. Pseudoranges in
+    km shrink the differences: no bound tells them from a node equidistant from the anchors.
+
+    Parameters
+    ----------
+    pseudoranges : ndarray, shape (..., m)
+        The m pseudoranges of each epoch, metres (NaN: absent).
+    points : ndarray, shape (..., m, D)
+        Their anchors (broadcast against ``pseudoranges``).
+    skip : collection of str
+        Checks to leave out (``pseudorange_units``).
+    where : str
+        For the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Naming the likely unit (mm, cm, ns).
+    """
+    m = np.shape(pseudoranges)[-1] if np.ndim(pseudoranges) else 0
+    if "pseudorange_units" in skip or m < 2:
+        return
+    flat = _flat_rows(pseudoranges, points, limit=max(16, MAX_ROWS // (m * m)))
+    if flat is None:
+        return
+    z, (p,) = flat
+    i, j = np.triu_indices(m, 1)
+    _refuse_differences(difference_ratio(z[:, i] - z[:, j], p[:, i], p[:, j]),
+                        "pseudorange_units", "pseudoranges",
+                        "Two pseudoranges of one epoch obey |rho_i - rho_j| <= d_ij",
+                        "pairs of rows", where, skip)
+
+
+def check_angles(values: np.ndarray, kind: str = "aoa", *, skip: Collection[str] = (),
+                 where: str | None = None) -> None:
+    """Refuse angles in degrees (check ``angle_units``).
+
+    An angle in radians is within :data:`ANGLE_BOUND_RAD` of its kind (``2 pi``, ``pi / 2``
+    for an elevation); a column whose median magnitude exceeds :data:`ANGLE_FACTOR` times
+    that bound is in degrees (one in a few degrees either way cannot be told).
+
+    Parameters
+    ----------
+    values : ndarray
+        Angles of one kind (NaN: absent).
+    kind : {"aoa", "aoa_elevation", "heading"}
+    skip : collection of str
+        Checks to leave out (``angle_units``).
+    where : str, optional
+        For the message (default: the kind).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        The median magnitude is beyond the bound.
+    """
+    if kind not in ANGLE_BOUND_RAD:
+        raise ConfigError(f"kind: expected one of {', '.join(ANGLE_BOUND_RAD)}, got {kind!r}")
+    if "angle_units" in skip:
+        return
+    v = np.abs(np.asarray(values, dtype=float))
+    v = v[np.isfinite(v)]
+    bound = ANGLE_BOUND_RAD[kind]
+    if not v.size or np.median(v) <= ANGLE_FACTOR * bound:
+        return
+    cause = f"{kind} values in degrees?" if v.max() <= 360.0 else f"{kind} values not in radians?"
+    raise InputError(f"{where or kind}: {cause} Their median magnitude is "
+                     f"{float(np.median(v)):.3g}, beyond any {kind} in radians (|{kind}| <= "
+                     f"{'pi / 2' if bound < np.pi else '2 pi'}; {int(np.sum(v > bound))} of "
+                     f"{v.size} values beyond it): give radians{_hint('angle_units')}")
+
+
+def check_values(kind: str, values: np.ndarray, points: np.ndarray | None = None,
+                 reference: np.ndarray | None = None, *, skip: Collection[str] = (),
+                 where: str | None = None) -> None:
+    """The check of one measurement kind's values (:data:`VALUE_CHECKS`): ``tdoa_units``,
+    ``pseudorange_units`` or ``angle_units``; other kinds have none here.
+
+    Parameters
+    ----------
+    kind : str
+        The measurement kind.
+    values : ndarray, shape (..., m)
+        Its values (NaN: absent).
+    points : ndarray, shape (..., m, D), optional
+        Each row's anchor (tdoa, pseudorange; without them those checks are left out).
+    reference : ndarray, shape (..., m, D), optional
+        Each tdoa row's reference anchor.
+    skip : collection of str
+        Checks to leave out.
+    where : str, optional
+        What the values are, for the message (default: the kind).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        A unit slip, named.
+    """
+    where = where or kind
+    if kind in ANGLE_BOUND_RAD:
+        check_angles(values, kind, skip=skip, where=where)
+    elif kind == "tdoa" and points is not None and reference is not None:
+        check_tdoa(values, points, reference, skip=skip, where=where)
+    elif kind == "pseudorange" and points is not None:
+        check_pseudoranges(values, points, skip=skip, where=where)
+
+
 def _epoch_matrix(rows: pd.DataFrame, ids: list[str]) -> np.ndarray:
-    """Ranges as an (epochs, anchors) array, one row per (node, time); NaN: absent."""
+    """Values (ranges, pseudoranges) as an (epochs, anchors) array, one row per (node, time);
+    NaN: absent."""
     node = pd.factorize(rows["node"])[0]
     time = rows["time"].to_numpy(dtype=float)
     order = np.lexsort((time, node))
@@ -554,7 +840,7 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
 def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
               kinds: Collection[str] | None = None, dim: int | None = None,
               max_gap_s: float | None = None, geometry: bool = True,
-              skip: Collection[str] = ()) -> None:
+              fixed_anchors: bool = True, skip: Collection[str] = ()) -> None:
     """Every plausibility check of a user's log (see the module docstring).
 
     Parameters
@@ -571,6 +857,10 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
         The method's track-restart gap, for ``time_units``.
     geometry : bool
         Check the anchor geometry (False for methods whose node priors fix it).
+    fixed_anchors : bool
+        False: the anchors move (``anchors`` holds each one's first position), so the tdoa
+        and pseudorange bounds, which need the anchors where they were at each row, are
+        left out.
     skip : collection of str
         Checks to leave out.
 
@@ -589,15 +879,35 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
         rss = measurements.loc[measurements["kind"] == "rss", "value"]
         if len(rss):
             check_rss(rss.to_numpy(), skip=skip, where="measurements")
-    if anchors is None or "range" not in kinds:
+    kind_of = measurements["kind"]
+    for kind in sorted(kinds & set(ANGLE_BOUND_RAD)):
+        check_angles(measurements.loc[kind_of == kind, "value"].to_numpy(), kind, skip=skip,
+                     where="measurements")
+    if anchors is None:
         return
     cols = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
-    rows = measurements[(measurements["kind"] == "range")
-                        & measurements["peer"].isin(set(anchors["id"]))]
-    if rows.empty:
+    placed = anchors.set_index("id")[cols]
+    known = measurements["peer"].isin(placed.index)
+    if "tdoa" in kinds and fixed_anchors and "reference" in measurements.columns:
+        rows = measurements[(kind_of == "tdoa") & known
+                            & measurements["reference"].isin(placed.index)]
+        if not rows.empty:
+            check_tdoa(rows["value"].to_numpy(dtype=float),
+                       placed.loc[rows["peer"]].to_numpy(dtype=float),
+                       placed.loc[rows["reference"]].to_numpy(dtype=float), skip=skip,
+                       where="measurements")
+    if "pseudorange" in kinds and fixed_anchors:
+        rows = measurements[(kind_of == "pseudorange") & known]
+        if not rows.empty:
+            ids = sorted(rows["peer"].unique())
+            check_pseudoranges(_epoch_matrix(rows, ids),
+                               placed.loc[ids].to_numpy(dtype=float), skip=skip,
+                               where="measurements")
+    rows = measurements[(kind_of == "range") & known]
+    if "range" not in kinds or rows.empty:
         return
     ids = sorted(rows["peer"].unique())
-    pos = anchors.set_index("id").loc[ids, cols].to_numpy(dtype=float)
+    pos = placed.loc[ids].to_numpy(dtype=float)
     R = _epoch_matrix(rows, ids)
     check_ranges(R, pos, dim=dim, where="measurements", ids=ids,
                  skip=set(skip) | (set() if geometry else {"geometry"}))

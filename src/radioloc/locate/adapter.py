@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
@@ -139,7 +140,8 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
 
 def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,
                       models: Mapping[str, MeasurementModel], *,
-                      height_m: float | None = None) -> tuple[np.ndarray, list[Observation]]:
+                      height_m: float | None = None,
+                      checked: bool = False) -> tuple[np.ndarray, list[Observation]]:
     """The observations of one node, one per kind that ``models`` explains.
 
     Parameters
@@ -151,6 +153,11 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
     models : mapping of kind to MeasurementModel
     height_m : float, optional
         Known height of a 2-D node with 3-D anchors.
+    checked : bool
+        True: the log's values passed :func:`radioloc.core.plausibility.check_log` as a
+        whole (a locate method, with the user's ``no_check``), so the observations leave out
+        the value checks of :func:`~radioloc.core.plausibility.check_values` (one node's
+        rows would judge them less surely, and an overruled check would refuse again).
 
     Returns
     -------
@@ -170,6 +177,7 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         A reference that is not an anchor (naming it, the node and the kind).
     """
     moving = moving_anchors(anchors)
+    no_check = frozenset(VALUE_CHECKS.values()) if checked else frozenset()
     ids = list(dict.fromkeys(anchors["id"]))
     points = None if moving else anchor_positions(anchors)
     index = {a: i for i, a in enumerate(ids)}
@@ -184,7 +192,8 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
             ctx = Context(points=np.zeros((len(grid.peers), 2 + ("z" in anchors.columns))),
                           index=np.full(len(grid.peers), -1))
             out.append(Observation(models[kind], grid.value, ctx,
-                                   std=grid.std if np.isfinite(grid.std).any() else None))
+                                   std=grid.std if np.isfinite(grid.std).any() else None,
+                                   no_check=no_check))
             continue
         for what, ids in (("peer", grid.peers), ("reference", grid.references)):
             bad = [p for p in ids if p not in index and not (what == "reference" and p == "")]
@@ -203,7 +212,7 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ctx = Context(points=pts, index=peer_idx, reference=ref,
                       reference_index=ref_idx, height_m=height_m)
         std = grid.std if np.isfinite(grid.std).any() else None
-        out.append(Observation(models[kind], grid.value, ctx, std=std))
+        out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out
 
 

@@ -23,8 +23,8 @@ A method that declares nothing (``None``) accepts anything, as before declaratio
 Its output is checked too: a non-finite position is a method failure, never printed.
 
 Before a method runs, :func:`radioloc.core.plausibility.check_log` refuses logs that are
-well-formed but implausible (degenerate anchors, ranges, anchors, RSS or time in the wrong
-unit) and warns of time going backwards within a node; every method accepts
+well-formed but implausible (degenerate anchors; ranges, anchors, tdoa, pseudoranges,
+angles, RSS or time in the wrong unit) and warns of time going backwards within a node; every method accepts
 ``-o no_check=NAME[,NAME...]`` (or ``all``) to overrule named checks.
 """
 
@@ -425,7 +425,7 @@ def check_plausible(method: LocateMethod, request: LocateRequest,
     gap = request.option("max_gap_s", MAX_GAP_S) if "max_gap_s" in declared else None
     reads_priors = method.inputs is not None and "priors" in method.inputs
     check_log(request.measurements, anchors, kinds=method.kinds, dim=dim, max_gap_s=gap,
-              geometry=not reads_priors and not moving, skip=skip)
+              geometry=not reads_priors and not moving, fixed_anchors=not moving, skip=skip)
     if reads_priors and request.priors is not None:
         from radioloc.core.plausibility import check_node_ranges
         from radioloc.io.priors import read_node_priors

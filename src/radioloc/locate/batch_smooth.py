@@ -28,6 +28,8 @@ whole segment in one sparse solve.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
@@ -43,7 +45,6 @@ from radioloc.locate.ekf_track import (log_models, motion_model, observation_win
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
-from radioloc.models.measurement import Observation
 
 __all__ = ["smooth_log", "OPTIONS"]
 
@@ -111,15 +112,15 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
     for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"])
+        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
+                                       checked=True)
         if not times.size:
             continue
         parts = segments(times, s["max_gap_s"])
         los_nlos, bias = None, s["bias"]
         if loss == "max-mixture" and any(o.model.kind == "range" for o in obs):
             los_nlos, bias = _range_noise(request, obs, times, anchors, s, parts, node, given)
-        obs = [Observation(o.model, o.z - bias, o.context, o.std) if o.model.kind == "range"
-               else o for o in obs]
+        obs = [replace(o, z=o.z - bias) if o.model.kind == "range" else o for o in obs]
         for o in obs:
             counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
         null_w = request.option("null_weight", 1e-3)

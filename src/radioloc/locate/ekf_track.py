@@ -64,6 +64,7 @@ import pandas as pd
 from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
@@ -350,7 +351,7 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [Observation(o.model, column_medians(o.z[window]), o.context) for o in observations]
+    medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
     fit = LeastSquares(loss="huber").locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
@@ -584,7 +585,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
                       height_m=first.height_m)
-        out.append(Observation(members[0][1].model, z, ctx, std))
+        out.append(Observation(members[0][1].model, z, ctx, std,
+                               no_check=members[0][1].no_check))
     return t, out
 
 
@@ -657,14 +659,14 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
 
 def observation_window(obs: Observation, seg: slice) -> Observation:
     """The steps ``seg`` of one node's observation (``z`` ``(T, S)``; moving anchors'
-    points ``(T, S, D)`` are cut to the same steps)."""
+    points ``(T, S, D)`` are cut to the same steps; its other fields kept)."""
     ctx = obs.context
 
     def cut(a):
         return a if a is None or a.ndim < 3 else a[seg]
     if cut(ctx.points) is not ctx.points or cut(ctx.reference) is not ctx.reference:
         ctx = replace(ctx, points=cut(ctx.points), reference=cut(ctx.reference))
-    return Observation(obs.model, obs.z[seg], ctx, None if obs.std is None else obs.std[seg])
+    return replace(obs, z=obs.z[seg], context=ctx, std=None if obs.std is None else obs.std[seg])
 
 
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
@@ -753,8 +755,11 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """
     out, diverged, n_tracks, noise = track_log(request, request.measurements)
     if diverged:
+        skipped = request.parsed.get("no_check")     # None: check_log did not run
+        bounded = () if skipped is None else [k for k, name in VALUE_CHECKS.items()
+                                              if name not in skipped]
         slip = likely_slip(request.measurements,
-                           lambda log: not track_log(request, log)[1])
+                           lambda log: not track_log(request, log)[1], bounded=bounded)
         if slip is not None:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
@@ -837,7 +842,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     log, opts, models = log_models(request, meas, table, s, anchor_bias)
     parts = []
     for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"])
+        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
+                                        checked=True)
         if times.size:
             parts.append((node, times, obs, segments(times, s["max_gap_s"])))
     if not parts:

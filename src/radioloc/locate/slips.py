@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 
 import numpy as np
 import pandas as pd
@@ -40,6 +40,9 @@ SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]
     (("odometry_dx", "odometry_dy"), np.negative, "negated", "odometry with the wrong sign?"),
     (("odometry_dx", "odometry_dy"), lambda v: v / 1e3, "divided by 1000", "odometry in mm?"),
 ]
+#: Shrink factor of a slip's map (mm: 1000) beyond which a kind whose values passed their
+#: input bound is not blamed (1000 times too large, they break it for any position).
+BOUND_FACTOR = 1e3
 
 
 def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
@@ -65,9 +68,13 @@ def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
     return measurements.assign(value=value)
 
 
-def likely_slip(measurements: pd.DataFrame,
-                consistent: Callable[[pd.DataFrame], bool]) -> tuple[str, str, str] | None:
+def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame], bool], *,
+                bounded: Collection[str] = ()) -> tuple[str, str, str] | None:
     """The slip of :data:`SLIPS` whose undoing makes a diverged log consistent.
+
+    A slip whose map shrinks the values of a ``bounded`` kind by :data:`BOUND_FACTOR` or
+    more (tdoa or pseudoranges in mm) is not tried: values that many times too large
+    break the kind's bound for any position, which the log passed.
 
     Parameters
     ----------
@@ -76,6 +83,9 @@ def likely_slip(measurements: pd.DataFrame,
     consistent : callable
         ``consistent(log) -> bool``: the tracker's verdict on a log (no track diverged). An
         error the toolkit raises on a mapped log counts as not consistent.
+    bounded : collection of str
+        Kinds whose values passed their bound
+        (:func:`radioloc.core.plausibility.check_values`).
 
     Returns
     -------
@@ -87,6 +97,8 @@ def likely_slip(measurements: pd.DataFrame,
     present = set(measurements["kind"].unique())
     for kinds, undo, how, question in SLIPS:
         if not present.intersection(kinds):
+            continue
+        if set(kinds) <= set(bounded) and abs(float(undo(np.ones(1))[0])) <= 1 / BOUND_FACTOR:
             continue
         mapped = undo_slip(measurements, kinds, undo)
         try:

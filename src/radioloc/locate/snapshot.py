@@ -196,7 +196,8 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
                           loss_scale=request.option("loss_scale", 1.5))
     epochs, fits = [], []
     for node in log.nodes:
-        times, obs = node_observations(log, table, node, models, height_m=height)
+        times, obs = node_observations(log, table, node, models, height_m=height,
+                                        checked=True)
         if times.size:
             epochs.append(pd.DataFrame({"time": times, "node": node}))
             fits.append(solver.locate(obs))

@@ -35,11 +35,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import cached_property
+from collections.abc import Collection
 from typing import ClassVar, Mapping
 
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.plausibility import check_values
 from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_ranges,
                                       check_real, check_shapes, range_noise_std, refuse_infinite)
 
@@ -689,12 +691,18 @@ class Observation:
         ``points`` of shape ``(..., T, m, P)``, sliced per step by :meth:`at`).
     std : ndarray, shape (..., T, m), optional
         Per-row, per-step standard deviations (NaN: the model's).
+    no_check : collection of str
+        Checks of :func:`radioloc.core.plausibility.check_values` to leave out
+        (``tdoa_units``, ``pseudorange_units``, ``angle_units``): by default a tdoa,
+        pseudorange or angle observation whose values break the bound of their kind (a unit
+        slip: mm, ns, degrees) is refused.
     """
 
     model: MeasurementModel
     z: np.ndarray
     context: Context
     std: np.ndarray | None = None
+    no_check: Collection[str] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.model, MeasurementModel):
@@ -711,6 +719,9 @@ class Observation:
             object.__setattr__(self, "std", np.broadcast_to(s, z.shape))
         if self.model.kind == "range":
             check_ranges(z, "z", self.range_std_m())
+        else:
+            check_values(self.model.kind, z, self.context.points, self.context.reference,
+                         skip=self.no_check, where=f"z ({self.model.kind})")
 
     def range_std_m(self) -> np.ndarray:
         """Per-row noise standard deviations of the negative-range rule
