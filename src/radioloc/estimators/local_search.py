@@ -16,6 +16,18 @@ import numpy as np
 
 Objective = Callable[[np.ndarray], np.ndarray]
 
+#: spacing of :func:`derived_schedule`'s coarse grid, metres (the span of the first polish)
+COARSE_SPACING_M = 1.0
+#: most coarse points on either side of the centroid in :func:`derived_schedule` (a wider
+#: search widens the spacing)
+MAX_HALF_POINTS = 64
+#: half width at which :func:`derived_schedule`'s refinement stops, metres
+FINE_HALF_WIDTH_M = 0.05
+#: points per axis of each refine grid of :func:`derived_schedule`
+REFINE_POINTS = 21
+#: most refine stages of :func:`derived_schedule`
+MAX_STAGES = 8
+
 
 def circle_intersections(centres: np.ndarray, radii: np.ndarray,
                          valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,23 +66,99 @@ def circle_intersections(centres: np.ndarray, radii: np.ndarray,
     return pts, np.concatenate([ok, ok], axis=-1)
 
 
-def local_grid(half_width: float, n: int) -> np.ndarray:
+def local_grid(half_width: float | np.ndarray, n: int) -> np.ndarray:
     """Offsets of a square grid.
 
     Parameters
     ----------
-    half_width : float
-        Half width of the grid, metres.
+    half_width : float or ndarray, shape (...)
+        Half width of the grid, metres (an array: one grid per problem of the batch).
     n : int
         Points per axis.
 
     Returns
     -------
-    ndarray, shape (n * n, 2)
+    ndarray, shape (..., n * n, 2)
     """
+    if np.ndim(half_width):
+        return np.asarray(half_width, dtype=float)[..., None, None] * local_grid(1.0, n)
     g = np.linspace(-half_width, half_width, n)
     gx, gy = np.meshgrid(g, g, indexing="ij")
     return np.stack([gx.ravel(), gy.ravel()], axis=-1)
+
+
+def centroid_of(centres: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Mean of the valid points (the origin where none).
+
+    Parameters
+    ----------
+    centres : ndarray, shape (..., L, 2)
+    valid : ndarray of bool, shape (..., L)
+
+    Returns
+    -------
+    ndarray, shape (..., 2)
+    """
+    w = valid.astype(float)
+    return (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]
+
+
+def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
+                     circles: np.ndarray) -> dict:
+    """Coarse grid and refine schedule of a global :func:`search` from the geometry of
+    each problem.
+
+    The half width ``h`` covers every position the points heard allow: their largest
+    distance from their centroid plus the largest range circle (``radii`` where
+    ``circles``), at least ``COARSE_SPACING_M``. The coarse grid has spacing
+    ``s = max(COARSE_SPACING_M, h / MAX_HALF_POINTS)`` and ``ceil(h / s)`` points on
+    either side of the centroid, so that a likelihood without circles (RSS, bearings)
+    is sampled within its first polish. Refine stage ``k`` (from 0) is a grid of
+    ``REFINE_POINTS`` per axis and half width ``s / (2 * 10^k)`` (stage 0 spans the coarse
+    cell, each next stage one spacing of the one before on either side), until the half
+    width is at most ``FINE_HALF_WIDTH_M`` (``s = 1`` m: the stages 0.5 m and 0.05 m of
+    :func:`search`'s default, a last spacing of 5 mm). A problem of the batch with a
+    smaller grid or fewer stages than the batch's largest has the excess grid points left
+    out and grids of half width 0 (its estimate stays put): each problem searches as it
+    would alone.
+
+    Parameters
+    ----------
+    centres : ndarray, shape (..., L, 2)
+        Points of the rows.
+    radii : ndarray, shape (..., L)
+        Range circles' radii (any value elsewhere).
+    valid : ndarray of bool, shape (..., L)
+        Rows heard.
+    circles : ndarray of bool, shape (..., L)
+        Rows heard that are range circles.
+
+    Returns
+    -------
+    dict
+        ``coarse_half_width_m`` ``(...)`` (``h``), ``coarse_grid`` (offsets
+        ``(..., G, 2)`` and which are candidates ``(..., G)``) and ``refine`` (stages of
+        per-problem half widths ``(...)``), keywords of :func:`search`.
+    """
+    c = centroid_of(centres, valid)
+    spread = np.max(np.where(valid, np.linalg.norm(centres - c[..., None, :], axis=-1), 0.0),
+                    axis=-1, initial=0.0)
+    reach = np.max(np.where(circles, radii, 0.0), axis=-1, initial=0.0)
+    half = np.maximum(spread + reach, COARSE_SPACING_M)
+    spacing = np.maximum(COARSE_SPACING_M, half / MAX_HALF_POINTS)
+    points = np.minimum(np.ceil(half / spacing), MAX_HALF_POINTS).astype(int)
+    k = np.arange(-points.max(initial=0), points.max(initial=0) + 1.0)
+    kx, ky = np.meshgrid(k, k, indexing="ij")
+    steps = np.stack([kx.ravel(), ky.ravel()], axis=-1)                    # (G, 2)
+    offsets = spacing[..., None, None] * steps
+    inside = np.max(np.abs(steps), axis=-1) <= points[..., None]
+    shrink = (REFINE_POINTS - 1) / 2
+    first = spacing / 2
+    stages = np.clip(np.ceil(np.log(first / FINE_HALF_WIDTH_M) / np.log(shrink) - 1e-9) + 1,
+                     1, MAX_STAGES).astype(int)
+    refine = tuple((np.where(j < stages, first / shrink**j, 0.0), REFINE_POINTS)
+                   for j in range(int(stages.max(initial=1))))
+    return {"coarse_half_width_m": half, "coarse_grid": (offsets, inside), "refine": refine}
 
 
 def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -94,9 +182,10 @@ def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray)
 
 
 def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
-           coarse_half_width_m: float, coarse_points: int = 21,
-           refine: tuple[tuple[float, int], ...] = ((0.5, 21), (0.05, 21)),
-           centre: np.ndarray | None = None, circles: np.ndarray | None = None) -> np.ndarray:
+           coarse_half_width_m: float | np.ndarray, coarse_points: int = 21,
+           refine: tuple[tuple[float | np.ndarray, int], ...] = ((0.5, 21), (0.05, 21)),
+           centre: np.ndarray | None = None, circles: np.ndarray | None = None,
+           coarse_grid: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Maximise ``objective`` over circle intersections and a coarse grid, then refine.
 
     The coarse grid is centred on the mean of the valid centres (the origin where none),
@@ -113,18 +202,22 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
         Measured ranges (any value where not ``valid``).
     valid : ndarray of bool, shape (..., L)
         Which ranges exist.
-    coarse_half_width_m : float
-        Half width of the coarse grid.
+    coarse_half_width_m : float or ndarray, shape (...)
+        Half width of the coarse grid (an array: per problem of the batch).
     coarse_points : int
         Points per axis of the coarse grid.
     refine : tuple of (half_width, points)
-        Successive local grids around the best candidate.
+        Successive local grids around the best candidate (a half width may be an array
+        per problem, as :func:`derived_schedule` gives).
     centre : ndarray, shape (..., 2), optional
         Centre of a local search (broadcast against the batch axes); default: a global
         search around the centroid of the points heard.
     circles : ndarray of bool, shape (..., L), optional
         Which valid rows are range circles whose intersections are candidates (the
         others, e.g. bearings, only place the grid); default: every valid row.
+    coarse_grid : (ndarray (..., G, 2), ndarray of bool (..., G)), optional
+        Offsets of the coarse grid from its centre and which of them are candidates,
+        instead of the square of ``coarse_points`` (as :func:`derived_schedule` gives).
 
     Returns
     -------
@@ -133,15 +226,20 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
     """
     pts, ok = circle_intersections(centres, radii, valid if circles is None else circles)
     if centre is None:
-        w = valid.astype(float)
-        centroid = (centres * w[..., None]).sum(-2) / np.maximum(w.sum(-1), 1.0)[..., None]
+        centroid = centroid_of(centres, valid)
     else:
         centroid = np.broadcast_to(np.asarray(centre, dtype=float), pts.shape[:-2] + (2,))
-        near = np.all(np.abs(pts - centroid[..., None, :]) <= coarse_half_width_m, axis=-1)
+        near = np.all(np.abs(pts - centroid[..., None, :])
+                      <= np.asarray(coarse_half_width_m)[..., None, None], axis=-1)
         ok = ok & near
-    grid = centroid[..., None, :] + local_grid(coarse_half_width_m, coarse_points)
+    if coarse_grid is None:
+        grid = centroid[..., None, :] + local_grid(coarse_half_width_m, coarse_points)
+        grid_ok = np.ones(grid.shape[:-1], dtype=bool)
+    else:
+        grid = centroid[..., None, :] + coarse_grid[0]
+        grid_ok = np.broadcast_to(coarse_grid[1], grid.shape[:-1])
     cand = np.concatenate([pts, grid], axis=-2)
-    cand_ok = np.concatenate([ok, np.ones(grid.shape[:-1], dtype=bool)], axis=-1)
+    cand_ok = np.concatenate([ok, grid_ok], axis=-1)
     x = best_candidate(objective, cand, cand_ok)
     for half, n in refine:
         local = x[..., None, :] + local_grid(half, n)

@@ -23,7 +23,7 @@ from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_
                                       refuse_infinite)
 from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
-from radioloc.estimators.local_search import search
+from radioloc.estimators.local_search import derived_schedule, search
 from radioloc.estimators.observation_rows import observation_list
 from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.models.los_nlos import LosNlosRange
@@ -221,11 +221,11 @@ class LocalML(SnapshotEstimator):
     """
 
     name = "local-ml"
-    tags = Tags(kinds=None, uses="logpdf", dims=(2,), reads=("position",))
+    tags = Tags(kinds=None, uses="logpdf", dims=(2,), reads=("position",), generic=True)
 
-    def __init__(self, measurement, radius_m: float, coarse_points: int = 21,
-                 search_radius_m: float | None = None, on_degenerate: str = "flag",
-                 backend: str = DEFAULT_BACKEND) -> None:
+    def __init__(self, measurement=None, radius_m: float | None = None,
+                 coarse_points: int | None = None, search_radius_m: float | None = None,
+                 on_degenerate: str = "flag", backend: str = DEFAULT_BACKEND) -> None:
         self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.backend = check_backend(backend)
         if isinstance(measurement, LosNlosRange):
@@ -236,8 +236,12 @@ class LocalML(SnapshotEstimator):
                 raise ConfigError(f"measurement: ranges given as arrays need a range model, got "
                                   f"{type(measurement).__name__} (pass Observations instead)")
         self.measurement = measurement
-        self.radius_m = check_positive(radius_m, "radius_m")
-        self.coarse_points = check_int(coarse_points, "coarse_points", minimum=2, maximum=4096)
+        self.radius_m = None if radius_m is None else check_positive(radius_m, "radius_m")
+        if coarse_points is not None and radius_m is None and search_radius_m is None:
+            raise ConfigError("coarse_points: sets the grid of a given radius_m (or "
+                              "search_radius_m); without one the grid is derived")
+        self.coarse_points = (None if coarse_points is None else
+                              check_int(coarse_points, "coarse_points", minimum=2, maximum=4096))
         self.search_radius_m = (None if search_radius_m is None
                                 else check_positive(search_radius_m, "search_radius_m"))
 
@@ -280,7 +284,10 @@ class LocalML(SnapshotEstimator):
                 compiled = (self.measurement.noise.mixture_constants(), th, cen, valid)
         batch = _batch_shape(obs)
         pts, radii, heard, circle = _search_rows(obs, batch)
-        half = self.radius_m
+        half, derived = self.radius_m, {}
+        if self.search_radius_m is None and self.radius_m is None:
+            derived = derived_schedule(pts, radii, heard, circle)
+            half = derived.pop("coarse_half_width_m")
         if self.search_radius_m is not None:
             if search_centre is None:
                 raise InputError("search_centre: required by a local search (search_radius_m set)")
@@ -299,8 +306,8 @@ class LocalML(SnapshotEstimator):
                 return log_likelihood(obs, x)
             consts, th_, cen_, valid_ = compiled
             return _scores(0, consts, x, cen_, th_, valid_)
-        x = search(objective, pts, radii, heard, half, self.coarse_points, centre=search_centre,
-                   circles=circle)
+        x = search(objective, pts, radii, heard, half, self.coarse_points or 21,
+                   centre=search_centre, circles=circle, **derived)
         diag = {"log_likelihood": objective(x[..., None, :])[..., 0],
                 "measurements_used": heard.sum(axis=-1)}
         if self.search_radius_m is None:
@@ -355,7 +362,7 @@ class Ransac(SnapshotEstimator):
         self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.backend = check_backend(backend)
         self.threshold_m = check_positive(threshold_m, "threshold_m")
-        self.radius_m = check_positive(radius_m, "radius_m")
+        self.radius_m = None if radius_m is None else check_positive(radius_m, "radius_m")
         self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
 
     def locate(self, ranges, centres) -> Estimate:
