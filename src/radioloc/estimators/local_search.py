@@ -109,8 +109,9 @@ def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
     each problem.
 
     The half width ``h`` covers every position the points heard allow: their largest
-    distance from their centroid plus the largest range circle (``radii`` where
-    ``circles``), at least ``COARSE_SPACING_M``. The coarse grid has spacing
+    distance from their centroid plus the smallest range circle (``radii`` where
+    ``circles``; the node is within every circle's radius of its point, so an excess range
+    does not widen the search), at least ``COARSE_SPACING_M``. The coarse grid has spacing
     ``s = max(COARSE_SPACING_M, h / MAX_HALF_POINTS)`` and ``ceil(h / s)`` points on
     either side of the centroid, so that a likelihood without circles (RSS, bearings)
     is sampled within its first polish. Refine stage ``k`` (from 0) is a grid of
@@ -143,7 +144,8 @@ def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
     c = centroid_of(centres, valid)
     spread = np.max(np.where(valid, np.linalg.norm(centres - c[..., None, :], axis=-1), 0.0),
                     axis=-1, initial=0.0)
-    reach = np.max(np.where(circles, radii, 0.0), axis=-1, initial=0.0)
+    reach = np.min(np.where(circles, radii, np.inf), axis=-1, initial=np.inf)
+    reach = np.where(np.isfinite(reach), reach, 0.0)
     half = np.maximum(spread + reach, COARSE_SPACING_M)
     spacing = np.maximum(COARSE_SPACING_M, half / MAX_HALF_POINTS)
     points = np.minimum(np.ceil(half / spacing), MAX_HALF_POINTS).astype(int)

@@ -184,6 +184,17 @@ class LocalML(SnapshotEstimator):
     optimum; a model without range rows has only the grid, so its spacing
     ``2 radius_m / (coarse_points - 1)`` must stay within the first polish (1 m).
 
+    Without ``radius_m`` (the default) the search square is derived per problem
+    (:func:`~radioloc.estimators.local_search.derived_schedule`): its half width is
+    ``h = max_i ||p_i - c|| + min_j r_j``, the largest distance of a point heard ``p_i``
+    from their mean ``c`` plus the shortest range circle ``r_j`` heard (0 without range
+    rows; at least 1 m), which holds every position the range rows allow. The coarse grid
+    has spacing ``s = max(1 m, h / 64)`` (at most 129 x 129 points), and the polish has
+    stages of half width ``s / 2, s / 20, ...`` down to 0.05 m (``s = 1`` m: the 0.5 m
+    and 0.05 m stages above; a last spacing of 5 mm). A model whose likelihood does not
+    vanish far from the points (a fingerprint scan beyond its calibration places) has no
+    unique maximum there; the search returns one point of the plateau.
+
     With ``search_radius_m`` set, the search is local instead: the coarse grid (half width
     ``search_radius_m``) and the admissible circle intersections lie around a search
     centre given to :meth:`locate` (e.g. the previous estimate moved by the INS), so a
@@ -197,10 +208,12 @@ class LocalML(SnapshotEstimator):
         ``RangeModel(noise=measurement)``) or any range model with a ``logpdf``. None:
         :meth:`locate` takes :class:`~radioloc.models.measurement.Observation`\\ s only
         (which carry their models).
-    radius_m : float
-        Half width of the coarse grid (the communication radius).
-    coarse_points : int
-        Points per axis of the coarse grid.
+    radius_m : float, optional
+        Half width of the coarse grid (the communication radius); default None: derived
+        per problem from the points heard and the range circles (see above).
+    coarse_points : int, optional
+        Points per axis of the coarse grid of ``radius_m`` or ``search_radius_m``
+        (default 21); refused without either (the derived grid sets its own).
     search_radius_m : float, optional
         Half width of a local search around the centre passed to :meth:`locate`; default
         None: the global search above.
@@ -237,11 +250,13 @@ class LocalML(SnapshotEstimator):
                                   f"{type(measurement).__name__} (pass Observations instead)")
         self.measurement = measurement
         self.radius_m = None if radius_m is None else check_positive(radius_m, "radius_m")
-        if coarse_points is not None and radius_m is None and search_radius_m is None:
+        derived = radius_m is None and search_radius_m is None
+        if coarse_points is not None and derived:
             raise ConfigError("coarse_points: sets the grid of a given radius_m (or "
                               "search_radius_m); without one the grid is derived")
-        self.coarse_points = (None if coarse_points is None else
-                              check_int(coarse_points, "coarse_points", minimum=2, maximum=4096))
+        self.coarse_points = None if derived else check_int(
+            21 if coarse_points is None else coarse_points, "coarse_points", minimum=2,
+            maximum=4096)
         self.search_radius_m = (None if search_radius_m is None
                                 else check_positive(search_radius_m, "search_radius_m"))
 
@@ -284,10 +299,10 @@ class LocalML(SnapshotEstimator):
                 compiled = (self.measurement.noise.mixture_constants(), th, cen, valid)
         batch = _batch_shape(obs)
         pts, radii, heard, circle = _search_rows(obs, batch)
-        half, derived = self.radius_m, {}
-        if self.search_radius_m is None and self.radius_m is None:
-            derived = derived_schedule(pts, radii, heard, circle)
-            half = derived.pop("coarse_half_width_m")
+        half, grid = self.radius_m, {"coarse_points": self.coarse_points}
+        if self.coarse_points is None:
+            grid = derived_schedule(pts, radii, heard, circle)
+            half = grid.pop("coarse_half_width_m")
         if self.search_radius_m is not None:
             if search_centre is None:
                 raise InputError("search_centre: required by a local search (search_radius_m set)")
@@ -306,8 +321,8 @@ class LocalML(SnapshotEstimator):
                 return log_likelihood(obs, x)
             consts, th_, cen_, valid_ = compiled
             return _scores(0, consts, x, cen_, th_, valid_)
-        x = search(objective, pts, radii, heard, half, self.coarse_points or 21,
-                   centre=search_centre, circles=circle, **derived)
+        x = search(objective, pts, radii, heard, half, centre=search_centre, circles=circle,
+                   **grid)
         diag = {"log_likelihood": objective(x[..., None, :])[..., 0],
                 "measurements_used": heard.sum(axis=-1)}
         if self.search_radius_m is None:
