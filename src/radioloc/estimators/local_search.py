@@ -27,6 +27,8 @@ FINE_HALF_WIDTH_M = 0.05
 REFINE_POINTS = 21
 #: most refine stages of :func:`derived_schedule`
 MAX_STAGES = 8
+#: candidates of a whole batch that :func:`best_on_lattice` scores at once
+LATTICE_BLOCK = 2**18
 
 
 def circle_intersections(centres: np.ndarray, radii: np.ndarray,
@@ -119,9 +121,9 @@ def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
     cell, each next stage one spacing of the one before on either side), until the half
     width is at most ``FINE_HALF_WIDTH_M`` (``s = 1`` m: the stages 0.5 m and 0.05 m of
     :func:`search`'s default, a last spacing of 5 mm). A problem of the batch with a
-    smaller grid or fewer stages than the batch's largest has the excess grid points left
-    out and grids of half width 0 (its estimate stays put): each problem searches as it
-    would alone.
+    smaller grid or fewer stages than the batch's largest has its own grid
+    (:func:`best_on_lattice`) and grids of half width 0 (its estimate stays put): each
+    problem searches as it would alone.
 
     Parameters
     ----------
@@ -137,9 +139,9 @@ def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
     Returns
     -------
     dict
-        ``coarse_half_width_m`` ``(...)`` (``h``), ``coarse_grid`` (offsets
-        ``(..., G, 2)`` and which are candidates ``(..., G)``) and ``refine`` (stages of
-        per-problem half widths ``(...)``), keywords of :func:`search`.
+        ``lattice`` (spacing ``(...)`` and points on either side ``(...)`` of the coarse
+        grid) and ``refine`` (stages of per-problem half widths ``(...)``), keywords of
+        :func:`search`.
     """
     c = centroid_of(centres, valid)
     spread = np.max(np.where(valid, np.linalg.norm(centres - c[..., None, :], axis=-1), 0.0),
@@ -149,18 +151,59 @@ def derived_schedule(centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
     half = np.maximum(spread + reach, COARSE_SPACING_M)
     spacing = np.maximum(COARSE_SPACING_M, half / MAX_HALF_POINTS)
     points = np.minimum(np.ceil(half / spacing), MAX_HALF_POINTS).astype(int)
-    k = np.arange(-points.max(initial=0), points.max(initial=0) + 1.0)
-    kx, ky = np.meshgrid(k, k, indexing="ij")
-    steps = np.stack([kx.ravel(), ky.ravel()], axis=-1)                    # (G, 2)
-    offsets = spacing[..., None, None] * steps
-    inside = np.max(np.abs(steps), axis=-1) <= points[..., None]
     shrink = (REFINE_POINTS - 1) / 2
     first = spacing / 2
     stages = np.clip(np.ceil(np.log(first / FINE_HALF_WIDTH_M) / np.log(shrink) - 1e-9) + 1,
                      1, MAX_STAGES).astype(int)
     refine = tuple((np.where(j < stages, first / shrink**j, 0.0), REFINE_POINTS)
                    for j in range(int(stages.max(initial=1))))
-    return {"coarse_half_width_m": half, "coarse_grid": (offsets, inside), "refine": refine}
+    return {"lattice": (spacing, points), "refine": refine}
+
+
+def best_on_lattice(objective: Objective, centre: np.ndarray, spacing: np.ndarray,
+                    half_points: np.ndarray, block: int = LATTICE_BLOCK
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The best point of a square lattice per problem, scored in blocks.
+
+    The lattice of problem ``b`` is ``centre_b + spacing_b (i, j)`` for integers
+    ``|i|, |j| <= half_points_b``, in the order of :func:`local_grid` (``i`` slow). The
+    lattices of a batch are scored together, at most ``block`` candidates of the whole
+    batch at a time, so the memory does not grow with the lattice; the first of equal
+    scores wins, as in :func:`best_candidate`.
+
+    Parameters
+    ----------
+    objective : callable
+        Candidates ``(..., C, 2)`` to scores ``(..., C)`` (larger is better).
+    centre : ndarray, shape (..., 2)
+    spacing : ndarray, shape (...)
+        Metres.
+    half_points : ndarray of int, shape (...)
+    block : int
+        Candidates of the batch scored at once.
+
+    Returns
+    -------
+    best : ndarray, shape (..., 2)
+    score : ndarray, shape (...)
+    """
+    n = int(np.max(half_points, initial=0))
+    k = np.arange(-n, n + 1.0)
+    kx, ky = np.meshgrid(k, k, indexing="ij")
+    steps = np.stack([kx.ravel(), ky.ravel()], axis=-1)                    # (G, 2)
+    batch = centre.shape[:-1]
+    size = max(1, block // max(int(np.prod(batch, dtype=int)), 1))
+    best = np.broadcast_to(centre, batch + (2,)).copy()
+    score = np.full(batch, -np.inf)
+    for start in range(0, len(steps), size):
+        part = steps[start:start + size]
+        cand = centre[..., None, :] + spacing[..., None, None] * part
+        ok = np.max(np.abs(part), axis=-1) <= half_points[..., None]
+        pick, top = _first_best(np.where(ok, objective(cand), -np.inf), cand)
+        better = top > score
+        best = np.where(better[..., None], pick, best)
+        score = np.where(better, top, score)
+    return best, score
 
 
 def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -178,16 +221,21 @@ def best_candidate(objective: Objective, candidates: np.ndarray, ok: np.ndarray)
     -------
     ndarray, shape (..., 2)
     """
-    score = np.where(ok, objective(candidates), -np.inf)
+    return _first_best(np.where(ok, objective(candidates), -np.inf), candidates)[0]
+
+
+def _first_best(score: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first candidate of the highest score ``(..., 2)``, and that score ``(...)``."""
     best = np.argmax(score, axis=-1)
-    return np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    return (np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :],
+            np.take_along_axis(score, best[..., None], axis=-1)[..., 0])
 
 
 def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: np.ndarray,
-           coarse_half_width_m: float | np.ndarray, coarse_points: int = 21,
+           coarse_half_width_m: float | None, coarse_points: int = 21,
            refine: tuple[tuple[float | np.ndarray, int], ...] = ((0.5, 21), (0.05, 21)),
            centre: np.ndarray | None = None, circles: np.ndarray | None = None,
-           coarse_grid: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+           lattice: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Maximise ``objective`` over circle intersections and a coarse grid, then refine.
 
     The coarse grid is centred on the mean of the valid centres (the origin where none),
@@ -204,8 +252,8 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
         Measured ranges (any value where not ``valid``).
     valid : ndarray of bool, shape (..., L)
         Which ranges exist.
-    coarse_half_width_m : float or ndarray, shape (...)
-        Half width of the coarse grid (an array: per problem of the batch).
+    coarse_half_width_m : float or None
+        Half width of the coarse grid (None with ``lattice``).
     coarse_points : int
         Points per axis of the coarse grid.
     refine : tuple of (half_width, points)
@@ -217,9 +265,11 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
     circles : ndarray of bool, shape (..., L), optional
         Which valid rows are range circles whose intersections are candidates (the
         others, e.g. bearings, only place the grid); default: every valid row.
-    coarse_grid : (ndarray (..., G, 2), ndarray of bool (..., G)), optional
-        Offsets of the coarse grid from its centre and which of them are candidates,
-        instead of the square of ``coarse_points`` (as :func:`derived_schedule` gives).
+    lattice : (ndarray (...), ndarray of int (...)), optional
+        Instead of the square of ``coarse_points`` (global search only): a coarse grid
+        per problem around the centroid, its spacing and its points on either side
+        (:func:`best_on_lattice`, as :func:`derived_schedule` gives); the intersections
+        win ties with it.
 
     Returns
     -------
@@ -234,15 +284,16 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
         near = np.all(np.abs(pts - centroid[..., None, :])
                       <= np.asarray(coarse_half_width_m)[..., None, None], axis=-1)
         ok = ok & near
-    if coarse_grid is None:
+    if lattice is None:
         grid = centroid[..., None, :] + local_grid(coarse_half_width_m, coarse_points)
-        grid_ok = np.ones(grid.shape[:-1], dtype=bool)
+        cand = np.concatenate([pts, grid], axis=-2)
+        cand_ok = np.concatenate([ok, np.ones(grid.shape[:-1], dtype=bool)], axis=-1)
+        x = best_candidate(objective, cand, cand_ok)
     else:
-        grid = centroid[..., None, :] + coarse_grid[0]
-        grid_ok = np.broadcast_to(coarse_grid[1], grid.shape[:-1])
-    cand = np.concatenate([pts, grid], axis=-2)
-    cand_ok = np.concatenate([ok, grid_ok], axis=-1)
-    x = best_candidate(objective, cand, cand_ok)
+        x, score = best_on_lattice(objective, centroid, *lattice)
+        if pts.shape[-2]:
+            pick, top = _first_best(np.where(ok, objective(pts), -np.inf), pts)
+            x = np.where((top >= score)[..., None], pick, x)
     for half, n in refine:
         local = x[..., None, :] + local_grid(half, n)
         x = best_candidate(objective, local, np.ones(local.shape[:-1], dtype=bool))

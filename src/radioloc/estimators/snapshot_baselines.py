@@ -302,7 +302,6 @@ class LocalML(SnapshotEstimator):
         half, grid = self.radius_m, {"coarse_points": self.coarse_points}
         if self.coarse_points is None:
             grid = derived_schedule(pts, radii, heard, circle)
-            half = grid.pop("coarse_half_width_m")
         if self.search_radius_m is not None:
             if search_centre is None:
                 raise InputError("search_centre: required by a local search (search_radius_m set)")
