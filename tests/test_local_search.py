@@ -35,7 +35,7 @@ def test_blocks_of_any_size_give_each_problem_the_best_of_its_own_lattice(block)
     best, score = best_on_lattice(objective, CENTRE, SPACING, HALF_POINTS, block=block)
     for b in range(3):
         cand = listed_out(b)
-        want = best_candidate(lambda x: bowl(x, PEAK[b]), cand, np.ones(len(cand), dtype=bool))
+        want = best_candidate(lambda x, p=PEAK[b]: bowl(x, p), cand, np.ones(len(cand), dtype=bool))
         np.testing.assert_allclose(best[b], want, rtol=0, atol=1e-12)
         assert score[b] == bowl(cand, PEAK[b]).max()
     # known answers: the lattice point nearest each peak; the third problem's lattice lies
