@@ -4,8 +4,11 @@ Candidates are the pairwise intersections of the range circles (where two accura
 ranges place the node) plus a coarse grid; the best candidate of an objective is then
 polished by two successively finer local grids. Given a search ``centre`` (e.g. a
 previous estimate), the coarse grid is centred there and intersections farther than the
-grid's half width from it are left out: a local search. Batched over leading axes; the
-objective maps candidate positions ``(..., C, 2)`` to scores ``(..., C)`` (larger is better).
+grid's half width from it are left out: a local search. Without a given half width,
+:func:`derived_schedule` sizes the coarse grid and the polish of each problem from its
+geometry (:func:`best_on_lattice` scores such grids in blocks). Batched over leading axes;
+the objective maps candidate positions ``(..., C, 2)`` to scores ``(..., C)`` (larger is
+better).
 """
 
 from __future__ import annotations
@@ -281,8 +284,7 @@ def search(objective: Objective, centres: np.ndarray, radii: np.ndarray, valid: 
         centroid = centroid_of(centres, valid)
     else:
         centroid = np.broadcast_to(np.asarray(centre, dtype=float), pts.shape[:-2] + (2,))
-        near = np.all(np.abs(pts - centroid[..., None, :])
-                      <= np.asarray(coarse_half_width_m)[..., None, None], axis=-1)
+        near = np.all(np.abs(pts - centroid[..., None, :]) <= coarse_half_width_m, axis=-1)
         ok = ok & near
     if lattice is None:
         grid = centroid[..., None, :] + local_grid(coarse_half_width_m, coarse_points)

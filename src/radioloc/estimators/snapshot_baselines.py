@@ -376,7 +376,7 @@ class Ransac(SnapshotEstimator):
         self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.backend = check_backend(backend)
         self.threshold_m = check_positive(threshold_m, "threshold_m")
-        self.radius_m = None if radius_m is None else check_positive(radius_m, "radius_m")
+        self.radius_m = check_positive(radius_m, "radius_m")
         self.max_iter = check_int(max_iter, "max_iter", minimum=0, maximum=MAX_ITERATIONS)
 
     def locate(self, ranges, centres) -> Estimate:
