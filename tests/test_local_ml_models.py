@@ -7,14 +7,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from model_cases import MinimalBearing
+from model_cases import TRAPEZOIDS, MinimalBearing
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.snapshot_baselines import LocalML, log_likelihood
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
+from radioloc.models.rss_model import TrapezoidRssModel
 
 POINTS = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0], [12.0, 27.0]])
 B = 40
@@ -154,6 +155,22 @@ def test_derived_search_moves_with_the_scene_and_with_the_node():
     moved = fix(POINTS, r2, a2).position
     np.testing.assert_allclose(moved, truth + step, atol=0.01)
     assert np.all(np.linalg.norm(moved - base, axis=-1) > 3.0)
+
+
+def test_values_impossible_at_every_point_searched_are_flagged_or_raised():
+    """RSS trapezoids (paper 003) place the node within 1.2 m of every anchor at once in
+    the first problem: no position has a positive likelihood."""
+    model = TrapezoidRssModel(TRAPEZOIDS)
+    readings = np.array([[100.0] * 5, [60.0, 40.0, 50.0, 30.0, 30.0]])
+    d = np.linalg.norm(_truth()[:1, None] - POINTS, axis=-1)
+    readings[1] = np.clip(np.round((30.0 - d[0]) / 0.3), 0, 100)
+    obs = Observation(model, readings, Context(points=POINTS, index=np.arange(5)))
+    fit = LocalML().locate(obs)
+    assert fit.diagnostics["log_likelihood"][0] == -np.inf
+    np.testing.assert_array_equal(fit.diagnostics["degenerate"], [True, False])
+    assert np.linalg.norm(fit.position[1] - _truth()[0]) < 1.0
+    with pytest.raises(GeometryError, match=r"ranges: problem \(0,\).*positive likelihood"):
+        LocalML(on_degenerate="raise").locate(obs)
 
 
 def test_bad_input_names_the_argument():

@@ -67,6 +67,17 @@ def _degenerate(x, centres, ranges, used, tol_m, action) -> np.ndarray:
     return mask
 
 
+def _impossible(log_likelihood: np.ndarray, action: str) -> np.ndarray:
+    """Fixes where no candidate searched has a positive likelihood (``-inf``: the values
+    are impossible at every point tried): flagged, or raised for the first one."""
+    mask = np.isneginf(log_likelihood)
+    if action == "raise" and np.any(mask):
+        idx = tuple(int(i) for i in np.argwhere(mask)[0])
+        text = "no position searched has a positive likelihood under the models"
+        raise GeometryError(f"ranges: problem {idx}: {text}", index=idx, detail=text)
+    return mask
+
+
 def _packed(ranges, centres, std_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validate and pack: ranges (..., L) with 0 at padding, centres (..., L, 2), valid;
     ``std_m`` the range noise of :func:`check_ranges`."""
@@ -225,7 +236,9 @@ class LocalML(SnapshotEstimator):
         ``"flag"``-ged in ``diagnostics["degenerate"]`` (default: the highway geometry of
         paper 001 is nearly collinear by nature) or ``"raise"``-s a
         :class:`GeometryError` naming the first such problem. Rows of other kinds are not
-        checked.
+        checked for ambiguity; a fix of any model where no position searched has a
+        positive likelihood (``log_likelihood`` ``-inf``, e.g. RSS trapezoids that no
+        grid point satisfies at once) is handled the same way.
     backend : {"numba", "numpy"}
         For the paper's configuration given as arrays, the objective as the models'
         ``logpdf`` (``"numpy"``, the definition) or one compiled pass per candidate
@@ -328,6 +341,8 @@ class LocalML(SnapshotEstimator):
             tol = [_range_tolerance_m(o.model, o.context) for o in obs if o.model.kind == "range"]
             diag["degenerate"] = (_degenerate(x, pts, radii, circle, min(tol), self.on_degenerate)
                                   if tol else np.zeros(batch, dtype=bool))
+            diag["degenerate"] = diag["degenerate"] | _impossible(diag["log_likelihood"],
+                                                                  self.on_degenerate)
         return Estimate(x, None, None, diag)
 
     def _checked(self, obs: list[Observation]) -> list[Observation]:
