@@ -107,7 +107,8 @@ def test_squared_range_noise_moments_monte_carlo():
     h = np.sqrt(3 * xi)
     rhat = rtrue + rng.uniform(-h, h, rtrue.shape)
     y = rhat**2 - np.sum(sensor**2, -1)
-    srm = SquaredRangeModel(n, k, T, q, xi, -1.2, -1.2)
+    srm = SquaredRangeModel(n, k, T, q, std_m=np.sqrt(xi), accel_excess_kurtosis=-1.2,
+                            range_excess_kurtosis=-1.2)
     d = (state[:2] + t * state[2:]) - sensor
     quad_plus_lin = np.sum(d**2, -1) - np.sum(sensor**2, -1)
     e = y - quad_plus_lin
@@ -224,8 +225,9 @@ def test_printed_eq14_reading_changes_only_off_diagonal_channel_terms():
     n, k, q, xi = 10, 3, 0.15, 0.2
     sensor = circle(n)
     state = np.array([-0.4, 0.3, 0.2, 1.0])
-    derived = SquaredRangeModel(n, k, T, q, xi).noise_covariance(state, sensor)
-    printed = SquaredRangeModel(n, k, T, q, xi, printed_eq14=True).noise_covariance(state, sensor)
+    derived = SquaredRangeModel(n, k, T, q, std_m=np.sqrt(xi)).noise_covariance(state, sensor)
+    printed = SquaredRangeModel(n, k, T, q, std_m=np.sqrt(xi),
+                                printed_eq14=True).noise_covariance(state, sensor)
     var = accumulated_noise_variance(n, k, T, q)
     np.testing.assert_allclose(np.diag(printed), np.diag(derived))
     i, j = 1, 7

@@ -7,14 +7,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from model_cases import MinimalBearing
+from model_cases import TRAPEZOIDS, MinimalBearing
 
-from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.snapshot_baselines import LocalML, log_likelihood
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
+from radioloc.models.rss_model import TrapezoidRssModel
 
 POINTS = np.array([[0.0, 0.0], [30.0, 0.0], [0.0, 20.0], [30.0, 20.0], [12.0, 27.0]])
 B = 40
@@ -98,6 +99,80 @@ def test_batch_equals_one_by_one_and_moving_the_scene_moves_the_fix():
     np.testing.assert_allclose(moved, batch + shift, atol=0.06)
 
 
+def _exact(truth, points):
+    """Exact ranges and bearings of ``truth`` (..., 2) from ``points`` (..., L, 2)."""
+    d = truth[..., None, :] - points
+    return np.linalg.norm(d, axis=-1), np.arctan2(d[..., 1], d[..., 0])
+
+
+@pytest.mark.parametrize("kind", ["range", "bearing"])
+def test_derived_search_square_finds_the_fix_of_a_generous_radius(kind):
+    truth = _truth()[:8]
+    r, a = _exact(truth, POINTS)
+    model, z = (RangeModel(std_m=0.1), r) if kind == "range" else (MinimalBearing(0.01), a)
+    obs = Observation(model, z, Context(points=POINTS))
+    derived = LocalML().locate(obs).position
+    # a square of 80 m around the anchors with a 0.5 m grid and the fixed polish
+    generous = LocalML(radius_m=80.0, coarse_points=321).locate(obs).position
+    # zero noise: the maximum is the truth, found to the last grid's spacing (5 mm)
+    np.testing.assert_allclose(derived, truth, atol=0.01)
+    np.testing.assert_allclose(derived, generous, atol=0.01)
+
+
+def test_derived_search_widens_with_the_scene_and_a_batch_searches_as_one_by_one():
+    """A 2 km scene (coarse spacing above 1 m, extra polish stages) in one batch with a
+    30 m one: each problem gets its own square and schedule, the same as alone."""
+    points = np.stack([POINTS, 70.0 * POINTS - 900.0])                        # (2, 5, 2)
+    truth = np.array([[11.0, 7.5], [-123.4, 210.7]])
+    r, _ = _exact(truth, points)
+    est = LocalML()
+    batch = est.locate(Observation(RangeModel(std_m=0.1), r, Context(points=points))).position
+    np.testing.assert_allclose(batch, truth, atol=0.01)
+    for i in range(2):
+        one = est.locate(Observation(RangeModel(std_m=0.1), r[i], Context(points=points[i])))
+        np.testing.assert_allclose(one.position, batch[i], rtol=0, atol=1e-12)
+    # bearings only: no circle intersections, the grid alone finds the far node
+    _, a = _exact(truth[1], points[1])
+    far = est.locate(Observation(MinimalBearing(0.001), a, Context(points=points[1]))).position
+    np.testing.assert_allclose(far, truth[1], atol=0.01)
+
+
+def test_derived_search_moves_with_the_scene_and_with_the_node():
+    truth = _truth()[:6]
+    rng = np.random.default_rng(5)
+    r, a = _exact(truth, POINTS)
+    r = r + 0.1 * rng.standard_normal(r.shape)
+    a = a + 0.01 * rng.standard_normal(a.shape)
+
+    def fix(points, r, a):
+        return LocalML().locate([Observation(RangeModel(std_m=0.1), r, Context(points=points)),
+                                 Observation(MinimalBearing(0.01), a, Context(points=points))])
+    base = fix(POINTS, r, a).position
+    shift = np.array([250.0, -120.0])
+    np.testing.assert_allclose(fix(POINTS + shift, r, a).position, base + shift, atol=1e-6)
+    step = np.array([3.0, -2.0])
+    r2, a2 = _exact(truth + step, POINTS)
+    moved = fix(POINTS, r2, a2).position
+    np.testing.assert_allclose(moved, truth + step, atol=0.01)
+    assert np.all(np.linalg.norm(moved - base, axis=-1) > 3.0)
+
+
+def test_values_impossible_at_every_point_searched_are_flagged_or_raised():
+    """RSS trapezoids (paper 003) place the node within 1.2 m of every anchor at once in
+    the first problem: no position has a positive likelihood."""
+    model = TrapezoidRssModel(TRAPEZOIDS)
+    readings = np.array([[100.0] * 5, [60.0, 40.0, 50.0, 30.0, 30.0]])
+    d = np.linalg.norm(_truth()[:1, None] - POINTS, axis=-1)
+    readings[1] = np.clip(np.round((30.0 - d[0]) / 0.3), 0, 100)
+    obs = Observation(model, readings, Context(points=POINTS, index=np.arange(5)))
+    fit = LocalML().locate(obs)
+    assert fit.diagnostics["log_likelihood"][0] == -np.inf
+    np.testing.assert_array_equal(fit.diagnostics["degenerate"], [True, False])
+    assert np.linalg.norm(fit.position[1] - _truth()[0]) < 1.0
+    with pytest.raises(GeometryError, match=r"ranges: problem \(0,\).*positive likelihood"):
+        LocalML(on_degenerate="raise").locate(obs)
+
+
 def test_bad_input_names_the_argument():
     obs = Observation(RangeModel(std_m=0.3), np.full(5, 10.0), Context(points=POINTS))
     with pytest.raises(InputError, match="centres"):
@@ -114,3 +189,5 @@ def test_bad_input_names_the_argument():
                                                Context(points=pts3)))
     with pytest.raises(ConfigError, match="measurement"):
         LocalML(MinimalBearing(0.01), 20.0)
+    with pytest.raises(ConfigError, match="coarse_points"):
+        LocalML(coarse_points=41)            # the derived search sets its own grid

@@ -22,6 +22,7 @@ from radioloc.estimators.multilateration import Multilateration
 from radioloc.estimators.rls import NetworkRLS, transformed_noise_var
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.ranging import GaussianRange
+from radioloc.models.single_sensor import SquaredRangeModel
 from radioloc.sim.network import iteration_ranges
 from radioloc.sim.single_sensor import circular_sensor_path, noisy_ranges
 
@@ -94,6 +95,26 @@ def test_closed_form_old_keyword_and_position_are_the_variance():
     new = lambda: _sensor_run(ClosedFormTracker(0.15, std_m=0.3))
     _same(lambda: _sensor_run(ClosedFormTracker(0.15, range_var=0.09)), new)
     _same(lambda: _sensor_run(ClosedFormTracker(0.15, 0.09)), new)
+
+
+def test_squared_range_model_old_keyword_and_position_are_the_variance():
+    state = np.array([1.0, 0.5, 0.8, -0.2])
+    _, sensor = _sensor_scene()
+    n = len(sensor)
+
+    def cov(model):
+        return np.concatenate([model.noise_covariance(state, sensor).ravel(), model.noise_mean()])
+    new = lambda: cov(SquaredRangeModel(n, n - 1, T, 0.15, std_m=0.3, range_excess_kurtosis=-1.2,
+                                        printed_eq14=True))
+    _same(lambda: cov(SquaredRangeModel(n, n - 1, T, 0.15, range_var=0.09,
+                                        range_excess_kurtosis=-1.2, printed_eq14=True)), new)
+    _same(lambda: cov(SquaredRangeModel(n, n - 1, T, 0.15, 0.09, 0.0, -1.2, True)), new)
+    # the channel noise enters: std_m = 0 is another covariance
+    assert not np.allclose(cov(SquaredRangeModel(n, n - 1, T, 0.15)), new())
+    with pytest.raises(ConfigError, match="std_m.*range_var"):
+        SquaredRangeModel(n, n - 1, T, 0.15, range_var=0.09, std_m=0.3)
+    with pytest.warns(FutureWarning), pytest.raises(InputError, match="std_m"):
+        SquaredRangeModel(n, n - 1, T, 0.15, range_var=-0.1)
 
 
 def test_bounds_and_sims_take_the_old_variance_with_a_warning():

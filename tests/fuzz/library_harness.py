@@ -230,8 +230,9 @@ def case_local_ml() -> Case:
     truth, centres, r = _links(6)
     return Case("LocalML", {"measurement": LosNlosRange(0.02, 5.0, 0.9), "radius_m": 40.0},
                 {"ranges": r, "centres": centres},
-                {"radius_m": Field(setting=True, neg_ok=False, zero_ok=False),
-                 "coarse_points": Field(setting=True, integer=True, neg_ok=False, zero_ok=False),
+                {"radius_m": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
+                 "coarse_points": Field(setting=True, integer=True, neg_ok=False, zero_ok=False,
+                                        none_ok=True),
                  "ranges": Field(nan_ok=True, neg_ok=False), "centres": Field()},
                 lambda s, a: LocalML(**s).locate(**a), truth, 0.1)
 

@@ -107,16 +107,19 @@ def test_fuzz_multilateration_geometry_3d(g, method, std):
 
 
 @FUZZ
-@given(g=anchor_geometry(n_min=4, n_max=6), which=st.sampled_from(["LocalML", "Ransac"]))
+@given(g=anchor_geometry(n_min=4, n_max=6),
+       which=st.sampled_from(["LocalML", "LocalML-derived", "Ransac"]))
 def test_fuzz_link_estimators_geometry(g, which):
-    """LocalML and Ransac with exact ranges to degenerate anchor sets: the truth (within
-    their search resolution) or a clean refusal."""
+    """LocalML (with a radius, and with its derived search square) and Ransac with exact
+    ranges to degenerate anchor sets: the truth (within their search resolution) or a
+    clean refusal."""
     shape, anchors, truth = g
     r = _exact_ranges(anchors, truth)
     radius = float(np.max(np.linalg.norm(anchors - anchors.mean(0), axis=-1))) + 2 * float(
         np.max(r)) + 1.0
-    if which == "LocalML":
-        est = LocalML(LosNlosRange(0.02, 5.0, 0.9), radius_m=radius, on_degenerate="raise")
+    if which.startswith("LocalML"):
+        est = LocalML(LosNlosRange(0.02, 5.0, 0.9), on_degenerate="raise",
+                      radius_m=radius if which == "LocalML" else None)
         tol = 0.05 * max(1.0, radius / 20)
     else:
         est = Ransac(threshold_m=0.5, radius_m=radius, on_degenerate="raise")
@@ -131,7 +134,8 @@ def test_fuzz_link_estimators_geometry(g, which):
 
 
 @FUZZ
-@given(g=anchor_geometry(n_min=4, n_max=6), which=st.sampled_from(["LocalML", "Ransac"]))
+@given(g=anchor_geometry(n_min=4, n_max=6),
+       which=st.sampled_from(["LocalML", "LocalML-derived", "Ransac"]))
 def test_fuzz_link_estimators_flag_ambiguity(g, which):
     """With the default ``on_degenerate="flag"``, a fix far from the truth of exact ranges
     must carry ``diagnostics["degenerate"]``: never an unflagged wrong answer."""
@@ -139,8 +143,10 @@ def test_fuzz_link_estimators_flag_ambiguity(g, which):
     r = _exact_ranges(anchors, truth)
     radius = float(np.max(np.linalg.norm(anchors - anchors.mean(0), axis=-1))) + 2 * float(
         np.max(r)) + 1.0
-    if which == "LocalML":
-        est, tol = LocalML(LosNlosRange(0.02, 5.0, 0.9), radius_m=radius), 0.05 * max(1.0, radius / 20)
+    if which.startswith("LocalML"):
+        est = LocalML(LosNlosRange(0.02, 5.0, 0.9),
+                      radius_m=radius if which == "LocalML" else None)
+        tol = 0.05 * max(1.0, radius / 20)
     else:
         # a mirror closer than 2 thresholds is within Ransac's resolution and not flagged
         est, tol = Ransac(threshold_m=0.5, radius_m=radius), max(1.0, 1e-3 * float(np.max(r)))

@@ -84,8 +84,8 @@ def differenced_crb(state, sensor_path, *, sample_period_s: float, accel_var: fl
     s = as_float_array(sensor_path, "sensor_path", min_ndim=2, last_dim=2)
     n = s.shape[-2]
     model = SquaredRangeModel(n, _reference(n, reference_index), sample_period_s, accel_var,
-                              as_float_array(std_m, "std_m", nonnegative=True) ** 2,
-                              accel_excess_kurtosis, range_excess_kurtosis)
+                              std_m=std_m, accel_excess_kurtosis=accel_excess_kurtosis,
+                              range_excess_kurtosis=range_excess_kurtosis)
     return _inverse(model.fisher_information(beta, s), "differenced_crb")
 
 

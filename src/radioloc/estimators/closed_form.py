@@ -259,9 +259,10 @@ class ClosedFormTracker(SnapshotEstimator):
         batch = np.broadcast_shapes(r.shape[:-1], s.shape[:-2], self._range_var.shape[:-1])
         r = np.broadcast_to(r, batch + (n,))
         s = np.broadcast_to(s, batch + (n, 2))
-        model = SquaredRangeModel(n, k, T, self.accel_var, self._range_var,
-                                  self.accel_excess_kurtosis, self.range_excess_kurtosis,
-                                  self.printed_eq14)
+        model = SquaredRangeModel(n, k, T, self.accel_var, std_m=self.std_m,
+                                  accel_excess_kurtosis=self.accel_excess_kurtosis,
+                                  range_excess_kurtosis=self.range_excess_kurtosis,
+                                  printed_eq14=self.printed_eq14)
         sa, sy, keep = self._differenced_system(r, s, k, model)    # steps 1-2
 
         def cov_at(state):

@@ -23,7 +23,7 @@ from radioloc.core.validation import (MAX_ITERATIONS, ambiguous_fixes, as_float_
                                       refuse_infinite)
 from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
-from radioloc.estimators.local_search import search
+from radioloc.estimators.local_search import derived_schedule, search
 from radioloc.estimators.observation_rows import observation_list
 from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.models.los_nlos import LosNlosRange
@@ -64,6 +64,17 @@ def _degenerate(x, centres, ranges, used, tol_m, action) -> np.ndarray:
         idx = tuple(int(i) for i in np.argwhere(mask)[0])
         text = reason(idx)
         raise GeometryError(f"centres: problem {idx}: {text}", index=idx, detail=text)
+    return mask
+
+
+def _impossible(log_likelihood: np.ndarray, action: str) -> np.ndarray:
+    """Fixes where no candidate searched has a positive likelihood (``-inf``: the values
+    are impossible at every point tried): flagged, or raised for the first one."""
+    mask = np.isneginf(log_likelihood)
+    if action == "raise" and np.any(mask):
+        idx = tuple(int(i) for i in np.argwhere(mask)[0])
+        text = "no position searched has a positive likelihood under the models"
+        raise GeometryError(f"ranges: problem {idx}: {text}", index=idx, detail=text)
     return mask
 
 
@@ -184,6 +195,17 @@ class LocalML(SnapshotEstimator):
     optimum; a model without range rows has only the grid, so its spacing
     ``2 radius_m / (coarse_points - 1)`` must stay within the first polish (1 m).
 
+    Without ``radius_m`` (the default) the search square is derived per problem
+    (:func:`~radioloc.estimators.local_search.derived_schedule`): its half width is
+    ``h = max_i ||p_i - c|| + min_j r_j``, the largest distance of a point heard ``p_i``
+    from their mean ``c`` plus the shortest range circle ``r_j`` heard (0 without range
+    rows; at least 1 m), which holds every position the range rows allow. The coarse grid
+    has spacing ``s = max(1 m, h / 64)`` (at most 129 x 129 points), and the polish has
+    stages of half width ``s / 2, s / 20, ...`` down to 0.05 m (``s = 1`` m: the 0.5 m
+    and 0.05 m stages above; a last spacing of 5 mm). A model whose likelihood does not
+    vanish far from the points (a fingerprint scan beyond its calibration places) has no
+    unique maximum there; the search returns one point of the plateau.
+
     With ``search_radius_m`` set, the search is local instead: the coarse grid (half width
     ``search_radius_m``) and the admissible circle intersections lie around a search
     centre given to :meth:`locate` (e.g. the previous estimate moved by the INS), so a
@@ -197,10 +219,12 @@ class LocalML(SnapshotEstimator):
         ``RangeModel(noise=measurement)``) or any range model with a ``logpdf``. None:
         :meth:`locate` takes :class:`~radioloc.models.measurement.Observation`\\ s only
         (which carry their models).
-    radius_m : float
-        Half width of the coarse grid (the communication radius).
-    coarse_points : int
-        Points per axis of the coarse grid.
+    radius_m : float, optional
+        Half width of the coarse grid (the communication radius); default None: derived
+        per problem from the points heard and the range circles (see above).
+    coarse_points : int, optional
+        Points per axis of the coarse grid of ``radius_m`` or ``search_radius_m``
+        (default 21); refused without either (the derived grid sets its own).
     search_radius_m : float, optional
         Half width of a local search around the centre passed to :meth:`locate`; default
         None: the global search above.
@@ -212,7 +236,9 @@ class LocalML(SnapshotEstimator):
         ``"flag"``-ged in ``diagnostics["degenerate"]`` (default: the highway geometry of
         paper 001 is nearly collinear by nature) or ``"raise"``-s a
         :class:`GeometryError` naming the first such problem. Rows of other kinds are not
-        checked.
+        checked for ambiguity; a fix of any model where no position searched has a
+        positive likelihood (``log_likelihood`` ``-inf``, e.g. RSS trapezoids that no
+        grid point satisfies at once) is handled the same way.
     backend : {"numba", "numpy"}
         For the paper's configuration given as arrays, the objective as the models'
         ``logpdf`` (``"numpy"``, the definition) or one compiled pass per candidate
@@ -221,11 +247,11 @@ class LocalML(SnapshotEstimator):
     """
 
     name = "local-ml"
-    tags = Tags(kinds=None, uses="logpdf", dims=(2,), reads=("position",))
+    tags = Tags(kinds=None, uses="logpdf", dims=(2,), reads=("position",), generic=True)
 
-    def __init__(self, measurement, radius_m: float, coarse_points: int = 21,
-                 search_radius_m: float | None = None, on_degenerate: str = "flag",
-                 backend: str = DEFAULT_BACKEND) -> None:
+    def __init__(self, measurement=None, radius_m: float | None = None,
+                 coarse_points: int | None = None, search_radius_m: float | None = None,
+                 on_degenerate: str = "flag", backend: str = DEFAULT_BACKEND) -> None:
         self.on_degenerate = _check_on_degenerate(on_degenerate)
         self.backend = check_backend(backend)
         if isinstance(measurement, LosNlosRange):
@@ -236,8 +262,14 @@ class LocalML(SnapshotEstimator):
                 raise ConfigError(f"measurement: ranges given as arrays need a range model, got "
                                   f"{type(measurement).__name__} (pass Observations instead)")
         self.measurement = measurement
-        self.radius_m = check_positive(radius_m, "radius_m")
-        self.coarse_points = check_int(coarse_points, "coarse_points", minimum=2, maximum=4096)
+        self.radius_m = None if radius_m is None else check_positive(radius_m, "radius_m")
+        derived = radius_m is None and search_radius_m is None
+        if coarse_points is not None and derived:
+            raise ConfigError("coarse_points: sets the grid of a given radius_m (or "
+                              "search_radius_m); without one the grid is derived")
+        self.coarse_points = None if derived else check_int(
+            21 if coarse_points is None else coarse_points, "coarse_points", minimum=2,
+            maximum=4096)
         self.search_radius_m = (None if search_radius_m is None
                                 else check_positive(search_radius_m, "search_radius_m"))
 
@@ -280,7 +312,9 @@ class LocalML(SnapshotEstimator):
                 compiled = (self.measurement.noise.mixture_constants(), th, cen, valid)
         batch = _batch_shape(obs)
         pts, radii, heard, circle = _search_rows(obs, batch)
-        half = self.radius_m
+        half, grid = self.radius_m, {"coarse_points": self.coarse_points}
+        if self.coarse_points is None:
+            grid = derived_schedule(pts, radii, heard, circle)
         if self.search_radius_m is not None:
             if search_centre is None:
                 raise InputError("search_centre: required by a local search (search_radius_m set)")
@@ -299,14 +333,16 @@ class LocalML(SnapshotEstimator):
                 return log_likelihood(obs, x)
             consts, th_, cen_, valid_ = compiled
             return _scores(0, consts, x, cen_, th_, valid_)
-        x = search(objective, pts, radii, heard, half, self.coarse_points, centre=search_centre,
-                   circles=circle)
+        x = search(objective, pts, radii, heard, half, centre=search_centre, circles=circle,
+                   **grid)
         diag = {"log_likelihood": objective(x[..., None, :])[..., 0],
                 "measurements_used": heard.sum(axis=-1)}
         if self.search_radius_m is None:
             tol = [_range_tolerance_m(o.model, o.context) for o in obs if o.model.kind == "range"]
             diag["degenerate"] = (_degenerate(x, pts, radii, circle, min(tol), self.on_degenerate)
                                   if tol else np.zeros(batch, dtype=bool))
+            diag["degenerate"] = diag["degenerate"] | _impossible(diag["log_likelihood"],
+                                                                  self.on_degenerate)
         return Estimate(x, None, None, diag)
 
     def _checked(self, obs: list[Observation]) -> list[Observation]:

@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.renamed import Renamed, renamed_keywords
 from radioloc.core.validation import as_float_array, check_positive, check_ranges
 from radioloc.models.track_noise import (
     accumulated_noise_covariance,
@@ -227,8 +228,10 @@ class SquaredRangeModel:
         T.
     accel_var : float
         ``delta_g^2`` per axis.
-    range_var : float or array (..., n)
-        Channel noise variance ``xi_n`` (0 = ideal channel).
+    std_m : float or array (..., n)
+        Channel noise standard deviation, metres: the variance is ``xi_n = std_m^2``
+        (0 = ideal channel). The old keyword ``range_var`` (the variance ``xi_n``, also the
+        fifth positional argument) still works with a ``FutureWarning``.
     accel_excess_kurtosis, range_excess_kurtosis : float
         Excess kurtosis of the accelerations and the channel noise; 0 reproduces the printed
         Gaussian-moment formulas, -1.2 is exact for uniform noise.
@@ -237,8 +240,11 @@ class SquaredRangeModel:
         eq. (14) (not part of the derived covariance; kept to measure what they change).
     """
 
+    @renamed_keywords({"range_var": Renamed("std_m", variance=True)},
+                      positional=("range_var", "accel_excess_kurtosis", "range_excess_kurtosis",
+                                  "printed_eq14"))
     def __init__(self, n_samples: int, reference_index: int, sample_period_s: float,
-                 accel_var: float, range_var=0.0, accel_excess_kurtosis: float = 0.0,
+                 accel_var: float, *, std_m=0.0, accel_excess_kurtosis: float = 0.0,
                  range_excess_kurtosis: float = 0.0, printed_eq14: bool = False):
         self.printed_eq14 = bool(printed_eq14)
         self.n = int(n_samples)
@@ -250,7 +256,8 @@ class SquaredRangeModel:
         self.c = accumulated_noise_covariance(self.n, self.k, self.T, accel_var)
         self.c_sq = squared_noise_covariance(self.n, self.k, self.T, accel_var,
                                              accel_excess_kurtosis)
-        self.xi = as_float_array(range_var, "range_var", nonnegative=True)
+        self.std_m = as_float_array(std_m, "std_m", nonnegative=True)
+        self.xi = self.std_m**2
         self.kappa_w = float(range_excess_kurtosis)
         self.S = third_difference(self.n)
 
