@@ -231,3 +231,13 @@ def test_ekf_track_does_not_call_a_metre_log_with_nlos_mm(tmp_path):
     meas, anchors = _write(tmp_path, "tdoa", nlos=(0.3, 2.0))
     res = locate(meas, anchors, "ekf-track", "tdoa_std_m=0.5")
     assert "in mm?" not in res.output and res.exit_code == 0, res.output
+
+
+def test_ekf_track_blames_the_noise_not_a_slip_when_looser_sigmas_fit(tmp_path):
+    """Metre pseudoranges with an NLOS excess (mean 2 m on 30 % of the ranges) and
+    pseudorange_std_m=0.5 diverge, but fit with the sigmas three times larger: a warning
+    naming the noise option, not a refusal as pseudoranges in ns."""
+    meas, anchors = _write(tmp_path, "pseudorange", nlos=(0.3, 2.0))
+    res = locate(meas, anchors, "ekf-track", "pseudorange_std_m=0.5")
+    assert res.exit_code == 0 and "in ns?" not in res.output, res.output
+    assert "pseudorange_std_m=0.5" in res.output and "too small" in res.output, res.output

@@ -20,7 +20,7 @@ from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+__all__ = ["DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
            "anchor_ranges", "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
@@ -32,6 +32,9 @@ MODEL_KINDS = {
     "pseudorange": "pseudorange_std_m",
     "heading": "heading_std_rad",
 }
+#: The sigma of each kind when its option is not given (:func:`default_models`).
+DEFAULT_SIGMAS = {"range": 0.3, "tdoa": 0.3, "aoa": 0.05, "aoa_elevation": 0.05,
+                  "pseudorange": 5.0, "heading": 0.3}
 #: Kinds a node measures of itself (no anchor: ``peer`` names the sensor).
 SELF_MODEL_KINDS = ("heading",)
 
@@ -101,8 +104,8 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     kinds : iterable of str
         Kinds present in the log (others are ignored here; the method refuses them).
     options : mapping
-        Sigmas by the names of :data:`MODEL_KINDS` (``range_std_m`` ...); defaults 0.3 m,
-        0.3 m, 0.05 rad, 5 m, 0.3 rad.
+        Sigmas by the names of :data:`MODEL_KINDS` (``range_std_m`` ...); defaults
+        :data:`DEFAULT_SIGMAS`.
     anchor_bias : bool
         Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
     range_noise : range-error model, optional
@@ -118,23 +121,23 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     from radioloc.models.ranging import RangeModel
     from radioloc.models.tdoa import TdoaModel
 
-    def sigma(kind, default):
-        return float(options.get(MODEL_KINDS[kind], default))
+    def sigma(kind):
+        return float(options.get(MODEL_KINDS[kind], DEFAULT_SIGMAS[kind]))
 
     out: dict[str, MeasurementModel] = {}
     for kind in kinds:
         if kind == "range":
             out[kind] = (RangeModel(noise=range_noise, anchor_bias=anchor_bias) if range_noise is not None
-                         else RangeModel(std_m=sigma(kind, 0.3), anchor_bias=anchor_bias))
+                         else RangeModel(std_m=sigma(kind), anchor_bias=anchor_bias))
         elif kind == "tdoa":
-            out[kind] = TdoaModel(std_m=sigma(kind, 0.3))
+            out[kind] = TdoaModel(std_m=sigma(kind))
         elif kind in ("aoa", "aoa_elevation"):
-            out[kind] = BearingModel(std_rad=sigma(kind, 0.05),
+            out[kind] = BearingModel(std_rad=sigma(kind),
                                      component="azimuth" if kind == "aoa" else "elevation")
         elif kind == "pseudorange":
-            out[kind] = PseudorangeModel(std_m=sigma(kind, 5.0))
+            out[kind] = PseudorangeModel(std_m=sigma(kind))
         elif kind == "heading":
-            out[kind] = HeadingModel(std_rad=sigma(kind, 0.3))
+            out[kind] = HeadingModel(std_rad=sigma(kind))
     return out
 
 

@@ -22,7 +22,11 @@ flagged), is reported by one warning naming the noise options (a stated noise to
 makes the filter refuse the measurements and coast on its motion model). When the values of
 one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
 of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
-consistent, the log is refused instead, by an error naming the kind and the slip.
+consistent, the log is refused instead, by an error naming the kind and the slip. A unit
+slip (a map that scales the values) is named only when the log does not fit with every
+sigma :data:`NOISE_SLACK` times larger either: scaling the values scales their errors, so
+a log with too small a stated noise (NLOS excess on metre pseudoranges) would otherwise be
+blamed on its unit.
 
 A gap longer than ``max_gap_s`` between a node's ranges starts a new track (the motion
 model alone cannot bridge it; one update from a prior metres wide linearises badly).
@@ -63,12 +67,13 @@ import numpy as np
 import pandas as pd
 from scipy.special import gammaincinv
 
-from radioloc.core.errors import ConfigError, GeometryError, InputError
+from radioloc.core.errors import ConfigError, GeometryError, InputError, RadiolocError
 from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
+from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, anchor_positions, default_models,
+                                     node_observations)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
@@ -84,6 +89,8 @@ from radioloc.models.ranging import RangeModel
 #: The measurement kinds the trackers read (odometry: the control input of the motion).
 TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", "heading") + MOTION_KINDS
 
+#: Range sigma of the trackers when ``range_std_m`` is not given, m.
+RANGE_STD_M = 0.15
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
 #: Divergence check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
@@ -93,6 +100,9 @@ NIS_FACTOR = 2.0
 NIS_FRACTION = 0.3
 #: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
 GATED_FRACTION = 0.05
+#: Factor on every sigma with which a diverged log is tried again before a slip is named
+#: (:func:`looser_noise`).
+NOISE_SLACK = 3.0
 #: Fewest steps of a track that the divergence check judges.
 NIS_MIN_STEPS = 10
 
@@ -758,14 +768,40 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         skipped = request.parsed.get("no_check")     # None: check_log did not run
         bounded = () if skipped is None else [k for k, name in VALUE_CHECKS.items()
                                               if name not in skipped]
+        # a unit is blamed only when looser sigmas do not make the log fit either
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                noisy = not track_log(looser_noise(request), request.measurements)[1]
+        except RadiolocError:
+            noisy = False
         slip = likely_slip(request.measurements,
-                           lambda log: not track_log(request, log)[1], bounded=bounded)
+                           lambda log: not track_log(request, log)[1], bounded=bounded,
+                           scales=not noisy)
         if slip is not None:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
                              f"of {n_tracks} diverged) but do once {how}: {question}")
         warn_divergence(diverged, n_tracks, noise)
     return out
+
+
+def looser_noise(request: LocateRequest) -> LocateRequest:
+    """The request with every sigma in force (given or default, of each kind the log holds,
+    and the odometry's) times :data:`NOISE_SLACK`: a log that fits no track with the stated
+    noise but does with this one may have diverged by its noise, and no unit slip is
+    named (a sign or a convention still is)."""
+    kinds = set(request.measurements["kind"].unique())
+    looser = {}
+    for kind, name in MODEL_KINDS.items():
+        if kind in kinds:
+            value = request.option(name)
+            if value is None:
+                value = RANGE_STD_M if kind == "range" else DEFAULT_SIGMAS[kind]
+            looser[name] = NOISE_SLACK * float(value)
+    if has_odometry(request.measurements):
+        looser["odometry_std_m"] = NOISE_SLACK * request.option("odometry_std_m", ODOMETRY_STD_M)
+    return replace(request, parsed={**request.parsed, **looser})
 
 
 def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, s: dict,
@@ -801,7 +837,7 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     """
     log = Measurements(meas)
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
-    opts.setdefault("range_std_m", 0.15)
+    opts.setdefault("range_std_m", RANGE_STD_M)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
     if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
         raise ConfigError("heading rows: the heading is the direction of the velocity, which "

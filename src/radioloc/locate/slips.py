@@ -68,13 +68,22 @@ def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
     return measurements.assign(value=value)
 
 
+def slip_scale(undo: Callable[[np.ndarray], np.ndarray]) -> float:
+    """The factor by which a slip's map scales the values (1 for a sign or a convention,
+    1000 for mm, 0.3 for ns)."""
+    return abs(float(undo(np.ones(1))[0] - undo(np.zeros(1))[0]))
+
+
 def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame], bool], *,
-                bounded: Collection[str] = ()) -> tuple[str, str, str] | None:
+                bounded: Collection[str] = (), scales: bool = True
+                ) -> tuple[str, str, str] | None:
     """The slip of :data:`SLIPS` whose undoing makes a diverged log consistent.
 
     A slip whose map shrinks the values of a ``bounded`` kind by :data:`BOUND_FACTOR` or
     more (tdoa or pseudoranges in mm) is not tried: values that many times too large
-    break the kind's bound for any position, which the log passed.
+    break the kind's bound for any position, which the log passed. With ``scales`` False
+    no unit slip is tried (only signs and conventions): shrinking the values shrinks their
+    errors too, so a log whose stated noise is too small would be blamed on a unit.
 
     Parameters
     ----------
@@ -86,6 +95,8 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
     bounded : collection of str
         Kinds whose values passed their bound
         (:func:`radioloc.core.plausibility.check_values`).
+    scales : bool
+        Try the unit slips (maps that scale the values, :func:`slip_scale`).
 
     Returns
     -------
@@ -98,7 +109,10 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
     for kinds, undo, how, question in SLIPS:
         if not present.intersection(kinds):
             continue
-        if set(kinds) <= set(bounded) and abs(float(undo(np.ones(1))[0])) <= 1 / BOUND_FACTOR:
+        scale = slip_scale(undo)
+        if set(kinds) <= set(bounded) and scale <= 1 / BOUND_FACTOR:
+            continue
+        if not scales and not np.isclose(scale, 1.0):
             continue
         mapped = undo_slip(measurements, kinds, undo)
         try:
