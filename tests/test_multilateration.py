@@ -266,3 +266,16 @@ def test_a_subnormal_weight_is_refused_naming_weights():
     r = np.linalg.norm(SQUARE - np.array([8.5, 13.5]), axis=-1)
     with pytest.raises(InputError, match=r"^weights: 4.94e-324 at index \(0,\) is above 0"):
         Multilateration(std_m=0.01).locate(r, SQUARE, weights=np.full(4, 5e-324))
+
+
+@pytest.mark.parametrize("method", ["gauss-newton", "levenberg-marquardt"])
+def test_a_solve_that_stops_short_in_the_weak_direction_is_still_called_ambiguous(method):
+    """Three anchors within 1e-5 m of a line, the node 190 m away: exact ranges fit the
+    node and its mirror. Levenberg-Marquardt stopped 8 m short of the node's minimum, whose
+    cost then looked worse than the mirror's, and answered the mirror (363 m off) as a
+    clean fix; both solvers now name the ambiguity."""
+    anchors = np.array([[0.99, 71.276], [-1.679, 69.4078], [0.0, 70.583]])
+    truth = np.array([86.661, -90.576])
+    r = np.linalg.norm(anchors - truth, axis=-1)
+    with pytest.raises(GeometryError, match="ambiguous fix"):
+        Multilateration(method=method, std_m=0.01).locate(r, anchors)

@@ -316,10 +316,15 @@ class Multilateration(SnapshotEstimator):
             sub, _ = self._leave_saddles(sub, r[maybe], a[maybe], w[maybe])
             for k, v in vars(sub).items():
                 getattr(alt, k)[maybe] = v
-            # the solution itself, solved on from where it stopped: across nearly flat
-            # anchors the solver can stop short in the weak direction, and the two basins
-            # are compared at their minima
-            again = self._solve(r[maybe], a[maybe], w[maybe], fit.x[maybe])
+            # the solution itself, solved on from where it stopped, or from the reflection
+            # of the mirror's minimum where that fits better: across nearly flat anchors
+            # the solver can stop short in the weak direction (Levenberg-Marquardt 8 m
+            # short, 190 m from 3 anchors within 1e-5 m of a line), and the two basins are
+            # compared at their minima
+            back_off = np.einsum("...d,...d->...", alt.x - centroid, normal)
+            back = alt.x - 2.0 * back_off[..., None] * normal
+            start = np.where((_range_cost(back, r, a, w) < fit.cost)[..., None], back, fit.x)
+            again = self._solve(r[maybe], a[maybe], w[maybe], start[maybe])
             again, _ = self._leave_saddles(again, r[maybe], a[maybe], w[maybe])
             gain = np.zeros(maybe.shape, dtype=bool)
             gain[maybe] = again.cost < fit.cost[maybe] * (1 - 1e-9) - 1e-300
