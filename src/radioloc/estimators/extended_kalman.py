@@ -229,7 +229,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         F, Q : ndarray, shape (..., n, n)
         """
         dt = np.asarray(dt, dtype=float)
-        Fm, Qm = self.motion.F(dt), self.motion.Q(dt)
+        Fm, Qm = layout.kinematic(self.motion.F(dt)), layout.kinematic(self.motion.Q(dt))
         k, n = layout.motion_size, layout.size
         if n == k:
             return Fm, Qm
@@ -566,8 +566,13 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
                                      record.pop("predicted_covariance"), F)
         diag = {"state": means, "state_covariance": covs, **record}
-        D = layout.dim
-        return Track(means[..., :D], covs[..., :D, :D], t, diag)
+        pos, cov = layout.position_moments(means, covs)
+        if pos.ndim > means.ndim:              # a network: node axis before the time axis
+            pos, cov = np.moveaxis(pos, -2, -3), np.moveaxis(cov, -3, -4)
+            t = t[..., None, :] if t.ndim > 1 else t
+            trailing = {"state": 1, "state_covariance": 2, **_INFO_AXES}
+            diag = {k: np.expand_dims(v, -2 - trailing[k]) for k, v in diag.items()}
+        return Track(pos, cov, t, diag)
 
     # ---- helpers --------------------------------------------------------------------
     def _layout_of(self, state) -> StateLayout:

@@ -235,8 +235,8 @@ class LeastSquares(SnapshotEstimator):
         rms = np.sqrt(np.sum(r ** 2, -1) / np.maximum(n_used, 1))
         u = rows.standardised(fit.x, fit.residuals)
         inliers = np.sum(used & (np.abs(np.where(used, u, np.inf)) <= INLIER_SIGMAS), -1)
-        sl = layout.slices["position"]
-        return Estimate(fit.x[..., sl], cov[..., sl, sl], None, {
+        pos, pos_cov = layout.position_moments(fit.x, cov)
+        return Estimate(pos, pos_cov, None, {
             "converged": fit.converged & ~degenerate, "stalled": fit.stalled,
             "iterations": fit.iterations, "residual_rms_m": rms, "inliers": inliers,
             "measurements_used": n_used, "degenerate": degenerate, "state": fit.x,
@@ -255,6 +255,9 @@ class LeastSquares(SnapshotEstimator):
         z = rows.values(batch)
         used = np.isfinite(z)
         if initial is None:
+            if layout.motion_size > layout.dim * (layout.order + 1):
+                raise InputError(f"initial: a network state ({layout}) needs a start for "
+                                 "every node (initial of its full size)")
             x0 = np.zeros(batch + (n,))
             x0[..., :dim] = initial_position(obs, dim, batch)
         else:

@@ -172,6 +172,20 @@ class StateLayout:
         n_bias = max(self.n_bias, int(n_anchors) if "anchor_bias" in reads else 0)
         return replace(self, clock=clock, order=order, n_bias=n_bias)
 
+    def kinematic(self, matrix: np.ndarray) -> np.ndarray:
+        """A motion model's transition or noise matrix ``(..., k1, k1)`` over one node's
+        kinematic state, as the matrix of this state's kinematic part (one node: itself;
+        :class:`~radioloc.models.pair_range.NetworkLayout`: one block per node)."""
+        return matrix
+
+    def position_moments(self, mean: np.ndarray, cov: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The position's mean ``(..., D)`` and covariance ``(..., D, D)`` of states
+        ``(..., n)``, ``(..., n, n)`` (a network: ``(..., K, D)``, ``(..., K, D, D)``, each
+        node's own block)."""
+        D = self.dim
+        return mean[..., :D], cov[..., :D, :D]
+
     def split(self, state: np.ndarray) -> dict[str, np.ndarray]:
         """The named components of a batch of states.
 

@@ -72,6 +72,25 @@ class NetworkLayout(StateLayout):
         """Length of the kinematic part (every node's position, velocity, acceleration)."""
         return super().motion_size * int(self.nodes)
 
+    def kinematic(self, matrix: np.ndarray) -> np.ndarray:
+        """One node's motion matrix ``(..., C D, C D)`` (``C`` = order + 1 components of
+        ``D`` coordinates) applied to every node: entry ``(c, d), (c', d')`` of the node
+        lands at ``(c, k, d), (c', k, d')`` of the stacked state, nodes independent."""
+        C, D, K = self.order + 1, self.dim, int(self.nodes)
+        m = np.asarray(matrix, dtype=float)
+        blocks = m.reshape(m.shape[:-2] + (C, D, C, D))
+        out = np.einsum("...adbe,kl->...akdble", blocks, np.eye(K))
+        return out.reshape(m.shape[:-2] + (C * K * D, C * K * D))
+
+    def position_moments(self, mean: np.ndarray, cov: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Every node's position ``(..., K, D)`` and its own covariance block
+        ``(..., K, D, D)``."""
+        K, D = int(self.nodes), self.dim
+        pos = mean[..., :K * D].reshape(mean.shape[:-1] + (K, D))
+        c = cov[..., :K * D, :K * D].reshape(cov.shape[:-2] + (K, D, K, D))
+        return pos, np.einsum("...kdke->...kde", c)
+
 
 @dataclass(frozen=True)
 class PairContext(Context):
