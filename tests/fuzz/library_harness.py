@@ -426,6 +426,15 @@ def case_batch_smoother() -> Case:
                                                 zero_ok=False)})
 
 
+def case_generic_mixture() -> Case:
+    """The mixture tracker on range observations (its Gaussian-sum step)."""
+    return _track_case("MixtureTracker/range",
+                       lambda **s: MixtureTracker(motion=WhiteAccelerationCV(0.05, 2), **s),
+                       {"max_components": 8},
+                       {"max_components": Field(setting=True, integer=True, neg_ok=False,
+                                                zero_ok=False)})
+
+
 def case_bearing_least_squares() -> Case:
     """The generic least squares on angles of arrival (a model other than ranges)."""
     truth = np.array([7.0, 12.0])
@@ -448,7 +457,7 @@ CASES: dict[str, Callable[[], Case]] = {
     "MixtureTracker": case_mixture_tracker,
     "LeastSquares": case_least_squares, "ExtendedKalmanFilter": case_extended_kalman,
     "ParticleFilter": case_generic_particle, "BatchSmoother": case_batch_smoother,
-    "LeastSquares/aoa": case_bearing_least_squares,
+    "LeastSquares/aoa": case_bearing_least_squares, "MixtureTracker/range": case_generic_mixture,
 }
 assert {c.__name__ for c in ESTIMATORS} | {c.__name__ for c in GENERIC_ESTIMATORS} \
     <= {k.split("/")[0] for k in CASES}, "a new estimator needs a fuzz case"
