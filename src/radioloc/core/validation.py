@@ -386,10 +386,12 @@ def check_memory(n_bytes: float, name: str, what: str = "") -> None:
                           "(RADIOLOC_MEMORY_LIMIT_GB)")
 
 
-def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12) -> None:
+def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12,
+                     min_variance: float = 0.0) -> None:
     """Refuse covariance matrices ``(..., n, n)`` that are not symmetric positive definite,
-    or whose variances exceed ``max_variance`` (a filter's update would then lose every
-    digit against metre-scale measurements), naming ``name`` and the entry.
+    whose variances exceed ``max_variance`` (a filter's update would then lose every digit
+    against metre-scale measurements) or fall below ``min_variance`` (their inverse would
+    overflow), naming ``name`` and the entry.
 
     Raises
     ------
@@ -401,6 +403,10 @@ def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12) -> 
         raise InputError(f"{name}: variance {diag[idx]:g} at diagonal index {idx} is beyond "
                          f"the supported {max_variance:g} (the update would lose every digit "
                          "against metre-scale measurements)")
+    if np.any(diag < min_variance):
+        idx = tuple(int(i) for i in np.argwhere(diag < min_variance)[0])
+        raise InputError(f"{name}: variance {diag[idx]:g} at diagonal index {idx} is below "
+                         f"the supported floor of {min_variance:g} (its inverse would overflow)")
     asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
         np.swapaxes(cov, -1, -2))) + 1e-300
     if np.any(asym):

@@ -31,8 +31,9 @@ from radioloc.core.arrays import kernel_array
 from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, InputError, RadiolocError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import (MAX_COMPONENTS, as_float_array, check_covariance,
-                                      check_int, check_memory, refuse_infinite)
+from radioloc.core.validation import (MAX_COMPONENTS, POSITIVE_FLOOR, as_float_array,
+                                      check_covariance, check_int, check_memory,
+                                      refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator, Tags
 from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
                                                   unflatten_estimate, with_candidate_axes)
@@ -876,7 +877,7 @@ class MixtureTracker(RecursiveEstimator):
             raise InputError(f"prior_mean: expected shape (..., {n}) and prior_cov "
                              f"(..., {n}, {n}) (the tracker's state), got {mean.shape} "
                              f"and {cov.shape}")
-        check_covariance(cov, "prior_cov")
+        check_covariance(cov, "prior_cov", min_variance=POSITIVE_FLOOR)
         return mean, cov
 
     def _gaussian_prior(self, prior_mean, prior_cov) -> DiagMixture | None:
