@@ -132,9 +132,10 @@ def test_mixture_tracker_with_a_gaussian_prior_tracks():
     assert np.all(err < 1.0), err
 
 
-def test_mixture_tracker_refuses_other_models_and_missing_station_models():
-    obs = Observation(RangeModel(std_m=0.1), np.zeros((3, 4)), Context(points=STATIONS))
-    with pytest.raises(ConfigError, match="RangeModel.*rss_fingerprint"):
+def test_mixture_tracker_needs_a_prior_for_other_models_and_names_missing_station_models():
+    """Another model has no calibration area to start from: the prior is named."""
+    obs = Observation(RangeModel(std_m=0.1), np.ones((3, 4)), Context(points=STATIONS))
+    with pytest.raises(InputError, match="RangeModel.*prior_mean"):
         MixtureTracker(motion=UniformDisk(1.5)).run(obs, np.arange(3.0))
     with pytest.raises(InputError, match="models"):
         MixtureTracker(motion=UniformDisk(1.5)).run(np.zeros((3, 4)), np.arange(3.0))
@@ -201,7 +202,7 @@ def test_scan_model_is_likelihood_only_and_names_bad_input():
     _, model = _scan_model()
     assert GridFilter.tags.accepts(model) and ParticleFilter.tags.accepts(model)
     assert not ExtendedKalmanFilter.tags.accepts(model)
-    assert not MixtureTracker.tags.accepts(model)
+    assert MixtureTracker.tags.accepts(model)          # through its Gaussian-sum step
     with pytest.raises(ConfigError, match="FingerprintScanModel"):
         model.predict({"position": X}, CTX)
     with pytest.raises(InputError, match="context.index"):

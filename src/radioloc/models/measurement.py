@@ -173,16 +173,37 @@ class StateLayout:
         return replace(self, clock=clock, order=order, n_bias=n_bias)
 
     def kinematic(self, matrix: np.ndarray) -> np.ndarray:
-        """A motion model's transition or noise matrix ``(..., k1, k1)`` over one node's
-        kinematic state, as the matrix of this state's kinematic part (one node: itself;
-        :class:`~radioloc.models.pair_range.NetworkLayout`: one block per node)."""
+        """A motion model's transition or noise matrix over one node's kinematic state, as
+        the matrix of this state's kinematic part (one node: itself;
+        :class:`~radioloc.models.pair_range.NetworkLayout`: one block per node).
+
+        Parameters
+        ----------
+        matrix : ndarray, shape (..., k1, k1)
+            ``F(dt)`` or ``Q(dt)`` of the motion model.
+
+        Returns
+        -------
+        ndarray, shape (..., motion_size, motion_size)
+        """
         return matrix
 
     def position_moments(self, mean: np.ndarray, cov: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
-        """The position's mean ``(..., D)`` and covariance ``(..., D, D)`` of states
-        ``(..., n)``, ``(..., n, n)`` (a network: ``(..., K, D)``, ``(..., K, D, D)``, each
-        node's own block)."""
+        """The position's mean and covariance of states.
+
+        Parameters
+        ----------
+        mean : ndarray, shape (..., n)
+        cov : ndarray, shape (..., n, n)
+
+        Returns
+        -------
+        position : ndarray, shape (..., D)
+            (a network: ``(..., K, D)``).
+        covariance : ndarray, shape (..., D, D)
+            (a network: each node's own block, ``(..., K, D, D)``).
+        """
         D = self.dim
         return mean[..., :D], cov[..., :D, :D]
 

@@ -73,9 +73,18 @@ class NetworkLayout(StateLayout):
         return super().motion_size * int(self.nodes)
 
     def kinematic(self, matrix: np.ndarray) -> np.ndarray:
-        """One node's motion matrix ``(..., C D, C D)`` (``C`` = order + 1 components of
-        ``D`` coordinates) applied to every node: entry ``(c, d), (c', d')`` of the node
-        lands at ``(c, k, d), (c', k, d')`` of the stacked state, nodes independent."""
+        """One node's motion matrix applied to every node: entry ``(c, d), (c', d')`` of
+        the node (``C`` = order + 1 components of ``D`` coordinates) lands at
+        ``(c, k, d), (c', k, d')`` of the stacked state, nodes independent.
+
+        Parameters
+        ----------
+        matrix : ndarray, shape (..., C D, C D)
+
+        Returns
+        -------
+        ndarray, shape (..., C K D, C K D)
+        """
         C, D, K = self.order + 1, self.dim, int(self.nodes)
         m = np.asarray(matrix, dtype=float)
         blocks = m.reshape(m.shape[:-2] + (C, D, C, D))
@@ -84,8 +93,18 @@ class NetworkLayout(StateLayout):
 
     def position_moments(self, mean: np.ndarray, cov: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray]:
-        """Every node's position ``(..., K, D)`` and its own covariance block
-        ``(..., K, D, D)``."""
+        """Every node's position and its own covariance block.
+
+        Parameters
+        ----------
+        mean : ndarray, shape (..., n)
+        cov : ndarray, shape (..., n, n)
+
+        Returns
+        -------
+        position : ndarray, shape (..., K, D)
+        covariance : ndarray, shape (..., K, D, D)
+        """
         K, D = int(self.nodes), self.dim
         pos = mean[..., :K * D].reshape(mean.shape[:-1] + (K, D))
         c = cov[..., :K * D, :K * D].reshape(cov.shape[:-2] + (K, D, K, D))
