@@ -155,9 +155,17 @@ def build_kind_scenarios(folder: Path, scenario_type) -> dict:
            "gate", "smooth", "init_s", "odometry_std_m", "anchor_bias", "tag_height_m")
     lsq = ("range_std_m", "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m", "loss",
            "loss_scale", "on_degenerate")
+    smo = ("motion", "q", "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m", "loss",
+           "loss_scale", "init_s", "max_gap_s", "prior_std_m")
     S = scenario_type
     plain = {"anchors": files["plain"]}
     return {
+        "tdoa-smoother": S("smoother", rows["tdoa"], plain, {"tdoa_std_m": "0.05"}, smo,
+                           truth_at=walk, tol_m=0.5),
+        "aoa-smoother": S("smoother", rows["aoa"], plain, {"aoa_std_rad": "0.01"}, smo,
+                          truth_at=walk, tol_m=0.5),
+        "pseudorange-smoother": S("smoother", rows["pseudorange"], plain,
+                                  {"pseudorange_std_m": "0.1"}, smo, truth_at=walk, tol_m=1.0),
         "tdoa": S("ekf-track", rows["tdoa"], plain, {"tdoa_std_m": "0.05"}, trk,
                   truth_at=walk, tol_m=0.5),
         "tdoa-lsq": S("lsq", rows["tdoa"], plain, {"tdoa_std_m": "0.05"}, lsq,
