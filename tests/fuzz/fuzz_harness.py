@@ -230,7 +230,9 @@ cells = st.one_of(st.sampled_from(NASTY),
 def mutated_rows(draw, rows: list[list[str]]) -> list[list[str]]:
     rows = [list(r) for r in rows]
     for _ in range(draw(st.integers(1, 3))):
-        n_rows, width = len(rows), max(len(r) for r in rows)
+        n_rows, width = len(rows), max((len(r) for r in rows), default=0)
+        if n_rows == 0 or width == 0:        # every column dropped already
+            break
         op = draw(st.sampled_from(
             ["cell", "cell", "cell", "dup_col", "drop_col", "extra_cell", "short_row",
              "dup_row", "drop_rows", "swap_kind", "header_case", "blank", "float_value",
