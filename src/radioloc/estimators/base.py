@@ -13,12 +13,53 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from radioloc.core.results import Estimate, Track
 
-__all__ = ["SnapshotEstimator", "RecursiveEstimator", "Tags"]
+__all__ = ["SnapshotEstimator", "RecursiveEstimator", "Tags", "layout_track"]
+
+
+def layout_track(layout: Any, means: np.ndarray, covs: np.ndarray, time: np.ndarray,
+                 diagnostics: Mapping[str, np.ndarray], step_axes: Mapping[str, int | None]
+                 ) -> Track:
+    """The :class:`Track` of a filter's or smoother's states over a state layout: the
+    position and its covariance (:meth:`StateLayout.position_moments`); for a network of
+    ``K`` nodes (:class:`~radioloc.models.pair_range.NetworkLayout`) one track per node,
+    the node axis before the time axis (``position (..., K, T, D)``), the time and the
+    diagnostics given an axis of 1 there.
+
+    Parameters
+    ----------
+    layout : StateLayout
+    means : ndarray, shape (..., T, n)
+    covs : ndarray, shape (..., T, n, n)
+    time : ndarray, shape (T,) or (..., T)
+    diagnostics : mapping of str to ndarray
+    step_axes : mapping of str to int or None
+        Per diagnostic: the axes after its time axis (``state`` 1, ``state_covariance``
+        2, ``nis`` 0), or None for one value per run (no time axis).
+
+    Returns
+    -------
+    Track
+    """
+    pos, cov = layout.position_moments(means, covs)
+    if pos.ndim == means.ndim:
+        return Track(pos, cov, time, dict(diagnostics))
+    pos, cov = np.moveaxis(pos, -2, -3), np.moveaxis(cov, -3, -4)
+    time = np.asarray(time)
+    if time.ndim > 1:
+        time = time[..., None, :]
+
+    def node_axis(key, value):
+        after = step_axes[key]
+        return value[..., None] if after is None else np.expand_dims(value, -2 - after)
+    return Track(pos, cov, time, {k: node_axis(k, v) for k, v in diagnostics.items()})
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
 from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array, check_int,
                                       check_positive, check_shapes, refuse_infinite)
-from radioloc.estimators.base import RecursiveEstimator, Tags
+from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
 from radioloc.estimators.robust_loss import check_loss
@@ -129,6 +129,10 @@ class BatchSmoother(RecursiveEstimator):
     extra_prior_std : float
         Prior standard deviation of those components when ``prior_mean`` gives the
         motion state only.
+    layout : StateLayout, optional
+        The state to use (grown by what the models read); a
+        :class:`~radioloc.models.pair_range.NetworkLayout` smooths every node of a network
+        at once (the motion model moving each node; one track per node).
 
     Examples
     --------
@@ -144,7 +148,8 @@ class BatchSmoother(RecursiveEstimator):
     def __init__(self, motion, *, loss: str = "linear", loss_scale: float = 1.0,
                  los_nlos=None, null_hypothesis: tuple[float, float] | None = None,
                  max_iterations: int = 30, tol: float = 1e-6,
-                 extra_q: float = 1e-6, extra_prior_std: float = 100.0) -> None:
+                 extra_q: float = 1e-6, extra_prior_std: float = 100.0,
+                 layout: StateLayout | None = None) -> None:
         if not (hasattr(motion, "F") and hasattr(motion, "Q") and hasattr(motion, "dim")):
             raise ConfigError(f"motion: expected a motion model with F(dt), Q(dt) and dim, got "
                               f"{type(motion).__name__}")
@@ -154,6 +159,13 @@ class BatchSmoother(RecursiveEstimator):
             raise ConfigError(f"motion: state [position, velocity, ...] in 2-D or 3-D needed, got "
                               f"dim {motion.dim}, state_dim {motion.state_dim}")
         self.motion = motion
+        if layout is not None:
+            if not isinstance(layout, StateLayout):
+                raise ConfigError(f"layout: expected a StateLayout, got {type(layout).__name__}")
+            if (layout.dim, layout.order) != (motion.dim, order):
+                raise ConfigError(f"layout: dim={layout.dim}, order={layout.order} does not "
+                                  f"match the motion model's dim={motion.dim}, order={order}")
+        self.layout = layout
         self.loss, self.loss_scale = check_loss(loss, loss_scale)
         if los_nlos is not None and not hasattr(los_nlos, "logpdf_by_state"):
             raise ConfigError(f"los_nlos: expected a LosNlosRange, got {type(los_nlos).__name__}")
@@ -191,9 +203,9 @@ class BatchSmoother(RecursiveEstimator):
         -------
         StateLayout
         """
-        return layout_for(observation_list(observations),
-                          StateLayout(dim=self.motion.dim,
-                                      order=self.motion.state_dim // self.motion.dim - 1))
+        base = self.layout or StateLayout(dim=self.motion.dim,
+                                          order=self.motion.state_dim // self.motion.dim - 1)
+        return layout_for(observation_list(observations), base)
 
     # ---- the model of the whole trajectory ----------------------------------------------
     def _transition(self, layout: StateLayout, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,8 +215,8 @@ class BatchSmoother(RecursiveEstimator):
         Q = np.zeros(dt.shape + (n, n))
         if dt.size == 0:                              # one step: no transition
             return F, Q
-        F[..., :k, :k] = self.motion.F(dt)
-        Q[..., :k, :k] = self.motion.Q(dt)
+        F[..., :k, :k] = layout.kinematic(self.motion.F(dt))
+        Q[..., :k, :k] = layout.kinematic(self.motion.Q(dt))
         idx = np.arange(k, n)
         F[..., idx, idx] = 1.0
         Q[..., idx, idx] = self.extra_q * dt[..., None]
@@ -435,9 +447,11 @@ class BatchSmoother(RecursiveEstimator):
         present = np.isfinite(r)
         with np.errstate(invalid="ignore"):
             rms = np.sqrt(np.sum(np.where(present, r, 0.0) ** 2, -1) / present.sum(-1))
-        sl = layout.slices["position"]
         diag = {"state": X, "state_covariance": P, "converged": conv, "stalled": stalled,
                 "iterations": iterations, "cost": cost, "residual_rms_m": rms}
         if self.los_nlos is not None:
             diag["los_detected"] = rows.modes(X, r) == 1
-        return Track(X[..., sl], P[..., sl, sl], np.broadcast_to(t, batch + (T,)), diag)
+        return layout_track(layout, X, P, np.broadcast_to(t, batch + (T,)), diag,
+                            {"state": 1, "state_covariance": 2, "converged": None,
+                             "stalled": None, "iterations": None, "cost": None,
+                             "residual_rms_m": 0, "los_detected": 1})

@@ -55,7 +55,7 @@ from radioloc.core.validation import (
     check_positive,
     refuse_infinite,
 )
-from radioloc.estimators.base import RecursiveEstimator, Tags
+from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
 from radioloc.estimators.kalman import (
     GaussianState,
     kalman_predict,
@@ -566,13 +566,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
                                      record.pop("predicted_covariance"), F)
         diag = {"state": means, "state_covariance": covs, **record}
-        pos, cov = layout.position_moments(means, covs)
-        if pos.ndim > means.ndim:              # a network: node axis before the time axis
-            pos, cov = np.moveaxis(pos, -2, -3), np.moveaxis(cov, -3, -4)
-            t = t[..., None, :] if t.ndim > 1 else t
-            trailing = {"state": 1, "state_covariance": 2, **_INFO_AXES}
-            diag = {k: np.expand_dims(v, -2 - trailing[k]) for k, v in diag.items()}
-        return Track(pos, cov, t, diag)
+        return layout_track(layout, means, covs, t, diag,
+                            {"state": 1, "state_covariance": 2, **_INFO_AXES})
 
     # ---- helpers --------------------------------------------------------------------
     def _layout_of(self, state) -> StateLayout:
