@@ -225,6 +225,10 @@ def test_bad_input_names_the_argument():
         sm.run(obs, t[::-1], prior_mean=x[:, 0], prior_cov=np.eye(4))
     with pytest.raises(InputError, match="prior_cov"):
         sm.run(obs, t, prior_mean=x[:, 0], prior_cov=-np.eye(4))
+    lopsided = np.eye(4)
+    lopsided[1, 3] = -0.3                 # was symmetrised without a word
+    with pytest.raises(InputError, match=r"prior_cov: not symmetric \(entry \(.*1, 3\)\)"):
+        sm.run(obs, t, prior_mean=x[:, 0], prior_cov=lopsided)
     with pytest.raises(InputError, match="prior_mean"):
         sm.run(obs, t, prior_mean=np.zeros(3), prior_cov=np.eye(3))
     with pytest.raises(InputError, match="initial"):

@@ -35,8 +35,9 @@ from scipy.linalg import LinAlgError, solveh_banded
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
-from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array, check_int,
-                                      check_positive, check_shapes, refuse_infinite)
+from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array,
+                                      check_covariance, check_int, check_positive,
+                                      check_shapes, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
@@ -249,16 +250,7 @@ class BatchSmoother(RecursiveEstimator):
         except ValueError:
             raise InputError(f"prior_mean, prior_cov: shapes {m0.shape}, {P0.shape} do not "
                              f"broadcast to the batch {batch}") from None
-        small = np.diagonal(P0, axis1=-2, axis2=-1) < POSITIVE_FLOOR
-        if np.any(small):
-            idx = tuple(int(i) for i in np.argwhere(small)[0])
-            raise InputError(f"prior_cov: variance {np.diagonal(P0, axis1=-2, axis2=-1)[idx]!r} "
-                             f"at {idx} is below the supported floor of {POSITIVE_FLOOR:g} "
-                             "(its inverse would overflow)")
-        try:
-            np.linalg.cholesky(symmetrise(P0))
-        except np.linalg.LinAlgError:
-            raise InputError("prior_cov: must be symmetric positive definite") from None
+        check_covariance(P0, "prior_cov", max_variance=np.inf, min_variance=POSITIVE_FLOOR)
         return m0, np.linalg.inv(symmetrise(P0))
 
     def _start(self, obs, layout, F, Qinv, m0, P0inv) -> np.ndarray:
