@@ -89,6 +89,20 @@ def test_bad_input_names_the_argument():
         calibrate_anchors(prior, PSTD, anchor_ranges=ar, loss="l3")
     with pytest.raises(GeometryError, match="rough anchors"):    # one surveyed: frame free
         calibrate_anchors(prior, np.r_[0.0, np.full(6, 1e6)], anchor_ranges=ar)
+    with pytest.raises(InputError, match=r"prior_std_m: .*\(anchor 3\) is below"):
+        calibrate_anchors(prior, np.r_[PSTD[:3], 1e-193, PSTD[4:]], anchor_ranges=ar)
+
+
+def test_cli_names_the_line_of_a_prior_std_whose_inverse_overflows(tmp_path):
+    """A std_m of 1.3e-193 m (its inverse squared overflows) was an internal error; it is
+    refused naming the file's line and column, 0 or empty meaning a surveyed anchor."""
+    pd.DataFrame({"id": ["A", "B", "C", "D"], "x": [0, 20, 20, 0], "y": [0, 0, 15, 15],
+                  "std_m": [None, None, 1.3e-193, 2.0]}).to_csv(tmp_path / "a.csv", index=False)
+    pd.DataFrame({"time": [0], "node": ["A"], "peer": ["B"], "kind": ["range"], "value": [20.0]}
+                 ).to_csv(tmp_path / "m.csv", index=False)
+    res = CliRunner().invoke(app, ["calibrate", str(tmp_path / "m.csv"), "--anchors",
+                                   str(tmp_path / "a.csv")])
+    assert res.exit_code != 0 and "line 4, column 'std_m'" in res.output, res.output
 
 
 def test_cli_calibrates_and_locate_reads_the_bias(tmp_path):

@@ -16,6 +16,8 @@ dimension).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from model_cases import (
@@ -146,3 +148,26 @@ def test_a_model_the_tags_refuse_is_refused_by_name(pair, problems):
     named = type(model).__name__ if case.dim in cls.tags.dims else f"{min(cls.tags.dims)}-D"
     with pytest.raises((ConfigError, InputError), match=named):
         solve(cls, problems[name])
+
+
+@pytest.mark.parametrize("cls", [c for c in generic_estimators() if c.tags.recursive],
+                         ids=lambda c: c.__name__)
+def test_an_asymmetric_or_tiny_prior_covariance_is_refused_by_name(cls, problems):
+    """Every recursive generic estimator checks its prior covariance the same way: an
+    asymmetric matrix (a solver reading one triangle would use half of it) is refused
+    naming ``prior_cov``; a variance of 1e-300 is refused where the estimator inverts the
+    prior (naming ``prior_cov``), else gives a finite track."""
+    name = next(n for c, n in PAIRS if c is cls)
+    p = problems[name]
+    lopsided = p.prior_cov.copy()
+    lopsided[0, 1] = 0.3
+    with pytest.raises(InputError, match="prior_cov.*symmetric"):
+        solve(cls, replace(p, prior_cov=lopsided))
+    tiny = p.prior_cov.copy()
+    tiny[0, 0] = 1e-300
+    try:
+        res = solve(cls, replace(p, prior_cov=tiny))
+    except InputError as exc:
+        assert "prior_cov" in str(exc), exc
+    else:
+        assert np.all(np.isfinite(res.position)) and np.all(np.isfinite(res.covariance))

@@ -386,6 +386,22 @@ def check_memory(n_bytes: float, name: str, what: str = "") -> None:
                           "(RADIOLOC_MEMORY_LIMIT_GB)")
 
 
+def check_symmetric(matrix: np.ndarray, name: str) -> None:
+    """Refuse matrices ``(..., n, n)`` that are not symmetric to 1e-9 relative (a solver
+    reading one triangle would otherwise use half of what was given), naming ``name`` and
+    the first entry.
+
+    Raises
+    ------
+    InputError
+    """
+    m = np.asarray(matrix, dtype=float)
+    t = np.swapaxes(m, -1, -2)
+    asym = np.abs(m - t) > 1e-9 * (np.abs(m) + np.abs(t)) + 1e-300
+    if np.any(asym):
+        raise InputError(f"{name}: not symmetric (entry {tuple(int(i) for i in np.argwhere(asym)[0])})")
+
+
 def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12,
                      min_variance: float = 0.0) -> None:
     """Refuse covariance matrices ``(..., n, n)`` that are not symmetric positive definite,
@@ -407,10 +423,7 @@ def check_covariance(cov: np.ndarray, name: str, max_variance: float = 1e12,
         idx = tuple(int(i) for i in np.argwhere(diag < min_variance)[0])
         raise InputError(f"{name}: variance {diag[idx]:g} at diagonal index {idx} is below "
                          f"the supported floor of {min_variance:g} (its inverse would overflow)")
-    asym = np.abs(cov - np.swapaxes(cov, -1, -2)) > 1e-9 * (np.abs(cov) + np.abs(
-        np.swapaxes(cov, -1, -2))) + 1e-300
-    if np.any(asym):
-        raise InputError(f"{name}: not symmetric (entry {tuple(int(i) for i in np.argwhere(asym)[0])})")
+    check_symmetric(cov, name)
     try:
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:

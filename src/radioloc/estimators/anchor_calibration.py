@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import POSITIVE_FLOOR, as_float_array, check_positive
 
 __all__ = ["AnchorCalibration", "calibrate_anchors"]
 
@@ -142,6 +142,10 @@ def calibrate_anchors(prior_position, prior_std_m, *, anchor_ranges=None, tag_ra
     pstd = as_float_array(prior_std_m, "prior_std_m", ndim=1, nonnegative=True)
     if pstd.shape != (A,):
         raise InputError(f"prior_std_m: expected {A} values (one per anchor), got {pstd.shape}")
+    tiny = np.flatnonzero((pstd > 0) & (pstd < POSITIVE_FLOOR))
+    if tiny.size:
+        raise InputError(f"prior_std_m: {pstd[tiny[0]]:g} (anchor {int(tiny[0])}) is below the "
+                         f"supported floor of {POSITIVE_FLOOR:g} m (0: a surveyed anchor)")
     check_positive(std_m, "std_m")
     check_positive(bias_prior_std_m, "bias_prior_std_m")
     if loss not in LOSSES:

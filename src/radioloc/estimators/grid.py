@@ -43,7 +43,7 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_array,
                                       check_memory, check_positive, check_probability,
-                                      refuse_infinite)
+                                      check_symmetric, refuse_infinite)
 from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
@@ -1149,6 +1149,7 @@ class GridFilter(RecursiveEstimator):
             raise InputError(f"prior_cov: expected shape ({n}, {n}) or ({B}, {n}, {n}), got "
                              f"{cov.shape}")
         cov = np.broadcast_to(cov, (B, n, n))
+        check_symmetric(cov, "prior_cov")
         try:
             np.linalg.cholesky(cov[:, :2, :2])
         except np.linalg.LinAlgError:

@@ -50,7 +50,8 @@ from scipy.special import logsumexp
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
-from radioloc.core.validation import MAX_PARTICLES, as_float_array, check_int, check_positive
+from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
+                                      check_symmetric)
 from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.observation_rows import common_steps
 from radioloc.estimators.pf_smoother import backward_simulation
@@ -548,8 +549,7 @@ class ParticleFilter(RecursiveEstimator):
         if P0.shape[-2:] != (n, n):
             raise InputError(f"prior_cov: expected shape (..., {n}, {n}) for {layout}, got "
                              f"{P0.shape}")
-        if not np.allclose(P0, np.swapaxes(P0, -1, -2)):
-            raise InputError("prior_cov: must be symmetric")
+        check_symmetric(P0, "prior_cov")
         vals, vecs = np.linalg.eigh(P0)
         if np.any(vals < -1e-9 * np.maximum(1.0, np.abs(vals).max())):
             raise InputError("prior_cov: must be positive semi-definite")

@@ -57,7 +57,7 @@ import pandas as pd
 
 from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
-from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, range_floor_m
+from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
@@ -405,6 +405,20 @@ def _check_magnitude(frame: pd.DataFrame, values: pd.Series, column: str, limit:
                          f" {unit} is beyond the limit of {limit:g} {unit}")
 
 
+def _std_column(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
+    """An optional standard deviation column of the anchors file: empty or 0 (known), or
+    between :data:`~radioloc.core.validation.POSITIVE_FLOOR` (a smaller one's inverse
+    squared overflows) and the range limit, metres."""
+    values = _optional_number(frame, column, path, minimum=0.0)
+    v = values.fillna(0.0).to_numpy()
+    if (i := _first((v > 0) & (v < POSITIVE_FLOOR))) is not None:
+        raise InputError(f"{path}: line {_line(frame, i)}, column '{column}': {v[i]:g} m is "
+                         f"below the supported floor of {POSITIVE_FLOOR:g} m (0 or empty: "
+                         "known exactly)")
+    _check_magnitude(frame, values.fillna(0.0), column, LIMITS["range_m"], "m", path)
+    return values
+
+
 def read_anchors(path: Path | str) -> pd.DataFrame:
     """Read and validate an anchors CSV (``id, x, y[, z]``).
 
@@ -441,7 +455,7 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
             out[c] = _numeric(frame, c, path)
             _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"], "m", path)
     if "std_m" in frame.columns:                     # prior std of a rough anchor (calibrate)
-        out["std_m"] = _optional_number(frame, "std_m", path, minimum=0.0)
+        out["std_m"] = _std_column(frame, "std_m", path)
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
@@ -449,9 +463,7 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         if c in frame.columns:
             out[c] = _optional_number(frame, c, path)
     if "bias_std_m" in frame.columns:                # its standard deviation (calibrate)
-        out["bias_std_m"] = _optional_number(frame, "bias_std_m", path, minimum=0.0)
-        _check_magnitude(frame, out["bias_std_m"].fillna(0.0), "bias_std_m",
-                         LIMITS["range_m"], "m", path)
+        out["bias_std_m"] = _std_column(frame, "bias_std_m", path)
     tracked = "time" in frame.columns
     if tracked:                                      # a moving anchor: one row per position
         out["time"] = _optional_number(frame, "time", path)
