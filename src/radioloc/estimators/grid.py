@@ -46,8 +46,8 @@ from radioloc.core.validation import (LENGTH_LIMIT_M, MAGNITUDE_LIMIT, as_float_
                                       check_symmetric, refuse_infinite)
 from radioloc.estimators import grid_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator, Tags
-from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
-                                                  unflatten_estimate, with_candidate_axes)
+from radioloc.estimators.observation_rows import (common_steps, flatten_step, log_likelihood_at,
+                                                  observation_list, unflatten_estimate)
 from radioloc.models.measurement import Observation
 from radioloc.models.rssi_trapezoid import TrapezoidModel, as_rssi
 
@@ -1259,17 +1259,9 @@ class GridFilter(RecursiveEstimator):
         if state.offset is not None:
             pos = pos + state.offset[:, None, None, :]
         pos = np.broadcast_to(pos, (B, geom.h, geom.w, 2))
-        lp = np.zeros((B, geom.h, geom.w))
-        heard = np.zeros(B, dtype=np.int64)
-        for i, (model, z, ctx) in enumerate(rows):
-            z = np.broadcast_to(z, (B, z.shape[-1]))
-            zc = np.broadcast_to(z[:, None, None, :], (B, geom.h, geom.w, z.shape[-1]))
-            with np.errstate(invalid="ignore"):     # NaN rows: the model gives them 0
-                lp = lp + model.logpdf(zc, {"position": pos}, with_candidate_axes(ctx)).sum(axis=-1)
-            heard = heard + np.isfinite(z).sum(axis=-1)
-            if np.isnan(lp).any():
-                raise InputError(f"observations[{i}]: {type(model).__name__}.logpdf gave NaN "
-                                 f"for run {int(np.flatnonzero(np.isnan(lp).any(axis=(1, 2)))[0])}")
+        lp = log_likelihood_at(rows, pos)
+        heard = sum((np.isfinite(np.broadcast_to(z, (B, z.shape[-1]))).sum(axis=-1)
+                     for _, z, _ in rows), np.zeros(B, dtype=np.int64))
         top = lp.max(axis=(1, 2), keepdims=True)
         ok = np.isfinite(top)
         lik = np.where(ok, np.exp(lp - np.where(ok, top, 0.0)), 0.0)

@@ -35,8 +35,8 @@ from radioloc.core.validation import (MAX_COMPONENTS, POSITIVE_FLOOR, as_float_a
                                       check_covariance, check_int, check_memory,
                                       refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, SnapshotEstimator, Tags
-from radioloc.estimators.observation_rows import (common_steps, flatten_step, observation_list,
-                                                  unflatten_estimate, with_candidate_axes)
+from radioloc.estimators.observation_rows import (common_steps, flatten_step, log_likelihood_at,
+                                                  observation_list, unflatten_estimate)
 from radioloc.estimators.progressive_update import progressive_update
 from radioloc.models.fingerprint_mixture import FingerprintMixture, place_moments, place_weights
 from radioloc.models.mixture import (REDUCTIONS, DiagMixture, check_reduction, compact,
@@ -957,18 +957,10 @@ class MixtureTracker(RecursiveEstimator):
             rows = [flatten_step(*o.at(step), batch) for o in obs]
             heard = sum(np.isfinite(z).sum(-1) for z, _ in rows)
 
-            def loglik(x, rows=rows, step=step):
-                total = 0.0
-                for i, (z, ctx) in enumerate(rows):
-                    with np.errstate(invalid="ignore"):   # NaN rows: the model gives them 0
-                        lp = obs[i].model.logpdf(z[:, None, None, :], {"position": x},
-                                                 with_candidate_axes(ctx, 2)).sum(-1)
-                    if np.isnan(lp).any():
-                        run = int(np.flatnonzero(np.isnan(lp).reshape(B, -1).any(-1))[0])
-                        raise InputError(f"observations[{i}]: {type(obs[i].model).__name__}"
-                                         f".logpdf gave NaN for run {run} at step {step}")
-                    total = total + lp
-                return total
+            models_rows = [(o.model, z, ctx) for o, (z, ctx) in zip(obs, rows)]
+
+            def loglik(x, rows=models_rows, step=step):
+                return log_likelihood_at(rows, x, f" at step {step}")
             w1, m1, P1, explained = progressive_update(w, m, P, loglik, self.dim)
             used = np.where(explained, heard, 0)
             on = used > 0

@@ -25,7 +25,7 @@ from radioloc.models.measurement import Context, MeasurementModel, Observation, 
 from radioloc.estimators.robust_loss import max_mixture_terms, row_terms
 
 __all__ = ["observation_list", "common_steps", "layout_for", "RowStack", "with_candidate_axes",
-           "flatten_step", "unflatten_estimate"]
+           "log_likelihood_at", "flatten_step", "unflatten_estimate"]
 
 
 def observation_list(observations: Observation | Sequence[Observation]) -> list[Observation]:
@@ -227,6 +227,45 @@ def with_candidate_axes(ctx: Context, axes: int = 2) -> Context:
         return a if a is None or a.ndim <= base else a[(slice(None),) + (None,) * axes]
     return replace(ctx, points=widen(ctx.points, 2), reference=widen(ctx.reference, 2),
                    std=widen(ctx.std, 1))
+
+
+def log_likelihood_at(rows, position: np.ndarray, where: str = "") -> np.ndarray:
+    """``sum_rows log p(z | x)`` at two axes of candidate positions per run, through each
+    model's ``logpdf`` (a NaN row contributes 0): the grid filter's cells and the mixture
+    tracker's nodes.
+
+    Parameters
+    ----------
+    rows : sequence of (model, z, context)
+        Values ``z`` ``(B, m)`` (or broadcasting to it) and a context with the batch axis
+        flattened (:func:`flatten_step`), one entry per observation.
+    position : ndarray, shape (B, C1, C2, D)
+        Candidate positions.
+    where : str
+        Appended to the message of a model that gives NaN (e.g. the step).
+
+    Returns
+    -------
+    ndarray, shape (B, C1, C2)
+
+    Raises
+    ------
+    InputError
+        A model's ``logpdf`` gave NaN, naming the observation and the run.
+    """
+    shape = position.shape[:-1]
+    total = np.zeros(shape)
+    for i, (model, z, ctx) in enumerate(rows):
+        z = np.broadcast_to(z, shape[:1] + z.shape[-1:])
+        zc = np.broadcast_to(z[:, None, None, :], shape + z.shape[-1:])
+        with np.errstate(invalid="ignore"):     # NaN rows: the model gives them 0
+            total = total + model.logpdf(zc, {"position": position},
+                                         with_candidate_axes(ctx)).sum(axis=-1)
+        if np.isnan(total).any():
+            run = int(np.flatnonzero(np.isnan(total).reshape(shape[0], -1).any(-1))[0])
+            raise InputError(f"observations[{i}]: {type(model).__name__}.logpdf gave NaN "
+                             f"for run {run}{where}")
+    return total
 
 
 def flatten_step(z: np.ndarray, ctx: Context, batch: tuple[int, ...]
