@@ -909,7 +909,7 @@ class MixtureTracker(RecursiveEstimator):
         """The generic form of :meth:`run_observations` (its docstring): a Gaussian-sum
         filter whose components keep full covariances."""
         for i, o in enumerate(obs):
-            dim = o.context.points.shape[-1] - (1 if o.context.height_m is not None else 0)
+            dim = o.context.position_dim
             if dim != self.dim:
                 raise ConfigError(f"observations[{i}].context.points: {dim}-D points, the "
                                   f"tracker holds {self.dim}-D positions")

@@ -85,7 +85,7 @@ def layout_for(observations: list[Observation], layout: StateLayout | None = Non
     """
     if layout is None:
         ctx = observations[0].context
-        dim = ctx.points.shape[-1] - (1 if ctx.height_m is not None else 0)
+        dim = ctx.position_dim
         if dim not in (2, 3):
             raise InputError(f"observations[0].context.points: {ctx.points.shape[-1]} coordinates "
                              "give no 2-D or 3-D position (pass layout=)")

@@ -349,7 +349,7 @@ class LocalML(SnapshotEstimator):
         """Refuse a model the tags do not take, or rows whose points give no 2-D position."""
         for i, o in enumerate(obs):
             self.tags.require(o.model, f"observations[{i}].model", type(self).__name__)
-            dim = o.context.points.shape[-1] - (1 if o.context.height_m is not None else 0)
+            dim = o.context.position_dim
             if dim != 2:
                 raise ConfigError(f"observations[{i}].context.points: {type(self).__name__} "
                                   f"searches 2-D positions; the rows have {dim}-D points")

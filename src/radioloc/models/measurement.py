@@ -364,6 +364,12 @@ class Context:
         """Number of measurement rows ``m``."""
         return self.points.shape[-2]
 
+    @property
+    def position_dim(self) -> int:
+        """Coordinates of the node's position these rows fix: the points' (one less with
+        ``height_m``: a 2-D node among 3-D points)."""
+        return self.points.shape[-1] - (1 if self.height_m is not None else 0)
+
     def take(self, rows: np.ndarray) -> "Context":
         """The context of a subset of rows.
 
