@@ -241,3 +241,23 @@ def test_ekf_track_blames_the_noise_not_a_slip_when_looser_sigmas_fit(tmp_path):
     res = locate(meas, anchors, "ekf-track", "pseudorange_std_m=0.5")
     assert res.exit_code == 0 and "in ns?" not in res.output, res.output
     assert "pseudorange_std_m=0.5" in res.output and "too small" in res.output, res.output
+
+
+def test_the_value_checks_of_an_observation_do_not_load_pandas():
+    """Observation runs the tdoa, pseudorange and angle checks on every construction; they
+    need NumPy only, so a library user of the models does not pay for pandas."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys, numpy as np; "
+            "from radioloc.models.measurement import Context, Observation; "
+            "from radioloc.models.tdoa import TdoaModel; "
+            "a = np.array([[0.0, 0], [20, 0], [20, 15]]); "
+            "Observation(TdoaModel(std_m=0.1), np.array([[1.0, 2.0]]), "
+            "Context(points=a[1:], reference=a[:2] * 0)); "
+            "assert 'pandas' not in sys.modules, 'pandas loaded'")
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env={"PYTHONPATH": src, "PATH": "/usr/bin:/bin"}, timeout=60)
+    assert res.returncode == 0, res.stderr

@@ -72,9 +72,12 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Collection
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:              # pandas loads where a log is checked, not with the models
+    import pandas as pd
 
 from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import ConfigError, GeometryError, InputError
@@ -753,6 +756,7 @@ def check_values(kind: str, values: np.ndarray, points: np.ndarray | None = None
 def _epoch_matrix(rows: pd.DataFrame, ids: list[str]) -> np.ndarray:
     """Values (ranges, pseudoranges) as an (epochs, anchors) array, one row per (node, time);
     NaN: absent."""
+    import pandas as pd
     node = pd.factorize(rows["node"])[0]
     time = rows["time"].to_numpy(dtype=float)
     order = np.lexsort((time, node))
@@ -802,6 +806,7 @@ def check_time(measurements: pd.DataFrame, *, max_gap_s: float | None = None,
     InputError
         The median step within a node exceeds ``max_gap_s``.
     """
+    import pandas as pd
     frame = measurements
     if "line" in frame.columns and not frame["line"].is_monotonic_increasing:
         frame = frame.sort_values("line", kind="stable")
