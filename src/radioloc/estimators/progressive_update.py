@@ -53,14 +53,17 @@ def hermite_nodes(dim: int, order: int) -> tuple[np.ndarray, np.ndarray]:
     -------
     nodes : ndarray, shape (order**dim, dim)
     weights : ndarray, shape (order**dim,)
-        Positive, summing to one.
+        Positive, summing to one. Both are read-only (cached and shared between calls).
     """
     x, w = hermegauss(order)
     grids = np.meshgrid(*([x] * dim), indexing="ij")
     wgrids = np.meshgrid(*([w] * dim), indexing="ij")
     nodes = np.stack([g.ravel() for g in grids], axis=-1)
     weights = np.prod(np.stack([g.ravel() for g in wgrids], axis=-1), axis=-1)
-    return nodes, weights / weights.sum()
+    weights = weights / weights.sum()
+    nodes.setflags(write=False)
+    weights.setflags(write=False)
+    return nodes, weights
 
 
 def _sqrt_psd(P: np.ndarray) -> np.ndarray:
