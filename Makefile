@@ -10,23 +10,51 @@ STAMP_DOCS := $(VENV)/.installed-docs
 
 # Packages install with uv (PyPI's `uv`, put into the venv first: on a fresh machine it
 # installs the dev set in under a minute where pip took several); pip is the fallback.
-PIP := $(BIN)/python -m uv pip install -q --python $(BIN)/python
+# Every install takes its versions from the lock, constraints.txt (generated from
+# pyproject.toml with every extra, for every platform and Python >= 3.11): `make lock`
+# refreshes it after a change of pyproject.toml, or to move to newer releases.
+UV_VERSION := 0.13.9
+LOCK := constraints.txt
+PIP := $(BIN)/python -m uv pip install -q --python $(BIN)/python -c $(LOCK)
+PIP_FALLBACK := $(BIN)/python -m pip install -q -c $(LOCK)
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q uv
+	$(BIN)/python -m pip install -q uv==$(UV_VERSION)
 
-$(STAMP): pyproject.toml | $(BIN)/python
-	$(PIP) -e . || $(BIN)/python -m pip install -q -e .
+$(STAMP): pyproject.toml $(LOCK) | $(BIN)/python
+	$(PIP) -e . || $(PIP_FALLBACK) -e .
 	touch $@
 
-$(STAMP_DEV): pyproject.toml | $(BIN)/python
-	$(PIP) -e ".[dev]" || $(BIN)/python -m pip install -q -e ".[dev]"
+$(STAMP_DEV): pyproject.toml $(LOCK) | $(BIN)/python
+	$(PIP) -e ".[dev]" || $(PIP_FALLBACK) -e ".[dev]"
 	touch $(STAMP) $@
 
-$(STAMP_DOCS): pyproject.toml | $(BIN)/python
-	$(PIP) -e ".[docs]" || $(BIN)/python -m pip install -q -e ".[docs]"
+$(STAMP_DOCS): pyproject.toml $(LOCK) | $(BIN)/python
+	$(PIP) -e ".[docs]" || $(PIP_FALLBACK) -e ".[docs]"
 	touch $(STAMP) $@
+
+.PHONY: lock check-base
+lock: | $(BIN)/python
+	$(BIN)/python -m uv pip compile -q pyproject.toml --all-extras --universal \
+	  --python-version 3.11 --custom-compile-command "make lock" -o $(LOCK)
+
+# The base install as a new user gets it: a fresh venv with the package alone (built as a
+# wheel, no extras, versions from the lock), then the README's first commands on examples/.
+# A base import that pyproject.toml does not declare fails here. `.ci/run` runs it first.
+BASE_VENV := .venv-base
+check-base:
+	@rm -rf $(BASE_VENV) out/check-base && mkdir -p out/check-base
+	$(PYTHON) -m venv $(BASE_VENV)
+	$(BASE_VENV)/bin/python -m pip install -q uv==$(UV_VERSION)
+	$(BASE_VENV)/bin/python -m uv pip install -q --python $(BASE_VENV)/bin/python -c $(LOCK) . \
+	  || $(BASE_VENV)/bin/python -m pip install -q -c $(LOCK) .
+	@rm -rf build
+	cd out/check-base && ../../$(BASE_VENV)/bin/radioloc --help > help.txt
+	cd out/check-base && ../../$(BASE_VENV)/bin/radioloc locate ../../examples/measurements.csv \
+	  --anchors ../../examples/anchors.csv --out estimates.csv --quiet
+	cd out/check-base && ../../$(BASE_VENV)/bin/radioloc reproduce gn-multilateration --out .
+	@echo "base install: radioloc --help, locate and reproduce gn-multilateration ran (out/check-base)"
 
 # Debian packages the tests use: headless Chromium for the report's browser test, and LLVM's
 # shared library for Sionna RT's CPU back end. Dr.Jit needs LLVM >= 19 (15 and 16 abort the
@@ -52,7 +80,7 @@ browser: system
 # Sionna RT (the optional 3-D channel provider, extra `rt`); its LLVM library comes from
 # `system`. Installed when possible; otherwise the Sionna test is skipped and says why.
 rt: $(STAMP_DEV)
-	@$(PIP) -e ".[rt]" || $(BIN)/python -m pip install -q -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
+	@$(PIP) -e ".[rt]" || $(PIP_FALLBACK) -e ".[rt]" || echo "sionna-rt could not be installed: the Sionna RT test will be skipped"
 
 # numba's parallel kernels run on OpenMP threads, which spin while they wait for each other;
 # where more threads than cores are busy (two test workers, a benchmark beside its peer) the
@@ -87,11 +115,11 @@ full: $(STAMP)
 # `particles` (a benchmark peer) pins numpy<2 in its metadata although it runs on numpy 2;
 # it is installed without its dependencies so that pip keeps the project's numpy.
 bench: $(STAMP_DEV)
-	$(BIN)/python -c "import particles" 2>/dev/null || $(PIP) --no-deps particles || $(BIN)/python -m pip install -q --no-deps particles
+	$(BIN)/python -c "import particles" 2>/dev/null || $(PIP) --no-deps particles==0.4 || $(BIN)/python -m pip install -q --no-deps particles==0.4
 	$(BIN)/python benchmarks/collect.py
 
 clean:
-	rm -rf $(VENV) out out-full site .pytest_cache
+	rm -rf $(VENV) $(BASE_VENV) out out-full site .pytest_cache
 
 # Long fuzz of `radioloc locate` and of the library's estimators and models (>= 10,000
 # generated cases, each classified; the outcome counts of both workers are summed from

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -137,3 +138,12 @@ def test_timing_columns_go_to_timings_csv_not_results(tmp_path):
     write_results(Timed(), frame, tmp_path)
     assert list(pd.read_csv(tmp_path / "results.csv").columns) == ["run", "method", "error_m"]
     assert list(pd.read_csv(tmp_path / "timings.csv").columns) == ["run", "method", "cpu_s"]
+
+
+def test_reproduce_prints_a_line_per_experiment_when_not_a_terminal(tmp_path):
+    """Output to a file or a pipe: where the run is and how long each experiment took."""
+    res = runner.invoke(app, ["reproduce", EXP, "--runs", "100", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.startswith(f"[1/1] {EXP}")]
+    assert lines[0] == f"[1/1] {EXP}: running (quick size)"
+    assert re.fullmatch(rf"\[1/1\] {EXP}: done in \d+\.\d s \(elapsed \d+\.\d s\)", lines[1])

@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
 import warnings
 from pathlib import Path
@@ -261,14 +262,28 @@ def reproduce(
     if opts and experiment == "all":
         raise RadiolocError("-o sets one experiment's config fields: name the experiment, not 'all'")
     ids = list(registry()) if experiment == "all" else [get_experiment(experiment).id]
-    for eid in ids:
+    start = time.perf_counter()
+    for i, eid in enumerate(ids, 1):
+        label = f"[{i}/{len(ids)}] {eid}"
+        # On a terminal the blocks' bar carries the label; otherwise (output to a file or a
+        # pipe) one line when an experiment starts and one when it ends, with the times.
+        if not err_console.is_terminal:
+            err_console.print(f"{label}: running ({'full' if full else 'quick'} size)",
+                              markup=False, highlight=False)
+        t0 = time.perf_counter()
         try:
             outcome = run_experiment(eid, full=full, runs=runs, seed=seed, out=out,
-                                     workers=workers, scheduler=scheduler, options=opts)
-            print_record(outcome.record, console)
+                                     workers=workers, scheduler=scheduler, options=opts,
+                                     label=label)
+            record = outcome.record
         except DataUnavailable as exc:
-            print_record(write_skipped(get_experiment(eid), str(exc), full=full, seed=seed,
-                                       out=out), console)
+            record = write_skipped(get_experiment(eid), str(exc), full=full, seed=seed, out=out)
+        print_record(record, console)
+        if not err_console.is_terminal:
+            now = time.perf_counter()
+            status = "skipped (data absent)" if record.get("skipped") else "done"
+            err_console.print(f"{label}: {status} in {now - t0:.1f} s "
+                              f"(elapsed {now - start:.1f} s)", markup=False, highlight=False)
     if experiment == "all":
         index = write_index(out, {k: v.description for k, v in registry().items()})
         console.print(f"report: {index}")

@@ -108,8 +108,13 @@ def _iter_blocks(exp: Experiment, config: Any, seed: int, blocks: list[np.ndarra
 
 
 def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
-               scheduler: str | None = None, progress: bool = True) -> pd.DataFrame:
-    """Run every block of ``config.runs`` runs and concatenate the frames in block order."""
+               scheduler: str | None = None, progress: bool = True,
+               label: str | None = None) -> pd.DataFrame:
+    """Run every block of ``config.runs`` runs and concatenate the frames in block order.
+
+    With ``progress``, a bar of the blocks (named ``label``, default the experiment's id) is
+    drawn on a terminal while they run.
+    """
     if workers < 1:
         raise ConfigError(f"--workers: must be >= 1, got {workers}")
     blocks = block_ranges(int(config.runs), int(config.block_size))
@@ -120,7 +125,7 @@ def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
 
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                       TextColumn("blocks"), TimeElapsedColumn(), transient=True) as bar:
-            task = bar.add_task(exp.id, total=len(blocks))
+            task = bar.add_task(label or exp.id, total=len(blocks))
             for b, frame in stream:
                 frames[b] = frame
                 bar.advance(task)
@@ -145,13 +150,14 @@ def _jsonable(value: Any) -> Any:
 
 def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, seed: int = 0,
                    out: Path | str = "out", workers: int = 1, scheduler: str | None = None,
-                   progress: bool = True, options: dict[str, str] | None = None) -> RunOutcome:
+                   progress: bool = True, options: dict[str, str] | None = None,
+                   label: str | None = None) -> RunOutcome:
     """Run an experiment end to end and write ``out/<id>/{results.csv,summary.json,*.png}``.
 
     Raises :class:`~radioloc.core.errors.DataUnavailable` (before any work) when the
     experiment needs a data set that is absent. ``options`` overrides config fields by name
     (text read as each field's type, see :meth:`Experiment.with_options`); the config used
-    is recorded in ``summary.json``.
+    is recorded in ``summary.json``. ``label`` names the progress bar (default: the id).
     """
     exp = get_experiment(exp_id)
     exp.check_available()
@@ -160,7 +166,7 @@ def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, 
     with staged_folder(out_dir) as stage:
         t0 = time.perf_counter()
         results = run_blocks(exp, config, seed=seed, workers=workers, scheduler=scheduler,
-                             progress=progress)
+                             progress=progress, label=label)
         summary = exp.summarize(config, results, stage)
         elapsed = time.perf_counter() - t0
         write_results(exp, results, stage)
