@@ -79,7 +79,8 @@ def export_dataset(
     building: Annotated[int, typer.Option(help="ujiindoorloc: BUILDINGID.")] = 0,
     floor: Annotated[int, typer.Option(help="ujiindoorloc: FLOOR.")] = 0,
     min_detections: Annotated[int, typer.Option(help="ujiindoorloc: keep access points detected at least this often.")] = 20,
-    venue: Annotated[str, typer.Option(help="wifi-rtt: Canteen, 'Conference Room' or Library.")] = "Canteen",
+    data: Annotated[Optional[Path], typer.Option("--data", help="The data set's folder (default: looked up in $RADIOLOC_DATA, the cache, shared/data), e.g. a full copy of the published set.")] = None,
+    venue: Annotated[str, typer.Option(help="wifi-rtt: a venue folder of raw_data/ (Canteen, 'Conference Room', Library here; any venue of the published set with --data).")] = "Canteen",
     circle: Annotated[str, typer.Option(help="wifi-rtt: circle folder of the venue, e.g. 1.")] = "1",
     rss: Annotated[bool, typer.Option("--rss", help="wifi-rtt: also write the RSS rows.")] = False,
     phone_std: Annotated[bool, typer.Option("--phone-std", help="wifi-rtt: write the phone's reported range std as the std column.")] = False,
@@ -91,7 +92,7 @@ def export_dataset(
 
     try:
         ds = get(name)
-        opts: dict = {"fmt": fmt}
+        opts: dict = {"fmt": fmt, "root": data}
         if ds.name == "hanyang-uwb-outdoor":
             opts.update(run=run, epoch_s=epoch_s, tag_height_m=tag_height)
         elif ds.name == "ujiindoorloc":

@@ -762,7 +762,7 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
     out : path
         Output folder.
     venue : str
-        ``Canteen``, ``Conference Room`` or ``Library``.
+        A venue folder of the set's ``raw_data`` (:func:`radioloc.io.wifi_rtt.venues`).
     circle : str or int
         A circle folder of the venue.
     rss : bool
