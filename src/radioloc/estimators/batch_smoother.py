@@ -42,7 +42,7 @@ from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
 from radioloc.estimators.robust_loss import check_loss
-from radioloc.models.measurement import Observation, StateLayout
+from radioloc.models.measurement import Observation, StateLayout, check_motion
 
 __all__ = ["BatchSmoother", "block_tridiagonal_marginals"]
 
@@ -206,7 +206,10 @@ class BatchSmoother(RecursiveEstimator):
         """
         base = self.layout or StateLayout(dim=self.motion.dim,
                                           order=self.motion.state_dim // self.motion.dim - 1)
-        return layout_for(observation_list(observations), base)
+        observations = observation_list(observations)
+        for o in observations:
+            check_motion(o.model, self.motion)
+        return layout_for(observations, base)
 
     # ---- the model of the whole trajectory ----------------------------------------------
     def _transition(self, layout: StateLayout, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

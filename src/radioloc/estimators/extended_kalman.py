@@ -64,7 +64,8 @@ from radioloc.estimators.kalman import (
     rts_smooth,
 )
 from radioloc.estimators.observation_rows import common_steps
-from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
+from radioloc.models.measurement import (Context, MeasurementModel, Observation, StateLayout,
+                                         check_motion)
 
 __all__ = ["ExtendedKalmanFilter", "FilterState", "PRIOR_VARIANCE_LIMIT"]
 
@@ -204,6 +205,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         """
         layout = self.layout
         for i, obs in enumerate(_as_observations(observations)):
+            check_motion(obs.model, self.motion)
             n_anchors = 0
             if "anchor_bias" in obs.model.reads:
                 index = obs.context.index

@@ -56,7 +56,7 @@ from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.observation_rows import common_steps
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.resampling import get_scheme, systematic
-from radioloc.models.measurement import Context, Observation, StateLayout
+from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
 from radioloc.models.motion import InputDriven, MotionModel
 
 __all__ = ["ParticleFilter", "ParticleFilterState", "RunGenerators", "weighted_moments",
@@ -515,6 +515,7 @@ class ParticleFilter(RecursiveEstimator):
                               "StateLayout; give layout=")
         layout = StateLayout(dim=D, order=n // D - 1)
         for o in _as_observations(observations) if observations is not None else []:
+            check_motion(o.model, self.motion)
             idx = o.context.index
             n_anchors = int(idx.max()) + 1 if idx is not None and idx.size else o.context.rows
             layout = layout.with_model(o.model, n_anchors)

@@ -36,7 +36,8 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
-from radioloc.locate.adapter import anchor_positions, node_observations
+from radioloc.core.kinds import model_kinds
+from radioloc.locate.adapter import anchor_positions, node_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (log_models, motion_model, observation_window,
@@ -49,11 +50,11 @@ from radioloc.models.los_nlos import LosNlosRange
 __all__ = ["smooth_log", "OPTIONS"]
 
 #: The ``-o`` options of ``locate --method smoother``.
-OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
-                                       "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m",
-                                       "heading_std_rad", "clock_offset_std_m_per_sqrt_s",
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m",
+                                       "clock_offset_std_m_per_sqrt_s",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
+OPTIONS.update(sigma_options())
 OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
                                            "min_los_std_m")})
 OPTIONS.update({
@@ -72,8 +73,7 @@ OPTIONS.update({
 @locate_method("smoother", "Batch MAP smoother of each node's whole track from its measurements "
                            "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
                            "max-mixture of the ranges by EM on the log, or a robust loss)",
-               options=OPTIONS, kinds=("range", "tdoa", "aoa", "aoa_elevation", "pseudorange",
-                                       "rss", "heading"), inputs=("anchors",))
+               options=OPTIONS, kinds=tuple(model_kinds()) + ("rss",), inputs=("anchors",))
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a log (module docstring).
 
