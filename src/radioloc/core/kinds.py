@@ -274,10 +274,10 @@ def markdown_table() -> str:
         A Markdown table, one row per kind.
     """
     rows = ["| kind | unit | a row measures | sigma option (default) | state read | "
-            "anchor columns |", "|---|---|---|---|---|---|"]
+            "anchor columns | declared by |", "|---|---|---|---|---|---|---|"]
     for k in kinds().values():
         sigma = f"`{k.sigma_option}` ({k.sigma_default:g})" if k.sigma_option else ""
         cols = ", ".join(f"`{c}`" for c in k.anchor_columns)
         rows.append(f"| `{k.name}` | {k.unit} | {k.meaning} | {sigma} | "
-                    f"{', '.join(k.reads)} | {cols} |")
+                    f"{', '.join(k.reads)} | {cols} | `{k.source}` |")
     return "\n".join(rows) + "\n"
