@@ -24,6 +24,7 @@ from radioloc.locate.base import Option
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
 __all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+           "log_observations",
            "anchor_ranges", "default_models", "sigma_options"]
 
 
@@ -217,6 +218,41 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out
+
+
+def log_observations(log: Measurements, anchors: pd.DataFrame,
+                     models: Mapping[str, MeasurementModel], method: str,
+                     height_m: float | None = None) -> list[tuple[str, np.ndarray, list]]:
+    """Every node's observations (:func:`node_observations` of a checked log), for the
+    nodes with at least one step.
+
+    Parameters
+    ----------
+    log : Measurements
+    anchors : DataFrame
+    models : mapping of kind to MeasurementModel
+    method : str
+        For the message.
+    height_m : float, optional
+
+    Returns
+    -------
+    list of (node, times (T,), observations)
+
+    Raises
+    ------
+    GeometryError
+        No node has a measurement to an anchor.
+    """
+    out = []
+    for node, rows in log.by_node().items():
+        times, obs = node_observations(rows, anchors, node, models, height_m=height_m,
+                                       checked=True)
+        if times.size:
+            out.append((node, times, obs))
+    if not out:
+        raise GeometryError(f"method {method}: no measurement to an anchor in the measurements")
+    return out
 
 
 def anchor_ranges(measurements: Measurements, anchors: pd.DataFrame, method: str

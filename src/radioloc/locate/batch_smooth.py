@@ -37,7 +37,7 @@ from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
 from radioloc.core.kinds import model_kinds
-from radioloc.locate.adapter import anchor_positions, node_observations, sigma_options
+from radioloc.locate.adapter import anchor_positions, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (log_models, motion_model, observation_window,
@@ -111,11 +111,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
-    for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
-                                       checked=True)
-        if not times.size:
-            continue
+    for node, times, obs in log_observations(log, table, models, "smoother", s["height"]):
         parts = segments(times, s["max_gap_s"])
         los_nlos, bias = None, s["bias"]
         if loss == "max-mixture" and any(o.model.kind == "range" for o in obs):
@@ -142,8 +138,6 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
             tables.append(track_table(node, t, track, restart=seg is not parts[0]))
-    if not tables:
-        raise GeometryError("method smoother: no measurement to an anchor in the measurements")
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),

@@ -74,12 +74,12 @@ from radioloc.core.plausibility import value_checks
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import (anchor_positions, default_models, node_observations,
+from radioloc.locate.adapter import (anchor_positions, default_models, log_observations,
                                      sigma_options)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
-from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
+from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
 from radioloc.locate.slips import likely_slip
@@ -869,14 +869,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
     log, opts, models = log_models(request, meas, table, s, anchor_bias)
-    parts = []
-    for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
-                                        checked=True)
-        if times.size:
-            parts.append((node, times, obs, segments(times, s["max_gap_s"])))
-    if not parts:
-        raise GeometryError("method ekf-track: no measurement to an anchor in the measurements")
+    parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
+             in log_observations(log, table, models, "ekf-track", s["height"])]
     tracks = []   # (node, times, observations, restart, controls) of every track
     for node, times, obs, segs in parts:
         for n, seg in enumerate(segs):

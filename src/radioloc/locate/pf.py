@@ -116,7 +116,7 @@ from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.particle_filter import ParticleFilter, RunGenerators
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import anchor_positions, anchor_ranges, node_observations, sigma_options
+from radioloc.locate.adapter import anchor_positions, anchor_ranges, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.progress import progress
 from radioloc.locate.ekf_track import (
@@ -485,11 +485,7 @@ def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFra
         noise, fitted = node_models(request, anchors, anchor_ranges(ranges, table, "pf"), s)
     seed, particles = request.option("seed", 0, int), request.option("particles", 900, int)
     tables, counts = [], {}
-    for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
-                                       checked=True)
-        if not times.size:
-            continue
+    for node, times, obs in log_observations(log, table, models, "pf", s["height"]):
         if node in noise:
             los_nlos, bias = noise[node]
             obs = [dataclasses.replace(o, model=RangeModel(noise=los_nlos), z=o.z - bias)
