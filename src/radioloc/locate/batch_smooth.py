@@ -14,8 +14,8 @@ floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` 
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
 Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
-receiver clock offset is a random walk of intensity ``clock_offset_std_m_per_sqrt_s^2``
-(no drift state). The max-mixture carries a
+receiver clock's offset and drift (:func:`radioloc.models.clock.drifting`) are random walks
+of intensity ``clock_offset_std_m_per_sqrt_s^2``. The max-mixture carries a
 null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
 too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
 ``-o null_weight=0`` removes it). 3-D anchors with
@@ -131,8 +131,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
         for seg in parts:
             t, ob = times[seg], [observation_window(o, seg) for o in obs]
             try:
-                mean, var = _on_layout(smoother.state_layout(ob), ekf.state_layout(ob),
-                                       *track_prior(ekf, t, ob, anchors, s0))
+                mean, var = track_prior(ekf, t, ob, anchors, s0)   # the same state layout
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
@@ -167,16 +166,3 @@ def _range_noise(request: LocateRequest, obs: list, times: np.ndarray, anchors: 
     if "range_bias_m" in request.options:
         bias = s["bias"]
     return los_nlos, bias
-
-
-def _on_layout(layout, source, mean: np.ndarray, var: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """A prior over the state ``source`` (the trackers' start) carried onto ``layout``
-    (the smoother's), component by component (the smoother's clock has an offset and no
-    drift)."""
-    m, v = np.zeros(layout.size), np.ones(layout.size)
-    have = source.slices
-    for name, sl in layout.slices.items():
-        src = have[name]
-        m[sl], v[sl] = mean[src][:sl.stop - sl.start], var[src][:sl.stop - sl.start]
-    return m, v

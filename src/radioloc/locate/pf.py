@@ -447,8 +447,8 @@ def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFra
     by EM on the node's ranges, its range bias removed), each segment started from the
     ``ekf-track`` start (:func:`radioloc.locate.ekf_track.track_prior`) on the trackers'
     state layout, its draws seeded by :func:`segment_seed`; ``smooth=1``: the
-    backward-simulation smoother. Components other than the motion's (a receiver clock)
-    are held between steps.
+    backward-simulation smoother. Components other than the motion's follow the
+    state's transition without noise (a receiver clock's offset integrates its drift).
 
     Parameters
     ----------
