@@ -599,7 +599,8 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
 def _beyond(kind, value: float) -> str:
     """Why ``value`` is refused: beyond its kind's :attr:`~radioloc.core.kinds.Kind.limit`."""
     if kind.unit == "rad":
-        return f"angle {value:g} is beyond 2 pi: {kind.name} is in radians (degrees?)"
+        limit = "2 pi" if np.isclose(kind.limit, 2 * np.pi) else f"{kind.limit:g}"
+        return f"angle {value:g} is beyond {limit}: {kind.name} is in radians (degrees?)"
     return (f"{kind.name} {value:g} {kind.unit} is beyond the limit of {kind.limit:g} "
             f"{kind.unit}")
 
