@@ -185,3 +185,21 @@ def test_a_velocity_model_with_a_random_walk_is_refused_naming_both(estimator):
     message = str(err.value)
     assert "\n" not in message
     assert "HeadingModel (kind heading) reads velocity" in message and "RandomWalk" in message
+
+
+def test_anchor_columns_the_kinds_read_are_read_and_carried_per_row(tmp_path):
+    from radioloc.io.logs import read_anchors
+    from radioloc.models.measurement import Context
+
+    columns = list(dict.fromkeys(c for k in kinds().values() for c in k.anchor_columns))
+    assert columns
+    values = {c: [float(i + 1), ""] for i, c in enumerate(columns)}
+    table = pd.DataFrame({"id": ["A", "B"], "x": [0.0, 5.0], "y": [0.0, 0.0], **values})
+    table.to_csv(tmp_path / "a.csv", index=False)
+    read = read_anchors(tmp_path / "a.csv")
+    for i, c in enumerate(columns):
+        assert read[c].iloc[0] == i + 1 and np.isnan(read[c].iloc[1]), c
+    ctx = Context(points=np.zeros((3, 2)), columns={"vx": [1.0, 2.0, 3.0]})
+    assert ctx.take(np.array([2, 0])).columns["vx"].tolist() == [3.0, 1.0]
+    with pytest.raises(InputError, match=r"columns\['vx'\]: expected 3 values"):
+        Context(points=np.zeros((3, 2)), columns={"vx": [1.0, 2.0]})
