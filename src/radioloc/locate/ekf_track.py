@@ -1,9 +1,10 @@
 """``radioloc locate --method ekf-track``: track each node from its measurements to anchors
 with the generic extended Kalman filter (:class:`radioloc.estimators.ExtendedKalmanFilter`).
 
-Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: ranges, time
-differences, angles of arrival, pseudoranges; :func:`radioloc.locate.adapter.default_models`
-picks the model of each; RSS with a log-distance model per anchor from the anchors file,
+Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: every kind
+:mod:`radioloc.core.kinds` declares, ranges, time differences, angles of arrival,
+pseudoranges, ...; :func:`radioloc.locate.adapter.default_models` builds the
+model each declares; RSS with a log-distance model per anchor from the anchors file,
 :mod:`radioloc.locate.path_loss`), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
 (WiFi RTT offsets, antenna delays), learnt online from a common offset fitted at the start.
 Measurements are processed as they arrive: the rows of a node that share one time stamp are
@@ -732,8 +733,8 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
 
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
-                            "to anchors as they arrive: ranges (optionally with a bias per "
-                            "anchor), time differences, angles, pseudoranges, RSS (a "
+                            "to anchors as they arrive: every kind with a model (ranges "
+                            "optionally with a bias per anchor), RSS (a "
                             "path-loss model per anchor in the anchors file), ranges between "
                             "nodes with -o cooperative=1 (constant velocity or random walk, "
                             "or driven by odometry rows; RTS smoother with -o smooth=1)",

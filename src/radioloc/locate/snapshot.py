@@ -152,8 +152,8 @@ _LSQ_OPTIONS.update({
 
 
 @locate_method("lsq", "Nonlinear least squares fix of each node at each time from every "
-                      "measurement to anchors (ranges, time differences, angles, "
-                      "pseudoranges) with a robust loss (linear, huber, cauchy, tukey)",
+                      "measurement to anchors (each kind with a model, its sigma option) "
+                      "with a robust loss (linear, huber, cauchy, tukey)",
                options=_LSQ_OPTIONS, kinds=tuple(model_kinds()), inputs=("anchors",),
                moving_anchors=True)
 def locate_lsq(request: LocateRequest) -> pd.DataFrame:
