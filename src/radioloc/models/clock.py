@@ -208,13 +208,16 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
     """
     d = np.asarray(dt, dtype=float)
     n, k = layout.size, layout.motion_size
-    F = np.broadcast_to(np.eye(n), d.shape + (n, n)).copy()
-    Q = np.zeros(d.shape + (n, n))
     if motion is not None:
         Fm, Qm = layout.kinematic(motion.F(d)), layout.kinematic(motion.Q(d))
         if Fm.shape[-1] != k:
             raise InputError(f"motion: its state has {Fm.shape[-1]} entries but the layout's "
                              f"motion part has {k}")
+        if n == k:                                   # the kinematic state alone
+            return Fm, Qm
+    F = np.broadcast_to(np.eye(n), d.shape + (n, n)).copy()
+    Q = np.zeros(d.shape + (n, n))
+    if motion is not None:
         F[..., :k, :k] = Fm
         Q[..., :k, :k] = Qm
     if layout.clock:
