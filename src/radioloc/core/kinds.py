@@ -71,8 +71,8 @@ class Slip:
     kinds: tuple[str, ...] = ()
 
 
-def unit_slips(name: str, unit: str, time_power: int = 0, *, ns: bool = False
-               ) -> tuple[Slip, ...]:
+def unit_slips(name: str, unit: str, time_power: int = 0, *, ns: bool = False,
+               what: str | None = None) -> tuple[Slip, ...]:
     """The unit slips of values in ``unit``: mm and km for a length (and ns for a time of
     flight, ``ns``), degrees for an angle, mm/s and km/h for a speed (a unit with
     ``time_power`` -1).
@@ -86,23 +86,26 @@ def unit_slips(name: str, unit: str, time_power: int = 0, *, ns: bool = False
         The power of seconds in the unit (-1: per second).
     ns : bool
         Whether the values are times of flight that a log may give in nanoseconds.
+    what : str, optional
+        The values in the question (default ``"<name> values"``).
 
     Returns
     -------
     tuple of Slip
     """
+    what = what or f"{name} values"
     if unit == "rad":
-        return (Slip(np.radians, "converted from degrees", f"{name} values in degrees?"),)
+        return (Slip(np.radians, "converted from degrees", f"{what} in degrees?"),)
     if not unit.startswith("m"):
         return ()
     per = "/s" if time_power == -1 else ""
-    out = [Slip(lambda v: v / 1e3, "divided by 1000", f"{name} values in mm{per}?"),
-           Slip(lambda v: v * 1e3, "times 1000", f"{name} values in km{per}?")]
+    out = [Slip(lambda v: v / 1e3, "divided by 1000", f"{what} in mm{per}?"),
+           Slip(lambda v: v * 1e3, "times 1000", f"{what} in km{per}?")]
     if time_power == -1:
-        out.append(Slip(lambda v: v / 3.6, "divided by 3.6", f"{name} values in km/h?"))
+        out.append(Slip(lambda v: v / 3.6, "divided by 3.6", f"{what} in km/h?"))
     if ns:
         out.append(Slip(lambda v: v * SPEED_OF_LIGHT_M_PER_S * 1e-9, "times c (from ns)",
-                        f"{name} values in ns?"))
+                        f"{what} in ns?"))
     return tuple(out)
 
 

@@ -73,4 +73,4 @@ KINDS = (Kind("pseudorange", "m", "range to `peer` plus the receiver's clock off
               sigma_help="pseudorange error standard deviation, m", limit=1e8,
               check="pseudorange_units",
               check_values=lambda z, points, reference, **kw: check_pseudoranges(z, points, **kw),
-              slips=tuple(unit_slips("pseudorange", "m", ns=True)[i] for i in (1, 2, 0))),)
+              slips=tuple(unit_slips("pseudorange", "m", ns=True, what="pseudoranges")[i] for i in (1, 2, 0))),)
