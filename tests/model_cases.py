@@ -456,8 +456,25 @@ def solve(cls, problem: Problem, runs: slice = slice(None)):
     p = problem.take(runs)
     est = make_estimator(cls, p, runs)
     if cls.tags.recursive:
-        return est.run(p.observations, p.time, prior_mean=p.prior_mean, prior_cov=p.prior_cov)
+        mean, cov = p.prior_mean, p.prior_cov
+        grow = getattr(est, "layout_for", None) or getattr(est, "state_layout", None)
+        layout = p.layout if grow is None else grow(p.observations)
+        if layout.clock == 2 and p.layout.clock == 1:
+            mean, cov = with_drift(layout, mean, cov)
+        return est.run(p.observations, p.time, prior_mean=mean, prior_cov=cov)
     return est.locate(p.snapshot())
+
+
+def with_drift(layout: StateLayout, mean: np.ndarray, cov: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """A prior over a state with the clock offset alone, carried onto ``layout``, which also
+    holds the clock's drift (the filters' default: ``radioloc.models.clock.drifting``):
+    the drift starts at 0 m/s, standard deviation 1 m/s."""
+    d = layout.slices["clock_drift"].start
+    mean = np.insert(mean, d, 0.0, axis=-1)
+    cov = np.insert(np.insert(cov, d, 0.0, axis=-1), d, 0.0, axis=-2)
+    cov[..., d, d] = 1.0
+    return mean, cov
 
 
 def final(result) -> np.ndarray:

@@ -245,8 +245,10 @@ def test_clock_offset_is_estimated():
     mean, cov = prior(truth, rng)
     ekf = ExtendedKalmanFilter(ConstantVelocity(0.05), clock_offset_prior_std_m=100.0)
     tr = ekf.run(Observation(model, z, ctx), np.arange(40) * DT, prior_mean=mean, prior_cov=cov)
-    assert ekf.state_layout(Observation(model, z, ctx)).clock == 1
+    # the clock's drift is in the state by default (a constant offset: a drift near 0)
+    assert ekf.state_layout(Observation(model, z, ctx)).clock == 2
     assert np.all(np.abs(tr.diagnostics["state"][:, -1, 4] - offset) < 0.5)
+    assert np.all(np.abs(tr.diagnostics["state"][:, -1, 5]) < 0.1)
     assert rmse(tr.position, truth, 10) < 0.5
 
 

@@ -8,6 +8,7 @@ others (and their heavy dependencies: numba, scipy).
 from __future__ import annotations
 
 import importlib
+import sys
 from typing import Callable, Mapping
 
 
@@ -35,6 +36,7 @@ def lazy_exports(package: str, where: Mapping[str, str]
         return value
 
     def __dir__() -> list[str]:
-        return sorted(set(where) | set(globals()))
+        # the lazy names and what the package module holds now (not this module's globals)
+        return sorted(set(where) | set(vars(sys.modules[package])))
 
     return __getattr__, __dir__

@@ -58,8 +58,9 @@ distance is possible, a log whose rows mostly show one is not). A slip by 1000 (
 outside the anchors (a median ratio above 0.6 in metres); inside, it is left to
 ``ekf-track``'s divergence test (:mod:`radioloc.locate.slips`). Pseudoranges in km, or a tdoa of the wrong
 sign, break no bound: they stay the tracker's to name. The angle bound is
-:data:`ANGLE_BOUND_RAD` (``2 pi``: either convention, ``[-pi, pi]`` or ``[0, 2 pi)``;
-``pi / 2`` for an elevation) times :data:`ANGLE_FACTOR`, on the median magnitude.
+:attr:`~radioloc.core.kinds.Kind.bound` of the kind (``2 pi``: either convention,
+``[-pi, pi]`` or ``[0, 2 pi)``; ``pi / 2`` for an elevation) times :data:`ANGLE_FACTOR`, on the
+median magnitude.
 
 Degenerate anchor sets are refused by every method, static or tracking: a motion prior
 carries a tracker through an epoch that sees too few anchors, but no prior resolves the
@@ -98,20 +99,34 @@ CHECKS = {
     "angle_units": "aoa, aoa_elevation or heading values beyond any angle in radians "
                    "(degrees)",
 }
-#: The checks of one kind's values (:func:`check_values`), by kind.
-VALUE_CHECKS = {"tdoa": "tdoa_units", "pseudorange": "pseudorange_units", "aoa": "angle_units",
-                "aoa_elevation": "angle_units", "heading": "angle_units"}
+
+
+def value_checks() -> dict[str, str]:
+    """The check of one kind's values (:func:`check_values`), by kind: each kind's
+    :attr:`~radioloc.core.kinds.Kind.check` (:func:`radioloc.core.kinds.kinds`)."""
+    from radioloc.core.kinds import kinds
+
+    return {name: k.check for name, k in kinds().items() if k.check}
+
+
+def known_checks() -> dict[str, str]:
+    """:data:`CHECKS` and the checks the kinds declare, by name."""
+    from radioloc.core.kinds import kinds
+
+    extra = {k.check: f"{k.name} values beyond their bound (unit {k.unit})"
+             for k in kinds().values() if k.check and k.check not in CHECKS}
+    return {**CHECKS, **extra}
+
+
 #: Median of ``|difference| / max(d, DIFFERENCE_FLOOR_M)`` (at most 1 for exact tdoa or
 #: pseudorange differences) beyond which the rows are refused.
 DIFFERENCE_FACTOR = 2.0
 #: Anchor distances are floored here in the difference ratio: two anchors closer than the
 #: noise of a difference would make noise look like a unit slip.
 DIFFERENCE_FLOOR_M = 1.0
-#: Largest magnitude of an angle in radians, by kind (either convention of the azimuth,
-#: ``[-pi, pi]`` or ``[0, 2 pi)``).
-ANGLE_BOUND_RAD = {"aoa": 2 * np.pi, "aoa_elevation": np.pi / 2, "heading": 2 * np.pi}
-#: Median angle magnitude, as a multiple of :data:`ANGLE_BOUND_RAD`, beyond which a column
-#: is refused.
+#: Median magnitude, as a multiple of its kind's bound (:attr:`radioloc.core.kinds.Kind.bound`:
+#: ``2 pi`` for an azimuth in either convention, ``[-pi, pi]`` or ``[0, 2 pi)``, ``pi / 2``
+#: for an elevation), beyond which a column is refused.
 ANGLE_FACTOR = 1.25
 #: Median triangle-inequality violation (as a factor) beyond which ranges are refused.
 RANGE_FACTOR = 3.0
@@ -151,11 +166,12 @@ def parse_skip(text: str | None) -> frozenset[str]:
     if text is None:
         return frozenset()
     names = {t.strip().lower() for t in str(text).split(",") if t.strip()}
+    known = known_checks()
     if "all" in names:
-        return frozenset(CHECKS)
-    if bad := names - set(CHECKS):
+        return frozenset(known)
+    if bad := names - set(known):
         raise ConfigError(f"option no_check: unknown check(s) {', '.join(sorted(bad))}; known: "
-                          f"{', '.join(CHECKS)}, all")
+                          f"{', '.join(known)}, all")
     return frozenset(names)
 
 
@@ -673,17 +689,20 @@ def check_pseudoranges(pseudoranges: np.ndarray, points: np.ndarray, *,
 
 def check_angles(values: np.ndarray, kind: str = "aoa", *, skip: Collection[str] = (),
                  where: str | None = None) -> None:
-    """Refuse angles in degrees (check ``angle_units``).
+    """Refuse values beyond their kind's bound (its check, ``angle_units`` for the angles):
+    angles in degrees.
 
-    An angle in radians is within :data:`ANGLE_BOUND_RAD` of its kind (``2 pi``, ``pi / 2``
-    for an elevation); a column whose median magnitude exceeds :data:`ANGLE_FACTOR` times
-    that bound is in degrees (one in a few degrees either way cannot be told).
+    An angle in radians is within the :attr:`~radioloc.core.kinds.Kind.bound` of its kind
+    (``2 pi``, ``pi / 2`` for an elevation); a column whose median magnitude exceeds
+    :data:`ANGLE_FACTOR` times that bound is in degrees (one in a few degrees either way
+    cannot be told).
 
     Parameters
     ----------
     values : ndarray
-        Angles of one kind (NaN: absent).
-    kind : {"aoa", "aoa_elevation", "heading"}
+        Values of one kind (NaN: absent).
+    kind : str
+        A kind with a bound (``aoa``, ``aoa_elevation``, ``heading``).
     skip : collection of str
         Checks to leave out (``angle_units``).
     where : str, optional
@@ -698,27 +717,36 @@ def check_angles(values: np.ndarray, kind: str = "aoa", *, skip: Collection[str]
     InputError
         The median magnitude is beyond the bound.
     """
-    if kind not in ANGLE_BOUND_RAD:
-        raise ConfigError(f"kind: expected one of {', '.join(ANGLE_BOUND_RAD)}, got {kind!r}")
-    if "angle_units" in skip:
+    from radioloc.core.kinds import kinds
+
+    bounded = {n: k for n, k in kinds().items() if k.bound is not None}
+    if kind not in bounded:
+        raise ConfigError(f"kind: expected one of {', '.join(bounded)}, got {kind!r}")
+    declared = bounded[kind]
+    if declared.check in skip:
         return
     v = np.abs(np.asarray(values, dtype=float))
     v = v[np.isfinite(v)]
-    bound = ANGLE_BOUND_RAD[kind]
+    bound = declared.bound
     if not v.size or np.median(v) <= ANGLE_FACTOR * bound:
         return
-    cause = f"{kind} values in degrees?" if v.max() <= 360.0 else f"{kind} values not in radians?"
+    unit = {"rad": "radians"}.get(declared.unit, declared.unit)
+    cause = (f"{kind} values in degrees?" if declared.unit == "rad" and v.max() <= 360.0
+             else f"{kind} values not in {unit}?")
+    limit = {2 * np.pi: "2 pi", np.pi / 2: "pi / 2"}.get(bound, f"{bound:g}")
     raise InputError(f"{where or kind}: {cause} Their median magnitude is "
-                     f"{float(np.median(v)):.3g}, beyond any {kind} in radians (|{kind}| <= "
-                     f"{'pi / 2' if bound < np.pi else '2 pi'}; {int(np.sum(v > bound))} of "
-                     f"{v.size} values beyond it): give radians{_hint('angle_units')}")
+                     f"{float(np.median(v)):.3g}, beyond any {kind} in {unit} (|{kind}| <= "
+                     f"{limit}; {int(np.sum(v > bound))} of "
+                     f"{v.size} values beyond it): give {unit}{_hint(declared.check)}")
 
 
 def check_values(kind: str, values: np.ndarray, points: np.ndarray | None = None,
                  reference: np.ndarray | None = None, *, skip: Collection[str] = (),
                  where: str | None = None) -> None:
-    """The check of one measurement kind's values (:data:`VALUE_CHECKS`): ``tdoa_units``,
-    ``pseudorange_units`` or ``angle_units``; other kinds have none here.
+    """The check of one measurement kind's values, as its declaration
+    (:class:`~radioloc.core.kinds.Kind`) gives it: its ``check_values`` (``tdoa_units``,
+    ``pseudorange_units``: they need the rows' anchors), else the bound of its values
+    (``angle_units``); kinds that declare neither have none here.
 
     Parameters
     ----------
@@ -744,13 +772,17 @@ def check_values(kind: str, values: np.ndarray, points: np.ndarray | None = None
     InputError
         A unit slip, named.
     """
+    from radioloc.core.kinds import kinds
+
+    declared = kinds().get(kind)
+    if declared is None or declared.check is None:
+        return
     where = where or kind
-    if kind in ANGLE_BOUND_RAD:
+    if declared.check_values is not None:
+        if points is not None and (reference is not None or not declared.reference):
+            declared.check_values(values, points, reference, skip=skip, where=where)
+    elif declared.bound is not None:
         check_angles(values, kind, skip=skip, where=where)
-    elif kind == "tdoa" and points is not None and reference is not None:
-        check_tdoa(values, points, reference, skip=skip, where=where)
-    elif kind == "pseudorange" and points is not None:
-        check_pseudoranges(values, points, skip=skip, where=where)
 
 
 def _epoch_matrix(rows: pd.DataFrame, ids: list[str]) -> np.ndarray:
@@ -878,6 +910,8 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
     GeometryError, InputError
         One line naming the likely cause and the option that overrules it.
     """
+    from radioloc.core.kinds import kinds as all_kinds
+
     kinds = set(measurements["kind"].unique()) if kinds is None else set(kinds)
     check_time(measurements, max_gap_s=max_gap_s, skip=skip)
     if "rss" in kinds:
@@ -885,7 +919,7 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
         if len(rss):
             check_rss(rss.to_numpy(), skip=skip, where="measurements")
     kind_of = measurements["kind"]
-    for kind in sorted(kinds & set(ANGLE_BOUND_RAD)):
+    for kind in sorted(kinds & {n for n, k in all_kinds().items() if k.bound is not None}):
         check_angles(measurements.loc[kind_of == kind, "value"].to_numpy(), kind, skip=skip,
                      where="measurements")
     if anchors is None:

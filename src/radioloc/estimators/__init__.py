@@ -58,7 +58,7 @@ _WHERE = {
     "LocalML": "snapshot_baselines",
     "Ransac": "snapshot_baselines",
 }
-_getattr, __dir__ = lazy_exports(__name__, _WHERE)
+_getattr, _dir = lazy_exports(__name__, _WHERE)
 
 #: the estimators over any measurement model (``tags.generic``; ``Observation`` inputs)
 _GENERIC = ("ExtendedKalmanFilter", "ParticleFilter", "LeastSquares", "BatchSmoother")
@@ -77,6 +77,10 @@ def __getattr__(name: str) -> object:
     if name == "ESTIMATORS":
         return tuple(_getattr(n) for n in _ALL)
     return _getattr(name)
+
+
+def __dir__() -> list[str]:
+    return sorted(set(_dir()) | {"ESTIMATORS", "GENERIC_ESTIMATORS"})
 
 
 __all__ = [

@@ -5,9 +5,11 @@
 
 ``||x_0 - m_0||^2_{P_0^-1} + sum_t ||x_{t+1} - F_t x_t||^2_{Q_t^-1} + sum_rows 2 rho(r)``
 
-with ``F_t = F(dt_t)``, ``Q_t = Q(dt_t)`` from the motion model (the state's clock and
-per-anchor bias components, when a model reads them, follow ``F = I`` (the clock offset
-integrating the drift) with a small random walk ``extra_q dt``), and the rows of the
+with ``F_t = F(dt_t)``, ``Q_t = Q(dt_t)`` of the whole state
+(:func:`radioloc.models.clock.transition`, the extended Kalman filter's: the motion model,
+the receiver clock's offset and drift when a model reads the offset, by default, as
+:func:`~radioloc.models.clock.drifting` says, both random walks of intensity ``extra_q``,
+and per-anchor biases, a random walk of intensity ``extra_q``), and the rows of the
 observations under a robust loss or the max-mixture LOS/NLOS loss
 (:mod:`radioloc.estimators.robust_loss`).
 
@@ -42,7 +44,8 @@ from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
 from radioloc.estimators.robust_loss import check_loss
-from radioloc.models.measurement import Observation, StateLayout
+from radioloc.models.clock import ClockModel, drifting, transition
+from radioloc.models.measurement import Observation, StateLayout, check_motion
 
 __all__ = ["BatchSmoother", "block_tridiagonal_marginals"]
 
@@ -206,24 +209,20 @@ class BatchSmoother(RecursiveEstimator):
         """
         base = self.layout or StateLayout(dim=self.motion.dim,
                                           order=self.motion.state_dim // self.motion.dim - 1)
-        return layout_for(observation_list(observations), base)
+        observations = observation_list(observations)
+        for o in observations:
+            check_motion(o.model, self.motion)
+        return drifting(layout_for(observations, base), base)
 
     # ---- the model of the whole trajectory ----------------------------------------------
     def _transition(self, layout: StateLayout, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``F_t``, ``Q_t^-1`` ``(..., T - 1, n, n)`` of the full layout."""
-        n, k = layout.size, layout.motion_size
-        F = np.zeros(dt.shape + (n, n))
-        Q = np.zeros(dt.shape + (n, n))
+        n = layout.size
         if dt.size == 0:                              # one step: no transition
-            return F, Q
-        F[..., :k, :k] = layout.kinematic(self.motion.F(dt))
-        Q[..., :k, :k] = layout.kinematic(self.motion.Q(dt))
-        idx = np.arange(k, n)
-        F[..., idx, idx] = 1.0
-        Q[..., idx, idx] = self.extra_q * dt[..., None]
-        if layout.clock == 2:
-            sl = layout.slices
-            F[..., sl["clock_offset"].start, sl["clock_drift"].start] = dt
+            return np.zeros(dt.shape + (n, n)), np.zeros(dt.shape + (n, n))
+        q = np.sqrt(self.extra_q)
+        F, Q = transition(layout, self.motion, dt,
+                          ClockModel(q, q, terms=layout.clock) if layout.clock else None, q)
         # dt = 0 (two steps at one time): tie the states through a tiny, not a zero, Q
         Q = Q + 1e-9 * np.eye(n)
         return F, np.linalg.inv(symmetrise(Q))

@@ -64,7 +64,9 @@ from radioloc.estimators.kalman import (
     rts_smooth,
 )
 from radioloc.estimators.observation_rows import common_steps
-from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
+from radioloc.models.clock import ClockModel, drifting, transition
+from radioloc.models.measurement import (Context, MeasurementModel, Observation, StateLayout,
+                                         check_motion)
 
 __all__ = ["ExtendedKalmanFilter", "FilterState", "PRIOR_VARIANCE_LIMIT"]
 
@@ -204,6 +206,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         """
         layout = self.layout
         for i, obs in enumerate(_as_observations(observations)):
+            check_motion(obs.model, self.motion)
             n_anchors = 0
             if "anchor_bias" in obs.model.reads:
                 index = obs.context.index
@@ -212,7 +215,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                                      "bias needs the anchor-table row of every measurement")
                 n_anchors = int(index.max()) + 1
             layout = layout.with_model(obs.model, n_anchors)
-        return layout
+        return drifting(layout, self.layout)
 
     def transition(self, layout: StateLayout, dt: float | np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -228,32 +231,10 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         -------
         F, Q : ndarray, shape (..., n, n)
         """
-        dt = np.asarray(dt, dtype=float)
-        Fm, Qm = layout.kinematic(self.motion.F(dt)), layout.kinematic(self.motion.Q(dt))
-        k, n = layout.motion_size, layout.size
-        if n == k:
-            return Fm, Qm
-        shape = np.broadcast_shapes(Fm.shape[:-2], Qm.shape[:-2], dt.shape)
-        F, Q = np.zeros(shape + (n, n)), np.zeros(shape + (n, n))
-        F[..., :k, :k], Q[..., :k, :k] = Fm, Qm
-        sl = layout.slices
-        if "clock_offset" in sl:
-            o = sl["clock_offset"].start
-            qo, qd = self.clock_offset_std_m_per_sqrt_s ** 2, self.clock_drift_std_m_per_s_per_sqrt_s ** 2
-            F[..., o, o] = 1.0
-            Q[..., o, o] = qo * dt
-            if "clock_drift" in sl:
-                d = sl["clock_drift"].start
-                F[..., o, d] = dt
-                F[..., d, d] = 1.0
-                Q[..., o, o] += qd * dt ** 3 / 3.0
-                Q[..., o, d] = Q[..., d, o] = qd * dt ** 2 / 2.0
-                Q[..., d, d] = qd * dt
-        if "anchor_bias" in sl:
-            b = np.arange(sl["anchor_bias"].start, sl["anchor_bias"].stop)
-            F[..., b, b] = 1.0
-            Q[..., b, b] = (self.bias_std_m_per_sqrt_s ** 2 * dt)[..., None]
-        return F, Q
+        clock = None if not layout.clock else ClockModel(
+            self.clock_offset_std_m_per_sqrt_s, self.clock_drift_std_m_per_s_per_sqrt_s,
+            terms=layout.clock)
+        return transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s)
 
     # ---- contract -------------------------------------------------------------------
     def init(self, prior_mean, prior_cov, time: float | np.ndarray = 0.0, *,

@@ -56,7 +56,8 @@ from radioloc.estimators.base import RecursiveEstimator, Tags
 from radioloc.estimators.observation_rows import common_steps
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.estimators.resampling import get_scheme, systematic
-from radioloc.models.measurement import Context, Observation, StateLayout
+from radioloc.models.clock import ClockModel, transition
+from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
 from radioloc.models.motion import InputDriven, MotionModel
 
 __all__ = ["ParticleFilter", "ParticleFilterState", "RunGenerators", "weighted_moments",
@@ -419,7 +420,8 @@ class ParticleFilter(RecursiveEstimator):
     motion : motion model
         ``sample`` (or ``F``/``Q``), ``predict``, ``dim``, ``state_dim``
         (:mod:`radioloc.models.motion`): moves the kinematic part of the state; further
-        components (clock, anchor biases) are held between steps.
+        components follow :func:`radioloc.models.clock.transition` without noise (a clock
+        offset integrates its drift; the drift and anchor biases are held).
     n_particles : int
         Particles per run, K.
     resample : callable or str
@@ -515,6 +517,7 @@ class ParticleFilter(RecursiveEstimator):
                               "StateLayout; give layout=")
         layout = StateLayout(dim=D, order=n // D - 1)
         for o in _as_observations(observations) if observations is not None else []:
+            check_motion(o.model, self.motion)
             idx = o.context.index
             n_anchors = int(idx.max()) + 1 if idx is not None and idx.size else o.context.rows
             layout = layout.with_model(o.model, n_anchors)
@@ -610,8 +613,12 @@ class ParticleFilter(RecursiveEstimator):
         rng = state.rng.copy()
         ns = self.motion.state_dim
         x = state.particles.copy()
-        # predict (Algorithm 2, line 3): the kinematic part moves, the rest is held
+        # predict (Algorithm 2, line 3): the kinematic part moves; the rest follows the
+        # state's transition without noise (a clock offset integrates its drift)
         x[..., :ns] = sample_motion(self.motion, x[..., :ns], dt, rng, control)
+        if layout.clock == 2:
+            F, _ = transition(layout, None, dt, ClockModel(0.0, 0.0, terms=2))
+            x[..., ns:] = x[..., ns:] @ F[ns:, ns:].T
         x_pred = x
         log_w = state.log_weights
         modes, seen = list(state.modes), list(state.seen)

@@ -8,16 +8,13 @@ column      meaning
 ``time``    time stamp in seconds (number); rows with equal time form one epoch
 ``node``    id of the node that measured (text)
 ``peer``    id of the other end: an anchor id or another node's id (text)
-``kind``    ``range`` (metres), ``rss`` (dBm), ``tdoa`` (range difference to ``peer``
-            minus to ``reference``, metres), ``aoa`` (bearing from ``peer`` to the
-            node, radians, counter-clockwise from +x), ``aoa_elevation`` (its
-            elevation, radians), ``pseudorange`` (metres, with the node's clock
-            offset), or ``odometry_dx`` / ``odometry_dy`` (the node's displacement
-            along +x / +y of the anchors' frame since its previous odometry row,
-            metres; the two come in pairs with the same time; ``peer`` names the
-            sensor, any id), or ``heading`` (the direction of the node's motion, e.g. a
-            phone's compass azimuth, radians, counter-clockwise from +x of the
-            anchors' frame; ``peer`` names the sensor, any id)
+``kind``    one of the kinds of :func:`radioloc.core.kinds.kinds` (their units and
+            meanings: the kinds table of the docs): ``range`` (metres), ``rss``
+            (dBm), ``tdoa`` (range to ``peer`` minus to ``reference``, metres), ``aoa``,
+            ``aoa_elevation``, ``heading`` (radians), ``pseudorange`` (metres),
+            ``odometry_dx`` / ``odometry_dy`` (the node's displacement, metres, in pairs
+            with the same time; ``peer`` names the sensor), and any kind another package
+            declares
 ``value``   the measured value (number; a range must be >= 0, or above -6 times the
             row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
@@ -57,6 +54,7 @@ import pandas as pd
 
 from radioloc.core.atomic import atomic_write_with, check_output_file
 from radioloc.core.errors import InputError
+from radioloc.core.kinds import kinds
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
@@ -65,19 +63,15 @@ MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss
 #: exponent, residual standard deviation (dB).
 ANCHOR_RSS_COLUMNS = ("rss_a_dbm", "rss_n", "rss_std_db")
-#: Kinds a node measures of itself (their ``peer`` names the sensor, any id).
-SELF_KINDS = MOTION_KINDS + ("heading",)
-KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + SELF_KINDS
 
-#: Plausibility limits of the input values (refused beyond, naming line and column).
+#: Plausibility limits of the input values (refused beyond, naming line and column); a
+#: kind's values have their kind's limit (:attr:`radioloc.core.kinds.Kind.limit`).
 LIMITS = {
     "range_m": 1e7,          # 10,000 km: beyond any terrestrial link
-    "pseudorange_m": 1e8,    # beyond any GNSS orbit plus a clock offset of ~0.2 s
     "coordinate_m": 1e7,     # |x|, |y|, |z| of an anchor (UTM northings and ECEF fit)
     "rss_max_dbm": 30.0,     # 1 W received
     "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
     "time_s": 1e12,          # ~31,700 years; epoch milliseconds are 1.7e12
-    "odometry_m": 1e4,       # one odometry row's displacement (a car at 100 m/s for 100 s)
 }
 RSS_NOT_DETECTED_DBM = 100.0
 
@@ -433,9 +427,10 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         Columns ``id`` (str), ``x``, ``y`` and ``z`` if present, and ``line``; and, when the
         file has them, ``std_m`` (prior standard deviation of a rough anchor, NaN: surveyed)
         and ``bias_m`` (a range bias that ``locate`` subtracts, written by ``radioloc
-        calibrate``), and the per-anchor RSS model ``rss_a_dbm, rss_n, rss_std_db``
-        (:data:`ANCHOR_RSS_COLUMNS`, written by
-        :func:`radioloc.locate.path_loss.fit_path_loss`). With a ``time`` column (seconds, on the measurements' clock) an anchor
+        calibrate``), and the columns the kinds' models read
+        (:attr:`radioloc.core.kinds.Kind.anchor_columns`: the per-anchor RSS model
+        ``rss_a_dbm, rss_n, rss_std_db``, written by
+        :func:`radioloc.locate.path_loss.fit_path_loss`), numbers (empty: NaN). With a ``time`` column (seconds, on the measurements' clock) an anchor
         may move: each of its rows is its position at that time (rows sorted by time
         within an anchor; :func:`radioloc.locate.adapter.anchor_points` interpolates
         between them); an empty time marks a fixed anchor (one row).
@@ -459,7 +454,8 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
-    for c in ANCHOR_RSS_COLUMNS:                     # a per-anchor RSS path-loss model
+    columns = dict.fromkeys(c for k in kinds().values() for c in k.anchor_columns)
+    for c in columns:                                # read by a kind's model (RSS path loss)
         if c in frame.columns:
             out[c] = _optional_number(frame, c, path)
     if "bias_std_m" in frame.columns:                # its standard deviation (calibrate)
@@ -540,8 +536,9 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     def fail(i: int, message: str) -> None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}, {message}")
 
-    if (i := _first(~out["kind"].isin(KINDS))) is not None:
-        fail(i, f"column 'kind': {frame['kind'].iloc[i]!r} is not one of {', '.join(KINDS)}")
+    declared = kinds()
+    if (i := _first(~out["kind"].isin(declared))) is not None:
+        fail(i, f"column 'kind': {frame['kind'].iloc[i]!r} is not one of {', '.join(declared)}")
     _check_magnitude(frame, out["time"], "time", LIMITS["time_s"], "s", path)
     if not_detected is not None:
         if not np.isfinite(not_detected):
@@ -565,9 +562,9 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if np.any(noisy := is_range & (value < 0)):       # accepted: a noisy short range, read as 0
         out.loc[noisy, "value"] = 0.0
         value = out["value"].to_numpy()
-    if (i := _first(is_range & (value > LIMITS["range_m"]))) is not None:
-        fail(i, f"column 'value': range {value[i]:g} m is beyond the limit of "
-                f"{LIMITS['range_m']:g} m")
+    limit = out["kind"].map({n: k.limit for n, k in declared.items()}).to_numpy(dtype=float)
+    if (i := _first(np.abs(value) > limit)) is not None:       # NaN: a kind without a limit
+        fail(i, f"column 'value': {_beyond(declared[out['kind'].iloc[i]], value[i])}")
     if (i := _first(is_rss & (value > LIMITS["rss_max_dbm"]))) is not None:
         sentinel = (" (+100 dBm is the 'not detected' marker of WiFi fingerprint data sets: "
                     "drop those rows or read them with -o not_detected=100)"
@@ -577,25 +574,14 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_rss & (value < LIMITS["rss_min_dbm"]))) is not None:
         fail(i, f"column 'value': rss {value[i]:g} dBm is below the plausible minimum of "
                 f"{LIMITS['rss_min_dbm']:g} dBm")
-    is_aoa = out["kind"].isin(("aoa", "aoa_elevation", "heading")).to_numpy()
-    if (i := _first(is_aoa & (np.abs(value) > 2 * np.pi))) is not None:
-        fail(i, f"column 'value': angle {value[i]:g} is beyond 2 pi: {out['kind'].iloc[i]} is in "
-                "radians (degrees?)")
-    is_pseudo = (out["kind"] == "pseudorange").to_numpy()
-    if (i := _first(is_pseudo & (np.abs(value) > LIMITS["pseudorange_m"]))) is not None:
-        fail(i, f"column 'value': pseudorange {value[i]:g} m is beyond the limit of "
-                f"{LIMITS['pseudorange_m']:g} m")
-    is_tdoa = (out["kind"] == "tdoa").to_numpy()
     ref = out["reference"] if "reference" in out.columns else pd.Series([""] * len(out))
-    if (i := _first(is_tdoa & (ref == "").to_numpy())) is not None:
-        fail(i, "column 'reference': a tdoa row needs its reference anchor")
-    if (i := _first(is_tdoa & (np.abs(value) > LIMITS["range_m"]))) is not None:
-        fail(i, f"column 'value': range difference {value[i]:g} m is beyond the limit of "
-                f"{LIMITS['range_m']:g} m")
+    needs = out["kind"].isin([n for n, k in declared.items() if k.reference]).to_numpy()
+    if (i := _first(needs & (ref == "").to_numpy())) is not None:
+        fail(i, f"column 'reference': a {out['kind'].iloc[i]} row needs its reference anchor")
     is_motion = out["kind"].isin(MOTION_KINDS).to_numpy()
     if is_motion.any():
         _check_odometry(out, is_motion, fail)
-    is_motion = out["kind"].isin(SELF_KINDS).to_numpy()
+    is_motion = out["kind"].isin([n for n, k in declared.items() if k.self_measured]).to_numpy()
     if (i := _first((out["node"] == out["peer"]).to_numpy() & ~is_motion)) is not None:
         raise InputError(f"{path}: line {int(out['line'].iloc[i])}: node {out['node'].iloc[i]!r}"
                          " measured itself")
@@ -610,13 +596,17 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     return out
 
 
+def _beyond(kind, value: float) -> str:
+    """Why ``value`` is refused: beyond its kind's :attr:`~radioloc.core.kinds.Kind.limit`."""
+    if kind.unit == "rad":
+        limit = "2 pi" if np.isclose(kind.limit, 2 * np.pi) else f"{kind.limit:g}"
+        return f"angle {value:g} is beyond {limit}: {kind.name} is in radians (degrees?)"
+    return (f"{kind.name} {value:g} {kind.unit} is beyond the limit of {kind.limit:g} "
+            f"{kind.unit}")
+
+
 def _check_odometry(out: pd.DataFrame, is_motion: np.ndarray, fail) -> None:
-    """Odometry rows: a displacement within :data:`LIMITS`, ``dx`` and ``dy`` in pairs (one of
-    each per node and time)."""
-    value = out["value"].to_numpy()
-    if (i := _first(is_motion & (np.abs(value) > LIMITS["odometry_m"]))) is not None:
-        fail(i, f"column 'value': odometry displacement {value[i]:g} m is beyond the limit of "
-                f"{LIMITS['odometry_m']:g} m for one row")
+    """Odometry rows: ``dx`` and ``dy`` in pairs (one of each per node and time)."""
     rows = out[is_motion]
     twice = rows.duplicated(["time", "node", "kind"])
     if twice.any():

@@ -16,27 +16,27 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.plausibility import VALUE_CHECKS
+from radioloc.core.kinds import kinds as declared_kinds
+from radioloc.core.kinds import model_kinds
+from radioloc.core.plausibility import value_checks
 from radioloc.io.measurements import Measurements
+from radioloc.locate.base import Option
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
-           "anchor_ranges", "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
+__all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+           "log_observations",
+           "anchor_ranges", "default_models", "sigma_options"]
 
-#: The measurement kinds the generic estimators read, and the option naming each one's sigma.
-MODEL_KINDS = {
-    "range": "range_std_m",
-    "tdoa": "tdoa_std_m",
-    "aoa": "aoa_std_rad",
-    "aoa_elevation": "aoa_std_rad",
-    "pseudorange": "pseudorange_std_m",
-    "heading": "heading_std_rad",
-}
-#: The sigma of each kind when its option is not given (:func:`default_models`).
-DEFAULT_SIGMAS = {"range": 0.3, "tdoa": 0.3, "aoa": 0.05, "aoa_elevation": 0.05,
-                  "pseudorange": 5.0, "heading": 0.3}
-#: Kinds a node measures of itself (no anchor: ``peer`` names the sensor).
-SELF_MODEL_KINDS = ("heading",)
+
+def sigma_options() -> dict[str, Option]:
+    """The ``-o`` option of each kind's sigma (:attr:`radioloc.core.kinds.Kind.sigma_option`),
+    by option name, for the methods that read the kinds' models."""
+    out = {}
+    for k in model_kinds().values():
+        out.setdefault(k.sigma_option, Option(
+            f"{k.sigma_help or k.name + ' error standard deviation, ' + k.unit} (default "
+            f"{k.sigma_default:g})", float, min=0, min_exclusive=True, max=k.sigma_max))
+    return out
 
 
 def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:
@@ -102,10 +102,11 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     Parameters
     ----------
     kinds : iterable of str
-        Kinds present in the log (others are ignored here; the method refuses them).
+        Kinds present in the log (kinds without a model of their own are left out here;
+        the method refuses them or builds their model).
     options : mapping
-        Sigmas by the names of :data:`MODEL_KINDS` (``range_std_m`` ...); defaults
-        :data:`DEFAULT_SIGMAS`.
+        Sigmas by the kinds' option names (:func:`sigma_options`: ``range_std_m`` ...);
+        default each kind's :attr:`~radioloc.core.kinds.Kind.sigma_default`.
     anchor_bias : bool
         Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
     range_noise : range-error model, optional
@@ -115,29 +116,21 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     -------
     dict of str to MeasurementModel
     """
-    from radioloc.models.bearing import BearingModel
-    from radioloc.models.heading import HeadingModel
-    from radioloc.models.pseudorange import PseudorangeModel
     from radioloc.models.ranging import RangeModel
-    from radioloc.models.tdoa import TdoaModel
 
-    def sigma(kind):
-        return float(options.get(MODEL_KINDS[kind], DEFAULT_SIGMAS[kind]))
-
+    declared = model_kinds()
     out: dict[str, MeasurementModel] = {}
     for kind in kinds:
-        if kind == "range":
-            out[kind] = (RangeModel(noise=range_noise, anchor_bias=anchor_bias) if range_noise is not None
-                         else RangeModel(std_m=sigma(kind), anchor_bias=anchor_bias))
-        elif kind == "tdoa":
-            out[kind] = TdoaModel(std_m=sigma(kind))
-        elif kind in ("aoa", "aoa_elevation"):
-            out[kind] = BearingModel(std_rad=sigma(kind),
-                                     component="azimuth" if kind == "aoa" else "elevation")
-        elif kind == "pseudorange":
-            out[kind] = PseudorangeModel(std_m=sigma(kind))
-        elif kind == "heading":
-            out[kind] = HeadingModel(std_rad=sigma(kind))
+        if kind not in declared:
+            continue
+        k = declared[kind]
+        sigma = float(options.get(k.sigma_option, k.sigma_default))
+        if kind == "range" and (anchor_bias or range_noise is not None):
+            out[kind] = (RangeModel(noise=range_noise, anchor_bias=anchor_bias)
+                         if range_noise is not None
+                         else RangeModel(std_m=sigma, anchor_bias=anchor_bias))
+        else:
+            out[kind] = k.build(sigma)
     return out
 
 
@@ -170,8 +163,11 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ``z`` of shape ``(T, S)``; NaN where a slot has no measurement at a step.
 
     Rows whose peer is another node (cooperative ranges) are left out: they are for the
-    network methods. Rows of :data:`SELF_MODEL_KINDS` (a heading) have no anchor: one slot
-    per sensor, points at the origin, index -1. With moving anchors (:func:`moving_anchors`) the context's points
+    network methods. Rows of a kind a node measures of itself
+    (:attr:`~radioloc.core.kinds.Kind.self_measured`: a heading) have no anchor: one slot
+    per sensor, points at the origin, index -1. The anchor-file columns a kind's model reads
+    (:attr:`~radioloc.core.kinds.Kind.anchor_columns`) that the anchors table has are each
+    row's anchor's values in the context's ``columns``. With moving anchors (:func:`moving_anchors`) the context's points
     are ``(T, S, D)``: each anchor where it was at each step (:func:`anchor_points`).
 
     Raises
@@ -180,18 +176,20 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         A reference that is not an anchor (naming it, the node and the kind).
     """
     moving = moving_anchors(anchors)
-    no_check = frozenset(VALUE_CHECKS.values()) if checked else frozenset()
+    no_check = frozenset(value_checks().values()) if checked else frozenset()
+    declared = declared_kinds()
+    own = [n for n, k in declared.items() if k.self_measured]
     ids = list(dict.fromkeys(anchors["id"]))
     points = None if moving else anchor_positions(anchors)
     index = {a: i for i, a in enumerate(ids)}
     sel = measurements.select(kind=list(models), node=node)
     sel = Measurements(sel.frame[sel.frame["peer"].isin(index)
-                                 | sel.frame["kind"].isin(SELF_MODEL_KINDS)])
+                                 | sel.frame["kind"].isin(own)])
     time = sel.times(node)
     out = []
     for kind in sel.kinds:
         grid = sel.grid(kind, node, times=time)
-        if kind in SELF_MODEL_KINDS:
+        if kind in own:
             ctx = Context(points=np.zeros((len(grid.peers), 2 + ("z" in anchors.columns))),
                           index=np.full(len(grid.peers), -1))
             out.append(Observation(models[kind], grid.value, ctx,
@@ -205,18 +203,56 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
                                  "anchor (this method locates from anchors only)")
         peer_idx = np.array([index[p] for p in grid.peers], dtype=int)
         ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
-                   if kind == "tdoa" else None)
+                   if declared[kind].reference else None)
         if moving:
             pts = anchor_points(anchors, grid.peers, time)
             ref = None if ref_idx is None else anchor_points(anchors, grid.references, time)
         else:
             pts = points[peer_idx]
             ref = None if ref_idx is None else points[ref_idx]
-        ctx = Context(points=pts, index=peer_idx, reference=ref,
-                      reference_index=ref_idx, height_m=height_m)
+        first = anchors.drop_duplicates("id")
+        columns = {c: first[c].to_numpy(dtype=float)[peer_idx]
+                   for c in declared[kind].anchor_columns if c in first.columns}
+        ctx = Context(points=pts, index=peer_idx, reference=ref, reference_index=ref_idx,
+                      height_m=height_m, columns=columns or None)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out
+
+
+def log_observations(log: Measurements, anchors: pd.DataFrame,
+                     models: Mapping[str, MeasurementModel], method: str,
+                     height_m: float | None = None) -> list[tuple[str, np.ndarray, list]]:
+    """Every node's observations (:func:`node_observations` of a checked log), for the
+    nodes with at least one step.
+
+    Parameters
+    ----------
+    log : Measurements
+    anchors : DataFrame
+    models : mapping of kind to MeasurementModel
+    method : str
+        For the message.
+    height_m : float, optional
+
+    Returns
+    -------
+    list of (node, times (T,), observations)
+
+    Raises
+    ------
+    GeometryError
+        No node has a measurement to an anchor.
+    """
+    out = []
+    for node, rows in log.by_node().items():
+        times, obs = node_observations(rows, anchors, node, models, height_m=height_m,
+                                       checked=True)
+        if times.size:
+            out.append((node, times, obs))
+    if not out:
+        raise GeometryError(f"method {method}: no measurement to an anchor in the measurements")
+    return out
 
 
 def anchor_ranges(measurements: Measurements, anchors: pd.DataFrame, method: str

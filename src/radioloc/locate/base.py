@@ -270,9 +270,9 @@ def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option
     if inputs is not None and (bad := set(inputs) - set(INPUTS)):
         raise ValueError(f"locate_method {name}: unknown input(s) {sorted(bad)}; known {INPUTS}")
     if kinds is not None:
-        from radioloc.io.logs import KINDS
+        from radioloc.core.kinds import kinds as declared
 
-        if bad := set(kinds) - set(KINDS):
+        if bad := set(kinds) - set(declared()):
             raise ValueError(f"locate_method {name}: unknown kind(s) {sorted(bad)}")
     decl = None if options is None else {
         k: v if isinstance(v, Option) else Option(help=str(v), type=str)

@@ -14,8 +14,8 @@ floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` 
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
 Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
-receiver clock offset is a random walk of intensity ``clock_offset_std_m_per_sqrt_s^2``
-(no drift state). The max-mixture carries a
+receiver clock's offset and drift (:func:`radioloc.models.clock.drifting`) are random walks
+of intensity ``clock_offset_std_m_per_sqrt_s^2``. The max-mixture carries a
 null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
 too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
 ``-o null_weight=0`` removes it). 3-D anchors with
@@ -36,7 +36,8 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
-from radioloc.locate.adapter import anchor_positions, node_observations
+from radioloc.core.kinds import model_kinds
+from radioloc.locate.adapter import anchor_positions, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (log_models, motion_model, observation_window,
@@ -49,11 +50,11 @@ from radioloc.models.los_nlos import LosNlosRange
 __all__ = ["smooth_log", "OPTIONS"]
 
 #: The ``-o`` options of ``locate --method smoother``.
-OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
-                                       "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m",
-                                       "heading_std_rad", "clock_offset_std_m_per_sqrt_s",
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m",
+                                       "clock_offset_std_m_per_sqrt_s",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
+OPTIONS.update(sigma_options())
 OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
                                            "min_los_std_m")})
 OPTIONS.update({
@@ -72,8 +73,7 @@ OPTIONS.update({
 @locate_method("smoother", "Batch MAP smoother of each node's whole track from its measurements "
                            "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
                            "max-mixture of the ranges by EM on the log, or a robust loss)",
-               options=OPTIONS, kinds=("range", "tdoa", "aoa", "aoa_elevation", "pseudorange",
-                                       "rss", "heading"), inputs=("anchors",))
+               options=OPTIONS, kinds=tuple(model_kinds()) + ("rss",), inputs=("anchors",))
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a log (module docstring).
 
@@ -111,11 +111,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
-    for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
-                                       checked=True)
-        if not times.size:
-            continue
+    for node, times, obs in log_observations(log, table, models, "smoother", s["height"]):
         parts = segments(times, s["max_gap_s"])
         los_nlos, bias = None, s["bias"]
         if loss == "max-mixture" and any(o.model.kind == "range" for o in obs):
@@ -135,15 +131,12 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
         for seg in parts:
             t, ob = times[seg], [observation_window(o, seg) for o in obs]
             try:
-                mean, var = _on_layout(smoother.state_layout(ob), ekf.state_layout(ob),
-                                       *track_prior(ekf, t, ob, anchors, s0))
+                mean, var = track_prior(ekf, t, ob, anchors, s0)   # the same state layout
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
             tables.append(track_table(node, t, track, restart=seg is not parts[0]))
-    if not tables:
-        raise GeometryError("method smoother: no measurement to an anchor in the measurements")
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
@@ -173,16 +166,3 @@ def _range_noise(request: LocateRequest, obs: list, times: np.ndarray, anchors: 
     if "range_bias_m" in request.options:
         bias = s["bias"]
     return los_nlos, bias
-
-
-def _on_layout(layout, source, mean: np.ndarray, var: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """A prior over the state ``source`` (the trackers' start) carried onto ``layout``
-    (the smoother's), component by component (the smoother's clock has an offset and no
-    drift)."""
-    m, v = np.zeros(layout.size), np.ones(layout.size)
-    have = source.slices
-    for name, sl in layout.slices.items():
-        src = have[name]
-        m[sl], v[sl] = mean[src][:sl.stop - sl.start], var[src][:sl.stop - sl.start]
-    return m, v

@@ -1,9 +1,10 @@
 """``radioloc locate --method ekf-track``: track each node from its measurements to anchors
 with the generic extended Kalman filter (:class:`radioloc.estimators.ExtendedKalmanFilter`).
 
-Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: ranges, time
-differences, angles of arrival, pseudoranges; :func:`radioloc.locate.adapter.default_models`
-picks the model of each; RSS with a log-distance model per anchor from the anchors file,
+Every kind the filter has a model for is used (:data:`TRACKER_KINDS`: every kind
+:mod:`radioloc.core.kinds` declares, ranges, time differences, angles of arrival,
+pseudoranges, ...; :func:`radioloc.locate.adapter.default_models` builds the
+model each declares; RSS with a log-distance model per anchor from the anchors file,
 :mod:`radioloc.locate.path_loss`), and ``-o anchor_bias=1`` adds a range bias per anchor to the state
 (WiFi RTT offsets, antenna delays), learnt online from a common offset fitted at the start.
 Measurements are processed as they arrive: the rows of a node that share one time stamp are
@@ -20,7 +21,7 @@ while refusing more than ``GATED_FRACTION`` of its measurements or with some win
 the band (a tag far from a compact anchor cluster, with consistent innovations, is not
 flagged), is reported by one warning naming the noise options (a stated noise too small for the log
 makes the filter refuse the measurements and coast on its motion model). When the values of
-one kind, mapped back from a known slip (:data:`radioloc.locate.slips.SLIPS`: tdoa or aoa
+one kind, mapped back from a known slip (:func:`radioloc.locate.slips.slips`: tdoa or aoa
 of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
 consistent, the log is refused instead, by an error naming the kind and the slip. A unit
 slip (a map that scales the values) is named only when the log does not fit with every
@@ -68,26 +69,29 @@ import pandas as pd
 from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError, RadiolocError
-from radioloc.core.plausibility import VALUE_CHECKS
+from radioloc.core.kinds import kinds as declared_kinds
+from radioloc.core.kinds import model_kinds
+from radioloc.core.plausibility import value_checks
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, anchor_positions, default_models,
-                                     node_observations)
+from radioloc.locate.adapter import (anchor_positions, default_models, log_observations,
+                                     sigma_options)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
-from radioloc.locate.odometry import (MOTION_KINDS, ODOMETRY_OPTIONS, ODOMETRY_STD_M,
+from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
-from radioloc.models.measurement import Context, Observation, StateLayout
+from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
-#: The measurement kinds the trackers read (odometry: the control input of the motion).
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", "heading") + MOTION_KINDS
+#: The measurement kinds the trackers read: every declared kind (:mod:`radioloc.core.kinds`;
+#: rss with a path-loss model per anchor, odometry as the control input of the motion).
+TRACKER_KINDS = tuple(declared_kinds())
 
 #: Range sigma of the trackers when ``range_std_m`` is not given, m.
 RANGE_STD_M = 0.15
@@ -215,8 +219,6 @@ OPTIONS = {
                      "walk", str, choices=("cv", "rw")),
     "q": Option("process noise: acceleration spectral density m^2/s^3 (cv, default 1) or "
                 "diffusion m^2/s (rw, default 1)", float, min=0, max=1e6),
-    "range_std_m": Option("range error standard deviation, m (default 0.15)", float, min=0,
-                          min_exclusive=True, max=1e6),
     "range_bias_m": Option("constant offset of every range (antenna delay), m; subtracted "
                            "(default 0)", float, min=-1e3, max=1e3),
     "anchor_bias": Option("1: estimate a range bias per anchor online (WiFi RTT offsets, "
@@ -225,14 +227,7 @@ OPTIONS = {
     "bias_prior_std_m": Option("prior standard deviation of each anchor's bias about that "
                                "common offset, m (default 3)", float, min=0, min_exclusive=True,
                                max=1e3),
-    "tdoa_std_m": Option("standard deviation of one arrival time in a tdoa row, m (default "
-                         "0.3)", float, min=0, min_exclusive=True, max=1e6),
-    "aoa_std_rad": Option("angle-of-arrival error standard deviation, rad (default 0.05)",
-                          float, min=0, min_exclusive=True, max=10),
-    "pseudorange_std_m": Option("pseudorange error standard deviation, m (default 5)", float,
-                                min=0, min_exclusive=True, max=1e6),
-    "heading_std_rad": Option("heading (direction of motion) error standard deviation, rad "
-                              "(default 0.3)", float, min=0, min_exclusive=True, max=10),
+    **sigma_options(),
     "clock_offset_std_m_per_sqrt_s": Option("pseudoranges: white frequency noise of the "
                                             "receiver clock offset (times c), m/sqrt(s) "
                                             "(default 1)", float, min=0, max=1e6),
@@ -738,8 +733,8 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
 
 
 @locate_method("ekf-track", "Extended Kalman filter tracking each node from its measurements "
-                            "to anchors as they arrive: ranges (optionally with a bias per "
-                            "anchor), time differences, angles, pseudoranges, RSS (a "
+                            "to anchors as they arrive: every kind with a model (ranges "
+                            "optionally with a bias per anchor), RSS (a "
                             "path-loss model per anchor in the anchors file), ranges between "
                             "nodes with -o cooperative=1 (constant velocity or random walk, "
                             "or driven by odometry rows; RTS smoother with -o smooth=1)",
@@ -766,7 +761,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     out, diverged, n_tracks, noise = track_log(request, request.measurements)
     if diverged:
         skipped = request.parsed.get("no_check")     # None: check_log did not run
-        bounded = () if skipped is None else [k for k, name in VALUE_CHECKS.items()
+        bounded = () if skipped is None else [k for k, name in value_checks().items()
                                               if name not in skipped]
         # a unit is blamed only when looser sigmas do not make the log fit either
         try:
@@ -793,12 +788,10 @@ def looser_noise(request: LocateRequest) -> LocateRequest:
     named (a sign or a convention still is)."""
     kinds = set(request.measurements["kind"].unique())
     looser = {}
-    for kind, name in MODEL_KINDS.items():
-        if kind in kinds:
-            value = request.option(name)
-            if value is None:
-                value = RANGE_STD_M if kind == "range" else DEFAULT_SIGMAS[kind]
-            looser[name] = NOISE_SLACK * float(value)
+    for kind in kinds & set(model_kinds()):
+        k = model_kinds()[kind]
+        looser[k.sigma_option] = NOISE_SLACK * float(request.option(k.sigma_option,
+                                                                    k.sigma_default))
     if has_odometry(request.measurements):
         looser["odometry_std_m"] = NOISE_SLACK * request.option("odometry_std_m", ODOMETRY_STD_M)
     return replace(request, parsed={**request.parsed, **looser})
@@ -833,15 +826,16 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     Raises
     ------
     ConfigError
-        Heading rows without the constant-velocity motion.
+        A model that reads velocity (heading rows) with a motion model that has none
+        (``motion=rw``, odometry), naming both.
     """
     log = Measurements(meas)
-    opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
+    opts = {k: request.option(k) for k in sigma_options() if request.option(k) is not None}
     opts.setdefault("range_std_m", RANGE_STD_M)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
-    if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
-        raise ConfigError("heading rows: the heading is the direction of the velocity, which "
-                          "only the constant-velocity motion (motion=cv, no odometry) holds")
+    motion = tracker_motion(s)
+    for model in models.values():
+        check_motion(model, motion)
     if "rss" in log.kinds:   # one path-loss model per anchor, from the anchors file
         models["rss"] = anchor_rss_model(table, meas.loc[meas["kind"] == "rss", "peer"])
     return log, opts, models
@@ -876,14 +870,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
     log, opts, models = log_models(request, meas, table, s, anchor_bias)
-    parts = []
-    for node, rows in log.by_node().items():
-        times, obs = node_observations(rows, table, node, models, height_m=s["height"],
-                                        checked=True)
-        if times.size:
-            parts.append((node, times, obs, segments(times, s["max_gap_s"])))
-    if not parts:
-        raise GeometryError("method ekf-track: no measurement to an anchor in the measurements")
+    parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
+             in log_observations(log, table, models, "ekf-track", s["height"])]
     tracks = []   # (node, times, observations, restart, controls) of every track
     for node, times, obs, segs in parts:
         for n, seg in enumerate(segs):

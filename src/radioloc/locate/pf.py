@@ -109,20 +109,25 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.kinds import model_kinds
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
 from radioloc.estimators.p2p_particle import P2PParticleFilter
-from radioloc.estimators.particle_filter import RunGenerators
+from radioloc.estimators.particle_filter import ParticleFilter, RunGenerators
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import anchor_positions, anchor_ranges
+from radioloc.locate.adapter import anchor_positions, anchor_ranges, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.progress import progress
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
+    log_models,
+    observation_window,
+    reads_clock,
     segments,
     stack_tracks,
+    track_prior,
     track_priors,
     track_summary,
     track_table,
@@ -175,6 +180,7 @@ OPTIONS.update({
                    min=0,
                    max=2**63 - 1),
     **ODOMETRY_OPTIONS,
+    **{k: v for k, v in sigma_options().items() if k != "range_std_m"},   # the other kinds'
 })
 
 
@@ -403,8 +409,11 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
 @locate_method("pf", "LOS/NLOS particle filter (paper 001) tracking each node from its ranges "
                      "to anchors as they arrive, driven by odometry rows when the log has "
                      "them (parameters fitted by EM on the log unless given; fixed-lag or "
-                     "backward-simulation smoother with -o smooth=1)",
-               options=OPTIONS, kinds=("range",) + MOTION_KINDS, inputs=("anchors",))
+                     "backward-simulation smoother with -o smooth=1); with other kinds, the "
+                     "generic particle filter over every kind's model, the ranges' noise "
+                     "LOS/NLOS",
+               options=OPTIONS, kinds=tuple(model_kinds()) + ("rss",) + MOTION_KINDS,
+               inputs=("anchors",))
 def locate_pf(request: LocateRequest) -> pd.DataFrame:
     """Track every node with a :class:`P2PParticleFilter` over its range rows.
 
@@ -425,7 +434,81 @@ def locate_pf(request: LocateRequest) -> pd.DataFrame:
     else:
         default = "fixed-lag" if has_odometry(request.measurements) else "backward"
         want = request.option("smoother", default, str)
+    if set(request.measurements["kind"].unique()) - {"range", *MOTION_KINDS}:
+        return generic_tracks(request, want)
     return pf_tracks(request, (want,))[want]
+
+
+def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFrame:
+    """``--method pf`` on a log with kinds besides ranges and odometry: the generic
+    :class:`~radioloc.estimators.particle_filter.ParticleFilter` over every kind's model
+    (:func:`radioloc.locate.ekf_track.log_models`, the sigma options of ``ekf-track``), the
+    ranges with the LOS/NLOS model of :func:`node_models` as their noise (given, or fitted
+    by EM on the node's ranges, its range bias removed), each segment started from the
+    ``ekf-track`` start (:func:`radioloc.locate.ekf_track.track_prior`) on the trackers'
+    state layout, its draws seeded by :func:`segment_seed`; ``smooth=1``: the
+    backward-simulation smoother. Components other than the motion's follow the
+    state's transition without noise (a receiver clock's offset integrates its drift).
+
+    Parameters
+    ----------
+    request : LocateRequest
+    want : {"filtered", "backward"}
+
+    Returns
+    -------
+    DataFrame
+        As :func:`locate_pf`, without ``gated`` and ``p_nlos``.
+
+    Raises
+    ------
+    ConfigError
+        Options of paper 001's filter alone (``gate``, ``lag``, ``smoother=fixed-lag``),
+        odometry rows.
+    """
+    table = request.require_anchors("pf")
+    anchors = anchor_positions(table)
+    s = tracker_settings(request, anchors)
+    only = [k for k in ("gate", "lag") if request.option(k) is not None] + \
+        (["smoother=fixed-lag"] if want == "fixed-lag" else []) + \
+        (["odometry rows"] if s["odometry_std"] is not None else [])
+    if only:
+        raise ConfigError(f"method pf: {', '.join(only)} belong to paper 001's filter of ranges "
+                          "(and odometry); with other kinds pf runs the generic particle filter")
+    if s["bias"]:
+        raise ConfigError("method pf: range_bias_m with kinds besides ranges: the bias is fitted "
+                          "with the LOS/NLOS model (give los_std_m, nlos_mean_m, alpha to fix it)")
+    log, _, models = log_models(request, request.measurements, table, s)
+    noise, fitted = {}, []
+    if "range" in models:
+        ranges = Measurements(request.measurements[request.measurements["kind"] == "range"])
+        noise, fitted = node_models(request, anchors, anchor_ranges(ranges, table, "pf"), s)
+    seed, particles = request.option("seed", 0, int), request.option("particles", 900, int)
+    tables, counts = [], {}
+    for node, times, obs in log_observations(log, table, models, "pf", s["height"]):
+        if node in noise:
+            los_nlos, bias = noise[node]
+            obs = [dataclasses.replace(o, model=RangeModel(noise=los_nlos), z=o.z - bias)
+                   if o.model.kind == "range" else o for o in obs]
+        for o in obs:
+            counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
+        ekf = tracker_filter(anchors, dict(s, bias=0.0), None, clock=reads_clock(obs))
+        for n, seg in enumerate(segments(times, s["max_gap_s"])):
+            t, ob = times[seg], [observation_window(o, seg) for o in obs]
+            mean, var = track_prior(ekf, t, ob, anchors, dict(s, bias=0.0))
+            pf = ParticleFilter(tracker_motion(s), n_particles=particles,
+                                seed=[segment_seed(seed, node, n)],
+                                layout=ekf.state_layout(ob))
+            track = pf.run(ob, t, prior_mean=mean[None], prior_cov=np.diag(var)[None],
+                           smooth=want == "backward")
+            tables.append(track_table(node, t, track[0], restart=n > 0))
+    out = pd.concat(tables, ignore_index=True)
+    out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
+                            "ranges": counts.get("range", 0), "measurements": counts,
+                            "restarts": int(out["restart"].sum()), "seed": seed,
+                            "particles": particles, "filter": "generic",
+                            "smoother": None if want == "filtered" else want, "model": fitted}
+    return out
 
 
 def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.DataFrame]:

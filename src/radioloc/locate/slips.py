@@ -1,9 +1,9 @@
 """Likely slips in a log's values: a sign, a unit or an axis convention that makes the rows of
 one kind fit no track, and that a tracker can name when it diverges.
 
-:data:`SLIPS` lists, per kind, the slips a log is known to make (tdoa as reference minus
+:func:`slips` lists, per kind, the slips a log is known to make (tdoa as reference minus
 peer, angles clockwise, pseudoranges in km or ns, odometry in mm or of the wrong sign) as the
-map that undoes each. :func:`likely_slip` undoes them one at a time and asks the tracker
+map that undoes each, as each kind declares them (:class:`radioloc.core.kinds.Kind`). :func:`likely_slip` undoes them one at a time and asks the tracker
 whether the log is consistent then: a slip is named only when the log as given diverges and
 the log with that one kind's values mapped back does not, so a consistent log is never
 blamed.
@@ -11,35 +11,25 @@ blamed.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable, Collection
 
 import numpy as np
 import pandas as pd
 
-from radioloc.core.constants import SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import RadiolocError
 
-#: ``(kinds, undo, how, question)``: the rows of ``kinds`` whose values ``undo`` maps back to
-#: what the schema means (``how`` says what it does), and the question that names the slip.
-SLIPS: list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]] = [
-    (("tdoa",), np.negative, "negated",
-     "tdoa values with the wrong sign (reference minus peer)?"),
-    (("tdoa",), lambda v: v / 1e3, "divided by 1000", "tdoa values in mm?"),
-    (("aoa",), np.negative, "negated", "aoa values counted clockwise?"),
-    (("aoa",), lambda v: math.pi / 2 - v, "as pi/2 minus the value",
-     "aoa values as compass bearings (clockwise from north)?"),
-    (("aoa",), np.radians, "converted from degrees", "aoa values in degrees?"),
-    (("aoa_elevation",), np.negative, "negated", "aoa_elevation values with the wrong sign?"),
-    (("aoa_elevation",), np.radians, "converted from degrees",
-     "aoa_elevation values in degrees?"),
-    (("pseudorange",), lambda v: v * 1e3, "times 1000", "pseudoranges in km?"),
-    (("pseudorange",), lambda v: v * SPEED_OF_LIGHT_M_PER_S * 1e-9, "times c (from ns)", "pseudoranges in ns?"),
-    (("pseudorange",), lambda v: v / 1e3, "divided by 1000", "pseudoranges in mm?"),
-    (("odometry_dx", "odometry_dy"), np.negative, "negated", "odometry with the wrong sign?"),
-    (("odometry_dx", "odometry_dy"), lambda v: v / 1e3, "divided by 1000", "odometry in mm?"),
-]
+def slips() -> list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], str, str]]:
+    """``(kinds, undo, how, question)`` of every slip the kinds declare
+    (:attr:`radioloc.core.kinds.Kind.slips`): the rows of ``kinds`` whose values ``undo``
+    maps back to what the schema means (``how`` says what it does), and the question that
+    names the slip."""
+    from radioloc.core.kinds import kinds
+
+    return [(s.kinds or (k.name,), s.undo, s.how, s.question)
+            for k in kinds().values() for s in k.slips]
+
+
 #: Shrink factor of a slip's map (mm: 1000) beyond which a kind whose values passed their
 #: input bound is not blamed (1000 times too large, they break it for any position).
 BOUND_FACTOR = 1e3
@@ -77,7 +67,7 @@ def slip_scale(undo: Callable[[np.ndarray], np.ndarray]) -> float:
 def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame], bool], *,
                 bounded: Collection[str] = (), scales: bool = True
                 ) -> tuple[str, str, str] | None:
-    """The slip of :data:`SLIPS` whose undoing makes a diverged log consistent.
+    """The slip of :func:`slips` whose undoing makes a diverged log consistent.
 
     A slip whose map shrinks the values of a ``bounded`` kind by :data:`BOUND_FACTOR` or
     more (tdoa or pseudoranges in mm) is not tried: values that many times too large
@@ -106,7 +96,7 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         None when no single slip does.
     """
     present = set(measurements["kind"].unique())
-    for kinds, undo, how, question in SLIPS:
+    for kinds, undo, how, question in slips():
         if not present.intersection(kinds):
             continue
         scale = slip_scale(undo)

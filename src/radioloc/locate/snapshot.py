@@ -25,7 +25,8 @@ from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.robust_loss import LOSSES
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import MODEL_KINDS, anchor_positions, default_models, node_observations
+from radioloc.core.kinds import model_kinds
+from radioloc.locate.adapter import anchor_positions, default_models, node_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.epochs import (ON_DEGENERATE, Epochs, epoch_error, epoch_table,
@@ -140,7 +141,7 @@ def locate_ransac(request: LocateRequest) -> pd.DataFrame:
     return out
 
 
-_LSQ_OPTIONS = {k: EKF_OPTIONS[k] for k in MODEL_KINDS.values()}
+_LSQ_OPTIONS = sigma_options()
 _LSQ_OPTIONS.update({
     "loss": Option("robust loss of the standardised residual (default linear)", str,
                    choices=LOSSES),
@@ -151,9 +152,9 @@ _LSQ_OPTIONS.update({
 
 
 @locate_method("lsq", "Nonlinear least squares fix of each node at each time from every "
-                      "measurement to anchors (ranges, time differences, angles, "
-                      "pseudoranges) with a robust loss (linear, huber, cauchy, tukey)",
-               options=_LSQ_OPTIONS, kinds=tuple(MODEL_KINDS), inputs=("anchors",),
+                      "measurement to anchors (each kind with a model, its sigma option) "
+                      "with a robust loss (linear, huber, cauchy, tukey)",
+               options=_LSQ_OPTIONS, kinds=tuple(model_kinds()), inputs=("anchors",),
                moving_anchors=True)
 def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     """Locate every ``(time, node)`` epoch with the generic :class:`LeastSquares`.
@@ -188,7 +189,7 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     """
     table = request.require_anchors("lsq")
     log = Measurements(request.measurements)
-    opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
+    opts = {k: request.option(k) for k in _LSQ_OPTIONS if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
     models = default_models(log.kinds, opts)
     height = request.option("tag_height_m")

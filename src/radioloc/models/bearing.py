@@ -27,6 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.kinds import Kind, Slip, unit_slips
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.measurement import Context, MeasurementModel, wrap_angle
 
@@ -143,3 +144,25 @@ class BearingModel(MeasurementModel):
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(self.std_rad, context)
+
+
+def _angle_kind(name: str, component: str, bound: float, meaning: str, slips: tuple) -> Kind:
+    return Kind(name, "rad", meaning,
+                model=lambda sigma: BearingModel(std_rad=sigma, component=component),
+                sigma_option="aoa_std_rad", sigma_default=0.05,
+                sigma_help="angle-of-arrival error standard deviation, rad", sigma_max=10.0,
+                limit=2 * np.pi, bound=bound, check="angle_units",
+                slips=slips + unit_slips(name, "rad"))
+
+
+#: The log-schema kinds this module explains (:mod:`radioloc.core.kinds`).
+KINDS = (
+    _angle_kind("aoa", "azimuth", 2 * np.pi, "bearing from `peer` to the node, "
+                "counter-clockwise from +x",
+                (Slip(np.negative, "negated", "aoa values counted clockwise?"),
+                 Slip(lambda v: np.pi / 2 - v, "as pi/2 minus the value",
+                      "aoa values as compass bearings (clockwise from north)?"))),
+    _angle_kind("aoa_elevation", "elevation", np.pi / 2, "elevation of the node seen from "
+                "`peer`", (Slip(np.negative, "negated",
+                                "aoa_elevation values with the wrong sign?"),)),
+)

@@ -21,10 +21,16 @@ anchor_bias]``. A filter whose layout holds a clock (``layout.clock`` 1 or 2, gr
 :class:`~radioloc.models.tdoa.TdoaModel` with slot times) transitions the full state with the
 block-diagonal ``diag(motion.F(dt), clock.F(dt), I)`` and ``diag(motion.Q(dt), clock.Q(dt),
 0)``: :func:`transition` assembles both. With ``terms=1`` (offset only) the blocks are
-``[[1]]`` and ``[[q_o dt]]``.
+``[[1]]`` and ``[[q_o dt]]``. The extended Kalman filter and the batch smoother transition
+their states with :func:`transition` too, and hold the drift by default when a model reads
+the offset (:func:`drifting`): a clock held still would take a drift of 1 m/s on
+pseudoranges into the position (metres off within a minute, with a covariance of
+decimetres).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -32,7 +38,7 @@ from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.measurement import StateLayout
 
-__all__ = ["ClockModel", "transition"]
+__all__ = ["ClockModel", "transition", "drifting"]
 
 
 class ClockModel:
@@ -153,22 +159,48 @@ class ClockModel:
                 f"drift_std_m_per_s={self.drift_std_m_per_s}, terms={self.terms})")
 
 
-def transition(layout: StateLayout, motion, dt: float | np.ndarray,
-               clock: ClockModel | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``F`` and ``Q`` ``(..., n, n)`` of a whole :class:`StateLayout` state over ``dt``:
-    block-diagonal motion, clock and constant anchor biases.
+def drifting(layout: StateLayout, given: StateLayout) -> StateLayout:
+    """A filter's state with the clock's drift: ``layout`` (grown by the models) with
+    ``clock=2`` when a model asked for the offset alone and the estimator's own layout
+    ``given`` did not fix the clock terms. A receiver clock drifts (as the simulator's,
+    :class:`ClockModel`); an offset held still would absorb the drift into the position.
 
     Parameters
     ----------
     layout : StateLayout
+        The layout grown by the observations' models.
+    given : StateLayout
+        The estimator's layout before growing (``clock`` 0: not fixed by the user).
+
+    Returns
+    -------
+    StateLayout
+    """
+    return replace(layout, clock=2) if layout.clock == 1 and given.clock == 0 else layout
+
+
+def transition(layout: StateLayout, motion, dt: float | np.ndarray,
+               clock: ClockModel | None = None, bias_std_m_per_sqrt_s: float = 0.0
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """``F`` and ``Q`` ``(..., n, n)`` of a whole :class:`StateLayout` state over ``dt``:
+    block-diagonal motion, clock and random-walk anchor biases; the one transition of the
+    extended Kalman filter, the batch smoother and the simulator.
+
+    Parameters
+    ----------
+    layout : StateLayout
+        (A network layout: the motion's blocks per node, :meth:`StateLayout.kinematic`.)
     motion : motion model
-        With ``F(dt)``, ``Q(dt)`` of size ``layout.motion_size`` (e.g.
+        With ``F(dt)``, ``Q(dt)`` of one node's kinematic state (e.g.
         :class:`~radioloc.models.motion.WhiteAccelerationCV`), or None for a static
         position (``F = I``, ``Q = 0``).
     dt : float or ndarray
         Seconds.
     clock : ClockModel, optional
         Needed when the layout holds a clock; its ``terms`` must equal ``layout.clock``.
+    bias_std_m_per_sqrt_s : float
+        Random walk of each anchor bias: its standard deviation grows by this over one
+        second (0: constant biases).
 
     Returns
     -------
@@ -176,13 +208,16 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
     """
     d = np.asarray(dt, dtype=float)
     n, k = layout.size, layout.motion_size
-    F = np.broadcast_to(np.eye(n), d.shape + (n, n)).copy()
-    Q = np.zeros(d.shape + (n, n))
     if motion is not None:
-        Fm, Qm = motion.F(d), motion.Q(d)
+        Fm, Qm = layout.kinematic(motion.F(d)), layout.kinematic(motion.Q(d))
         if Fm.shape[-1] != k:
             raise InputError(f"motion: its state has {Fm.shape[-1]} entries but the layout's "
                              f"motion part has {k}")
+        if n == k:                                   # the kinematic state alone
+            return Fm, Qm
+    F = np.broadcast_to(np.eye(n), d.shape + (n, n)).copy()
+    Q = np.zeros(d.shape + (n, n))
+    if motion is not None:
         F[..., :k, :k] = Fm
         Q[..., :k, :k] = Qm
     if layout.clock:
@@ -192,4 +227,7 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
         sl = slice(k, k + layout.clock)
         F[..., sl, sl] = clock.F(d)
         Q[..., sl, sl] = clock.Q(d)
+    if layout.n_bias:
+        b = np.arange(layout.slices["anchor_bias"].start, layout.slices["anchor_bias"].stop)
+        Q[..., b, b] = (bias_std_m_per_sqrt_s ** 2 * d)[..., None]
     return F, Q

@@ -28,6 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from radioloc.core.kinds import Kind
 from radioloc.core.validation import check_positive, check_real
 from radioloc.models.measurement import Context, MeasurementModel, wrap_angle
 
@@ -91,3 +92,12 @@ class HeadingModel(MeasurementModel):
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(self.std_rad, context)
+
+
+#: The log-schema kind this module explains (:mod:`radioloc.core.kinds`).
+KINDS = (Kind("heading", "rad", "direction of the node's motion, counter-clockwise from +x "
+              "(`peer` names the sensor)", model=lambda sigma: HeadingModel(std_rad=sigma),
+              sigma_option="heading_std_rad", sigma_default=0.3,
+              sigma_help="heading (direction of motion) error standard deviation, rad",
+              sigma_max=10.0, limit=2 * np.pi, bound=2 * np.pi, check="angle_units",
+              self_measured=True, slips=()),)

@@ -45,7 +45,7 @@ from radioloc.core.plausibility import check_values
 from radioloc.core.validation import (POSITIVE_FLOOR, as_float_array, check_dtype, check_ranges,
                                       check_real, check_shapes, range_noise_std, refuse_infinite)
 
-__all__ = ["COMPONENTS", "StateLayout", "Context", "Observation", "MeasurementModel", "LikelihoodModel",
+__all__ = ["COMPONENTS", "KINEMATIC", "check_motion", "StateLayout", "Context", "Observation", "MeasurementModel", "LikelihoodModel",
            "numerical_jacobian",
            "wrap_angle", "gaussian_logpdf"]
 
@@ -299,6 +299,37 @@ class StateLayout:
                              "StateLayout.with_model)")
 
 
+#: The kinematic components, in the order a motion model of order 0, 1, 2 holds them.
+KINEMATIC = ("position", "velocity", "acceleration")
+
+
+def check_motion(model: "MeasurementModel", motion) -> None:
+    """Refuse a measurement model that reads a kinematic component (velocity, acceleration)
+    the motion model's state does not hold, in one line naming both.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+    motion : motion model
+        With ``dim`` and ``state_dim`` (:mod:`radioloc.models.motion`).
+
+    Raises
+    ------
+    ConfigError
+        E.g. a :class:`~radioloc.models.heading.HeadingModel` (reads velocity) with a
+        :class:`~radioloc.models.motion.RandomWalk` (position only).
+    """
+    held = KINEMATIC[:max(1, int(motion.state_dim) // int(motion.dim))]
+    missing = [c for c in model.reads if c in KINEMATIC and c not in held]
+    if missing:
+        kind = f" (kind {model.kind})" if model.kind else ""
+        raise ConfigError(f"{type(model).__name__}{kind} reads {', '.join(missing)}, which the motion "
+                          f"model {type(motion).__name__} does not hold (its state: "
+                          f"{', '.join(held)}): give a motion model with {missing[-1]} (a "
+                          "constant velocity, WhiteAccelerationCV; locate: -o motion=cv, no "
+                          "odometry rows)")
+
+
 @dataclass(frozen=True)
 class Context:
     """What a batch of measurement rows depends on besides the state.
@@ -322,6 +353,10 @@ class Context:
         A per-row standard deviation that overrides the model's (NaN: the model's).
     height_m : float, optional
         Known height of a 2-D node when the points are 3-D.
+    columns : mapping of str to ndarray, optional
+        Per-row values of the anchor-file columns a model reads
+        (:attr:`radioloc.core.kinds.Kind.anchor_columns`: an anchor's velocity), each of
+        shape ``(m,)``.
     """
 
     points: np.ndarray
@@ -330,6 +365,7 @@ class Context:
     reference_index: np.ndarray | None = None
     std: np.ndarray | None = None
     height_m: float | None = None
+    columns: Mapping[str, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         pts = as_float_array(self.points, "points")
@@ -358,6 +394,14 @@ class Context:
                 raise InputError(f"std: expected {m} per-row standard deviations on the last "
                                  f"axis, got shape {s.shape}")
             object.__setattr__(self, "std", s)
+        if self.columns is not None:
+            cols = {str(k): as_float_array(v, f"columns[{k!r}]", allow_nan=True)
+                    for k, v in dict(self.columns).items()}
+            bad = [k for k, v in cols.items() if v.shape != (m,)]
+            if bad:
+                raise InputError(f"columns[{bad[0]!r}]: expected {m} values (one per row), got "
+                                 f"shape {cols[bad[0]].shape}")
+            object.__setattr__(self, "columns", cols)
 
     @property
     def rows(self) -> int:
@@ -389,7 +433,9 @@ class Context:
         return Context(points=sub(self.points, -2), index=sub(self.index, 0),
                        reference=sub(self.reference, -2),
                        reference_index=sub(self.reference_index, 0), std=sub(self.std, -1),
-                       height_m=self.height_m)
+                       height_m=self.height_m,
+                       columns=None if self.columns is None else
+                       {k: sub(v, 0) for k, v in self.columns.items()})
 
 
 def numerical_jacobian(model: "MeasurementModel", state: States, context: Context,

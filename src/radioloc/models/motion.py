@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.core.kinds import Kind, Slip
 from radioloc.core.validation import as_float_array, check_positive
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -553,3 +554,20 @@ class BoundedSpeedCV(WhiteAccelerationCV):
     def __repr__(self) -> str:
         return (f"BoundedSpeedCV(q={self.q}, v_max_m_per_s={self.v_max_m_per_s}, "
                 f"dim={self.dim})")
+
+
+def _odometry_kind(axis: str, slips: tuple) -> Kind:
+    return Kind(f"odometry_d{axis}", "m", f"the node's displacement along +{axis} since its "
+                "previous odometry row (`peer` names the sensor; the motion's control input)",
+                limit=1e4, self_measured=True, slips=slips)
+
+
+#: The log-schema kinds of odometry (:mod:`radioloc.core.kinds`): the control input of
+#: :class:`InputDriven`, no measurement model.
+KINDS = (
+    _odometry_kind("x", (Slip(np.negative, "negated", "odometry with the wrong sign?",
+                              ("odometry_dx", "odometry_dy")),
+                         Slip(lambda v: v / 1e3, "divided by 1000", "odometry in mm?",
+                              ("odometry_dx", "odometry_dy")))),
+    _odometry_kind("y", ()),
+)

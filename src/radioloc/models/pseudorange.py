@@ -18,6 +18,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from radioloc.core.kinds import Kind, unit_slips
+from radioloc.core.plausibility import check_pseudoranges
 from radioloc.core.validation import check_positive
 from radioloc.models.measurement import Context, MeasurementModel
 from radioloc.models.ranging import range_geometry
@@ -62,3 +64,13 @@ class PseudorangeModel(MeasurementModel):
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(self.std_m, context)
+
+
+#: The log-schema kind this module explains (:mod:`radioloc.core.kinds`).
+KINDS = (Kind("pseudorange", "m", "range to `peer` plus the receiver's clock offset (times c)",
+              model=lambda sigma: PseudorangeModel(std_m=sigma),
+              sigma_option="pseudorange_std_m", sigma_default=5.0,
+              sigma_help="pseudorange error standard deviation, m", limit=1e8,
+              check="pseudorange_units",
+              check_values=lambda z, points, reference, **kw: check_pseudoranges(z, points, **kw),
+              slips=tuple(unit_slips("pseudorange", "m", ns=True, what="pseudoranges")[i] for i in (1, 2, 0))),)

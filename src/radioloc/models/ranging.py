@@ -13,6 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.kinds import Kind
 from radioloc.core.validation import check_positive, check_ranges, paired_arrays, range_noise_std
 from radioloc.models.measurement import Context, MeasurementModel, checked_call
 
@@ -269,3 +270,10 @@ class RangeModel(MeasurementModel):
             los = rng.random(z_hat.shape) < self.noise.alpha
             return self.noise.sample(z_hat, los, rng)
         return super().sample(state, context, rng)
+
+
+#: The log-schema kind this module explains (:mod:`radioloc.core.kinds`).
+KINDS = (Kind("range", "m", "distance between the node and `peer` (time of arrival, two-way "
+              "ranging, RTT)", model=lambda sigma: RangeModel(std_m=sigma),
+              sigma_option="range_std_m", sigma_default=0.15,
+              sigma_help="range error standard deviation, m", limit=1e7, slips=()),)

@@ -24,6 +24,7 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
+from radioloc.core.kinds import Kind
 from radioloc.core.validation import check_positive
 from radioloc.models.measurement import Context, LikelihoodModel, MeasurementModel, checked_call
 from radioloc.models.ranging import range_geometry
@@ -188,3 +189,9 @@ class TrapezoidRssModel(LikelihoodModel):
         rssi = np.where(miss, 0.0, z)
         lp = self.model.logpdf(d, rssi)
         return np.where(miss, 0.0, lp)
+
+
+#: The log-schema kind this module explains (:mod:`radioloc.core.kinds`): its model, a
+#: path-loss model per anchor, is built from the anchors file's columns.
+KINDS = (Kind("rss", "dBm", "received signal strength from `peer`",
+              anchor_columns=("rss_a_dbm", "rss_n", "rss_std_db"), slips=()),)

@@ -50,6 +50,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from radioloc.core.kinds import Kind, Slip, unit_slips
+from radioloc.core.plausibility import check_tdoa
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.measurement import (
@@ -245,3 +247,14 @@ class TdoaModel(MeasurementModel):
         lp = gaussian_logpdf(w * np.diagonal(L, axis1=-2, axis2=-1),
                              np.diagonal(L, axis1=-2, axis2=-1))
         return np.where(miss, 0.0, lp)
+
+
+#: The log-schema kind this module explains (:mod:`radioloc.core.kinds`).
+KINDS = (Kind("tdoa", "m", "range to `peer` minus range to `reference` (time difference of "
+              "arrival times c)", model=lambda sigma: TdoaModel(std_m=sigma),
+              sigma_option="tdoa_std_m", sigma_default=0.3,
+              sigma_help="standard deviation of one arrival time in a tdoa row, m", limit=1e7,
+              check="tdoa_units", check_values=check_tdoa, reference=True,
+              slips=(Slip(np.negative, "negated",
+                          "tdoa values with the wrong sign (reference minus peer)?"),
+                     unit_slips("tdoa", "m")[0])),)
