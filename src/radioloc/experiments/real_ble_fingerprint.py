@@ -4,14 +4,15 @@ Calibration on ``calibration_df.csv`` (4,104 fingerprints, 6 anchors); every row
 robot test run (719 rows, LiDAR-SLAM truth, never used for tuning) is localized one-shot and
 tracked (Sect. 4):
 
-- ``gmm_em`` / ``gmm_progressive``: per-anchor mixtures (eq. (1), (2)) from batch EM and from
-  progressive calibration (``radioloc locate --method gmm``'s default model);
+- ``gmm_em`` / ``gmm_progressive``: per-anchor mixtures (eq. (1), (2)) from batch EM
+  (``radioloc locate --method gmm -o model=stations``) and from kernel-insertion
+  calibration;
 - ``gmm_places_default``: the shared-place model (docs/fingerprinting.md) with the fit
   defaults, ``T = 1``, every place kept;
 - ``gmm_places_cv``: the same model with ``T``, the places kept ``M`` and the shrinkage chosen
   by spatially grouped cross-validation on the calibration file only
-  (:func:`~radioloc.models.fingerprint_selection.select_places_settings`, the defaults of
-  ``locate --method gmm -o model=places``); ``_tracking``: tracked over the places
+  (:func:`~radioloc.models.fingerprint_selection.select_places_settings`, the settings of
+  ``locate --method gmm``'s default model); ``_tracking``: tracked over the places
   (:func:`~radioloc.estimators.place_tracking.track_places`, uniform disk of ``v_max``);
 - ``knn`` and ``wknn``: k nearest neighbours in signal space (scikit-learn), uniform and
   inverse-distance weights, the usual baselines, each with ``k`` chosen by the same spatially
