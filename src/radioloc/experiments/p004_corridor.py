@@ -568,7 +568,8 @@ class CorridorExperiment(Experiment):
                 metrics += error_metrics(
                     last, (f"rmse_m_after_{k}{tag}", f"nees_after_{k}{tag}",
                            f"coverage_2sigma_after_{k}{tag}"),
-                    f"static user after {k} updates, posterior mean, {noise:g} dB")
+                    f"static user after {k} updates, posterior mean, {noise:g} dB; models: "
+                    f"{PB_OURS}")
             for k in (1, 2, config.updates):
                 paper = config.user_m if k == config.updates else None
                 at_k = static[(static["noise_db"] == noise) & (static["step"] == k)]["x_est"]
