@@ -10,7 +10,8 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators.mixture_localization import MixtureLocalizer
 from radioloc.estimators.place_tracking import track_places
 from radioloc.models.fingerprint_mixture import FingerprintMixture, place_weights
-from radioloc.models.fingerprint_selection import select_places_settings, spatial_folds
+from radioloc.models.fingerprint_selection import (select_knn_k, select_places_settings,
+                                                   spatial_folds)
 
 
 def _grid_scene(rng, noise=3.0, per=2, step=1.0):
@@ -72,6 +73,31 @@ def test_selection_is_the_cv_argmin_and_refuses_bad_settings():
         select_places_settings(pos, rss, block_m=100.0)
     with pytest.raises(ConfigError, match="block_m"):
         select_places_settings(pos, rss, block_m=0.0)
+
+
+def test_knn_k_by_the_same_folds_is_the_cv_argmin_and_refuses_bad_settings():
+    from sklearn.neighbors import KNeighborsRegressor
+
+    rng = np.random.default_rng(3)
+    pos, rss, _ = _grid_scene(rng, noise=6.0)
+    k, table = select_knn_k(pos, rss, ks=(1, 5, 20), folds=3, block_m=4.0)
+    assert list(table["k"]) == [1, 5, 20] and k == table["k"][table.cv_mean_error_m.idxmin()]
+    # known answer of one candidate: the fold-by-fold error of scikit-learn's regressor
+    fold = spatial_folds(pos, np.zeros((len(pos), 0), np.int64), 3, 4.0, 0)
+    err = 0.0
+    for f in range(3):
+        tr, te = fold != f, fold == f
+        est = KNeighborsRegressor(n_neighbors=5, weights="distance").fit(rss[tr], pos[tr])
+        err += np.linalg.norm(est.predict(rss[te]) - pos[te], axis=1).sum()
+    assert table.cv_mean_error_m[1] == pytest.approx(err / len(pos), rel=1e-12)
+    # noisy readings: one neighbour is worse than several
+    assert table.cv_mean_error_m[0] > table.cv_mean_error_m.min()
+    with pytest.raises(ConfigError, match="ks"):
+        select_knn_k(pos, rss, ks=(0, 3))
+    with pytest.raises(ConfigError, match="folds"):
+        select_knn_k(pos, rss, folds=1)
+    with pytest.raises(InputError, match="rss"):
+        select_knn_k(pos, rss[:-1])
 
 
 def test_tracking_known_answers_and_beats_one_shot_on_a_slow_walk():

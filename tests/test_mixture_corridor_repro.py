@@ -5,17 +5,28 @@ import numpy as np
 import pytest
 
 from radioloc.estimators.mixture_localization import MixtureTracker
-from radioloc.experiments.p004_corridor import (CorridorExperiment, door_bank, error_calibration,
+from radioloc.experiments.p004_corridor import (CorridorExperiment, door_bank, error_metrics,
                                                 model_isd, pause_walk)
 from radioloc.models.mixture import DiagMixture
 from radioloc.models.motion import UniformDisk
 from radioloc.sim.corridor import Corridor
 
 
-def test_calibration_statistics_known_answers():
-    rmse, nees, cov = error_calibration([1.0, -1.0, 3.0, 0.0], [1.0, 1.0, 1.0, 1.0])
-    assert rmse == pytest.approx(np.sqrt(11 / 4)) and nees == pytest.approx(11 / 4)
-    assert cov == pytest.approx(0.75)
+def test_calibration_statistics_known_answers_with_intervals_over_runs():
+    import pandas as pd
+    from scipy.stats import t as student_t
+
+    # two runs of two steps: squared errors (1, 1) and (9, 0), posterior std 1
+    rows = pd.DataFrame({"run": [0, 0, 1, 1], "x_true": 0.0, "std_m": 1.0,
+                         "x_est": [1.0, -1.0, 3.0, 0.0]})
+    rmse, nees, cov = error_metrics(rows, ("rmse", "nees", "cover"), "test")
+    assert rmse.value == pytest.approx(np.sqrt(11 / 4)) and nees.value == pytest.approx(11 / 4)
+    assert cov.value == pytest.approx(0.75)
+    half = student_t.ppf(0.975, 1) * np.std([1.0, 4.5], ddof=1) / np.sqrt(2)   # per-run MSEs
+    assert nees.ci == pytest.approx((2.75 - half, 2.75 + half))
+    assert rmse.ci[0] == 0.0 and rmse.ci[1] == pytest.approx(np.sqrt(2.75 + half))
+    half_cover = student_t.ppf(0.975, 1) * np.std([1.0, 0.5], ddof=1) / np.sqrt(2)
+    assert cov.ci == pytest.approx((0.75 - half_cover, 0.75 + half_cover))
 
 
 def test_pausing_walker_stands_still_then_walks_on():

@@ -42,16 +42,27 @@ def write_locate_files(tmp_path, peer="ap2"):
 
 def test_locate_gmm_finds_user_and_tracks(tmp_path):
     truth = write_locate_files(tmp_path)
-    req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv")
+    req = LocateRequest(read_measurements(tmp_path / "meas.csv"), calibration=tmp_path / "cal.csv",
+                        options={"model": "stations"})
     out = locate_gmm(req)
     assert list(out.columns) == ["time", "node", "x", "y", "uncertainty_m", "cov_xx", "cov_xy",
                                  "cov_yy", "stations_ignored"]
     assert len(out) == 3 and np.all(out["stations_ignored"] == 0)
     err = np.hypot(out["x"] - truth[0], out["y"] - truth[1])
     assert np.all(err < 1.5) and np.all(out["uncertainty_m"] > 0)
-    req.options = {"track": "1"}
+    req.options = {"model": "stations", "track": "1"}
     tr = locate_gmm(req)
     assert np.all(np.hypot(tr["x"] - truth[0], tr["y"] - truth[1]) < 1.5)
+
+
+def test_locate_gmm_default_model_is_places(tmp_path):
+    # the places model has the lower error on both fingerprint sets of shared/data
+    write_locate_files(tmp_path)
+    meas = read_measurements(tmp_path / "meas.csv")
+    default = locate_gmm(LocateRequest(meas, calibration=tmp_path / "cal.csv"))
+    places = locate_gmm(LocateRequest(meas, calibration=tmp_path / "cal.csv",
+                                      options={"model": "places"}))
+    pd.testing.assert_frame_equal(default, places)
 
 
 def test_locate_gmm_unknown_station_ignored_and_counted(tmp_path):

@@ -90,11 +90,15 @@ def test_claim_verdicts(p003):
         (hit,) = [v for c, v in claims.items() if c.startswith(start)]
         return hit
 
-    assert verdict("With a compass the error stays near 1 m") != "holds"
-    assert verdict("Scored in the tracker's current odometry frame, with a compass") != "holds"
+    # the headline (the whole mobile tracking stage against the paper's ~1 m) and its
+    # initial-frame reading: not "holds" (undecided or does not hold at 8 runs of 150 s);
+    # the driving-steps subset is a labelled reading
+    assert verdict("With a compass the error stays within about 1 m during the mobile "
+                   "tracking stage") != "holds"
+    assert verdict("(labelled reading: initial frame)") != "holds"
     assert verdict("Without a compass the error peaks several metres") == "holds"
     assert verdict("Synchronising the frames with a compass lowers the following error") == "holds"
-    assert verdict("With a compass, in the steps the tracker drives toward its estimate") == "holds"
+    assert verdict("(labelled reading: a subset of the paper's steps)") != "holds"
     assert verdict("Inter-robot sharing as in the paper") != "does not hold"
     assert verdict("(ours, beyond the paper) 2 trackers sharing their readings") != "holds"
 
@@ -111,7 +115,11 @@ def test_driving_steps_are_localized_and_scored_beside_all_steps(p003):
         for frame in ("", "_odomframe"):
             m = full[f"mean_error_m_driving_{cname}{frame}"]
             assert np.isfinite(m.value) and m.ci[0] < m.value < m.ci[1]
-    assert full["mean_error_m_driving_compass_odomframe"].paper == 1.0
+    # the driving steps are a subset of the paper's steps: no paper value beside them;
+    # the headline is the whole stage
+    assert full["mean_error_m_driving_compass_odomframe"].paper is None
+    assert full["mean_error_m_following_compass_odomframe"].paper == 1.0
+    assert full["mean_error_m_following_compass_odomframe"].note.startswith("HEADLINE")
 
 
 def test_v_sweep_replays_the_main_worlds(p003):

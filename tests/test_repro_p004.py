@@ -136,8 +136,8 @@ def test_claim_verdicts(repro):
 def _names(text):
     """Metric names (first column of the metric table) and claim texts without numbers."""
     metrics = re.findall(r"^\| `([a-z0-9_]+)` \|", text, flags=re.MULTILINE)
-    lines = re.findall(r"^- (.*): \*\*(?:holds|does not hold|undecided at this size)\*\*$", text,
-                       flags=re.MULTILINE)
+    lines = re.findall(r"^- (.*): \*\*(?:holds|does not hold|undecided at this size)\*\*"
+                       r"(?: \(.*\))?$", text, flags=re.MULTILINE)
     claims = [re.sub(r"[-+]?\d[\d.]*", "#", c) for c in lines]
     return metrics, claims
 

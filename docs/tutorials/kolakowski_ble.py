@@ -66,8 +66,8 @@ def main(out: str | Path = "tutorial-kolakowski", small: bool = False) -> pd.Dat
     #    models of the paper (default), and the shared-place model whose settings are chosen
     #    by cross-validation on the calibration file; snapshot by snapshot and tracked.
     meas = out / "measurements.csv"
-    runs = {"gmm stations, snapshot": ("gmm.csv", []),
-            "gmm stations, tracking": ("gmm_track.csv", ["-o", "track=1"]),
+    runs = {"gmm stations, snapshot": ("gmm.csv", ["-o", "model=stations"]),
+            "gmm stations, tracking": ("gmm_track.csv", ["-o", "model=stations", "-o", "track=1"]),
             "gmm places, snapshot": ("places.csv", ["-o", "model=places"]),
             "gmm places, tracking": ("places_track.csv", ["-o", "model=places", "-o", "track=1"])}
     for file, options in runs.values():

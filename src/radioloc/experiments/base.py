@@ -146,6 +146,39 @@ def per_run(frame: pd.DataFrame, column: str, by: tuple[str, ...] = ("run",)) ->
     return frame.groupby(list(by))[column].mean()
 
 
+def seed_agreement(estimates: Any, lows: Any, highs: Any) -> tuple[float, float]:
+    """How the intervals of independent repetitions (seeds) of one experiment agree.
+
+    Parameters
+    ----------
+    estimates, lows, highs : array_like (S,)
+        One estimate and its interval's ends per seed (seeds with a non-finite entry are
+        left out).
+
+    Returns
+    -------
+    coverage : float
+        Fraction of the seeds whose interval holds the mean of every seed's estimate (a
+        stand-in for the true value, from S times the runs): near the level for honest
+        intervals.
+    misses : float
+        Fraction of the ordered pairs ``(i, j)``, ``i != j``, in which seed ``j``'s estimate
+        lies outside seed ``i``'s interval: about 0.17 for honest 95 % intervals over many
+        units (``P(|Z| > 1.96 / sqrt 2)``), a little less over few (Student t), far more
+        where the units of an interval are not independent.
+    """
+    e, lo, hi = (np.asarray(a, dtype=float).ravel() for a in (estimates, lows, highs))
+    ok = np.isfinite(e) & np.isfinite(lo) & np.isfinite(hi)
+    e, lo, hi = e[ok], lo[ok], hi[ok]
+    if e.size < 2:
+        raise ConfigError(f"seed_agreement: needs at least 2 seeds with an interval, got {e.size}")
+    ref = e.mean()
+    coverage = float(np.mean((lo <= ref) & (ref <= hi)))
+    outside = (e[None, :] < lo[:, None]) | (e[None, :] > hi[:, None])
+    misses = float(outside[~np.eye(e.size, dtype=bool)].mean())
+    return coverage, misses
+
+
 @dataclass
 class Metric:
     """One number of the reproduction, beside the paper's where it has one.

@@ -212,7 +212,7 @@ class HighwayExperiment(Experiment):
         """
         if full:
             return HighwayConfig(ml_every=5, variant_runs=4)
-        return HighwayConfig(runs=1, steps=40, particles=200, ml_every=4)
+        return HighwayConfig(runs=6, steps=40, particles=200, ml_every=4)
 
     def run_block(self, config: HighwayConfig, runs: np.ndarray,
                   rng: np.random.Generator) -> pd.DataFrame:
@@ -344,10 +344,12 @@ class HighwayExperiment(Experiment):
         base = prev[(prev.M == 26) & (prev.N == 20)]
         metrics, notes, claims = [], [], []
         pf_c, ml_c, mll_c, pd_c = {}, {}, {}, {}
-        by_vehicle = ("run", "vehicle")  # one number per (run, vehicle): quick has one run
+        # one number per run: the vehicles of a run exchange messages, so they are not
+        # independent units; the runs are
+        unit = ("run",)
 
         def over(name, rows, paper, u, note, col="error_m"):
-            return Metric.over_runs(name, per_run(rows, col, by_vehicle), paper, u, note)
+            return Metric.over_runs(name, per_run(rows, col, unit), paper, u, note)
 
         for a, g in base.groupby("alpha"):
             tag = int(round(a * 100))
@@ -366,12 +368,12 @@ class HighwayExperiment(Experiment):
                      "genie local ML, table 4(c); reading: local search within "
                      f"+-{config.ml_local_radius_m:g} m of its previous estimate moved by the INS"),
                 over(f"pd_alpha{tag}", pd_rows, paper[0], "",
-                     "LOS detection probability, mean over vehicles of the detected fraction "
-                     "of their LOS links", col="pd"),
-                Metric(f"ekf_mean_error_m_alpha{tag}", g[g.method == "ekf"].error_m.mean(), None, "m",
-                       "Gaussian EKF (moment-matched noise), same messages as the PF"),
-                Metric(f"ransac_mean_error_m_alpha{tag}", g[g.method == "ransac"].error_m.mean(), None, "m",
-                       "RANSAC multilateration, genie neighbour positions"),
+                     "LOS detection probability, mean over vehicle-steps of the detected "
+                     "fraction of their LOS links", col="pd"),
+                over(f"ekf_mean_error_m_alpha{tag}", g[g.method == "ekf"], None, "m",
+                     "Gaussian EKF (moment-matched noise), same messages as the PF"),
+                over(f"ransac_mean_error_m_alpha{tag}", g[g.method == "ransac"], None, "m",
+                     "RANSAC multilateration, genie neighbour positions"),
             ]
         a30 = prev[(prev.alpha == 0.30) & (prev.method == "pf")]
         pf_d = {}
@@ -382,8 +384,8 @@ class HighwayExperiment(Experiment):
         v30 = r[(r.alpha == 0.30) & (r.M == 26) & (r.N == 20) & (r.method == "pf")]
         for v, g in v30.groupby("messages"):
             if v != "previous":
-                metrics.append(Metric(f"pf_mean_error_m_alpha30_messages_{v}", g.error_m.mean(), None, "m",
-                                      f"variant: neighbour positions = {v} (paper: previous estimates)"))
+                metrics.append(over(f"pf_mean_error_m_alpha30_messages_{v}", g, None, "m",
+                                    f"variant: neighbour positions = {v} (paper: previous estimates)"))
         vpf = variants[(variants.method == "pf") & (variants.messages == "previous")]
         for (lay, a), g in vpf.groupby(["layout", "alpha"]):
             tag = int(round(a * 100))
@@ -399,16 +401,14 @@ class HighwayExperiment(Experiment):
             metrics.append(over(f"pf_em_mean_error_m_alpha{tag}", g, PAPER_C.get(tag, (None,) * 3)[1],
                                 "m", "variant: PF with online EM from wrong parameters "
                                   f"(s_LOS, s_NLOS, alpha) = {config.em_initial}, table 4(c)"))
-            for col, unit in (("em_alpha", ""), ("em_los_std_m", "m"), ("em_nlos_mean_m", "m")):
-                metrics.append(Metric(f"{col}_final_alpha{tag}", last[col].mean(), None, unit,
-                                      f"online EM estimate at the last step, mean over vehicles and runs "
-                                      f"(truth {truth[col]:g}, start {start[col]:g}); "
-                                      f"spread over vehicles (sd) {last[col].std(ddof=0):.3g}"))
+            for col, u in (("em_alpha", ""), ("em_los_std_m", "m"), ("em_nlos_mean_m", "m")):
+                metrics.append(over(f"{col}_final_alpha{tag}", last, None, u,
+                                    f"online EM estimate at the last step, mean over vehicles "
+                                    f"(truth {truth[col]:g}, start {start[col]:g})", col=col))
         m_abl, c_abl, n_abl = self._lag_ablation_summary(ablation)
         metrics += m_abl
         notes += n_abl
-        # claims: paired over the same (run, vehicle) units
-        unit = by_vehicle
+        # claims: paired over the same runs
 
         def units(g, method, a=None):
             sel = g.method == method if a is None else (g.method == method) & np.isclose(g.alpha, a / 100)
@@ -473,22 +473,21 @@ class HighwayExperiment(Experiment):
         """Metrics, claims and the table note of the message-lag ablation rows."""
         if abl.empty:
             return [], [], []
-        mean = abl.groupby(["alpha", "N", "messages", "message_lag"]).error_m.mean()
+        groups = abl.groupby(["alpha", "N", "messages", "message_lag"])
+        runs = {(int(round(a * 100)), int(n), v, int(lag)): per_run(g, "error_m")
+                for (a, n, v, lag), g in groups}
+        get = {k: float(v.mean()) for k, v in runs.items()}
         metrics, claims = [], []
-        for (a, n, v, lag), g in abl.groupby(["alpha", "N", "messages", "message_lag"]):
-            tag = int(round(a * 100))
-            paper = PAPER_C[tag][1] if n == 20 and tag in PAPER_C else PAPER_D.get((26, int(n)))
+        for (tag, n, v, lag), values in runs.items():
+            paper = PAPER_C[tag][1] if n == 20 and tag in PAPER_C else PAPER_D.get((26, n))
             metrics.append(Metric.over_runs(
-                f"pf_mean_error_m_alpha{tag}_N{int(n)}_{v}_lag{int(lag)}",
-                per_run(g, "error_m", ("run", "vehicle")), paper, "m",
+                f"pf_mean_error_m_alpha{tag}_N{n}_{v}_lag{lag}", values, paper, "m",
                 f"ablation: PF, {v} messages, "
                 + ("one-step lag (the paper's timing)" if lag else
                    "no lag (the neighbours' estimates of the same step)")
                 + "; same data and draws for every reading of this (alpha, N)"))
-        names = sorted(set(mean.index.get_level_values(2)), key=lambda v: (v != "previous", v))
+        names = sorted({k[2] for k in get}, key=lambda v: (v != "previous", v))
         readings = [(v, lag) for v in names for lag in (1, 0)]
-        get = {(int(round(a * 100)), int(n), v, int(lag)): val
-               for (a, n, v, lag), val in mean.items()}
         alphas = sorted({k[0] for k in get if k[1] == 20})
         vehicles = sorted({k[1] for k in get if k[0] == 30})
         rows = [(f"alpha {a} %, N = 20", (a, 20)) for a in alphas]
@@ -504,13 +503,14 @@ class HighwayExperiment(Experiment):
             what = f"ablation ({v} messages, " + ("one-step lag)" if lag else "no lag)")
             if len(alphas) >= 2 and all((a, 20, v, lag) in get for a in alphas):
                 lo, hi = alphas[0], alphas[-1]
-                claims.append(Claim(f"{what}: PF mean error decreases as alpha grows "
-                                    f"({lo} -> {hi} %)",
-                                    bool(get[hi, 20, v, lag] < get[lo, 20, v, lag])))
+                claims.append(Claim.lower(f"{what}: PF mean error decreases as alpha grows "
+                                          f"({lo} -> {hi} %)", runs[hi, 20, v, lag],
+                                          runs[lo, 20, v, lag], unit="m"))
             if len(vehicles) >= 2 and all((30, n, v, lag) in get for n in vehicles):
                 lo, hi = vehicles[0], vehicles[-1]
-                claims.append(Claim(f"{what}: more vehicles ({lo} -> {hi}) lower the PF error",
-                                    bool(get[30, hi, v, lag] < get[30, lo, v, lag])))
+                claims.append(Claim.lower(f"{what}: more vehicles ({lo} -> {hi}) lower the PF "
+                                          "error", runs[30, hi, v, lag], runs[30, lo, v, lag],
+                                          unit="m"))
         note = ("message-lag ablation, PF mean error [m] (M = 26):\n" + "\n".join(lines))
         return metrics, claims, [note]
 

@@ -4,19 +4,24 @@ Calibration on ``calibration_df.csv`` (4,104 fingerprints, 6 anchors); every row
 robot test run (719 rows, LiDAR-SLAM truth, never used for tuning) is localized one-shot and
 tracked (Sect. 4):
 
-- ``gmm_em`` / ``gmm_progressive``: per-anchor mixtures (eq. (1), (2)) from batch EM and from
-  progressive calibration (``radioloc locate --method gmm``'s default model);
+- ``gmm_em`` / ``gmm_progressive``: per-anchor mixtures (eq. (1), (2)) from batch EM
+  (``radioloc locate --method gmm -o model=stations``) and from kernel-insertion
+  calibration;
 - ``gmm_places_default``: the shared-place model (docs/fingerprinting.md) with the fit
   defaults, ``T = 1``, every place kept;
 - ``gmm_places_cv``: the same model with ``T``, the places kept ``M`` and the shrinkage chosen
   by spatially grouped cross-validation on the calibration file only
-  (:func:`~radioloc.models.fingerprint_selection.select_places_settings`, the defaults of
-  ``locate --method gmm -o model=places``); ``_tracking``: tracked over the places
+  (:func:`~radioloc.models.fingerprint_selection.select_places_settings`, the settings of
+  ``locate --method gmm``'s default model); ``_tracking``: tracked over the places
   (:func:`~radioloc.estimators.place_tracking.track_places`, uniform disk of ``v_max``);
 - ``knn`` and ``wknn``: k nearest neighbours in signal space (scikit-learn), uniform and
-  inverse-distance weights, the usual baselines.
+  inverse-distance weights, the usual baselines, each with ``k`` chosen by the same spatially
+  grouped cross-validation on the calibration file
+  (:func:`~radioloc.models.fingerprint_selection.select_knn_k`).
 
-No Monte Carlo: one run.
+No Monte Carlo: one run. Its 719 test rows are consecutive (one scan per 1/3 s), so they are
+not independent units: every interval and paired claim is over batch means, the mean of each
+``batch_rows`` consecutive rows.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from radioloc.estimators.place_tracking import track_places
 from radioloc.experiments.base import Claim, Experiment, Metric, Summary, per_run, register
 from radioloc.io.kolakowski import load_fingerprints
 from radioloc.models.fingerprint_mixture import FingerprintMixture
-from radioloc.models.fingerprint_selection import select_places_settings
+from radioloc.models.fingerprint_selection import select_knn_k, select_places_settings
 from radioloc.models.mixture_calibration import em_calibration, progressive_calibration
 from radioloc.models.motion import UniformDisk
 from radioloc.report.style import COLORS, figure, save
@@ -50,8 +55,15 @@ class BleConfig:
     calib_stride: progressive calibration inserts every ``calib_stride``-th fingerprint in a
         fixed shuffled order (1 = all 4,104).
     v_max: maximum speed of the tracking motion model (paper: 1.5 m/s).
-    knn_k: neighbours of weighted kNN (weights = inverse RSS distance).
+    knn_ks: candidate ``k`` of kNN and weighted kNN (weights = inverse RSS distance), each
+        chosen by the spatially grouped cross-validation of the places settings (3 m blocks,
+        5 folds) on the calibration file.
     knn_missing_dbm: value given to a not received anchor for kNN.
+    batch_rows: consecutive test rows per batch: the unit of every interval and paired
+        claim (batch means). 72 rows are 24 s of the run (10 batches of the 719 rows): the
+        standard error of the paired differences still grew from 36 to 72 rows, so shorter
+        batches would understate it; the summary notes the lag-1 correlation left between
+        consecutive batch means of each claim (near 0: the batches are independent).
     places_stride: the places models use every ``places_stride``-th calibration fingerprint.
 
     Random draws (EM initialisation, the insertion order of progressive calibration) come
@@ -65,9 +77,10 @@ class BleConfig:
     bandwidth: tuple[float, float, float] = (0.3, 0.3, 2.0)
     calib_stride: int = 2
     v_max: float = 1.5
-    knn_k: int = 5
+    knn_ks: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 10, 12, 15, 20)
     knn_missing_dbm: float = -100.0
     places_stride: int = 1
+    batch_rows: int = 72
 
 
 @register
@@ -136,8 +149,12 @@ class BleFingerprintExperiment(Experiment):
                                          top_places=top).locate(test.rss).position
             est[name + "_tracking"] = track_places(model, test.rss, test.time_s, config.v_max,
                                                    t, top).position
+        knn_cv = []
         for name, weights in (("knn", "uniform"), ("wknn", "distance")):
-            knn = KNeighborsRegressor(n_neighbors=config.knn_k, weights=weights)
+            k, table = select_knn_k(cal.position, cal.rss, ks=config.knn_ks, weights=weights,
+                                    missing_dbm=config.knn_missing_dbm)
+            knn_cv.append(table.assign(method=f"cv_{name}", run=runs[0]))
+            knn = KNeighborsRegressor(n_neighbors=k, weights=weights)
             knn.fit(np.nan_to_num(cal.rss, nan=config.knn_missing_dbm), cal.position)
             est[name] = knn.predict(np.nan_to_num(test.rss, nan=config.knn_missing_dbm))
         frames = [pd.DataFrame({"run": runs[0], "method": name, "row": np.arange(len(p)),
@@ -146,7 +163,7 @@ class BleFingerprintExperiment(Experiment):
                                 "error_m": position_error(p, test.position)})
                   for name, p in est.items()]
         frames.append(chosen.table.assign(method="cv", run=runs[0]))
-        return pd.concat(frames, ignore_index=True)
+        return pd.concat(frames + knn_cv, ignore_index=True)
 
     def summarize(self, config: BleConfig, results: pd.DataFrame, out_dir: Path) -> Summary:
         """Metrics, claims and figures from the rows the blocks returned.
@@ -167,30 +184,53 @@ class BleFingerprintExperiment(Experiment):
         """
         metrics = []
         cv = results[results["method"] == "cv"].dropna(axis=1, how="all")
-        results = results[results["method"] != "cv"]
+        k_cv = {m[3:]: g.dropna(axis=1, how="all") for m, g in results.groupby("method")
+                if m.startswith("cv_")}
+        # the chosen k: the first of the lowest CV error (select_knn_k's rule)
+        k_best = {m: int(t["k"].iloc[int(np.argmin(t["cv_mean_error_m"].to_numpy()))])
+                  for m, t in k_cv.items()}
+        results = results[~results["method"].str.startswith("cv")]
+        results = results.assign(batch=results["row"] // config.batch_rows)
         g = results.groupby("method", sort=False)["error_m"]
-        mean, median, p90 = g.mean(), g.median(), g.quantile(0.9)
-        for name in mean.index:
-            metrics.append(Metric(f"{name}_mean_error_m", mean[name], None, "m",
-                                  "robot test run, 719 rows"))
+        median, p90 = g.median(), g.quantile(0.9)
+        n_rows, n_batches = results["row"].nunique(), results["batch"].nunique()
+        batches = {m: per_run(r, "error_m", ("run", "batch")) for m, r in results.groupby("method")}
+        for name in median.index:
+            what = (f", k = {k_best[name]} (spatially grouped CV)" if name in k_best else "")
+            metrics.append(Metric.over_runs(
+                f"{name}_mean_error_m", batches[name], None, "m",
+                f"robot test run, {n_rows} rows{what}; interval over {n_batches} batch means "
+                f"of {config.batch_rows} consecutive rows"))
             metrics.append(Metric(f"{name}_median_error_m", median[name], None, "m",
-                                  "median of the position error"))
+                                  "median of the position error over the rows (no interval: "
+                                  "the rows of one run are not independent)"))
             metrics.append(Metric(f"{name}_p90_error_m", p90[name], None, "m",
-                                  "90th percentile of the position error"))
+                                  "90th percentile of the position error (no interval, as the "
+                                  "median)"))
         best = cv.loc[cv["cv_mean_error_m"].idxmin()]
-        rows = {m: per_run(results[results["method"] == m], "error_m", ("run", "row"))
-                for m in ("gmm_em_tracking", "gmm_em", "gmm_places_cv", "wknn",
-                          "gmm_places_cv_tracking")}
+        paired = f"paired over {n_batches} batch means of {config.batch_rows} test rows"
         claims = [Claim.lower("Tracking with the motion model reduces the mean error of one-shot "
-                              "mixture localization (EM models; paired over test rows)",
-                              rows["gmm_em_tracking"], rows["gmm_em"], unit="m"),
+                              f"mixture localization (EM models; {paired})",
+                              batches["gmm_em_tracking"], batches["gmm_em"], unit="m"),
                   Claim.lower("The places mixture with cross-validated settings is at least as "
-                              "good as weighted kNN (mean error, one-shot; paired over test rows)",
-                              rows["gmm_places_cv"], rows["wknn"], unit="m"),
+                              "good as weighted kNN with cross-validated k (mean error, "
+                              f"one-shot; {paired})",
+                              batches["gmm_places_cv"], batches["wknn"], unit="m"),
                   Claim.lower("Tracking over the places reduces the mean error of one-shot places "
-                              "localization (cross-validated settings; paired over test rows)",
-                              rows["gmm_places_cv_tracking"], rows["gmm_places_cv"], unit="m")]
-        notes = [f"kNN baselines k={config.knn_k}; the paper publishes no BLE numbers",
+                              f"localization (cross-validated settings; {paired})",
+                              batches["gmm_places_cv_tracking"], batches["gmm_places_cv"],
+                              unit="m")]
+        notes = []
+        for claim, (a, b) in zip(claims, (("gmm_em_tracking", "gmm_em"), ("gmm_places_cv", "wknn"),
+                                          ("gmm_places_cv_tracking", "gmm_places_cv"))):
+            d = (batches[a] - batches[b]).to_numpy()
+            lag1 = float(np.corrcoef(d[:-1], d[1:])[0, 1]) if d.size > 3 else np.nan
+            notes.append(f"lag-1 correlation of consecutive batch means of the paired "
+                         f"difference ({a} - {b}): {lag1:.2f} (the further above 0, the more "
+                         "that claim's interval understates its uncertainty)")
+        notes += [f"kNN baselines: k = {k_best.get('knn')} (kNN), {k_best.get('wknn')} (weighted) "
+                 f"chosen from {list(config.knn_ks)} by the places' spatially grouped CV on the "
+                 "calibration file; the paper publishes no BLE numbers",
                  f"places settings chosen by spatially grouped CV on the calibration file "
                  f"(3 m blocks, 5 folds): T={best['temperature']:g}, "
                  f"M={int(best['top_places']) or 'all'}, shrink={best['shrink']:g} "

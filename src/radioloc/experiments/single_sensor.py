@@ -397,6 +397,74 @@ def _sensitivity_rows(config) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: columns of the per-n table: (method, label); the trajectory is the straight track except
+#: where the label says otherwise
+BY_N_COLUMNS = (("blue", "BLUE"), ("ekf", "EKF (diffuse; trajectory RTS-smoothed)"),
+                ("ekf_straight", "EKF straight track (filtered state)"),
+                ("newton", "Newton (OLS start)"), ("ols", "OLS"),
+                ("newton_fixed", "Newton (fixed start)"),
+                ("newton_near_truth", "Newton (near truth)"))
+#: first-line marker of the per-n table note
+BY_N = "RMSE by n"
+
+
+def _by_n_table(rows: pd.DataFrame, source: str) -> str:
+    """The per-n table (Markdown) of one source: per method, the trajectory RMSE and the
+    p_k RMSE (k = n-1, the causal track at that n), each with its 95 % interval over runs.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        The ``runs`` rows of one source (columns ``method, n, run, traj_err2, pos_err2``).
+    source : str
+        Its name (first line of the note).
+
+    Returns
+    -------
+    str
+        A note: a title line holding :data:`BY_N`, then the table.
+    """
+    def cell(g, col):
+        m = Metric.over_runs("", per_run(g, col), stat="rms") if len(g) else None
+        if m is None or not np.isfinite(m.value):
+            return "-"
+        return f"{m.value:.3f} [{m.ci[0]:.3f}, {m.ci[1]:.3f}]"
+
+    cols = [(m, label) for m, label in BY_N_COLUMNS if m in set(rows["method"])]
+    lines = [f"({source}) {BY_N} (each cell: trajectory RMSE / p_k RMSE [m], 95 % CI over "
+             "runs; the p_k column is the causal track at that n):", "",
+             "| n | " + " | ".join(label for _, label in cols) + " |",
+             "|---" * (len(cols) + 1) + "|"]
+    for n, g in rows.groupby("n"):
+        cells = []
+        for m, _ in cols:
+            gm = g[g["method"] == m]
+            traj = cell(gm, "traj_err2")
+            cells.append(traj if m == "ekf_straight" else f"{traj} / {cell(gm, 'pos_err2')}")
+        lines.append(f"| {int(n)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def docs_snippet(record: dict) -> str:
+    """``docs/generated/p002-single-sensor.md``: the generic snippet of the run's metrics and
+    claims, then the per-n tables of its notes.
+
+    Parameters
+    ----------
+    record : dict
+        The parsed ``summary.json`` of a ``p002-single-sensor`` run.
+
+    Returns
+    -------
+    str
+        Markdown.
+    """
+    from radioloc.report.snippet import docs_snippet as metrics_and_claims
+
+    tables = [n for n in record.get("notes", []) if BY_N in n.splitlines()[0]]
+    return metrics_and_claims(record) + "".join(f"\n{t}\n" for t in tables)
+
+
 @register
 class SingleSensorExperiment(Experiment):
     id = "p002-single-sensor"
@@ -480,28 +548,33 @@ class SingleSensorExperiment(Experiment):
                     metrics.append(Metric(f"{name}_{m}_n{n_top}{tag}_se",
                                           _rmse_se(top.loc[top.method == m, col]), None, "m",
                                           se_note))
-            metrics.append(Metric(f"crb_rmse_n{n_top}{tag}", crb_d.loc[n_top], None, "m",
-                                  "eq. (23), differenced model, sqrt(mean trace position block)"))
-            metrics.append(Metric(f"crb_raw_rmse_n{n_top}{tag}", crb_r.loc[n_top], None, "m",
-                                  "raw-range CRB (Gaussian approximation)"))
+            blue_top = top[top.method == "blue"]
+            metrics.append(rms(f"crb_rmse_n{n_top}{tag}", blue_top, "crb_diff_pos",
+                               "eq. (23), differenced model, sqrt(mean trace position block) "
+                               "over the runs' tracks"))
+            metrics.append(rms(f"crb_raw_rmse_n{n_top}{tag}", blue_top, "crb_raw_pos",
+                               "raw-range CRB (Gaussian approximation)"))
             for m, what in VARIANTS.items():
-                metrics.append(Metric(f"traj_rmse_{m}_n{n_top}{tag}", traj.loc[n_top, m], None,
-                                      "m", f"variant, {what}: trajectory RMSE"))
-                metrics.append(Metric(f"rmse_{m}_n{n_top}{tag}", rmse.loc[n_top, m], None, "m",
-                                      f"variant, {what}: p_k RMSE"))
+                metrics.append(rms(f"traj_rmse_{m}_n{n_top}{tag}", top[top.method == m],
+                                   "traj_err2", f"variant, {what}: trajectory RMSE"))
+                metrics.append(rms(f"rmse_{m}_n{n_top}{tag}", top[top.method == m], "pos_err2",
+                                   f"variant, {what}: p_k RMSE"))
             for m in NEWTONS:
                 for n in (n_low, n_top):
                     nt = sub[(sub.method == m) & (sub.n == n)]
-                    metrics.append(Metric(
-                        f"{m}_diverged_frac_n{n}{tag}", nt["diverged"].astype(bool).mean(),
-                        None, "", f"{VARIANTS.get(m, LABELS.get(m))}: runs not meeting the "
-                        f"stopping rule or ending > {config.divergence_m:g} m from p_k",
-                        predicted="Sect. I: Newton's method may diverge (start outside the "
-                        "convergence region, near-singular Hessian)"))
+                    metric = Metric.over_runs(
+                        f"{m}_diverged_frac_n{n}{tag}",
+                        per_run(nt.assign(d=nt["diverged"].astype(float)), "d"), None, "",
+                        f"{VARIANTS.get(m, LABELS.get(m))}: runs not meeting the stopping rule "
+                        f"or ending > {config.divergence_m:g} m from p_k")
+                    metric.predicted = ("Sect. I: Newton's method may diverge (start outside "
+                                        "the convergence region, near-singular Hessian)")
+                    metrics.append(metric)
             newton_top = sub[(sub.method == "newton") & (sub.n == n_top)]
-            metrics.append(Metric(f"newton_converged_frac_n{n_top}{tag}",
-                                  newton_top["newton_converged"].astype(bool).mean(), None, "",
-                                  "Newton (OLS start) runs meeting the stopping rule"))
+            metrics.append(Metric.over_runs(
+                f"newton_converged_frac_n{n_top}{tag}",
+                per_run(newton_top.assign(c=newton_top["newton_converged"].astype(float)), "c"),
+                None, "", "Newton (OLS start) runs meeting the stopping rule"))
             if "cpu_s_per_run" in sub and sub["cpu_s_per_run"].notna().any():
                 # Fig. 3 only: CPU times are machine-dependent, decide no metric or claim
                 # (timings.csv; the comparison is benchmarks/bench_closed_form.py)
@@ -509,10 +582,10 @@ class SingleSensorExperiment(Experiment):
             for name, what in (("blue_uniform_moments", "BLUE with exact uniform-noise moments"),
                                ("blue_printed_eq14", "BLUE with eq. (14)'s printed off-diagonal "
                                                      "channel terms")):
-                metrics.append(Metric(f"rmse_{name}_n{n_top}{tag}", rmse.loc[n_top, name], None,
-                                      "m", f"reading: {what}"))
-            metrics.append(Metric(f"rmse_blue_k0_n{n_top}{tag}", rmse.loc[n_top, "blue_k0"], None,
-                                  "m", "variant: closed form estimating p_0 (fixed k = 0)"))
+                metrics.append(rms(f"rmse_{name}_n{n_top}{tag}", top[top.method == name],
+                                   "pos_err2", f"reading: {what}"))
+            metrics.append(rms(f"rmse_blue_k0_n{n_top}{tag}", top[top.method == "blue_k0"],
+                               "pos_err2", "variant: closed form estimating p_0 (fixed k = 0)"))
             best_causal = min(causal, key=causal.get)
             straight = pd.Series({m: traj.loc[n_top, STRAIGHT[m]] for m in METHODS})
             best_straight = straight.idxmin()
@@ -565,8 +638,7 @@ class SingleSensorExperiment(Experiment):
                                            decreasing("blue_k0", "pos_err2")))
             notes.append(f"({source}) causal-track RMSE ({window}, headline): "
                          + ", ".join(f"{m} {causal[m]:.4f} m" for m in METHODS))
-            notes.append(f"({source}) trajectory RMSE by n:\n" + traj.round(4).to_string())
-            notes.append(f"({source}) p_k RMSE by n:\n" + rmse.round(4).to_string())
+            notes.append(_by_n_table(sub, source))
             self._fig1(rmse, traj, crb_d, crb_r, config, source, out_dir)
         if "uci-pen" not in set(runs_rows["source"]):
             notes.append("real-data part skipped: folder uci-character-trajectories is absent "
@@ -688,10 +760,12 @@ class SingleSensorExperiment(Experiment):
                           label=f"closed form p_k, n = {nn}")
                 a1.loglog(sub.index, sub["traj_err2"], ls, mfc="none", color="C1",
                           label=f"closed form trajectory, n = {nn}")
-                metrics += [Metric(f"rmse_blue_n{nn}_step{st:g}".replace(".", "p"), v, None, "m",
-                                   "closed form p_k (k = n-1) for a sensor turning this many "
-                                   "rad per sample")
-                            for st, v in sub["pos_err2"].items()]
+                rows_n = sens_runs[sens_runs["n"] == nn]
+                metrics += [Metric.over_runs(
+                    f"rmse_blue_n{nn}_step{st:g}".replace(".", "p"),
+                    per_run(rows_n[rows_n["param"] == st], "pos_err2"), None, "m",
+                    "closed form p_k (k = n-1) for a sensor turning this many rad per sample",
+                    stat="rms") for st in sub.index]
                 notes.append(f"closed-form p_k RMSE at n = {nn} vs sensor turn: "
                              + ", ".join(f"{st:g} rad -> {v:.3g} m"
                                          for st, v in sub["pos_err2"].items()))
@@ -717,12 +791,13 @@ class SingleSensorExperiment(Experiment):
             "of eq. (23) and of the raw ranges against how far the sensor turns per sample "
             f"(left), and the eq. (23) bound on p_k against the reference index k (right, "
             f"n = {n})."))
+        exact = "; exact for the figure's fixed state, so no interval"
         metrics += [Metric(f"crb_rmse_n{n}_step{st:g}".replace(".", "p"), v, None, "m",
-                           "eq. (23) for a sensor turning this many rad per sample")
+                           "eq. (23) for a sensor turning this many rad per sample" + exact)
                     for st, v in zip(steps, b_step)]
         pick = [0, len(ks) // 2, len(ks) - 1]
-        metrics += [Metric(f"crb_rmse_n{n}_k{ks[i]}", b_k[i], None, "m", "eq. (23) bound on p_k")
-                    for i in pick]
+        metrics += [Metric(f"crb_rmse_n{n}_k{ks[i]}", b_k[i], None, "m",
+                           "eq. (23) bound on p_k" + exact) for i in pick]
         notes += ["eq. (23) position bound vs sensor turn per sample: "
                   + ", ".join(f"{st:g} rad -> {v:.3g} m" for st, v in zip(steps, b_step)),
                   "raw-range bound vs turn: "
@@ -730,3 +805,11 @@ class SingleSensorExperiment(Experiment):
                   "eq. (23) bound on p_k vs k: "
                   + ", ".join(f"k={k}: {v:.3g} m" for k, v in zip(ks, b_k))]
         return metrics, notes
+
+
+if __name__ == "__main__":            # python -m radioloc.experiments.single_sensor SUMMARY OUT_MD
+    import sys
+
+    from radioloc.report.snippet import write_docs_snippet
+
+    write_docs_snippet(sys.argv[1], sys.argv[2], docs_snippet)

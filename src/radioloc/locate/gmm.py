@@ -15,9 +15,9 @@ are left out (a warning gives their count).
 
 Models (``-o model=``):
 
-- ``stations`` (default, paper 004 as written): one mixture per station fitted by EM,
-  eq. (1); one-shot localization by eq. (2) or tracking (``-o track=1``).
-- ``places`` (WiFi scale: hundreds of stations, most not detected, several floors): the
+- ``places`` (default: the lower mean error on both fingerprint sets here, Kolakowski BLE
+  and UJIIndoorLoc WiFi; also WiFi scale: hundreds of stations, most not detected,
+  several floors): the
   shared-place model :class:`~radioloc.models.fingerprint_mixture.FingerprintMixture`,
   "not detected" an explicit outcome, the building and floor decided first when the
   calibration has those columns (output columns ``building``, ``floor``); ``-o
@@ -27,6 +27,8 @@ Models (``-o model=``):
   (:func:`~radioloc.models.fingerprint_selection.select_places_settings`). See
   docs/fingerprinting.md. ``-o track=1`` tracks each node over the places
   (:func:`~radioloc.estimators.place_tracking.track_places`, uniform disk of ``v_max``).
+- ``stations`` (paper 004 as written): one mixture per station fitted by EM, eq. (1);
+  one-shot localization by eq. (2) or tracking (``-o track=1``).
 
 Measurements: ``rss`` rows, ``node`` = the mobile, ``peer`` = the base station id; all
 rows of one ``(time, node)`` form one measurement vector (duplicates are averaged). A
@@ -204,9 +206,10 @@ def apply_device_offset(meas: np.ndarray, nodes: np.ndarray, reference: np.ndarr
                       "(options: model=stations/places, components, position_components, track, "
                       "v_max, not_detected, min_samples, temperature, top_places, shrink, "
                       "device_offset)",
-               options={"model": Option("stations: per-station mixtures, eq. (2) (default); "
-                                        "places: shared places with not-detected outcome "
-                                        "(WiFi scale)", str, choices=("stations", "places")),
+               options={"model": Option("places: shared places with not-detected outcome "
+                                        "(default); stations: per-station mixtures, eq. (2) "
+                                        "(paper 004 as written)", str,
+                                        choices=("stations", "places")),
                         "components": Option("mixture components per station model (16)", int,
                                              min=1, max=256),
                         "position_components": Option("components kept in position densities (8)",
@@ -253,7 +256,7 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
     """
     if request.calibration is None:
         raise InputError("method gmm: needs a calibration file (--calibration)")
-    kind = request.option("model", "stations", str)
+    kind = request.option("model", "places", str)
     nd = request.option("not_detected", None)
     pos, cal_rss, ids, zones, zone_names = read_calibration(request.calibration, nd,
                                                             with_zones=True)

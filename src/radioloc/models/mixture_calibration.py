@@ -1,7 +1,11 @@
 """Calibration of per-base-station signal-strength models ``D^(k)(x, y, m)`` (paper 004, Sect. 3.1).
 
-Two constructions:
+Three constructions:
 
+- :func:`parameter_calibration`: our reading of the paper's Progressive Bayes calibration in
+  the parameter space (Fig. 3). The paper re-approximates the parameter density by a
+  Gaussian mixture after each sample; ours keeps one Gaussian over the parameters, updated
+  in two linearised steps per sample (Titterington's recursive EM with a Gaussian prior).
 - :func:`progressive_calibration`: the samples are inserted one at a time. Sample ``i`` of a
   base station becomes an axis-aligned kernel component (mean = the sample, per-axis
   variance = ``bandwidth**2``) with weight ``1/n`` while the existing components are scaled
@@ -176,7 +180,12 @@ def _halton(n: int, dim: int) -> np.ndarray:
 
 def parameter_calibration(positions, rss, bounds, std_bounds, n_components: int = 16,
                           steps: int = 2, order=None) -> DiagMixture:
-    """Progressive Bayes calibration in the parameter space (paper 004, Sect. 3.1, Fig. 3).
+    """Calibration in the parameter space: our reading of paper 004's Progressive Bayes
+    calibration (Sect. 3.1, Fig. 3), not the paper's method itself.
+
+    The paper re-approximates the parameter density by a Gaussian mixture, progressively,
+    after each sample; here the parameter density is one Gaussian, updated in linearised
+    progression steps (below).
 
     Per base station, the density of the parameter vector ``eta`` of eq. (1) (per component
     the weight, the means and the standard deviations) starts from a uniform prior and is
