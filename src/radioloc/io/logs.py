@@ -39,6 +39,13 @@ beyond 10,000 km).
 Estimates are written with every float in its shortest exact form (``repr``), so that the
 times and positions read back are bit-for-bit the ones computed; the file is written to a
 temporary name and renamed, so it is complete or absent.
+
+Spreadsheets run a CSV cell that begins with ``=``, ``+``, ``-`` or ``@`` as a formula. A
+text cell written to CSV (a node or anchor id) that begins with one of them, after any
+apostrophes, and is not a number gets one more apostrophe in front (``=A1`` is written
+``'=A1``, ``'=A1`` is written ``''=A1``), as spreadsheets expect of literal text; the
+readers of this module take that apostrophe off again, so ids survive a round trip
+(:func:`spreadsheet_cell`, :func:`spreadsheet_text`).
 """
 
 from __future__ import annotations
@@ -47,6 +54,7 @@ import codecs
 import csv
 import io
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -55,7 +63,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import pandas as pd
 
-from radioloc.core.atomic import atomic_write_with, check_output_file
+from radioloc.core.atomic import atomic_write_with
 from radioloc.core.errors import InputError
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
 
@@ -378,8 +386,67 @@ MISSING_IDS = frozenset(v.lower() for v in (
     "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null"))
 
 
+#: A text cell a spreadsheet would run as a formula, after the apostrophes that escape it.
+_FORMULA = re.compile(r"'*[=+\-@]")
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def spreadsheet_cell(text: str) -> str:
+    """``text`` as a CSV cell: one apostrophe in front when a spreadsheet would run it as
+    a formula (see the module docstring); :func:`spreadsheet_text` undoes it.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+    """
+    return "'" + text if _FORMULA.match(text) and not _is_number(text) else text
+
+
+def spreadsheet_text(cell: str) -> str:
+    """The text of a CSV cell written by :func:`spreadsheet_cell` (its escaping apostrophe
+    taken off).
+
+    Parameters
+    ----------
+    cell : str
+
+    Returns
+    -------
+    str
+    """
+    return cell[1:] if cell.startswith("'") and _FORMULA.match(cell, 1) else cell
+
+
+def _spreadsheet_safe(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with every text cell through :func:`spreadsheet_cell` (a copy only when
+    a cell changes)."""
+    changed = {}
+    for name in frame.columns:
+        col = frame[name]
+        if isinstance(col.dtype, pd.StringDtype) or col.dtype.kind in "OU":
+            distinct = [v for v in col.unique() if isinstance(v, str)]
+            escaped = {v: spreadsheet_cell(v) for v in distinct}
+            if any(k != v for k, v in escaped.items()):
+                changed[name] = col.map(lambda v: escaped.get(v, v) if isinstance(v, str) else v)
+    return frame.assign(**changed) if changed else frame
+
+
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
     ids = _text(frame, column)
+    distinct = ids.unique()
+    if any(i.startswith("'") for i in distinct):
+        ids = ids.map({i: spreadsheet_text(i) for i in distinct})
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
@@ -710,27 +777,6 @@ def check_kinds(measurements: pd.DataFrame, used: Iterable[str], method: str) ->
                          "uses them")
 
 
-def check_output_path(path: Path | str | None) -> None:
-    """Refuse an output path that cannot be a file before any work is done.
-
-    Parameters
-    ----------
-    path : path or None
-        ``--out``; None or ``-`` is standard output.
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    OutputError
-        ``path`` is a folder, or below a file.
-    """
-    if path is not None and str(path) != "-":
-        check_output_file(path)
-
-
 def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     """Write ``time, node, x, y[, ...]`` estimates as CSV, or Parquet for a ``*.parquet``
     path (stdout, as CSV, if ``path`` is None or '-').
@@ -755,12 +801,14 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     Notes
     -----
     Floats are written in their shortest exact decimal form, so that reading the file back
-    gives the same numbers bit for bit (distinct time stamps stay distinct).
+    gives the same numbers bit for bit (distinct time stamps stay distinct). A CSV text
+    cell that a spreadsheet would run as a formula is escaped (:func:`spreadsheet_cell`).
     """
     def write_csv(f) -> None:
-        chunks = csv_chunks(frame)
+        safe = _spreadsheet_safe(frame)
+        chunks = csv_chunks(safe)
         if chunks is None:
-            frame.to_csv(f, index=False)
+            safe.to_csv(f, index=False)
         else:
             for text in chunks:
                 f.write(text)
