@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.validation import POSITIVE_FLOOR, as_float_array, check_positive
+from radioloc.core.validation import POSITIVE_FLOOR, as_float_array, check_dtype, check_positive
 
 __all__ = ["AnchorCalibration", "calibrate_anchors"]
 
@@ -73,7 +73,8 @@ class AnchorCalibration:
 
 
 def _rows(value, name: str, n_anchors: int, with_epoch: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    arr = np.asarray(value, dtype=float) if value is not None else np.zeros((0, 3))
+    arr = (check_dtype(value, name).astype(float) if value is not None
+           else np.zeros((0, 3)))
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InputError(f"{name}: expected rows of 3 numbers "
                          f"({'epoch, anchor, range' if with_epoch else 'anchor i, anchor j, range'}),"

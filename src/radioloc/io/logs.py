@@ -21,9 +21,10 @@ column      meaning
 ``value``   the measured value (number; a range must be >= 0, or above -6 times the
             row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
-            anchor); empty for other kinds
+            anchor); empty for other kinds (a cell on another kind is refused)
 ``std``     optional: the standard deviation of this measurement in the value's unit
-            (> 0; empty: the method's default), e.g. the sigma a WiFi RTT phone reports
+            (at least 1e-30, below which its inverse squared overflows; empty: the
+            method's default), e.g. the sigma a WiFi RTT phone reports
 ==========  =======================================================================
 
 Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique.
@@ -601,7 +602,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if "reference" in frame.columns:
         out["reference"] = frame["reference"].astype(str).str.strip()
     if "std" in frame.columns:
-        out["std"] = _optional_number(frame, "std", path, minimum=0.0, exclusive=True)
+        out["std"] = _optional_number(frame, "std", path, minimum=POSITIVE_FLOOR)
         _check_magnitude(frame, out["std"].fillna(0.0), "std", LIMITS["range_m"], "", path)
 
     def fail(i: int, message: str) -> None:
@@ -656,6 +657,9 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     ref = out["reference"] if "reference" in out.columns else pd.Series([""] * len(out))
     if (i := _first(is_tdoa & (ref == "").to_numpy())) is not None:
         fail(i, "column 'reference': a tdoa row needs its reference anchor")
+    if (i := _first(~is_tdoa & (ref != "").to_numpy())) is not None:
+        fail(i, f"column 'reference': {ref.iloc[i]!r} on a {out['kind'].iloc[i]} row; only a "
+                "tdoa row has a reference anchor (leave the cell empty)")
     if (i := _first(is_tdoa & (np.abs(value) > LIMITS["range_m"]))) is not None:
         fail(i, f"column 'value': range difference {value[i]:g} m is beyond the limit of "
                 f"{LIMITS['range_m']:g} m")

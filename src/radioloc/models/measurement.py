@@ -315,7 +315,8 @@ class Context:
         Row of each ``points`` entry in the anchor table (what ``anchor_bias`` is indexed
         by); ``-1`` where the point is not an anchor of the table.
     reference : ndarray, shape (..., m, P), optional
-        The second point of a row: the reference anchor of a time difference.
+        The second point of a row: the reference anchor of a time difference (finite,
+        within the magnitude limit, as ``points``).
     reference_index : ndarray of int, shape (m,), optional
         Its row in the anchor table.
     std : ndarray, shape (..., m), optional
@@ -346,7 +347,7 @@ class Context:
                                      f"{v.dtype} of shape {v.shape}")
                 object.__setattr__(self, name, v)
         if self.reference is not None:
-            ref = check_dtype(self.reference, "reference").astype(float)
+            ref = as_float_array(self.reference, "reference")
             if ref.shape[-2:] != pts.shape[-2:]:
                 raise InputError(f"reference: shape {ref.shape} does not match points {pts.shape}")
             object.__setattr__(self, "reference", ref)
