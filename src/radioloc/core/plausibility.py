@@ -161,6 +161,11 @@ def parse_skip(text: str | None) -> frozenset[str]:
     return frozenset(names)
 
 
+def _id_list(ids: list[str]) -> str:
+    """`` (A1, A2, ...)``: the first eight ids, for a message."""
+    return f" ({', '.join(ids[:8])}{', ...' if len(ids) > 8 else ''})"
+
+
 def _hint(name: str) -> str:
     return f" (if this is right, overrule with -o no_check={name})"
 
@@ -374,8 +379,7 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
     a = np.asarray(anchors, dtype=float)
     problem = anchor_problem(a, dim)
     if problem is not None and ids is not None:
-        problem = problem[0], problem[1].replace(" ranged to", f" ranged to ({', '.join(ids[:8])}"
-                                                 f"{', ...' if len(ids) > 8 else ''})", 1)
+        problem = problem[0], problem[1].replace(" ranged to", " ranged to" + _id_list(ids), 1)
     if problem is not None and problem[0] == "coincident" and "geometry" not in skip:
         raise GeometryError(f"{where}: {problem[1]}{_hint('geometry')}")
     factor = range_scale(R, a) if a.shape[0] > 0 else None
@@ -452,8 +456,7 @@ def check_rss_anchors(anchors: np.ndarray, *, dim: int | None = None,
     a = np.asarray(anchors, dtype=float)
     problem = anchor_problem(a, dim)
     if problem is not None and "geometry" not in skip:
-        heard = " heard" + (f" ({', '.join(ids[:8])}{', ...' if len(ids) > 8 else ''})"
-                            if ids is not None else "")
+        heard = " heard" + ("" if ids is None else _id_list(ids))
         problem = problem[0], f"{where}: " + problem[1].replace(" ranged to", heard, 1).replace(
             "fit the ranges", "fit the RSS") + _hint("geometry")
         if problem[0] == "coincident":
