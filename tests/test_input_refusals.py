@@ -215,3 +215,20 @@ def test_pseudorange_tracks_start_whatever_the_noise_draw(tmp_path):
         est = pd.read_csv(pd.io.common.StringIO(res.stdout))
         rmse = np.sqrt(np.mean(np.sum((est[["x", "y"]].to_numpy() - xy) ** 2, axis=1)))
         assert rmse < 0.5, (method, rmse)
+
+
+@pytest.mark.parametrize("row, words", [
+    ([0, 1.7976931348623157e308, 20.0], "anchor index out of range"),
+    ([0, 1, 1.7976931348623157e308], "is not a finite number from 0 to 1e+09 m")],
+    ids=["huge-index", "huge-range"])
+def test_calibrate_anchors_refuses_huge_numbers_without_a_foreign_error(row, words):
+    ranges = np.array([[0, 1, 20.0], [0, 2, 20.0], [1, 3, 20.5], row])
+    with pytest.raises(InputError, match=words):
+        calibrate_anchors(CAL_PRIOR, np.array([0, 0, 0, 1.0]), anchor_ranges=ranges)
+
+
+def test_tdoa_reference_with_batch_axes_the_points_lack_is_refused():
+    pts = np.array([[20.0, 0.0], [20.0, 20.0], [0.0, 20.0]])
+    with pytest.raises(InputError, match="reference: shape"):
+        Context(points=pts, reference=np.zeros((3, 3, 2)))
+    Context(points=np.broadcast_to(pts, (2, 3, 2)), reference=np.zeros((3, 2)))
