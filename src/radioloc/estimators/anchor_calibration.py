@@ -94,7 +94,7 @@ def _rows(value, name: str, n_anchors: int, with_epoch: bool) -> tuple[np.ndarra
         raise InputError(f"{name}: row {k} ranges anchor {i[k]} to itself")
     if np.any(~np.isfinite(r)) or np.any(r < 0) or np.any(r > LENGTH_LIMIT_M):
         k = int(np.flatnonzero(~np.isfinite(r) | (r < 0) | (r > LENGTH_LIMIT_M))[0])
-        raise InputError(f"{name}: row {k}: range {r[k]!r} is not a finite number from 0 to "
+        raise InputError(f"{name}: row {k}: range {r[k]:g} is not a finite number from 0 to "
                          f"{LENGTH_LIMIT_M:g} m")
     return i, j, r
 
