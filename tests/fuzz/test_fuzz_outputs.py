@@ -66,7 +66,9 @@ def _fmt_of(out: str, fmt: str | None) -> str:
 
 def _expected_files(folder: Path, out: str, fmt: str, plot: str | None,
                     nodes: list[str]) -> tuple[list[Path], str | None]:
-    """The files a run must write, or why it must refuse (independent of the CLI)."""
+    """The files a run must write, or why it must refuse (independent of the CLI). The
+    ``--out`` path itself must not name an input or a write-protected file even when TUM
+    writes one file per node beside it instead."""
     if out == "-":
         if fmt == "tum" and len(nodes) > 1:
             return [], "tum to standard output with several nodes"
@@ -84,8 +86,9 @@ def _expected_files(folder: Path, out: str, fmt: str, plot: str | None,
     if plot is not None:
         files.append(folder / plot)
     inputs = [folder / "meas.csv", folder / "side.csv"]
-    for i, f in enumerate(files):
-        if any(_same(f, x) for x in inputs + files[:i]):
+    checked = files if out == "-" or folder / out in files else [folder / out, *files]
+    for i, f in enumerate(checked):
+        if any(_same(f, x) for x in inputs + checked[:i]):
             return [], f"{f.name} is an input or another output"
         if f.exists() and not os.access(f, os.W_OK) or (f.exists() and not f.stat().st_mode & 0o222):
             return [], f"{f.name} is write-protected"
