@@ -259,3 +259,14 @@ def test_measurement_ids_written_and_read_back_are_the_same(tmp_path):
     meas = tmp_path / "m.csv"
     meas.write_text("time,node,peer,kind,value\n0,'=x,A,range,1\n0,''=x,A,range,2\n")
     assert list(read_measurements(meas)["node"]) == ["=x", "'=x"]
+
+
+def test_a_written_log_reads_back_with_its_formula_ids(tmp_path):
+    """Measurements.write escapes every text column, the tdoa reference included."""
+    from radioloc.io.measurements import Measurements
+
+    m = Measurements.from_arrays(time=[0.0, 0.0], node="@tag", peer=["=A1", "+A2"],
+                                 kind="tdoa", value=[1.0, -2.0], reference="-A0")
+    m.write(tmp_path / "log.csv")
+    back = Measurements.read(tmp_path / "log.csv").to_frame()
+    pd.testing.assert_frame_equal(back, m.to_frame(), check_dtype=False)

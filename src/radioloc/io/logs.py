@@ -443,11 +443,16 @@ def _spreadsheet_safe(frame: pd.DataFrame) -> pd.DataFrame:
     return frame.assign(**changed) if changed else frame
 
 
+def _unescaped(cells: pd.Series) -> pd.Series:
+    """Text cells through :func:`spreadsheet_text` (worked out once per distinct cell)."""
+    distinct = cells.unique()
+    if any(c.startswith("'") for c in distinct):
+        return cells.map({c: spreadsheet_text(c) for c in distinct})
+    return cells
+
+
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    ids = _text(frame, column)
-    distinct = ids.unique()
-    if any(i.startswith("'") for i in distinct):
-        ids = ids.map({i: spreadsheet_text(i) for i in distinct})
+    ids = _unescaped(_text(frame, column))
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
@@ -600,7 +605,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "line": frame.attrs["lines"],
     })
     if "reference" in frame.columns:
-        out["reference"] = frame["reference"].astype(str).str.strip()
+        out["reference"] = _unescaped(_text(frame, "reference"))
     if "std" in frame.columns:
         out["std"] = _optional_number(frame, "std", path, minimum=POSITIVE_FLOOR)
         _check_magnitude(frame, out["std"].fillna(0.0), "std", LIMITS["range_m"], "", path)
