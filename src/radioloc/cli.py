@@ -334,19 +334,23 @@ def locate(
     """
     import json
 
-    from radioloc.io.logs import (check_output_path, read_anchors, read_measurements,
-                                  read_reference, subtract_anchor_bias)
+    from radioloc.core.atomic import check_outputs
+    from radioloc.io.logs import (read_anchors, read_measurements, read_reference,
+                                  subtract_anchor_bias)
     from radioloc.locate.base import LocateRequest, run_method
-    from radioloc.locate.export import output_format, write_output
+    from radioloc.locate.export import output_files, output_format, write_output
     from radioloc.locate.plot import check_plot_path, plot_locate
     from radioloc.locate.progress import show_progress
     from radioloc.locate.scoring import error_lines, error_summary, reference_errors
 
-    check_output_path(out)
     fmt = output_format(out, format)
     if plot is not None:
         check_plot_path(plot)
-        check_output_path(plot)
+    inputs = [("the measurements file", measurements), ("--anchors", anchors),
+              ("--priors", priors), ("--calibration", calibration), ("--reference", reference)]
+    summary_file = _summary_path(out)
+    others = [("the summary", summary_file), ("--plot", plot)]
+    check_outputs([("--out", out), *others], inputs)
     opts = _parse_options(option)
     if smooth:
         if opts.get("smooth", "1").lower() in ("0", "false", "no", "off"):
@@ -367,6 +371,8 @@ def locate(
             estimates = run_method(method, request)
         errors = None if ref_table is None else reference_errors(estimates, ref_table)
     to_stdout = out is None or str(out) == "-"
+    files = output_files(list(estimates["node"].unique()), out, fmt)
+    check_outputs([*(("--out", f) for f in files), *others], inputs)
     written = write_output(estimates, out, fmt, anchor_table)
     summary = {"method": method, "options": dict(sorted(opts.items())),
                "measurements": str(measurements), "rows_read": int(len(meas)),
@@ -382,15 +388,22 @@ def locate(
                     title=f"radioloc locate --method {method}: {Path(measurements).name}",
                     summary=summary)
         written.append(plot)
-    if not to_stdout and Path(out).is_file():          # not a device such as /dev/stdout
-        target = Path(out).with_name(Path(out).stem + ".summary.json")
+    if summary_file is not None:
         text = json.dumps(summary, indent=1, default=_json_default) + "\n"
         from radioloc.core.atomic import atomic_write_with
 
-        atomic_write_with(target, lambda f: f.write(text))
-        written.insert(len(written) - (plot is not None), target)
+        atomic_write_with(summary_file, lambda f: f.write(text))
+        written.insert(len(written) - (plot is not None), summary_file)
     for path in written:
         _echo_err(f"wrote {path}")
+
+
+def _summary_path(out: Path | None) -> Path | None:
+    """The run summary beside ``--out`` (``OUT-stem.summary.json``); None for standard
+    output or a device such as /dev/stdout."""
+    if out is None or str(out) == "-" or (out.exists() and not out.is_file()):
+        return None
+    return out.with_name(out.stem + ".summary.json")
 
 
 def _json_default(value: Any) -> Any:
@@ -421,10 +434,12 @@ def calibrate(
     Output: the anchors file with the estimates, their covariance and the Cramer-Rao bound
     (crb_std_m); `radioloc locate --anchors` reads it and subtracts bias_m from ranges.
     """
-    from radioloc.io.logs import check_output_path, read_anchors, read_measurements, write_estimates
+    from radioloc.core.atomic import check_outputs
+    from radioloc.io.logs import read_anchors, read_measurements, write_estimates
     from radioloc.locate.calibrate import calibrate_log, calibration_table
 
-    check_output_path(out)
+    check_outputs([("--out", out)], [("the measurements file", measurements),
+                                     ("--anchors", anchors)])
     with numeric_errors_raise():
         table = read_anchors(anchors)
         meas = read_measurements(measurements)

@@ -299,6 +299,18 @@ def run(args: list[str]):
     return runner.invoke(app, args)
 
 
+def read_output(text: str, id_column: str = "node") -> pd.DataFrame:
+    """A CSV the CLI wrote, its id column as text with the spreadsheet escape taken off
+    (an id such as ``=x`` is written ``'=x``)."""
+    from radioloc.io.logs import spreadsheet_text
+
+    est = pd.read_csv(io.StringIO(text), dtype={id_column: str})
+    if id_column in est.columns:
+        est[id_column] = est[id_column].map(lambda v: spreadsheet_text(v) if isinstance(v, str)
+                                            else v)
+    return est
+
+
 def input_table(meas: Path) -> pd.DataFrame | None:
     try:
         from radioloc.io.logs import read_measurements
@@ -328,7 +340,7 @@ def classify(res, scenario: Scenario, meas: Path) -> tuple[str, str]:
     if err:
         return "noise on stderr", "\n".join(err)
     try:
-        est = pd.read_csv(io.StringIO(res.stdout), dtype={"node": str})
+        est = read_output(res.stdout)
     except Exception as exc:  # noqa: BLE001
         return "bad success", f"unreadable output: {exc}"
     if not {"time", "node", "x", "y"} <= set(est.columns) or est.empty:
@@ -426,11 +438,11 @@ def check(args: list[str], scenario: Scenario, meas: Path, *, est_check=None,
         if problem:
             outcome, detail = "error naming the wrong place", f"{problem}: {detail}"
     if outcome == "success" and est_check is not None:
-        problem = est_check(pd.read_csv(io.StringIO(res.stdout), dtype={"node": str}))
+        problem = est_check(read_output(res.stdout))
         if problem:
             outcome, detail = "wrong answer", problem
     if outcome == "success" and truth:
-        problem = oracle(pd.read_csv(io.StringIO(res.stdout), dtype={"node": str}), scenario,
+        problem = oracle(read_output(res.stdout), scenario,
                          time_scale)
         if problem:
             outcome, detail = "confidently wrong", problem

@@ -227,7 +227,9 @@ def calibrate_oracle(stdout: str, anchor_ids: set[str], tol_m: float = 0.05,
     within ``tol_m`` of the truth or ``k_sigma`` of its reported standard deviation (and
     so each ``bias_m``, when ``bias`` gives the true ones)."""
     try:
-        est = pd.read_csv(io.StringIO(stdout), dtype={"id": str})
+        from fuzz_harness import read_output
+
+        est = read_output(stdout, "id")
     except Exception as exc:  # noqa: BLE001
         return f"unreadable output: {exc}"
     if not {"id", "x", "y"} <= set(est.columns):

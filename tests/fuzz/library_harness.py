@@ -75,7 +75,9 @@ from radioloc.models import (
     UniformDisk,
     WhiteAccelerationCV,
 )
+from radioloc.estimators.anchor_calibration import calibrate_anchors
 from radioloc.models.measurement import Context, Observation
+from radioloc.models.tdoa import TdoaModel
 
 TALLY: Counter = Counter()
 #: seconds a library call may take before it counts as a hang
@@ -403,10 +405,12 @@ def _track_case(name, make, settings, extra_fields, model=None, **kw) -> Case:
 
 
 def case_extended_kalman() -> Case:
+    counts = Field(setting=True, integer=True, neg_ok=False, zero_ok=False)
     return _track_case("ExtendedKalmanFilter",
                        lambda **s: ExtendedKalmanFilter(WhiteAccelerationCV(0.05, 2), **s),
                        {"gate": 16.0},
-                       {"gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True)})
+                       {"gate": Field(setting=True, neg_ok=False, zero_ok=False, none_ok=True),
+                        "iterations": counts, "gate_patience": counts})
 
 
 def case_generic_particle() -> Case:
@@ -415,6 +419,7 @@ def case_generic_particle() -> Case:
                        {"n_particles": 200, "seed": 1},
                        {"n_particles": Field(setting=True, integer=True, neg_ok=False,
                                              zero_ok=False),
+                        "seed": Field(setting=True, integer=True, neg_ok=False),
                         "ess_threshold": Field(setting=True, neg_ok=False)})
 
 
@@ -448,6 +453,51 @@ def case_bearing_least_squares() -> Case:
                 truth, 1e-3)
 
 
+def case_tdoa_least_squares() -> Case:
+    """The generic least squares on time differences: the reference anchor of each row is
+    the second point of its context."""
+    truth = np.array([7.0, 12.0])
+    peers, ref = ANCHORS[1:], np.tile(ANCHORS[0], (3, 1))
+    z = np.linalg.norm(peers - truth, axis=-1) - np.linalg.norm(ref - truth, axis=-1)
+
+    def solve(s, a):
+        est = LeastSquares(**s).locate(Observation(
+            TdoaModel(std_m=0.05), a["z"], Context(points=a["points"], reference=a["reference"])))
+        if np.any(est.diagnostics["degenerate"]):
+            raise GeometryError("problem flagged degenerate by LeastSquares")
+        return est
+    return Case("LeastSquares/tdoa", {}, {"z": z, "points": peers.copy(), "reference": ref},
+                # a tdoa unit slip may be blamed on the values or on the anchors
+                {"z": Field(nan_ok=True, names=("z", "tdoa")),
+                 "points": Field(names=("points", "tdoa")),
+                 "reference": Field(names=("reference", "tdoa"))}, solve,
+                truth, 1e-3)
+
+
+def case_calibrate_anchors() -> Case:
+    """Anchor self-calibration (a function): one rough anchor among surveyed ones, exact
+    anchor-to-anchor ranges."""
+    anchors = np.array([[0.0, 0.0], [20.0, 0.0], [0.0, 15.0], [20.0, 15.0], [8.0, -4.0]])
+    pairs = [(i, j) for i in range(5) for j in range(i + 1, 5)]
+    ranges = np.array([(i, j, np.linalg.norm(anchors[i] - anchors[j])) for i, j in pairs])
+    prior = anchors + np.r_[[0.0] * 8, 0.4, -0.3].reshape(5, 2)
+
+    def solve(s, a):
+        fit = calibrate_anchors(a["prior_position"], a["prior_std_m"],
+                                anchor_ranges=a["anchor_ranges"], **s)
+        return Estimate(position=fit.position, covariance=fit.covariance)
+    return Case("calibrate_anchors", {"std_m": 0.01},
+                {"prior_position": prior, "prior_std_m": np.r_[0.0, 0.0, 0.0, 0.0, 1.0],
+                 "anchor_ranges": ranges},
+                # a tiny prior std leaves the information ill-conditioned: refused by the
+                # rough anchors it names
+                {"prior_position": Field(extra_ok=True),
+                 "prior_std_m": Field(neg_ok=False, names=("prior_std_m", "rough anchors")),
+                 "anchor_ranges": Field(neg_ok=False),
+                 "std_m": Field(setting=True, neg_ok=False, zero_ok=False)},
+                solve, anchors, 0.05)
+
+
 CASES: dict[str, Callable[[], Case]] = {
     "Multilateration": case_multilateration, "NetworkRLS": case_network_rls,
     "NetworkEKF": case_network_ekf, "RangeEKF": case_range_ekf,
@@ -458,6 +508,7 @@ CASES: dict[str, Callable[[], Case]] = {
     "LeastSquares": case_least_squares, "ExtendedKalmanFilter": case_extended_kalman,
     "ParticleFilter": case_generic_particle, "BatchSmoother": case_batch_smoother,
     "LeastSquares/aoa": case_bearing_least_squares, "MixtureTracker/range": case_generic_mixture,
+    "LeastSquares/tdoa": case_tdoa_least_squares, "calibrate_anchors": case_calibrate_anchors,
 }
 assert {c.__name__ for c in ESTIMATORS} | {c.__name__ for c in GENERIC_ESTIMATORS} \
     <= {k.split("/")[0] for k in CASES}, "a new estimator needs a fuzz case"

@@ -14,8 +14,10 @@ from radioloc.core.errors import InputError
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, check_ranges, range_floor_m
 from radioloc.estimators import ESTIMATORS, GENERIC_ESTIMATORS, NetworkRLS
 
-#: estimators without a range argument (RSS)
-NO_RANGES = {"GridFilter", "MixtureLocalizer", "MixtureTracker", "LeastSquares/aoa"}
+#: cases without a range argument (RSS, angles, time differences, which may be negative) or
+#: whose ranges are rows of indices and values (calibrate_anchors: any negative one refused)
+NO_RANGES = {"GridFilter", "MixtureLocalizer", "MixtureTracker", "LeastSquares/aoa",
+             "LeastSquares/tdoa", "calibrate_anchors"}
 #: cases configured without a range noise level: every negative range is refused
 NO_NOISE_LEVEL = {"NetworkRLS", "NewtonTracker"}
 RANGE_CASES = sorted(set(CASES) - NO_RANGES)

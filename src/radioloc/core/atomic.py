@@ -11,6 +11,12 @@ end with one rename (``renameat2(RENAME_EXCHANGE)`` on Linux, so the target is n
 missing; elsewhere two renames, so that for an instant the target is absent but never
 mixed). Staging folders left by a killed process are removed by the next run.
 
+An output never destroys data it was not asked to replace: a write-protected file is
+refused, not replaced (:func:`check_output_file`); the temporary file of a write killed
+before its rename (``.<name>.tmp-<pid>-<token>``) is removed by the next write in that
+folder; and :func:`check_outputs` refuses an output that names one of the command's
+inputs or another of its outputs.
+
 Every :class:`OSError` is turned into :class:`~radioloc.core.errors.OutputError` naming the
 path and the reason in words.
 """
@@ -22,6 +28,7 @@ import ctypes
 import ctypes.util
 import errno
 import os
+import re
 import secrets
 import shutil
 import stat
@@ -74,13 +81,73 @@ def check_output_file(path: Path | str) -> Path:
     Raises
     ------
     OutputError
-        ``path`` is an existing folder, or one of its parents is an existing file.
+        ``path`` is an existing folder, one of its parents is an existing file, or it is
+        an existing file that is write-protected (no write permission for anyone, or none
+        for this user): it is refused, never replaced.
     """
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: cannot write (it is a folder, not a file; give a file name)")
     check_folder_path(path.parent, what=str(path))
+    if _write_protected(path):
+        raise OutputError(f"{path}: cannot write (the file is write-protected; make it "
+                          "writable or give another name)")
     return path
+
+
+def _write_protected(path: Path) -> bool:
+    """An existing regular file without write permission (for anyone, or for this user)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return stat.S_ISREG(mode) and (not mode & 0o222 or not os.access(path, os.W_OK))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` are one file: the same existing file (through links too) or the
+    same resolved path."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_outputs(outputs: list[tuple[str, Path | str | None]],
+                  inputs: list[tuple[str, Path | str | None]] = ()) -> None:
+    """Refuse, before any is written, outputs that cannot be written
+    (:func:`check_output_file`) or would replace an input or another output of the same
+    command.
+
+    Parameters
+    ----------
+    outputs : list of (name, path)
+        The files a command will write, each with the name the message uses (``"--out"``,
+        ``"--plot"``, ``"the summary"``); a None path, ``-`` or a device is skipped.
+    inputs : list of (name, path)
+        The files it reads (None skipped).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OutputError
+        An output cannot be written, is one of the inputs, or two outputs are one file
+        (hard and symbolic links included).
+    """
+    def files(pairs):
+        return [(name, Path(p)) for name, p in pairs
+                if p is not None and str(p) != "-" and not _is_special(Path(p))]
+
+    outs, ins = files(outputs), files(inputs)
+    for i, (name, path) in enumerate(outs):
+        check_output_file(path)
+        for other, o_path in ins + outs[:i]:
+            if _same_file(path, o_path):
+                raise OutputError(f"{name} {path}: is also {other} ({o_path}) and would replace "
+                                  "it; give another name")
 
 
 def check_folder_path(folder: Path | str, *, what: str | None = None) -> Path:
@@ -163,6 +230,7 @@ def atomic_open(path: Path | str, mode: str = "w", *, encoding: str | None = "ut
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(path.parent)
         fh = open(tmp, mode.replace("w", "x"), **kw)
     except OSError as exc:
         raise output_error(path, exc) from None
@@ -222,6 +290,33 @@ def atomic_write_with(path: Path | str, writer: Callable[[IO], object], *, binar
     with atomic_open(path, "wb" if binary else "w", newline=None if binary else "") as fh:
         writer(fh)
     return Path(path)
+
+
+#: The name of a temporary file of :func:`atomic_open`: ``.<target>.tmp-<pid>-<token>``.
+_TEMPORARY = re.compile(r"\..+\.tmp-(\d+)-[0-9a-f]{8}")
+
+
+def remove_stale_temporaries(folder: Path | str) -> None:
+    """Remove the temporary files of :func:`atomic_open` in ``folder`` whose process is gone
+    (a write killed before its rename).
+
+    Parameters
+    ----------
+    folder : path
+
+    Returns
+    -------
+    None
+    """
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        match = _TEMPORARY.fullmatch(name)
+        if match and not _pid_alive(int(match.group(1))):
+            with contextlib.suppress(OSError):
+                os.unlink(Path(folder) / name)
 
 
 # ---- folders --------------------------------------------------------------------------

@@ -7,11 +7,13 @@ one-line message that names the likely cause:
 =======================  ==========================================================================
 check                  refused (or warned) when
 =======================  ==========================================================================
-``geometry``           the anchors ranged to coincide, are collinear (2-D) or coplanar (3-D): the
-                       position and its mirror image fit every range equally (or every
-                       calibration reading of a fingerprint was taken at one place)
+``geometry``           the anchors ranged to (or heard by RSS rows) coincide, are collinear (2-D)
+                       or coplanar (3-D): the position and its mirror image fit every range
+                       equally (or every calibration reading of a fingerprint was taken at one
+                       place)
 ``anchor_units``       the anchors look like lat/lon degrees (every ``|x|, |y| <= 180``, a span of
-                       a fraction of a degree) while the ranges are metres
+                       a fraction of a degree) while the ranges are metres, or while RSS rows
+                       are located from them
 ``range_units``        the ranges break the triangle inequality with the anchors by a large
                        factor: ``|r_i - r_j|`` far above the anchor distance ``d_ij`` (ranges in
                        mm or cm, anchors in km) or ``r_i + r_j`` far below it (ranges in km)
@@ -173,6 +175,11 @@ def parse_skip(text: str | None) -> frozenset[str]:
         raise ConfigError(f"option no_check: unknown check(s) {', '.join(sorted(bad))}; known: "
                           f"{', '.join(known)}, all")
     return frozenset(names)
+
+
+def _id_list(ids: list[str]) -> str:
+    """`` (A1, A2, ...)``: the first eight ids, for a message."""
+    return f" ({', '.join(ids[:8])}{', ...' if len(ids) > 8 else ''})"
 
 
 def _hint(name: str) -> str:
@@ -388,8 +395,7 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
     a = np.asarray(anchors, dtype=float)
     problem = anchor_problem(a, dim)
     if problem is not None and ids is not None:
-        problem = problem[0], problem[1].replace(" ranged to", f" ranged to ({', '.join(ids[:8])}"
-                                                 f"{', ...' if len(ids) > 8 else ''})", 1)
+        problem = problem[0], problem[1].replace(" ranged to", " ranged to" + _id_list(ids), 1)
     if problem is not None and problem[0] == "coincident" and "geometry" not in skip:
         raise GeometryError(f"{where}: {problem[1]}{_hint('geometry')}")
     factor = range_scale(R, a) if a.shape[0] > 0 else None
@@ -429,6 +435,55 @@ def check_ranges(R: np.ndarray, anchors: np.ndarray, *, dim: int | None = None,
                 f"{_hint('anchor_ranges')}")
     if problem is not None and "geometry" not in skip:
         raise GeometryError(f"{where}: {problem[1]}{_hint('geometry')}")
+
+
+def check_rss_anchors(anchors: np.ndarray, *, dim: int | None = None,
+                      skip: Collection[str] = (), where: str = "rss",
+                      ids: list[str] | None = None) -> None:
+    """Refuse the anchors of RSS rows that cannot fix a position: the checks ``geometry``
+    (coincident, collinear or coplanar anchors: the RSS of a position and of its mirror
+    image are the same) and ``anchor_units`` (anchors that look like lat/lon degrees,
+    where a path loss model needs metres).
+
+    Parameters
+    ----------
+    anchors : ndarray, shape (M, 2) or (M, 3)
+        The anchors heard.
+    dim : int, optional
+        Dimension of the positions sought (default: the anchors').
+    skip : collection of str
+        Checks to leave out.
+    where : str
+        What the rows are, for the message.
+    ids : list of str, optional
+        The anchors' names, for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    GeometryError
+        Coincident, collinear or coplanar anchors.
+    InputError
+        Anchors in degrees.
+    """
+    a = np.asarray(anchors, dtype=float)
+    problem = anchor_problem(a, dim)
+    if problem is not None and "geometry" not in skip:
+        heard = " heard" + ("" if ids is None else _id_list(ids))
+        problem = problem[0], f"{where}: " + problem[1].replace(" ranged to", heard, 1).replace(
+            "fit the ranges", "fit the RSS") + _hint("geometry")
+        if problem[0] == "coincident":
+            raise GeometryError(problem[1])
+    if a.shape[0] > 1 and _looks_like_degrees(a) and "anchor_units" not in skip:
+        raise InputError(f"{where}: anchors in degrees? They span {_span(a[:, :2]):.3g} with "
+                         "every |x|, |y| <= 180, too small a site for received signal "
+                         "strength: give the anchors in metres (a local east/north frame or "
+                         f"UTM){_hint('anchor_units')}")
+    if problem is not None and "geometry" not in skip:
+        raise GeometryError(problem[1])
 
 
 def check_node_ranges(ranges: np.ndarray, prior_distance_m: np.ndarray, *,
@@ -942,6 +997,11 @@ def check_log(measurements: pd.DataFrame, anchors: pd.DataFrame | None, *,
             check_pseudoranges(_epoch_matrix(rows, ids),
                                placed.loc[ids].to_numpy(dtype=float), skip=skip,
                                where="measurements")
+    rows = measurements[(kind_of == "rss") & known]
+    if "rss" in kinds and not rows.empty:
+        ids = sorted(rows["peer"].unique())
+        check_rss_anchors(placed.loc[ids].to_numpy(dtype=float), dim=dim, where="measurements",
+                          ids=ids, skip=set(skip) | (set() if geometry else {"geometry"}))
     rows = measurements[(kind_of == "range") & known]
     if "range" not in kinds or rows.empty:
         return

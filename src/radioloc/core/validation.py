@@ -622,7 +622,7 @@ def check_ranges(ranges: np.ndarray, name: str, std_m: object = 0.0, *,
         Naming ``name``, the index of the first range below its floor, the value and the
         floor.
     """
-    r = np.asarray(ranges, dtype=float)
+    r = check_dtype(ranges, name).astype(float)
     floor = range_floor_m(std_m, bias_m)
     check_shapes(name, r.shape, "its noise standard deviations", floor.shape)
     with np.errstate(invalid="ignore"):

@@ -30,7 +30,8 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from radioloc.core.errors import GeometryError, InputError
-from radioloc.core.validation import POSITIVE_FLOOR, as_float_array, check_positive
+from radioloc.core.validation import (LENGTH_LIMIT_M, POSITIVE_FLOOR, as_float_array, check_dtype,
+                                      check_positive)
 
 __all__ = ["AnchorCalibration", "calibrate_anchors"]
 
@@ -73,7 +74,8 @@ class AnchorCalibration:
 
 
 def _rows(value, name: str, n_anchors: int, with_epoch: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    arr = np.asarray(value, dtype=float) if value is not None else np.zeros((0, 3))
+    arr = (check_dtype(value, name).astype(float) if value is not None
+           else np.zeros((0, 3)))
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise InputError(f"{name}: expected rows of 3 numbers "
                          f"({'epoch, anchor, range' if with_epoch else 'anchor i, anchor j, range'}),"
@@ -81,18 +83,19 @@ def _rows(value, name: str, n_anchors: int, with_epoch: bool) -> tuple[np.ndarra
     i, j, r = arr[:, 0], arr[:, 1], arr[:, 2]
     if np.any(i != np.round(i)) or np.any(j != np.round(j)):
         raise InputError(f"{name}: indices must be whole numbers")
-    i, j = i.astype(int), j.astype(int)
-    hi = n_anchors
+    hi = n_anchors        # bounds checked on the floats: a huge index does not fit an int
     if np.any(j < 0) or np.any(j >= hi) or (not with_epoch and (np.any(i < 0) or np.any(i >= hi))):
         raise InputError(f"{name}: anchor index out of range 0..{hi - 1}")
-    if with_epoch and np.any(i < 0):
-        raise InputError(f"{name}: epoch indices must be >= 0")
+    if with_epoch and (np.any(i < 0) or np.any(i >= 2.0 ** 63)):
+        raise InputError(f"{name}: epoch indices must be whole numbers from 0 to 2**63 - 1")
+    i, j = i.astype(int), j.astype(int)
     if not with_epoch and np.any(i == j):
         k = int(np.flatnonzero(i == j)[0])
         raise InputError(f"{name}: row {k} ranges anchor {i[k]} to itself")
-    if np.any(~np.isfinite(r)) or np.any(r < 0):
-        k = int(np.flatnonzero(~np.isfinite(r) | (r < 0))[0])
-        raise InputError(f"{name}: row {k}: range {r[k]!r} is not a finite number >= 0")
+    if np.any(~np.isfinite(r)) or np.any(r < 0) or np.any(r > LENGTH_LIMIT_M):
+        k = int(np.flatnonzero(~np.isfinite(r) | (r < 0) | (r > LENGTH_LIMIT_M))[0])
+        raise InputError(f"{name}: row {k}: range {r[k]:g} is not a finite number from 0 to "
+                         f"{LENGTH_LIMIT_M:g} m")
     return i, j, r
 
 

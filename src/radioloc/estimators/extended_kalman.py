@@ -49,9 +49,11 @@ import numpy as np
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import (
+    MAX_ITERATIONS,
     as_float_array,
     check_covariance,
     check_finite_output,
+    check_int,
     check_positive,
     refuse_infinite,
 )
@@ -164,12 +166,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                               "and a [position, velocity, acceleration] state")
         self.motion = motion
         self.gate = None if gate is None else float(check_positive(gate, "gate"))
-        if int(gate_patience) != gate_patience or gate_patience < 1:
-            raise ConfigError(f"gate_patience: must be an integer >= 1, got {gate_patience!r}")
-        self.gate_patience = int(gate_patience)
-        if int(iterations) != iterations or iterations < 1:
-            raise ConfigError(f"iterations: must be an integer >= 1, got {iterations!r}")
-        self.iterations = int(iterations)
+        self.gate_patience = check_int(gate_patience, "gate_patience", minimum=1)
+        self.iterations = check_int(iterations, "iterations", minimum=1, maximum=MAX_ITERATIONS)
         base = StateLayout(dim=dim, order=n // dim - 1)
         if layout is not None:
             if not isinstance(layout, StateLayout):

@@ -474,8 +474,10 @@ class ParticleFilter(RecursiveEstimator):
                               f"{type(resample).__name__}")
         self.resample = resample
         self.ess_threshold = check_positive(ess_threshold, "ess_threshold", allow_zero=True)
-        if np.ndim(seed) == 0 and (int(seed) != seed or seed < 0):
-            raise ConfigError(f"seed: must be an integer >= 0, got {seed!r}")
+        if not (isinstance(seed, (list, tuple)) and seed
+                and all(isinstance(s, np.random.SeedSequence) for s in seed)):
+            for s in np.ravel(np.asarray(seed, dtype=object)):
+                check_int(s, "seed", minimum=0)
         self.seed = seed
         if layout is not None:
             if not isinstance(layout, StateLayout):

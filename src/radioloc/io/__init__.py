@@ -10,7 +10,6 @@ _WHERE = {
     "write_table": "datasets",
     "LIMITS": "logs",
     "check_kinds": "logs",
-    "check_output_path": "logs",
     "read_cells": "logs",
     "read_anchors": "logs",
     "read_measurements": "logs",
@@ -26,5 +25,5 @@ _WHERE = {
 }
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE)
 
-__all__ = ["authors_rmse", "authors_window", "authors_reference", "measurement_rows", "UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "check_output_path", "export", "fetch", "read_anchors",
+__all__ = ["authors_rmse", "authors_window", "authors_reference", "measurement_rows", "UjiScans", "load_split", "read_scans", "read_cells", "LIMITS", "check_kinds", "export", "fetch", "read_anchors",
            "read_measurements", "read_reference", "read_table_text", "write_estimates", "write_table"]

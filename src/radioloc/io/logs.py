@@ -18,9 +18,10 @@ column      meaning
 ``value``   the measured value (number; a range must be >= 0, or above -6 times the
             row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
-            anchor); empty for other kinds
+            anchor); empty for other kinds (a cell on another kind is refused)
 ``std``     optional: the standard deviation of this measurement in the value's unit
-            (> 0; empty: the method's default), e.g. the sigma a WiFi RTT phone reports
+            (at least 1e-30, below which its inverse squared overflows; empty: the
+            method's default), e.g. the sigma a WiFi RTT phone reports
 ==========  =======================================================================
 
 Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique.
@@ -36,6 +37,13 @@ beyond 10,000 km).
 Estimates are written with every float in its shortest exact form (``repr``), so that the
 times and positions read back are bit-for-bit the ones computed; the file is written to a
 temporary name and renamed, so it is complete or absent.
+
+Spreadsheets run a CSV cell that begins with ``=``, ``+``, ``-`` or ``@`` as a formula. A
+text cell written to CSV (a node or anchor id) that begins with one of them, after any
+apostrophes, and is not a number gets one more apostrophe in front (``=A1`` is written
+``'=A1``, ``'=A1`` is written ``''=A1``), as spreadsheets expect of literal text; the
+readers of this module take that apostrophe off again, so ids survive a round trip
+(:func:`spreadsheet_cell`, :func:`spreadsheet_text`).
 """
 
 from __future__ import annotations
@@ -44,6 +52,7 @@ import codecs
 import csv
 import io
 import os
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -52,7 +61,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import pandas as pd
 
-from radioloc.core.atomic import atomic_write_with, check_output_file
+from radioloc.core.atomic import atomic_write_with
 from radioloc.core.errors import InputError
 from radioloc.core.kinds import kinds
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
@@ -372,8 +381,72 @@ MISSING_IDS = frozenset(v.lower() for v in (
     "<NA>", "N/A", "NA", "NULL", "NaN", "None", "n/a", "nan", "null"))
 
 
+#: A text cell a spreadsheet would run as a formula, after the apostrophes that escape it.
+_FORMULA = re.compile(r"'*[=+\-@]")
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def spreadsheet_cell(text: str) -> str:
+    """``text`` as a CSV cell: one apostrophe in front when a spreadsheet would run it as
+    a formula (see the module docstring); :func:`spreadsheet_text` undoes it.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+    """
+    return "'" + text if _FORMULA.match(text) and not _is_number(text) else text
+
+
+def spreadsheet_text(cell: str) -> str:
+    """The text of a CSV cell written by :func:`spreadsheet_cell` (its escaping apostrophe
+    taken off).
+
+    Parameters
+    ----------
+    cell : str
+
+    Returns
+    -------
+    str
+    """
+    return cell[1:] if cell.startswith("'") and _FORMULA.match(cell, 1) else cell
+
+
+def _spreadsheet_safe(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with every text cell through :func:`spreadsheet_cell` (a copy only when
+    a cell changes)."""
+    changed = {}
+    for name in frame.columns:
+        col = frame[name]
+        if isinstance(col.dtype, pd.StringDtype) or col.dtype.kind in "OU":
+            distinct = [v for v in col.unique() if isinstance(v, str)]
+            escaped = {v: spreadsheet_cell(v) for v in distinct}
+            if any(k != v for k, v in escaped.items()):
+                changed[name] = col.map(lambda v: escaped.get(v, v) if isinstance(v, str) else v)
+    return frame.assign(**changed) if changed else frame
+
+
+def _unescaped(cells: pd.Series) -> pd.Series:
+    """Text cells through :func:`spreadsheet_text` (worked out once per distinct cell)."""
+    distinct = cells.unique()
+    if any(c.startswith("'") for c in distinct):
+        return cells.map({c: spreadsheet_text(c) for c in distinct})
+    return cells
+
+
 def _ids(frame: pd.DataFrame, column: str, path: Path | str) -> pd.Series:
-    ids = _text(frame, column)
+    ids = _unescaped(_text(frame, column))
     empty = ids == ""
     if empty.any():
         i = int(np.flatnonzero(empty.to_numpy())[0])
@@ -528,9 +601,9 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         "line": frame.attrs["lines"],
     })
     if "reference" in frame.columns:
-        out["reference"] = frame["reference"].astype(str).str.strip()
+        out["reference"] = _unescaped(_text(frame, "reference"))
     if "std" in frame.columns:
-        out["std"] = _optional_number(frame, "std", path, minimum=0.0, exclusive=True)
+        out["std"] = _optional_number(frame, "std", path, minimum=POSITIVE_FLOOR)
         _check_magnitude(frame, out["std"].fillna(0.0), "std", LIMITS["range_m"], "", path)
 
     def fail(i: int, message: str) -> None:
@@ -578,6 +651,9 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     needs = out["kind"].isin([n for n, k in declared.items() if k.reference]).to_numpy()
     if (i := _first(needs & (ref == "").to_numpy())) is not None:
         fail(i, f"column 'reference': a {out['kind'].iloc[i]} row needs its reference anchor")
+    if (i := _first(~needs & (ref != "").to_numpy())) is not None:
+        fail(i, f"column 'reference': {ref.iloc[i]!r} on a {out['kind'].iloc[i]} row; only a "
+                "row of a kind with a reference anchor (tdoa) has one (leave the cell empty)")
     is_motion = out["kind"].isin(MOTION_KINDS).to_numpy()
     if is_motion.any():
         _check_odometry(out, is_motion, fail)
@@ -700,27 +776,6 @@ def check_kinds(measurements: pd.DataFrame, used: Iterable[str], method: str) ->
                          "uses them")
 
 
-def check_output_path(path: Path | str | None) -> None:
-    """Refuse an output path that cannot be a file before any work is done.
-
-    Parameters
-    ----------
-    path : path or None
-        ``--out``; None or ``-`` is standard output.
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    OutputError
-        ``path`` is a folder, or below a file.
-    """
-    if path is not None and str(path) != "-":
-        check_output_file(path)
-
-
 def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     """Write ``time, node, x, y[, ...]`` estimates as CSV, or Parquet for a ``*.parquet``
     path (stdout, as CSV, if ``path`` is None or '-').
@@ -745,12 +800,14 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     Notes
     -----
     Floats are written in their shortest exact decimal form, so that reading the file back
-    gives the same numbers bit for bit (distinct time stamps stay distinct).
+    gives the same numbers bit for bit (distinct time stamps stay distinct). A CSV text
+    cell that a spreadsheet would run as a formula is escaped (:func:`spreadsheet_cell`).
     """
     def write_csv(f) -> None:
-        chunks = csv_chunks(frame)
+        safe = _spreadsheet_safe(frame)
+        chunks = csv_chunks(safe)
         if chunks is None:
-            frame.to_csv(f, index=False)
+            safe.to_csv(f, index=False)
         else:
             for text in chunks:
                 f.write(text)

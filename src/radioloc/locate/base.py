@@ -234,6 +234,7 @@ class LocateMethod:
     kinds: tuple[str, ...] | None = None
     inputs: tuple[str, ...] | None = None
     moving_anchors: bool = False
+    planar: bool = False
 
 
 _METHODS: dict[str, LocateMethod] = {}
@@ -241,7 +242,7 @@ _METHODS: dict[str, LocateMethod] = {}
 
 def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option] | None = None,
                   kinds: tuple[str, ...] | None = None, inputs: tuple[str, ...] | None = None,
-                  moving_anchors: bool = False):
+                  moving_anchors: bool = False, planar: bool = False):
     """Decorator registering ``fn(request) -> DataFrame`` as ``radioloc locate --method name``.
 
     Parameters
@@ -261,6 +262,9 @@ def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option
         ``"calibration"``.
     moving_anchors : bool
         It takes anchors with a track (a ``time`` column in the anchors file).
+    planar : bool
+        It locates in the plane from the anchors' ``x, y`` only: anchors with ``z`` are
+        refused rather than their heights ignored.
 
     Returns
     -------
@@ -282,7 +286,7 @@ def locate_method(name: str, summary: str, *, options: Mapping[str, str | Option
         _METHODS[name] = LocateMethod(name, summary, fn, decl,
                                       None if kinds is None else tuple(kinds),
                                       None if inputs is None else tuple(inputs),
-                                      bool(moving_anchors))
+                                      bool(moving_anchors), bool(planar))
         return fn
 
     return deco
@@ -307,7 +311,8 @@ def check_request(method: LocateMethod, request: LocateRequest) -> None:
     ConfigError
         An unknown option key (the known ones are listed), or a bad option value.
     InputError
-        A file the method does not read, or rows of a kind it does not use.
+        A file the method does not read, rows of a kind it does not use, or anchors with
+        heights for a planar method.
     """
     name = method.name
     if method.options is not None:
@@ -325,6 +330,10 @@ def check_request(method: LocateMethod, request: LocateRequest) -> None:
                                  f"--{what} (it reads: {', '.join(method.inputs) or 'none'})")
     from radioloc.locate.adapter import moving_anchors
 
+    if method.planar and request.anchors is not None and "z" in request.anchors.columns:
+        raise InputError(f"method {name}: locates in the plane from the anchors' x and y and "
+                         "would ignore their z column; remove z from the anchors file (the "
+                         "distances are then taken in the plane)")
     if moving_anchors(request.anchors) and not method.moving_anchors:
         takers = ", ".join(sorted(n for n, m in _METHODS.items() if m.moving_anchors)) or "none"
         raise InputError(f"method {name}: the anchors file has a time column (anchors that "

@@ -316,6 +316,12 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
                              else None)}
 
 
+#: Settings of the start fit's :class:`LeastSquares`: a micrometre is close enough for a
+#: start, and the Huber loss converges linearly once rows cross its corner (a pseudorange
+#: log's start, its clock offset far from the initial 0, took up to 146 iterations).
+START_FIT = {"tol": 1e-6, "max_iterations": 1000}
+
+
 def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: dict,
                 anchor_bias: bool = False) -> tuple[np.ndarray, float]:
     """Start position (and common range offset) of a track.
@@ -357,7 +363,7 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
         return pos, offset
     window = times <= times[0] + s["init_s"]
     medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
-    fit = LeastSquares(loss="huber").locate(medians)
+    fit = LeastSquares(loss="huber", **START_FIT).locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
                             "position (give -o init_s=SECONDS longer)")

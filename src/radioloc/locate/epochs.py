@@ -127,7 +127,14 @@ def range_epochs(request: LocateRequest, method: str, need: int | None = None
     """
     anchors = request.require_anchors(method)
     ranges = request.kind("range", method)
-    ranges = ranges[ranges["peer"].isin(set(anchors["id"]))]
+    between = ~ranges["peer"].isin(set(anchors["id"]))
+    if between.any():
+        first = ranges[between].iloc[0]
+        warnings.warn(f"method {method}: {int(between.sum())} range row(s) between nodes not "
+                      f"used (first: line {int(first['line'])}, {first['node']!r} to "
+                      f"{first['peer']!r}); it locates each node from its ranges to anchors "
+                      "(methods rls and ekf use ranges between nodes)", stacklevel=2)
+        ranges = ranges[~between]
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     if ranges.empty:
         raise GeometryError(f"method {method}: no range to an anchor in the measurements")

@@ -6,8 +6,12 @@ The format is ``--format`` when given, otherwise the suffix of ``--out``: ``.par
 - **TUM** (the format of the TUM RGB-D benchmark, read by ``evo``): one line per estimate,
   ``timestamp tx ty tz qx qy qz qw``, space separated, orientation the identity
   (``0 0 0 1``), ``tz`` 0 for 2-D tracks. TUM holds one trajectory per file: with several
-  nodes, ``track.tum`` becomes ``track.<node>.tum`` for each node (characters other than
-  letters, digits, ``.``, ``_``, ``-`` in the id become ``_``).
+  nodes, ``track.tum`` becomes ``track.<node>.tum`` for each node, the id percent-encoded
+  as in a URL (every character other than letters, digits, ``.``, ``_``, ``-``, ``~`` as
+  ``%XX`` of its UTF-8 bytes: node ``a b`` goes to ``track.a%20b.tum``, ``a_b`` to
+  ``track.a_b.tum``), so that the id is read back from the name with
+  ``urllib.parse.unquote``. Two ids that differ only in case (one file on a
+  case-insensitive file system) are refused, as is a name too long for a file system.
 - **GeoJSON**: a FeatureCollection with one ``LineString`` per node (properties ``node``,
   ``rows``) and one ``Point`` per estimate (properties ``time``, ``node`` and the other
   columns). Coordinates are written as they are, in the anchors' frame (metres), not
@@ -19,14 +23,14 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 import pandas as pd
 
 from radioloc.core.atomic import atomic_write_with
-from radioloc.core.errors import ConfigError
+from radioloc.core.errors import ConfigError, OutputError
 from radioloc.io.logs import write_estimates
 
 FORMATS = ("csv", "parquet", "tum", "geojson")
@@ -117,6 +121,56 @@ def geojson(frame: pd.DataFrame, anchors: pd.DataFrame | None = None) -> dict:
     return {"type": "FeatureCollection", "features": features}
 
 
+def output_files(nodes: list, path: Path | None, fmt: str) -> dict[Path, object]:
+    """The files :func:`write_output` writes: for TUM with several nodes one per node.
+
+    Parameters
+    ----------
+    nodes : list
+        The output's node ids, in order.
+    path : Path or None
+        ``--out`` (None or ``-``: standard output, no file).
+    fmt : str
+        From :func:`output_format`.
+
+    Returns
+    -------
+    dict of Path to node id
+        Each file and the node it holds (None: every node).
+
+    Raises
+    ------
+    ConfigError
+        TUM to standard output with several nodes.
+    OutputError
+        Two nodes whose files would be one on a case-insensitive file system, or a
+        per-node name too long for a file system (255 bytes).
+    """
+    if path is None or str(path) == "-":
+        if fmt == "tum" and len(nodes) > 1:
+            raise ConfigError("--format tum: one trajectory per file; with several nodes give "
+                              "--out FILE.tum (one file per node)")
+        return {}
+    path = Path(path)
+    if fmt != "tum" or len(nodes) == 1:
+        return {path: None}
+    files: dict[Path, object] = {}
+    folded: dict[str, object] = {}
+    for node in nodes:
+        name = f"{path.stem}.{quote(str(node), safe='')}{path.suffix}"
+        if name.casefold() in folded:
+            raise OutputError(f"--out {path}: nodes {folded[name.casefold()]!r} and {node!r} "
+                              "differ only in case and would write one file on a "
+                              "case-insensitive file system; rename one")
+        if len(name.encode()) > 255:
+            raise OutputError(f"--out {path}: the file name of node {node!r} would be "
+                              f"{len(name.encode())} bytes long (a file system allows 255); "
+                              "give a shorter --out name or id")
+        folded[name.casefold()] = node
+        files[path.with_name(name)] = node
+    return files
+
+
 def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
                  anchors: pd.DataFrame | None = None) -> list[Path]:
     """Write ``frame`` to ``path`` (None: standard output) in format ``fmt``.
@@ -134,34 +188,23 @@ def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
     Returns
     -------
     list of Path
-        Files written (empty for standard output).
+        Files written (empty for standard output), those of :func:`output_files`.
     """
-    stdout = path is None or str(path) == "-"
+    files = output_files(list(frame["node"].unique()), path, fmt)
     if fmt in ("csv", "parquet"):
         write_estimates(frame, path)
-        return [] if stdout else [Path(path)]
-    if fmt == "geojson":
-        text = json.dumps(geojson(frame, anchors), indent=1) + "\n"
-        if stdout:
-            import sys
-            sys.stdout.write(text)
-            return []
-        atomic_write_with(path, lambda f: f.write(text))
-        return [Path(path)]
-    nodes = list(frame["node"].unique())
-    if stdout:
-        if len(nodes) > 1:
-            raise ConfigError("--format tum: one trajectory per file; with several nodes give "
-                              "--out FILE.tum (one file per node)")
+        return list(files)
+
+    def render(part: pd.DataFrame) -> str:
+        if fmt == "geojson":
+            return json.dumps(geojson(part, anchors), indent=1) + "\n"
+        return _tum_text(part)
+
+    if not files:
         import sys
-        sys.stdout.write(_tum_text(frame))
+        sys.stdout.write(render(frame))
         return []
-    path = Path(path)
-    written = []
-    for node in nodes:
-        safe = re.sub(r"[^A-Za-z0-9._-]", "_", str(node))
-        target = path if len(nodes) == 1 else path.with_name(f"{path.stem}.{safe}{path.suffix}")
-        text = _tum_text(frame[frame["node"] == node])
+    for target, node in files.items():
+        text = render(frame if node is None else frame[frame["node"] == node])
         atomic_write_with(target, lambda f, text=text: f.write(text))
-        written.append(target)
-    return written
+    return list(files)

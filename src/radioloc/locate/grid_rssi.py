@@ -43,7 +43,7 @@ from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
                         "device_offset": Option("'auto': label-free per-node RSSI offset against "
                                                 "the model's calibration readings; or dB to "
                                                 "subtract (none)", str)},
-               kinds=("rss",), inputs=("anchors", "calibration"))
+               kinds=("rss",), inputs=("anchors", "calibration"), planar=True)
 def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     """Run the grid filter on every node's RSS rows to anchors.
 

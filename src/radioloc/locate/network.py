@@ -127,7 +127,7 @@ def _report(net: _Network, estimates: list[np.ndarray], covariances: list[np.nda
                                              min_exclusive=True, max=1),
                         "anchor_var_m2": Option("prior variance of anchors in the network, m^2 "
                                                 "(1e-6)", float, min=0, min_exclusive=True)},
-               kinds=("range",), inputs=("priors", "anchors"))
+               kinds=("range",), inputs=("priors", "anchors"), planar=True)
 def locate_rls(request: LocateRequest) -> pd.DataFrame:
     """Run :class:`NetworkRLS` over the packets of a measurement log.
 
@@ -161,7 +161,7 @@ def locate_rls(request: LocateRequest) -> pd.DataFrame:
                                               min=0, min_exclusive=True, max=1e7),
                         "anchor_var_m2": Option("prior variance of anchors in the network, m^2 "
                                                 "(1e-6)", float, min=0, min_exclusive=True)},
-               kinds=("range",), inputs=("priors", "anchors"))
+               kinds=("range",), inputs=("priors", "anchors"), planar=True)
 def locate_ekf(request: LocateRequest) -> pd.DataFrame:
     """Run :class:`NetworkEKF` over the packets of a measurement log.
 

@@ -346,7 +346,9 @@ class Context:
         Row of each ``points`` entry in the anchor table (what ``anchor_bias`` is indexed
         by); ``-1`` where the point is not an anchor of the table.
     reference : ndarray, shape (..., m, P), optional
-        The second point of a row: the reference anchor of a time difference.
+        The second point of a row: the reference anchor of a time difference (finite,
+        within the magnitude limit, as ``points``; it broadcasts to the shape of
+        ``points``).
     reference_index : ndarray of int, shape (m,), optional
         Its row in the anchor table.
     std : ndarray, shape (..., m), optional
@@ -382,9 +384,12 @@ class Context:
                                      f"{v.dtype} of shape {v.shape}")
                 object.__setattr__(self, name, v)
         if self.reference is not None:
-            ref = check_dtype(self.reference, "reference").astype(float)
-            if ref.shape[-2:] != pts.shape[-2:]:
-                raise InputError(f"reference: shape {ref.shape} does not match points {pts.shape}")
+            ref = as_float_array(self.reference, "reference")
+            if ref.shape[-2:] != pts.shape[-2:] or ref.ndim > pts.ndim or not all(
+                    r in (1, p) for r, p in zip(ref.shape[::-1], pts.shape[::-1])):
+                raise InputError(f"reference: shape {ref.shape} does not match points "
+                                 f"{pts.shape} (the same rows; batch axes only where the "
+                                 "points have them)")
             object.__setattr__(self, "reference", ref)
         if self.height_m is not None:
             object.__setattr__(self, "height_m", check_real(self.height_m, "height_m"))

@@ -14,7 +14,8 @@ import numpy as np
 
 from radioloc.core.errors import InputError
 from radioloc.core.kinds import Kind
-from radioloc.core.validation import check_positive, check_ranges, paired_arrays, range_noise_std
+from radioloc.core.validation import (check_dtype, check_positive, check_ranges, paired_arrays,
+                                      range_noise_std)
 from radioloc.models.measurement import Context, MeasurementModel, checked_call
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
@@ -107,7 +108,7 @@ class GaussianRange:
         ndarray
             Ranges of the same shape.
         """
-        d = np.asarray(true_ranges, dtype=float)
+        d = check_dtype(true_ranges, "true_ranges").astype(float)
         return d + self.std_m * rng.standard_normal(d.shape)
 
     def logpdf(self, measured: np.ndarray, true_ranges: np.ndarray) -> np.ndarray:
