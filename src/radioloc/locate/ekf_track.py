@@ -65,7 +65,6 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
-from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError, RadiolocError
 from radioloc.core.plausibility import VALUE_CHECKS
@@ -652,6 +651,8 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
     n = np.convolve(used + refused, w, "valid")
     ok = n > 0
+    from scipy.special import gammaincinv            # here: scipy costs start-up time
+
     counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
     band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
     windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0

@@ -111,7 +111,6 @@ from threadpoolctl import threadpool_limits
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
-from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.particle_filter import RunGenerators
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.io.measurements import Measurements
@@ -732,6 +731,8 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
     """The particle-filter tracks of a batch of segments (see the module docstring), each
     with ``"misfit"``, the fraction of its steps whose :class:`Misfit` covariance exceeds
     the particles' (trace), and the number of resets."""
+    from radioloc.estimators.p2p_particle import P2PParticleFilter   # numba: when pf runs
+
     B, T, M = len(group), max(g.times.size for g in group), anchors.shape[0]
     K = opts["particles"]
     motion = tracker_motion(dict(s, dim=2))
