@@ -44,6 +44,7 @@ from radioloc.locate.ekf_track import (log_models, motion_model, observation_win
                                        tracker_filter, tracker_settings)
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
+from radioloc.locate.progress import counted
 from radioloc.models.los_nlos import LosNlosRange
 
 __all__ = ["smooth_log", "OPTIONS"]
@@ -111,7 +112,8 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
-    for node, rows in log.by_node().items():
+    for node, rows in counted(log.by_node().items(), len(log), lambda item: len(item[1]),
+                              "smoother"):
         times, obs = node_observations(rows, table, node, models, height_m=s["height"],
                                        checked=True)
         if not times.size:

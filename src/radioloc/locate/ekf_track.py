@@ -912,10 +912,13 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         controls = np.zeros(t.shape + (s["dim"],))
         for b, tr in enumerate(tracks):
             controls[b, : tr[1].size] = tr[4]
-    with progress(1, "ekf-track: tracks") as bar:
+    rows = sum(int(np.isfinite(o.z).sum()) for o in batch)
+    if coop is not None:
+        rows += len(peers)
+    with progress(rows, "ekf-track") as bar:
         track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov, controls=controls,
-                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling)
-        bar.advance()
+                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling,
+                        on_step=bar.advance)
     tables, diverged = [], []
     for b, (node, times, _, restart, _) in enumerate(tracks):
         one = track[b, :times.size] if coop is None else coop.track_of(track, b)

@@ -478,7 +478,7 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
                      keep="fixed-lag" in outputs or "backward" in outputs)
     tracks: dict[int, dict[str, Track]] = {}
     resets = 0
-    with progress(sum(max(segs[i].times.size for i in g) for g in groups), "pf: steps") as bar:
+    with progress(sum(int(np.isfinite(sg.ranges).sum()) for sg in segs), "pf") as bar:
         for g in groups:
             out, r = _filter([segs[i] for i in g], anchors, s, outputs, opts, bar)
             tracks.update(zip(g, out))
@@ -796,7 +796,7 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
             row = np.where(out, np.nan, row)
         state = pf.step(state, row, nodes, rng, dt=dts[:, k], check=False,
                         control=None if controls is None else controls[:, k])
-        bar.advance()
+        bar.advance(int(finite.sum()))                  # the rows of the step
         means[k], covs[k] = state.mean, state.covariance
         extra[k] = misfit.covariance + kernel * P
         dominant[:, k] = np.trace(misfit.covariance, axis1=-2, axis2=-1) > \
