@@ -28,6 +28,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_locate import SRC, cpu_of_command  # noqa: E402
 from long_log import write_long_log  # noqa: E402
+from targets import STARTUP_PREFIX  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 REPEAT = 3
@@ -42,7 +43,7 @@ def startup_workload(method: str | None) -> str:
     """The row's name: ``--help`` for None."""
     if method is None:
         return "radioloc --help"
-    return f"radioloc locate start-up, --method {method}, small log (after the first run)"
+    return f"{STARTUP_PREFIX}{method}, small log (after the first run)"
 
 
 def sensor_log(folder: Path, samples: int = 20) -> tuple[Path, Path]:

@@ -287,37 +287,40 @@ def range_residuals(items: list[tuple[np.ndarray, np.ndarray]], anchors, s: dict
             for (_, R), tr in zip(items, tracks)]
 
 
-def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None,
-              label: str | None = None) -> tuple[LosNlosRange, float, dict]:
-    """LOS/NLOS model and range bias fitted by EM on residuals to a smoothed EKF track.
+def node_residuals(per_node: list, anchors, s: dict, method: str) -> dict[str, np.ndarray]:
+    """Each node's range residuals to its smoothed EKF tracks (:func:`range_residuals`),
+    every segment of every node in one batch.
 
     Parameters
     ----------
-    times : ndarray, shape (T,)
-    R : ndarray, shape (T, M)
+    per_node : list of (node, times (T,), ranges (T, M))
+        Ranges with the bias removed.
     anchors : ndarray, shape (M, 2|3)
     s : dict
-        From :func:`radioloc.locate.ekf_track.tracker_settings`.
-    parts : list of slice, optional
-        Segments tracked separately (default: one).
-    label : str, optional
-        Prefix of the message when a segment has no start (e.g. naming the node).
+        From :func:`radioloc.locate.ekf_track.tracker_settings` (``max_gap_s`` splits a
+        node's times into segments).
+    method : str
+        For the message when a segment has no start.
 
     Returns
     -------
-    model : LosNlosRange
-    bias_m : float
-    info : dict
-        ``samples`` used, ``trimmed`` (see :func:`fit_residuals`).
+    dict of node to ndarray
     """
-    parts = parts or [slice(None)]
-    return fit_residuals(np.concatenate(range_residuals(
-        [(times[seg], R[seg]) for seg in parts], anchors, s,
-        None if label is None else [label] * len(parts))))
+    items, owners = [], []
+    for node, times, R in per_node:
+        for seg in segments(times, s["max_gap_s"]):
+            items.append((times[seg], R[seg]))
+            owners.append(node)
+    res = range_residuals(items, anchors, s, [f"method {method}: node {o!r}" for o in owners])
+    out: dict[str, list] = {}
+    for o, e in zip(owners, res):
+        out.setdefault(o, []).append(e)
+    return {o: np.concatenate(e) for o, e in out.items()}
 
 
 def fit_residuals(e: np.ndarray) -> tuple[LosNlosRange, float, dict]:
-    """LOS/NLOS model and range bias fitted by EM on range residuals (see :func:`fit_model`).
+    """LOS/NLOS model and range bias fitted by EM on range residuals (those of
+    :func:`node_residuals`).
 
     Residuals more than ``TRIM`` robust standard deviations (1.4826 MAD) from their median
     are left out: the mixture has no component for ranges much too short, and one such
@@ -602,22 +605,13 @@ def node_models(request: LocateRequest, anchors, per_node: list, s: dict
     names = ("los_std_m", "nlos_mean_m", "alpha")
     given = [request.option(k) for k in names]
     fit = any(g is None for g in given)
-    residuals = {}
-    if fit:
-        items, owners = [], []
-        for node, times, R in per_node:
-            for seg in segments(times, s["max_gap_s"]):
-                items.append((times[seg], R[seg]))
-                owners.append(node)
-        res = range_residuals(items, anchors, s, [f"method pf: node {o!r}" for o in owners])
-        for o, e in zip(owners, res):
-            residuals.setdefault(o, []).append(e)
+    residuals = node_residuals(per_node, anchors, s, "pf") if fit else {}
     models, fitted = {}, []
     for node, _, _ in per_node:
         bias = s["bias"]
         values = list(given)
         if fit:
-            model, fit_bias, _ = fit_residuals(np.concatenate(residuals[node]))
+            model, fit_bias, _ = fit_residuals(residuals[node])
             floor = request.option("min_los_std_m", 0.15)
             auto = [max(model.los_std_m, floor), model.nlos_mean_m, model.alpha]
             values = [a if g is None else g for g, a in zip(given, auto)]
