@@ -6,7 +6,6 @@ Rows (each a time in seconds or a count, compared with an upper bound in ``targe
   fills numba's cache (the first run's time is printed too);
 - cold kernel compile of the whole suite: ``tests/precompile.py`` with an empty numba cache
   (``NUMBA_CACHE_DIR`` pointed at a new folder);
-- ``radioloc reproduce p004-corridor`` at the quick size, after the warm ``make demo``;
 - ``radioloc reproduce p001-highway --full --workers 2`` (about 5 minutes);
 - the lines of every function that numba compiles in ``src/`` and the lines of ``src/``.
 
@@ -85,12 +84,6 @@ def main() -> list[dict]:
                      "throughput": warm, "unit": "s (wall)", "peer": None,
                      "peer_throughput": None, "ratio": None,
                      "note": f"the run before it, which filled numba's cache: {first:.0f} s"})
-        p004 = _timed_run(_radioloc("reproduce", "p004-corridor", "--out", f"{tmp}/p004"), env)
-        print(f"reproduce p004-corridor (quick): {p004:.0f} s")
-        rows.append({"workload": "reproduce p004-corridor (quick size)", "throughput": p004,
-                     "unit": "s (wall)", "peer": None, "peer_throughput": None, "ratio": None,
-                     "note": f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} "
-                             "cores at its end"})
         cold = _timed_run([sys.executable, "tests/precompile.py"],
                           {**env, "NUMBA_CACHE_DIR": f"{tmp}/numba-cache"})
         print(f"cold compile (tests/precompile.py, empty cache): {cold:.0f} s")
