@@ -3,6 +3,7 @@ when standard error is not a terminal, one line per ``LINE_EVERY_S`` seconds of 
 
 from __future__ import annotations
 
+import math
 import re
 
 import pytest
@@ -58,3 +59,34 @@ def test_no_line_before_its_interval_nor_with_quiet(monkeypatch, log):
     monkeypatch.setattr(progress_module, "LINE_EVERY_S", 0.0)
     res = runner.invoke(app, args + ["--quiet"])
     assert res.exit_code == 0 and not any(map(LINE.match, res.stderr.splitlines()))
+
+
+def _lines(res) -> list:
+    assert res.exit_code == 0, res.output
+    return [m for m in map(LINE.match, res.stderr.splitlines()) if m]
+
+
+def test_network_and_single_sensor_methods_count_their_rows(monkeypatch, tmp_path):
+    monkeypatch.setattr(progress_module, "LINE_EVERY_S", 0.0)
+    nodes = {"N1": (10.0, 10.0), "N2": (40.0, 5.0), "N3": (25.0, 30.0)}
+    (tmp_path / "priors.csv").write_text("node,x,y,var_x,var_y\n" + "".join(
+        f"{k},{x + 3},{y - 2},100,100\n" for k, (x, y) in nodes.items()))
+    rows = [f"{t},{n},{m},range,{((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2) ** 0.5:.4f}"
+            for t in range(3) for n, p in nodes.items() for m, q in nodes.items() if m != n]
+    (tmp_path / "net.csv").write_text("time,node,peer,kind,value\n" + "\n".join(rows) + "\n")
+    for method in ("rls", "ekf"):
+        lines = _lines(runner.invoke(app, ["locate", str(tmp_path / "net.csv"), "--priors",
+                                           str(tmp_path / "priors.csv"), "--method", method]))
+        assert lines and lines[-1]["done"] == lines[-1]["total"] == str(len(rows))
+    t = [0.5 * k for k in range(20)]
+    sensor = [(10 * math.cos(1.3 * k), 10 * math.sin(1.3 * k)) for k in range(20)]
+    (tmp_path / "sensor.csv").write_text("id,time,x,y\n" + "".join(
+        f"S,{tk},{x},{y}\n" for tk, (x, y) in zip(t, sensor)))
+    rows = [f"{tk},{n},S,range,{math.dist((x0 + vx * tk, y0 + vy * tk), s):.6f}"
+            for n, x0, y0, vx, vy in (("n1", -3, -2, 0.4, 0.2), ("n2", 2, -3, -0.3, 0.4))
+            for tk, s in zip(t, sensor)]
+    (tmp_path / "walk.csv").write_text("time,node,peer,kind,value\n" + "\n".join(rows) + "\n")
+    for method in ("closed-form", "newton"):
+        lines = _lines(runner.invoke(app, ["locate", str(tmp_path / "walk.csv"), "--anchors",
+                                           str(tmp_path / "sensor.csv"), "--method", method]))
+        assert lines and lines[-1]["done"] == lines[-1]["total"] == str(len(rows))
