@@ -209,7 +209,9 @@ def main(modules=MODULES, merge: bool = False) -> list[dict]:
              "fraction of limit | target | meets |", "|---|---|---|---|---|---|---|---|---|---|"]
     fmt = lambda v, f: "-" if v is None else format(v, f)     # noqa: E731
     for r in rows:
-        lines.append(f"| {r['workload']} | {r['throughput']:,.0f} | {r['unit']} | "
+        value = r["throughput"]
+        value = f"{value:.3g}" if abs(value) < 100 else f"{value:,.0f}"    # seconds: 0.612
+        lines.append(f"| {r['workload']} | {value} | {r['unit']} | "
                      f"{r['peer'] or '-'} | {fmt(r['peer_throughput'], ',.0f')} | "
                      f"{fmt(r['ratio'], '.1f')}{'' if r['ratio'] is None else 'x'} | "
                      f"{fmt(r['limit'], ',.3g')} | {fmt(r['limit_fraction'], '.1%')} | "
