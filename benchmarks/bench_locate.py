@@ -1,16 +1,17 @@
 """CPU budgets of ``radioloc locate`` on long logs, measured as whole commands.
 
 Rows (CPU seconds, user + system, of the command's process; compared with ``at_most``
-bounds in ``targets.py``):
+bounds in ``targets.py``), each on a log of :mod:`long_log` (10 tags, 6 anchors, default
+options; ``gn`` leaves out the few epochs that do not fix a position):
 
-- ``ekf-track`` on a 1e6-row log of :mod:`long_log` (10 tags, 6 anchors, default options);
-- ``pf`` (default particle count) on a 1e5-row log of the same kind;
-- start-up: ``ekf-track`` on a 40-row log, after one run that fills Python's bytecode cache
-  (``PYTHONPYCACHEPREFIX`` in a temporary folder) and numba's.
+- ``ekf-track`` and ``gn`` on a 1e6-row log;
+- ``pf`` (default particle count) and ``smoother`` on a 1e5-row log.
 
-CPU time, not wall time: the machine is shared. Peak memory is in each row's note.
+Each after an untimed run of the same method on a 400-row log (which fills Python's
+bytecode cache and numba's). CPU time, not wall time: the machine is shared. Peak memory and the load average are in
+each row's note. The start-up on a small log is bench_startup.py.
 
-Run alone: ``PYTHONPATH=src python benchmarks/bench_locate.py``.
+Run alone: ``PYTHONPATH=src python benchmarks/bench_locate.py [method ...]``.
 """
 
 from __future__ import annotations
@@ -39,9 +40,15 @@ def cpu_of_command(args: list[str], env: dict) -> tuple[float, float]:
     return cpu, after.ru_maxrss / 1024.0
 
 
-def _locate(folder: Path, method: str, out: Path) -> list[str]:
+#: (method, rows of the log, extra arguments)
+RUNS = (("ekf-track", 1_000_000, []), ("gn", 1_000_000, ["-o", "on_degenerate=skip"]),
+        ("pf", 100_000, []), ("smoother", 100_000, []))
+
+
+def _locate(folder: Path, method: str, out: Path, extra: list[str]) -> list[str]:
     return [sys.executable, "-m", "radioloc.cli", "locate", str(folder / "measurements.csv"),
-            "--anchors", str(folder / "anchors.csv"), "--method", method, "--out", str(out)]
+            "--anchors", str(folder / "anchors.csv"), "--method", method, "--out", str(out),
+            *extra]
 
 
 def _row(workload: str, cpu: float, note: str) -> dict:
@@ -49,35 +56,32 @@ def _row(workload: str, cpu: float, note: str) -> dict:
             "peer_throughput": None, "ratio": None, "note": note}
 
 
-def main(sizes: tuple[int, int] = (1_000_000, 100_000), startup: bool = True,
-         methods: tuple[str, ...] = ("ekf-track", "pf")) -> list[dict]:
-    """The rows above (``startup`` and ``methods`` choose which are measured)."""
+def main(methods: tuple[str, ...] = tuple(m for m, _, _ in RUNS)) -> list[dict]:
+    """The rows above (``methods`` chooses which are measured)."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         env.update(PYTHONPATH=str(SRC), PYTHONPYCACHEPREFIX=str(tmp / "pycache"))
-        small = tmp / "log40"
-        write_long_log(40, small, tags=2, anchors=4)
-        first, _ = cpu_of_command(_locate(small, "ekf-track", tmp / "a.csv"), env)
-        if startup:
-            warm, mem = cpu_of_command(_locate(small, "ekf-track", tmp / "b.csv"), env)
-            print(f"locate start-up (40 rows): {first:.2f} s CPU first run, {warm:.2f} s after")
-            rows.append(_row("radioloc locate start-up, 40-row log (after the first run)", warm,
-                             f"first run {first:.2f} s CPU (fills the bytecode cache); "
-                             f"peak memory of the commands so far {mem:.0f} MB"))
-        for method, n in (("ekf-track", sizes[0]), ("pf", sizes[1])):
+        for method, n, extra in RUNS:
             if method not in methods:
                 continue
-            folder = tmp / f"log{n}"
-            write_long_log(n, folder)
-            cpu, mem = cpu_of_command(_locate(folder, method, tmp / f"{method}.csv"), env)
-            print(f"{method}, {n:.0e} rows: {cpu:.1f} s CPU, peak so far {mem:.0f} MB")
+            folder, small = tmp / f"log{n}", tmp / "log400"
+            for f, size in ((folder, n), (small, 400)):
+                if not f.exists():
+                    write_long_log(size, f)
+            # untimed: fills the bytecode cache and numba's for this method
+            cpu_of_command(_locate(small, method, tmp / "warm.csv", extra), env)
+            cpu, mem = cpu_of_command(_locate(folder, method, tmp / f"{method}.csv", extra), env)
+            load = os.getloadavg()[0]
+            print(f"{method}, {n:.0e} rows: {cpu:.1f} s CPU, peak so far {mem:.0f} MB, "
+                  f"load {load:.1f}", flush=True)
             rows.append(_row(f"radioloc locate {method}, {n:.0e}-row log (10 tags, 6 anchors)",
-                             cpu, f"peak memory of the commands so far {mem:.0f} MB"))
+                             cpu, f"peak memory of the commands so far {mem:.0f} MB; load "
+                                  f"average {load:.1f} on {os.cpu_count()} cores"))
     return rows
 
 
 if __name__ == "__main__":
-    for r in main():
+    for r in main(tuple(sys.argv[1:]) or tuple(m for m, _, _ in RUNS)):
         print(r)

@@ -13,7 +13,9 @@ Rows (returned by :func:`main`):
   ``backend="numba"``, against Stone Soup's ``ParticlePredictor`` / ``ParticleUpdater`` +
   ``SystematicResampler`` and against ``particles`` (Chopin) ``SMC(Bootstrap)`` with
   ``ESSrmin=1`` (resampling at every step), same model and N. Ours is timed through
-  ``run``, including the prior's draws.
+  ``run``, including the prior's draws; the generic ``ParticleFilter(RandomWalk(q))``
+  with a Gaussian ``RangeModel`` (``ess_threshold=1``) on the same data, against the same
+  peer runs.
 
 Ours: best of 3 (wall clock; the CPU-second rate is printed too); peers: one run.
 
@@ -253,6 +255,36 @@ def ours_bootstrap(n, steps, q, sigma, x, y, rng):
             n * steps / cpu)
 
 
+def generic_bootstrap(n, steps, q, sigma, x, y):
+    """Particle-steps/s of the generic :class:`ParticleFilter` on the same model: a
+    Gaussian :class:`RangeModel` to the 4 anchors, resampling at every step
+    (``ess_threshold=1``), timed through ``run`` (the prior's draws included).
+
+    Returns
+    -------
+    rate, error, cpu_rate : float
+        As :func:`ours_bootstrap`.
+    """
+    from radioloc.estimators.particle_filter import ParticleFilter
+    from radioloc.models.measurement import Context, Observation
+    from radioloc.models.ranging import RangeModel
+
+    pf = ParticleFilter(RandomWalk(q), n_particles=n, ess_threshold=1.0, seed=1)
+    obs = Observation(RangeModel(std_m=sigma), y[:steps], Context(points=ANCHORS))
+    kw = dict(time=np.arange(1.0, steps + 1.0), prior_mean=x[0], prior_cov=np.eye(2))
+    pf.run(obs, **kw)
+    dt, cpu = np.inf, np.inf
+    for _ in range(3):                                                   # best of 3
+        t0, c0 = time.perf_counter(), time.process_time()
+        tr = pf.run(obs, **kw)
+        dt = min(dt, time.perf_counter() - t0)
+        cpu = min(cpu, time.process_time() - c0)
+    print(f"generic ParticleFilter, N={n}: {n * steps / cpu / 1e6:.2f} M particle-steps per CPU "
+          f"second ({cpu / steps * 1e3:.2f} ms CPU, {dt / steps * 1e3:.2f} ms wall per step)")
+    return (n * steps / dt, float(np.linalg.norm(tr.position - x[1:steps + 1], axis=-1).mean()),
+            n * steps / cpu)
+
+
 def stonesoup_bootstrap(n, steps, q, sigma, x, y, repeat=3):
     """The same filter in Stone Soup (predictor, updater with systematic resampling):
     particle-steps per second (wall clock and per CPU second) and the mean error."""
@@ -349,6 +381,10 @@ def particles_bootstrap(n, steps, q, sigma, x, y, repeat=3):
             n * steps / cpu)
 
 
+BOOTSTRAP_WORKLOAD = "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5"
+GENERIC_WORKLOAD = ("range-only bootstrap PF, generic ParticleFilter (Gaussian RangeModel), 4 "
+                    "anchors, 2-D random walk, N=1e5")
+
 #: Least memory traffic of one bootstrap particle-step (4 links) through the filter's passes:
 #: the draws and the prediction (48 bytes), the link update (particle, carried and new link
 #: posteriors, log weight: 88), the weights and moments (40), the resampling (cumulative
@@ -399,6 +435,9 @@ def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int | None = N
     x, y = _bootstrap_data(steps, q, sigma, rng)
     ours, err, ours_cpu = ours_bootstrap(n, steps, q, sigma, x, y, rng)
     print(f"bootstrap PF, N={n}: ours {ours / 1e6:.2f} M particle-steps/s (mean error {err:.2f} m)")
+    generic, g_err, generic_cpu = generic_bootstrap(n, steps, q, sigma, x, y)
+    print(f"  generic ParticleFilter: {generic / 1e6:.2f} M particle-steps/s (mean error "
+          f"{g_err:.2f} m)")
     rows = []
     for name, fn in (("Stone Soup", stonesoup_bootstrap), ("particles (Chopin)", particles_bootstrap)):
         try:
@@ -411,10 +450,12 @@ def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int | None = N
         print(f"  {name}: {rate / 1e6:.3f} M particle-steps/s (mean error {perr:.2f} m), "
               f"ratio {ours / rate:.1f}x; per CPU second {cpu_rate / 1e6:.3f} M, "
               f"ratio {ours_cpu / cpu_rate:.1f}x")
-        row = _row("range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5", ours,
-                   "particle-steps/s", name, rate)
-        row.update(bytes_per_unit=BOOTSTRAP_BYTES, flops_per_unit=bootstrap_flops(4))
-        rows.append(row)
+        print(f"  generic ParticleFilter vs {name}: ratio {generic / rate:.1f}x; per CPU "
+              f"second {generic_cpu / cpu_rate:.1f}x")
+        for workload, rate_ours in ((BOOTSTRAP_WORKLOAD, ours), (GENERIC_WORKLOAD, generic)):
+            row = _row(workload, rate_ours, "particle-steps/s", name, rate)
+            row.update(bytes_per_unit=BOOTSTRAP_BYTES, flops_per_unit=bootstrap_flops(4))
+            rows.append(row)
     return rows
 
 

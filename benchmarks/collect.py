@@ -14,7 +14,9 @@ in ``/CPU-s``). Rows with a target in ``targets.py`` also get ``target`` and
 ``meets_target``; those below target are listed under the table with what bounds them.
 A module whose
 ``main()`` returns ``None`` (or fails) is listed and skipped. Run:
-``PYTHONPATH=src python benchmarks/collect.py [module ...]``.
+``PYTHONPATH=src python benchmarks/collect.py [--merge] [module ...]``; with ``--merge`` the
+rows measured replace those of the same workload and peer in the existing ``results.json``
+and the tables are written from all of them (the others keep their earlier measurement).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import targets  # noqa: E402
 HERE = Path(__file__).resolve().parent
 MODULES = ("bench_grid", "bench_network", "bench_closed_form", "bench_particle", "bench_channel",
            "bench_fingerprint", "bench_mixture", "bench_multilateration", "bench_budgets",
-           "bench_locate")
+           "bench_locate", "bench_startup", "bench_corridor")
 FIELDS = ("workload", "throughput", "unit", "peer", "peer_throughput", "ratio", "limit",
           "limit_fraction")
 
@@ -138,13 +140,15 @@ def _verdict(row: dict) -> str:
     return "yes" if row["meets_target"] else "**no**"
 
 
-def main(modules=MODULES) -> list[dict]:
+def main(modules=MODULES, merge: bool = False) -> list[dict]:
     """Run the benchmarks and write ``results.json`` and ``RESULTS.md``.
 
     Parameters
     ----------
     modules : sequence of str
         Bench modules (``benchmarks/<name>.py``) to run.
+    merge : bool
+        Keep the rows of ``results.json`` that this run does not measure.
 
     Returns
     -------
@@ -186,8 +190,15 @@ def main(modules=MODULES) -> list[dict]:
                 row["meets_target"] = targets.meets(row, target)
             rows.append(row)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    measured = f"{', '.join(modules)} measured in this run; " if merge else ""
+    if merge and (HERE / "results.json").exists():
+        new = {(r["workload"], r["peer"]): r for r in rows}
+        old = json.loads((HERE / "results.json").read_text())
+        kept = [new.pop((r["workload"], r["peer"]), r) for r in old]
+        rows = kept + list(new.values())
+        measured += "the other rows from an earlier run. "
     (HERE / "results.json").write_text(json.dumps(rows, indent=1) + "\n")
-    lines = [f"Load average (1 min): {load0:.1f} at the start, {load:.1f} at the end of the run, "
+    lines = [f"{measured}Load average (1 min): {load0:.1f} at the start, {load:.1f} at the end of the run, "
              f"on {limits['cores']} cores. Measured in this run: memory bandwidth (STREAM "
              f"triad) {limits['bandwidth_Bps'] / 1e9:.1f} GB/s "
              f"({limits['bandwidth_Bps_per_cpu_s'] / 1e9:.1f} GB per CPU second), float64 peak "
@@ -198,7 +209,9 @@ def main(modules=MODULES) -> list[dict]:
              "fraction of limit | target | meets |", "|---|---|---|---|---|---|---|---|---|---|"]
     fmt = lambda v, f: "-" if v is None else format(v, f)     # noqa: E731
     for r in rows:
-        lines.append(f"| {r['workload']} | {r['throughput']:,.0f} | {r['unit']} | "
+        value = r["throughput"]
+        value = f"{value:.3g}" if abs(value) < 100 else f"{value:,.0f}"    # seconds: 0.612
+        lines.append(f"| {r['workload']} | {value} | {r['unit']} | "
                      f"{r['peer'] or '-'} | {fmt(r['peer_throughput'], ',.0f')} | "
                      f"{fmt(r['ratio'], '.1f')}{'' if r['ratio'] is None else 'x'} | "
                      f"{fmt(r['limit'], ',.3g')} | {fmt(r['limit_fraction'], '.1%')} | "
@@ -225,4 +238,5 @@ def main(modules=MODULES) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main(tuple(sys.argv[1:]) or MODULES)
+    args = [a for a in sys.argv[1:] if a != "--merge"]
+    main(tuple(args) or MODULES, merge="--merge" in sys.argv[1:])

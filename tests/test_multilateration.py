@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from radioloc.bounds.anchors import range_crb
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.validation import MAX_ITERATIONS
 from radioloc.core.geometry import distances
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.multilateration import Multilateration
@@ -164,8 +165,10 @@ def test_flag_mode_marks_degenerate_problems_instead_of_raising():
 
 def _count_solved_problems(monkeypatch):
     """Wrap the least squares that multilateration configures; returns the list of batch
-    sizes solved."""
+    sizes solved (each solve in one pass: the open problems' second pass not counted)."""
+    import radioloc.estimators.multilateration as ml
     from radioloc.estimators.least_squares import LeastSquares
+    monkeypatch.setattr(ml, "FIRST_PASS", MAX_ITERATIONS)
     sizes = []
     real = LeastSquares.solve
 
@@ -279,3 +282,29 @@ def test_a_solve_that_stops_short_in_the_weak_direction_is_still_called_ambiguou
     r = np.linalg.norm(anchors - truth, axis=-1)
     with pytest.raises(GeometryError, match="ambiguous fix"):
         Multilateration(method=method, std_m=0.01).locate(r, anchors)
+
+
+def test_a_batch_gives_each_problem_its_own_fit_whatever_its_neighbours_need(monkeypatch):
+    """Gauss-Newton's slow problems go on alone after the first pass of the batch: the fit
+    of every problem (position, iterations, flags) is the one it gets alone, and the one
+    of a single pass over the whole batch."""
+    import radioloc.estimators.multilateration as ml
+
+    rng = np.random.default_rng(0)
+    anchors = np.array([[0.0, 0.0], [30.0, 0.0], [30.0, 20.0], [0.0, 20.0]])
+    x = rng.uniform(0, 30, (300, 2))
+    r = np.linalg.norm(x[:, None] - anchors, axis=-1) + rng.normal(0, 0.1, (300, 4))
+    r[:, 0] += rng.exponential(8, 300)                 # large residuals: slow convergence
+    est = Multilateration(on_degenerate="flag")
+    batch = est.locate(r, anchors)
+    iterations = batch.diagnostics["iterations"]
+    assert (iterations > ml.FIRST_PASS).sum() > 10 and (iterations < ml.FIRST_PASS).sum() > 10
+    for i in np.flatnonzero(iterations > ml.FIRST_PASS)[:5].tolist() + [0, 1]:
+        alone = est.locate(r[i:i + 1], anchors)
+        np.testing.assert_allclose(alone.position[0], batch.position[i], rtol=0, atol=1e-12)
+        for key in ("iterations", "converged", "stalled"):
+            assert alone.diagnostics[key][0] == batch.diagnostics[key][i]
+    monkeypatch.setattr(ml, "FIRST_PASS", est.max_iter)          # one pass over the batch
+    single = est.locate(r, anchors)
+    np.testing.assert_allclose(single.position, batch.position, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(single.diagnostics["iterations"], iterations)

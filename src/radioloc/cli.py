@@ -320,7 +320,7 @@ def locate(
     smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (one is drawn on standard error when a run lasts more than 2 s).")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress (on standard error: a bar when a run lasts more than 2 s, or, when standard error is not a terminal, a line per 10 s of work).")] = False,
 ) -> None:
     """Apply an estimator to your own measurement log.
 

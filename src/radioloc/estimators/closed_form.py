@@ -36,7 +36,6 @@ from radioloc.core.validation import (MAX_ITERATIONS, as_float_array, check_fini
                                       check_int, check_positive, check_real,
                                       range_noise_std)
 from radioloc.estimators.base import SnapshotEstimator
-from radioloc.estimators.kalman_compiled import blue_iterations
 from radioloc.models.single_sensor import (
     SquaredRangeModel,
     design_matrix,
@@ -351,6 +350,8 @@ class ClosedFormTracker(SnapshotEstimator):
         cov = np.empty((B, 4, 4))
         iterations = np.empty(B, dtype=np.int64)
         flags = np.empty(B, dtype=np.int64)
+        from radioloc.estimators.kalman_compiled import blue_iterations   # numba: imported when the kernel runs (start-up time)
+
         blue_iterations(kernel_array(sa.reshape(B, n - 3, 4)), kernel_array(sy.reshape(B, n - 3)),
                         kernel_array(keep.reshape(B, n - 3), np.bool_), kernel_array(ss),
                         kernel_array(xi), kernel_array(model.c),

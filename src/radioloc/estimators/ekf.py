@@ -40,7 +40,6 @@ from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import check_finite_output, check_positive, check_ranges
 from radioloc.estimators.base import RecursiveEstimator
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
-from radioloc.estimators.kalman_compiled import network_ekf_packets
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
 from radioloc.models.measurement import Observation
@@ -271,6 +270,8 @@ class NetworkEKF(RecursiveEstimator):
         nis = np.array(state.nis, dtype=float, order="C")
         used = np.array(state.used, dtype=np.int64, order="C")
         err = np.full((R, 2), -1, dtype=np.int64)
+        from radioloc.estimators.kalman_compiled import network_ekf_packets   # numba: imported when the kernel runs (start-up time)
+
         network_ekf_packets(mean, cov, kernel_array(masters, np.int64), kernel_array(rho),
                             kernel_array(valid, np.bool_), self._var_m2, nis, used, err)
         if np.any(err[:, 0] >= 0):

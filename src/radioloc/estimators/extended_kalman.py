@@ -41,7 +41,7 @@ the covariance from the last linearisation. One iteration is the EKF.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -448,7 +448,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                         {"state": state.mean, "state_covariance": state.covariance})
 
     def run(self, observations: Observation | Sequence[Observation], time=None, *, prior_mean,
-            prior_cov, controls=None, smooth: bool = False, coupling=None) -> Track:
+            prior_cov, controls=None, smooth: bool = False, coupling=None,
+            on_step: Callable[[int], object] | None = None) -> Track:
         """Filter (or smooth) a series of observations.
 
         Parameters
@@ -470,6 +471,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             batch, each peer's estimate acting as a moving anchor; see
             :mod:`radioloc.locate.cooperative`). ``z`` of shape ``batch + (m,)``, the same
             ``m`` at every step (NaN: absent); they are a second update of the step.
+        on_step : callable, optional
+            Called after each step with the number of measurements it received, summed
+            over the batch (a progress display).
 
         Returns
         -------
@@ -532,6 +536,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 heard = heard + sum(np.isfinite(o.z).sum(axis=-1) for o in extra)
             streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
                               np.where(heard > 0, 0, streak))
+            if on_step is not None:
+                on_step(int(np.sum(heard)))
             _record(record, "state", state.mean, k, batch, T, 1)
             _record(record, "state_covariance", state.covariance, k, batch, T, 2)
             if smooth:

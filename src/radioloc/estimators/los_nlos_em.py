@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import as_float_array
@@ -80,6 +79,8 @@ def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | N
     -------
     EmFit
     """
+    from scipy.optimize import minimize              # here: scipy costs start-up time
+
     e = as_float_array(errors, "errors", ndim=1)
     if e.size < MIN_SAMPLES:
         raise InputError(f"errors: need at least {MIN_SAMPLES} samples, got {e.size}")

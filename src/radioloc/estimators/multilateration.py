@@ -12,6 +12,8 @@ range, so epochs that hear different anchor sets share one array.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError
@@ -28,6 +30,9 @@ __all__ = ["Multilateration", "anchor_phrase", "linear_initial"]
 
 #: condition number of ``J^T W J`` above which the geometry does not fix the position
 _COND_LIMIT = 1e10
+#: Gauss-Newton iterations on the whole batch before the open problems go on alone
+#: (:meth:`Multilateration._solve`).
+FIRST_PASS = 10
 
 
 def _first(mask: np.ndarray) -> tuple[int, ...]:
@@ -163,14 +168,36 @@ class Multilateration(SnapshotEstimator):
 
         The rows are a :class:`~radioloc.models.ranging.RangeModel` observation with the
         standard deviation ``w^-1/2`` each (1 m with unit weights), so the driver's cost is
-        ``sum w (r - ||x - a||)^2`` and its information ``J^T W J``."""
+        ``sum w (r - ||x - a||)^2`` and its information ``J^T W J``.
+
+        Gauss-Newton runs ``FIRST_PASS`` iterations on the whole batch, then the rest on the
+        problems still open only: an iterate depends on the previous one alone, so the fit
+        is the one of a single run, while one slow problem no longer keeps every problem of
+        a large batch iterating (Levenberg-Marquardt carries its damping: a single run)."""
+        total = self.max_iter if max_iter is None else max_iter
+        if self.method != "gauss-newton" or total <= FIRST_PASS:
+            return self._fit(r, a, w, x0, total)
+        fit = self._fit(r, a, w, x0, FIRST_PASS)
+        open_ = ~(fit.converged | fit.stalled)
+        if not open_.any():
+            return fit
+        more = self._fit(r[open_], a[open_], w[open_], fit.x[open_], total - FIRST_PASS)
+        more = dataclasses.replace(more, iterations=more.iterations + fit.iterations[open_])
+        joined = {}
+        for field in dataclasses.fields(fit):
+            value = np.array(getattr(fit, field.name))
+            value[open_] = getattr(more, field.name)
+            joined[field.name] = value
+        return dataclasses.replace(fit, **joined)
+
+    def _fit(self, r, a, w, x0, max_iter: int):
+        """One :meth:`LeastSquares.solve` of :meth:`_solve`."""
         with np.errstate(divide="ignore"):
             std = np.where(w > 0, 1.0 / np.sqrt(np.where(w > 0, w, 1.0)), 1.0)
         obs = Observation(RangeModel(std_m=1.0), np.where(w > 0, r, np.nan), Context(points=a),
                           std=std)
-        lsq = LeastSquares(method=self.method, tol=self.tol_m,
-                           max_iterations=self.max_iter if max_iter is None else max_iter)
-        return lsq.solve(obs, initial=x0)
+        return LeastSquares(method=self.method, tol=self.tol_m,
+                            max_iterations=max_iter).solve(obs, initial=x0)
 
     def _leave_saddles(self, fit, r, a, w):
         """Re-solve the problems whose fit is a saddle point of the cost, not a minimum.

@@ -39,7 +39,6 @@ from radioloc.core.results import Estimate, Track
 from radioloc.core.validation import (as_float_array, check_finite_output, check_positive,
                                       check_ranges)
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.kalman_compiled import network_rls_iteration
 from radioloc.estimators.network import (check_iteration, check_packet, check_prior,
                                          run_iterations)
 
@@ -320,6 +319,8 @@ class NetworkRLS(RecursiveEstimator):
         information = np.array(state.information, dtype=float, order="C")
         used = np.array(state.used, dtype=np.int64, order="C")
         err = np.full(R, -1, dtype=np.int64)
+        from radioloc.estimators.kalman_compiled import network_rls_iteration   # numba: imported when the kernel runs (start-up time)
+
         network_rls_iteration(position, information, used, np.where(valid, rho, 0.0), valid,
                               float(self.forgetting), _COND_LIMIT, err)
         if np.any(err >= 0):

@@ -25,7 +25,6 @@ from radioloc.estimators.base import SnapshotEstimator, Tags
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.local_search import derived_schedule, search
 from radioloc.estimators.observation_rows import observation_list
-from radioloc.estimators.pf_compiled import snapshot_scores
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.ranging import RangeModel
@@ -41,6 +40,7 @@ def _scores(kind: int, consts: tuple, x: np.ndarray, cen: np.ndarray, th: np.nda
             valid: np.ndarray) -> np.ndarray:
     """:func:`~radioloc.estimators.pf_compiled.snapshot_scores` on candidates
     ``x (..., C, 2)`` of the batch of ``th``."""
+    from radioloc.estimators.pf_compiled import snapshot_scores   # numba: imported when the kernel runs (start-up time)
     batch, nl = th.shape[:-1], th.shape[-1]
     b = int(np.prod(batch, dtype=int))
     c = x.shape[-2]

@@ -363,16 +363,25 @@ def _check_output(name: str, out: pd.DataFrame) -> None:
                            f"at time {out['time'].iloc[i]!r}")
 
 
+#: The module of each method not named after it (``ekf-track`` is in ``ekf_track``): a run
+#: imports its own method's module only (start-up time), never every method's.
+MODULE_OF = {"gn": "gauss_newton", "smoother": "batch_smooth", "rls": "network",
+             "ekf": "network", "closed-form": "single_sensor", "newton": "single_sensor",
+             "localml": "snapshot", "ransac": "snapshot", "lsq": "snapshot"}
+
+
 def method(name: str) -> LocateMethod | None:
-    """The method ``name``, importing only its module when the module is named after it
-    (``ekf-track``: ``ekf_track``); else every method's (:func:`methods`). None if unknown."""
+    """The method ``name``, importing only its module (:data:`MODULE_OF`, else the module
+    named after it: ``ekf-track``, ``ekf_track``); else every method's (:func:`methods`).
+    None if unknown."""
     import importlib
 
-    if name not in _METHODS and name.replace("-", "_").isidentifier():
+    module = MODULE_OF.get(name, name.replace("-", "_"))
+    if name not in _METHODS and module.isidentifier():
         try:
-            importlib.import_module(f"radioloc.locate.{name.replace('-', '_')}")
+            importlib.import_module(f"radioloc.locate.{module}")
         except ModuleNotFoundError as exc:
-            if exc.name != f"radioloc.locate.{name.replace('-', '_')}":
+            if exc.name != f"radioloc.locate.{module}":
                 raise
     return _METHODS.get(name) or methods().get(name)
 

@@ -9,7 +9,8 @@ pseudoranges, RSS, headings; not odometry), the same start
 (``-o tag_height_m``, ``q``, ``motion``, ``prior_std_m``, ``init_s``, ``max_gap_s``,
 ``range_std_m``). The range rows take the options of ``pf`` (``los_std_m``, ``nlos_mean_m``,
 ``alpha`` given, or fitted by EM on the node's ranges as ``pf`` fits them:
-:func:`radioloc.locate.pf.fit_model`; the fitted range bias is removed; ``min_los_std_m``
+:func:`radioloc.locate.pf.node_residuals`, every node's EKF track in one batch,
+:func:`radioloc.locate.pf.fit_residuals`; the fitted range bias is removed; ``min_los_std_m``
 floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
 Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
@@ -44,7 +45,8 @@ from radioloc.locate.ekf_track import (log_models, motion_model, observation_win
                                        reads_clock, segments, track_prior, track_table,
                                        tracker_filter, tracker_settings)
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
-from radioloc.locate.pf import fit_model
+from radioloc.locate.pf import fit_residuals, node_residuals
+from radioloc.locate.progress import counted
 from radioloc.models.los_nlos import LosNlosRange
 
 __all__ = ["smooth_log", "OPTIONS"]
@@ -111,11 +113,14 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
-    for node, times, obs in log_observations(log, table, models, "smoother", s["height"]):
+    nodes = [(node, sum(int(np.isfinite(o.z).sum()) for o in obs), times, obs)
+             for node, times, obs in log_observations(log, table, models, "smoother",
+                                                      s["height"])]
+    noise = _range_noise(request, nodes, anchors, s, given) if loss == "max-mixture" else {}
+    for node, _, times, obs in counted(nodes, sum(n[1] for n in nodes), lambda n: n[1],
+                                       "smoother"):
         parts = segments(times, s["max_gap_s"])
-        los_nlos, bias = None, s["bias"]
-        if loss == "max-mixture" and any(o.model.kind == "range" for o in obs):
-            los_nlos, bias = _range_noise(request, obs, times, anchors, s, parts, node, given)
+        los_nlos, bias = noise.get(node, (None, s["bias"]))
         obs = [replace(o, z=o.z - bias) if o.model.kind == "range" else o for o in obs]
         for o in obs:
             counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
@@ -146,23 +151,28 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     return out
 
 
-def _range_noise(request: LocateRequest, obs: list, times: np.ndarray, anchors: np.ndarray,
-                 s: dict, parts: list[slice], node: str, given: list):
-    """The LOS/NLOS model of a node's range rows (given, or fitted by EM on them) and the
-    range bias to remove."""
+def _range_noise(request: LocateRequest, nodes: list, anchors: np.ndarray, s: dict,
+                 given: list) -> dict[str, tuple[LosNlosRange, float]]:
+    """The LOS/NLOS model of each node's range rows (given, or fitted by EM on them, the
+    EKF tracks of every node in one batch) and the range bias to remove, by node (the
+    nodes with range rows)."""
+    ranging = [(node, times, next(o for o in obs if o.model.kind == "range"))
+               for node, _, times, obs in nodes if any(o.model.kind == "range" for o in obs)]
     if all(g is not None for g in given):
-        return LosNlosRange(*given), s["bias"]
-    if s["dim"] != 2:
+        return {node: (LosNlosRange(*given), s["bias"]) for node, _, _ in ranging}
+    if ranging and s["dim"] != 2:
         raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs 2-D "
                          "tracking (give tag_height_m) or los_std_m, nlos_mean_m and alpha")
-    rng = next(o for o in obs if o.model.kind == "range")
-    R = np.full((times.size, len(anchors)), np.nan)
-    R[:, rng.context.index] = rng.z
-    los_nlos, bias, _ = fit_model(times, R, anchors, s, parts,
-                                  label=f"method smoother: node {node!r}")
+    per_node = []
+    for node, times, rng in ranging:
+        R = np.full((times.size, len(anchors)), np.nan)
+        R[:, rng.context.index] = rng.z
+        per_node.append((node, times, R))
     floor = request.option("min_los_std_m", 0.15)
-    if los_nlos.los_std_m < floor:
-        los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
-    if "range_bias_m" in request.options:
-        bias = s["bias"]
-    return los_nlos, bias
+    out = {}
+    for node, e in node_residuals(per_node, anchors, s, "smoother").items():
+        los_nlos, bias, _ = fit_residuals(e)
+        if los_nlos.los_std_m < floor:
+            los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
+        out[node] = (los_nlos, s["bias"] if "range_bias_m" in request.options else bias)
+    return out

@@ -66,7 +66,6 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
-from scipy.special import gammaincinv
 
 from radioloc.core.errors import ConfigError, GeometryError, InputError, RadiolocError
 from radioloc.core.kinds import kinds as declared_kinds
@@ -653,6 +652,8 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
     n = np.convolve(used + refused, w, "valid")
     ok = n > 0
+    from scipy.special import gammaincinv            # here: scipy costs start-up time
+
     counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
     band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
     windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
@@ -905,10 +906,13 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         controls = np.zeros(t.shape + (s["dim"],))
         for b, tr in enumerate(tracks):
             controls[b, : tr[1].size] = tr[4]
-    with progress(1, "ekf-track: tracks") as bar:
+    rows = sum(int(np.isfinite(o.z).sum()) for o in batch)
+    if coop is not None:
+        rows += len(peers)
+    with progress(rows, "ekf-track") as bar:
         track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov, controls=controls,
-                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling)
-        bar.advance()
+                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling,
+                        on_step=bar.advance)
     tables, diverged = [], []
     for b, (node, times, _, restart, _) in enumerate(tracks):
         one = track[b, :times.size] if coop is None else coop.track_of(track, b)

@@ -13,13 +13,20 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.core.results import Estimate
 from radioloc.locate.base import LocateRequest, Option
+from radioloc.locate.progress import progress
 from radioloc.locate.table import add_covariance
+
+#: Epochs one call of a snapshot estimator solves (:func:`solve_epochs`): progress is
+#: counted between calls; the fixes do not depend on it (every epoch is solved on its own).
+EPOCH_CHUNK = 1 << 15
 
 __all__ = ["ON_DEGENERATE", "Epochs", "range_epochs", "epoch_error", "epoch_table",
            "horizontal_ranges"]
@@ -180,6 +187,52 @@ def horizontal_ranges(request: LocateRequest, ep: Epochs) -> tuple[np.ndarray, n
                          "node height (-o tag_height_m=METRES)")
     dz = height - ep.points[:, 2]
     return np.sqrt(np.maximum(R ** 2 - dz ** 2, 0.0)), ep.points[:, :2]
+
+
+def solve_epochs(ep: Epochs, R: np.ndarray, points: np.ndarray,
+                 locate: Callable[[np.ndarray, np.ndarray], Estimate]) -> Estimate:
+    """``locate(R, points)`` of a snapshot estimator over chunks of :data:`EPOCH_CHUNK`
+    epochs, the progress counting their rows, the estimates joined.
+
+    Parameters
+    ----------
+    ep : Epochs
+        For the progress's name.
+    R : ndarray, shape (E, M)
+        Ranges of the epochs to solve (NaN: none).
+    points : ndarray, shape (M, D) or (E, M, D)
+        The anchors (per epoch, or shared).
+    locate : callable
+        The estimator's ``locate``.
+
+    Returns
+    -------
+    Estimate
+        As one call on every epoch: ``position``, ``covariance`` and the per-epoch
+        diagnostics concatenated.
+
+    Raises
+    ------
+    GeometryError
+        From ``locate``, its ``index`` counted in the whole of ``R``.
+    """
+    parts = []
+    with progress(int(np.isfinite(R).sum()), ep.method) as bar:
+        for i in range(0, max(len(R), 1), EPOCH_CHUNK):
+            rows = slice(i, i + EPOCH_CHUNK)
+            try:
+                parts.append(locate(R[rows], points[rows] if points.ndim == 3 else points))
+            except GeometryError as exc:
+                if exc.index is not None:
+                    exc.index = (exc.index[0] + i,) + tuple(exc.index[1:])
+                raise
+            bar.advance(int(np.isfinite(R[rows]).sum()))
+    if len(parts) == 1:
+        return parts[0]
+    join = lambda v: None if v[0] is None else np.concatenate(v)     # noqa: E731
+    return Estimate(join([p.position for p in parts]), join([p.covariance for p in parts]),
+                    diagnostics={k: join([np.asarray(p.diagnostics[k]) for p in parts])
+                                 for k in parts[0].diagnostics})
 
 
 def epoch_error(ep: Epochs, exc: GeometryError) -> GeometryError:

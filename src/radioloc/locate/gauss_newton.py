@@ -16,7 +16,8 @@ import pandas as pd
 from radioloc.core.errors import ConfigError, GeometryError
 from radioloc.estimators.multilateration import Multilateration
 from radioloc.locate.base import LocateRequest, Option, locate_method
-from radioloc.locate.epochs import ON_DEGENERATE, epoch_error, epoch_table, range_epochs
+from radioloc.locate.epochs import (ON_DEGENERATE, epoch_error, epoch_table, range_epochs,
+                                     solve_epochs)
 
 #: Smallest pooled range standard deviation (exact ranges leave zero residuals), m.
 STD_FLOOR_M = 1e-6
@@ -78,8 +79,8 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     ep = range_epochs(request, "gn")
     R_ok, a_xyz = ep.R[ep.solvable], ep.points
     try:
-        fit = Multilateration(std_m=std, on_degenerate="flag" if ep.skip else "raise"
-                              ).locate(R_ok, a_xyz)
+        fit = solve_epochs(ep, R_ok, a_xyz, Multilateration(
+            std_m=std, on_degenerate="flag" if ep.skip else "raise").locate)
     except GeometryError as exc:
         raise epoch_error(ep, exc) from None
     bad = np.asarray(fit.diagnostics["degenerate"])

@@ -57,6 +57,7 @@ from radioloc.estimators.mixture_localization import MixtureLocalizer, MixtureTr
 from radioloc.estimators.place_tracking import track_places
 from radioloc.io.logs import LIMITS, RSS_NOT_DETECTED_DBM, _line, read_cells
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import counted
 from radioloc.locate.table import add_covariance
 from radioloc.models.fingerprint_mixture import FingerprintMixture
 from radioloc.models.fingerprint_selection import select_places_settings
@@ -150,6 +151,12 @@ def read_calibration(path, not_detected: float | None = None, *, with_zones: boo
         raise InputError(f"{path}: line {_line(frame, i)}, column {names[j]}: a zone label must "
                          "be a whole number")
     return pos, rss, ids, zones.astype(np.int64), names
+
+
+def _by_node(out: pd.DataFrame):
+    """The nodes of ``out``, progress counting their rows."""
+    rows = out["node"].value_counts()
+    return counted(out["node"].unique(), len(out), lambda node: int(rows[node]), "gmm")
 
 
 def _offset_option(request: LocateRequest) -> str | float | None:
@@ -328,7 +335,7 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
         if request.option("track", 0.0):
             mean = np.empty((len(out), 2))
             cov = np.empty((len(out), 2, 2))
-            for node in out["node"].unique():         # nodes have different time axes
+            for node in _by_node(out):                # nodes have different time axes
                 idx = np.flatnonzero(out["node"].to_numpy() == node)
                 res = track_places(model, meas[idx], out["time"].to_numpy()[idx],
                                    float(request.option("v_max", 1.5)), t_best, top)
@@ -348,7 +355,7 @@ def locate_gmm(request: LocateRequest) -> pd.DataFrame:
             cov = np.empty((len(out), 2, 2))
             tracker = MixtureTracker(models, UniformDisk(float(request.option("v_max", 1.5)),
                                                          dim=2), kmax)
-            for node in out["node"].unique():         # nodes have different time axes
+            for node in _by_node(out):                # nodes have different time axes
                 idx = np.flatnonzero(out["node"].to_numpy() == node)
                 res = tracker.run(meas[idx], out["time"].to_numpy()[idx])
                 mean[idx], cov[idx] = res.position, res.covariance

@@ -24,6 +24,7 @@ from radioloc.core.errors import InputError
 from radioloc.locate.gmm import _offset_option
 from radioloc.estimators.grid import GridFilter, GridGeometry
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import counted
 from radioloc.locate.table import add_covariance
 from radioloc.models.rssi_trapezoid import TrapezoidModel, dbm_to_rssi100
 
@@ -125,7 +126,7 @@ def locate_grid_rssi(request: LocateRequest) -> pd.DataFrame:
     state = filt.init(N)
     reading = np.where(valid, meas, np.nan)
     out = []
-    for j in range(J):
+    for j in counted(range(J), int(valid.sum()), lambda j: int(valid[:, j].sum()), "grid-rssi"):
         if blur > 0 and first[:, j].any():
             state = filt.predict(state, dt=0.0, extra_blur_m=np.where(first[:, j], blur, 0.0))
         state = filt.update(state, np.where(valid[:, j, None], pos[:, j], np.nan), reading[:, j])

@@ -28,6 +28,7 @@ from radioloc.estimators.ekf import NetworkEKF
 from radioloc.estimators.rls import NetworkRLS
 from radioloc.io.priors import read_node_priors
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import counted
 from radioloc.locate.table import add_covariance
 
 
@@ -121,6 +122,12 @@ def _report(net: _Network, estimates: list[np.ndarray], covariances: list[np.nda
     return out
 
 
+def packets(net, what: str):
+    """The packets of ``net`` (master, ranges, mask), progress counting their ranges."""
+    return counted(zip(net.masters, net.ranges, net.masks), int(sum(np.sum(k) for k in net.masks)),
+                   lambda packet: int(np.sum(packet[2])), what)
+
+
 @locate_method("rls", "Distributed RLS network positioning from pairwise ranges and node priors "
                       "(Brown & Iltis eq. (1)-eq. (12); --priors; options: forgetting)",
                options={"forgetting": Option("forgetting factor lambda in (0, 1] (1)", float, min=0,
@@ -149,7 +156,7 @@ def locate_rls(request: LocateRequest) -> pd.DataFrame:
     rls = NetworkRLS(forgetting=request.option("forgetting", 1.0))
     state = rls.init(net.prior_mean, net.prior_var)
     estimates = []
-    for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order
+    for m, rho, mask in packets(net, "rls"):                         # in time order
         state = rls.step(state, np.array([m]), rho[None], mask[None])
         estimates.append(rls.estimate(state).position[0])
     return _report(net, estimates, None)
@@ -185,7 +192,7 @@ def locate_ekf(request: LocateRequest) -> pd.DataFrame:
     ekf = NetworkEKF(std_m=std)
     state = ekf.init(net.prior_mean, net.prior_var)
     estimates, covariances = [], []
-    for m, rho, mask in zip(net.masters, net.ranges, net.masks):     # packets in time order
+    for m, rho, mask in packets(net, "ekf"):                         # in time order
         state = ekf.step(state, np.array([m]), rho[None], mask[None])
         est = ekf.estimate(state)
         estimates.append(est.position[0])

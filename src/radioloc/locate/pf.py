@@ -112,7 +112,6 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.kinds import model_kinds
 from radioloc.core.results import Track
 from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
-from radioloc.estimators.p2p_particle import P2PParticleFilter
 from radioloc.estimators.particle_filter import ParticleFilter, RunGenerators
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.io.measurements import Measurements
@@ -294,37 +293,40 @@ def range_residuals(items: list[tuple[np.ndarray, np.ndarray]], anchors, s: dict
             for (_, R), tr in zip(items, tracks)]
 
 
-def fit_model(times, R, anchors, s: dict, parts: list[slice] | None = None,
-              label: str | None = None) -> tuple[LosNlosRange, float, dict]:
-    """LOS/NLOS model and range bias fitted by EM on residuals to a smoothed EKF track.
+def node_residuals(per_node: list, anchors, s: dict, method: str) -> dict[str, np.ndarray]:
+    """Each node's range residuals to its smoothed EKF tracks (:func:`range_residuals`),
+    every segment of every node in one batch.
 
     Parameters
     ----------
-    times : ndarray, shape (T,)
-    R : ndarray, shape (T, M)
+    per_node : list of (node, times (T,), ranges (T, M))
+        Ranges with the bias removed.
     anchors : ndarray, shape (M, 2|3)
     s : dict
-        From :func:`radioloc.locate.ekf_track.tracker_settings`.
-    parts : list of slice, optional
-        Segments tracked separately (default: one).
-    label : str, optional
-        Prefix of the message when a segment has no start (e.g. naming the node).
+        From :func:`radioloc.locate.ekf_track.tracker_settings` (``max_gap_s`` splits a
+        node's times into segments).
+    method : str
+        For the message when a segment has no start.
 
     Returns
     -------
-    model : LosNlosRange
-    bias_m : float
-    info : dict
-        ``samples`` used, ``trimmed`` (see :func:`fit_residuals`).
+    dict of node to ndarray
     """
-    parts = parts or [slice(None)]
-    return fit_residuals(np.concatenate(range_residuals(
-        [(times[seg], R[seg]) for seg in parts], anchors, s,
-        None if label is None else [label] * len(parts))))
+    items, owners = [], []
+    for node, times, R in per_node:
+        for seg in segments(times, s["max_gap_s"]):
+            items.append((times[seg], R[seg]))
+            owners.append(node)
+    res = range_residuals(items, anchors, s, [f"method {method}: node {o!r}" for o in owners])
+    out: dict[str, list] = {}
+    for o, e in zip(owners, res):
+        out.setdefault(o, []).append(e)
+    return {o: np.concatenate(e) for o, e in out.items()}
 
 
 def fit_residuals(e: np.ndarray) -> tuple[LosNlosRange, float, dict]:
-    """LOS/NLOS model and range bias fitted by EM on range residuals (see :func:`fit_model`).
+    """LOS/NLOS model and range bias fitted by EM on range residuals (those of
+    :func:`node_residuals`).
 
     Residuals more than ``TRIM`` robust standard deviations (1.4826 MAD) from their median
     are left out: the mixture has no component for ranges much too short, and one such
@@ -562,7 +564,7 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
                      keep="fixed-lag" in outputs or "backward" in outputs)
     tracks: dict[int, dict[str, Track]] = {}
     resets = 0
-    with progress(sum(max(segs[i].times.size for i in g) for g in groups), "pf: steps") as bar:
+    with progress(sum(int(np.isfinite(sg.ranges).sum()) for sg in segs), "pf") as bar:
         for g in groups:
             out, r = _filter([segs[i] for i in g], anchors, s, outputs, opts, bar)
             tracks.update(zip(g, out))
@@ -686,22 +688,13 @@ def node_models(request: LocateRequest, anchors, per_node: list, s: dict
     names = ("los_std_m", "nlos_mean_m", "alpha")
     given = [request.option(k) for k in names]
     fit = any(g is None for g in given)
-    residuals = {}
-    if fit:
-        items, owners = [], []
-        for node, times, R in per_node:
-            for seg in segments(times, s["max_gap_s"]):
-                items.append((times[seg], R[seg]))
-                owners.append(node)
-        res = range_residuals(items, anchors, s, [f"method pf: node {o!r}" for o in owners])
-        for o, e in zip(owners, res):
-            residuals.setdefault(o, []).append(e)
+    residuals = node_residuals(per_node, anchors, s, "pf") if fit else {}
     models, fitted = {}, []
     for node, _, _ in per_node:
         bias = s["bias"]
         values = list(given)
         if fit:
-            model, fit_bias, _ = fit_residuals(np.concatenate(residuals[node]))
+            model, fit_bias, _ = fit_residuals(residuals[node])
             floor = request.option("min_los_std_m", 0.15)
             auto = [max(model.los_std_m, floor), model.nlos_mean_m, model.alpha]
             values = [a if g is None else g for g, a in zip(given, auto)]
@@ -815,6 +808,8 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
     """The particle-filter tracks of a batch of segments (see the module docstring), each
     with ``"misfit"``, the fraction of its steps whose :class:`Misfit` covariance exceeds
     the particles' (trace), and the number of resets."""
+    from radioloc.estimators.p2p_particle import P2PParticleFilter   # numba: when pf runs
+
     B, T, M = len(group), max(g.times.size for g in group), anchors.shape[0]
     K = opts["particles"]
     motion = tracker_motion(dict(s, dim=2))
@@ -878,7 +873,7 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
             row = np.where(out, np.nan, row)
         state = pf.step(state, row, nodes, rng, dt=dts[:, k], check=False,
                         control=None if controls is None else controls[:, k])
-        bar.advance()
+        bar.advance(int(finite.sum()))                  # the rows of the step
         means[k], covs[k] = state.mean, state.covariance
         extra[k] = misfit.covariance + kernel * P
         dominant[:, k] = np.trace(misfit.covariance, axis1=-2, axis2=-1) > \

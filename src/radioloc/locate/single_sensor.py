@@ -32,6 +32,7 @@ from radioloc.estimators.closed_form import ClosedFormTracker
 from radioloc.estimators.nlls_newton import NewtonTracker
 from radioloc.locate.adapter import anchor_points
 from radioloc.locate.base import LocateRequest, Option, locate_method
+from radioloc.locate.progress import counted
 from radioloc.locate.table import add_covariance
 from radioloc.models.single_sensor import MIN_SAMPLES
 
@@ -140,7 +141,9 @@ def _track(request: LocateRequest, method: str) -> pd.DataFrame:
     accel = request.option("accel_std_mps2", 0.1) ** 2
     std = request.option("range_std_m", 0.15)
     tables = []
-    for node, grid, has, R, S, period in sensor_windows(request, method):
+    for node, grid, has, R, S, period in counted(
+            sensor_windows(request, method), len(request.measurements),
+            lambda window: int(np.isfinite(window[3]).sum()), method):
         try:
             fit = ClosedFormTracker(accel, std_m=std).locate(R, S, period)
             state = np.asarray(fit.diagnostics["state"])

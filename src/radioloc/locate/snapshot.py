@@ -30,7 +30,8 @@ from radioloc.locate.adapter import anchor_positions, default_models, node_obser
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.epochs import (ON_DEGENERATE, Epochs, epoch_error, epoch_table,
-                                    horizontal_ranges, range_epochs)
+                                    horizontal_ranges, range_epochs, solve_epochs)
+from radioloc.locate.progress import counted
 from radioloc.models.los_nlos import LosNlosRange
 
 __all__ = ["locate_localml", "locate_ransac", "locate_lsq"]
@@ -83,8 +84,8 @@ def locate_localml(request: LocateRequest) -> pd.DataFrame:
     model = LosNlosRange(request.option("los_std_m", 0.15), request.option("nlos_mean_m", 5.0),
                          request.option("alpha", 0.7))
     try:
-        fit = LocalML(model, _radius(request, ep),
-                      on_degenerate="flag" if ep.skip else "raise").locate(R, points)
+        fit = solve_epochs(ep, R, points, LocalML(
+            model, _radius(request, ep), on_degenerate="flag" if ep.skip else "raise").locate)
     except GeometryError as exc:
         raise epoch_error(ep, exc) from None
     bad = np.asarray(fit.diagnostics["degenerate"])
@@ -127,8 +128,8 @@ def locate_ransac(request: LocateRequest) -> pd.DataFrame:
     R, points = horizontal_ranges(request, ep)
     threshold = request.option("threshold_m", 0.5)
     try:
-        fit = Ransac(threshold, _radius(request, ep),
-                     on_degenerate="flag" if ep.skip else "raise").locate(R, points)
+        fit = solve_epochs(ep, R, points, Ransac(
+            threshold, _radius(request, ep), on_degenerate="flag" if ep.skip else "raise").locate)
     except GeometryError as exc:
         raise epoch_error(ep, exc) from None
     d = fit.diagnostics
@@ -196,7 +197,8 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     solver = LeastSquares(loss=request.option("loss", "linear", str),
                           loss_scale=request.option("loss_scale", 1.5))
     epochs, fits = [], []
-    for node in log.nodes:
+    per_node = log.frame["node"].value_counts()
+    for node in counted(log.nodes, len(log.frame), lambda n: int(per_node.get(n, 0)), "lsq"):
         times, obs = node_observations(log, table, node, models, height_m=height,
                                         checked=True)
         if times.size:

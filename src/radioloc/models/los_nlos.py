@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import log_ndtr
 
 from radioloc.core.errors import InputError
 from radioloc.core.validation import (
@@ -70,6 +69,8 @@ def emg_logpdf(x: np.ndarray, std: float, mean_exp: float) -> np.ndarray:
     ndarray
         The log-density, same shape as ``x``.
     """
+    from scipy.special import log_ndtr               # here: scipy costs start-up time
+
     lam = 1.0 / mean_exp
     x = np.asarray(x, dtype=float)
     return (np.log(lam) + 0.5 * (lam * std) ** 2 - lam * x

@@ -46,6 +46,14 @@ def range_geometry(position: np.ndarray, anchors: np.ndarray, height_m: float | 
     jacobian : ndarray, shape (..., M, D)
         ``d|x - a_m| / dx``, the unit vectors from the anchors to ``x``.
     """
+    diff, dist = _offsets(position, anchors, height_m)
+    safe = np.maximum(dist, min_distance_m)
+    return dist, diff / safe[..., None]
+
+
+def _offsets(position: np.ndarray, anchors: np.ndarray, height_m: float | None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """``x - a_m`` (horizontal with ``height_m``) and the ranges of :func:`range_geometry`."""
     x = np.asarray(position, dtype=float)
     a = np.asarray(anchors, dtype=float)
     D = x.shape[-1]
@@ -61,8 +69,7 @@ def range_geometry(position: np.ndarray, anchors: np.ndarray, height_m: float | 
         diff = x[..., None, :] - a[..., :D]
         dz = float(height_m) - a[..., D]
         dist = np.sqrt(np.sum(diff**2, axis=-1) + dz**2)
-    safe = np.maximum(dist, min_distance_m)
-    return dist, diff / safe[..., None]
+    return diff, dist
 
 
 @dataclass(frozen=True)
@@ -203,7 +210,9 @@ class RangeModel(MeasurementModel):
         return np.take(state["anchor_bias"], context.index, axis=-1)
 
     def predict(self, state, context: Context) -> np.ndarray:
-        return self.predict_with_jacobian(state, context)[0]
+        # without the Jacobian: a particle filter predicts for every particle
+        d = _offsets(state["position"], context.points, context.height_m)[1]
+        return d + self._bias_of(state, context)
 
     def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
         return self.predict_with_jacobian(state, context)[1]
@@ -237,10 +246,9 @@ class RangeModel(MeasurementModel):
     def logpdf(self, z, state, context: Context) -> np.ndarray:
         z = checked_call(z, state, context, self.reads)
         check_ranges(z, "z", self.row_std(range_noise_std(self), context))
-        z_hat = self.predict(state, context)
         if context.std is not None or isinstance(self.noise, GaussianRange):
             return super().logpdf(z, state, context)
-        lp = self.noise.logpdf(z, z_hat)
+        lp = self.noise.logpdf(z, self.predict(state, context))
         return np.where(np.isnan(lp), 0.0, lp)
 
     def mode_logpdf(self, z, state, context: Context) -> np.ndarray:
