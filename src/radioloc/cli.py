@@ -306,6 +306,7 @@ def locate(
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (one is drawn on standard error when a run lasts more than 2 s).")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Exit non-zero (1) when the run warns: a finding of the health check (summary.json, health) or any other warning; the outputs are written first.")] = False,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -348,8 +349,10 @@ def locate(
         meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                       not_detected=nd), anchor_table)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
-        with show_progress(not quiet):
+        with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
             estimates = run_method(method, request)
+        for w in warned:                    # shown as usual, counted for --strict
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         errors = None if ref_table is None else reference_errors(estimates, ref_table)
     to_stdout = out is None or str(out) == "-"
     written = write_output(estimates, out, fmt, anchor_table)
@@ -376,6 +379,9 @@ def locate(
         written.insert(len(written) - (plot is not None), target)
     for path in written:
         _echo_err(f"wrote {path}")
+    if strict and warned:
+        raise RadiolocError(f"--strict: the run warned ({len(warned)} warning(s)); first: "
+                            f"{_one_line(warned[0].message)}")
 
 
 def _json_default(value: Any) -> Any:

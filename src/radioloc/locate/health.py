@@ -17,6 +17,8 @@ is tells the track:
   the windows;
 - **misfit**: the residuals after the correction, normalised by the stated noise, have a
   robust scale (1.4826 times their median absolute value) above :data:`SCALE_LIMIT`;
+- **one anchor misfits**: its rows' scale above :data:`SCALE_LIMIT` and four times the
+  others', which fit;
 - **outside the anchors' region**: positions farther outside the anchors' box than its
   diagonal and :data:`OFF_SIGMAS` claimed standard deviations.
 
@@ -108,9 +110,10 @@ def _robust_scale(e: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(e))) if e.size else math.nan
 
 
-def stated_sigmas(request, summary: dict) -> dict[str, tuple[float, str]]:
+def stated_sigmas(request, summary: dict) -> dict[str, tuple[float, str, bool]]:
     """The noise in force for each kind: the option given, else the one the method reports
-    in its summary, else :data:`radioloc.locate.adapter.DEFAULT_SIGMAS`; with its option name."""
+    in its summary, else :data:`radioloc.locate.adapter.DEFAULT_SIGMAS`; with its option name
+    and whether it was stated (given or reported)."""
     out = {}
     for kind, name in MODEL_KINDS.items():
         value = request.option(name)
@@ -118,9 +121,8 @@ def stated_sigmas(request, summary: dict) -> dict[str, tuple[float, str]]:
             value = request.option("std_m")
         if value is None:
             value = summary.get(name)
-        if not isinstance(value, (int, float)) or not value > 0:
-            value = DEFAULT_SIGMAS[kind]
-        out[kind] = (float(value), name)
+        stated = isinstance(value, (int, float)) and value > 0
+        out[kind] = (float(value) if stated else DEFAULT_SIGMAS[kind], name, stated)
     return out
 
 
@@ -210,7 +212,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"])]
     if not kinds or request.anchors is None:
         return None
-    options = {name: value for value, name in sigmas.values()}
+    options = {name: value for value, name, _ in sigmas.values()}
     models = default_models(kinds, options)
     own = meas[(meas["node"] == node) & meas["kind"].isin(kinds)]
     height = request.option("tag_height_m")
@@ -330,6 +332,8 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
         figures["correction_m"] = round(float(np.median(np.linalg.norm(d[off], axis=1))), 3)
     if scale > SCALE_LIMIT:
         checks.append("misfit")
+    if _wrong_anchor(_per_anchor_scale(rows, es)) is not None:
+        checks.append("anchor_misfit")
     if away.any():
         checks.append("outside_anchors")
         figures["outside_m"] = round(float(outside.max()), 3)
@@ -342,7 +346,7 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
     if bad_t.size == 0:
         bad_t = times
     start, end = float(bad_t.min()), float(bad_t.max())
-    cause = likely_cause(request, rows, d, es, scale, sigmas, node)
+    cause = likely_cause(request, rows, d, es, scale, sigmas, node, bool(away.any()))
     figures["inflation"] = round(factor, 3)
     what = []
     if "off_its_data" in checks:
@@ -351,6 +355,8 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
                     "its windows")
     if "misfit" in checks:
         what.append(f"residuals {scale:.3g} times the stated noise")
+    if "anchor_misfit" in checks and len(checks) == 1:
+        what.append("one anchor's rows misfit while the others fit")
     if "outside_anchors" in checks:
         what.append(f"positions up to {figures['outside_m']:.3g} m outside the anchors' box")
     message = (f"node {node!r}, time {start:g} to {end:g}: {'; '.join(what)}; likely cause: "
@@ -365,9 +371,12 @@ def _inflate(own: pd.DataFrame, factor: float, rows: _Rows, cov_d, t_obs) -> pd.
         t_out = own["time"].to_numpy(dtype=float)
         idx = np.clip(np.searchsorted(t_obs, t_out), 0, len(t_obs) - 1)
         steps = np.bincount(rows.window)[rows.window[idx]]
-        filled = cov_d[rows.window[idx]] * steps[:, None, None] / max(factor, 1.0) ** 2
-        if not np.all(np.isfinite(filled)):
+        per_window = cov_d.copy()
+        lost = ~np.all(np.isfinite(per_window), (1, 2))
+        if lost.all():
             return own
+        per_window[lost] = np.max(per_window[~lost], axis=0)   # a window that fixes nothing
+        filled = per_window[rows.window[idx]] * steps[:, None, None] / max(factor, 1.0) ** 2
         cov = filled[:, :dim, :dim]
     if factor == 1.0 and covariance_of(own) is not None:
         return own
@@ -390,8 +399,10 @@ def _refit_scale(rows: _Rows, observations, start=None) -> float:
     return window_fit(rows, observations, start)[3]
 
 
-def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node) -> tuple[str, str]:
-    """``(code, text)`` of the likeliest cause of a node's failure (module docstring)."""
+def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: bool = False
+                 ) -> tuple[str, str]:
+    """``(code, text)`` of the likeliest cause of a node's failure (module docstring);
+    ``diverged``: the track left the anchors' region (then not blamed on the noise)."""
     from dataclasses import replace
 
     obs = rows.observations
@@ -409,16 +420,17 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node) -> tuple[str,
                 return "slip", f"{question} (the rows fit once {how})"
     # one anchor's rows misfit
     per = _per_anchor_scale(rows, es)
-    if len(per) >= 3:
-        worst = max(per, key=per.get)
+    worst = _wrong_anchor(per)
+    if worst is not None:
         others = np.median([v for k, v in per.items() if k != worst])
-        if per[worst] > SCALE_LIMIT and per[worst] > 4 * max(others, 1.0) and others < FITS_BELOW * 1.5:
-            swapped = _swapped_fits(request, rows, worst)
-            if swapped:
-                return "anchor", (f"anchor {worst!r} has x and y swapped (its rows fit it at "
-                                  f"{swapped})")
-            return "anchor", (f"anchor {worst!r} is wrong (its rows misfit {per[worst]:.3g} times "
-                              f"the noise, the others {others:.3g} times)")
+        swapped = _swapped_fits(request, rows, worst)
+        if swapped:
+            return "anchor", (f"anchor {worst!r} has x and y swapped (its rows fit it at "
+                              f"{swapped})")
+        return "anchor", (f"anchor {worst!r} is wrong (its rows misfit {per[worst]:.3g} times "
+                          f"the noise, the others {others:.3g} times)")
+    if diverged:
+        return "diverged", "a diverged track (it left the region the anchors fix)"
     # NLOS: ranges longer than the fit, rarely shorter
     for o, e in zip(obs, es):
         if o.model.kind != "range":
@@ -431,10 +443,25 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node) -> tuple[str,
                             "--method smoother or pf)")
     if scale > SCALE_LIMIT:
         kinds = sorted({o.model.kind for o in obs})
-        named = ", ".join(f"{sigmas[k][1]}={sigmas[k][0]:g}" for k in kinds)
         tried = ", ".join(f"{sigmas[k][1]}={sigmas[k][0] * scale:.2g}" for k in kinds)
-        return "noise", (f"stated noise too small ({named}; the residuals say {tried})")
-    return "diverged", "a diverged track (its rows fit well a position away from it)"
+        if all(sigmas[k][2] for k in kinds):
+            named = ", ".join(f"{sigmas[k][1]}={sigmas[k][0]:g}" for k in kinds)
+            return "noise", f"stated noise too small ({named}; the residuals say {tried})"
+        return "noise", (f"a noise model too narrow for this log (the residuals' robust spread: "
+                         f"{tried})")
+    return "diverged", "a diverged track (the rows fit well positions away from it)"
+
+
+def _wrong_anchor(per: dict[str, float]) -> str | None:
+    """The anchor whose rows alone misfit (scale above :data:`SCALE_LIMIT` and 4 times the
+    others' median, which fit), or None."""
+    if len(per) < 3:
+        return None
+    worst = max(per, key=per.get)
+    others = float(np.median([v for k, v in per.items() if k != worst]))
+    if per[worst] > SCALE_LIMIT and per[worst] > 4 * max(others, 1.0) and others < SCALE_LIMIT:
+        return worst
+    return None
 
 
 def _per_anchor_scale(rows: _Rows, es) -> dict[str, float]:

@@ -111,7 +111,7 @@ def walk_log(fault: str = "clean", seed: int = 0, *, kind: str | None = None,
         frame["reference"] = reference
     anchors = pd.DataFrame({"id": ids, "x": xy[:, 0], "y": xy[:, 1]})
     if fault == "swapped_anchor":
-        anchors.loc[4, ["x", "y"]] = anchors.loc[4, ["y", "x"]].to_numpy()
+        anchors.loc[4, ["x", "y"]] = anchors.loc[4, ["y", "x"]].to_numpy(copy=True)
     if fault == "anchors_mm":
         anchors[["x", "y"]] *= 1000.0
     truth = pd.DataFrame({"time": t, "node": node, "x": pos[:, 0], "y": pos[:, 1]})
