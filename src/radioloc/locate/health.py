@@ -158,7 +158,8 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     e : list of ndarray, shape (T, S)
         Normalised residuals after the correction, per observation.
     scale : float
-        Their robust scale.
+        Their robust scale, corrected for the corrections fitted (times
+        ``sqrt(n / (n - windows * D))``).
     """
     obs = rows.observations if observations is None else observations
     n_w = int(rows.window.max()) + 1
@@ -176,7 +177,8 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
             e = o.model.residual(o.z, zhat) / sig
             es.append(e)
         pooled = np.concatenate([e[np.isfinite(e)] for e in es])
-        scale = max(_robust_scale(pooled), 1e-9) if pooled.size else 1.0
+        dof = pooled.size / max(pooled.size - n_w * dim, 1)      # the fit took n_w * dim
+        scale = max(_robust_scale(pooled) * math.sqrt(dof), 1e-9) if pooled.size else 1.0
         if it == ITERATIONS:
             break
         for o, sig, e in zip(obs, rows.sigma, es):
