@@ -22,7 +22,7 @@ is tells the track:
 - **outside the anchors' region**: positions farther outside the anchors' box than its
   diagonal and :data:`OFF_SIGMAS` claimed standard deviations.
 
-A failing node gets one finding: its node, time span, figures and the most likely cause the
+Network methods (priors) and moving anchors are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
 data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
 mapped back by :data:`radioloc.locate.slips.SLIPS` fit), an anchor with x and y swapped or a
 wrong anchor (its rows alone misfit), NLOS (ranges longer than the fit, not shorter), a
@@ -43,15 +43,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy.special import gammaincinv
 from scipy.stats import chi2
 
 from radioloc.core.errors import RadiolocError
 from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, default_models,
-                                     node_observations)
+                                     moving_anchors, node_observations)
 from radioloc.locate.slips import SLIPS, slip_scale
 from radioloc.locate.table import add_covariance, covariance_of
 
-__all__ = ["Finding", "HealthReport", "check_run", "window_fit", "CHECKED_KINDS"]
+__all__ = ["Finding", "HealthReport", "check_run", "divergence", "window_fit", "CHECKED_KINDS"]
 
 #: The kinds the check reads (a pseudorange needs the receiver clock; RSS a path-loss model).
 CHECKED_KINDS = ("range", "tdoa", "aoa", "aoa_elevation")
@@ -79,6 +80,17 @@ FITS_BELOW = 2.0
 NLOS_SHARE, NLOS_RATIO = 0.03, 3.0
 
 
+#: Innovation check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
+#: windowed NIS per measurement, fraction of windows beyond it that flags a track.
+NIS_WINDOW = 50
+NIS_FACTOR = 2.0
+NIS_FRACTION = 0.3
+#: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
+GATED_FRACTION = 0.05
+#: Fewest steps of a track that the innovation check judges.
+NIS_MIN_STEPS = 10
+
+
 @dataclass
 class Finding:
     """One node's failed check, with the likely cause."""
@@ -103,6 +115,57 @@ class HealthReport:
     def summary(self) -> dict:
         return {"findings": [vars(f) for f in self.findings],
                 "covariance_inflation": self.inflation, "residual_scale": self.scale}
+
+
+def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
+    """Signs that a tracker's track has diverged, from its innovations.
+
+    The normalised innovation squared per measurement over windows of :data:`NIS_WINDOW`
+    steps (a gated row counted at the gate) above :data:`NIS_FACTOR` times its 99.9 %
+    chi-square bound in more than :data:`NIS_FRACTION` of the windows; or a track that leaves
+    the anchors' box by more than their span while refusing more than
+    :data:`GATED_FRACTION` of its measurements or with some window beyond the band (a tag
+    far from a compact anchor cluster, with consistent innovations, is not flagged).
+
+    Parameters
+    ----------
+    track : Track
+        From :func:`run_tracker`, with diagnostics ``nis``, ``measurements_used`` and
+        ``gated`` per step.
+    anchors : ndarray, shape (M, 2|3)
+    gate : float or None
+        The innovation gate (a gated row counts as this NIS; 16 without a gate).
+
+    Returns
+    -------
+    dict or None
+        ``windows_out`` (fraction of windows beyond the band), ``gated`` (fraction of the
+        measurements refused) and ``outside_m`` (largest distance outside the anchors' box),
+        when the track diverged; None otherwise.
+    """
+    d = track.diagnostics
+    nis = np.nan_to_num(np.asarray(d.get("nis", []), dtype=float))
+    used = np.asarray(d.get("measurements_used", np.zeros(nis.size)), dtype=float)
+    refused = np.asarray(d.get("gated", np.zeros(nis.size)), dtype=float)
+    if nis.size < NIS_MIN_STEPS:
+        return None
+    w = np.ones(min(NIS_WINDOW, nis.size))
+    total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
+    n = np.convolve(used + refused, w, "valid")
+    ok = n > 0
+    counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
+    band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
+    windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
+    xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
+    span = float(np.linalg.norm(hi - lo))
+    outside_m = float(outside.max()) if outside.size else 0.0
+    gated = float(refused.sum() / max(refused.sum() + used.sum(), 1))
+    away = span > 0 and outside_m > span and (windows_out > 0 or gated > GATED_FRACTION)
+    if windows_out > NIS_FRACTION or away:
+        return {"windows_out": windows_out, "outside_m": outside_m, "gated": gated}
+    return None
 
 
 def _robust_scale(e: np.ndarray) -> float:
@@ -232,6 +295,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     t_out = out_node["time"].to_numpy(dtype=float)
     xyz = out_node[cols].to_numpy(dtype=float)
     pos = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
+    obs = _unbiased(request, obs, pos)
     sigma = []
     for o in obs:
         base = np.broadcast_to(o.model.std(o.context), o.z.shape)
@@ -248,6 +312,28 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     if count < WINDOW_ROWS // 2 and w > 0 and not window_alone:   # a short last window
         window[window == w] = w - 1
     return _Rows(obs, times, pos, window, sigma, list(dict.fromkeys(request.anchors["id"])))
+
+
+def _unbiased(request, obs: list, pos: np.ndarray) -> list:
+    """The range observations less the biases the method was told of: ``range_bias_m``, and
+    with ``anchor_bias`` each anchor's median range residual at the written track."""
+    from dataclasses import replace
+
+    bias = request.option("range_bias_m", 0.0) or 0.0
+    per_anchor = bool(request.option("anchor_bias", False, bool))
+    out = []
+    for o in obs:
+        if o.model.kind != "range" or not (bias or per_anchor):
+            out.append(o)
+            continue
+        z = o.z - bias
+        if per_anchor:
+            with np.errstate(all="ignore"):
+                zhat = o.model.predict({"position": pos}, o.context)
+            offset = np.nanmedian(np.where(np.isfinite(z), z - zhat, np.nan), axis=0)
+            z = z - np.nan_to_num(offset)
+        out.append(replace(o, z=z))
+    return out
 
 
 def _claimed(out_node: pd.DataFrame, rows_times: np.ndarray, dim: int) -> np.ndarray | None:
@@ -278,6 +364,10 @@ def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFram
     report : HealthReport
     """
     summary = out.attrs.get("summary", {})
+    if request.priors is not None or moving_anchors(request.anchors):
+        # network methods (nodes fixed by priors and each other) and moving anchors: not
+        # judged here
+        return out, HealthReport(_with_innovations([], summary.get("innovations", []), out), {}, {})
     sigmas = stated_sigmas(request, summary)
     findings, inflation, scales = [], {}, {}
     parts = []
@@ -291,6 +381,7 @@ def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFram
         findings += found
         inflation[node], scales[node] = factor, scale
         parts.append(filled)
+    findings = _with_innovations(findings, summary.get("innovations", []), out)
     report = HealthReport(findings, inflation, scales)
     if parts:
         attrs = out.attrs
@@ -299,6 +390,35 @@ def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFram
     for f in findings:
         warnings.warn(f"method {method_name}: {f.message}", stacklevel=3)
     return out, report
+
+
+def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFrame
+                      ) -> list[Finding]:
+    """The findings with a tracker's innovation signs (:func:`divergence`, recorded by the
+    method in its summary's ``innovations``) added to its node's finding, or as its own."""
+    by_node = {f.node: f for f in findings}
+    for sign in sorted(signs, key=lambda d: (-d["windows_out"], -d["outside_m"])):
+        node = sign["node"]
+        text = (f"its innovations look diverged (above {NIS_FACTOR:g} times their 99.9 % band "
+                f"in {100 * sign['windows_out']:.0f} % of {NIS_WINDOW}-step windows, "
+                f"{100 * sign['gated']:.0f} % of the measurements gated, up to "
+                f"{sign['outside_m']:.3g} m outside the anchors' box)")
+        figures = {k: round(float(sign[k]), 3) for k in ("windows_out", "gated", "outside_m")}
+        if node in by_node:
+            f = by_node[node]
+            if "innovations" not in f.checks:
+                f.checks.append("innovations")
+                f.figures.update(figures)
+                head, _, tail = f.message.partition("; likely cause: ")
+                f.message = f"{head}; {text}; likely cause: {tail}"
+            continue
+        end = float(out.loc[out["node"] == node, "time"].max())
+        f = Finding(node, float(sign["start"]), end, ["innovations"], "noise",
+                    f"node {node!r}, time {float(sign['start']):g} to {end:g}: {text}; likely "
+                    f"cause: {sign['noise']} too small for this log?", figures)
+        by_node[node] = f
+        findings.append(f)
+    return findings
 
 
 def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
@@ -448,7 +568,7 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: boo
         tried = ", ".join(f"{sigmas[k][1]}={sigmas[k][0] * scale:.2g}" for k in kinds)
         if all(sigmas[k][2] for k in kinds):
             named = ", ".join(f"{sigmas[k][1]}={sigmas[k][0]:g}" for k in kinds)
-            return "noise", f"stated noise too small ({named}; the residuals say {tried})"
+            return "noise", f"{named} too small for this log? (the residuals say {tried})"
         return "noise", (f"a noise model too narrow for this log (the residuals' robust spread: "
                          f"{tried})")
     return "diverged", "a diverged track (the rows fit well positions away from it)"
@@ -495,7 +615,10 @@ def _swapped_fits(request, rows: _Rows, anchor: str) -> str | None:
         pts = ctx.points.copy()
         pts[ctx.index == a, :2] = pts[ctx.index == a, 1::-1]
         mapped.append(replace(o, context=replace(ctx, points=pts)))
-    if _refit_scale(rows, mapped) < FITS_BELOW:
-        x, y = table.loc[table["id"] == anchor, ["x", "y"]].to_numpy(float)[0]
+    x, y = table.loc[table["id"] == anchor, ["x", "y"]].to_numpy(float)[0]
+    if x == y:
+        return None
+    _, _, es, _ = window_fit(rows, mapped)
+    if _per_anchor_scale(rows, es).get(anchor, math.inf) < FITS_BELOW:
         return f"x={y:g}, y={x:g}"
     return None

@@ -9,7 +9,8 @@
   robust loss (``-o loss=linear|huber|cauchy|tukey``).
 
 ``localml`` and ``ransac`` locate in 2-D (3-D anchors: give ``tag_height_m``; the ranges
-are projected to the horizontal plane) and report no covariance; ``lsq`` reports
+are projected to the horizontal plane) and report no covariance of their own (the health
+check, :mod:`radioloc.locate.health`, writes one from its refit); ``lsq`` reports
 ``(J' W J)^-1`` of each fix, with the rows weighted by the sigma options. The epochs, and
 those that do not fix the position (``-o on_degenerate``), are handled as by ``gn``
 (:mod:`radioloc.locate.epochs`).
