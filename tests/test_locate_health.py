@@ -112,6 +112,33 @@ def test_a_method_without_covariance_gets_one_that_covers():
     assert reference_errors(out, log.reference)["inside_95"].mean() > 0.85
 
 
+def test_a_suggested_noise_was_tried_on_the_log():
+    log = walk_log("clean", 0)
+    request = LocateRequest(log.measurements.copy(), log.anchors.copy(),
+                            options={"range_std_m": "0.01"})
+    with pytest.warns(UserWarning, match="range_std_m=0.01 too small") as caught:
+        out = run_method("lsq", request)
+    (finding,) = _health(out)["findings"]
+    tried = finding["figures"]["tried"]
+    assert tried["passes"] and 0.07 < tried["options"]["range_std_m"] < 0.13
+    assert any("the log then passes" in str(w.message) for w in caught)
+
+
+def test_innovation_divergence_of_a_network_run_is_still_warned():
+    """A method the check does not judge (priors) still has its own signs warned."""
+    from radioloc.locate.health import check_run
+
+    log = walk_log("clean", 0)
+    request = LocateRequest(log.measurements, log.anchors, priors=Path("p.csv"))
+    out = log.reference.copy()
+    out.attrs["summary"] = {"innovations": [{"node": "tag", "start": 0.0, "noise":
+                                             "range_std_m=0.01", "windows_out": 1.0,
+                                             "gated": 0.5, "outside_m": 0.0}]}
+    with pytest.warns(UserWarning, match="look diverged.*range_std_m=0.01 too small"):
+        _, report = check_run("x", request, out)
+    assert [f.cause for f in report.findings] == ["noise"]
+
+
 def _write(tmp_path: Path, log) -> list[str]:
     log.measurements.to_csv(tmp_path / "m.csv", index=False)
     log.anchors.to_csv(tmp_path / "a.csv", index=False)

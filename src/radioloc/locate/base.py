@@ -476,7 +476,7 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     _check_output(name, out)
     from radioloc.locate.health import check_run
 
-    out, health = check_run(name, request, out)
+    out, health = check_run(name, request, out, rerun=chosen.fn, options=chosen.options or ())
     summary = {**out.attrs.get("summary", {}), "health": health.summary()}
     out = order_rows(out, list(request.measurements["node"].unique()))
     out.attrs["summary"] = summary

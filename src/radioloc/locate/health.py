@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -345,7 +346,8 @@ def _claimed(out_node: pd.DataFrame, rows_times: np.ndarray, dim: int) -> np.nda
     return cov[idx][:, :dim, :dim]
 
 
-def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFrame, HealthReport]:
+def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
+              options: Collection[str] = ()) -> tuple[pd.DataFrame, HealthReport]:
     """Check a method's output against its log; warn of each finding.
 
     Parameters
@@ -355,6 +357,12 @@ def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFram
         The log, anchors and options the method ran on.
     out : DataFrame
         Its output (``time, node, x, y[, z][, cov_*]``).
+    rerun : callable, optional
+        ``rerun(request) -> DataFrame``: the method again. With it, a noise found too small
+        is tried at the value the residuals say (when ``options`` declares it), and the
+        warning tells whether the log then passes.
+    options : collection of str
+        The method's options.
 
     Returns
     -------
@@ -364,32 +372,65 @@ def check_run(method_name: str, request, out: pd.DataFrame) -> tuple[pd.DataFram
     report : HealthReport
     """
     summary = out.attrs.get("summary", {})
-    if request.priors is not None or moving_anchors(request.anchors):
-        # network methods (nodes fixed by priors and each other) and moving anchors: not
-        # judged here
-        return out, HealthReport(_with_innovations([], summary.get("innovations", []), out), {}, {})
-    sigmas = stated_sigmas(request, summary)
     findings, inflation, scales = [], {}, {}
-    parts = []
-    for node, idx in out.groupby("node", sort=False).indices.items():
-        own = out.iloc[idx].sort_values("time", kind="stable")
-        rows = _node_rows(request, own, node, sigmas)
-        if rows is None:
-            parts.append(own)
-            continue
-        found, factor, scale, filled = _check_node(method_name, request, own, node, rows, sigmas)
-        findings += found
-        inflation[node], scales[node] = factor, scale
-        parts.append(filled)
+    if request.priors is None and not moving_anchors(request.anchors):
+        # network methods (nodes fixed by priors and each other) and moving anchors are
+        # not judged here
+        sigmas = stated_sigmas(request, summary)
+        parts = []
+        for node, idx in out.groupby("node", sort=False).indices.items():
+            own = out.iloc[idx].sort_values("time", kind="stable")
+            rows = _node_rows(request, own, node, sigmas)
+            if rows is None:
+                parts.append(own)
+                continue
+            found, factor, scale, filled = _check_node(method_name, request, own, node, rows,
+                                                       sigmas)
+            findings += found
+            inflation[node], scales[node] = factor, scale
+            parts.append(filled)
+        if parts:
+            attrs = out.attrs
+            out = pd.concat(parts).loc[out.index]
+            out.attrs = attrs
+        if rerun is not None:
+            _try_noise(method_name, request, findings, sigmas, scales, rerun, options)
     findings = _with_innovations(findings, summary.get("innovations", []), out)
-    report = HealthReport(findings, inflation, scales)
-    if parts:
-        attrs = out.attrs
-        out = pd.concat(parts).loc[out.index]
-        out.attrs = attrs
     for f in findings:
         warnings.warn(f"method {method_name}: {f.message}", stacklevel=3)
-    return out, report
+    return out, HealthReport(findings, inflation, scales)
+
+
+def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -> None:
+    """Run the method again with the noise the residuals say (where a finding blames the
+    stated noise and the method takes its option), and say in the finding whether it fits."""
+    from dataclasses import replace
+
+    blamed = [f for f in findings if f.cause == "noise" and f.node in scales]
+    if not blamed:
+        return
+    scale = max(scales[f.node] for f in blamed)
+    kinds = set(request.measurements["kind"])
+    tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
+             if kind in kinds and stated and name in options}
+    if not tried:
+        return
+    again = replace(request, options={**request.options, **{k: repr(v) for k, v in tried.items()}},
+                    parsed={**request.parsed, **tried})
+    text = " ".join(f"-o {k}={v:g}" for k, v in tried.items())
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = rerun(again)
+            left = check_run(method_name, again, out)[1].findings
+    except (RadiolocError, ArithmeticError) as exc:
+        verdict = f"tried {text}: it fails ({exc})"
+    else:
+        verdict = (f"tried {text}: the log then passes" if not left else
+                   f"tried {text}: still failing ({left[0].cause})")
+    for f in blamed:
+        f.message += f"; {verdict}"
+        f.figures["tried"] = {"options": tried, "passes": verdict.endswith("passes")}
 
 
 def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFrame
