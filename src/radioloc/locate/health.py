@@ -31,7 +31,9 @@ rows fit well a position away from the track). Findings are warned and recorded 
 summary (``health``).
 
 The claimed covariance is inflated by the fitted residual scale where it exceeds
-:data:`INFLATE_ABOVE` (never shrunk); a method that writes none gets the covariance of the
+:data:`INFLATE_ABOVE`, or by the larger factor the corrections ask of it
+(:func:`_coverage_factor`: their median Mahalanobis distance brought to its chi-square
+median), never shrunk; a method that writes none gets the covariance of the
 window fits at that scale. Each node's factor is reported.
 """
 
@@ -185,6 +187,8 @@ def stated_sigmas(request, summary: dict) -> dict[str, tuple[float, str, bool]]:
             value = request.option("std_m")
         if value is None:
             value = summary.get(name)
+        if value is None and kind == "range":
+            value = summary.get("std_m")
         stated = isinstance(value, (int, float)) and value > 0
         out[kind] = (float(value) if stated else DEFAULT_SIGMAS[kind], name, stated)
     return out
@@ -480,6 +484,9 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
             m2 = np.einsum("wi,wij,wj->w", d, np.linalg.pinv(total), d)
             far = np.linalg.norm(d, axis=1) > OFF_SIGMAS * np.sqrt(np.trace(P, axis1=1, axis2=2))
         off = (m2 > chi2.ppf(CHI2_PROB, dim)) & far & np.all(np.isfinite(cov_d), (1, 2))
+        coverage = _coverage_factor(d, P, cov_d)
+    else:
+        coverage = 1.0
     # --- outside the anchors' region
     anchors = request.anchors
     box = anchors[["x", "y"]].to_numpy(dtype=float)
@@ -500,7 +507,8 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
     if away.any():
         checks.append("outside_anchors")
         figures["outside_m"] = round(float(outside.max()), 3)
-    factor = max(1.0, scale) if scale > INFLATE_ABOVE else 1.0
+    factor = max(max(1.0, scale) if scale > INFLATE_ABOVE else 1.0, coverage)
+    figures["coverage_factor"] = round(coverage, 3)
     filled = _inflate(own, factor, rows, cov_d, t_obs)
     if not checks:
         return [], factor, scale, filled
@@ -525,6 +533,31 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
     message = (f"node {node!r}, time {start:g} to {end:g}: {'; '.join(what)}; likely cause: "
                f"{cause[1]}" + (f" (covariance inflated x{factor:.3g})" if factor > 1 else ""))
     return [Finding(node, start, end, checks, cause[0], message, figures)], factor, scale, filled
+
+
+def _coverage_factor(d: np.ndarray, P: np.ndarray, cov_d: np.ndarray) -> float:
+    """The smallest ``k >= 1`` for which the corrections' median ``d' (k^2 P + C)^-1 d`` is at
+    most its chi-square median: the factor by which the claimed covariance ``P`` is too
+    small for the data (1 when it covers them; above :data:`INFLATE_ABOVE` only counted)."""
+    ok = np.all(np.isfinite(cov_d), (1, 2)) & np.all(np.isfinite(P), (1, 2))
+    if ok.sum() < 5:
+        return 1.0
+    d, P, C = d[ok], P[ok], cov_d[ok]
+    target = chi2.ppf(0.5, d.shape[1])
+
+    def median_m2(k):
+        with np.errstate(all="ignore"):
+            return float(np.median(np.einsum("wi,wij,wj->w", d, np.linalg.pinv(k * k * P + C), d)))
+
+    if median_m2(1.0) <= target:
+        return 1.0
+    lo, hi = 1.0, 2.0
+    while median_m2(hi) > target and hi < 1e6:
+        lo, hi = hi, 2 * hi
+    for _ in range(30):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if median_m2(mid) > target else (lo, mid)
+    return hi if hi > INFLATE_ABOVE else 1.0
 
 
 def _inflate(own: pd.DataFrame, factor: float, rows: _Rows, cov_d, t_obs) -> pd.DataFrame:
