@@ -209,3 +209,18 @@ def test_the_kilometre_smoother_on_wifi_rtt_warns(tmp_path):
     assert "outside the anchors' box" in res.output and "diverged" in res.output
     summary = json.loads((tmp_path / "out.summary.json").read_text())
     assert {f["node"] for f in summary["health"]["findings"]} == {"M1", "M2"}
+
+
+def test_benchmark_scores_every_method_on_the_simulated_scenes(tmp_path):
+    res = CliRunner().invoke(app, ["benchmark", "--no-real", "--methods", "gn,lsq", "--out",
+                                   str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    table = pd.read_csv(tmp_path / "benchmark.csv")
+    assert set(table["method"]) == {"gn", "lsq"}
+    assert set(table.loc[table["method"] == "gn", "log"]) == {"sim range clean", "sim range spikes"}
+    clean = table[table["log"] == "sim range clean"].set_index("method")
+    assert (clean["rmse_m"] < 0.2).all() and (clean["inside_95"] > 0.85).all()
+    assert (clean["p75_m"] <= clean["p95_m"]).all() and (clean["median_m"] <= clean["p75_m"]).all()
+    page = (tmp_path / "benchmark.html").read_text()
+    scored = table.loc[table["rmse_m"].notna(), "log"].nunique()     # a refusal has no CDF
+    assert page.count("data:image/png;base64,") == scored and "<table" in page

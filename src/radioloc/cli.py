@@ -430,6 +430,28 @@ def calibrate(
         _echo_err(f"wrote {out}")
 
 
+@app.command()
+def benchmark(
+    out: Annotated[Path, typer.Option(help="Output folder: benchmark.csv and benchmark.html.")] = Path("benchmark"),
+    methods: Annotated[Optional[str], typer.Option(help="Comma-separated methods (default: every fixed-anchor method).")] = None,
+    real: Annotated[bool, typer.Option("--real/--no-real", help="Also the real data sets found (RADIOLOC_DATA).")] = True,
+    quick: Annotated[bool, typer.Option("--quick", help="One circle per WiFi RTT venue and one Hanyang run.")] = False,
+) -> None:
+    """Every method with its defaults on simulated scenes and the real data sets at hand,
+    scored against the truth (RMSE, median, p75, (median + p95) / 2, p95, max, coverage of the
+    95 % ellipse, CPU time, health-check findings): a table and an HTML page with error CDFs."""
+    from radioloc.locate.benchmark import benchmark_logs, run_benchmark, write_page
+
+    out.mkdir(parents=True, exist_ok=True)
+    chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
+    table, errors = run_benchmark(benchmark_logs(real=real, quick=quick), chosen,
+                                  progress=lambda text: _echo_err(f"benchmark: {text}"))
+    table.to_csv(out / "benchmark.csv", index=False)
+    write_page(table, errors, out / "benchmark.html")
+    _echo_err(f"wrote {out / 'benchmark.csv'}")
+    _echo_err(f"wrote {out / 'benchmark.html'}")
+
+
 @app.command("methods")
 def list_methods() -> None:
     """List the estimators available to `radioloc locate`."""
