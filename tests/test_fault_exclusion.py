@@ -60,6 +60,17 @@ def test_a_fix_with_no_row_to_spare_is_reported_failing_not_changed():
     assert not excluded3[0].any() and failing3.all()  # 3 rows: the last spare one is kept
 
 
+def test_a_fit_that_fails_whatever_is_left_out_ends_the_search():
+    from radioloc.core.results import Estimate
+
+    rng = np.random.default_rng(4)
+    _, z = _ranges(rng, n=5)
+    obs = Observation(RangeModel(std_m=0.1), z, Context(points=ANCHORS))
+    never = lambda o: Estimate(np.full((5, 2), np.nan), None, None, {})     # noqa: E731
+    _, excluded, failing = exclude_faults(never, [obs])
+    assert not excluded[0].any() and not failing.any()     # no row is used: nothing to test
+
+
 def _rmse(method, fault, seed, kind, **options):
     log = walk_log(fault, seed, kind=kind)
     request = LocateRequest(log.measurements.copy(), log.anchors.copy(),
@@ -72,14 +83,14 @@ def _rmse(method, fault, seed, kind, **options):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", ["lsq", "ekf-track"])
-@pytest.mark.parametrize("kind", ["tdoa", "range"])
+@pytest.mark.parametrize("method,kind", [("lsq", "tdoa"), ("lsq", "range"), ("ekf-track", "tdoa"),
+                                         ("ekf-track", "range"), ("gn", "range")])
 def test_gross_errors_in_8_percent_of_rows_cost_at_most_20_percent(method, kind):
     """TDoA steps of 25-100 m or range spikes of 40-250 m in 8 % of the rows: the RMSE over
-    3 logs stays within 20 % of the same logs without them."""
-    options = {"on_degenerate": "skip"} if method == "lsq" else {}
+    3 logs stays within 20 % of the same logs without them (gn: with -o exclude_faults=1)."""
+    options = {"lsq": {"on_degenerate": "skip"}, "gn": {"exclude_faults": "1"}}.get(method, {})
     clean = np.mean([_rmse(method, "clean", s, kind, **options)[0] for s in range(3)])
     runs = [_rmse(method, "spikes", s, kind, **options) for s in range(3)]
     assert np.mean([r for r, _ in runs]) < 1.2 * clean
-    if method == "lsq":
+    if method in ("lsq", "gn"):
         assert all(summary["rows_excluded"] > 0 for _, summary in runs)

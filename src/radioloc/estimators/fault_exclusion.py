@@ -91,13 +91,14 @@ def exclude_faults(fit: Callable[[list[Observation]], Estimate],
         ratio = (np.where(used, u, 0.0) ** 2).sum(-1) / chi2.ppf(probability, np.maximum(spare, 1))
         ok = np.all(np.isfinite(estimate.position), -1) & ~np.asarray(
             estimate.diagnostics.get("degenerate", False))
-        return estimate, spare, np.where(ok, ratio, np.inf)
+        return estimate, spare, np.where(ok, ratio, np.inf), u
 
-    estimate, spare, ratio = attempt(excluded)
+    estimate, spare, ratio, u = attempt(excluded)
     rounds = 0
+    stuck = np.zeros(np.shape(spare), dtype=bool)     # no row whose leaving out fits
     while True:
         failing = (spare >= 1) & (ratio > 1)
-        can = failing & (spare >= 2)
+        can = failing & (spare >= 2) & ~stuck
         if max_excluded is not None:
             can &= rounds < max_excluded
         if not can.any():
@@ -111,10 +112,15 @@ def exclude_faults(fit: Callable[[list[Observation]], Estimate],
                 continue
             mask = [ex.copy() for ex in excluded]
             mask[i][..., s] |= trial
-            _, _, r = attempt(mask)
+            _, _, r, _ = attempt(mask)
             better = trial & (r < best_ratio)
             best, best_ratio = np.where(better, k, best), np.where(better, r, best_ratio)
+        # no subset fits (the fit fails with two faults in): the largest residual goes
+        worst = np.argmax(np.where(np.isfinite(u), np.abs(u), -1.0), axis=-1)
+        fallback = can & ~np.isfinite(best_ratio)
+        best = np.where(fallback, worst, best)
+        stuck |= fallback & ~np.any(np.isfinite(u), axis=-1)
         for k, (i, s) in enumerate(slots):
-            excluded[i][..., s] |= can & (best == k)
-        estimate, spare, ratio = attempt(excluded)
+            excluded[i][..., s] |= can & ~stuck & (best == k)
+        estimate, spare, ratio, u = attempt(excluded)
         rounds += 1

@@ -66,7 +66,7 @@ HUBER = 3.0
 #: Tukey threshold of the refit's second half, in robust standard deviations.
 TUKEY = 4.685
 #: Iterations of the refit (Huber for the first half).
-ITERATIONS = 16
+ITERATIONS = 30
 #: Probability of the chi-square point a correction must pass to count as off.
 CHI2_PROB = 0.9999
 #: A correction counts as off only when longer than this many claimed standard deviations.
