@@ -110,8 +110,8 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     std = request.option("std_m", request.option("range_std_m"))
     ep = range_epochs(request, "gn")
     R_ok, a_xyz = ep.R[ep.solvable], ep.points
-    excluded = np.zeros(R_ok.shape, dtype=bool)
-    if request.option("exclude_faults", False, bool):
+    excluded, fde = np.zeros(R_ok.shape, dtype=bool), request.option("exclude_faults", False, bool)
+    if fde:
         R_ok, excluded = _exclude_faults(R_ok, a_xyz, std)
     try:
         fit = Multilateration(std_m=std, on_degenerate="flag" if ep.skip else "raise"
@@ -129,8 +129,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     cov = None if std is None else std ** 2 * _inverse_information(
         fit.position, a_xyz, np.isfinite(R_ok), bad)
     out = epoch_table(ep, fit.position, cov, bad, fit.diagnostics["ambiguous"],
-                      ranges=np.isfinite(R_ok).sum(axis=1), excluded=excluded.sum(axis=1))
-    by_anchor = {f"range {ep.ids[a]}": int(n) for a, n in enumerate(excluded.sum(axis=0)) if n}
-    out.attrs["summary"].update(std_m=std, std_m_from=source, rows_excluded=int(excluded.sum()),
-                                excluded_by_row=by_anchor)
+                      ranges=np.isfinite(R_ok).sum(axis=1),
+                      **({"excluded": excluded.sum(axis=1)} if fde else {}))
+    out.attrs["summary"].update(std_m=std, std_m_from=source)
+    if fde:
+        out.attrs["summary"].update(rows_excluded=int(excluded.sum()), excluded_by_row={
+            f"range {ep.ids[a]}": int(n) for a, n in enumerate(excluded.sum(axis=0)) if n})
     return out
