@@ -440,7 +440,7 @@ def benchmark(
     """Every method with its defaults on simulated scenes and the real data sets at hand,
     scored against the truth (RMSE, median, p75, (median + p95) / 2, p95, max, coverage of the
     95 % ellipse, CPU time, health-check findings): a table and an HTML page with error CDFs."""
-    from radioloc.locate.benchmark import benchmark_logs, run_benchmark, write_page
+    from radioloc.experiments.benchmark import benchmark_logs, run_benchmark, write_page
 
     out.mkdir(parents=True, exist_ok=True)
     chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
