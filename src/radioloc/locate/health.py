@@ -512,10 +512,11 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
     filled = _inflate(own, factor, rows, cov_d, t_obs)
     if not checks:
         return [], factor, scale, filled
-    bad_t = np.concatenate([t_obs[np.isin(rows.window, np.flatnonzero(off))],
-                            own["time"].to_numpy(dtype=float)[away]])
-    if bad_t.size == 0:
-        bad_t = times
+    bad_t = own["time"].to_numpy(dtype=float)[away]
+    if "off_its_data" in checks:
+        bad_t = np.concatenate([bad_t, t_obs[np.isin(rows.window, np.flatnonzero(off))]])
+    if bad_t.size == 0 or "misfit" in checks or "anchor_misfit" in checks:
+        bad_t = np.concatenate([bad_t, times])     # a misfit is judged over the whole track
     start, end = float(bad_t.min()), float(bad_t.max())
     cause = likely_cause(request, rows, d, es, scale, sigmas, node, bool(away.any()))
     figures["inflation"] = round(factor, 3)
