@@ -321,6 +321,7 @@ def locate(
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress (on standard error: a bar when a run lasts more than 2 s, or, when standard error is not a terminal, a line per 10 s of work).")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Exit non-zero (1) when the run warns: a finding of the health check (summary.json, health) or any other warning; the outputs are written first.")] = False,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -367,8 +368,10 @@ def locate(
         meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                       not_detected=nd), anchor_table)
         request = LocateRequest(meas, anchor_table, priors, calibration, opts)
-        with show_progress(not quiet):
+        with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
             estimates = run_method(method, request)
+        for w in warned:                    # shown as usual, counted for --strict
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         errors = None if ref_table is None else reference_errors(estimates, ref_table)
     to_stdout = out is None or str(out) == "-"
     files = output_files(list(estimates["node"].unique()), out, fmt)
@@ -396,6 +399,9 @@ def locate(
         written.insert(len(written) - (plot is not None), summary_file)
     for path in written:
         _echo_err(f"wrote {path}")
+    if strict and warned:
+        raise RadiolocError(f"--strict: the run warned ({len(warned)} warning(s)); first: "
+                            f"{_one_line(warned[0].message)}")
 
 
 def _summary_path(out: Path | None) -> Path | None:
@@ -452,6 +458,28 @@ def calibrate(
               + ("" if result.converged else "; the solver did not converge"))
     if out is not None and str(out) != "-":
         _echo_err(f"wrote {out}")
+
+
+@app.command()
+def benchmark(
+    out: Annotated[Path, typer.Option(help="Output folder: benchmark.csv and benchmark.html.")] = Path("benchmark"),
+    methods: Annotated[Optional[str], typer.Option(help="Comma-separated methods (default: every fixed-anchor method).")] = None,
+    real: Annotated[bool, typer.Option("--real/--no-real", help="Also the real data sets found (RADIOLOC_DATA).")] = True,
+    quick: Annotated[bool, typer.Option("--quick", help="One circle per WiFi RTT venue and one Hanyang run.")] = False,
+) -> None:
+    """Every method with its defaults on simulated scenes and the real data sets at hand,
+    scored against the truth (RMSE, median, p75, (median + p95) / 2, p95, max, coverage of the
+    95 % ellipse, CPU time, health-check findings): a table and an HTML page with error CDFs."""
+    from radioloc.experiments.benchmark import benchmark_logs, run_benchmark, write_page
+
+    out.mkdir(parents=True, exist_ok=True)
+    chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
+    table, errors = run_benchmark(benchmark_logs(real=real, quick=quick), chosen,
+                                  progress=lambda text: _echo_err(f"benchmark: {text}"))
+    table.to_csv(out / "benchmark.csv", index=False)
+    write_page(table, errors, out / "benchmark.html")
+    _echo_err(f"wrote {out / 'benchmark.csv'}")
+    _echo_err(f"wrote {out / 'benchmark.html'}")
 
 
 @app.command("methods")

@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-_INFRA = {"base", "runner"}
+_INFRA = {"base", "runner", "benchmark"}   # benchmark: `radioloc benchmark`, not a paper
 
 
 def discover() -> None:

@@ -492,7 +492,10 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     check_plausible(chosen, request, skip)
     out = chosen.fn(request)
     _check_output(name, out)
-    summary = dict(out.attrs.get("summary", {}))
+    from radioloc.locate.health import check_run
+
+    out, health = check_run(name, request, out, rerun=chosen.fn, options=chosen.options or ())
+    summary = {**out.attrs.get("summary", {}), "health": health.summary()}
     out = order_rows(out, list(request.measurements["node"].unique()))
     out.attrs["summary"] = summary
     return out

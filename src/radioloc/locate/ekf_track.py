@@ -13,14 +13,11 @@ measurement to a known anchor is not a step. Ranges whose peer is another node (
 are used with ``-o cooperative=1`` only (:mod:`radioloc.locate.cooperative`: the peer's
 estimate as a moving anchor); otherwise they are left out.
 
-Divergence (:func:`divergence`): a track whose innovations stay far outside their band (the
-normalised innovation squared per measurement over windows of ``NIS_WINDOW`` steps, a gated
-row counted at the gate, above ``NIS_FACTOR`` times its 99.9 % chi-square bound in more than
-``NIS_FRACTION`` of the windows), or that leaves the anchors' box by more than their span
-while refusing more than ``GATED_FRACTION`` of its measurements or with some window beyond
-the band (a tag far from a compact anchor cluster, with consistent innovations, is not
-flagged), is reported by one warning naming the noise options (a stated noise too small for the log
-makes the filter refuse the measurements and coast on its motion model). When the values of
+Divergence (:func:`radioloc.locate.health.divergence`: innovations far outside their band,
+or a track far outside the anchors' box while refusing its measurements) is recorded in the
+summary (``innovations``, with the noise options in force: a stated noise too small for the
+log makes the filter refuse the measurements and coast on its motion model) and warned by
+the health check with its other findings. When the values of
 one kind, mapped back from a known slip (:func:`radioloc.locate.slips.slips`: tdoa or aoa
 of the wrong sign, pseudoranges in km or ns, odometry in mm or negated), make every track
 consistent, the log is refused instead, by an error naming the kind and the slip. A unit
@@ -82,6 +79,7 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
+from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
@@ -96,18 +94,9 @@ TRACKER_KINDS = tuple(declared_kinds())
 RANGE_STD_M = 0.15
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
-#: Divergence check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
-#: windowed NIS per measurement, fraction of windows beyond it that flags a track.
-NIS_WINDOW = 50
-NIS_FACTOR = 2.0
-NIS_FRACTION = 0.3
-#: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
-GATED_FRACTION = 0.05
 #: Factor on every sigma with which a diverged log is tried again before a slip is named
 #: (:func:`looser_noise`).
 NOISE_SLACK = 3.0
-#: Fewest steps of a track that the divergence check judges.
-NIS_MIN_STEPS = 10
 
 
 def motion_model(kind: str, q: float, dim: int):
@@ -623,52 +612,6 @@ def run_ekf(times, R, anchors, s: dict, range_std: float, gate: float | None, sm
     return run_tracker(times, [obs], anchors, dict(s, bias=0.0, odometry_std=None), gate, smooth)
 
 
-def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
-    """Signs that a track has diverged (see the module docstring).
-
-    Parameters
-    ----------
-    track : Track
-        From :func:`run_tracker`, with diagnostics ``nis``, ``measurements_used`` and
-        ``gated`` per step.
-    anchors : ndarray, shape (M, 2|3)
-    gate : float or None
-        The innovation gate (a gated row counts as this NIS; 16 without a gate).
-
-    Returns
-    -------
-    dict or None
-        ``windows_out`` (fraction of windows beyond the band), ``gated`` (fraction of the
-        measurements refused) and ``outside_m`` (largest distance outside the anchors' box),
-        when the track diverged; None otherwise.
-    """
-    d = track.diagnostics
-    nis = np.nan_to_num(np.asarray(d.get("nis", []), dtype=float))
-    used = np.asarray(d.get("measurements_used", np.zeros(nis.size)), dtype=float)
-    refused = np.asarray(d.get("gated", np.zeros(nis.size)), dtype=float)
-    if nis.size < NIS_MIN_STEPS:
-        return None
-    w = np.ones(min(NIS_WINDOW, nis.size))
-    total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
-    n = np.convolve(used + refused, w, "valid")
-    ok = n > 0
-    from scipy.special import gammaincinv            # here: scipy costs start-up time
-
-    counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
-    band = NIS_FACTOR * (2 * gammaincinv(counts / 2, 0.999))[where]      # chi-square 99.9 % point
-    windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
-    xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
-    lo, hi = box.min(axis=0), box.max(axis=0)
-    outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
-    span = float(np.linalg.norm(hi - lo))
-    outside_m = float(outside.max()) if outside.size else 0.0
-    gated = float(refused.sum() / max(refused.sum() + used.sum(), 1))
-    away = span > 0 and outside_m > span and (windows_out > 0 or gated > GATED_FRACTION)
-    if windows_out > NIS_FRACTION or away:
-        return {"windows_out": windows_out, "outside_m": outside_m, "gated": gated}
-    return None
-
-
 def observation_window(obs: Observation, seg: slice) -> Observation:
     """The steps ``seg`` of one node's observation (``z`` ``(T, S)``; moving anchors'
     points ``(T, S, D)`` are cut to the same steps; its other fields kept)."""
@@ -784,7 +727,9 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
                              f"of {n_tracks} diverged) but do once {how}: {question}")
-        warn_divergence(diverged, n_tracks, noise)
+        stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
+        out.attrs["summary"]["innovations"] = [   # warned by the health check (base.run_method)
+            {"node": node, "start": t0, "noise": stated, **sign} for node, t0, sign in diverged]
     return out
 
 
@@ -933,25 +878,3 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
         "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
     return out, diverged, len(tables), opts
-
-
-def warn_divergence(diverged: list, n_tracks: int, noise: dict) -> None:
-    """One warning for the tracks :func:`divergence` flagged.
-
-    Parameters
-    ----------
-    diverged : list of (node, start time, dict)
-    n_tracks : int
-        Tracks run.
-    noise : dict
-        The noise options in force (named as the likely cause).
-    """
-    node, t0, sign = max(diverged, key=lambda d: (d[2]["windows_out"], d[2]["outside_m"]))
-    stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
-    warnings.warn(
-        f"method ekf-track: {len(diverged)} of {n_tracks} track(s) look diverged (worst: node "
-        f"{node!r} from time {t0!r}: innovations above {NIS_FACTOR:g} times their 99.9 % band "
-        f"in {100 * sign['windows_out']:.0f} % of {NIS_WINDOW}-step windows, "
-        f"{100 * sign['gated']:.0f} % of the measurements gated, up to "
-        f"{sign['outside_m']:.3g} m outside the anchors' box); {stated} too small for this "
-        "log?", stacklevel=2)

@@ -254,7 +254,7 @@ def epoch_error(ep: Epochs, exc: GeometryError) -> GeometryError:
 def epoch_table(ep: Epochs, position: np.ndarray, cov: np.ndarray | None,
                 bad: np.ndarray, ambiguous: np.ndarray | None = None, *,
                 detail: str = "the measurements do not fix the position",
-                what: str = "anchor ranges", **columns
+                what: str = "anchor ranges", misfit: np.ndarray | None = None, **columns
                 ) -> pd.DataFrame:
     """The fixes of the solvable epochs, degenerate ones left out with a warning.
 
@@ -273,6 +273,9 @@ def epoch_table(ep: Epochs, position: np.ndarray, cov: np.ndarray | None,
         Why a flagged epoch is refused (the message without ``on_degenerate=skip``).
     what : str
         What the epochs set aside had too few of (for the warning).
+    misfit : ndarray of bool, shape (E',), optional
+        Of the ``bad`` fixes, those left out because their rows fit no one position (not
+        for their geometry): counted apart in the warning and the summary.
     **columns
         Further per-epoch columns ``(E',)``.
 
@@ -308,14 +311,19 @@ def epoch_table(ep: Epochs, position: np.ndarray, cov: np.ndarray | None,
     for name, values in columns.items():
         out[name] = values
     n_e, n_few, n_bad = len(ep.epochs), int(ep.few.sum()), int(bad.sum())
+    n_misfit = 0 if misfit is None else int(np.sum(np.asarray(misfit, dtype=bool) & bad))
     if n_few or n_bad:
         first = int(np.flatnonzero(ep.few)[0]) if n_few else int(solvable[np.flatnonzero(bad)[0]])
+        rows = (f", {n_misfit} whose rows fit no one position (outliers, NLOS or noise larger "
+                "than stated, not geometry)" if n_misfit else "")
         warnings.warn(f"method {ep.method}: {n_few + n_bad} of {n_e} epochs left out: {n_few} "
-                      f"with fewer than {ep.need} {what}, {n_bad} whose geometry does not "
-                      f"fix the position ({int(mirror.sum())} of them ambiguous: a mirror fix "
-                      f"fits the ranges as well); first: {ep.where(first)}", stacklevel=3)
+                      f"with fewer than {ep.need} {what}, {n_bad - n_misfit} whose geometry "
+                      f"does not fix the position ({int(mirror.sum())} of them ambiguous: a "
+                      f"mirror fix fits the ranges as well){rows}; first: {ep.where(first)}",
+                      stacklevel=3)
         out = out[~bad].reset_index(drop=True)
     out.attrs["summary"] = {"epochs": n_e, "epochs_fixed": n_e - n_few - n_bad,
                             "epochs_skipped_few_ranges": n_few,
-                            "epochs_skipped_geometry": n_bad}
+                            "epochs_skipped_geometry": n_bad - n_misfit,
+                            "epochs_skipped_misfit": n_misfit}
     return out

@@ -35,6 +35,33 @@ def _inverse_information(position: np.ndarray, anchors: np.ndarray, heard: np.nd
     return np.where(skip[:, None, None], np.nan, np.linalg.inv(info))
 
 
+def _exclude_faults(R: np.ndarray, anchors: np.ndarray, std: float | None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges ``(E, M)`` with the faults of each fix left out
+    (:func:`radioloc.estimators.fault_exclusion.exclude_faults`), and the mask of those left
+    out. Without a stated ``std``, the test's sigma is the median over the fixes of their
+    residual rms (corrected for the unknowns): robust to the fixes that hold a fault."""
+    from radioloc.estimators.fault_exclusion import exclude_faults
+    from radioloc.models.measurement import Context, Observation
+    from radioloc.models.ranging import RangeModel
+
+    # the fits of the search judge convergence by their own residuals: a stated std would
+    # call a fix with a fault in it still travelling, and no subset would be tried from it
+    solver = Multilateration(on_degenerate="flag")
+    if std is None:
+        first = solver.locate(R, anchors)
+        used = np.isfinite(R).sum(axis=1)
+        spare = used - anchors.shape[1]
+        ok = ~np.asarray(first.diagnostics["degenerate"]) & (spare > 0)
+        if not ok.any():
+            return R, np.zeros(R.shape, dtype=bool)
+        rms = np.asarray(first.diagnostics["residual_rms_m"])[ok]
+        std = max(float(np.median(rms * np.sqrt(used[ok] / spare[ok]))), STD_FLOOR_M)
+    obs = Observation(RangeModel(std_m=std), R, Context(points=anchors))
+    _, excluded, _ = exclude_faults(lambda o: solver.locate(o[0].z, anchors), [obs])
+    return np.where(excluded[0], np.nan, R), excluded[0]
+
+
 @locate_method("gn", "Gauss-Newton multilateration of each node at each time from its ranges "
                      "to anchors (options: std_m, on_degenerate)",
                options={"std_m": Option("range error standard deviation, m (default: pooled "
@@ -42,6 +69,12 @@ def _inverse_information(position: np.ndarray, anchors: np.ndarray, heard: np.nd
                                         min=0, min_exclusive=True, max=1e7),
                         "range_std_m": Option("the same as std_m (older name)", float, min=0,
                                               min_exclusive=True, max=1e7),
+                        "exclude_faults": Option("1: a fix whose ranges fail their chi-square "
+                                                 "test (99.9 %) is fitted again without its "
+                                                 "worst range, while a range to spare is left "
+                                                 "(for rare gross faults; with NLOS in many "
+                                                 "rows it can keep a wrong subset); 0 "
+                                                 "(default): every range kept", bool),
                         "on_degenerate": ON_DEGENERATE},
                kinds=("range",), inputs=("anchors",))
 def locate_gn(request: LocateRequest) -> pd.DataFrame:
@@ -78,6 +111,9 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     std = request.option("std_m", request.option("range_std_m"))
     ep = range_epochs(request, "gn")
     R_ok, a_xyz = ep.R[ep.solvable], ep.points
+    excluded, fde = np.zeros(R_ok.shape, dtype=bool), request.option("exclude_faults", False, bool)
+    if fde:
+        R_ok, excluded = _exclude_faults(R_ok, a_xyz, std)
     try:
         fit = solve_epochs(ep, R_ok, a_xyz, Multilateration(
             std_m=std, on_degenerate="flag" if ep.skip else "raise").locate)
@@ -94,6 +130,10 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     cov = None if std is None else std ** 2 * _inverse_information(
         fit.position, a_xyz, np.isfinite(R_ok), bad)
     out = epoch_table(ep, fit.position, cov, bad, fit.diagnostics["ambiguous"],
-                      ranges=np.isfinite(R_ok).sum(axis=1))
+                      ranges=np.isfinite(R_ok).sum(axis=1),
+                      **({"excluded": excluded.sum(axis=1)} if fde else {}))
     out.attrs["summary"].update(std_m=std, std_m_from=source)
+    if fde:
+        out.attrs["summary"].update(rows_excluded=int(excluded.sum()), excluded_by_row={
+            f"range {ep.ids[a]}": int(n) for a, n in enumerate(excluded.sum(axis=0)) if n})
     return out

@@ -9,7 +9,8 @@
   robust loss (``-o loss=linear|huber|cauchy|tukey``).
 
 ``localml`` and ``ransac`` locate in 2-D (3-D anchors: give ``tag_height_m``; the ranges
-are projected to the horizontal plane) and report no covariance; ``lsq`` reports
+are projected to the horizontal plane) and report no covariance of their own (the health
+check, :mod:`radioloc.locate.health`, writes one from its refit); ``lsq`` reports
 ``(J' W J)^-1`` of each fix, with the rows weighted by the sigma options. The epochs, and
 those that do not fix the position (``-o on_degenerate``), are handled as by ``gn``
 (:mod:`radioloc.locate.epochs`).
@@ -21,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.errors import GeometryError, InputError
+from radioloc.estimators.fault_exclusion import exclude_faults
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.estimators.robust_loss import LOSSES
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
@@ -149,6 +151,9 @@ _LSQ_OPTIONS.update({
     "loss_scale": Option("the loss's scale, in standard deviations (default 1.5)", float,
                          min=0, min_exclusive=True, max=1e6),
     "tag_height_m": EKF_OPTIONS["tag_height_m"],
+    "exclude_faults": Option("1 (default): a fix whose residuals fail their chi-square test "
+                             "(99.9 %) is fitted again without its worst row, while a row "
+                             "to spare is left; 0: every row kept", bool),
     "on_degenerate": ON_DEGENERATE})
 
 
@@ -196,14 +201,23 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     height = request.option("tag_height_m")
     solver = LeastSquares(loss=request.option("loss", "linear", str),
                           loss_scale=request.option("loss_scale", 1.5))
-    epochs, fits = [], []
+    fde = request.option("exclude_faults", True, bool)
+    epochs, fits, excluded = [], [], {}
     per_node = log.frame["node"].value_counts()
     for node in counted(log.nodes, len(log.frame), lambda n: int(per_node.get(n, 0)), "lsq"):
         times, obs = node_observations(log, table, node, models, height_m=height,
                                         checked=True)
         if times.size:
-            epochs.append(pd.DataFrame({"time": times, "node": node}))
-            fits.append(solver.locate(obs))
+            fit, left_out, _ = (exclude_faults(solver.locate, obs) if fde else
+                                (solver.locate(obs), [np.zeros(o.z.shape, bool) for o in obs], None))
+            epochs.append(pd.DataFrame({"time": times, "node": node,
+                                        "excluded": sum(x.sum(-1) for x in left_out)}))
+            fits.append(fit)
+            for o, x in zip(obs, left_out):
+                for s, a in enumerate(o.context.index):
+                    if x[:, s].any():
+                        key = f"{o.model.kind} {table['id'].iloc[a]}"
+                        excluded[key] = excluded.get(key, 0) + int(x[:, s].sum())
     if not fits:
         raise GeometryError("method lsq: no measurement to an anchor in the measurements")
     d = {k: np.concatenate([np.asarray(f.diagnostics[k]) for f in fits])
@@ -229,17 +243,21 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
         i = int(np.flatnonzero(misfit)[0])
         raise InputError(f"method lsq: {ep.where(int(ep.solvable[i]))}: the measurements do not "
                          f"fit one position: {int(used[i] - inl[i])} of {int(used[i])} rows lie "
-                         "beyond 3 sigma of the best fix (a sign or unit slip, a wrong anchor or "
-                         "reference, outliers: -o loss=tukey, or sigmas far too small); -o "
-                         "on_degenerate=skip leaves such epochs out")
+                         "beyond 3 sigma of the best fix, with the faults excluded that could be (a sign "
+                         "or unit slip, a wrong anchor or reference, more outliers than rows to "
+                         "spare, or sigmas far too small); -o on_degenerate=skip leaves such "
+                         "epochs out")
     bad = bad | misfit
     cov = np.where(bad[:, None, None], np.eye(cov.shape[-1]), cov)
     out = epoch_table(ep, position, cov, bad,
                       detail="the measurements do not fix the position (singular or "
                              "ill-conditioned information)",
                       what="measurements to anchors", measurements=d["measurements_used"][keep],
-                      inliers=d["inliers"][keep])
-    out.attrs["summary"].update(loss=solver.loss, loss_scale=solver.loss_scale,
+                      inliers=d["inliers"][keep],
+                      misfit=misfit, excluded=ep.epochs["excluded"].to_numpy()[keep])
+    out.attrs["summary"].update(loss=solver.loss, loss_scale=solver.loss_scale, **opts,
+                                rows_excluded=int(sum(excluded.values())),
+                                excluded_by_row=dict(sorted(excluded.items())),
                                 measurements={k: int(np.isfinite(
                                     log.frame[log.frame["kind"] == k]["value"]).sum())
                                     for k in models})

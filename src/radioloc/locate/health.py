@@ -1,0 +1,706 @@
+"""The health check of a ``radioloc locate`` run: is the result what its data say?
+
+One check for every method, run on its output table (:func:`check_run`), knowing nothing of
+the method but the noise it states: the log's rows (ranges, time differences, angles) are
+set against the positions written, through the same measurement models the generic
+estimators use (:func:`radioloc.locate.adapter.node_observations`).
+
+In windows of consecutive steps (a step alone when its rows fix the position with three to
+spare, else at least :data:`WINDOW_ROWS` rows), the rows are fitted
+once more about the written track: a constant correction ``d`` of the window's positions by
+robust Gauss-Newton (Huber, then Tukey's biweight, with the scale re-estimated at each step) (:func:`window_fit`). What is left tells the noise, what ``d``
+is tells the track:
+
+- **off its data**: ``d`` outside the claimed covariance ``P`` (``d' (P + C)^-1 d`` above its
+  :data:`CHI2_PROB` chi-square point, ``C`` the correction's own covariance, and ``|d|``
+  above :data:`OFF_SIGMAS` claimed standard deviations) in more than :data:`OFF_FRACTION` of
+  the windows;
+- **misfit**: the residuals after the correction, normalised by the stated noise, have a
+  robust scale (1.4826 times their median absolute value) above :data:`SCALE_LIMIT`;
+- **one anchor misfits**: its rows' scale above :data:`SCALE_LIMIT` and four times the
+  others', which fit;
+- **outside the anchors' region**: positions farther outside the anchors' box than its
+  diagonal and :data:`OFF_SIGMAS` claimed standard deviations.
+
+Network methods (priors) and moving anchors are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
+data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
+mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y swapped or a
+wrong anchor (its rows alone misfit), NLOS (ranges longer than the fit, not shorter), a
+stated noise too small (residuals symmetric, every anchor alike), or a diverged track (the
+rows fit well a position away from the track). Findings are warned and recorded in the
+summary (``health``).
+
+The claimed covariance is inflated by the fitted residual scale where it exceeds
+:data:`INFLATE_ABOVE`, or by the larger factor the corrections ask of it
+(:func:`_coverage_factor`: their median Mahalanobis distance brought to its chi-square
+median), never shrunk; a method that writes none gets the covariance of the
+window fits at that scale. Each node's factor is reported.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Collection
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from radioloc.core.errors import RadiolocError
+from radioloc.core.kinds import model_kinds
+from radioloc.locate.adapter import default_models, moving_anchors, node_observations
+from radioloc.locate.slips import slip_scale, slips
+from radioloc.locate.table import add_covariance, covariance_of
+
+__all__ = ["Finding", "HealthReport", "check_run", "divergence", "window_fit", "CHECKED_KINDS"]
+
+#: The kinds the check reads (a pseudorange needs the receiver clock; RSS a path-loss model).
+CHECKED_KINDS = ("range", "tdoa", "aoa", "aoa_elevation")
+#: Fewest rows in a window of the refit.
+WINDOW_ROWS = 24
+#: Huber threshold of the refit, in robust standard deviations.
+HUBER = 3.0
+#: Tukey threshold of the refit's second half, in robust standard deviations.
+TUKEY = 4.685
+#: Iterations of the refit (Huber for the first half).
+ITERATIONS = 30
+#: Probability of the chi-square point a correction must pass to count as off.
+CHI2_PROB = 0.9999
+#: A correction counts as off only when longer than this many claimed standard deviations.
+OFF_SIGMAS = 5.0
+#: Share of windows off that makes a finding.
+OFF_FRACTION = 0.05
+#: Robust scale of the normalised residuals above which the node misfits.
+SCALE_LIMIT = 3.0
+#: Scale above which the covariance is inflated by it.
+INFLATE_ABOVE = 1.2
+#: A mapped log (slip) or a refit without one anchor fits when its scale is below this.
+FITS_BELOW = 2.0
+#: NLOS: share of ranges at least 3 sigma longer than the fit, and its ratio to the shorter.
+NLOS_SHARE, NLOS_RATIO = 0.03, 3.0
+
+
+#: Innovation check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
+#: windowed NIS per measurement, fraction of windows beyond it that flags a track.
+NIS_WINDOW = 50
+NIS_FACTOR = 2.0
+NIS_FRACTION = 0.3
+#: Fraction of gated measurements that, with a track outside the anchors' box, flags it.
+GATED_FRACTION = 0.05
+#: Fewest steps of a track that the innovation check judges.
+NIS_MIN_STEPS = 10
+
+
+@dataclass
+class Finding:
+    """One node's failed check, with the likely cause."""
+
+    node: str
+    start: float
+    end: float
+    checks: list[str]
+    cause: str
+    message: str
+    figures: dict = field(default_factory=dict)
+
+
+@dataclass
+class HealthReport:
+    """Findings, and the factor by which each node's covariance was inflated."""
+
+    findings: list[Finding]
+    inflation: dict[str, float]
+    scale: dict[str, float]
+
+    def summary(self) -> dict:
+        return {"findings": [vars(f) for f in self.findings],
+                "covariance_inflation": self.inflation, "residual_scale": self.scale}
+
+
+
+def chi2_ppf(prob: float, dof):
+    """The chi-square quantile ``prob`` for ``dof`` degrees of freedom (scipy imported here:
+    it costs start-up time, and the check runs after every method)."""
+    from scipy.special import gammaincinv
+
+    return 2.0 * gammaincinv(np.asarray(dof, dtype=float) / 2.0, prob)
+
+def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
+    """Signs that a tracker's track has diverged, from its innovations.
+
+    The normalised innovation squared per measurement over windows of :data:`NIS_WINDOW`
+    steps (a gated row counted at the gate) above :data:`NIS_FACTOR` times its 99.9 %
+    chi-square bound in more than :data:`NIS_FRACTION` of the windows; or a track that leaves
+    the anchors' box by more than their span while refusing more than
+    :data:`GATED_FRACTION` of its measurements or with some window beyond the band (a tag
+    far from a compact anchor cluster, with consistent innovations, is not flagged).
+
+    Parameters
+    ----------
+    track : Track
+        From :func:`run_tracker`, with diagnostics ``nis``, ``measurements_used`` and
+        ``gated`` per step.
+    anchors : ndarray, shape (M, 2|3)
+    gate : float or None
+        The innovation gate (a gated row counts as this NIS; 16 without a gate).
+
+    Returns
+    -------
+    dict or None
+        ``windows_out`` (fraction of windows beyond the band), ``gated`` (fraction of the
+        measurements refused) and ``outside_m`` (largest distance outside the anchors' box),
+        when the track diverged; None otherwise.
+    """
+    d = track.diagnostics
+    nis = np.nan_to_num(np.asarray(d.get("nis", []), dtype=float))
+    used = np.asarray(d.get("measurements_used", np.zeros(nis.size)), dtype=float)
+    refused = np.asarray(d.get("gated", np.zeros(nis.size)), dtype=float)
+    if nis.size < NIS_MIN_STEPS:
+        return None
+    w = np.ones(min(NIS_WINDOW, nis.size))
+    total = np.convolve(nis + (gate or 16.0) * refused, w, "valid")
+    n = np.convolve(used + refused, w, "valid")
+    ok = n > 0
+    counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
+    band = NIS_FACTOR * chi2_ppf(0.999, counts)[where]      # chi-square 99.9 % point
+    windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
+    xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
+    span = float(np.linalg.norm(hi - lo))
+    outside_m = float(outside.max()) if outside.size else 0.0
+    gated = float(refused.sum() / max(refused.sum() + used.sum(), 1))
+    away = span > 0 and outside_m > span and (windows_out > 0 or gated > GATED_FRACTION)
+    if windows_out > NIS_FRACTION or away:
+        return {"windows_out": windows_out, "outside_m": outside_m, "gated": gated}
+    return None
+
+
+def _robust_scale(e: np.ndarray) -> float:
+    e = e[np.isfinite(e)]
+    return float(1.4826 * np.median(np.abs(e))) if e.size else math.nan
+
+
+def stated_sigmas(request, summary: dict) -> dict[str, tuple[float, str, bool]]:
+    """The noise in force for each kind: the option given, else the one the method reports
+    in its summary, else the kind's default (:attr:`radioloc.core.kinds.Kind.sigma_default`);
+    with its option name and whether it was stated (given or reported)."""
+    out = {}
+    for kind, declared in model_kinds().items():
+        name = declared.sigma_option
+        value = request.option(name)
+        if value is None and kind == "range":
+            value = request.option("std_m")
+        if value is None:
+            value = summary.get(name)
+        if value is None and kind == "range":
+            value = summary.get("std_m")
+        stated = isinstance(value, (int, float)) and value > 0
+        out[kind] = (float(value) if stated else declared.sigma_default, name, stated)
+    return out
+
+
+@dataclass
+class _Rows:
+    """One node's observations against its written track."""
+
+    observations: list
+    times: np.ndarray            # (T,) the node's steps
+    positions: np.ndarray        # (T, D) written track at the observations' steps
+    window: np.ndarray           # (T,) window of each step
+    sigma: list                  # per observation (T, S) standard deviations
+    anchor_ids: list             # the anchors table's ids (``context.index`` into it)
+
+
+def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
+    """The robust correction of each window's positions (module docstring).
+
+    Parameters
+    ----------
+    rows : _Rows
+    observations : list of Observation, optional
+        Instead of ``rows.observations`` (a log with one kind's values mapped).
+    start : ndarray, shape (W, D), optional
+        Start of the corrections (default zero).
+
+    Returns
+    -------
+    d : ndarray, shape (W, D)
+        Corrections.
+    cov : ndarray, shape (W, D, D)
+        Their covariance at the fitted scale (NaN where the window does not fix them).
+    e : list of ndarray, shape (T, S)
+        Normalised residuals after the correction, per observation.
+    scale : float
+        Their robust scale, corrected for the corrections fitted (times
+        ``sqrt(n / (n - windows * D))``).
+    """
+    obs = rows.observations if observations is None else observations
+    n_w = int(rows.window.max()) + 1
+    dim = rows.positions.shape[1]
+    d = np.zeros((n_w, dim)) if start is None else start.copy()
+    scale = 1.0
+    for it in range(ITERATIONS + 1):
+        info = np.zeros((n_w, dim, dim))
+        grad = np.zeros((n_w, dim))
+        es = []
+        pos = rows.positions + d[rows.window]
+        for o, sig in zip(obs, rows.sigma):
+            with np.errstate(all="ignore"):
+                zhat, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
+            e = o.model.residual(o.z, zhat) / sig
+            es.append(e)
+        pooled = np.concatenate([e[np.isfinite(e)] for e in es])
+        dof = pooled.size / max(pooled.size - n_w * dim, 1)      # the fit took n_w * dim
+        scale = max(_robust_scale(pooled) * math.sqrt(dof), 1e-9) if pooled.size else 1.0
+        if it == ITERATIONS:
+            break
+        for o, sig, e in zip(obs, rows.sigma, es):
+            with np.errstate(all="ignore"):
+                _, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
+            J = jac["position"] / sig[..., None]                       # (T, S, D)
+            ok = np.isfinite(e) & np.all(np.isfinite(J), -1)
+            u = np.abs(e) / scale
+            if it < ITERATIONS // 2:             # Huber from the track, then Tukey's biweight
+                w = np.minimum(1.0, HUBER / np.maximum(u, 1e-300))
+            else:
+                w = np.where(u < TUKEY, (1 - (u / TUKEY) ** 2) ** 2, 0.0)
+            w = np.where(ok, w, 0.0)
+            Jw = np.where(ok[..., None], J, 0.0) * w[..., None]
+            ez = np.where(ok, e, 0.0)
+            np.add.at(info, rows.window, np.einsum("tsi,tsj->tij", Jw, np.where(ok[..., None], J, 0.0)))
+            np.add.at(grad, rows.window, np.einsum("tsi,ts->ti", Jw, ez))
+        good = np.linalg.cond(info) < 1e10
+        safe = np.where(good[:, None, None], info, np.eye(dim))
+        step = np.where(good[:, None], np.linalg.solve(safe, grad[..., None])[..., 0], 0.0)
+        norm = np.linalg.norm(step, axis=1, keepdims=True)
+        d = d + step * np.minimum(1.0, 50.0 / np.maximum(norm, 1e-300))   # bounded steps
+    with np.errstate(all="ignore"):
+        cov = np.where(good[:, None, None], np.linalg.inv(safe), np.nan) * max(scale, 1.0) ** 2
+    return d, cov, es, scale
+
+
+def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Rows | None:
+    """The node's checked observations and its track at their steps (None: nothing to check)."""
+    from radioloc.io.measurements import Measurements
+
+    meas = request.measurements
+    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"])]
+    if not kinds or request.anchors is None:
+        return None
+    options = {name: value for value, name, _ in sigmas.values()}
+    models = default_models(kinds, options)
+    own = meas[(meas["node"] == node) & meas["kind"].isin(kinds)]
+    height = request.option("tag_height_m")
+    try:
+        times, obs = node_observations(Measurements(own), request.anchors, node, models,
+                                       height_m=height, checked=True)
+    except RadiolocError:
+        return None
+    if not obs or times.size == 0:
+        return None
+    dim = obs[0].context.position_dim
+    cols = ["x", "y", "z"][:dim]
+    if any(c not in out_node for c in cols):
+        return None
+    t_out = out_node["time"].to_numpy(dtype=float)
+    xyz = out_node[cols].to_numpy(dtype=float)
+    pos = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
+    obs = _unbiased(request, obs, pos)
+    sigma = []
+    for o in obs:
+        base = np.broadcast_to(o.model.std(o.context), o.z.shape)
+        sigma.append(np.where(np.isfinite(o.std), o.std, base) if o.std is not None else base)
+    n_rows = np.sum([np.isfinite(o.z).sum(axis=1) for o in obs], axis=0)
+    window = np.zeros(times.size, dtype=int)
+    count, w, window_alone = 0, 0, False
+    for t, n in enumerate(n_rows):
+        alone = n >= dim + 3                 # a step that fixes the position with 3 rows to spare
+        if t and (count >= WINDOW_ROWS or alone or window_alone):
+            w, count = w + 1, 0
+        window[t], window_alone = w, alone
+        count += n
+    if count < WINDOW_ROWS // 2 and w > 0 and not window_alone:   # a short last window
+        window[window == w] = w - 1
+    return _Rows(obs, times, pos, window, sigma, list(dict.fromkeys(request.anchors["id"])))
+
+
+def _unbiased(request, obs: list, pos: np.ndarray) -> list:
+    """The range observations less the biases the method was told of: ``range_bias_m``, and
+    with ``anchor_bias`` each anchor's median range residual at the written track."""
+    from dataclasses import replace
+
+    bias = request.option("range_bias_m", 0.0) or 0.0
+    per_anchor = bool(request.option("anchor_bias", False, bool))
+    out = []
+    for o in obs:
+        if o.model.kind != "range" or not (bias or per_anchor):
+            out.append(o)
+            continue
+        z = o.z - bias
+        if per_anchor:
+            with np.errstate(all="ignore"):
+                zhat = o.model.predict({"position": pos}, o.context)
+            offset = np.nanmedian(np.where(np.isfinite(z), z - zhat, np.nan), axis=0)
+            z = z - np.nan_to_num(offset)
+        out.append(replace(o, z=z))
+    return out
+
+
+def _claimed(out_node: pd.DataFrame, rows_times: np.ndarray, dim: int) -> np.ndarray | None:
+    cov = covariance_of(out_node)
+    if cov is None or cov.shape[-1] < dim:
+        return None
+    t_out = out_node["time"].to_numpy(dtype=float)
+    idx = np.clip(np.searchsorted(t_out, rows_times), 0, len(t_out) - 1)
+    return cov[idx][:, :dim, :dim]
+
+
+def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
+              options: Collection[str] = ()) -> tuple[pd.DataFrame, HealthReport]:
+    """Check a method's output against its log; warn of each finding.
+
+    Parameters
+    ----------
+    method_name : str
+    request : LocateRequest
+        The log, anchors and options the method ran on.
+    out : DataFrame
+        Its output (``time, node, x, y[, z][, cov_*]``).
+    rerun : callable, optional
+        ``rerun(request) -> DataFrame``: the method again. With it, a noise found too small
+        is tried at the value the residuals say (when ``options`` declares it), and the
+        warning tells whether the log then passes.
+    options : collection of str
+        The method's options.
+
+    Returns
+    -------
+    out : DataFrame
+        With the covariance inflated where the residuals show a misspecified noise (or
+        written from the window fits where the method gives none).
+    report : HealthReport
+    """
+    summary = out.attrs.get("summary", {})
+    findings, inflation, scales = [], {}, {}
+    if request.priors is None and not moving_anchors(request.anchors):
+        # network methods (nodes fixed by priors and each other) and moving anchors are
+        # not judged here
+        sigmas = stated_sigmas(request, summary)
+        parts = []
+        for node, idx in out.groupby("node", sort=False).indices.items():
+            own = out.iloc[idx].sort_values("time", kind="stable")
+            rows = _node_rows(request, own, node, sigmas)
+            if rows is None:
+                parts.append(own)
+                continue
+            found, factor, scale, filled = _check_node(method_name, request, own, node, rows,
+                                                       sigmas)
+            findings += found
+            inflation[node], scales[node] = factor, scale
+            parts.append(filled)
+        if parts:
+            attrs = out.attrs
+            out = pd.concat(parts).loc[out.index]
+            out.attrs = attrs
+        if rerun is not None:
+            _try_noise(method_name, request, findings, sigmas, scales, rerun, options)
+    findings = _with_innovations(findings, summary.get("innovations", []), out)
+    for f in findings:
+        warnings.warn(f"method {method_name}: {f.message}", stacklevel=3)
+    return out, HealthReport(findings, inflation, scales)
+
+
+def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -> None:
+    """Run the method again with the noise the residuals say (where a finding blames the
+    stated noise and the method takes its option), and say in the finding whether it fits."""
+    from dataclasses import replace
+
+    blamed = [f for f in findings if f.cause == "noise" and f.node in scales]
+    if not blamed:
+        return
+    scale = max(scales[f.node] for f in blamed)
+    kinds = set(request.measurements["kind"])
+    tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
+             if kind in kinds and stated and name in options}
+    if not tried:
+        return
+    again = replace(request, options={**request.options, **{k: repr(v) for k, v in tried.items()}},
+                    parsed={**request.parsed, **tried})
+    text = " ".join(f"-o {k}={v:g}" for k, v in tried.items())
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = rerun(again)
+            left = check_run(method_name, again, out)[1].findings
+    except (RadiolocError, ArithmeticError) as exc:
+        verdict = f"tried {text}: it fails ({exc})"
+    else:
+        verdict = (f"tried {text}: the log then passes" if not left else
+                   f"tried {text}: still failing ({left[0].cause})")
+    for f in blamed:
+        f.message += f"; {verdict}"
+        f.figures["tried"] = {"options": tried, "passes": verdict.endswith("passes")}
+
+
+def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFrame
+                      ) -> list[Finding]:
+    """The findings with a tracker's innovation signs (:func:`divergence`, recorded by the
+    method in its summary's ``innovations``) added to its node's finding, or as its own."""
+    by_node = {f.node: f for f in findings}
+    for sign in sorted(signs, key=lambda d: (-d["windows_out"], -d["outside_m"])):
+        node = sign["node"]
+        text = (f"its innovations look diverged (above {NIS_FACTOR:g} times their 99.9 % band "
+                f"in {100 * sign['windows_out']:.0f} % of {NIS_WINDOW}-step windows, "
+                f"{100 * sign['gated']:.0f} % of the measurements gated, up to "
+                f"{sign['outside_m']:.3g} m outside the anchors' box)")
+        figures = {k: round(float(sign[k]), 3) for k in ("windows_out", "gated", "outside_m")}
+        if node in by_node:
+            f = by_node[node]
+            if "innovations" not in f.checks:
+                f.checks.append("innovations")
+                f.figures.update(figures)
+                head, _, tail = f.message.partition("; likely cause: ")
+                f.message = f"{head}; {text}; likely cause: {tail}"
+            continue
+        end = float(out.loc[out["node"] == node, "time"].max())
+        f = Finding(node, float(sign["start"]), end, ["innovations"], "noise",
+                    f"node {node!r}, time {float(sign['start']):g} to {end:g}: {text}; likely "
+                    f"cause: {sign['noise']} too small for this log?", figures)
+        by_node[node] = f
+        findings.append(f)
+    return findings
+
+
+def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
+    times = np.unique(own["time"].to_numpy(dtype=float))
+    dim = rows.positions.shape[1]
+    d, cov_d, es, scale = window_fit(rows)
+    t_obs = rows.times
+    claimed = _claimed(own, t_obs, dim)
+    n_w = d.shape[0]
+    # --- off its data: the correction outside the claimed covariance
+    off = np.zeros(n_w, dtype=bool)
+    if claimed is not None:
+        P = np.zeros((n_w, dim, dim))
+        np.add.at(P, rows.window, claimed)
+        P /= np.bincount(rows.window, minlength=n_w)[:, None, None]
+        total = P + np.nan_to_num(cov_d, nan=0.0)
+        with np.errstate(all="ignore"):
+            m2 = np.einsum("wi,wij,wj->w", d, np.linalg.pinv(total), d)
+            far = np.linalg.norm(d, axis=1) > OFF_SIGMAS * np.sqrt(np.trace(P, axis1=1, axis2=2))
+        off = (m2 > chi2_ppf(CHI2_PROB, dim)) & far & np.all(np.isfinite(cov_d), (1, 2))
+        coverage = _coverage_factor(d, P, cov_d)
+    else:
+        coverage = 1.0
+    # --- outside the anchors' region
+    anchors = request.anchors
+    box = anchors[["x", "y"]].to_numpy(dtype=float)
+    lo, hi = box.min(0), box.max(0)
+    xy = own[["x", "y"]].to_numpy(dtype=float)
+    outside = np.linalg.norm(np.maximum(lo - xy, 0) + np.maximum(xy - hi, 0), axis=1)
+    unc = own["uncertainty_m"].to_numpy(dtype=float) if "uncertainty_m" in own else np.zeros(len(own))
+    away = outside > np.linalg.norm(hi - lo) + OFF_SIGMAS * unc
+    checks, figures = [], {"residual_scale": round(scale, 3)}
+    if off.mean() > OFF_FRACTION:
+        checks.append("off_its_data")
+        figures["windows_off"] = round(float(off.mean()), 3)
+        figures["correction_m"] = round(float(np.median(np.linalg.norm(d[off], axis=1))), 3)
+    if scale > SCALE_LIMIT:
+        checks.append("misfit")
+    if _wrong_anchor(_per_anchor_scale(rows, es)) is not None:
+        checks.append("anchor_misfit")
+    if away.any():
+        checks.append("outside_anchors")
+        figures["outside_m"] = round(float(outside.max()), 3)
+    factor = max(max(1.0, scale) if scale > INFLATE_ABOVE else 1.0, coverage)
+    figures["coverage_factor"] = round(coverage, 3)
+    filled = _inflate(own, factor, rows, cov_d, t_obs)
+    if not checks:
+        return [], factor, scale, filled
+    bad_t = own["time"].to_numpy(dtype=float)[away]
+    if "off_its_data" in checks:
+        bad_t = np.concatenate([bad_t, t_obs[np.isin(rows.window, np.flatnonzero(off))]])
+    if bad_t.size == 0 or "misfit" in checks or "anchor_misfit" in checks:
+        bad_t = np.concatenate([bad_t, times])     # a misfit is judged over the whole track
+    start, end = float(bad_t.min()), float(bad_t.max())
+    cause = likely_cause(request, rows, d, es, scale, sigmas, node, bool(away.any()))
+    figures["inflation"] = round(factor, 3)
+    what = []
+    if "off_its_data" in checks:
+        what.append(f"the rows fit positions {figures['correction_m']:.3g} m from the track, "
+                    f"beyond its claimed uncertainty, in {100 * figures['windows_off']:.0f} % of "
+                    "its windows")
+    if "misfit" in checks:
+        what.append(f"residuals {scale:.3g} times the stated noise")
+    if "anchor_misfit" in checks and len(checks) == 1:
+        what.append("one anchor's rows misfit while the others fit")
+    if "outside_anchors" in checks:
+        what.append(f"positions up to {figures['outside_m']:.3g} m outside the anchors' box")
+    message = (f"node {node!r}, time {start:g} to {end:g}: {'; '.join(what)}; likely cause: "
+               f"{cause[1]}" + (f" (covariance inflated x{factor:.3g})" if factor > 1 else ""))
+    return [Finding(node, start, end, checks, cause[0], message, figures)], factor, scale, filled
+
+
+def _coverage_factor(d: np.ndarray, P: np.ndarray, cov_d: np.ndarray) -> float:
+    """The smallest ``k >= 1`` for which the corrections' median ``d' (k^2 P + C)^-1 d`` is at
+    most its chi-square median: the factor by which the claimed covariance ``P`` is too
+    small for the data (1 when it covers them; above :data:`INFLATE_ABOVE` only counted)."""
+    ok = np.all(np.isfinite(cov_d), (1, 2)) & np.all(np.isfinite(P), (1, 2))
+    if ok.sum() < 5:
+        return 1.0
+    d, P, C = d[ok], P[ok], cov_d[ok]
+    target = chi2_ppf(0.5, d.shape[1])
+
+    def median_m2(k):
+        with np.errstate(all="ignore"):
+            return float(np.median(np.einsum("wi,wij,wj->w", d, np.linalg.pinv(k * k * P + C), d)))
+
+    if median_m2(1.0) <= target:
+        return 1.0
+    lo, hi = 1.0, 2.0
+    while median_m2(hi) > target and hi < 1e6:
+        lo, hi = hi, 2 * hi
+    for _ in range(30):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if median_m2(mid) > target else (lo, mid)
+    return hi if hi > INFLATE_ABOVE else 1.0
+
+
+def _inflate(own: pd.DataFrame, factor: float, rows: _Rows, cov_d, t_obs) -> pd.DataFrame:
+    cov = covariance_of(own)
+    if cov is None:       # a method without covariance: the window fits' (per window of rows)
+        dim = cov_d.shape[-1]
+        t_out = own["time"].to_numpy(dtype=float)
+        idx = np.clip(np.searchsorted(t_obs, t_out), 0, len(t_obs) - 1)
+        steps = np.bincount(rows.window)[rows.window[idx]]
+        per_window = cov_d.copy()
+        lost = ~np.all(np.isfinite(per_window), (1, 2))
+        if lost.all():
+            return own
+        per_window[lost] = np.max(per_window[~lost], axis=0)   # a window that fixes nothing
+        filled = per_window[rows.window[idx]] * steps[:, None, None] / max(factor, 1.0) ** 2
+        cov = filled[:, :dim, :dim]
+    if factor == 1.0 and covariance_of(own) is not None:
+        return own
+    return add_covariance(own, cov * factor ** 2)
+
+
+def _centre(rows: _Rows) -> np.ndarray:
+    """Corrections that move each window to the centre of the anchors (a second start)."""
+    pts = np.concatenate([o.context.points.reshape(-1, o.context.points.shape[-1])
+                          for o in rows.observations])
+    dim = rows.positions.shape[1]
+    n_w = int(rows.window.max()) + 1
+    mean = np.zeros((n_w, dim))
+    np.add.at(mean, rows.window, rows.positions)
+    mean /= np.bincount(rows.window, minlength=n_w)[:, None]
+    return pts[:, :dim].mean(0) - mean
+
+
+def _refit_scale(rows: _Rows, observations, start=None) -> float:
+    return window_fit(rows, observations, start)[3]
+
+
+def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: bool = False
+                 ) -> tuple[str, str]:
+    """``(code, text)`` of the likeliest cause of a node's failure (module docstring);
+    ``diverged``: the track left the anchors' region (then not blamed on the noise)."""
+    from dataclasses import replace
+
+    obs = rows.observations
+    # a slip of one kind's values: mapped back, the rows fit
+    if scale > SCALE_LIMIT:
+        for kinds, undo, how, question in slips():
+            if not any(o.model.kind in kinds for o in obs):
+                continue
+            if not np.isclose(slip_scale(undo), 1.0):
+                continue                     # units: the plausibility checks' domain
+            mapped = [replace(o, z=undo(o.z)) if o.model.kind in kinds else o for o in obs]
+            with np.errstate(all="ignore"):
+                s = min(_refit_scale(rows, mapped), _refit_scale(rows, mapped, _centre(rows)))
+            if s < FITS_BELOW:
+                return "slip", f"{question} (the rows fit once {how})"
+    # one anchor's rows misfit
+    per = _per_anchor_scale(rows, es)
+    worst = _wrong_anchor(per)
+    if worst is not None:
+        others = np.median([v for k, v in per.items() if k != worst])
+        swapped = _swapped_fits(request, rows, worst)
+        if swapped:
+            return "anchor", (f"anchor {worst!r} has x and y swapped (its rows fit it at "
+                              f"{swapped})")
+        return "anchor", (f"anchor {worst!r} is wrong (its rows misfit {per[worst]:.3g} times "
+                          f"the noise, the others {others:.3g} times)")
+    if diverged:
+        return "diverged", "a diverged track (it left the region the anchors fix)"
+    # NLOS: ranges longer than the fit, rarely shorter
+    for o, e in zip(obs, es):
+        if o.model.kind != "range":
+            continue
+        v = e[np.isfinite(e)] / max(scale if scale < SCALE_LIMIT else 1.0, 1.0)
+        longer, shorter = np.mean(v > 3), np.mean(v < -3)
+        if longer > NLOS_SHARE and longer > NLOS_RATIO * shorter:
+            return "nlos", (f"NLOS: {100 * longer:.0f} % of the ranges lie 3 sigma or more longer "
+                            f"than the fit and {100 * shorter:.0f} % shorter (a LOS/NLOS model: "
+                            "--method smoother or pf)")
+    if scale > SCALE_LIMIT:
+        kinds = sorted({o.model.kind for o in obs})
+        tried = ", ".join(f"{sigmas[k][1]}={sigmas[k][0] * scale:.2g}" for k in kinds)
+        if all(sigmas[k][2] for k in kinds):
+            named = ", ".join(f"{sigmas[k][1]}={sigmas[k][0]:g}" for k in kinds)
+            return "noise", f"{named} too small for this log? (the residuals say {tried})"
+        return "noise", (f"a noise model too narrow for this log (the residuals' robust spread: "
+                         f"{tried})")
+    return "diverged", "a diverged track (the rows fit well positions away from it)"
+
+
+def _wrong_anchor(per: dict[str, float]) -> str | None:
+    """The anchor whose rows alone misfit (scale above :data:`SCALE_LIMIT` and 4 times the
+    others' median, which fit), or None."""
+    if len(per) < 3:
+        return None
+    worst = max(per, key=per.get)
+    others = float(np.median([v for k, v in per.items() if k != worst]))
+    if per[worst] > SCALE_LIMIT and per[worst] > 4 * max(others, 1.0) and others < SCALE_LIMIT:
+        return worst
+    return None
+
+
+def _per_anchor_scale(rows: _Rows, es) -> dict[str, float]:
+    """Robust scale of each anchor's normalised residuals (a time difference counts for its
+    peer)."""
+    out: dict[int, list] = {}
+    for o, e in zip(rows.observations, es):
+        if o.context.index is None:
+            continue
+        for s, a in enumerate(o.context.index):
+            if a >= 0:
+                out.setdefault(int(a), []).append(e[:, s])
+    return {rows.anchor_ids[a]: _robust_scale(np.concatenate(v)) for a, v in out.items()}
+
+
+def _swapped_fits(request, rows: _Rows, anchor: str) -> str | None:
+    """Where the anchor's rows fit it with x and y swapped (text), or None."""
+    from dataclasses import replace
+
+    table = request.anchors
+    ids = list(dict.fromkeys(table["id"]))
+    a = ids.index(anchor)
+    mapped = []
+    for o in rows.observations:
+        ctx = o.context
+        if ctx.index is None or ctx.points.ndim != 2 or a not in ctx.index:
+            mapped.append(o)
+            continue
+        pts = ctx.points.copy()
+        pts[ctx.index == a, :2] = pts[ctx.index == a, 1::-1]
+        mapped.append(replace(o, context=replace(ctx, points=pts)))
+    x, y = table.loc[table["id"] == anchor, ["x", "y"]].to_numpy(float)[0]
+    if x == y:
+        return None
+    _, _, es, _ = window_fit(rows, mapped)
+    if _per_anchor_scale(rows, es).get(anchor, math.inf) < FITS_BELOW:
+        return f"x={y:g}, y={x:g}"
+    return None

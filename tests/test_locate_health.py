@@ -1,0 +1,226 @@
+"""The health check of `radioloc locate` (radioloc.locate.health): a run that is wrong says so,
+with the likely cause; a clean run does not; the covariance covers the error."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from radioloc.cli import app
+from radioloc.locate.base import LocateRequest, run_method
+from radioloc.locate.scoring import reference_errors
+from radioloc.sim.faulty_logs import FAULTS, walk_log
+
+#: The option naming the range noise of a method (None: it takes none).
+RANGE_OPTION = {"gn": "std_m", "localml": "los_std_m", "ransac": None, "pf": None}
+#: Methods with fixed anchors, and which of them read kinds other than ranges.
+METHODS = ("gn", "lsq", "ekf-track", "smoother", "pf", "localml", "ransac")
+ALL_KINDS = ("lsq", "ekf-track", "smoother")
+
+
+def _options(method: str, log) -> dict[str, str]:
+    out = {}
+    for key, value in log.options.items():
+        name = RANGE_OPTION.get(method, key) if key == "range_std_m" else key
+        if name:
+            out[name] = value
+    return out
+
+
+def _run(method: str, fault: str, seed: int = 0):
+    """(output, warnings, error) of one method on one simulated log."""
+    log = walk_log(fault, seed)
+    request = LocateRequest(log.measurements.copy(), log.anchors.copy(),
+                            options=_options(method, log))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            out = run_method(method, request)
+        except ValueError as exc:          # the toolkit's errors refuse the log: not silent
+            return None, [], exc, log
+    return out, [str(w.message) for w in caught], None, log
+
+
+def _health(out) -> dict:
+    return out.attrs["summary"]["health"]
+
+
+def test_clean_log_has_no_finding_and_no_inflation():
+    out, warned, error, _ = _run("gn", "clean")
+    assert error is None and warned == []
+    health = _health(out)
+    assert health["findings"] == []
+    assert health["covariance_inflation"] == {"tag": 1.0}
+    assert 0.5 < health["residual_scale"]["tag"] < 1.5
+
+
+def test_swapped_anchor_is_named_even_when_the_track_is_right():
+    out, warned, error, log = _run("smoother", "swapped_anchor")
+    assert error is None
+    (finding,) = _health(out)["findings"]
+    assert finding["cause"] == "anchor" and "'A4'" in finding["message"]
+    assert "swapped" in finding["message"]
+    assert any("A4" in w for w in warned)
+
+
+def test_swapped_anchor_gn_warns_and_names_the_anchor():
+    out, warned, error, log = _run("gn", "swapped_anchor")
+    assert error is None
+    (finding,) = _health(out)["findings"]
+    assert finding["cause"] == "anchor" and "'A4'" in finding["message"]
+    assert finding["start"] == 0.0 and finding["end"] > 20
+
+
+@pytest.mark.parametrize("fault, kind, words", [("tdoa_sign", "tdoa", "wrong sign"),
+                                                ("compass", "aoa", "compass")])
+def test_a_slipped_kind_is_named_by_the_smoother(fault, kind, words):
+    out, warned, error, log = _run("smoother", fault)
+    assert error is None
+    (finding,) = _health(out)["findings"]
+    assert finding["cause"] == "slip" and words in finding["message"]
+
+
+def test_nlos_is_told_apart_from_a_small_noise():
+    out, _, error, _ = _run("gn", "nlos")
+    assert error is None
+    (finding,) = _health(out)["findings"]
+    assert finding["cause"] == "nlos"
+
+
+def test_the_covariance_is_inflated_by_the_residual_scale_never_shrunk():
+    """Noise 3 times the stated one: gn's covariance (from the stated 0.1 m) is inflated by
+    about 3, and then covers the errors; the inflation is reported."""
+    out, _, error, log = _run("gn", "noise_3x")
+    factor = _health(out)["covariance_inflation"]["tag"]
+    assert 2.0 < factor < 4.0
+    inside = reference_errors(out, log.reference)["inside_95"].mean()
+    assert inside > 0.85
+    clean, _, _, _ = _run("gn", "clean")
+    assert _health(clean)["covariance_inflation"]["tag"] == 1.0
+
+
+def test_a_method_without_covariance_gets_one_that_covers():
+    out, _, error, log = _run("ransac", "clean")
+    assert "uncertainty_m" in out and np.all(out["uncertainty_m"] > 0)
+    assert reference_errors(out, log.reference)["inside_95"].mean() > 0.85
+
+
+def test_a_suggested_noise_was_tried_on_the_log():
+    log = walk_log("clean", 0)
+    request = LocateRequest(log.measurements.copy(), log.anchors.copy(),
+                            options={"range_std_m": "0.01"})
+    with pytest.warns(UserWarning, match="range_std_m=0.01 too small") as caught:
+        out = run_method("lsq", request)
+    (finding,) = _health(out)["findings"]
+    tried = finding["figures"]["tried"]
+    assert tried["passes"] and 0.07 < tried["options"]["range_std_m"] < 0.13
+    assert any("the log then passes" in str(w.message) for w in caught)
+
+
+def test_innovation_divergence_of_a_network_run_is_still_warned():
+    """A method the check does not judge (priors) still has its own signs warned."""
+    from radioloc.locate.health import check_run
+
+    log = walk_log("clean", 0)
+    request = LocateRequest(log.measurements, log.anchors, priors=Path("p.csv"))
+    out = log.reference.copy()
+    out.attrs["summary"] = {"innovations": [{"node": "tag", "start": 0.0, "noise":
+                                             "range_std_m=0.01", "windows_out": 1.0,
+                                             "gated": 0.5, "outside_m": 0.0}]}
+    with pytest.warns(UserWarning, match="look diverged.*range_std_m=0.01 too small"):
+        _, report = check_run("x", request, out)
+    assert [f.cause for f in report.findings] == ["noise"]
+
+
+def _write(tmp_path: Path, log) -> list[str]:
+    log.measurements.to_csv(tmp_path / "m.csv", index=False)
+    log.anchors.to_csv(tmp_path / "a.csv", index=False)
+    return ["locate", str(tmp_path / "m.csv"), "--anchors", str(tmp_path / "a.csv"),
+            "--out", str(tmp_path / "out.csv"), "-q"]
+
+
+def test_strict_exits_non_zero_on_a_finding_and_records_it(tmp_path):
+    log = walk_log("swapped_anchor", 0)
+    args = _write(tmp_path, log) + ["--method", "gn", "-o", "std_m=0.1"]
+    res = CliRunner().invoke(app, args + ["--strict"])
+    assert res.exit_code != 0 and "--strict" in res.output and "A4" in res.output
+    summary = json.loads((tmp_path / "out.summary.json").read_text())
+    assert summary["health"]["findings"][0]["node"] == "tag"
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0 and "warning:" in res.output
+
+
+def test_strict_passes_a_clean_log(tmp_path):
+    args = _write(tmp_path, walk_log("clean", 1)) + ["--method", "gn", "-o", "std_m=0.1",
+                                                      "--strict"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+
+
+def _silently_wrong(out, warned, log) -> bool:
+    """Exit 0, no warning, and errors beyond 5 claimed standard deviations on > 5 %."""
+    if out is None or warned:
+        return False
+    err = reference_errors(out, log.reference)
+    est = out.set_index("time")
+    claimed = est.loc[err["time"], "uncertainty_m"].to_numpy() if "uncertainty_m" in est \
+        else np.zeros(len(err))
+    return bool(np.mean(err["error_m"].to_numpy() > 5 * claimed) > 0.05)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("fault", FAULTS)
+def test_no_method_is_silently_wrong(method, fault):
+    log = walk_log(fault, 0, steps=2)
+    if log.kind != "range" and method not in ALL_KINDS:
+        pytest.skip(f"{method} does not read {log.kind}")
+    out, warned, error, log = _run(method, fault)
+    assert not _silently_wrong(out, warned, log), (method, fault)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ("gn", "lsq", "ekf-track", "smoother", "ransac"))
+def test_clean_logs_rarely_warn(method):
+    """At most 1 false warning in 10 clean runs (benchmarks/health_matrix.py --runs 100
+    counts 100)."""
+    false = sum(bool(_run(method, "clean", seed)[1]) for seed in range(10))
+    assert false <= 1
+
+
+@pytest.mark.slow
+def test_the_kilometre_smoother_on_wifi_rtt_warns(tmp_path):
+    data = os.environ.get("RADIOLOC_DATA")
+    if not data or not (Path(data) / "wifi-rtt-haiyaoyu").is_dir():
+        pytest.skip("RADIOLOC_DATA with wifi-rtt-haiyaoyu is needed")
+    res = CliRunner().invoke(app, ["datasets", "export", "wifi-rtt", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["locate", str(tmp_path / "measurements.csv"), "--anchors",
+                                   str(tmp_path / "anchors.csv"), "--method", "smoother",
+                                   "--out", str(tmp_path / "out.csv"), "-q"])
+    assert res.exit_code == 0
+    assert "outside the anchors' box" in res.output and "diverged" in res.output
+    summary = json.loads((tmp_path / "out.summary.json").read_text())
+    assert {f["node"] for f in summary["health"]["findings"]} == {"M1", "M2"}
+
+
+def test_benchmark_scores_every_method_on_the_simulated_scenes(tmp_path):
+    res = CliRunner().invoke(app, ["benchmark", "--no-real", "--methods", "gn,lsq", "--out",
+                                   str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    table = pd.read_csv(tmp_path / "benchmark.csv")
+    assert set(table["method"]) == {"gn", "lsq"}
+    assert set(table.loc[table["method"] == "gn", "log"]) == {"sim range clean", "sim range spikes"}
+    clean = table[table["log"] == "sim range clean"].set_index("method")
+    assert (clean["rmse_m"] < 0.2).all() and (clean["inside_95"] > 0.85).all()
+    assert (clean["p75_m"] <= clean["p95_m"]).all() and (clean["median_m"] <= clean["p75_m"]).all()
+    page = (tmp_path / "benchmark.html").read_text()
+    scored = table.loc[table["rmse_m"].notna(), "log"].nunique()     # a refusal has no CDF
+    assert page.count("data:image/png;base64,") == scored and "<table" in page
