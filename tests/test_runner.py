@@ -147,3 +147,13 @@ def test_reproduce_prints_a_line_per_experiment_when_not_a_terminal(tmp_path):
     lines = [ln for ln in res.stderr.splitlines() if ln.startswith(f"[1/1] {EXP}")]
     assert lines[0] == f"[1/1] {EXP}: running (quick size)"
     assert re.fullmatch(rf"\[1/1\] {EXP}: done in \d+\.\d s \(elapsed \d+\.\d s\)", lines[1])
+
+
+def test_summary_names_the_settings_a_run_changed(tmp_path):
+    res = runner.invoke(app, ["reproduce", EXP, "--runs", "100", "--out", str(tmp_path),
+                              "-o", "side_m=50"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / EXP / "summary.json").read_text())
+    assert summary["changed"] == ["side_m=50.0"]
+    res = runner.invoke(app, ["reproduce", EXP, "--runs", "100", "--out", str(tmp_path)])
+    assert json.loads((tmp_path / EXP / "summary.json").read_text())["changed"] == []

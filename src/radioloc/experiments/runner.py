@@ -182,9 +182,33 @@ def run_experiment(exp_id: str, *, full: bool = False, runs: int | None = None, 
             "notes": list(summary.notes),
             "skipped": None,
             "config": _jsonable(config),
+            "changed": changed_options(exp, config, full),
         }
         write_summary(record, stage)
     return RunOutcome(exp, config, results, summary, record, out_dir)
+
+
+def changed_options(exp: Experiment, config: Any, full: bool) -> list[str]:
+    """``field=value`` for each setting of ``config`` that differs from its size's default
+    (besides ``runs``), so that the run's summary (and a docs snippet made from it) names
+    what the run changed.
+
+    Parameters
+    ----------
+    exp : Experiment
+    config : dataclass
+        The configuration the run used.
+    full : bool
+        The size whose default it is compared with.
+
+    Returns
+    -------
+    list of str
+    """
+    base = json.loads(json.dumps(_jsonable(exp.config(bool(full))), default=str))
+    used = json.loads(json.dumps(_jsonable(config), default=str))
+    return [f"{k}={json.dumps(v)}" for k, v in used.items()
+            if k != "runs" and k in base and base[k] != v]
 
 
 def write_summary(record: dict, out_dir: Path) -> Path:

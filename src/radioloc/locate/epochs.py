@@ -310,6 +310,8 @@ def epoch_table(ep: Epochs, position: np.ndarray, cov: np.ndarray | None,
         out = add_covariance(out, cov)
     for name, values in columns.items():
         out[name] = values
+    lead = ["time", "node", *"xyz"[: position.shape[-1]]]      # the schema's column order
+    out = out[lead + [c for c in out.columns if c not in lead]]
     n_e, n_few, n_bad = len(ep.epochs), int(ep.few.sum()), int(bad.sum())
     n_misfit = 0 if misfit is None else int(np.sum(np.asarray(misfit, dtype=bool) & bad))
     if n_few or n_bad:

@@ -25,37 +25,6 @@ def _cell(text: Any) -> str:
     return str(text).replace("|", "\\|")
 
 
-def changed_options(record: dict[str, Any]) -> list[str]:
-    """``field=value`` for each setting of the run's config that differs from its size's
-    default (besides ``runs``), so that a snippet names what the run changed.
-
-    Parameters
-    ----------
-    record : dict
-        The parsed ``summary.json`` of a ``radioloc reproduce`` run (its ``config``).
-
-    Returns
-    -------
-    list of str
-        Empty when the record has no config or the experiment is unknown.
-    """
-    import dataclasses
-
-    from radioloc.core.errors import ConfigError
-    from radioloc.experiments.base import get_experiment
-
-    config = record.get("config")
-    if not isinstance(config, dict):
-        return []
-    try:
-        default = get_experiment(record["experiment"]).config(bool(record.get("full")))
-    except ConfigError:
-        return []
-    base = json.loads(json.dumps(dataclasses.asdict(default), default=str))
-    return [f"{k}={json.dumps(v)}" for k, v in config.items()
-            if k != "runs" and k in base and base[k] != v]
-
-
 def docs_snippet(record: dict[str, Any]) -> str:
     """The markdown snippet of one ``summary.json`` record.
 
@@ -72,7 +41,7 @@ def docs_snippet(record: dict[str, Any]) -> str:
         and every claim with its verdict and the interval that decided it.
     """
     size = "full" if record.get("full") else "quick"
-    changed = changed_options(record)
+    changed = list(record.get("changed") or [])   # written by the runner
     lines = [HEADER,
              f"Run: `{record['experiment']}`, {record['runs']} runs ({size} size), "
              f"seed {record['seed']}"
