@@ -3,8 +3,11 @@ the batch causal run of the same rows."""
 
 from __future__ import annotations
 
+import json
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pandas as pd
@@ -143,3 +146,84 @@ def test_tracker_refuses_what_it_cannot_stream():
                         {"time": 0, "node": "t", "peer": "B", "kind": "range", "value": "x"}])
     with pytest.raises(InputError, match="missing column"):
         tracker.update([{"time": 0, "node": "t", "kind": "range", "value": 1}])
+
+
+def radioloc(*args: str) -> list[str]:
+    return [sys.executable, "-m", "radioloc.cli", *args]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, log):
+    folder = tmp_path_factory.mktemp("follow")
+    log.to_csv(folder / "log.csv", index=False)
+    ANCHORS.to_csv(folder / "anchors.csv", index=False)
+    subprocess.run(radioloc("locate", str(folder / "log.csv"), "--anchors",
+                            str(folder / "anchors.csv"), "--method", "ekf-track", "-o", "q=0.5",
+                            "-o", "init_s=1.5", "--out", str(folder / "batch.csv")),
+                   check=True, timeout=120, capture_output=True)
+    return folder
+
+
+def follow_args(folder, source: str, *more: str) -> list[str]:
+    return radioloc("locate", source, "--anchors", str(folder / "anchors.csv"), "--method",
+                    "ekf-track", "--follow", "-o", "q=0.5", "-o", "init_s=1.5", *more)
+
+
+def test_follow_on_standard_input_writes_the_batch_rows(files, log):
+    text = (files / "log.csv").read_text().splitlines(keepends=True)
+    proc = subprocess.Popen(follow_args(files, "-"), stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rng = np.random.default_rng(4)
+    at = 0
+    try:
+        while at < len(text):
+            n = int(rng.integers(1, 200))
+            proc.stdin.write("".join(text[at:at + n]))     # lines cut anywhere in chunks
+            proc.stdin.flush()
+            at += n
+        proc.stdin.close()
+        out, err = proc.stdout.read(), proc.stderr.read()
+        assert proc.wait(timeout=120) == 0, err
+    finally:
+        proc.kill()
+    from io import StringIO
+
+    got = pd.read_csv(StringIO(out)).sort_values(["time", "node"], kind="stable")
+    assert_same(got.reset_index(drop=True), pd.read_csv(files / "batch.csv"))
+    summary = json.loads(err.strip().splitlines()[-1])
+    assert summary["end"] == "end of input" and summary["rows_in"] == len(log)
+
+
+def test_follow_a_growing_json_lines_file_until_interrupted(files, log, tmp_path):
+    source = tmp_path / "live.jsonl"
+    half = len(log) // 2
+    lines = [json.dumps(r) + "\n" for r in log.to_dict("records")]
+    source.write_text("".join(lines[:half]))
+    out = tmp_path / "est.csv"
+    proc = subprocess.Popen(follow_args(files, str(source), "--out", str(out)),
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (out.exists() and out.stat().st_size > 0):   # estimates before the end
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.1)
+        with open(source, "a") as f:
+            f.write("".join(lines[half:]))
+        while (len(out.read_text().splitlines()) < len(pd.read_csv(files / "batch.csv")) - 40):
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    finally:
+        proc.kill()
+    got = pd.read_csv(out).sort_values(["time", "node"], kind="stable").reset_index(drop=True)
+    assert_same(got, pd.read_csv(files / "batch.csv"))
+    summary = json.loads((tmp_path / "est.summary.json").read_text())
+    assert summary["end"] == "interrupted" and summary["rows_late"] == 0
+
+
+def test_follow_names_the_line_of_a_bad_row(files):
+    text = "time,node,peer,kind,value\n0.1,t,A,range,3\n0.2,t,A,range,oops\n"
+    run = subprocess.run(follow_args(files, "-"), input=text, capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode != 0 and "line 3" in run.stderr and "Traceback" not in run.stderr

@@ -67,6 +67,7 @@ def measurement_rows(rows) -> pd.DataFrame:
     Parameters
     ----------
     rows : DataFrame or list of dict
+        A ``line`` column, when there is one, names the rows in messages.
 
     Returns
     -------
@@ -95,17 +96,19 @@ def measurement_rows(rows) -> pd.DataFrame:
         out["reference"] = frame["reference"].fillna("").astype(str).str.strip()
     if "std" in frame.columns:
         out["std"] = pd.to_numeric(frame["std"].replace("", np.nan), errors="coerce")
+    def where(i: int) -> str:
+        return f"line {frame['line'].iloc[i]}" if "line" in frame.columns else f"row {i}"
     for column in ("time", "value"):
         bad = ~np.isfinite(out[column].to_numpy(dtype=float))
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"measurement rows: row {i}, column {column!r}: "
+            raise InputError(f"measurement rows: {where(i)}, column {column!r}: "
                              f"{frame[column].iloc[i]!r} is not a finite number")
     unknown = ~out["kind"].isin(declared_kinds())
     if unknown.any():
         i = int(np.argmax(unknown.to_numpy()))
-        raise InputError(f"measurement rows: row {i}, column 'kind': {out['kind'].iloc[i]!r} "
-                         f"is not one of {', '.join(declared_kinds())}")
+        raise InputError(f"measurement rows: {where(i)}, column 'kind': "
+                         f"{out['kind'].iloc[i]!r} is not one of {', '.join(declared_kinds())}")
     return out.reset_index(drop=True)
 
 
