@@ -202,7 +202,7 @@ class Tracker:
                                                 frame["value"] - self._s["bias"],
                                                 frame["value"]))
         self._counts["rows_in"] += len(frame)
-        late = frame["time"].to_numpy() <= self._done
+        late = frame["time"].to_numpy() < self._done
         self._counts["rows_late"] += int(late.sum())
         if late.all():
             return self._table_of([])
@@ -222,20 +222,21 @@ class Tracker:
 
     # ---- steps ---------------------------------------------------------------------
     def _release(self, until: float) -> pd.DataFrame:
-        """Process the held rows up to time ``until``."""
+        """Process the held rows older than ``until`` (rows of one time stamp that arrive
+        apart are one step: a time is processed once a later one has come)."""
         if until <= self._done:
             return self._table_of([])
         pending = pd.concat(self._pending, ignore_index=True) if self._pending else None
         tables = []
         if pending is not None:
-            due = pending["time"].to_numpy() <= until
+            due = pending["time"].to_numpy() < until
             self._pending = [pending[~due]] if (~due).any() else []
             ready = pending[due].sort_values("time", kind="stable")
             if len(ready):
                 tables += self._advance(ready)
         self._done = until
         for node, track in self._tracks.items():
-            if track.state is None and track.held and track.t0 + self._s["init_s"] <= until:
+            if track.state is None and track.held and track.t0 + self._s["init_s"] < until:
                 tables += self._start(node, track)
         return self._table_of(tables)
 
