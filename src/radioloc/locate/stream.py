@@ -60,7 +60,7 @@ class _Track:
     streak: int = 0
 
 
-def measurement_rows(rows) -> pd.DataFrame:
+def arrived_rows(rows) -> pd.DataFrame:
     """Rows in the measurement schema (``time, node, peer, kind, value[, reference][, std]``)
     from a DataFrame or a list of dicts, checked.
 
@@ -190,7 +190,7 @@ class Tracker:
             covariance columns, ``gated``, ``restart``), one row per ``(time, node)``
             estimated by this call, sorted by time then node; empty if none.
         """
-        frame = measurement_rows(rows)
+        frame = arrived_rows(rows)
         if frame["kind"].isin(MOTION_KINDS).any():
             raise ConfigError("odometry rows: not with live tracking (the Tracker takes the "
                               "measurements to anchors)")
