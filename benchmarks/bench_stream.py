@@ -7,7 +7,8 @@ anchor at 10 Hz (8 rows per step; the tags' steps staggered by 10 ms).
   it; rows per second of wall time, the command's start (its run on a header alone) taken
   off.
 - Latency: the log written in real time (each step's rows at its time stamp), with
-  ``--reorder-s 0``; for each estimate, the time from the arrival of the step's last row to
+  ``--reorder-s 0``, once the command has started; for each estimate after the tracks'
+  start (the first :data:`STEADY_S` seconds of the log left out), the time from the arrival of the step's last row to
   its line read from the command's output (p50, p99), and the part of it after the arrival
   of the row that releases the step (the next later time stamp: a time is processed once a
   later one has come).
@@ -33,6 +34,8 @@ ANCHORS = pd.DataFrame({"id": [f"A{i}" for i in range(8)],
                         "x": [0.0, 15.0, 30.0, 30.0, 30.0, 15.0, 0.0, 0.0],
                         "y": [0.0, 0.0, 0.0, 10.0, 20.0, 20.0, 20.0, 10.0]})
 TAGS, RATE_HZ = 10, 10.0
+#: Seconds of log left out of the latency: the tracks' start (init_s, 2 s) and after.
+STEADY_S = 3.0
 
 
 def log(seconds: float, seed: int = 0) -> pd.DataFrame:
@@ -73,7 +76,7 @@ def throughput(anchors: Path, seconds: float) -> dict:
             "rows_per_s": len(rows) / max(wall - startup, 1e-9)}
 
 
-def latency(anchors: Path, seconds: float) -> dict:
+def latency(anchors: Path, seconds: float, startup_s: float) -> dict:
     rows = log(seconds)
     lines = rows.to_csv(index=False).splitlines(keepends=True)
     proc = subprocess.Popen(command(anchors, "--reorder-s", "0"), stdin=subprocess.PIPE,
@@ -95,7 +98,7 @@ def latency(anchors: Path, seconds: float) -> dict:
     thread.start()
     proc.stdin.write(lines[0])
     proc.stdin.flush()
-    time.sleep(3.0)                                   # the command's start
+    time.sleep(startup_s + 1.0)                       # the command's start
     written = np.empty(len(rows))
     times = rows["time"].to_numpy()
     start = time.perf_counter() - times[0]
@@ -118,7 +121,8 @@ def latency(anchors: Path, seconds: float) -> dict:
     release = {t: first_written.get(n, np.nan) for t, n in zip(stamps[:-1], stamps[1:])}
     total, after = [], []
     for (t, node), w in steps.items():
-        if (t, node) in read_at and t in release:      # the last time stamp waits for the end
+        steady = t > times[0] + STEADY_S                # after the tracks' start
+        if steady and (t, node) in read_at and t in release:
             total.append(read_at[(t, node)] - w)
             after.append(read_at[(t, node)] - release[t])
     total_ms, after_ms = 1e3 * np.asarray(total), 1e3 * np.asarray(after)
@@ -134,7 +138,7 @@ def main(seconds_throughput: float = 30.0, seconds_latency: float = 20.0) -> lis
         ANCHORS.to_csv(anchors, index=False)
         load = os.getloadavg()[0]
         rate = throughput(anchors, seconds_throughput)
-        lat = latency(anchors, seconds_latency)
+        lat = latency(anchors, seconds_latency, rate["startup_s"])
     print(f"load average {load:.1f}")
     print(f"--follow on a pipe: {rate['rows']} rows in {rate['wall_s']:.2f} s "
           f"(start {rate['startup_s']:.2f} s): {rate['rows_per_s']:.0f} rows/s")

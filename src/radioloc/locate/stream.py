@@ -31,13 +31,13 @@ import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.kinds import kinds as declared_kinds
-from radioloc.estimators.extended_kalman import gate_streak
+from radioloc.estimators.extended_kalman import FilterState, gate_streak
 from radioloc.io.logs import MEASUREMENT_COLUMNS, MOTION_KINDS, subtract_anchor_bias
 from radioloc.locate.adapter import anchor_positions, node_observations
 from radioloc.locate.base import LocateRequest, check_request, method
 from radioloc.locate.ekf_track import (log_models, observation_window, reads_clock,
-                                       tracker_filter, tracker_settings, track_prior,
-                                       track_table)
+                                       stack_tracks, tracker_filter, tracker_settings,
+                                       track_prior, track_table)
 
 #: Methods a :class:`Tracker` runs (causal trackers).
 STREAM_METHODS = ("ekf-track",)
@@ -253,7 +253,7 @@ class Tracker:
     def _advance(self, rows: pd.DataFrame) -> list[pd.DataFrame]:
         """Steps of the rows released: held for a start, or filtered; a gap longer than
         ``max_gap_s`` after a node's latest step starts a new track."""
-        tables = []
+        tables, running = [], []
         for node, _, times, obs in self._observations(rows):
             track = self._tracks.get(node)
             prev = np.concatenate([[times[0] if track is None else track.last], times[:-1]])
@@ -278,9 +278,8 @@ class Tracker:
                     track.last = float(t[-1])
                 else:
                     window = slice(int(a), int(b))
-                    tables.append(self._filter(node, track, t,
-                                               [observation_window(o, window) for o in obs]))
-        return tables
+                    running.append((node, track, t, [observation_window(o, window) for o in obs]))
+        return tables + self._filter(running)
 
     def _start(self, node: str, track: _Track) -> list[pd.DataFrame]:
         """Start a track from its held rows and filter them."""
@@ -294,31 +293,55 @@ class Tracker:
         mean, var = track_prior(track.ekf, times, obs, self._anchors, s, self._anchor_bias)
         track.state = track.ekf.init(mean, np.diag(var), float(times[0]), observations=obs)
         track.last = float(times[0])
-        return [self._filter(node, track, times, obs)]
+        return self._filter([(node, track, times, obs)])
 
-    def _filter(self, node: str, track: _Track, times: np.ndarray, obs: list) -> pd.DataFrame:
-        """Predict and update ``track`` through ``times`` (the filter's own steps)."""
-        ekf, state = track.ekf, track.state
+    def _filter(self, items: list) -> list[pd.DataFrame]:
+        """Predict and update tracks through their new steps: ``items`` of ``(node, track,
+        times, observations)``, the tracks of one state layout as one batch of the filter
+        (aligned by step index, :func:`radioloc.locate.ekf_track.stack_tracks`, as the
+        batch run aligns them)."""
+        groups: dict = {}
+        for item in items:
+            groups.setdefault(repr(item[1].state.layout), []).append(item)
+        return [table for group in groups.values() for table in self._filter_batch(group)]
+
+    def _filter_batch(self, items: list) -> list[pd.DataFrame]:
+        tracks = [it[1] for it in items]
+        ekf = tracks[0].ekf
+        t, obs = stack_tracks([it[2] for it in items], [it[3] for it in items])
+        state = FilterState(np.stack([tr.state.mean for tr in tracks]),
+                            np.stack([tr.state.covariance for tr in tracks]),
+                            t[:, 0], tracks[0].state.layout)
+        last = np.array([tr.last for tr in tracks])
+        streak = np.array([tr.streak for tr in tracks])
         D = self._s["dim"]
-        pos, cov = np.empty((times.size, D)), np.empty((times.size, D, D))
-        gated = np.empty(times.size, dtype=np.int64)
-        for k, t in enumerate(times):
-            pred = ekf.predict(state, t - track.last)
+        B, T = t.shape
+        pos, cov = np.empty((B, T, D)), np.empty((B, T, D, D))
+        gated = np.empty((B, T), dtype=np.int64)
+        for k in range(T):
+            pred = ekf.predict(state, t[:, k] - last)
             step = []
             heard = 0
             for o in obs:
                 z, ctx = o.at(k)
                 step.append(replace(o, z=z, context=ctx, std=None))
-                heard += int(np.isfinite(z).sum())
-            state, info = ekf.update(pred, step, ungated=track.streak >= ekf.gate_patience)
-            track.streak = int(gate_streak(track.streak, heard, info["gated"]))
-            track.last = float(t)
-            pos[k], cov[k], gated[k] = state.mean[:D], state.covariance[:D, :D], info["gated"]
-        track.state = state
-        one = SimpleNamespace(position=pos, covariance=cov, diagnostics={"gated": gated})
-        out = track_table(node, times, one, restart=track.restart)
-        track.restart = False
-        self._counts["rows_out"] += len(out)
+                heard = heard + np.isfinite(z).sum(axis=-1)
+            state, info = ekf.update(pred, step, ungated=streak >= ekf.gate_patience)
+            streak = gate_streak(streak, heard, info["gated"])
+            last = t[:, k]
+            pos[:, k], cov[:, k] = state.mean[:, :D], state.covariance[:, :D, :D]
+            gated[:, k] = info["gated"]
+        out = []
+        for b, (node, track, times, _) in enumerate(items):
+            track.state = FilterState(state.mean[b], state.covariance[b], float(last[b]),
+                                      state.layout)
+            track.last, track.streak = float(last[b]), int(streak[b])
+            n = times.size
+            one = SimpleNamespace(position=pos[b, :n], covariance=cov[b, :n],
+                                  diagnostics={"gated": gated[b, :n]})
+            out.append(track_table(node, times, one, restart=track.restart))
+            track.restart = False
+            self._counts["rows_out"] += n
         return out
 
     @staticmethod
