@@ -171,6 +171,7 @@ def follow_args(folder, source: str, *more: str) -> list[str]:
                     "ekf-track", "--follow", "-o", "q=0.5", "-o", "init_s=1.5", *more)
 
 
+@pytest.mark.slow   # a subprocess (and a signal)
 def test_follow_on_standard_input_writes_the_batch_rows(files, log):
     text = (files / "log.csv").read_text().splitlines(keepends=True)
     proc = subprocess.Popen(follow_args(files, "-"), stdin=subprocess.PIPE,
@@ -196,6 +197,7 @@ def test_follow_on_standard_input_writes_the_batch_rows(files, log):
     assert summary["end"] == "end of input" and summary["rows_in"] == len(log)
 
 
+@pytest.mark.slow   # a subprocess (and a signal)
 def test_follow_a_growing_json_lines_file_until_interrupted(files, log, tmp_path):
     source = tmp_path / "live.jsonl"
     half = len(log) // 2
@@ -224,6 +226,7 @@ def test_follow_a_growing_json_lines_file_until_interrupted(files, log, tmp_path
     assert summary["end"] == "interrupted" and summary["rows_late"] == 0
 
 
+@pytest.mark.slow   # a subprocess (and a signal)
 def test_follow_names_the_line_of_a_bad_row(files):
     text = "time,node,peer,kind,value\n0.1,t,A,range,3\n0.2,t,A,range,oops\n"
     run = subprocess.run(follow_args(files, "-"), input=text, capture_output=True, text=True,
