@@ -231,7 +231,7 @@ class Tracker:
         if pending is not None:
             due = pending["time"].to_numpy() < until
             self._pending = [pending[~due]] if (~due).any() else []
-            ready = pending[due].sort_values("time", kind="stable")
+            ready = pending[due]          # node_observations orders the steps by time
             if len(ready):
                 tables += self._advance(ready)
         self._done = until
