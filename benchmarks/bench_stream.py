@@ -5,7 +5,7 @@ anchor at 10 Hz (8 rows per step; the tags' steps staggered by 10 ms).
 
 - Throughput: the whole log written into the command's standard input as fast as it takes
   it; rows per second of wall time, the command's start (its run on a header alone) taken
-  off.
+  off; the peer: the batch run (``locate`` without ``--follow``) of the same log as a file.
 - Latency: the log written in real time (each step's rows at its time stamp), with
   ``--reorder-s 0``, once the command has started; for each estimate after the tracks'
   start (the first :data:`STEADY_S` seconds of the log left out), the time from the arrival of the step's last row to
@@ -72,8 +72,15 @@ def throughput(anchors: Path, seconds: float) -> dict:
     text = rows.to_csv(index=False)
     startup = run_piped(command(anchors), text.splitlines(keepends=True)[0])
     wall = run_piped(command(anchors), text)
+    whole = anchors.with_name("log.csv")
+    whole.write_text(text)
+    batch = command(anchors)
+    batch[batch.index("-")] = str(whole)
+    batch.remove("--follow")
+    batch_wall = run_piped(batch, "")
     return {"rows": len(rows), "wall_s": wall, "startup_s": startup,
-            "rows_per_s": len(rows) / max(wall - startup, 1e-9)}
+            "rows_per_s": len(rows) / max(wall - startup, 1e-9),
+            "batch_rows_per_s": len(rows) / max(batch_wall - startup, 1e-9)}
 
 
 def latency(anchors: Path, seconds: float, startup_s: float) -> dict:
@@ -141,15 +148,18 @@ def main(seconds_throughput: float = 30.0, seconds_latency: float = 20.0) -> lis
         lat = latency(anchors, seconds_latency, rate["startup_s"])
     print(f"load average {load:.1f}")
     print(f"--follow on a pipe: {rate['rows']} rows in {rate['wall_s']:.2f} s "
-          f"(start {rate['startup_s']:.2f} s): {rate['rows_per_s']:.0f} rows/s")
+          f"(start {rate['startup_s']:.2f} s): {rate['rows_per_s']:.0f} rows/s; the batch "
+          f"run of the same log: {rate['batch_rows_per_s']:.0f} rows/s")
     print(f"latency, real-time feed of {TAGS} tags x 8 anchors at {RATE_HZ:g} Hz, "
           f"--reorder-s 0, {lat['estimates']} estimates: arrival of a step's last row to its "
           f"estimate read p50 {lat['p50_ms']:.1f} ms, p99 {lat['p99_ms']:.1f} ms; after the "
           f"releasing row p50 {lat['p50_after_release_ms']:.1f} ms, "
           f"p99 {lat['p99_after_release_ms']:.1f} ms")
     return [{"workload": "locate --follow ekf-track, 8 anchors x 10 tags at 10 Hz (pipe)",
-             "throughput": rate["rows_per_s"], "unit": "rows/s", "peer": None,
-             "peer_throughput": None, "ratio": None,
+             "throughput": rate["rows_per_s"], "unit": "rows/s",
+             "peer": "locate --method ekf-track (batch, same log)",
+             "peer_throughput": rate["batch_rows_per_s"],
+             "ratio": rate["rows_per_s"] / rate["batch_rows_per_s"],
              "note": f"p99 latency {lat['p99_ms']:.1f} ms (row arrival to estimate read)"}]
 
 
