@@ -146,6 +146,8 @@ def test_tracker_refuses_what_it_cannot_stream():
     with pytest.raises(InputError, match="row 1, column 'value'"):
         tracker.update([{"time": 0, "node": "t", "peer": "A", "kind": "range", "value": 1},
                         {"time": 0, "node": "t", "peer": "B", "kind": "range", "value": "x"}])
+    with pytest.raises(InputError, match="row 0, column 'peer': unknown anchor or node 'Z'"):
+        tracker.update([{"time": 0, "node": "t", "peer": "Z", "kind": "range", "value": 1}])
     with pytest.raises(InputError, match="missing column"):
         tracker.update([{"time": 0, "node": "t", "kind": "range", "value": 1}])
 

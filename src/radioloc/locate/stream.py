@@ -60,6 +60,11 @@ class _Track:
     streak: int = 0
 
 
+def row_name(frame: pd.DataFrame, i: int) -> str:
+    """``line N`` (the frame's ``line`` column) or ``row i`` for messages."""
+    return f"line {frame['line'].iloc[i]}" if "line" in frame.columns else f"row {i}"
+
+
 def arrived_rows(rows) -> pd.DataFrame:
     """Rows in the measurement schema (``time, node, peer, kind, value[, reference][, std]``)
     from a DataFrame or a list of dicts, checked.
@@ -96,19 +101,19 @@ def arrived_rows(rows) -> pd.DataFrame:
         out["reference"] = frame["reference"].fillna("").astype(str).str.strip()
     if "std" in frame.columns:
         out["std"] = pd.to_numeric(frame["std"].replace("", np.nan), errors="coerce")
-    def where(i: int) -> str:
-        return f"line {frame['line'].iloc[i]}" if "line" in frame.columns else f"row {i}"
     for column in ("time", "value"):
         bad = ~np.isfinite(out[column].to_numpy(dtype=float))
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(f"measurement rows: {where(i)}, column {column!r}: "
+            raise InputError(f"measurement rows: {row_name(frame, i)}, column {column!r}: "
                              f"{frame[column].iloc[i]!r} is not a finite number")
     unknown = ~out["kind"].isin(declared_kinds())
     if unknown.any():
         i = int(np.argmax(unknown.to_numpy()))
-        raise InputError(f"measurement rows: {where(i)}, column 'kind': "
+        raise InputError(f"measurement rows: {row_name(frame, i)}, column 'kind': "
                          f"{out['kind'].iloc[i]!r} is not one of {', '.join(declared_kinds())}")
+    if "line" in frame.columns:
+        out["line"] = frame["line"].to_numpy()
     return out.reset_index(drop=True)
 
 
@@ -171,6 +176,8 @@ class Tracker:
         self._latest = -math.inf       # latest time seen
         self._done = -math.inf         # rows up to this time were processed
         self._tracks: dict[str, _Track] = {}
+        self._anchor_ids = set(self._table["id"].astype(str))
+        self._nodes: set[str] = set()
         self._counts = {"rows_in": 0, "rows_late": 0, "rows_out": 0, "restarts": 0}
 
     # ---- public --------------------------------------------------------------------
@@ -201,6 +208,7 @@ class Tracker:
             frame = frame.assign(value=np.where(frame["kind"] == "range",
                                                 frame["value"] - self._s["bias"],
                                                 frame["value"]))
+        self._check_peers(frame)
         self._counts["rows_in"] += len(frame)
         late = frame["time"].to_numpy() < self._done
         self._counts["rows_late"] += int(late.sum())
@@ -221,6 +229,18 @@ class Tracker:
         return {**self._counts, "nodes": len(self._tracks), "reorder_s": self.reorder_s}
 
     # ---- steps ---------------------------------------------------------------------
+    def _check_peers(self, frame: pd.DataFrame) -> None:
+        """Refuse a row whose peer is neither an anchor nor a node seen so far (as
+        :func:`radioloc.io.read_measurements` refuses it in a whole log)."""
+        self._nodes.update(frame["node"].unique())
+        own = [n for n, k in declared_kinds().items() if k.self_measured]
+        unknown = ~frame["peer"].isin(self._anchor_ids | self._nodes) & ~frame["kind"].isin(own)
+        if unknown.any():
+            i = int(np.argmax(unknown.to_numpy()))
+            raise InputError(f"measurement rows: {row_name(frame, i)}, column 'peer': unknown anchor or node "
+                             f"{frame['peer'].iloc[i]!r} (not in the anchors file nor a node "
+                             "seen so far)")
+
     def _release(self, until: float) -> pd.DataFrame:
         """Process the held rows older than ``until`` (rows of one time stamp that arrive
         apart are one step: a time is processed once a later one has come)."""
