@@ -322,6 +322,8 @@ def locate(
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress (on standard error: a bar when a run lasts more than 2 s, or, when standard error is not a terminal, a line per 10 s of work).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Exit non-zero (1) when the run warns: a finding of the health check (summary.json, health) or any other warning; the outputs are written first.")] = False,
+    follow: Annotated[bool, typer.Option("--follow", help="Live: read rows as they arrive (MEASUREMENTS '-' for standard input, or a file that grows; CSV or JSON lines) and write each estimate at once (ekf-track); ends at end of input or Ctrl-C.")] = False,
+    reorder_s: Annotated[Optional[float], typer.Option("--reorder-s", help="With --follow: rows up to this many seconds out of order are placed (default 0.5); older ones are counted and left out.")] = None,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -357,6 +359,16 @@ def locate(
         if opts.get("smooth", "1").lower() in ("0", "false", "no", "off"):
             raise RadiolocError("--smooth contradicts -o smooth=0")
         opts["smooth"] = "1"
+    if follow:
+        from radioloc.locate.follow import follow_locate
+
+        with numeric_errors_raise():
+            written = follow_locate(measurements, anchors, method, opts, out, fmt, reorder_s, {
+                "--plot": plot, "--reference": reference, "--priors": priors,
+                "--calibration": calibration, "--strict": strict})
+        for path in written:
+            _echo_err(f"wrote {path}")
+        return
     with numeric_errors_raise():
         anchor_table = read_anchors(anchors) if anchors is not None else None
         ref_table = read_reference(reference) if reference is not None else None

@@ -534,8 +534,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 state, more = self.update(state, extra, streak >= self.gate_patience)
                 info = _combine([info, more])
                 heard = heard + sum(np.isfinite(o.z).sum(axis=-1) for o in extra)
-            streak = np.where((heard > 0) & (info["gated"] == heard), streak + 1,
-                              np.where(heard > 0, 0, streak))
+            streak = gate_streak(streak, heard, info["gated"])
             if on_step is not None:
                 on_step(int(np.sum(heard)))
             _record(record, "state", state.mean, k, batch, T, 1)
@@ -572,6 +571,22 @@ TRANSITION_CHUNK = 256
 #: per-step diagnostics of an update and their axes after the batch axes
 _INFO_AXES = {"innovation": 1, "innovation_covariance": 2, "nis": 0, "measurements_used": 0,
               "gated": 0}
+
+
+def gate_streak(streak, heard, gated):
+    """Steps in a row in which every row was gated, after one more step of ``heard`` rows of
+    which ``gated`` were refused (a step without rows leaves it as it was); at
+    ``gate_patience`` the next step's rows bypass the gate (see :class:`ExtendedKalmanFilter`).
+
+    Parameters
+    ----------
+    streak, heard, gated : int or ndarray, shape (...)
+
+    Returns
+    -------
+    ndarray of int, shape (...)
+    """
+    return np.where((heard > 0) & (gated == heard), streak + 1, np.where(heard > 0, 0, streak))
 
 
 def _record(record: dict, key: str, value: np.ndarray, step: int, batch: tuple[int, ...],

@@ -2,4 +2,13 @@
 
 from radioloc.locate.base import LocateRequest, locate_method, methods, run_method
 
-__all__ = ["LocateRequest", "locate_method", "methods", "run_method"]
+__all__ = ["LocateRequest", "Tracker", "locate_method", "methods", "run_method"]
+
+
+def __getattr__(name: str):
+    """:class:`radioloc.locate.stream.Tracker`, imported on first use like the methods."""
+    if name == "Tracker":
+        from radioloc.locate.stream import Tracker
+
+        return Tracker
+    raise AttributeError(f"module 'radioloc.locate' has no attribute {name!r}")

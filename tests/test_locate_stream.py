@@ -1,0 +1,236 @@
+"""Live tracking (`radioloc.locate.Tracker`, `radioloc locate --follow`): the estimates equal
+the batch causal run of the same rows."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from radioloc.core.errors import ConfigError, InputError
+from radioloc.locate import LocateRequest, Tracker, run_method
+
+ANCHORS = pd.DataFrame({"id": ["A", "B", "C", "D", "E"], "x": [0.0, 20.0, 20.0, 0.0, 10.0],
+                        "y": [0.0, 0.0, 15.0, 15.0, 16.0]})
+OPTIONS = {"q": "0.5", "init_s": "1.5"}
+
+
+def simulated_log(seed: int = 3) -> pd.DataFrame:
+    """Two tags: ``t1`` asynchronous (one anchor per time stamp) with an outlier range; ``t2``
+    synchronous (several anchors per time stamp), silent for 8 s (longer than max_gap_s)."""
+    rng = np.random.default_rng(seed)
+    frames = []
+    for node, n in (("t1", 700), ("t2", 200)):
+        t = np.round(np.cumsum(rng.uniform(0.02, 0.08 if node == "t1" else 0.2, n)), 4)
+        if node == "t2":
+            t = np.where(t > 8, t + 8, t)
+        phase = 0.0 if node == "t1" else 2.0
+        xy = np.stack([10 + 6 * np.cos(t / 5 + phase), 7.5 + 4 * np.sin(t / 5 + phase)], -1)
+        peers = (np.arange(n) % 5)[:, None] if node == "t1" else np.tile(np.arange(4), (n, 1))
+        for j in range(peers.shape[1]):
+            p = peers[:, j]
+            d = np.linalg.norm(xy - ANCHORS[["x", "y"]].to_numpy()[p], axis=1)
+            frames.append(pd.DataFrame({"time": t, "node": node, "peer": ANCHORS["id"].to_numpy()[p],
+                                        "kind": "range", "value": d + 0.1 * rng.standard_normal(n)}))
+    log = pd.concat(frames, ignore_index=True)
+    log.loc[300, "value"] += 12.0                     # an outlier the gate refuses
+    log = log[rng.random(len(log)) > 0.1]             # rows lost at random
+    return log.sort_values(["time", "node", "peer"], kind="stable").reset_index(drop=True)
+
+
+def batch(rows: pd.DataFrame) -> pd.DataFrame:
+    return run_method("ekf-track", LocateRequest(rows.reset_index(drop=True), ANCHORS,
+                                                 options=dict(OPTIONS)))
+
+
+def streamed(tracker: Tracker, chunks) -> pd.DataFrame:
+    parts = [tracker.update(c) for c in chunks] + [tracker.close()]
+    out = pd.concat([p for p in parts if len(p)], ignore_index=True)
+    return out.sort_values(["time", "node"], kind="stable").reset_index(drop=True)
+
+
+def assert_same(stream: pd.DataFrame, expected: pd.DataFrame) -> None:
+    assert list(stream.columns) == list(expected.columns)
+    assert len(stream) == len(expected)
+    assert (stream["node"].to_numpy() == expected["node"].to_numpy()).all()
+    numeric = [c for c in expected.columns if c != "node"]
+    np.testing.assert_allclose(stream[numeric].to_numpy(float), expected[numeric].to_numpy(float),
+                               rtol=0, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def log() -> pd.DataFrame:
+    return simulated_log()
+
+
+@pytest.fixture(scope="module")
+def expected(log) -> pd.DataFrame:
+    out = batch(log)
+    assert out["restart"].sum() == 1 and out["gated"].sum() >= 1   # the log exercises both
+    return out
+
+
+def random_chunks(rows: pd.DataFrame, rng) -> list[pd.DataFrame]:
+    cuts = np.sort(rng.choice(np.arange(1, len(rows)), size=60, replace=False))
+    return [rows.iloc[a:b] for a, b in zip([0, *cuts], [*cuts, len(rows)])]
+
+
+def test_chunks_of_any_size_give_the_batch_causal_run(log, expected):
+    rng = np.random.default_rng(0)
+    tracker = Tracker("ekf-track", ANCHORS, OPTIONS)
+    assert_same(streamed(tracker, random_chunks(log, rng)), expected)
+    summary = tracker.summary()
+    assert summary["rows_in"] == len(log) and summary["rows_late"] == 0
+    assert summary["rows_out"] == len(expected) and summary["restarts"] == 1
+
+
+def test_rows_shuffled_within_the_window_are_placed(log, expected):
+    rng = np.random.default_rng(1)
+    arrival = log["time"].to_numpy() + rng.uniform(0, 0.45, len(log))   # window 0.5 s
+    shuffled = log.iloc[np.argsort(arrival, kind="stable")]
+    assert not shuffled["time"].is_monotonic_increasing
+    records = shuffled.to_dict("records")                              # list of dicts too
+    cuts = np.sort(rng.choice(np.arange(1, len(records)), size=200, replace=False))
+    chunks = [records[a:b] for a, b in zip([0, *cuts], [*cuts, len(records)])]
+    tracker = Tracker("ekf-track", ANCHORS, OPTIONS, reorder_s=0.5)
+    assert_same(streamed(tracker, chunks), expected)
+    assert tracker.summary()["rows_late"] == 0
+
+
+def test_rows_later_than_the_window_are_counted_and_left_out(log):
+    rng = np.random.default_rng(2)
+    arrival = log["time"].to_numpy() + np.where(rng.random(len(log)) < 0.03, 2.0, 0.0)
+    order = np.argsort(arrival, kind="stable")
+    arrived = log.iloc[order].reset_index(drop=True)
+    # chunks of 10 rows: a row is late when it is older than the window behind the latest
+    # time of the chunks before it
+    chunk = np.arange(len(arrived)) // 10
+    times = arrived["time"].to_numpy()
+    latest = pd.Series(times).groupby(chunk).max().cummax().shift(1, fill_value=-np.inf)
+    late = times < latest.to_numpy()[chunk] - 0.5
+    assert late.sum() > 5
+    tracker = Tracker("ekf-track", ANCHORS, OPTIONS, reorder_s=0.5)
+    out = streamed(tracker, [arrived.iloc[i:i + 10] for i in range(0, len(arrived), 10)])
+    assert tracker.summary()["rows_late"] == int(late.sum())
+    kept = arrived[~late].sort_values(["time", "node", "peer"], kind="stable")
+    assert_same(out, batch(kept))
+
+
+def test_state_survives_pauses_between_updates(log, expected):
+    tracker = Tracker("ekf-track", ANCHORS, OPTIONS)
+    first = tracker.update(log.iloc[:400])
+    assert len(first) > 0                        # estimates come before the end of input
+    rest = [tracker.update(log.iloc[400:]), tracker.update(log.iloc[:0]), tracker.close()]
+    out = pd.concat([first, *rest], ignore_index=True).sort_values(["time", "node"],
+                                                                    kind="stable")
+    assert_same(out.reset_index(drop=True), expected)
+    assert tracker.close().empty
+
+
+def test_tracker_refuses_what_it_cannot_stream():
+    with pytest.raises(ConfigError, match="ekf-track"):
+        Tracker("pf", ANCHORS)
+    with pytest.raises(ConfigError, match="smooth"):
+        Tracker("ekf-track", ANCHORS, {"smooth": "1"})
+    with pytest.raises(ConfigError, match="unknown option 'bogus'"):
+        Tracker("ekf-track", ANCHORS, {"bogus": "1"})
+    with pytest.raises(ConfigError, match="reorder_s"):
+        Tracker("ekf-track", ANCHORS, reorder_s=-1)
+    tracker = Tracker("ekf-track", ANCHORS)
+    with pytest.raises(InputError, match="row 1, column 'value'"):
+        tracker.update([{"time": 0, "node": "t", "peer": "A", "kind": "range", "value": 1},
+                        {"time": 0, "node": "t", "peer": "B", "kind": "range", "value": "x"}])
+    with pytest.raises(InputError, match="row 0, column 'peer': unknown anchor or node 'Z'"):
+        tracker.update([{"time": 0, "node": "t", "peer": "Z", "kind": "range", "value": 1}])
+    with pytest.raises(InputError, match="missing column"):
+        tracker.update([{"time": 0, "node": "t", "kind": "range", "value": 1}])
+
+
+def radioloc(*args: str) -> list[str]:
+    return [sys.executable, "-m", "radioloc.cli", *args]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, log):
+    folder = tmp_path_factory.mktemp("follow")
+    log.to_csv(folder / "log.csv", index=False)
+    ANCHORS.to_csv(folder / "anchors.csv", index=False)
+    subprocess.run(radioloc("locate", str(folder / "log.csv"), "--anchors",
+                            str(folder / "anchors.csv"), "--method", "ekf-track", "-o", "q=0.5",
+                            "-o", "init_s=1.5", "--out", str(folder / "batch.csv")),
+                   check=True, timeout=120, capture_output=True)
+    return folder
+
+
+def follow_args(folder, source: str, *more: str) -> list[str]:
+    return radioloc("locate", source, "--anchors", str(folder / "anchors.csv"), "--method",
+                    "ekf-track", "--follow", "-o", "q=0.5", "-o", "init_s=1.5", *more)
+
+
+@pytest.mark.slow   # a subprocess (and a signal)
+def test_follow_on_standard_input_writes_the_batch_rows(files, log):
+    text = (files / "log.csv").read_text().splitlines(keepends=True)
+    proc = subprocess.Popen(follow_args(files, "-"), stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rng = np.random.default_rng(4)
+    at = 0
+    try:
+        while at < len(text):
+            n = int(rng.integers(1, 200))
+            proc.stdin.write("".join(text[at:at + n]))     # lines cut anywhere in chunks
+            proc.stdin.flush()
+            at += n
+        proc.stdin.close()
+        out, err = proc.stdout.read(), proc.stderr.read()
+        assert proc.wait(timeout=120) == 0, err
+    finally:
+        proc.kill()
+    from io import StringIO
+
+    got = pd.read_csv(StringIO(out)).sort_values(["time", "node"], kind="stable")
+    assert_same(got.reset_index(drop=True), pd.read_csv(files / "batch.csv"))
+    summary = json.loads(err.strip().splitlines()[-1])
+    assert summary["end"] == "end of input" and summary["rows_in"] == len(log)
+
+
+@pytest.mark.slow   # a subprocess (and a signal)
+def test_follow_a_growing_json_lines_file_until_interrupted(files, log, tmp_path):
+    source = tmp_path / "live.jsonl"
+    half = len(log) // 2
+    lines = [json.dumps(r) + "\n" for r in log.to_dict("records")]
+    source.write_text("".join(lines[:half]))
+    out = tmp_path / "est.csv"
+    proc = subprocess.Popen(follow_args(files, str(source), "--out", str(out)),
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (out.exists() and out.stat().st_size > 0):   # estimates before the end
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.1)
+        with open(source, "a") as f:
+            f.write("".join(lines[half:]))
+        while (len(out.read_text().splitlines()) < len(pd.read_csv(files / "batch.csv")) - 40):
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    finally:
+        proc.kill()
+    got = pd.read_csv(out).sort_values(["time", "node"], kind="stable").reset_index(drop=True)
+    assert_same(got, pd.read_csv(files / "batch.csv"))
+    summary = json.loads((tmp_path / "est.summary.json").read_text())
+    assert summary["end"] == "interrupted" and summary["rows_late"] == 0
+
+
+@pytest.mark.slow   # a subprocess (and a signal)
+def test_follow_names_the_line_of_a_bad_row(files):
+    text = "time,node,peer,kind,value\n0.1,t,A,range,3\n0.2,t,A,range,oops\n"
+    run = subprocess.run(follow_args(files, "-"), input=text, capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode != 0 and "line 3" in run.stderr and "Traceback" not in run.stderr
