@@ -85,7 +85,8 @@ from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
 from radioloc.locate.progress import progress
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
-from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
+from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
+                                         wrap_angle)
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
@@ -138,12 +139,23 @@ def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.
     return np.sqrt(d2)
 
 
-def column_medians(values: np.ndarray) -> np.ndarray:
+def column_medians(values: np.ndarray, angular: bool = False) -> np.ndarray:
     """Median of each column of ``values`` ``(T, S)`` over its finite entries (NaN for a
-    column with none)."""
+    column with none).
+
+    With ``angular`` the values are angles (radians): the median of their differences from
+    the column's circular mean, wrapped to ``(-pi, pi]``, so angles on both sides of
+    ``+-pi`` have a median between them (not near 0), and a reflection far off the others
+    does not move it.
+    """
     med = np.full(values.shape[1], np.nan)
     heard = np.isfinite(values).any(axis=0)
-    med[heard] = np.nanmedian(values[:, heard], axis=0)
+    v = values[:, heard]
+    if angular:
+        centre = np.angle(np.nanmean(np.exp(1j * v), axis=0))
+        med[heard] = wrap_angle(np.nanmedian(wrap_angle(v - centre), axis=0) + centre)
+    else:
+        med[heard] = np.nanmedian(v, axis=0)
     return med
 
 
@@ -356,7 +368,8 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
+    medians = [replace(o, z=column_medians(o.z[window], o.model.angular), std=None)
+               for o in observations]
     fit = LeastSquares(loss="huber").locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
@@ -536,8 +549,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
     is padded at its end with its last time (a step of zero length) and absent rows, which
     leave its state unchanged. The rows of each kind are the union of the tracks' slots
     (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
-    the update skips. Rows of a step are independent, so each track's result equals its
-    own run.
+    the update skips. A slot keeps its anchor-file columns (``Context.columns``). Rows of a
+    step are independent, so each track's result equals its own run.
 
     Parameters
     ----------
@@ -573,6 +586,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         std = np.full_like(z, np.nan) if any(o.std is not None for _, o in members) else None
         points = np.empty((len(slots),) + members[0][1].context.points.shape[-1:])
         reference = None if members[0][1].context.reference is None else np.empty_like(points)
+        columns = {c: np.full(len(slots), np.nan) for c in members[0][1].context.columns or {}}
         for b, o in members:
             ctx = o.context
             ref = (ctx.reference_index if ctx.reference_index is not None
@@ -584,12 +598,14 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
             points[cols] = ctx.points
             if reference is not None:
                 reference[cols] = ctx.reference
+            for c, v in columns.items():
+                v[cols] = ctx.columns[c]
         first = members[0][1].context
         keys = np.array(list(slots), dtype=int).reshape(-1, 2)
         ctx = Context(points=points, index=keys[:, 0],
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
-                      height_m=first.height_m)
+                      height_m=first.height_m, columns=columns or None)
         out.append(Observation(members[0][1].model, z, ctx, std,
                                no_check=members[0][1].no_check))
     return t, out

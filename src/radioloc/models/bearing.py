@@ -11,9 +11,13 @@ With ``d = x - a`` the vector from the anchor to the tag:
 
 A 3-D angle of arrival is two observations, one per component, over the same anchors.
 
-The anchor's frame is turned by ``yaw`` (radians, counter-clockwise from the world x axis)
-about the vertical: ``orientation_rad`` is one angle for every anchor, or one per anchor of
-the anchor table (indexed by ``Context.index``). A tilted array is not modelled. Residuals
+The anchor's frame is turned by its yaw (radians, counter-clockwise from the world x axis)
+about the vertical, so a measured azimuth is relative to the array's boresight (what a BLE
+5.1 or UWB angle-of-arrival kit reports): the anchors file's ``yaw`` column
+(:data:`ORIENTATION_COLUMNS`, each row's anchor's value in ``Context.columns``; an empty
+cell is a frame aligned with the world's), or, without that column, the model's
+``orientation_rad``: one angle for every anchor, or one per anchor of the anchor table
+(indexed by ``Context.index``). A tilted array (pitch, roll) is not modelled. Residuals
 wrap (``angular = True``). The Jacobian is analytic: with ``rho = |d_xy|`` and ``r = |d|``,
 ``d azimuth / d (x, y) = (-d_y, d_x) / rho^2`` and ``d elevation / d (x, y, z) =
 (-d_x d_z / rho, -d_y d_z / rho, rho) / r^2``.
@@ -26,14 +30,21 @@ from typing import ClassVar
 
 import numpy as np
 
-from radioloc.core.errors import InputError
+from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.kinds import Kind, Slip, unit_slips
 from radioloc.core.validation import as_float_array, check_positive
 from radioloc.models.measurement import Context, MeasurementModel, wrap_angle
 
-__all__ = ["BearingModel"]
+__all__ = ["BearingModel", "ORIENTATION_COLUMNS", "DEFAULT_STD_RAD"]
 
 _KINDS = {"azimuth": "aoa", "elevation": "aoa_elevation"}
+
+#: Anchors-file column of an anchor's yaw, radians counter-clockwise from the world x axis.
+ORIENTATION_COLUMNS = ("yaw",)
+
+#: Default angle error, radians: 6 degrees, what BLE 5.1 angle-of-arrival kits deliver
+#: indoors with reflections (5-7 degrees).
+DEFAULT_STD_RAD = float(np.radians(6.0))
 
 
 # eq=False: the settings hold arrays, so instances compare and hash by identity
@@ -50,7 +61,8 @@ class BearingModel(MeasurementModel):
         Which angle the rows hold.
     orientation_rad : float or array_like, shape (A,)
         Yaw of the anchors' frames, radians: one for all, or one per anchor-table row
-        (then ``Context.index`` is required). The elevation does not depend on it.
+        (then ``Context.index`` is required); refused beside a ``yaw`` column in the
+        context (one source of the orientation). The elevation does not depend on it.
     min_distance_m : float
         Horizontal distances are floored here so the Jacobian stays finite above an anchor.
 
@@ -87,6 +99,12 @@ class BearingModel(MeasurementModel):
 
     def _yaw(self, context: Context) -> np.ndarray | float:
         yaw = self.orientation_rad
+        column = (context.columns or {}).get(ORIENTATION_COLUMNS[0])
+        if column is not None:
+            if np.any(yaw != 0):
+                raise ConfigError("orientation_rad: the rows carry their anchors' yaw "
+                                  "(Context.columns['yaw']); give the orientation once")
+            return np.nan_to_num(column)
         if yaw.ndim == 0:
             return float(yaw)
         if context.index is None:
@@ -149,16 +167,17 @@ class BearingModel(MeasurementModel):
 def _angle_kind(name: str, component: str, bound: float, meaning: str, slips: tuple) -> Kind:
     return Kind(name, "rad", meaning,
                 model=lambda sigma: BearingModel(std_rad=sigma, component=component),
-                sigma_option="aoa_std_rad", sigma_default=0.05,
+                sigma_option="aoa_std_rad", sigma_default=DEFAULT_STD_RAD,
                 sigma_help="angle-of-arrival error standard deviation, rad", sigma_max=10.0,
                 limit=2 * np.pi, bound=bound, check="angle_units",
+                anchor_columns=ORIENTATION_COLUMNS if component == "azimuth" else (),
                 slips=slips + unit_slips(name, "rad"))
 
 
 #: The log-schema kinds this module explains (:mod:`radioloc.core.kinds`).
 KINDS = (
     _angle_kind("aoa", "azimuth", 2 * np.pi, "bearing from `peer` to the node, "
-                "counter-clockwise from +x",
+                "counter-clockwise from the anchor's boresight (its `yaw`; +x without one)",
                 (Slip(np.negative, "negated", "aoa values counted clockwise?"),
                  Slip(lambda v: np.pi / 2 - v, "as pi/2 minus the value",
                       "aoa values as compass bearings (clockwise from north)?"))),
