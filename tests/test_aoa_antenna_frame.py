@@ -9,6 +9,8 @@ bound of its own motion model (:func:`radioloc.bounds.fisher.tracking_crb`) for 
 that are not reflections, and with the same filter given the true noise and no reflections.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -18,7 +20,9 @@ from radioloc.core.errors import ConfigError, InputError
 from radioloc.estimators import ExtendedKalmanFilter
 from radioloc.io.logs import read_anchors
 from radioloc.locate.base import LocateRequest, run_method
-from radioloc.locate.ekf_track import PRIOR_SPEED_STD
+from radioloc.io.measurements import Measurements
+from radioloc.locate.adapter import default_models, node_observations
+from radioloc.locate.ekf_track import PRIOR_SPEED_STD, column_medians, start_screened
 from radioloc.models.bearing import BearingModel
 from radioloc.models.measurement import Context, Observation
 from radioloc.models.motion import WhiteAccelerationCV
@@ -153,18 +157,28 @@ def test_rotating_the_scene_rotates_the_track():
     np.testing.assert_allclose(moved[["x", "y"]].to_numpy(), expected, atol=1e-6)
 
 
-def test_world_frame_angles_across_pi_start_in_the_room():
-    """Without yaw (angles in the world frame), an array on the east wall sees the tag near
-    +-pi; the start's median is taken on the circle, so the track starts where the tag is
-    rather than across the room."""
-    corners = np.array([[0.3, 0.3], [11.7, 4.5], [6.0, 8.7], [0.3, 8.7]])
-    log, anchors, truth, _ = scene(3, reflections=0.0, corners=corners, turns=np.zeros(4))
-    log["value"] = np.angle(np.exp(1j * (log["value"] + np.tile(anchors["yaw"], len(truth)))))
-    east = log[log["peer"] == "A1"]["value"]
-    assert (east > 3.0).any() and (east < -3.0).any()      # the east array straddles +-pi
-    out = run_method("ekf-track", LocateRequest(log, anchors[["id", "x", "y"]]))
-    first = out.iloc[0]
-    assert np.hypot(first["x"] - truth["x"][0], first["y"] - truth["y"][0]) < 1.0
+def test_start_medians_of_angles_are_taken_on_the_circle():
+    """Angles on both sides of +-pi (an array seeing the tag behind it, or world-frame
+    angles from an east wall) have their median between them, not near 0."""
+    z = np.array([[3.10, 0.2], [-3.12, 0.3], [3.05, np.nan], [-3.08, 0.1]])
+    med = column_medians(z, angular=True)
+    assert abs(np.angle(np.exp(1j * (med[0] - np.pi)))) < 0.06
+    assert med[1] == pytest.approx(0.2)
+    assert column_medians(z)[0] == pytest.approx(-0.015)     # what a plain median gives
+
+
+def test_a_reflection_in_the_start_window_is_left_out():
+    """The start window's angles far from their column's median are absent from the track's
+    observations; those after the window, and the others, are kept."""
+    log, anchors, _, _ = scene(5, reflections=0.0)
+    _, (obs,) = node_observations(Measurements(log), anchors, "tag", default_models(["aoa"], {}))
+    times = np.unique(log["time"])
+    z = obs.z.copy()
+    z[0, 3] = np.angle(np.exp(1j * (z[0, 3] + 2.0)))     # a reflection at the first step
+    z[100, 3] = z[0, 3]                                   # and one after the start window
+    screened = start_screened(times, replace(obs, z=z), init_s=2.0)
+    assert np.isnan(screened.z[0, 3]) and screened.z[100, 3] == z[100, 3]
+    np.testing.assert_array_equal(np.isnan(screened.z).sum(), 1)
 
 
 def test_the_yaw_column_round_trips_through_the_anchors_file(tmp_path):

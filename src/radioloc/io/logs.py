@@ -58,9 +58,11 @@ from radioloc.core.kinds import kinds
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
-#: Anchors-file columns read by radioloc itself; the kinds' models read theirs
-#: (:attr:`radioloc.core.kinds.Kind.anchor_columns`), and any other column is refused.
-ANCHOR_COLUMNS = ("id", "x", "y", "z", "time", "std_m", "bias_m", "bias_std_m")
+#: Anchors-file columns radioloc reads, or writes with ``radioloc calibrate`` (the
+#: calibrated positions' covariance and bound, a record kept with them); the kinds' models
+#: read theirs (:attr:`radioloc.core.kinds.Kind.anchor_columns`); any other is refused.
+ANCHOR_COLUMNS = ("id", "x", "y", "z", "time", "std_m", "bias_m", "bias_std_m", "cov_xx",
+                  "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz", "crb_std_m")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
 MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss

@@ -37,7 +37,8 @@ The start: the node is assumed to stay within ``prior_std_m`` of one place durin
 then fine grid search over the horizontal plane (at the tag height, or at the anchors' mean
 height in 3-D), which finds the global least-squares minimum rather than a mirror basin. A
 log without ranges to three anchors starts from a robust least-squares fit of the window's
-medians of every kind. The
+medians of every kind (an angle's median taken on the circle), and the window's angles far
+from their medians are left out as reflections (:func:`start_screened`). The
 filter starts there with position standard deviation ``prior_std_m`` and velocity standard
 deviation ``PRIOR_SPEED_STD`` m/s.
 
@@ -96,6 +97,9 @@ TRACKER_KINDS = tuple(declared_kinds())
 
 #: Range sigma of the trackers when ``range_std_m`` is not given, m.
 RANGE_STD_M = 0.15
+#: An angle of the start window this many robust standard deviations from its column's
+#: median is a reflection (:func:`start_screened`).
+START_SIGMAS = 4.0
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
 #: Divergence check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
@@ -690,6 +694,52 @@ def observation_window(obs: Observation, seg: slice) -> Observation:
     return replace(obs, z=obs.z[seg], context=ctx, std=None if obs.std is None else obs.std[seg])
 
 
+def start_screened(times: np.ndarray, obs: Observation, init_s: float) -> Observation:
+    """``obs`` without the angles of its start window that are reflections.
+
+    A track's first update comes from a prior ``prior_std_m`` wide, so the innovation gate
+    of an angle is wide there too (a radian and more at a few metres), and a reflection (an
+    angle anywhere on the circle) at the first steps can pass it and throw the track metres
+    off. In the first ``init_s`` seconds an angle further than ``START_SIGMAS`` times its
+    column's spread (1.4826 times the median absolute deviation from the column's circular
+    median, at least the model's sigma) from that median is left out (absent, like a
+    missing row). Other kinds, whose errors are bounded by the prior's spread, are kept.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    obs : Observation
+        ``z`` of shape ``(T, S)``.
+    init_s : float
+
+    Returns
+    -------
+    Observation
+    """
+    if not obs.model.angular:
+        return obs
+    window = times <= times[0] + init_s
+    w = obs.z[window]
+    heard = np.isfinite(w).any(axis=0)
+    dev = np.full_like(w, np.nan)
+    dev[:, heard] = np.abs(wrap_angle(w[:, heard] - column_medians(w[:, heard], angular=True)))
+    spread = np.full(w.shape[1], np.inf)
+    spread[heard] = np.maximum(1.4826 * np.nanmedian(dev[:, heard], axis=0),
+                               obs.model.std(obs.context)[heard])
+    far = np.zeros(obs.z.shape, dtype=bool)
+    far[window] = dev > START_SIGMAS * spread
+    if not far.any():
+        return obs
+    return replace(obs, z=np.where(far, np.nan, obs.z))
+
+
+def track_window(times: np.ndarray, observations: list, seg: slice, init_s: float) -> list:
+    """The observations of one track: the steps ``seg`` (:func:`observation_window`), the
+    reflections of the start window left out (:func:`start_screened`)."""
+    return [start_screened(times[seg], observation_window(o, seg), init_s)
+            for o in observations]
+
+
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
     """Rows ``time, node, x, y[, z], uncertainty_m, cov_*`` and flags of one node's track.
 
@@ -893,7 +943,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         for n, seg in enumerate(segs):
             controls = (None if s["odometry_std"] is None else
                         odometry_controls(meas, node, times[seg], s["dim"]))
-            tracks.append((node, times[seg], [observation_window(o, seg) for o in obs], n > 0, controls))
+            tracks.append((node, times[seg], track_window(times, obs, seg, s["init_s"]), n > 0,
+                           controls))
     ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
                          any(reads_clock(tr[2]) for tr in tracks))
     prior_mean, prior_cov = track_priors(   # the ranges are already without range_bias_m
