@@ -436,7 +436,7 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         (:attr:`radioloc.core.kinds.Kind.anchor_columns`: the per-anchor RSS model
         ``rss_a_dbm, rss_n, rss_std_db``, written by
         :func:`radioloc.locate.path_loss.fit_path_loss`; an angle-of-arrival array's
-        ``yaw``), numbers (empty: NaN). With a ``time`` column (seconds, on the measurements' clock) an anchor
+        ``yaw, pitch, roll``), numbers (empty: NaN). With a ``time`` column (seconds, on the measurements' clock) an anchor
         may move: each of its rows is its position at that time (rows sorted by time
         within an anchor; :func:`radioloc.locate.adapter.anchor_points` interpolates
         between them); an empty time marks a fixed anchor (one row).
