@@ -67,6 +67,11 @@ from radioloc.core.kinds import kinds
 from radioloc.core.validation import NEGATIVE_RANGE_SIGMAS, POSITIVE_FLOOR, range_floor_m
 
 MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
+#: Anchors-file columns radioloc reads, or writes with ``radioloc calibrate`` (the
+#: calibrated positions' covariance and bound, a record kept with them); the kinds' models
+#: read theirs (:attr:`radioloc.core.kinds.Kind.anchor_columns`); any other is refused.
+ANCHOR_COLUMNS = ("id", "x", "y", "z", "time", "std_m", "bias_m", "bias_std_m", "cov_xx",
+                  "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz", "crb_std_m")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
 MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss
@@ -503,7 +508,8 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         calibrate``), and the columns the kinds' models read
         (:attr:`radioloc.core.kinds.Kind.anchor_columns`: the per-anchor RSS model
         ``rss_a_dbm, rss_n, rss_std_db``, written by
-        :func:`radioloc.locate.path_loss.fit_path_loss`), numbers (empty: NaN). With a ``time`` column (seconds, on the measurements' clock) an anchor
+        :func:`radioloc.locate.path_loss.fit_path_loss`; an angle-of-arrival array's
+        ``yaw, pitch, roll``), numbers (empty: NaN). With a ``time`` column (seconds, on the measurements' clock) an anchor
         may move: each of its rows is its position at that time (rows sorted by time
         within an anchor; :func:`radioloc.locate.adapter.anchor_points` interpolates
         between them); an empty time marks a fixed anchor (one row).
@@ -511,12 +517,19 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     Raises
     ------
     InputError
-        Missing or duplicated column, text in a coordinate, non-finite coordinate or one
+        Missing or duplicated column, a column no one reads (naming it: not one of
+        :data:`ANCHOR_COLUMNS` nor a kind's), text in a coordinate, non-finite coordinate or one
         beyond 1e7 m, duplicate or empty id; with ``time``: a second row of one anchor at
         one time, or of a fixed anchor.
     """
     frame = _read_csv(path, "anchors")
     _require_columns(frame, ("id", "x", "y"), path)
+    columns = dict.fromkeys(c for k in kinds().values() for c in k.anchor_columns)
+    known = ANCHOR_COLUMNS + tuple(columns)
+    unknown = [c for c in frame.columns if c not in known]
+    if unknown:
+        raise InputError(f"{path}: column {unknown[0]!r}: not read by radioloc (an anchors "
+                         f"file holds {', '.join(known)}; remove the column or rename it)")
     out = pd.DataFrame({"id": _ids(frame, "id", path)})
     for c in ("x", "y", "z"):
         if c in frame.columns:
@@ -527,7 +540,6 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
         out["bias_m"] = _optional_number(frame, "bias_m", path).fillna(0.0)
         _check_magnitude(frame, out["bias_m"], "bias_m", LIMITS["range_m"], "m", path)
-    columns = dict.fromkeys(c for k in kinds().values() for c in k.anchor_columns)
     for c in columns:                                # read by a kind's model (RSS path loss)
         if c in frame.columns:
             out[c] = _optional_number(frame, c, path)

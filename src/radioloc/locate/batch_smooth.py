@@ -41,7 +41,7 @@ from radioloc.core.kinds import model_kinds
 from radioloc.locate.adapter import anchor_positions, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
-from radioloc.locate.ekf_track import (log_models, motion_model, observation_window,
+from radioloc.locate.ekf_track import (log_models, motion_model, track_window,
                                        reads_clock, segments, track_prior, track_table,
                                        tracker_filter, tracker_settings)
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
@@ -134,7 +134,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                                  **({"extra_q": s["clock_offset_q"] ** 2} if clock else {}))
         ekf = tracker_filter(anchors, s0, None, clock=clock)
         for seg in parts:
-            t, ob = times[seg], [observation_window(o, seg) for o in obs]
+            t, ob = times[seg], track_window(times, obs, seg, s["init_s"])
             try:
                 mean, var = track_prior(ekf, t, ob, anchors, s0)   # the same state layout
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))

@@ -34,7 +34,8 @@ The start: the node is assumed to stay within ``prior_std_m`` of one place durin
 then fine grid search over the horizontal plane (at the tag height, or at the anchors' mean
 height in 3-D), which finds the global least-squares minimum rather than a mirror basin. A
 log without ranges to three anchors starts from a robust least-squares fit of the window's
-medians of every kind. The
+medians of every kind (an angle's median taken on the circle), and the window's angles far
+from their medians are left out as reflections (:func:`start_screened`). The
 filter starts there with position standard deviation ``prior_std_m`` and velocity standard
 deviation ``PRIOR_SPEED_STD`` m/s.
 
@@ -82,7 +83,8 @@ from radioloc.locate.progress import progress
 from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
-from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
+from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
+                                         wrap_angle)
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
 from radioloc.models.ranging import RangeModel
 
@@ -92,6 +94,9 @@ TRACKER_KINDS = tuple(declared_kinds())
 
 #: Range sigma of the trackers when ``range_std_m`` is not given, m.
 RANGE_STD_M = 0.15
+#: An angle of the start window this many robust standard deviations from its column's
+#: median is a reflection (:func:`start_screened`).
+START_SIGMAS = 4.0
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
 #: Factor on every sigma with which a diverged log is tried again before a slip is named
@@ -126,12 +131,23 @@ def _predicted(xy: np.ndarray, anchors: np.ndarray, height: float | None) -> np.
     return np.sqrt(d2)
 
 
-def column_medians(values: np.ndarray) -> np.ndarray:
+def column_medians(values: np.ndarray, angular: bool = False) -> np.ndarray:
     """Median of each column of ``values`` ``(T, S)`` over its finite entries (NaN for a
-    column with none)."""
+    column with none).
+
+    With ``angular`` the values are angles (radians): the median of their differences from
+    the column's circular mean, wrapped to ``(-pi, pi]``, so angles on both sides of
+    ``+-pi`` have a median between them (not near 0), and a reflection far off the others
+    does not move it.
+    """
     med = np.full(values.shape[1], np.nan)
     heard = np.isfinite(values).any(axis=0)
-    med[heard] = np.nanmedian(values[:, heard], axis=0)
+    v = values[:, heard]
+    if angular:
+        centre = np.angle(np.nanmean(np.exp(1j * v), axis=0))
+        med[heard] = wrap_angle(np.nanmedian(wrap_angle(v - centre), axis=0) + centre)
+    else:
+        med[heard] = np.nanmedian(v, axis=0)
     return med
 
 
@@ -350,7 +366,8 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
+    medians = [replace(o, z=column_medians(o.z[window], o.model.angular), std=None)
+               for o in observations]
     fit = LeastSquares(loss="huber", **START_FIT).locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
@@ -530,8 +547,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
     is padded at its end with its last time (a step of zero length) and absent rows, which
     leave its state unchanged. The rows of each kind are the union of the tracks' slots
     (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
-    the update skips. Rows of a step are independent, so each track's result equals its
-    own run.
+    the update skips. A slot keeps its anchor-file columns (``Context.columns``). Rows of a
+    step are independent, so each track's result equals its own run.
 
     Parameters
     ----------
@@ -567,6 +584,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         std = np.full_like(z, np.nan) if any(o.std is not None for _, o in members) else None
         points = np.empty((len(slots),) + members[0][1].context.points.shape[-1:])
         reference = None if members[0][1].context.reference is None else np.empty_like(points)
+        columns = {c: np.full(len(slots), np.nan) for c in members[0][1].context.columns or {}}
         for b, o in members:
             ctx = o.context
             ref = (ctx.reference_index if ctx.reference_index is not None
@@ -578,12 +596,14 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
             points[cols] = ctx.points
             if reference is not None:
                 reference[cols] = ctx.reference
+            for c, v in columns.items():
+                v[cols] = ctx.columns[c]
         first = members[0][1].context
         keys = np.array(list(slots), dtype=int).reshape(-1, 2)
         ctx = Context(points=points, index=keys[:, 0],
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
-                      height_m=first.height_m)
+                      height_m=first.height_m, columns=columns or None)
         out.append(Observation(members[0][1].model, z, ctx, std,
                                no_check=members[0][1].no_check))
     return t, out
@@ -622,6 +642,52 @@ def observation_window(obs: Observation, seg: slice) -> Observation:
     if cut(ctx.points) is not ctx.points or cut(ctx.reference) is not ctx.reference:
         ctx = replace(ctx, points=cut(ctx.points), reference=cut(ctx.reference))
     return replace(obs, z=obs.z[seg], context=ctx, std=None if obs.std is None else obs.std[seg])
+
+
+def start_screened(times: np.ndarray, obs: Observation, init_s: float) -> Observation:
+    """``obs`` without the angles of its start window that are reflections.
+
+    A track's first update comes from a prior ``prior_std_m`` wide, so the innovation gate
+    of an angle is wide there too (a radian and more at a few metres), and a reflection (an
+    angle anywhere on the circle) at the first steps can pass it and throw the track metres
+    off. In the first ``init_s`` seconds an angle further than ``START_SIGMAS`` times its
+    column's spread (1.4826 times the median absolute deviation from the column's circular
+    median, at least the model's sigma) from that median is left out (absent, like a
+    missing row). Other kinds, whose errors are bounded by the prior's spread, are kept.
+
+    Parameters
+    ----------
+    times : ndarray, shape (T,)
+    obs : Observation
+        ``z`` of shape ``(T, S)``.
+    init_s : float
+
+    Returns
+    -------
+    Observation
+    """
+    if not obs.model.angular:
+        return obs
+    window = times <= times[0] + init_s
+    w = obs.z[window]
+    heard = np.isfinite(w).any(axis=0)
+    dev = np.full_like(w, np.nan)
+    dev[:, heard] = np.abs(wrap_angle(w[:, heard] - column_medians(w[:, heard], angular=True)))
+    spread = np.full(w.shape[1], np.inf)
+    spread[heard] = np.maximum(1.4826 * np.nanmedian(dev[:, heard], axis=0),
+                               obs.model.std(obs.context)[heard])
+    far = np.zeros(obs.z.shape, dtype=bool)
+    far[window] = dev > START_SIGMAS * spread
+    if not far.any():
+        return obs
+    return replace(obs, z=np.where(far, np.nan, obs.z))
+
+
+def track_window(times: np.ndarray, observations: list, seg: slice, init_s: float) -> list:
+    """The observations of one track: the steps ``seg`` (:func:`observation_window`), the
+    reflections of the start window left out (:func:`start_screened`)."""
+    return [start_screened(times[seg], observation_window(o, seg), init_s)
+            for o in observations]
 
 
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
@@ -829,7 +895,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         for n, seg in enumerate(segs):
             controls = (None if s["odometry_std"] is None else
                         odometry_controls(meas, node, times[seg], s["dim"]))
-            tracks.append((node, times[seg], [observation_window(o, seg) for o in obs], n > 0, controls))
+            tracks.append((node, times[seg], track_window(times, obs, seg, s["init_s"]), n > 0,
+                           controls))
     ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
                          any(reads_clock(tr[2]) for tr in tracks))
     prior_mean, prior_cov = track_priors(   # the ranges are already without range_bias_m

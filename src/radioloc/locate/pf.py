@@ -122,7 +122,7 @@ from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
     log_models,
-    observation_window,
+    track_window,
     reads_clock,
     segments,
     stack_tracks,
@@ -496,7 +496,7 @@ def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFra
             counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
         ekf = tracker_filter(anchors, dict(s, bias=0.0), None, clock=reads_clock(obs))
         for n, seg in enumerate(segments(times, s["max_gap_s"])):
-            t, ob = times[seg], [observation_window(o, seg) for o in obs]
+            t, ob = times[seg], track_window(times, obs, seg, s["init_s"])
             mean, var = track_prior(ekf, t, ob, anchors, dict(s, bias=0.0))
             pf = ParticleFilter(tracker_motion(s), n_particles=particles,
                                 seed=[segment_seed(seed, node, n)],
