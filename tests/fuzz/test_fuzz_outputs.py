@@ -86,7 +86,8 @@ def _expected_files(folder: Path, out: str, fmt: str, plot: str | None,
     if plot is not None:
         files.append(folder / plot)
     inputs = [folder / "meas.csv", folder / "side.csv"]
-    checked = files if out == "-" or folder / out in files else [folder / out, *files]
+    per_node = out != "-" and fmt == "tum" and len(nodes) > 1
+    checked = [folder / out, *files] if per_node else files
     for i, f in enumerate(checked):
         if any(_same(f, x) for x in inputs + checked[:i]):
             return [], f"{f.name} is an input or another output"
