@@ -407,9 +407,10 @@ def _components(p: Problem, step: int) -> dict:
 # ---- the generic estimators over the cases ----------------------------------------------
 #: settings of the small runs (a constructor parameter of that name gets this value)
 SMALL_SETTINGS = {"n_particles": 500, "cell_m": 0.25, "max_components": 8}
-#: settings that are rates (per second): divided by the problem's time scale, so that a
-#: scaled problem is the same model (the batch smoother's clock and bias random walk)
-RATE_SETTINGS = {"extra_q": 1e-6}
+#: settings that are rates, with the power of time in their unit (intensities per second,
+#: the clock drift's per second cubed): divided by the problem's time scale to that power, so
+#: that a scaled problem is the same model (the batch smoother's clock and bias random walks)
+RATE_SETTINGS = {"extra_q": (1e-6, 1), "drift_q": (1e-6, 3)}
 SEEDS = np.arange(11, 11 + B)
 
 
@@ -442,7 +443,8 @@ def make_estimator(cls, problem: Problem, runs: slice = slice(None)):
     import inspect
     params = inspect.signature(cls).parameters
     kw = {k: v for k, v in SMALL_SETTINGS.items() if k in params}
-    kw.update({k: v / problem.time_scale for k, v in RATE_SETTINGS.items() if k in params})
+    kw.update({k: v / problem.time_scale ** power for k, (v, power) in RATE_SETTINGS.items()
+               if k in params})
     if "seed" in params:
         kw["seed"] = SEEDS[runs]
     if cls.tags.recursive:
@@ -460,20 +462,20 @@ def solve(cls, problem: Problem, runs: slice = slice(None)):
         grow = getattr(est, "layout_for", None) or getattr(est, "state_layout", None)
         layout = p.layout if grow is None else grow(p.observations)
         if layout.clock == 2 and p.layout.clock == 1:
-            mean, cov = with_drift(layout, mean, cov)
+            mean, cov = with_drift(layout, mean, cov, p.time_scale)
         return est.run(p.observations, p.time, prior_mean=mean, prior_cov=cov)
     return est.locate(p.snapshot())
 
 
-def with_drift(layout: StateLayout, mean: np.ndarray, cov: np.ndarray
+def with_drift(layout: StateLayout, mean: np.ndarray, cov: np.ndarray, time_scale: float = 1.0
                ) -> tuple[np.ndarray, np.ndarray]:
     """A prior over a state with the clock offset alone, carried onto ``layout``, which also
     holds the clock's drift (the filters' default: ``radioloc.models.clock.drifting``):
-    the drift starts at 0 m/s, standard deviation 1 m/s."""
+    the drift starts at 0 m/s, standard deviation 1 m/s (in the problem's unit of time)."""
     d = layout.slices["clock_drift"].start
     mean = np.insert(mean, d, 0.0, axis=-1)
     cov = np.insert(np.insert(cov, d, 0.0, axis=-1), d, 0.0, axis=-2)
-    cov[..., d, d] = 1.0
+    cov[..., d, d] = 1.0 / time_scale ** 2
     return mean, cov
 
 

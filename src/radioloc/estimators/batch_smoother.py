@@ -8,8 +8,8 @@
 with ``F_t = F(dt_t)``, ``Q_t = Q(dt_t)`` of the whole state
 (:func:`radioloc.models.clock.transition`, the extended Kalman filter's: the motion model,
 the receiver clock's offset and drift when a model reads the offset, by default, as
-:func:`~radioloc.models.clock.drifting` says, both random walks of intensity ``extra_q``,
-and per-anchor biases, a random walk of intensity ``extra_q``), and the rows of the
+:func:`~radioloc.models.clock.drifting` says, random walks of intensity ``extra_q`` and
+``drift_q``, and per-anchor biases, a random walk of intensity ``extra_q``), and the rows of the
 observations under a robust loss or the max-mixture LOS/NLOS loss
 (:mod:`radioloc.estimators.robust_loss`).
 
@@ -129,7 +129,12 @@ class BatchSmoother(RecursiveEstimator):
         A run converges when its accepted step's largest entry is at most ``tol`` (state
         units), or its cost falls by less than ``1e-10`` of itself.
     extra_q : float
-        Random-walk intensity (units^2 / s) of the clock and per-anchor bias components.
+        Random-walk intensity (units^2 / s) of the clock offset and per-anchor bias
+        components.
+    drift_q : float, optional
+        Random-walk intensity (units^2 / s^3) of the clock drift; default ``extra_q`` (in
+        its own units: a smoother whose time unit changes scales ``extra_q`` by the unit and
+        ``drift_q`` by its cube).
     extra_prior_std : float
         Prior standard deviation of those components when ``prior_mean`` gives the
         motion state only.
@@ -152,7 +157,8 @@ class BatchSmoother(RecursiveEstimator):
     def __init__(self, motion, *, loss: str = "linear", loss_scale: float = 1.0,
                  los_nlos=None, null_hypothesis: tuple[float, float] | None = None,
                  max_iterations: int = 30, tol: float = 1e-6,
-                 extra_q: float = 1e-6, extra_prior_std: float = 100.0,
+                 extra_q: float = 1e-6, drift_q: float | None = None,
+                 extra_prior_std: float = 100.0,
                  layout: StateLayout | None = None) -> None:
         if not (hasattr(motion, "F") and hasattr(motion, "Q") and hasattr(motion, "dim")):
             raise ConfigError(f"motion: expected a motion model with F(dt), Q(dt) and dim, got "
@@ -191,6 +197,8 @@ class BatchSmoother(RecursiveEstimator):
         try:
             self.tol = check_positive(tol, "tol", allow_zero=True)
             self.extra_q = check_positive(extra_q, "extra_q")
+            self.drift_q = self.extra_q if drift_q is None else check_positive(drift_q,
+                                                                               "drift_q")
             self.extra_prior_std = check_positive(extra_prior_std, "extra_prior_std")
         except InputError as exc:
             raise ConfigError(str(exc)) from None
@@ -221,8 +229,8 @@ class BatchSmoother(RecursiveEstimator):
         if dt.size == 0:                              # one step: no transition
             return np.zeros(dt.shape + (n, n)), np.zeros(dt.shape + (n, n))
         q = np.sqrt(self.extra_q)
-        F, Q = transition(layout, self.motion, dt,
-                          ClockModel(q, q, terms=layout.clock) if layout.clock else None, q)
+        clock = ClockModel(q, np.sqrt(self.drift_q), terms=layout.clock) if layout.clock else None
+        F, Q = transition(layout, self.motion, dt, clock, q)
         # dt = 0 (two steps at one time): tie the states through a tiny, not a zero, Q
         Q = Q + 1e-9 * np.eye(n)
         return F, np.linalg.inv(symmetrise(Q))
