@@ -249,6 +249,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                 Q[..., o, o] += qd * dt ** 3 / 3.0
                 Q[..., o, d] = Q[..., d, o] = qd * dt ** 2 / 2.0
                 Q[..., d, d] = qd * dt
+        if "clock_bias" in sl:                   # inter-system biases: random constants
+            b = np.arange(sl["clock_bias"].start, sl["clock_bias"].stop)
+            F[..., b, b] = 1.0
         if "anchor_bias" in sl:
             b = np.arange(sl["anchor_bias"].start, sl["anchor_bias"].stop)
             F[..., b, b] = 1.0
@@ -307,6 +310,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         """Prior variances of the components after the kinematic part, in state order."""
         var = {"clock_offset": self.clock_offset_prior_std_m ** 2,
                "clock_drift": self.clock_drift_prior_std_m_per_s ** 2,
+               "clock_bias": self.clock_offset_prior_std_m ** 2,
                "anchor_bias": self.bias_prior_std_m ** 2}
         return np.concatenate([np.full(size, var[name]) for name, size in layout.sizes.items()
                                if name in var])

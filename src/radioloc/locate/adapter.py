@@ -20,7 +20,7 @@ from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+__all__ = ["clock_groups", "pseudorange_settings", "DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
            "anchor_ranges", "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
@@ -50,12 +50,15 @@ def moving_anchors(anchors: pd.DataFrame | None) -> bool:
     return anchors is not None and "time" in anchors.columns and bool(anchors["time"].notna().any())
 
 
-def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
+def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray,
+                  measured: np.ndarray | None = None) -> np.ndarray:
     """Positions of the anchors ``ids`` at ``times``: ``(T, S, D)``.
 
     A fixed anchor (no ``time`` column, or an empty time) is where its row says; a moving
     one (rows at several times) is interpolated linearly between its two rows around each
-    time, never extrapolated.
+    time, never extrapolated. Its track need only cover the times it is measured at
+    (``measured``): elsewhere (a satellite below the horizon) the position is its track's
+    nearest end, which no estimator reads (the slot's measurement is missing there).
 
     Parameters
     ----------
@@ -64,6 +67,8 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     ids : sequence of str
         Anchor ids (slots).
     times : ndarray, shape (T,)
+    measured : ndarray of bool, shape (T, S), optional
+        Where each anchor is measured (default: at every time).
 
     Returns
     -------
@@ -72,7 +77,7 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     Raises
     ------
     InputError
-        A time outside a moving anchor's track (naming the anchor and the time).
+        A measured time outside a moving anchor's track (naming the anchor and the time).
     """
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     times = np.asarray(times, dtype=float)
@@ -86,6 +91,8 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
             continue
         t = rows["time"].to_numpy(dtype=float)
         outside = (times < t[0]) | (times > t[-1])
+        if measured is not None:
+            outside &= measured[:, s]
         if outside.any():
             raise InputError(f"anchor {a!r}: no position at time {float(times[outside][0])!r} "
                              f"(its track runs from {float(t[0])!r} to {float(t[-1])!r}; positions are "
@@ -95,8 +102,34 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     return out
 
 
+def clock_groups(anchors: pd.DataFrame | None, ids=None) -> np.ndarray:
+    """The receiver clock of a pseudorange to each anchor of ``ids`` (all: None): the index
+    of its ``group`` (a constellation) in the order the groups first appear in the anchors
+    table; 0 for every anchor of a table without ``group``.
+
+    Parameters
+    ----------
+    anchors : DataFrame or None
+    ids : sequence of str, optional
+
+    Returns
+    -------
+    ndarray of int
+    """
+    if anchors is None:
+        return np.zeros(0 if ids is None else len(ids), dtype=int)
+    first = anchors.drop_duplicates("id")
+    ids = list(first["id"]) if ids is None else list(ids)
+    if "group" not in first.columns:
+        return np.zeros(len(ids), dtype=int)
+    order = {g: k for k, g in enumerate(dict.fromkeys(first["group"]))}
+    of = dict(zip(first["id"], first["group"].map(order)))
+    return np.array([of.get(a, 0) for a in ids], dtype=int)
+
+
 def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = False,
-                   range_noise=None) -> dict[str, MeasurementModel]:
+                   range_noise=None, clocks: int = 1, earth_rotation: bool = False,
+                   to_ecef=None) -> dict[str, MeasurementModel]:
     """The measurement model of each kind.
 
     Parameters
@@ -110,6 +143,10 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
         Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
     range_noise : range-error model, optional
         E.g. a :class:`~radioloc.models.los_nlos.LosNlosRange` instead of a Gaussian.
+    clocks, earth_rotation, to_ecef
+        Of the pseudorange model (:class:`~radioloc.models.pseudorange.PseudorangeModel`):
+        receiver clocks (one per anchor ``group``), the Sagnac term, the working frame's
+        map to ECEF (see :func:`pseudorange_settings`).
 
     Returns
     -------
@@ -135,10 +172,47 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
             out[kind] = BearingModel(std_rad=sigma(kind),
                                      component="azimuth" if kind == "aoa" else "elevation")
         elif kind == "pseudorange":
-            out[kind] = PseudorangeModel(std_m=sigma(kind))
+            out[kind] = PseudorangeModel(std_m=sigma(kind), groups=clocks,
+                                         earth_rotation=earth_rotation,
+                                         to_ecef=None if to_ecef is None or not earth_rotation
+                                         else to_ecef)
         elif kind == "heading":
             out[kind] = HeadingModel(std_rad=sigma(kind))
     return out
+
+
+def pseudorange_settings(request) -> dict:
+    """The pseudorange model's settings of a ``locate`` request, for :func:`default_models`:
+    a receiver clock per anchor ``group``; the Earth-rotation (Sagnac) term by option
+    ``earth_rotation`` (default: on when the working frame is tied to the Earth, i.e. the
+    anchors are in ECEF or WGS84 or an origin is given); the working frame's map to ECEF.
+
+    Parameters
+    ----------
+    request : LocateRequest
+
+    Returns
+    -------
+    dict
+        ``clocks``, ``earth_rotation``, ``to_ecef``.
+
+    Raises
+    ------
+    ConfigError
+        ``earth_rotation=1`` in a frame with no place on the Earth.
+    """
+    from radioloc.core.errors import ConfigError
+
+    frame = getattr(request, "frame", None)
+    geo = frame is not None and frame.georeferenced
+    rotation = request.option("earth_rotation", geo, bool)
+    if rotation and not geo:
+        raise ConfigError("option earth_rotation=1: "
+                          + (frame.why_not_georeferenced() if frame is not None
+                             else "the frame of the anchors is unknown"))
+    groups = clock_groups(request.anchors)
+    return {"clocks": int(groups.max()) + 1 if groups.size else 1,
+            "earth_rotation": bool(rotation), "to_ecef": frame.to_ecef() if geo else None}
 
 
 def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,
@@ -207,13 +281,16 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
                    if kind == "tdoa" else None)
         if moving:
-            pts = anchor_points(anchors, grid.peers, time)
-            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time)
+            seen = np.isfinite(grid.value)
+            pts = anchor_points(anchors, grid.peers, time, seen)
+            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time,
+                                                             seen)
         else:
             pts = points[peer_idx]
             ref = None if ref_idx is None else points[ref_idx]
         ctx = Context(points=pts, index=peer_idx, reference=ref,
-                      reference_index=ref_idx, height_m=height_m)
+                      reference_index=ref_idx, height_m=height_m,
+                      group=clock_groups(anchors, grid.peers) if kind == "pseudorange" else None)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out

@@ -239,6 +239,9 @@ OPTIONS = {
     "clock_drift_std_m_per_s_per_sqrt_s": Option("pseudoranges: random walk of the clock "
                                                  "drift (times c), m/s/sqrt(s) (default 1)",
                                                  float, min=0, max=1e6),
+    "earth_rotation": Option("pseudoranges: 1 adds the Earth-rotation (Sagnac) term (default: "
+                             "1 when the anchors are in ecef or wgs84 or --origin is given)",
+                             bool),
     "tag_height_m": Option("known node height: track in 2-D (x, y) with 3-D anchors (default: "
                            "3-D tracking when the anchors have z)", float, min=-1e4, max=1e4),
     "gate": Option("drop a range whose squared innovation exceeds gate x its predicted "

@@ -4,11 +4,24 @@ A receiver timestamps the arrival of a signal sent at a known time from a known 
 (a satellite, a synchronised anchor) with its own clock, which is ahead by ``clock_offset``
 metres (offset times the speed of light); every row of an epoch carries the same offset:
 
-    h(x) = |x - s| + clock_offset
+    h(x) = |x - s| + clock_offset [+ clock_bias_g] [+ (omega_E / c) (s_x x_y - s_y x_x)]
 
-The model reads the ``clock_offset`` state component; a filter evolves it (and its drift)
-with :class:`~radioloc.models.clock.ClockModel`. A snapshot fit needs one more row than
-position coordinates.
+- **A clock per group.** Rows of one group (a constellation: GPS, GLONASS) share a clock;
+  group ``g > 0`` is ahead of group 0 by its inter-system bias ``clock_bias[g - 1]`` (the
+  ``clock_bias`` state component, metres), the row's group in ``Context.group``.
+- **Earth rotation.** With ``earth_rotation`` the satellite positions are those of the
+  emission time in the Earth-fixed frame of the emission; during the signal's flight the
+  Earth turns by ``omega_E |x - s| / c``, which lengthens the range by the Sagnac term
+  ``(omega_E / c) (s_x x_y - s_y x_x)`` in Earth-centred, Earth-fixed (ECEF) coordinates
+  (IS-GPS-200, 20.3.3.4.3.3.2; Kaplan and Hegarty, *Understanding GPS/GNSS*, 3rd ed.,
+  eq. 3.26). A state in another frame gives its affine map to ECEF (``to_ecef``).
+
+The model reads the ``clock_offset`` state component (and ``clock_bias`` with groups); a
+filter evolves the offset (and its drift) with :class:`~radioloc.models.clock.ClockModel`.
+A snapshot fit needs one more row than position coordinates, and one more per group.
+
+Per-row weights (``Context.std``) come from the receiver's variance, or from a model of the
+elevation (:func:`elevation_std_m`) or of the carrier-to-noise density (:func:`cn0_std_m`).
 """
 
 from __future__ import annotations
@@ -18,11 +31,62 @@ from typing import ClassVar
 
 import numpy as np
 
+from radioloc.core.errors import InputError
 from radioloc.core.validation import check_positive
 from radioloc.models.measurement import Context, MeasurementModel
 from radioloc.models.ranging import range_geometry
 
-__all__ = ["PseudorangeModel"]
+__all__ = ["PseudorangeModel", "EARTH_ROTATION_RAD_S", "SPEED_OF_LIGHT_M_S",
+           "elevation_std_m", "cn0_std_m"]
+
+#: WGS84 Earth rotation rate (rad/s) and the speed of light (m/s), as GPS defines them.
+EARTH_ROTATION_RAD_S = 7.2921151467e-5
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+
+
+def elevation_std_m(elevation_deg, zenith_std_m: float = 3.0, floor_deg: float = 5.0
+                    ) -> np.ndarray:
+    """Standard deviation of a pseudorange from its satellite's elevation:
+    ``zenith_std_m / sin(elevation)`` (elevation floored at ``floor_deg``).
+
+    Parameters
+    ----------
+    elevation_deg : array_like
+        Degrees above the horizon.
+    zenith_std_m : float
+        The standard deviation at the zenith, metres.
+    floor_deg : float
+        Elevations below are taken at this one (the weight of a satellite on the horizon
+        stays finite).
+
+    Returns
+    -------
+    ndarray
+        Metres.
+    """
+    el = np.maximum(np.asarray(elevation_deg, dtype=float), check_positive(floor_deg, "floor_deg"))
+    return check_positive(zenith_std_m, "zenith_std_m") / np.sin(np.radians(el))
+
+
+def cn0_std_m(cn0_dbhz, std_at_ref_m: float = 5.0, ref_dbhz: float = 45.0) -> np.ndarray:
+    """Standard deviation of a pseudorange from its carrier-to-noise density: the code
+    tracking error scales with ``(C/N0)^(-1/2)``, so ``std_at_ref_m * 10^((ref - cn0) / 20)``.
+
+    Parameters
+    ----------
+    cn0_dbhz : array_like
+        dB-Hz.
+    std_at_ref_m : float
+        The standard deviation at ``ref_dbhz``, metres.
+    ref_dbhz : float
+
+    Returns
+    -------
+    ndarray
+        Metres.
+    """
+    cn0 = np.asarray(cn0_dbhz, dtype=float)
+    return check_positive(std_at_ref_m, "std_at_ref_m") * 10.0 ** ((ref_dbhz - cn0) / 20.0)
 
 
 @dataclass(frozen=True)
@@ -33,6 +97,14 @@ class PseudorangeModel(MeasurementModel):
     ----------
     std_m : float
         Standard deviation of a pseudorange error, metres (> 0).
+    groups : int
+        Receiver clocks (one per constellation): rows of group ``g > 0`` add the state's
+        ``clock_bias[g - 1]`` (their group in ``Context.group``; none: group 0).
+    earth_rotation : bool
+        Add the Sagnac term (module docstring); needs 3-D positions.
+    to_ecef : tuple (rotation (3, 3), origin (3,)), optional
+        ECEF coordinates of a point ``p`` of the state's frame: ``rotation @ p + origin``
+        (None: the state is in ECEF).
 
     Examples
     --------
@@ -45,20 +117,80 @@ class PseudorangeModel(MeasurementModel):
     """
 
     std_m: float
+    groups: int = 1
+    earth_rotation: bool = False
+    to_ecef: tuple | None = None
 
     kind: ClassVar[str] = "pseudorange"
-    reads: ClassVar[tuple[str, ...]] = ("position", "clock_offset")
 
     def __post_init__(self) -> None:
         check_positive(self.std_m, "std_m")
+        if int(self.groups) != self.groups or self.groups < 1:
+            raise InputError(f"groups: must be a whole number >= 1, got {self.groups!r}")
+        if self.to_ecef is not None:
+            rot, org = (np.asarray(v, dtype=float) for v in self.to_ecef)
+            if rot.shape != (3, 3) or org.shape != (3,) or not (
+                    np.isfinite(rot).all() and np.isfinite(org).all()):
+                raise InputError("to_ecef: expected (rotation (3, 3), origin (3,)), finite")
+            object.__setattr__(self, "to_ecef", (tuple(map(tuple, rot)), tuple(org)))
+
+    @property
+    def reads(self) -> tuple[str, ...]:  # type: ignore[override]
+        return ("position", "clock_offset") + (("clock_bias",) if self.groups > 1 else ())
+
+    @property
+    def clock_groups(self) -> int:
+        """Receiver clocks the state holds for this model (``StateLayout.with_model``)."""
+        return int(self.groups)
+
+    def _group(self, context: Context) -> np.ndarray:
+        g = np.zeros(context.rows, dtype=int) if context.group is None else context.group
+        if g.size and (g.min() < 0 or g.max() >= self.groups):
+            raise InputError(f"context.group: groups must be in 0..{self.groups - 1} for a model "
+                             f"of {self.groups} clock(s), got {int(g.min())}..{int(g.max())}")
+        return g
+
+    def _sagnac(self, position: np.ndarray, context: Context
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The Sagnac term ``(..., m)`` and its gradient over the position ``(..., m, D)``."""
+        x = np.asarray(position, dtype=float)
+        pts = context.points
+        if x.shape[-1] != 3 or pts.shape[-1] != 3:
+            raise InputError("earth_rotation: needs 3-D positions and points (ECEF or a local "
+                             "frame with to_ecef)")
+        rot, org = (np.eye(3), np.zeros(3)) if self.to_ecef is None else (
+            np.asarray(v, dtype=float) for v in self.to_ecef)
+        r = x @ rot.T + org                                   # receiver, ECEF
+        s = pts @ rot.T + org                                 # satellites, ECEF
+        k = EARTH_ROTATION_RAD_S / SPEED_OF_LIGHT_M_S
+        term = k * (s[..., 0] * r[..., None, 1] - s[..., 1] * r[..., None, 0])
+        grad_ecef = k * np.stack([-s[..., 1], s[..., 0], np.zeros_like(s[..., 0])], axis=-1)
+        return term, grad_ecef @ rot
 
     def predict(self, state, context: Context) -> np.ndarray:
-        d, _ = range_geometry(state["position"], context.points, context.height_m)
-        return d + np.asarray(state["clock_offset"], dtype=float)[..., None]
+        return self.predict_with_jacobian(state, context)[0]
 
     def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        _, u = range_geometry(state["position"], context.points, context.height_m)
-        return {"position": u, "clock_offset": np.ones(u.shape[:-1] + (1,))}
+        return self.predict_with_jacobian(state, context)[1]
+
+    def predict_with_jacobian(self, state, context: Context):
+        d, u = range_geometry(state["position"], context.points, context.height_m)
+        z = d + np.asarray(state["clock_offset"], dtype=float)[..., None]
+        out = {"position": u, "clock_offset": np.ones(u.shape[:-1] + (1,))}
+        if self.groups > 1:
+            g = self._group(context)
+            bias = np.asarray(state["clock_bias"], dtype=float)
+            full = np.concatenate([np.zeros(bias.shape[:-1] + (1,)), bias], axis=-1)
+            z = z + np.take(full, g, axis=-1)
+            onehot = (g[:, None] == np.arange(1, self.groups)[None, :]).astype(float)
+            out["clock_bias"] = np.broadcast_to(onehot, u.shape[:-1] + (self.groups - 1,))
+        if self.earth_rotation:
+            if context.height_m is not None:
+                raise InputError("earth_rotation: needs 3-D positions (no height_m)")
+            term, grad = self._sagnac(state["position"], context)
+            z = z + term
+            out["position"] = u + grad
+        return z, out
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(self.std_m, context)
