@@ -14,8 +14,9 @@ floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` 
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
 Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
-receiver clock offset is a random walk of intensity ``clock_offset_std_m_per_sqrt_s^2``
-(no drift state). The max-mixture carries a
+receiver clock offset integrates its drift, and both take a random walk of intensity
+``clock_offset_std_m_per_sqrt_s^2``; a clock per anchor group (constellation) adds their
+inter-system biases, moving anchors (satellites) are where their tracks put them. The max-mixture carries a
 null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
 too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
 ``-o null_weight=0`` removes it). 3-D anchors with
@@ -45,6 +46,7 @@ from radioloc.locate.ekf_track import (log_models, motion_model, observation_win
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.measurement import StateLayout
 
 __all__ = ["smooth_log", "OPTIONS"]
 
@@ -52,6 +54,7 @@ __all__ = ["smooth_log", "OPTIONS"]
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
                                        "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m",
                                        "heading_std_rad", "clock_offset_std_m_per_sqrt_s",
+                                       "earth_rotation",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
 OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
@@ -73,7 +76,8 @@ OPTIONS.update({
                            "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
                            "max-mixture of the ranges by EM on the log, or a robust loss)",
                options=OPTIONS, kinds=("range", "tdoa", "aoa", "aoa_elevation", "pseudorange",
-                                       "rss", "heading"), inputs=("anchors",))
+                                       "rss", "heading"), inputs=("anchors",),
+               moving_anchors=True)
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a log (module docstring).
 
@@ -126,11 +130,13 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
         null_w = request.option("null_weight", 1e-3)
         null = (null_w, request.option("null_std_m", 10.0)) if los_nlos and null_w else None
         clock = reads_clock(obs)
-        smoother = BatchSmoother(motion_model(s["motion"], s["q"], s["dim"]),
-                                 loss="linear" if loss == "max-mixture" else loss,
+        motion = motion_model(s["motion"], s["q"], s["dim"])
+        smoother = BatchSmoother(motion, loss="linear" if loss == "max-mixture" else loss,
                                  loss_scale=request.option("loss_scale", 1.0), los_nlos=los_nlos,
                                  null_hypothesis=null,
-                                 **({"extra_q": s["clock_offset_q"] ** 2} if clock else {}))
+                                 **({"extra_q": s["clock_offset_q"] ** 2,    # offset and drift
+                                     "layout": StateLayout(s["dim"], motion.state_dim // s["dim"]
+                                                           - 1, clock=2)} if clock else {}))
         ekf = tracker_filter(anchors, s0, None, clock=clock)
         for seg in parts:
             t, ob = times[seg], [observation_window(o, seg) for o in obs]

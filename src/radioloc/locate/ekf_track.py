@@ -73,7 +73,7 @@ from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, anchor_positions, default_models,
-                                     node_observations)
+                                     node_observations, pseudorange_settings)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
@@ -364,8 +364,16 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
-    fit = LeastSquares(loss="huber").locate(medians)
+    if any(o.moving for o in observations):   # moving anchors: the fullest epoch of the window
+        rows = sum(np.isfinite(o.z[window]).sum(axis=-1) for o in observations)
+        k = int(np.argmax(rows))
+        medians = [Observation(o.model, *o.at(k), no_check=o.no_check) for o in observations]
+    else:
+        medians = [replace(o, z=column_medians(o.z[window]), std=None) for o in observations]
+    # one epoch's rows of moving anchors (satellites far away): plain least squares, which
+    # converges from the Earth's centre where the Huber loss's reweighting can stall
+    fit = LeastSquares(loss="linear" if any(o.moving for o in observations)
+                       else "huber").locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
                             "position (give -o init_s=SECONDS longer)")
@@ -579,8 +587,11 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
                 slots.setdefault(key, len(slots))
         z = np.full((B, T, len(slots)), np.nan)
         std = np.full_like(z, np.nan) if any(o.std is not None for _, o in members) else None
-        points = np.empty((len(slots),) + members[0][1].context.points.shape[-1:])
-        reference = None if members[0][1].context.reference is None else np.empty_like(points)
+        moving = any(o.moving for _, o in members)   # points (B, T, S, P): per track and step
+        points = np.zeros(((B, T) if moving else ()) + (len(slots),)
+                          + members[0][1].context.points.shape[-1:])
+        reference = None if members[0][1].context.reference is None else np.zeros_like(points)
+        group = None if members[0][1].context.group is None else np.zeros(len(slots), dtype=int)
         for b, o in members:
             ctx = o.context
             ref = (ctx.reference_index if ctx.reference_index is not None
@@ -589,15 +600,23 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
             z[b, :o.steps, cols] = o.z.T
             if o.std is not None:
                 std[b, :o.steps, cols] = o.std.T
-            points[cols] = ctx.points
-            if reference is not None:
-                reference[cols] = ctx.reference
+            for whole, part in ((points, ctx.points), (reference, ctx.reference)):
+                if whole is None:
+                    continue
+                if not moving:
+                    whole[cols] = part
+                    continue
+                track = np.broadcast_to(part, (o.steps,) + part.shape[-2:])
+                whole[b, :o.steps, cols] = np.swapaxes(track, 0, 1)
+                whole[b, o.steps:] = whole[b, o.steps - 1]      # padded steps: the last
+            if group is not None:
+                group[cols] = ctx.group
         first = members[0][1].context
         keys = np.array(list(slots), dtype=int).reshape(-1, 2)
         ctx = Context(points=points, index=keys[:, 0],
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
-                      height_m=first.height_m)
+                      height_m=first.height_m, group=group)
         out.append(Observation(members[0][1].model, z, ctx, std,
                                no_check=members[0][1].no_check))
     return t, out
@@ -746,7 +765,7 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
                             "path-loss model per anchor in the anchors file), ranges between "
                             "nodes with -o cooperative=1 (constant velocity or random walk, "
                             "or driven by odometry rows; RTS smoother with -o smooth=1)",
-               options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
+               options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",), moving_anchors=True)
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
 
@@ -841,7 +860,8 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     log = Measurements(meas)
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", RANGE_STD_M)
-    models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    models = default_models(log.kinds, opts, anchor_bias=anchor_bias,
+                            **pseudorange_settings(request))
     if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
         raise ConfigError("heading rows: the heading is the direction of the velocity, which "
                           "only the constant-velocity motion (motion=cv, no odometry) holds")
