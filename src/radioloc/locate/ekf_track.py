@@ -93,6 +93,9 @@ TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", 
 RANGE_STD_M = 0.15
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
+#: Prior standard deviation of a receiver clock's drift (times c), m/s: 1 ppm, the
+#: frequency error of a temperature-compensated crystal oscillator.
+CLOCK_DRIFT_PRIOR_STD = 300.0
 #: Divergence check (:func:`divergence`): steps per window, factor on the 99.9 % bound of the
 #: windowed NIS per measurement, fraction of windows beyond it that flags a track.
 NIS_WINDOW = 50
@@ -427,6 +430,7 @@ def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias
                                 layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
                                                    clock=2 if clock else 0,
                                                    n_bias=len(anchors) if anchor_bias else 0),
+                                clock_drift_prior_std_m_per_s=CLOCK_DRIFT_PRIOR_STD,
                                 clock_offset_std_m_per_sqrt_s=s.get("clock_offset_q", 1.0),
                                 clock_drift_std_m_per_s_per_sqrt_s=s.get("clock_drift_q", 1.0))
 
