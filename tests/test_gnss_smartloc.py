@@ -92,7 +92,12 @@ def test_export_is_the_locate_schema(exported):
     sat = meas["peer"].iloc[0]
     assert set(anchors.loc[anchors["id"] == sat, "time"]) == set(meas.loc[meas["peer"] == sat, "time"])
     odo = pd.read_csv(exported / "odometry.csv")
-    assert list(odo.columns) == ["time", "speed_mps", "yaw_rate_rps", "speed_var", "yaw_rate_var"]
+    assert list(odo.columns) == ["time", "speed_mps", "vertical_mps", "yaw_rate_rps",
+                                 "speed_var", "vertical_var", "yaw_rate_var"]
+    both = read_measurements(exported / "measurements_odometry.csv", anchors=anchors)
+    counts = both["kind"].value_counts().to_dict()
+    assert counts == {"pseudorange": 20038, "speed": 1372, "vertical_speed": 1372,
+                      "yaw_rate": 1372}
     ref = pd.read_csv(exported / "reference.csv")
     assert len(ref) == 1372 and set(ref["frame"]) == {"ecef"}
 

@@ -838,7 +838,10 @@ def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | 
     per epoch where the satellite was tracked, each with its constellation as ``group``
     (``GPS``, ``GLONASS``: one receiver clock per group). The receiver's position is never
     written to the measurements: the reference goes to ``reference`` (ECEF, ``frame``
-    ``ecef``), the car's body-frame speed and yaw rate to ``odometry``.
+    ``ecef``). The car's body-frame speed, vertical speed and yaw rate go to ``odometry``
+    and, as ``speed``, ``vertical_speed`` and ``yaw_rate`` rows with their standard
+    deviations, beside the pseudoranges
+    in ``measurements_odometry`` (for ``ekf-track`` and ``smoother``).
 
     Parameters
     ----------
@@ -855,8 +858,11 @@ def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | 
     Returns
     -------
     dict of str to Path
-        ``measurements``, ``anchors``, ``reference`` and ``odometry`` (``time, speed_mps,
-        yaw_rate_rps, speed_var, yaw_rate_var``).
+        ``measurements`` (the pseudoranges), ``measurements_odometry`` (the pseudoranges
+        and the odometry as ``speed``, ``vertical_speed`` and ``yaw_rate`` rows of sensor
+        ``odometry``, for the trackers), ``anchors``, ``reference`` and ``odometry``
+        (``time, speed_mps, vertical_mps, yaw_rate_rps, speed_var, vertical_var,
+        yaw_rate_var``).
     """
     from radioloc.io.smartloc import load
     from radioloc.models.pseudorange import cn0_std_m, elevation_std_m
@@ -878,8 +884,17 @@ def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | 
     ref = drive.reference.assign(time=np.round(drive.reference["time"].to_numpy(), 6),
                                  frame="ecef")
     odo = drive.odometry.assign(time=np.round(drive.odometry["time"].to_numpy(), 6))
+    rates = pd.concat([pd.DataFrame({"time": odo["time"], "node": "car", "peer": "odometry",
+                                     "kind": kind, "value": odo[value],
+                                     "std": np.sqrt(odo[var].to_numpy())})
+                       for kind, value, var in (("speed", "speed_mps", "speed_var"),
+                                                ("vertical_speed", "vertical_mps", "vertical_var"),
+                                                ("yaw_rate", "yaw_rate_rps", "yaw_rate_var"))])
+    with_odometry = pd.concat([meas, rates]).sort_values("time", kind="stable")
     out = Path(out)
     return {"measurements": _write_exact(meas, out / f"measurements{ext}"),
+            "measurements_odometry": _write_exact(with_odometry,
+                                                  out / f"measurements_odometry{ext}"),
             "anchors": _write_exact(anchors, out / f"anchors{ext}"),
             "reference": _write_exact(ref, out / f"reference{ext}"),
             "odometry": _write_exact(odo, out / f"odometry{ext}")}

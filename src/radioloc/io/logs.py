@@ -17,7 +17,10 @@ column      meaning
             metres; the two come in pairs with the same time; ``peer`` names the
             sensor, any id), or ``heading`` (the direction of the node's motion, e.g. a
             phone's compass azimuth, radians, counter-clockwise from +x of the
-            anchors' frame; ``peer`` names the sensor, any id)
+            anchors' frame; ``peer`` names the sensor, any id), or ``speed`` (the node's
+            horizontal speed, m/s), ``vertical_speed`` (m/s, up) and ``yaw_rate`` (its
+            turn rate about the vertical,
+            rad/s, counter-clockwise seen from above): a vehicle's body-frame odometry
 ``value``   the measured value (number; a range must be >= 0, or above -6 times the
             row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
@@ -69,7 +72,7 @@ MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: exponent, residual standard deviation (dB).
 ANCHOR_RSS_COLUMNS = ("rss_a_dbm", "rss_n", "rss_std_db")
 #: Kinds a node measures of itself (their ``peer`` names the sensor, any id).
-SELF_KINDS = MOTION_KINDS + ("heading",)
+SELF_KINDS = MOTION_KINDS + ("heading", "speed", "vertical_speed", "yaw_rate")
 KINDS = ("range", "rss", "tdoa", "aoa", "aoa_elevation", "pseudorange") + SELF_KINDS
 
 #: Plausibility limits of the input values (refused beyond, naming line and column).
@@ -82,6 +85,8 @@ LIMITS = {
     "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
     "time_s": 1e12,          # ~31,700 years; epoch milliseconds are 1.7e12
     "odometry_m": 1e4,       # one odometry row's displacement (a car at 100 m/s for 100 s)
+    "speed_mps": 1e3,        # a vehicle's speed: ten times a fast train
+    "yaw_rate_rps": 100.0,   # a turn rate: 16 turns a second
 }
 RSS_NOT_DETECTED_DBM = 100.0
 
@@ -601,6 +606,12 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     if (i := _first(is_tdoa & (np.abs(value) > LIMITS["range_m"]))) is not None:
         fail(i, f"column 'value': range difference {value[i]:g} m is beyond the limit of "
                 f"{LIMITS['range_m']:g} m")
+    for kind, limit, unit in (("speed", "speed_mps", "m/s"), ("vertical_speed", "speed_mps", "m/s"),
+                              ("yaw_rate", "yaw_rate_rps", "rad/s")):
+        if (i := _first((out["kind"] == kind).to_numpy() & (np.abs(value) > LIMITS[limit]))
+            ) is not None:
+            fail(i, f"column 'value': {kind} {value[i]:g} {unit} is beyond the limit of "
+                    f"{LIMITS[limit]:g} {unit}")
     is_motion = out["kind"].isin(MOTION_KINDS).to_numpy()
     if is_motion.any():
         _check_odometry(out, is_motion, fail)

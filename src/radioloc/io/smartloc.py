@@ -45,8 +45,9 @@ class SmartLoc:
         one row per pseudorange; ``satellite`` e.g. ``"G12"``, ``"R20"``; ``system`` the
         name of :data:`SYSTEMS`; ``x, y, z`` the satellite's ECEF position.
     odometry : DataFrame
-        ``time, speed_mps, yaw_rate_rps, speed_var, yaw_rate_var`` (forward body-frame
-        speed and turn rate about the vertical, with their variances).
+        ``time, speed_mps, vertical_mps, yaw_rate_rps, speed_var, vertical_var,
+        yaw_rate_var`` (forward and vertical body-frame speeds and the turn rate about the
+        vertical, with their variances).
     reference : DataFrame
         ``time, x, y, z``: the reference positions, ECEF metres.
     """
@@ -138,8 +139,9 @@ def load(folder: Path | str, drive: str = "berlin-potsdamer-platz") -> SmartLoc:
         "value": pr[:, 1], "variance": pr[:, 2], "x": pr[:, 3], "y": pr[:, 4], "z": pr[:, 5],
         "elevation_deg": pr[:, 8], "cn0_dbhz": pr[:, 9]})
     od = _rows(src, "odom3")
-    odometry = pd.DataFrame({"time": od[:, 0], "speed_mps": od[:, 1], "yaw_rate_rps": od[:, 6],
-                             "speed_var": od[:, 7], "yaw_rate_var": od[:, 12]})
+    odometry = pd.DataFrame({"time": od[:, 0], "speed_mps": od[:, 1], "vertical_mps": od[:, 3],
+                             "yaw_rate_rps": od[:, 6], "speed_var": od[:, 7],
+                             "vertical_var": od[:, 9], "yaw_rate_var": od[:, 12]})
     gt = _rows(folder / f"{stem}_GT.txt", "point3")
     reference = pd.DataFrame({"time": gt[:, 0], "x": gt[:, 1], "y": gt[:, 2], "z": gt[:, 3]})
     return SmartLoc(pseudoranges, odometry, reference)

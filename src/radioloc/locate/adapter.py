@@ -20,7 +20,7 @@ from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.io.measurements import Measurements
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["clock_groups", "pseudorange_settings", "DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
+__all__ = ["clock_groups", "frame_settings", "DEFAULT_SIGMAS", "anchor_positions", "anchor_points", "moving_anchors", "node_observations",
            "anchor_ranges", "default_models", "MODEL_KINDS", "SELF_MODEL_KINDS"]
 
 #: The measurement kinds the generic estimators read, and the option naming each one's sigma.
@@ -31,12 +31,16 @@ MODEL_KINDS = {
     "aoa_elevation": "aoa_std_rad",
     "pseudorange": "pseudorange_std_m",
     "heading": "heading_std_rad",
+    "speed": "speed_std_mps",
+    "vertical_speed": "vertical_speed_std_mps",
+    "yaw_rate": "yaw_rate_std_rps",
 }
 #: The sigma of each kind when its option is not given (:func:`default_models`).
 DEFAULT_SIGMAS = {"range": 0.3, "tdoa": 0.3, "aoa": 0.05, "aoa_elevation": 0.05,
-                  "pseudorange": 5.0, "heading": 0.3}
+                  "pseudorange": 5.0, "heading": 0.3, "speed": 0.1, "vertical_speed": 0.1,
+                  "yaw_rate": 0.01}
 #: Kinds a node measures of itself (no anchor: ``peer`` names the sensor).
-SELF_MODEL_KINDS = ("heading",)
+SELF_MODEL_KINDS = ("heading", "speed", "vertical_speed", "yaw_rate")
 
 
 def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:
@@ -129,7 +133,7 @@ def clock_groups(anchors: pd.DataFrame | None, ids=None) -> np.ndarray:
 
 def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = False,
                    range_noise=None, clocks: int = 1, earth_rotation: bool = False,
-                   to_ecef=None) -> dict[str, MeasurementModel]:
+                   to_ecef=None, geocentric: bool = False) -> dict[str, MeasurementModel]:
     """The measurement model of each kind.
 
     Parameters
@@ -146,13 +150,17 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     clocks, earth_rotation, to_ecef
         Of the pseudorange model (:class:`~radioloc.models.pseudorange.PseudorangeModel`):
         receiver clocks (one per anchor ``group``), the Sagnac term, the working frame's
-        map to ECEF (see :func:`pseudorange_settings`).
+        map to ECEF (see :func:`frame_settings`).
+    geocentric : bool
+        The working frame is ECEF: "up" of the speed and yaw-rate models is the direction
+        from the Earth's centre.
 
     Returns
     -------
     dict of str to MeasurementModel
     """
     from radioloc.models.bearing import BearingModel
+    from radioloc.models.body_rates import SpeedModel, VerticalSpeedModel, YawRateModel
     from radioloc.models.heading import HeadingModel
     from radioloc.models.pseudorange import PseudorangeModel
     from radioloc.models.ranging import RangeModel
@@ -178,14 +186,21 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
                                          else to_ecef)
         elif kind == "heading":
             out[kind] = HeadingModel(std_rad=sigma(kind))
+        elif kind == "speed":
+            out[kind] = SpeedModel(std_mps=sigma(kind), geocentric=geocentric)
+        elif kind == "vertical_speed":
+            out[kind] = VerticalSpeedModel(std_mps=sigma(kind), geocentric=geocentric)
+        elif kind == "yaw_rate":
+            out[kind] = YawRateModel(std_rps=sigma(kind), geocentric=geocentric)
     return out
 
 
-def pseudorange_settings(request) -> dict:
-    """The pseudorange model's settings of a ``locate`` request, for :func:`default_models`:
-    a receiver clock per anchor ``group``; the Earth-rotation (Sagnac) term by option
-    ``earth_rotation`` (default: on when the working frame is tied to the Earth, i.e. the
-    anchors are in ECEF or WGS84 or an origin is given); the working frame's map to ECEF.
+def frame_settings(request) -> dict:
+    """The settings of a ``locate`` request that follow from its frame and anchors, for
+    :func:`default_models`: a receiver clock per anchor ``group``; the Earth-rotation
+    (Sagnac) term by option ``earth_rotation`` (default: on when the working frame is tied
+    to the Earth, i.e. the anchors are in ECEF or WGS84 or an origin is given); the working
+    frame's map to ECEF; whether "up" is geocentric (an ECEF working frame).
 
     Parameters
     ----------
@@ -194,7 +209,7 @@ def pseudorange_settings(request) -> dict:
     Returns
     -------
     dict
-        ``clocks``, ``earth_rotation``, ``to_ecef``.
+        ``clocks``, ``earth_rotation``, ``to_ecef``, ``geocentric``.
 
     Raises
     ------
@@ -212,7 +227,8 @@ def pseudorange_settings(request) -> dict:
                              else "the frame of the anchors is unknown"))
     groups = clock_groups(request.anchors)
     return {"clocks": int(groups.max()) + 1 if groups.size else 1,
-            "earth_rotation": bool(rotation), "to_ecef": frame.to_ecef() if geo else None}
+            "earth_rotation": bool(rotation), "to_ecef": frame.to_ecef() if geo else None,
+            "geocentric": geo and frame.kind == "ecef"}
 
 
 def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,

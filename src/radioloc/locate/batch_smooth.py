@@ -54,7 +54,8 @@ __all__ = ["smooth_log", "OPTIONS"]
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
                                        "tdoa_std_m", "aoa_std_rad", "pseudorange_std_m",
                                        "heading_std_rad", "clock_offset_std_m_per_sqrt_s",
-                                       "earth_rotation",
+                                       "earth_rotation", "speed_std_mps", "vertical_speed_std_mps",
+                                       "yaw_rate_std_rps",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
 OPTIONS.update({k: PF_OPTIONS[k] for k in ("los_std_m", "nlos_mean_m", "alpha",
@@ -76,7 +77,8 @@ OPTIONS.update({
                            "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
                            "max-mixture of the ranges by EM on the log, or a robust loss)",
                options=OPTIONS, kinds=("range", "tdoa", "aoa", "aoa_elevation", "pseudorange",
-                                       "rss", "heading"), inputs=("anchors",),
+                                       "rss", "heading", "speed", "vertical_speed", "yaw_rate"),
+               inputs=("anchors",),
                moving_anchors=True)
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a log (module docstring).

@@ -72,8 +72,9 @@ from radioloc.core.plausibility import VALUE_CHECKS
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, anchor_positions, default_models,
-                                     node_observations, pseudorange_settings)
+from radioloc.locate.adapter import (DEFAULT_SIGMAS, MODEL_KINDS, SELF_MODEL_KINDS,
+                                     anchor_positions, default_models,
+                                     node_observations, frame_settings)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
@@ -83,11 +84,12 @@ from radioloc.locate.progress import progress
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import Context, Observation, StateLayout
-from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
+from radioloc.models.motion import RandomWalk, WhiteAccelerationCV, WhiteJerkCA
 from radioloc.models.ranging import RangeModel
 
 #: The measurement kinds the trackers read (odometry: the control input of the motion).
-TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", "heading") + MOTION_KINDS
+TRACKER_KINDS = ("range", "tdoa", "aoa", "aoa_elevation", "pseudorange", "rss", "heading",
+                 "speed", "vertical_speed", "yaw_rate") + MOTION_KINDS
 
 #: Range sigma of the trackers when ``range_std_m`` is not given, m.
 RANGE_STD_M = 0.15
@@ -115,17 +117,21 @@ def motion_model(kind: str, q: float, dim: int):
 
     Parameters
     ----------
-    kind : {"cv", "rw"}
-        Constant velocity (white acceleration) or random walk.
+    kind : {"cv", "ca", "rw"}
+        Constant velocity (white acceleration), constant acceleration (white jerk) or random
+        walk.
     q : float
-        Acceleration spectral density (m^2/s^3, ``cv``) or diffusion (m^2/s, ``rw``).
+        Acceleration spectral density (m^2/s^3, ``cv``), jerk spectral density (m^2/s^5,
+        ``ca``) or diffusion (m^2/s, ``rw``).
     dim : int
         Position coordinates.
 
     Returns
     -------
-    WhiteAccelerationCV or RandomWalk
+    WhiteAccelerationCV, WhiteJerkCA or RandomWalk
     """
+    if kind == "ca":
+        return WhiteJerkCA(q, dim)
     return WhiteAccelerationCV(q, dim) if kind == "cv" else RandomWalk(q, dim)
 
 
@@ -214,10 +220,12 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
 
 
 OPTIONS = {
-    "motion": Option("'cv' constant velocity (white acceleration, default) or 'rw' random "
-                     "walk", str, choices=("cv", "rw")),
-    "q": Option("process noise: acceleration spectral density m^2/s^3 (cv, default 1) or "
-                "diffusion m^2/s (rw, default 1)", float, min=0, max=1e6),
+    "motion": Option("'cv' constant velocity (white acceleration, default), 'ca' constant "
+                     "acceleration (white jerk; default with yaw_rate rows) or 'rw' random "
+                     "walk", str, choices=("cv", "ca", "rw")),
+    "q": Option("process noise: acceleration spectral density m^2/s^3 (cv, default 1), jerk "
+                "spectral density m^2/s^5 (ca) or diffusion m^2/s (rw, default 1)", float,
+                min=0, max=1e6),
     "range_std_m": Option("range error standard deviation, m (default 0.15)", float, min=0,
                           min_exclusive=True, max=1e6),
     "range_bias_m": Option("constant offset of every range (antenna delay), m; subtracted "
@@ -236,6 +244,13 @@ OPTIONS = {
                                 min=0, min_exclusive=True, max=1e6),
     "heading_std_rad": Option("heading (direction of motion) error standard deviation, rad "
                               "(default 0.3)", float, min=0, min_exclusive=True, max=10),
+    "speed_std_mps": Option("speed (body-frame odometry) error standard deviation, m/s "
+                            "(default 0.1)", float, min=0, min_exclusive=True, max=1e3),
+    "vertical_speed_std_mps": Option("vertical-speed (body-frame odometry) error standard "
+                                     "deviation, m/s (default 0.1)", float, min=0,
+                                     min_exclusive=True, max=1e3),
+    "yaw_rate_std_rps": Option("yaw-rate (gyroscope) error standard deviation, rad/s (default "
+                               "0.01)", float, min=0, min_exclusive=True, max=100),
     "clock_offset_std_m_per_sqrt_s": Option("pseudoranges: white frequency noise of the "
                                             "receiver clock offset (times c), m/sqrt(s) "
                                             "(default 1)", float, min=0, max=1e6),
@@ -310,7 +325,8 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
                                   "the motion (tune odometry_std_m instead)")
     elif "odometry_std_m" in request.parsed or "odometry_std_m" in request.options:
         raise ConfigError("option odometry_std_m: the log holds no odometry rows")
-    kind = request.option("motion", "cv", str)
+    yaw = bool((request.measurements["kind"] == "yaw_rate").any())
+    kind = request.option("motion", "ca" if yaw else "cv", str)
     height = request.option("tag_height_m")
     if height is not None and anchors.shape[1] != 3:
         raise InputError("option tag_height_m: needs anchors with a z column")
@@ -367,6 +383,7 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
+    observations = [o for o in observations if o.model.kind not in SELF_MODEL_KINDS]
     if any(o.moving for o in observations):   # moving anchors: the fullest epoch of the window
         rows = sum(np.isfinite(o.z[window]).sum(axis=-1) for o in observations)
         k = int(np.argmax(rows))
@@ -865,7 +882,7 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", RANGE_STD_M)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias,
-                            **pseudorange_settings(request))
+                            **frame_settings(request))
     if "heading" in models and (s["odometry_std"] is not None or s["motion"] != "cv"):
         raise ConfigError("heading rows: the heading is the direction of the velocity, which "
                           "only the constant-velocity motion (motion=cv, no odometry) holds")

@@ -26,7 +26,7 @@ from radioloc.estimators.robust_loss import LOSSES
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import (MODEL_KINDS, anchor_positions, default_models,
-                                     node_observations, pseudorange_settings)
+                                     node_observations, frame_settings)
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.epochs import (ON_DEGENERATE, Epochs, epoch_error, epoch_table,
@@ -192,7 +192,7 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     log = Measurements(request.measurements)
     opts = {k: request.option(k) for k in MODEL_KINDS.values() if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
-    models = default_models(log.kinds, opts, **pseudorange_settings(request))
+    models = default_models(log.kinds, opts, **frame_settings(request))
     height = request.option("tag_height_m")
     solver = LeastSquares(loss=request.option("loss", "linear", str),
                           loss_scale=request.option("loss_scale", 1.5))
