@@ -52,8 +52,22 @@ def _rows(value: np.ndarray, context: Context) -> np.ndarray:
     return np.broadcast_to(value[..., None], value.shape + (context.rows,))
 
 
+class _OwnMotion(MeasurementModel):
+    """What the three models share: ``h`` and its Jacobian computed together, a constant
+    standard deviation (the field ``std_mps`` or ``std_rps``)."""
+
+    def predict(self, state, context: Context) -> np.ndarray:
+        return self.predict_with_jacobian(state, context)[0]
+
+    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
+        return self.predict_with_jacobian(state, context)[1]
+
+    def std(self, context: Context) -> np.ndarray:
+        return self.row_std(getattr(self, "std_mps", None) or self.std_rps, context)
+
+
 @dataclass(frozen=True)
-class SpeedModel(MeasurementModel):
+class SpeedModel(_OwnMotion):
     """Horizontal speed of the node, m/s (see the module docstring).
 
     Parameters
@@ -96,18 +110,9 @@ class SpeedModel(MeasurementModel):
             "velocity": np.broadcast_to(d_v[..., None, :], d_v.shape[:-1] + (context.rows, d_v.shape[-1])),
             "position": np.broadcast_to(d_p[..., None, :], d_p.shape[:-1] + (context.rows, d_p.shape[-1]))}
 
-    def predict(self, state, context: Context) -> np.ndarray:
-        return self.predict_with_jacobian(state, context)[0]
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        return self.predict_with_jacobian(state, context)[1]
-
-    def std(self, context: Context) -> np.ndarray:
-        return self.row_std(self.std_mps, context)
-
 
 @dataclass(frozen=True)
-class VerticalSpeedModel(MeasurementModel):
+class VerticalSpeedModel(_OwnMotion):
     """Vertical speed of the node (along "up"), m/s (see the module docstring); 3-D states.
 
     Parameters
@@ -147,18 +152,9 @@ class VerticalSpeedModel(MeasurementModel):
             "velocity": np.broadcast_to(up[..., None, :], up.shape[:-1] + (rows, 3)),
             "position": np.broadcast_to(zero[..., None, :], zero.shape[:-1] + (rows, 3))}
 
-    def predict(self, state, context: Context) -> np.ndarray:
-        return self.predict_with_jacobian(state, context)[0]
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        return self.predict_with_jacobian(state, context)[1]
-
-    def std(self, context: Context) -> np.ndarray:
-        return self.row_std(self.std_mps, context)
-
 
 @dataclass(frozen=True)
-class YawRateModel(MeasurementModel):
+class YawRateModel(_OwnMotion):
     """Turn rate of the node's horizontal velocity, rad/s (see the module docstring).
 
     Parameters
@@ -220,12 +216,3 @@ class YawRateModel(MeasurementModel):
 
         return _rows(rate, context), {"velocity": rows(d_v), "acceleration": rows(d_a),
                                       "position": rows(zero)}
-
-    def predict(self, state, context: Context) -> np.ndarray:
-        return self.predict_with_jacobian(state, context)[0]
-
-    def jacobian(self, state, context: Context) -> dict[str, np.ndarray]:
-        return self.predict_with_jacobian(state, context)[1]
-
-    def std(self, context: Context) -> np.ndarray:
-        return self.row_std(self.std_rps, context)

@@ -336,7 +336,7 @@ class ConstantAcceleration(MotionModel):
         return f"ConstantAcceleration(jerk_var={self.jerk_var}, dim={self.dim})"
 
 
-class WhiteJerkCA(MotionModel):
+class WhiteJerkCA(WhiteAccelerationCV):
     """Constant acceleration driven by continuous white jerk (for uneven intervals).
 
     Per axis ``F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]]`` and ``Q(dt) = q [[dt^5/20,
@@ -354,8 +354,7 @@ class WhiteJerkCA(MotionModel):
     """
 
     def __init__(self, q: float, dim: int = 2) -> None:
-        self.q = check_positive(q, "q", allow_zero=True)
-        self.dim = _check_dim(dim)
+        super().__init__(q, dim)
         self.state_dim = 3 * self.dim
 
     _axis_F = ConstantAcceleration._axis_F
