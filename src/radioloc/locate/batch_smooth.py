@@ -12,7 +12,10 @@ pseudoranges, RSS, headings; not odometry), the same start
 :func:`radioloc.locate.pf.fit_model`; the fitted range bias is removed; ``min_los_std_m``
 floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
-Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
+Gaussian; pseudoranges get their own LOS/NLOS modes, each row's std its LOS spread,
+``alpha`` the LOS fraction and ``nlos_mean_m`` the mean excess delay, defaults
+:data:`PSEUDORANGE_LOS_FRACTION` and :data:`PSEUDORANGE_NLOS_MEAN_M`), or a robust loss
+``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
 receiver clock offset integrates its drift, and both take a random walk of intensity
 ``clock_offset_std_m_per_sqrt_s^2``; a clock per anchor group (constellation) adds their
@@ -49,6 +52,12 @@ from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import StateLayout
 
 __all__ = ["smooth_log", "OPTIONS"]
+
+#: The pseudoranges' LOS/NLOS mixture of ``loss=max-mixture`` unless ``alpha`` and
+#: ``nlos_mean_m`` are given: a LOS fraction and a mean NLOS excess delay (m) of urban
+#: single-frequency GNSS.
+PSEUDORANGE_LOS_FRACTION = 0.5
+PSEUDORANGE_NLOS_MEAN_M = 20.0
 
 #: The ``-o`` options of ``locate --method smoother``.
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_std_m", "range_bias_m",
@@ -111,9 +120,15 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     if loss not in ("max-mixture",) + LOSSES:
         raise ConfigError(f"option loss: must be max-mixture or one of {', '.join(LOSSES)}, "
                           f"got {loss!r}")
-    if loss == "max-mixture" and not has_ranges:
+    if loss == "max-mixture" and not has_ranges and "pseudorange" not in models:
         raise ConfigError("option loss=max-mixture: the LOS/NLOS max-mixture is a model of "
-                          "ranges, and the log has no range rows (use a robust loss)")
+                          "ranges and pseudoranges, and the log has neither (use a robust "
+                          "loss)")
+    mixed = {}                  # the smoother's models where they differ from the start's
+    if loss == "max-mixture" and "pseudorange" in models:   # each row's std is its LOS spread
+        mixed["pseudorange"] = replace(
+            models["pseudorange"], los_fraction=request.option("alpha", PSEUDORANGE_LOS_FRACTION),
+            nlos_mean_m=request.option("nlos_mean_m", PSEUDORANGE_NLOS_MEAN_M))
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
@@ -145,6 +160,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
             try:
                 mean, var = _on_layout(smoother.state_layout(ob), ekf.state_layout(ob),
                                        *track_prior(ekf, t, ob, anchors, s0))
+                ob = [replace(o, model=mixed.get(o.model.kind, o.model)) for o in ob]
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "

@@ -22,6 +22,14 @@ A snapshot fit needs one more row than position coordinates, and one more per gr
 
 Per-row weights (``Context.std``) come from the receiver's variance, or from a model of the
 elevation (:func:`elevation_std_m`) or of the carrier-to-noise density (:func:`cn0_std_m`).
+
+**LOS/NLOS.** A signal that reaches the receiver only by a reflection arrives late: its
+error is the row's Gaussian noise plus a positive excess. With ``nlos_mean_m`` the model
+has two modes per row (:meth:`PseudorangeModel.mode_logpdf`, the max-mixture of the batch
+smoother): LOS ``N(0, std^2)`` with prior ``los_fraction``, and NLOS, an exponential excess
+of mean ``nlos_mean_m`` plus the same Gaussian (paper 001's range model,
+:class:`~radioloc.models.los_nlos.LosNlosRange`, with each row's own ``std`` as its LOS
+spread).
 """
 
 from __future__ import annotations
@@ -32,7 +40,8 @@ from typing import ClassVar
 import numpy as np
 
 from radioloc.core.errors import InputError
-from radioloc.core.validation import check_positive
+from radioloc.core.validation import check_positive, check_probability
+from radioloc.models.los_nlos import LosNlosRange, emg_logpdf, gaussian_logpdf
 from radioloc.models.measurement import Context, MeasurementModel
 from radioloc.models.ranging import range_geometry
 
@@ -105,6 +114,11 @@ class PseudorangeModel(MeasurementModel):
     to_ecef : tuple (rotation (3, 3), origin (3,)), optional
         ECEF coordinates of a point ``p`` of the state's frame: ``rotation @ p + origin``
         (None: the state is in ECEF).
+    nlos_mean_m : float, optional
+        Mean NLOS excess delay, metres: the rows get a LOS and an NLOS mode (module
+        docstring). None: Gaussian rows.
+    los_fraction : float
+        Prior probability of the LOS mode (with ``nlos_mean_m``).
 
     Examples
     --------
@@ -120,11 +134,16 @@ class PseudorangeModel(MeasurementModel):
     groups: int = 1
     earth_rotation: bool = False
     to_ecef: tuple | None = None
+    nlos_mean_m: float | None = None
+    los_fraction: float = 0.5
 
     kind: ClassVar[str] = "pseudorange"
 
     def __post_init__(self) -> None:
         check_positive(self.std_m, "std_m")
+        if self.nlos_mean_m is not None:
+            check_positive(self.nlos_mean_m, "nlos_mean_m")
+            check_probability(self.los_fraction, "los_fraction")
         if int(self.groups) != self.groups or self.groups < 1:
             raise InputError(f"groups: must be a whole number >= 1, got {self.groups!r}")
         if self.to_ecef is not None:
@@ -194,3 +213,32 @@ class PseudorangeModel(MeasurementModel):
 
     def std(self, context: Context) -> np.ndarray:
         return self.row_std(self.std_m, context)
+
+    @property
+    def noise(self) -> LosNlosRange | None:
+        """The LOS/NLOS mixture of the rows (its ``los_std_m``, ``std_m``, stands for the
+        rows' own std), or None."""
+        if self.nlos_mean_m is None:
+            return None
+        return LosNlosRange(self.std_m, self.nlos_mean_m, self.los_fraction)
+
+    def mode_logpdf(self, z, state, context: Context) -> np.ndarray:
+        """Per-row log-density under NLOS (index 0) and LOS (index 1), ``(..., m, 2)``.
+
+        Parameters
+        ----------
+        z : ndarray, shape (..., m)
+            Measured pseudoranges (NaN: missing; 0 returned).
+        state : dict
+        context : Context
+
+        Returns
+        -------
+        ndarray, shape (..., m, 2)
+        """
+        if self.nlos_mean_m is None:
+            return self.logpdf(z, state, context)[..., None]
+        e = np.asarray(z, dtype=float) - self.predict(state, context)
+        s = np.broadcast_to(self.std(context), e.shape)
+        lp = np.stack([emg_logpdf(e, s, self.nlos_mean_m), gaussian_logpdf(e, s)], axis=-1)
+        return np.where(np.isnan(lp), 0.0, lp)
