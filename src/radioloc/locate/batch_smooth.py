@@ -13,8 +13,9 @@ pseudoranges, RSS, headings; not odometry), the same start
 floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
 Gaussian; pseudoranges get their own LOS/NLOS modes, each row's std its LOS spread,
-``alpha`` the LOS fraction and ``nlos_mean_m`` the mean excess delay, defaults
-:data:`PSEUDORANGE_LOS_FRACTION` and :data:`PSEUDORANGE_NLOS_MEAN_M`), or a robust loss
+``alpha`` the LOS fraction and ``nlos_mean_m`` the mean excess delay: given, or fitted by
+EM to the residuals of a first smoothing from :data:`PSEUDORANGE_LOS_FRACTION` and
+:data:`PSEUDORANGE_NLOS_MEAN_M`, then smoothed again: the self-tuning mixture), or a robust loss
 ``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
 receiver clock offset integrates its drift, and both take a random walk of intensity
@@ -50,6 +51,7 @@ from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_model
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import StateLayout
+from radioloc.models.pseudorange import fit_nlos
 
 __all__ = ["smooth_log", "OPTIONS"]
 
@@ -124,7 +126,9 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
         raise ConfigError("option loss=max-mixture: the LOS/NLOS max-mixture is a model of "
                           "ranges and pseudoranges, and the log has neither (use a robust "
                           "loss)")
-    mixed = {}                  # the smoother's models where they differ from the start's
+    tune = (loss == "max-mixture" and "pseudorange" in models
+            and request.option("alpha") is None and request.option("nlos_mean_m") is None)
+    mixed, fitted = {}, {}      # the smoother's models where they differ from the start's
     if loss == "max-mixture" and "pseudorange" in models:   # each row's std is its LOS spread
         mixed["pseudorange"] = replace(
             models["pseudorange"], los_fraction=request.option("alpha", PSEUDORANGE_LOS_FRACTION),
@@ -162,6 +166,13 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                                        *track_prior(ekf, t, ob, anchors, s0))
                 ob = [replace(o, model=mixed.get(o.model.kind, o.model)) for o in ob]
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
+                if tune:                            # the pseudoranges' mixture, refitted
+                    ob = _refit_nlos(ob, track, smoother.state_layout(ob))
+                    fitted.update({f"pseudorange_{k}": float(getattr(o.model, k)) for o in ob
+                                   if o.model.kind == "pseudorange"
+                                   for k in ("los_fraction", "nlos_mean_m")})
+                    track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var),
+                                         initial=track.diagnostics["state"])
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
@@ -173,7 +184,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
                             "ranges": counts.get("range", 0), "measurements": counts,
                             "restarts": int(out["restart"].sum()), "loss": loss,
-                            "range_std_m": opts["range_std_m"]}
+                            "range_std_m": opts["range_std_m"], **fitted}
     return out
 
 
@@ -197,6 +208,22 @@ def _range_noise(request: LocateRequest, obs: list, times: np.ndarray, anchors: 
     if "range_bias_m" in request.options:
         bias = s["bias"]
     return los_nlos, bias
+
+
+def _refit_nlos(observations: list, track, layout) -> list:
+    """The observations with the pseudoranges' LOS fraction and mean NLOS excess fitted by
+    EM (:func:`radioloc.models.pseudorange.fit_nlos`) to their residuals at the smoothed
+    states of ``track``, starting from the model's."""
+    out = []
+    for o in observations:
+        if o.model.kind == "pseudorange" and o.model.nlos_mean_m is not None:
+            ctx = o.context if o.std is None else replace(o.context, std=o.std)
+            z_hat, _ = layout.measure(o.model, track.diagnostics["state"], ctx)
+            alpha, mu = fit_nlos(o.z - z_hat, o.model.std(ctx), o.model.los_fraction,
+                                 o.model.nlos_mean_m)
+            o = replace(o, model=replace(o.model, los_fraction=alpha, nlos_mean_m=mu))
+        out.append(o)
+    return out
 
 
 def _on_layout(layout, source, mean: np.ndarray, var: np.ndarray

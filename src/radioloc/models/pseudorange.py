@@ -46,7 +46,7 @@ from radioloc.models.measurement import Context, MeasurementModel
 from radioloc.models.ranging import range_geometry
 
 __all__ = ["PseudorangeModel", "EARTH_ROTATION_RAD_S", "SPEED_OF_LIGHT_M_S",
-           "elevation_std_m", "cn0_std_m"]
+           "elevation_std_m", "cn0_std_m", "fit_nlos"]
 
 #: WGS84 Earth rotation rate (rad/s) and the speed of light (m/s), as GPS defines them.
 EARTH_ROTATION_RAD_S = 7.2921151467e-5
@@ -96,6 +96,64 @@ def cn0_std_m(cn0_dbhz, std_at_ref_m: float = 5.0, ref_dbhz: float = 45.0) -> np
     """
     cn0 = np.asarray(cn0_dbhz, dtype=float)
     return check_positive(std_at_ref_m, "std_at_ref_m") * 10.0 ** ((ref_dbhz - cn0) / 20.0)
+
+
+def fit_nlos(residual, std, los_fraction: float = 0.5, nlos_mean_m: float = 20.0,
+             iterations: int = 100, tol: float = 1e-6) -> tuple[float, float]:
+    """The LOS fraction and mean NLOS excess of pseudorange residuals, by EM.
+
+    Each residual ``e_i`` is LOS, ``N(0, s_i^2)``, with probability ``alpha``, or NLOS,
+    ``Exp(mean mu) + N(0, s_i^2)`` (the modes of :meth:`PseudorangeModel.mode_logpdf`), with
+    its own known ``s_i``. E-step: the NLOS responsibility ``w_i``; M-step: ``alpha = 1 -
+    mean(w)`` and ``mu = sum w_i E[X_i | e_i] / sum w_i``, where the excess ``X_i`` given an
+    NLOS ``e_i`` is ``N(m_i, s_i^2)`` truncated to ``X > 0`` with ``m_i = e_i - s_i^2 / mu``,
+    so ``E[X_i | e_i] = m_i + s_i phi(m_i / s_i) / Phi(m_i / s_i)``.
+
+    Parameters
+    ----------
+    residual, std : array_like
+        Residuals ``z - h(x)`` of a fit (NaN: left out) and their standard deviations, m.
+    los_fraction, nlos_mean_m : float
+        The start.
+    iterations : int
+    tol : float
+        Stop when ``mu`` changes by less than ``tol`` times itself.
+
+    Returns
+    -------
+    los_fraction, nlos_mean_m : float
+        ``alpha`` within ``[0.01, 0.99]``; ``mu`` at least the smallest ``s_i`` (the NLOS
+        mode stays distinct from the LOS one).
+
+    Raises
+    ------
+    InputError
+        Fewer than 10 finite residuals.
+    """
+    from scipy.special import log_ndtr
+
+    e = np.asarray(residual, dtype=float)
+    s = np.broadcast_to(np.asarray(std, dtype=float), e.shape)
+    ok = np.isfinite(e) & np.isfinite(s)
+    e, s = e[ok], s[ok]
+    if e.size < 10:
+        raise InputError(f"residual: {e.size} finite residuals, at least 10 are needed to fit "
+                         "the LOS/NLOS mixture")
+    alpha, mu = float(los_fraction), float(nlos_mean_m)
+    for _ in range(int(iterations)):
+        lp_nlos = np.log1p(-alpha) + emg_logpdf(e, s, mu)
+        lp_los = np.log(alpha) + gaussian_logpdf(e, s)
+        w = np.exp(lp_nlos - np.logaddexp(lp_nlos, lp_los))
+        m = e - s * s / mu
+        excess = m + s * np.exp(-0.5 * (m / s) ** 2 - 0.5 * np.log(2 * np.pi)
+                                - log_ndtr(m / s))
+        alpha = float(np.clip(1.0 - w.mean(), 0.01, 0.99))
+        new = max(float(np.sum(w * excess) / max(np.sum(w), 1e-12)), float(s.min()))
+        done = abs(new - mu) < tol * mu
+        mu = new
+        if done:
+            break
+    return alpha, mu
 
 
 @dataclass(frozen=True)
