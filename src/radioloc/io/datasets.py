@@ -849,8 +849,8 @@ def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | 
         Output folder.
     weights : {"variance", "elevation", "cn0"}
         The ``std`` column: the square root of the file's variance, or a model of the
-        elevation (:func:`radioloc.models.pseudorange.elevation_std_m`) or of the C/N0
-        (:func:`radioloc.models.pseudorange.cn0_std_m`) at their default constants.
+        elevation (:func:`radioloc.core.gnss.elevation_std_m`) or of the C/N0
+        (:func:`radioloc.core.gnss.cn0_std_m`) at their default constants.
     root : path, optional
         The data set folder (default :func:`require`).
     fmt : {"csv", "parquet"}
@@ -865,7 +865,7 @@ def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | 
         yaw_rate_var``).
     """
     from radioloc.io.smartloc import load
-    from radioloc.models.pseudorange import cn0_std_m, elevation_std_m
+    from radioloc.core.gnss import cn0_std_m, elevation_std_m
 
     if weights not in SMARTLOC_WEIGHTS:
         raise ConfigError(f"weights: {weights!r} is not one of {', '.join(SMARTLOC_WEIGHTS)}")

@@ -341,8 +341,8 @@ class WhiteJerkCA(WhiteAccelerationCV):
 
     Per axis ``F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]]`` and ``Q(dt) = q [[dt^5/20,
     dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]]`` (Bar-Shalom, Li,
-    Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, eq.
-    6.2.3-7): full rank, and the same over an interval however it is split into steps
+    Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001,
+    Sect. 6.2.3): full rank, and the same over an interval however it is split into steps
     (:class:`ConstantAcceleration` holds one jerk over each interval: rank one).
 
     Parameters

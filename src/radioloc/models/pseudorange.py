@@ -13,8 +13,8 @@ metres (offset times the speed of light); every row of an epoch carries the same
   emission time in the Earth-fixed frame of the emission; during the signal's flight the
   Earth turns by ``omega_E |x - s| / c``, which lengthens the range by the Sagnac term
   ``(omega_E / c) (s_x x_y - s_y x_x)`` in Earth-centred, Earth-fixed (ECEF) coordinates
-  (IS-GPS-200, 20.3.3.4.3.3.2; Kaplan and Hegarty, *Understanding GPS/GNSS*, 3rd ed.,
-  eq. 3.26). A state in another frame gives its affine map to ECEF (``to_ecef``).
+  (IS-GPS-200, 20.3.3.4.3.3.2; Kaplan and Hegarty, *Understanding GPS/GNSS*, 3rd ed.).
+  A state in another frame gives its affine map to ECEF (``to_ecef``).
 
 The model reads the ``clock_offset`` state component (and ``clock_bias`` with groups); a
 filter evolves the offset (and its drift) with :class:`~radioloc.models.clock.ClockModel`.
@@ -39,7 +39,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from radioloc.core.constants import EARTH_ROTATION_RAD_PER_S, SPEED_OF_LIGHT_M_PER_S
 from radioloc.core.errors import InputError
+from radioloc.core.gnss import cn0_std_m, elevation_std_m
 from radioloc.core.validation import check_positive, check_probability
 from radioloc.models.los_nlos import LosNlosRange, emg_logpdf, gaussian_logpdf
 from radioloc.models.measurement import Context, MeasurementModel
@@ -49,53 +51,8 @@ __all__ = ["PseudorangeModel", "EARTH_ROTATION_RAD_S", "SPEED_OF_LIGHT_M_S",
            "elevation_std_m", "cn0_std_m", "fit_nlos"]
 
 #: WGS84 Earth rotation rate (rad/s) and the speed of light (m/s), as GPS defines them.
-EARTH_ROTATION_RAD_S = 7.2921151467e-5
-SPEED_OF_LIGHT_M_S = 299_792_458.0
-
-
-def elevation_std_m(elevation_deg, zenith_std_m: float = 3.0, floor_deg: float = 5.0
-                    ) -> np.ndarray:
-    """Standard deviation of a pseudorange from its satellite's elevation:
-    ``zenith_std_m / sin(elevation)`` (elevation floored at ``floor_deg``).
-
-    Parameters
-    ----------
-    elevation_deg : array_like
-        Degrees above the horizon.
-    zenith_std_m : float
-        The standard deviation at the zenith, metres.
-    floor_deg : float
-        Elevations below are taken at this one (the weight of a satellite on the horizon
-        stays finite).
-
-    Returns
-    -------
-    ndarray
-        Metres.
-    """
-    el = np.maximum(np.asarray(elevation_deg, dtype=float), check_positive(floor_deg, "floor_deg"))
-    return check_positive(zenith_std_m, "zenith_std_m") / np.sin(np.radians(el))
-
-
-def cn0_std_m(cn0_dbhz, std_at_ref_m: float = 5.0, ref_dbhz: float = 45.0) -> np.ndarray:
-    """Standard deviation of a pseudorange from its carrier-to-noise density: the code
-    tracking error scales with ``(C/N0)^(-1/2)``, so ``std_at_ref_m * 10^((ref - cn0) / 20)``.
-
-    Parameters
-    ----------
-    cn0_dbhz : array_like
-        dB-Hz.
-    std_at_ref_m : float
-        The standard deviation at ``ref_dbhz``, metres.
-    ref_dbhz : float
-
-    Returns
-    -------
-    ndarray
-        Metres.
-    """
-    cn0 = np.asarray(cn0_dbhz, dtype=float)
-    return check_positive(std_at_ref_m, "std_at_ref_m") * 10.0 ** ((ref_dbhz - cn0) / 20.0)
+EARTH_ROTATION_RAD_S = EARTH_ROTATION_RAD_PER_S
+SPEED_OF_LIGHT_M_S = SPEED_OF_LIGHT_M_PER_S
 
 
 def fit_nlos(residual, std, los_fraction: float = 0.5, nlos_mean_m: float = 20.0,
