@@ -20,7 +20,8 @@ from radioloc.io.logs import read_anchors
 from radioloc.locate.frames import Frame, declared_frame, parse_origin, to_working
 from radioloc.models.measurement import Context, StateLayout, numerical_jacobian
 from radioloc.models.pseudorange import (EARTH_ROTATION_RAD_S, SPEED_OF_LIGHT_M_S,
-                                         PseudorangeModel, cn0_std_m, elevation_std_m)
+                                         PseudorangeModel, cn0_std_m, elevation_std_m,
+                                         fit_nlos)
 
 runner = CliRunner()
 #: a receiver near Potsdamer Platz, Berlin (ECEF, m) and six GNSS satellites ~2.6e7 m out
@@ -111,6 +112,29 @@ def test_weights_from_elevation_and_cn0():
         elevation_std_m(30.0, zenith_std_m=0.0)
 
 
+@pytest.mark.parametrize("alpha, mean", [(0.6, 35.0), (0.85, 10.0)])
+def test_nlos_mixture_is_recovered_by_em(alpha, mean):
+    rng = np.random.default_rng(11)
+    std = rng.uniform(3.0, 10.0, 20000)
+    los = rng.random(std.size) < alpha
+    e = rng.normal(0.0, std) + np.where(los, 0.0, rng.exponential(mean, std.size))
+    got_alpha, got_mean = fit_nlos(e, std, 0.5, 20.0)
+    assert abs(got_alpha - alpha) < 0.03 and abs(got_mean - mean) < 0.1 * mean
+    with pytest.raises(InputError, match="at least 10"):
+        fit_nlos(np.full(5, 1.0), 1.0)
+
+
+def test_mixture_modes_of_a_pseudorange():
+    model = PseudorangeModel(std_m=2.0, nlos_mean_m=30.0, los_fraction=0.7)
+    state = {"position": RECEIVER, "clock_offset": np.array(0.0)}
+    ctx = Context(points=SATELLITES)
+    z = model.predict(state, ctx) + np.array([0.0, 40.0, 0.0, -8.0, 0.5, 25.0, 1.0, 0.0])
+    lp = model.mode_logpdf(z, state, ctx)
+    assert lp.shape == (8, 2)
+    np.testing.assert_array_equal(np.argmax(lp, -1) == 1,      # LOS wins near 0 only
+                                  [True, False, True, True, True, False, True, True])
+
+
 # ---- frames ---------------------------------------------------------------------------------
 
 def test_frames_convert_with_pymap3d_and_refuse_what_they_cannot_place():
@@ -189,6 +213,23 @@ def test_moving_satellites_that_set_early_run_through_locate(tmp_path, method):
     assert len(est) == len(truth) and {"lat", "lon", "height"} <= set(est.columns)
     err = horizontal_error(est, truth)
     assert np.sqrt(np.mean(err ** 2)) < 1.5                  # 0.3 m noise, 7-8 satellites
+
+
+def test_smoother_max_mixture_discounts_nlos_pseudoranges(tmp_path):
+    mp, ap, truth = simulated_drive(tmp_path)
+    meas = pd.read_csv(mp)
+    late = (meas["peer"].isin(["G19", "R10"])) & (meas["time"] >= 5.0)   # reflected: +60 m
+    meas.loc[late, "value"] += 60.0
+    meas.to_csv(mp, index=False)
+    err = {}
+    for loss in ("linear", "max-mixture"):
+        out = tmp_path / f"{loss}.csv"
+        res = runner.invoke(app, ["locate", str(mp), "--anchors", str(ap), "--method",
+                                  "smoother", "-o", f"loss={loss}", "-o",
+                                  "pseudorange_std_m=0.3", "--out", str(out), "-q"])
+        assert res.exit_code == 0, res.output
+        err[loss] = np.sqrt(np.mean(horizontal_error(pd.read_csv(out), truth) ** 2))
+    assert err["max-mixture"] < 2.0 and err["max-mixture"] < err["linear"] / 5
 
 
 def test_a_measurement_outside_a_moving_anchors_track_is_refused(tmp_path):
