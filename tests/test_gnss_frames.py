@@ -282,3 +282,16 @@ def test_geojson_is_rfc7946_wgs84_and_matches_pymap3d(tmp_path):
     np.testing.assert_allclose(got[:, 0], lon, atol=1e-7)
     np.testing.assert_allclose(got[:, 1], lat, atol=1e-7)
     np.testing.assert_allclose(got[:, 2], h, atol=1e-3)
+
+
+def test_an_ecef_run_is_scored_horizontally_at_the_reference_start(tmp_path):
+    mp, ap, truth = simulated_drive(tmp_path)
+    ref = tmp_path / "reference.csv"
+    truth.assign(frame="ecef").to_csv(ref, index=False)
+    out = tmp_path / "out.csv"
+    res = runner.invoke(app, ["locate", str(mp), "--anchors", str(ap), "--method", "lsq",
+                              "--reference", str(ref), "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((tmp_path / "out.summary.json").read_text())["reference"]
+    err = horizontal_error(pd.read_csv(out), truth)
+    assert summary["rmse_m"] == pytest.approx(np.sqrt(np.mean(err ** 2)), rel=1e-6)

@@ -304,7 +304,7 @@ def locate(
     option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Method option key=value (repeatable).")] = None,
     smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
-    reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
+    reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z][, frame] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary. An ECEF run is scored horizontally in the east-north-up frame at the reference's first point.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar (one is drawn on standard error when a run lasts more than 2 s).")] = False,
     frame: Annotated[Optional[str], typer.Option("--frame", help="Frame of the anchors (and reference) coordinates when their file has no 'frame' column: local (default), ecef, or wgs84 (x longitude, y latitude in degrees, z height in m).")] = None,
     origin: Annotated[Optional[str], typer.Option("--origin", help="lat,lon[,h]: work and write in the east-north-up frame at this point (a local frame is then taken as that ENU frame; ecef or wgs84 anchors are converted to it).")] = None,
@@ -342,8 +342,8 @@ def locate(
             raise RadiolocError("--smooth contradicts -o smooth=0")
         opts["smooth"] = "1"
     with numeric_errors_raise():
-        from radioloc.locate.frames import (declared_frame, parse_origin, to_working,
-                                            working_frame)
+        from radioloc.locate.frames import (declared_frame, horizontal_at_start,
+                                            parse_origin, to_working, working_frame)
 
         anchor_table = read_anchors(anchors) if anchors is not None else None
         ref_table = read_reference(reference) if reference is not None else None
@@ -368,7 +368,8 @@ def locate(
         with show_progress(not quiet):
             estimates = run_method(method, request)
         estimates = with_geodetic(estimates, work)
-        errors = None if ref_table is None else reference_errors(estimates, ref_table)
+        errors = None if ref_table is None else reference_errors(
+            *horizontal_at_start(estimates, ref_table, work))
     to_stdout = out is None or str(out) == "-"
     written = write_output(estimates, out, fmt, anchor_table, work)
     summary = {"method": method, "options": dict(sorted(opts.items())),

@@ -23,7 +23,8 @@ import pandas as pd
 
 from radioloc.core.errors import ConfigError, InputError
 
-__all__ = ["FRAMES", "Frame", "declared_frame", "parse_origin", "working_frame"]
+__all__ = ["FRAMES", "Frame", "declared_frame", "horizontal_at_start", "parse_origin",
+           "to_working", "working_frame"]
 
 #: Frames an anchors file may be in.
 FRAMES = ("local", "ecef", "wgs84")
@@ -167,3 +168,43 @@ def to_working(table: pd.DataFrame, declared: str, frame: Frame, what: str = "an
                          "(degrees); a y beyond 90 is not a latitude")
     xyz = frame.from_frame(table[["x", "y", "z"]].to_numpy(float), declared)
     return table.assign(x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2])
+
+
+def horizontal_at_start(estimates: pd.DataFrame, reference: pd.DataFrame, frame: Frame
+                        ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Estimates and reference of an ECEF run in the east-north-up frame at the reference's
+    first point, horizontal only (``x`` east, ``y`` north, the covariance's horizontal
+    block): what ``--reference`` scores, as the GNSS literature reports horizontal errors.
+    Other frames are returned unchanged.
+
+    Parameters
+    ----------
+    estimates : DataFrame
+        A ``locate`` output table in the working frame.
+    reference : DataFrame
+        The reference in the working frame (``x, y, z``).
+    frame : Frame
+
+    Returns
+    -------
+    estimates, reference : DataFrame
+    """
+    from radioloc.locate.table import COVARIANCE_COLUMNS, add_covariance, covariance_of
+
+    if frame.kind != "ecef" or "z" not in estimates or "z" not in reference:
+        return estimates, reference
+    import pymap3d
+
+    origin = pymap3d.ecef2geodetic(*reference[["x", "y", "z"]].to_numpy(float)[0])
+    rot, _ = Frame("enu", origin).to_ecef()
+
+    def enu(table):
+        e, n, _ = pymap3d.ecef2enu(*table[["x", "y", "z"]].to_numpy(float).T, *origin)
+        return table.drop(columns="z").assign(x=e, y=n)
+
+    cov = covariance_of(estimates)
+    out = enu(estimates.drop(columns=[c for c in COVARIANCE_COLUMNS[3] + ("uncertainty_m",)
+                                      if c in estimates]))
+    if cov is not None and cov.shape[-1] == 3:
+        out = add_covariance(out, (rot.T @ cov @ rot)[:, :2, :2])
+    return out, enu(reference)
