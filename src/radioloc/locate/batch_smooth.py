@@ -188,9 +188,11 @@ def _range_noise(request: LocateRequest, nodes: list, anchors: np.ndarray, s: di
     nodes with range rows)."""
     ranging = [(node, times, next(o for o in obs if o.model.kind == "range"))
                for node, _, times, obs in nodes if any(o.model.kind == "range" for o in obs)]
+    if not ranging:                          # pseudoranges alone: their own mixture
+        return {}
     if all(g is not None for g in given):
         return {node: (LosNlosRange(*given), s["bias"]) for node, _, _ in ranging}
-    if ranging and s["dim"] != 2:
+    if s["dim"] != 2:
         raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs 2-D "
                          "tracking (give tag_height_m) or los_std_m, nlos_mean_m and alpha")
     per_node = []
