@@ -85,3 +85,24 @@ def test_white_jerk_noise_does_not_depend_on_how_an_interval_is_split():
     assert np.linalg.eigvalsh(motion.Q(0.2)).min() > 0          # full rank
     with pytest.raises(ConfigError):
         WhiteJerkCA(q=-1.0)
+
+
+def test_body_rates_are_declared_kinds_refused_beyond_their_limits_and_motions(tmp_path):
+    """speed, vertical_speed and yaw_rate come from the registry (self-measured, their own
+    sigma options); a log row beyond a kind's limit is refused naming the line; a yaw rate
+    with a motion without acceleration is refused naming motion=ca."""
+    from radioloc.core.kinds import kind
+    from radioloc.io.logs import read_measurements
+    from radioloc.models.measurement import check_motion
+    from radioloc.models.motion import WhiteAccelerationCV
+
+    for name, option in (("speed", "speed_std_mps"), ("vertical_speed", "vertical_speed_std_mps"),
+                         ("yaw_rate", "yaw_rate_std_rps")):
+        k = kind(name)
+        assert k.self_measured and k.sigma_option == option and k.build(0.2).kind == name
+    log = tmp_path / "m.csv"
+    log.write_text("time,node,peer,kind,value\n0,car,odo,speed,12\n1,car,odo,speed,2000\n")
+    with pytest.raises(ValueError, match=r"line 3.*speed 2000 m/s is beyond the limit of 1000"):
+        read_measurements(log)
+    with pytest.raises(ConfigError, match="motion=ca"):
+        check_motion(YawRateModel(std_rps=0.01), WhiteAccelerationCV(1.0, 2))

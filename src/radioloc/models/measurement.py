@@ -336,9 +336,11 @@ def check_motion(model: "MeasurementModel", motion) -> None:
         kind = f" (kind {model.kind})" if model.kind else ""
         raise ConfigError(f"{type(model).__name__}{kind} reads {', '.join(missing)}, which the motion "
                           f"model {type(motion).__name__} does not hold (its state: "
-                          f"{', '.join(held)}): give a motion model with {missing[-1]} (a "
-                          "constant velocity, WhiteAccelerationCV; locate: -o motion=cv, no "
-                          "odometry rows)")
+                          f"{', '.join(held)}): give a motion model with {missing[-1]} ("
+                          + ("a constant acceleration, WhiteJerkCA; locate: -o motion=ca"
+                             if missing[-1] == "acceleration" else "a constant velocity, "
+                             "WhiteAccelerationCV; locate: -o motion=cv")
+                          + ", no odometry rows)")
 
 
 @dataclass(frozen=True)
