@@ -288,7 +288,7 @@ def test_closed_form_covariance_follows_the_range_noise():
 
 def test_moving_anchors_are_validated_and_refused_by_methods_that_do_not_take_them(tmp_path):
     meas, anchors, pos = sensor_log()
-    with pytest.raises(InputError, match="time column.*closed-form, lsq, newton"):
+    with pytest.raises(InputError, match="time column.*closed-form, ekf-track, lsq, newton, smoother"):
         run("gn", meas, anchors)
     short = anchors[anchors["time"] <= 10.0].assign(time=lambda f: f["time"] - 0.01)
     with pytest.raises(InputError, match=r"anchor 'S': no position at time 10\.0"):

@@ -165,6 +165,10 @@ def test_tum_and_geojson_exports(tmp_path):
         np.testing.assert_array_equal(rows[:, 3:], [[0, 0, 0, 0, 1]] * 5)
     res = runner.invoke(app, ["locate", MEAS, "--anchors", ANCHORS, "--format", "geojson",
                               "--out", str(tmp_path / "t.json")])
+    assert res.exit_code == 2 and "--origin" in res.output    # metres are no longitude
+    assert not (tmp_path / "t.json").exists()
+    res = runner.invoke(app, ["locate", MEAS, "--anchors", ANCHORS, "--format", "geojson",
+                              "--origin", "52.5,13.37,40", "--out", str(tmp_path / "t.json")])
     assert res.exit_code == 0, res.output
     fc = json.loads((tmp_path / "t.json").read_text())
     kinds = [f["geometry"]["type"] for f in fc["features"]]

@@ -123,7 +123,7 @@ def test_pf_follows_the_tag_with_em_fitted_parameters_and_fixed_lag(log):
 
 
 @pytest.mark.parametrize("method, opt, message", [
-    ("ekf-track", "motion=ca", "motion"),
+    ("ekf-track", "motion=jerk", "motion"),
     ("ekf-track", "q=-1", "q"),
     ("ekf-track", "range_std_m=0", "range_std_m"),
     ("ekf-track", "smooth=maybe", "smooth"),

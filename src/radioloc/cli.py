@@ -319,11 +319,13 @@ def locate(
     option: Annotated[Optional[list[str]], typer.Option("--option", "-o", help="Method option key=value (repeatable).")] = None,
     smooth: Annotated[bool, typer.Option("--smooth", help="Offline log: smoothed track (the same as -o smooth=1; trackers only).")] = False,
     plot: Annotated[Optional[Path], typer.Option("--plot", help="Figure of the anchors, the tracks with 95 % uncertainty ellipses and the gated rows (.png, .svg or .pdf; .html: a self-contained page with the figure, the run summary and a section per node); with --reference also the error against time.")] = None,
-    reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary.")] = None,
+    reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z][, frame] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary. An ECEF run is scored horizontally in the east-north-up frame at the reference's first point.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress (on standard error: a bar when a run lasts more than 2 s, or, when standard error is not a terminal, a line per 10 s of work).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Exit non-zero (1) when the run warns: a finding of the health check (summary.json, health) or any other warning; the outputs are written first.")] = False,
     follow: Annotated[bool, typer.Option("--follow", help="Live: read rows as they arrive (MEASUREMENTS '-' for standard input, or a file that grows; CSV or JSON lines) and write each estimate at once (ekf-track); ends at end of input or Ctrl-C.")] = False,
     reorder_s: Annotated[Optional[float], typer.Option("--reorder-s", help="With --follow: rows up to this many seconds out of order are placed (default 0.5); older ones are counted and left out.")] = None,
+    frame: Annotated[Optional[str], typer.Option("--frame", help="Frame of the anchors (and reference) coordinates when their file has no 'frame' column: local (default), ecef, or wgs84 (x longitude, y latitude in degrees, z height in m).")] = None,
+    origin: Annotated[Optional[str], typer.Option("--origin", help="lat,lon[,h]: work and write in the east-north-up frame at this point (a local frame is then taken as that ENU frame; ecef or wgs84 anchors are converted to it).")] = None,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -333,7 +335,9 @@ def locate(
     cov_zz] (m^2) and per-row flags (gated: ranges refused by the gate; restart: the track
     starts again after a gap; p_nlos: largest NLOS probability of the row's ranges). The
     same input and options always give the same output (the particle filter's seed is 0
-    unless -o seed=N).
+    unless -o seed=N). Positions are in the working frame (see --frame, --origin); when it
+    has a place on the Earth, the columns lat, lon, height (WGS84) follow, and GeoJSON is
+    written in longitude, latitude (RFC 7946).
     """
     import json
 
@@ -341,7 +345,7 @@ def locate(
     from radioloc.io.logs import (read_anchors, read_measurements, read_reference,
                                   subtract_anchor_bias)
     from radioloc.locate.base import LocateRequest, run_method
-    from radioloc.locate.export import output_files, output_format, write_output
+    from radioloc.locate.export import output_files, output_format, with_geodetic, write_output
     from radioloc.locate.plot import check_plot_path, plot_locate
     from radioloc.locate.progress import show_progress
     from radioloc.locate.scoring import error_lines, error_summary, reference_errors
@@ -365,13 +369,27 @@ def locate(
         with numeric_errors_raise():
             written = follow_locate(measurements, anchors, method, opts, out, fmt, reorder_s, {
                 "--plot": plot, "--reference": reference, "--priors": priors,
-                "--calibration": calibration, "--strict": strict})
+                "--calibration": calibration, "--strict": strict, "--frame": frame,
+                "--origin": origin})
         for path in written:
             _echo_err(f"wrote {path}")
         return
     with numeric_errors_raise():
+        from radioloc.locate.frames import (declared_frame, horizontal_at_start,
+                                            parse_origin, to_working, working_frame)
+
         anchor_table = read_anchors(anchors) if anchors is not None else None
         ref_table = read_reference(reference) if reference is not None else None
+        declared = declared_frame(anchor_table, frame)
+        work = working_frame(declared, parse_origin(origin))
+        if fmt == "geojson" and not work.georeferenced:
+            raise RadiolocError(f"--format geojson: GeoJSON is longitude and latitude (RFC "
+                                f"7946), and {work.why_not_georeferenced()}")
+        if anchor_table is not None:
+            anchor_table = to_working(anchor_table, declared, work)
+        if ref_table is not None:
+            ref_table = to_working(ref_table, declared_frame(ref_table, declared, "reference"),
+                                   work, "reference")
         nd = opts.get("not_detected")
         try:
             nd = None if nd is None else float(nd)
@@ -379,16 +397,18 @@ def locate(
             raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
         meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                       not_detected=nd), anchor_table)
-        request = LocateRequest(meas, anchor_table, priors, calibration, opts)
+        request = LocateRequest(meas, anchor_table, priors, calibration, opts, frame=work)
         with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
             estimates = run_method(method, request)
         for w in warned:                    # shown as usual, counted for --strict
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-        errors = None if ref_table is None else reference_errors(estimates, ref_table)
+        estimates = with_geodetic(estimates, work)
+        errors = None if ref_table is None else reference_errors(
+            *horizontal_at_start(estimates, ref_table, work))
     to_stdout = out is None or str(out) == "-"
     files = output_files(list(estimates["node"].unique()), out, fmt)
     check_outputs([*(("--out", f) for f in files), *others], inputs)
-    written = write_output(estimates, out, fmt, anchor_table)
+    written = write_output(estimates, out, fmt, anchor_table, work)
     summary = {"method": method, "options": dict(sorted(opts.items())),
                "measurements": str(measurements), "rows_read": int(len(meas)),
                "rows_out": int(len(estimates)), **estimates.attrs.get("summary", {})}

@@ -70,7 +70,7 @@ def fetch_dataset(
 
 @datasets_app.command("export")
 def export_dataset(
-    name: Annotated[str, typer.Argument(help="hanyang, kolakowski, ujiindoorloc or wifi-rtt.")],
+    name: Annotated[str, typer.Argument(help="hanyang, kolakowski, smartloc, ujiindoorloc or wifi-rtt.")],
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("export"),
     fmt: Annotated[str, typer.Option("--format", help="csv or parquet (Parquet needs pyarrow).")] = "csv",
     run: Annotated[str, typer.Option(help="hanyang: run CONDITION/TRAJECTORY/CASE, e.g. LOS/A/1.")] = "LOS/A/1",
@@ -85,6 +85,7 @@ def export_dataset(
     rss: Annotated[bool, typer.Option("--rss", help="wifi-rtt: also write the RSS rows.")] = False,
     phone_std: Annotated[bool, typer.Option("--phone-std", help="wifi-rtt: write the phone's reported range std as the std column.")] = False,
     heading: Annotated[bool, typer.Option("--heading", help="wifi-rtt: also write the phone's azimuth as heading rows (compass frame: remove its offset to the map before tracking).")] = False,
+    weights: Annotated[str, typer.Option(help="gnss-smartloc-berlin: the pseudoranges' std from the receiver's variance, the elevation or the C/N0.")] = "variance",
 ) -> None:
     """Write a data set in the `radioloc locate` formats (measurements, anchors, reference,
     and a fingerprint calibration file for the fingerprint sets)."""
@@ -97,6 +98,8 @@ def export_dataset(
             opts.update(run=run, epoch_s=epoch_s, tag_height_m=tag_height)
         elif ds.name == "ujiindoorloc":
             opts.update(building=building, floor=floor, min_detections=min_detections)
+        elif ds.name == "gnss-smartloc-berlin":
+            opts.update(weights=weights)
         elif ds.name == "wifi-rtt-haiyaoyu":
             opts.update(venue=venue, circle=circle, rss=rss, phone_std=phone_std, heading=heading)
         paths = export(ds.name, out, **opts)

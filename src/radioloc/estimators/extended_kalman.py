@@ -286,6 +286,7 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         """Prior variances of the components after the kinematic part, in state order."""
         var = {"clock_offset": self.clock_offset_prior_std_m ** 2,
                "clock_drift": self.clock_drift_prior_std_m_per_s ** 2,
+               "clock_bias": self.clock_offset_prior_std_m ** 2,
                "anchor_bias": self.bias_prior_std_m ** 2}
         return np.concatenate([np.full(size, var[name]) for name, size in layout.sizes.items()
                                if name in var])

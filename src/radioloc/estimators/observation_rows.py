@@ -112,6 +112,8 @@ class RowStack:
     los_nlos : LosNlosRange, optional
         Score the rows of every ``"range"`` observation by the max-mixture of its LOS and
         NLOS modes under this noise model (the row's own model with ``noise=los_nlos``).
+        A model with its own LOS/NLOS modes (a pseudorange model with ``nlos_mean_m``) is
+        scored by them in any case.
     null_hypothesis : (float, float), optional
         ``(weight, std)`` of a null-hypothesis mode added to the max-mixture.
     """
@@ -128,6 +130,8 @@ class RowStack:
             mixture = None
             if los_nlos is not None and o.model.kind == "range":
                 mixture = replace(o.model, noise=los_nlos, std_m=None)
+            elif getattr(o.model, "nlos_mean_m", None) is not None:   # its own LOS/NLOS
+                mixture = o.model
             self.items.append((o.model, o.z, ctx, mixture))
         self.sizes = [z.shape[-1] for _, z, _, _ in self.items]
 

@@ -133,6 +133,7 @@ _RTT_ORIGIN, _RTT_BASE = _github("haiyaoyu/RTT-Indoor-localization-data-set",
                                  "2b19c6c0db0e54f07800802fdf261ea3835ca478")
 _UC_ORIGIN, _UC_BASE = _github("ShuningZhao/Character-Trajectories",
                                "0c9bfa477542c4f885370a6af05a99b45764f3af")
+_SL_ORIGIN, _SL_BASE = _github("TUC-ProAut/libRSF", "d54801a232af02c0cda6012dabd3dea6c5fd77c5")
 
 #: Every data set the toolkit reads, by folder name.
 DATASETS: dict[str, DataSet] = {d.name: d for d in (
@@ -143,6 +144,15 @@ DATASETS: dict[str, DataSet] = {d.name: d for d in (
             "Apache-2.0", aliases=("hanyang",),
             exports="locate run: measurements (ranges), anchors, reference, the set's LS/ESKF "
                     "estimates"),
+    DataSet("gnss-smartloc-berlin",
+            "GPS and GLONASS pseudoranges (satellite ECEF positions per epoch), car odometry and "
+            "reference of a 283 s urban drive through Potsdamer Platz, Berlin (smartLoc)",
+            _SL_ORIGIN, "d54801a232af02c0cda6012dabd3dea6c5fd77c5",
+            _SL_BASE + "datasets/smartLoc/",
+            "CC-BY-SA-4.0 (cite Reisdorf, Pfeifer, Bressler, Bauer, Weissig, Lange, TU Chemnitz)",
+            aliases=("smartloc", "berlin"),
+            exports="locate run: measurements (pseudoranges), anchors (satellite tracks, ECEF, "
+                    "one group per constellation), reference (ECEF), odometry"),
     DataSet("herald-ble-rssi-distance",
             "BLE phone-to-phone RSSI at known distances (cable car, 0-3.4 m), two Android sessions",
             _HE_ORIGIN, "fb668bec0fdf6a9c3f1fa99f6ff8e29eff8c2108", _HE_BASE,
@@ -815,6 +825,93 @@ def export_wifi_rtt(out: Path | str, *, venue: str = "Canteen", circle: str | in
                 ["time", "node"], kind="stable"), out / f"reference{ext}")}
 
 
+#: How ``export_smartloc`` writes the ``std`` of a pseudorange.
+SMARTLOC_WEIGHTS = ("variance", "elevation", "cn0")
+
+
+def export_smartloc(out: Path | str, *, weights: str = "variance", root: Path | str | None = None,
+                    fmt: str = "csv") -> dict[str, Path]:
+    """Write the smartLoc Berlin drive in the ``radioloc locate`` schema.
+
+    Each pseudorange is a ``pseudorange`` row of node ``car`` to its satellite (``G12``,
+    ``R20``); the satellites are moving anchors in ECEF (``frame`` column ``ecef``), one row
+    per epoch where the satellite was tracked, each with its constellation as ``group``
+    (``GPS``, ``GLONASS``: one receiver clock per group). The receiver's position is never
+    written to the measurements: the reference goes to ``reference`` (ECEF, ``frame``
+    ``ecef``). The car's body-frame speed, vertical speed and yaw rate go to ``odometry``
+    and, as ``speed``, ``vertical_speed`` and ``yaw_rate`` rows with their standard
+    deviations, beside the pseudoranges
+    in ``measurements_odometry`` (for ``ekf-track`` and ``smoother``).
+
+    Parameters
+    ----------
+    out : path
+        Output folder.
+    weights : {"variance", "elevation", "cn0"}
+        The ``std`` column: the square root of the file's variance, or a model of the
+        elevation (:func:`radioloc.core.gnss.elevation_std_m`) or of the C/N0
+        (:func:`radioloc.core.gnss.cn0_std_m`) at their default constants.
+    root : path, optional
+        The data set folder (default :func:`require`).
+    fmt : {"csv", "parquet"}
+
+    Returns
+    -------
+    dict of str to Path
+        ``measurements`` (the pseudoranges), ``measurements_odometry`` (the pseudoranges
+        and the odometry as ``speed``, ``vertical_speed`` and ``yaw_rate`` rows of sensor
+        ``odometry``, for the trackers), ``anchors``, ``reference`` and ``odometry``
+        (``time, speed_mps, vertical_mps, yaw_rate_rps, speed_var, vertical_var,
+        yaw_rate_var``).
+    """
+    from radioloc.io.smartloc import load
+    from radioloc.core.gnss import cn0_std_m, elevation_std_m
+
+    if weights not in SMARTLOC_WEIGHTS:
+        raise ConfigError(f"weights: {weights!r} is not one of {', '.join(SMARTLOC_WEIGHTS)}")
+    ext = _ext(fmt)
+    root = Path(root) if root is not None else require("gnss-smartloc-berlin")
+    drive = load(root)
+    pr = drive.pseudoranges.assign(time=np.round(drive.pseudoranges["time"].to_numpy(), 6))
+    std = {"variance": lambda: np.sqrt(pr["variance"].to_numpy()),
+           "elevation": lambda: elevation_std_m(pr["elevation_deg"].to_numpy()),
+           "cn0": lambda: cn0_std_m(pr["cn0_dbhz"].to_numpy())}[weights]()
+    meas = pd.DataFrame({"time": pr["time"], "node": "car", "peer": pr["satellite"],
+                         "kind": "pseudorange", "value": pr["value"], "std": std})
+    anchors = pd.DataFrame({"id": pr["satellite"], "time": pr["time"], "x": pr["x"],
+                            "y": pr["y"], "z": pr["z"], "group": pr["system"], "frame": "ecef"})
+    anchors = anchors.sort_values(["id", "time"], kind="stable")
+    ref = drive.reference.assign(time=np.round(drive.reference["time"].to_numpy(), 6),
+                                 frame="ecef")
+    odo = drive.odometry.assign(time=np.round(drive.odometry["time"].to_numpy(), 6))
+    rates = pd.concat([pd.DataFrame({"time": odo["time"], "node": "car", "peer": "odometry",
+                                     "kind": kind, "value": odo[value],
+                                     "std": np.sqrt(odo[var].to_numpy())})
+                       for kind, value, var in (("speed", "speed_mps", "speed_var"),
+                                                ("vertical_speed", "vertical_mps", "vertical_var"),
+                                                ("yaw_rate", "yaw_rate_rps", "yaw_rate_var"))])
+    with_odometry = pd.concat([meas, rates]).sort_values("time", kind="stable")
+    out = Path(out)
+    return {"measurements": _write_exact(meas, out / f"measurements{ext}"),
+            "measurements_odometry": _write_exact(with_odometry,
+                                                  out / f"measurements_odometry{ext}"),
+            "anchors": _write_exact(anchors, out / f"anchors{ext}"),
+            "reference": _write_exact(ref, out / f"reference{ext}"),
+            "odometry": _write_exact(odo, out / f"odometry{ext}")}
+
+
+def _write_exact(frame: pd.DataFrame, path: Path) -> Path:
+    """:func:`write_table` with every float in its shortest exact form (satellite
+    coordinates need more than the micrometres of ``write_table``'s CSV)."""
+    if path.suffix.lower() == ".parquet":
+        return write_table(frame, path)
+    from radioloc.io.logs import write_estimates
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_estimates(frame, path)
+    return path
+
+
 #: UJIIndoorLoc's value for "access point not detected".
 UJI_NOT_DETECTED = 100
 
@@ -908,6 +1005,7 @@ def _ext(fmt: str) -> str:
 
 #: Export functions by data set folder name.
 EXPORTERS: dict[str, Callable[..., dict[str, Path]]] = {
+    "gnss-smartloc-berlin": export_smartloc,
     "hanyang-uwb-outdoor": export_hanyang,
     "kolakowski-ble-fingerprints-2021": export_kolakowski,
     "ujiindoorloc": export_ujiindoorloc,
@@ -946,5 +1044,5 @@ def export(name: str, out: Path | str, **options) -> dict[str, Path]:
 
 
 __all__ = ["DATASETS", "DataSet", "data_roots", "download_root", "export", "export_hanyang",
-           "export_kolakowski", "export_ujiindoorloc", "export_wifi_rtt", "fetch", "find", "get", "hanyang_runs",
+           "export_kolakowski", "export_smartloc", "export_ujiindoorloc", "export_wifi_rtt", "fetch", "find", "get", "hanyang_runs",
            "missing_message", "read_table_text", "require", "status", "write_table"]

@@ -13,8 +13,9 @@ column      meaning
             (dBm), ``tdoa`` (range to ``peer`` minus to ``reference``, metres), ``aoa``,
             ``aoa_elevation``, ``heading`` (radians), ``pseudorange`` (metres),
             ``odometry_dx`` / ``odometry_dy`` (the node's displacement, metres, in pairs
-            with the same time; ``peer`` names the sensor), and any kind another package
-            declares
+            with the same time; ``peer`` names the sensor), ``speed``,
+            ``vertical_speed`` (m/s) and ``yaw_rate`` (rad/s: a vehicle's body-frame
+            odometry; ``peer`` names the sensor), and any kind another package declares
 ``value``   the measured value (number; a range must be >= 0, or above -6 times the
             row's ``std`` (:func:`~radioloc.core.validation.check_ranges`), then read as 0)
 ``reference`` optional: the second reference point of a ``tdoa`` row (its reference
@@ -24,7 +25,10 @@ column      meaning
             method's default), e.g. the sigma a WiFi RTT phone reports
 ==========  =======================================================================
 
-Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique.
+Anchors CSV: ``id, x, y`` and optionally ``z`` (metres); ids unique. Optional: ``frame``
+(``local``, ``ecef`` or ``wgs84``, see :mod:`radioloc.locate.frames`), ``group`` (the
+receiver clock a pseudorange to the anchor is read with: its constellation, e.g. ``GPS``),
+``time`` (a moving anchor, one row per position).
 
 Errors name the file, the line (as a text editor shows it: the header is line 1; blank
 lines and quoted line breaks counted) and the column, so that a user can open the file and
@@ -32,7 +36,7 @@ fix it. Refused besides malformed cells: a column named twice, a row with more o
 cells than the header, magnitudes no real log holds (see :data:`LIMITS`: a range beyond
 10,000 km, an RSS above +30 dBm, such as the +100 dBm "not detected" sentinel of WiFi
 fingerprint sets, or below -200 dBm, a time stamp beyond 1e12 s, an anchor coordinate
-beyond 10,000 km).
+beyond 50,000 km, which admits satellites in ECEF).
 
 Estimates are written with every float in its shortest exact form (``repr``), so that the
 times and positions read back are bit-for-bit the ones computed; the file is written to a
@@ -70,8 +74,9 @@ MEASUREMENT_COLUMNS = ("time", "node", "peer", "kind", "value")
 #: Anchors-file columns radioloc reads, or writes with ``radioloc calibrate`` (the
 #: calibrated positions' covariance and bound, a record kept with them); the kinds' models
 #: read theirs (:attr:`radioloc.core.kinds.Kind.anchor_columns`); any other is refused.
-ANCHOR_COLUMNS = ("id", "x", "y", "z", "time", "std_m", "bias_m", "bias_std_m", "cov_xx",
-                  "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz", "crb_std_m")
+ANCHOR_COLUMNS = ("id", "x", "y", "z", "time", "frame", "group", "std_m", "bias_m",
+                  "bias_std_m", "cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz",
+                  "crb_std_m")
 #: Kinds that are motion inputs of the node itself (their ``peer`` names the sensor).
 MOTION_KINDS = ("odometry_dx", "odometry_dy")
 #: Anchor columns of a log-distance RSS model per anchor: mean RSS at 1 m (dBm), path-loss
@@ -82,7 +87,8 @@ ANCHOR_RSS_COLUMNS = ("rss_a_dbm", "rss_n", "rss_std_db")
 #: kind's values have their kind's limit (:attr:`radioloc.core.kinds.Kind.limit`).
 LIMITS = {
     "range_m": 1e7,          # 10,000 km: beyond any terrestrial link
-    "coordinate_m": 1e7,     # |x|, |y|, |z| of an anchor (UTM northings and ECEF fit)
+    "coordinate_m": 5e7,     # |x|, |y|, |z| of an anchor: satellites in ECEF (GNSS orbits
+                             # 2.7e7 m from the Earth's centre, geostationary 4.2e7 m) fit
     "rss_max_dbm": 30.0,     # 1 W received
     "rss_min_dbm": -200.0,   # far below thermal noise in any bandwidth
     "time_s": 1e12,          # ~31,700 years; epoch milliseconds are 1.7e12
@@ -519,7 +525,8 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
     InputError
         Missing or duplicated column, a column no one reads (naming it: not one of
         :data:`ANCHOR_COLUMNS` nor a kind's), text in a coordinate, non-finite coordinate or one
-        beyond 1e7 m, duplicate or empty id; with ``time``: a second row of one anchor at
+        beyond 5e7 m, an empty ``frame`` or ``group`` cell, duplicate or empty id; with
+        ``time``: a second row of one anchor at
         one time, or of a fixed anchor.
     """
     frame = _read_csv(path, "anchors")
@@ -535,6 +542,11 @@ def read_anchors(path: Path | str) -> pd.DataFrame:
         if c in frame.columns:
             out[c] = _numeric(frame, c, path)
             _check_magnitude(frame, out[c], c, LIMITS["coordinate_m"], "m", path)
+    for c in ("frame", "group"):                     # the coordinates' frame, a clock group
+        if c in frame.columns:
+            out[c] = _text(frame, c)
+            if (i := _first(out[c] == "")) is not None:
+                raise InputError(f"{path}: line {_line(frame, i)}, column '{c}': empty")
     if "std_m" in frame.columns:                     # prior std of a rough anchor (calibrate)
         out["std_m"] = _std_column(frame, "std_m", path)
     if "bias_m" in frame.columns:                    # a calibrated range bias (calibrate)
@@ -905,7 +917,8 @@ def read_reference(path: Path | str) -> pd.DataFrame:
     -------
     DataFrame
         ``time``, ``node`` (str; absent when the file has none: the reference of every
-        node), ``x``, ``y`` and ``z`` if present, sorted by node and time.
+        node), ``x``, ``y`` and ``z`` if present, ``frame`` if present (the frame of the
+        coordinates, :mod:`radioloc.locate.frames`), sorted by node and time.
 
     Raises
     ------
@@ -920,6 +933,8 @@ def read_reference(path: Path | str) -> pd.DataFrame:
     for c in ("x", "y", "z"):
         if c in frame.columns:
             out[c] = _numeric(frame, c, path)
+    if "frame" in frame.columns:                 # its coordinates' frame (locate.frames)
+        out["frame"] = _text(frame, "frame")
     keys = ["node", "time"] if "node" in out else ["time"]
     twice = out.duplicated(keys)
     if twice.any():

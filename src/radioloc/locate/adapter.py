@@ -10,6 +10,7 @@ with its measurement model and its anchors' positions. Which model explains whic
 
 from __future__ import annotations
 
+from dataclasses import fields, is_dataclass, replace
 from typing import Mapping
 
 import numpy as np
@@ -23,9 +24,9 @@ from radioloc.io.measurements import Measurements
 from radioloc.locate.base import Option
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
-__all__ = ["anchor_positions", "anchor_points", "moving_anchors", "node_observations",
-           "log_observations",
-           "anchor_ranges", "default_models", "sigma_options"]
+__all__ = ["anchor_positions", "anchor_points", "moving_anchors", "clock_groups",
+           "node_observations", "log_observations", "anchor_ranges", "default_models",
+           "frame_settings", "sigma_options"]
 
 
 def sigma_options() -> dict[str, Option]:
@@ -50,12 +51,15 @@ def moving_anchors(anchors: pd.DataFrame | None) -> bool:
     return anchors is not None and "time" in anchors.columns and bool(anchors["time"].notna().any())
 
 
-def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
+def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray,
+                  measured: np.ndarray | None = None) -> np.ndarray:
     """Positions of the anchors ``ids`` at ``times``: ``(T, S, D)``.
 
     A fixed anchor (no ``time`` column, or an empty time) is where its row says; a moving
     one (rows at several times) is interpolated linearly between its two rows around each
-    time, never extrapolated.
+    time, never extrapolated. Its track need only cover the times it is measured at
+    (``measured``): elsewhere (a satellite below the horizon) the position is its track's
+    nearest end, which no estimator reads (the slot's measurement is missing there).
 
     Parameters
     ----------
@@ -64,6 +68,8 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     ids : sequence of str
         Anchor ids (slots).
     times : ndarray, shape (T,)
+    measured : ndarray of bool, shape (T, S), optional
+        Where each anchor is measured (default: at every time).
 
     Returns
     -------
@@ -72,7 +78,7 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     Raises
     ------
     InputError
-        A time outside a moving anchor's track (naming the anchor and the time).
+        A measured time outside a moving anchor's track (naming the anchor and the time).
     """
     dims = ["x", "y"] + (["z"] if "z" in anchors.columns else [])
     times = np.asarray(times, dtype=float)
@@ -86,6 +92,8 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
             continue
         t = rows["time"].to_numpy(dtype=float)
         outside = (times < t[0]) | (times > t[-1])
+        if measured is not None:
+            outside &= measured[:, s]
         if outside.any():
             raise InputError(f"anchor {a!r}: no position at time {float(times[outside][0])!r} "
                              f"(its track runs from {float(t[0])!r} to {float(t[-1])!r}; positions are "
@@ -95,8 +103,34 @@ def anchor_points(anchors: pd.DataFrame, ids, times: np.ndarray) -> np.ndarray:
     return out
 
 
+def clock_groups(anchors: pd.DataFrame | None, ids=None) -> np.ndarray:
+    """The receiver clock of a pseudorange to each anchor of ``ids`` (all: None): the index
+    of its ``group`` (a constellation) in the order the groups first appear in the anchors
+    table; 0 for every anchor of a table without ``group``.
+
+    Parameters
+    ----------
+    anchors : DataFrame or None
+    ids : sequence of str, optional
+
+    Returns
+    -------
+    ndarray of int
+    """
+    if anchors is None:
+        return np.zeros(0 if ids is None else len(ids), dtype=int)
+    first = anchors.drop_duplicates("id")
+    ids = list(first["id"]) if ids is None else list(ids)
+    if "group" not in first.columns:
+        return np.zeros(len(ids), dtype=int)
+    order = {g: k for k, g in enumerate(dict.fromkeys(first["group"]))}
+    of = dict(zip(first["id"], first["group"].map(order)))
+    return np.array([of.get(a, 0) for a in ids], dtype=int)
+
+
 def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = False,
-                   range_noise=None) -> dict[str, MeasurementModel]:
+                   range_noise=None, settings: Mapping[str, object] | None = None
+                   ) -> dict[str, MeasurementModel]:
     """The measurement model of each kind.
 
     Parameters
@@ -111,6 +145,11 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
         Ranges carry a per-anchor bias to estimate (WiFi RTT offsets, antenna delays).
     range_noise : range-error model, optional
         E.g. a :class:`~radioloc.models.los_nlos.LosNlosRange` instead of a Gaussian.
+    settings : mapping, optional
+        Fields of the models that follow from the working frame and the anchors
+        (:func:`frame_settings`): each model takes those it has as fields (the
+        pseudorange's ``groups``, ``earth_rotation``, ``to_ecef``; the body-frame rates'
+        ``geocentric``).
 
     Returns
     -------
@@ -118,6 +157,7 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
     """
     from radioloc.models.ranging import RangeModel
 
+    settings = settings or {}
     declared = model_kinds()
     out: dict[str, MeasurementModel] = {}
     for kind in kinds:
@@ -126,12 +166,53 @@ def default_models(kinds, options: Mapping[str, float], *, anchor_bias: bool = F
         k = declared[kind]
         sigma = float(options.get(k.sigma_option, k.sigma_default))
         if kind == "range" and (anchor_bias or range_noise is not None):
-            out[kind] = (RangeModel(noise=range_noise, anchor_bias=anchor_bias)
-                         if range_noise is not None
-                         else RangeModel(std_m=sigma, anchor_bias=anchor_bias))
+            model = (RangeModel(noise=range_noise, anchor_bias=anchor_bias)
+                     if range_noise is not None
+                     else RangeModel(std_m=sigma, anchor_bias=anchor_bias))
         else:
-            out[kind] = k.build(sigma)
+            model = k.build(sigma)
+        own = {f.name: settings[f.name] for f in (fields(model) if is_dataclass(model) else ())
+               if f.name in settings}
+        out[kind] = replace(model, **own) if own else model
     return out
+
+
+def frame_settings(request) -> dict:
+    """The settings of a ``locate`` request that follow from its frame and anchors, for
+    :func:`default_models`, named as the models' fields: a receiver clock per anchor
+    ``group`` (``groups``); the Earth-rotation (Sagnac) term by option ``earth_rotation``
+    (default: on when the working frame is tied to the Earth, i.e. the anchors are in ECEF
+    or WGS84 or an origin is given) with the working frame's map to ECEF (``to_ecef``);
+    whether "up" is geocentric (``geocentric``: an ECEF working frame).
+
+    Parameters
+    ----------
+    request : LocateRequest
+
+    Returns
+    -------
+    dict
+        ``groups``, ``earth_rotation``, ``to_ecef``, ``geocentric``.
+
+    Raises
+    ------
+    ConfigError
+        ``earth_rotation=1`` in a frame with no place on the Earth.
+    """
+    from radioloc.core.errors import ConfigError
+
+    frame = getattr(request, "frame", None)
+    geo = frame is not None and frame.georeferenced
+    rotation = request.option("earth_rotation", geo, bool)
+    if rotation and not geo:
+        raise ConfigError("option earth_rotation=1: "
+                          + (frame.why_not_georeferenced() if frame is not None
+                             else "the frame of the anchors is unknown"))
+    groups = clock_groups(request.anchors)
+    return {"groups": int(groups.max()) + 1 if groups.size else 1,
+            "earth_rotation": bool(rotation),
+            "to_ecef": frame.to_ecef() if geo and rotation else None,
+            "geocentric": geo and frame.kind == "ecef"}
 
 
 def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: str,
@@ -205,16 +286,20 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
         ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
                    if declared[kind].reference else None)
         if moving:
-            pts = anchor_points(anchors, grid.peers, time)
-            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time)
+            seen = np.isfinite(grid.value)
+            pts = anchor_points(anchors, grid.peers, time, seen)
+            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time,
+                                                             seen)
         else:
             pts = points[peer_idx]
             ref = None if ref_idx is None else points[ref_idx]
         first = anchors.drop_duplicates("id")
         columns = {c: first[c].to_numpy(dtype=float)[peer_idx]
                    for c in declared[kind].anchor_columns if c in first.columns}
+        groups = getattr(models[kind], "clock_groups", 1) > 1
         ctx = Context(points=pts, index=peer_idx, reference=ref, reference_index=ref_idx,
-                      height_m=height_m, columns=columns or None)
+                      height_m=height_m, columns=columns or None,
+                      group=clock_groups(anchors, grid.peers) if groups else None)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out

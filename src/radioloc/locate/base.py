@@ -164,6 +164,8 @@ class LocateRequest:
         Options already converted and checked against the method's declaration
         (filled by :func:`run_method`); ``parsed["no_check"]`` holds the plausibility
         checks overruled with ``-o no_check`` (a frozenset of names).
+    frame : radioloc.locate.frames.Frame or None
+        The working frame of the anchors' coordinates (None: local, not on the Earth).
     """
 
     measurements: pd.DataFrame
@@ -172,6 +174,7 @@ class LocateRequest:
     calibration: Path | None = None
     options: dict[str, str] = field(default_factory=dict)
     parsed: dict[str, Any] = field(default_factory=dict)
+    frame: Any = None
 
     def option(self, key: str, default: Any = None, cast: type = float):
         """The option ``key`` converted with ``cast``; ``default`` if absent.

@@ -13,10 +13,16 @@ pseudoranges, RSS, headings; not odometry), the same start
 :func:`radioloc.locate.pf.fit_residuals`; the fitted range bias is removed; ``min_los_std_m``
 floors the LOS spread). Option ``loss`` chooses the rows' loss: ``max-mixture`` (default
 when the log has ranges: the LOS/NLOS max-mixture of the range rows, the other rows
-Gaussian), or a robust loss ``linear`` (default without ranges), ``huber``, ``cauchy``,
+Gaussian; pseudoranges get their own LOS/NLOS modes, each row's std its LOS spread,
+``alpha`` the LOS fraction and ``nlos_mean_m`` the mean excess delay: given, or fitted by
+EM to the residuals of a first smoothing from :data:`PSEUDORANGE_LOS_FRACTION` and
+:data:`PSEUDORANGE_NLOS_MEAN_M`, then smoothed again: the self-tuning mixture), or a robust loss
+``linear`` (default without ranges), ``huber``, ``cauchy``,
 ``tukey`` with ``loss_scale`` (standard deviations of each row's sigma). Pseudoranges: the
 receiver clock's offset and drift (:func:`radioloc.models.clock.drifting`) are random walks
-of intensity ``clock_offset_std_m_per_sqrt_s^2``. The max-mixture carries a
+of intensity ``clock_offset_std_m_per_sqrt_s^2``; a clock per anchor group (constellation)
+adds their inter-system biases, moving anchors (satellites) are where their tracks put them.
+The max-mixture carries a
 null-hypothesis mode by default (``null_weight`` 1e-3, ``null_std_m`` 10 m: a range much
 too short has no LOS/NLOS mode and would otherwise pull the track as a 0.15 m LOS row;
 ``-o null_weight=0`` removes it). 3-D anchors with
@@ -48,12 +54,19 @@ from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_residuals, node_residuals
 from radioloc.locate.progress import counted
 from radioloc.models.los_nlos import LosNlosRange
+from radioloc.models.pseudorange import fit_nlos
 
 __all__ = ["smooth_log", "OPTIONS"]
 
+#: The pseudoranges' LOS/NLOS mixture of ``loss=max-mixture`` unless ``alpha`` and
+#: ``nlos_mean_m`` are given: a LOS fraction and a mean NLOS excess delay (m) of urban
+#: single-frequency GNSS.
+PSEUDORANGE_LOS_FRACTION = 0.5
+PSEUDORANGE_NLOS_MEAN_M = 20.0
+
 #: The ``-o`` options of ``locate --method smoother``.
 OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m",
-                                       "clock_offset_std_m_per_sqrt_s",
+                                       "clock_offset_std_m_per_sqrt_s", "earth_rotation",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
 OPTIONS.update(sigma_options())
@@ -75,7 +88,8 @@ OPTIONS.update({
 @locate_method("smoother", "Batch MAP smoother of each node's whole track from its measurements "
                            "to anchors (the kinds of ekf-track; sparse solve; LOS/NLOS "
                            "max-mixture of the ranges by EM on the log, or a robust loss)",
-               options=OPTIONS, kinds=tuple(model_kinds()) + ("rss",), inputs=("anchors",))
+               options=OPTIONS, kinds=tuple(model_kinds()) + ("rss",), inputs=("anchors",),
+               moving_anchors=True)
 def smooth_log(request: LocateRequest) -> pd.DataFrame:
     """Smoothed tracks of every node of a log (module docstring).
 
@@ -107,9 +121,17 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     if loss not in ("max-mixture",) + LOSSES:
         raise ConfigError(f"option loss: must be max-mixture or one of {', '.join(LOSSES)}, "
                           f"got {loss!r}")
-    if loss == "max-mixture" and not has_ranges:
+    if loss == "max-mixture" and not has_ranges and "pseudorange" not in models:
         raise ConfigError("option loss=max-mixture: the LOS/NLOS max-mixture is a model of "
-                          "ranges, and the log has no range rows (use a robust loss)")
+                          "ranges and pseudoranges, and the log has neither (use a robust "
+                          "loss)")
+    tune = (loss == "max-mixture" and "pseudorange" in models
+            and request.option("alpha") is None and request.option("nlos_mean_m") is None)
+    mixed, fitted = {}, {}      # the smoother's models where they differ from the start's
+    if loss == "max-mixture" and "pseudorange" in models:   # each row's std is its LOS spread
+        mixed["pseudorange"] = replace(
+            models["pseudorange"], los_fraction=request.option("alpha", PSEUDORANGE_LOS_FRACTION),
+            nlos_mean_m=request.option("nlos_mean_m", PSEUDORANGE_NLOS_MEAN_M))
     given = [request.option(k) for k in ("los_std_m", "nlos_mean_m", "alpha")]
     s0 = dict(s, bias=0.0)                   # the ranges below are without their bias
     tables, counts = [], {}
@@ -137,7 +159,15 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
             t, ob = times[seg], track_window(times, obs, seg, s["init_s"])
             try:
                 mean, var = track_prior(ekf, t, ob, anchors, s0)   # the same state layout
+                ob = [replace(o, model=mixed.get(o.model.kind, o.model)) for o in ob]
                 track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var))
+                if tune:                            # the pseudoranges' mixture, refitted
+                    ob = _refit_nlos(ob, track, smoother.state_layout(ob))
+                    fitted.update({f"pseudorange_{k}": float(getattr(o.model, k)) for o in ob
+                                   if o.model.kind == "pseudorange"
+                                   for k in ("los_fraction", "nlos_mean_m")})
+                    track = smoother.run(ob, t, prior_mean=mean, prior_cov=np.diag(var),
+                                         initial=track.diagnostics["state"])
             except GeometryError as exc:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
@@ -147,7 +177,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
                             "ranges": counts.get("range", 0), "measurements": counts,
                             "restarts": int(out["restart"].sum()), "loss": loss,
-                            "range_std_m": opts["range_std_m"]}
+                            "range_std_m": opts["range_std_m"], **fitted}
     return out
 
 
@@ -158,9 +188,11 @@ def _range_noise(request: LocateRequest, nodes: list, anchors: np.ndarray, s: di
     nodes with range rows)."""
     ranging = [(node, times, next(o for o in obs if o.model.kind == "range"))
                for node, _, times, obs in nodes if any(o.model.kind == "range" for o in obs)]
+    if not ranging:                          # pseudoranges alone: their own mixture
+        return {}
     if all(g is not None for g in given):
         return {node: (LosNlosRange(*given), s["bias"]) for node, _, _ in ranging}
-    if ranging and s["dim"] != 2:
+    if s["dim"] != 2:
         raise InputError("option loss=max-mixture: fitting the LOS/NLOS model needs 2-D "
                          "tracking (give tag_height_m) or los_std_m, nlos_mean_m and alpha")
     per_node = []
@@ -176,3 +208,20 @@ def _range_noise(request: LocateRequest, nodes: list, anchors: np.ndarray, s: di
             los_nlos = LosNlosRange(floor, los_nlos.nlos_mean_m, los_nlos.alpha)
         out[node] = (los_nlos, s["bias"] if "range_bias_m" in request.options else bias)
     return out
+
+
+def _refit_nlos(observations: list, track, layout) -> list:
+    """The observations with the pseudoranges' LOS fraction and mean NLOS excess fitted by
+    EM (:func:`radioloc.models.pseudorange.fit_nlos`) to their residuals at the smoothed
+    states of ``track``, starting from the model's."""
+    out = []
+    for o in observations:
+        if o.model.kind == "pseudorange" and o.model.nlos_mean_m is not None:
+            ctx = o.context if o.std is None else replace(o.context, std=o.std)
+            z_hat, _ = layout.measure(o.model, track.diagnostics["state"], ctx)
+            alpha, mu = fit_nlos(o.z - z_hat, o.model.std(ctx), o.model.los_fraction,
+                                 o.model.nlos_mean_m)
+            o = replace(o, model=replace(o.model, los_fraction=alpha, nlos_mean_m=mu))
+        out.append(o)
+    return out
+

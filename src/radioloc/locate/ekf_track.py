@@ -72,8 +72,8 @@ from radioloc.core.plausibility import value_checks
 from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import (anchor_positions, default_models, log_observations,
-                                     sigma_options)
+from radioloc.locate.adapter import (anchor_positions, default_models, frame_settings,
+                                     log_observations, sigma_options)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
@@ -85,7 +85,7 @@ from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import add_covariance
 from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
                                          wrap_angle)
-from radioloc.models.motion import RandomWalk, WhiteAccelerationCV
+from radioloc.models.motion import RandomWalk, WhiteAccelerationCV, WhiteJerkCA
 from radioloc.models.ranging import RangeModel
 
 #: The measurement kinds the trackers read: every declared kind (:mod:`radioloc.core.kinds`;
@@ -99,6 +99,9 @@ RANGE_STD_M = 0.15
 START_SIGMAS = 4.0
 #: Standard deviation of the start velocity, m/s.
 PRIOR_SPEED_STD = 3.0
+#: Prior standard deviation of a receiver clock's drift (times c), m/s: 1 ppm, the
+#: frequency error of a temperature-compensated crystal oscillator.
+CLOCK_DRIFT_PRIOR_STD = 300.0
 #: Factor on every sigma with which a diverged log is tried again before a slip is named
 #: (:func:`looser_noise`).
 NOISE_SLACK = 3.0
@@ -109,17 +112,21 @@ def motion_model(kind: str, q: float, dim: int):
 
     Parameters
     ----------
-    kind : {"cv", "rw"}
-        Constant velocity (white acceleration) or random walk.
+    kind : {"cv", "ca", "rw"}
+        Constant velocity (white acceleration), constant acceleration (white jerk) or random
+        walk.
     q : float
-        Acceleration spectral density (m^2/s^3, ``cv``) or diffusion (m^2/s, ``rw``).
+        Acceleration spectral density (m^2/s^3, ``cv``), jerk spectral density (m^2/s^5,
+        ``ca``) or diffusion (m^2/s, ``rw``).
     dim : int
         Position coordinates.
 
     Returns
     -------
-    WhiteAccelerationCV or RandomWalk
+    WhiteAccelerationCV, WhiteJerkCA or RandomWalk
     """
+    if kind == "ca":
+        return WhiteJerkCA(q, dim)
     return WhiteAccelerationCV(q, dim) if kind == "cv" else RandomWalk(q, dim)
 
 
@@ -219,10 +226,12 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
 
 
 OPTIONS = {
-    "motion": Option("'cv' constant velocity (white acceleration, default) or 'rw' random "
-                     "walk", str, choices=("cv", "rw")),
-    "q": Option("process noise: acceleration spectral density m^2/s^3 (cv, default 1) or "
-                "diffusion m^2/s (rw, default 1)", float, min=0, max=1e6),
+    "motion": Option("'cv' constant velocity (white acceleration, default), 'ca' constant "
+                     "acceleration (white jerk; default with yaw_rate rows) or 'rw' random "
+                     "walk", str, choices=("cv", "ca", "rw")),
+    "q": Option("process noise: acceleration spectral density m^2/s^3 (cv, default 1), jerk "
+                "spectral density m^2/s^5 (ca) or diffusion m^2/s (rw, default 1)", float,
+                min=0, max=1e6),
     "range_bias_m": Option("constant offset of every range (antenna delay), m; subtracted "
                            "(default 0)", float, min=-1e3, max=1e3),
     "anchor_bias": Option("1: estimate a range bias per anchor online (WiFi RTT offsets, "
@@ -238,6 +247,9 @@ OPTIONS = {
     "clock_drift_std_m_per_s_per_sqrt_s": Option("pseudoranges: random walk of the clock "
                                                  "drift (times c), m/s/sqrt(s) (default 1)",
                                                  float, min=0, max=1e6),
+    "earth_rotation": Option("pseudoranges: 1 adds the Earth-rotation (Sagnac) term (default: "
+                             "1 when the anchors are in ecef or wgs84 or --origin is given)",
+                             bool),
     "tag_height_m": Option("known node height: track in 2-D (x, y) with 3-D anchors (default: "
                            "3-D tracking when the anchors have z)", float, min=-1e4, max=1e4),
     "gate": Option("drop a range whose squared innovation exceeds gate x its predicted "
@@ -303,7 +315,8 @@ def tracker_settings(request: LocateRequest, anchors: np.ndarray) -> dict:
                                   "the motion (tune odometry_std_m instead)")
     elif "odometry_std_m" in request.parsed or "odometry_std_m" in request.options:
         raise ConfigError("option odometry_std_m: the log holds no odometry rows")
-    kind = request.option("motion", "cv", str)
+    yaw = bool((request.measurements["kind"] == "yaw_rate").any())
+    kind = request.option("motion", "ca" if yaw else "cv", str)
     height = request.option("tag_height_m")
     if height is not None and anchors.shape[1] != 3:
         raise InputError("option tag_height_m: needs anchors with a z column")
@@ -366,9 +379,18 @@ def start_state(times: np.ndarray, observations: list, anchors: np.ndarray, s: d
             pos[2] = float(np.mean(anchors[:, 2]))
         return pos, offset
     window = times <= times[0] + s["init_s"]
-    medians = [replace(o, z=column_medians(o.z[window], o.model.angular), std=None)
-               for o in observations]
-    fit = LeastSquares(loss="huber", **START_FIT).locate(medians)
+    own = {n for n, k in declared_kinds().items() if k.self_measured}
+    observations = [o for o in observations if o.model.kind not in own]
+    moving = any(o.moving for o in observations)
+    if moving:                              # moving anchors: the fullest epoch of the window
+        rows = sum(np.isfinite(o.z[window]).sum(axis=-1) for o in observations)
+        k = int(np.argmax(rows))
+        medians = [Observation(o.model, *o.at(k), no_check=o.no_check) for o in observations]
+    else:
+        medians = [replace(o, z=column_medians(o.z[window], o.model.angular), std=None) for o in observations]
+    # one epoch's rows of moving anchors (satellites far away): plain least squares, which
+    # converges from the Earth's centre where the Huber loss's reweighting can stall
+    fit = LeastSquares(loss="linear" if moving else "huber", **START_FIT).locate(medians)
     if not bool(np.all(fit.converged)) or not np.all(np.isfinite(fit.position)):
         raise GeometryError("the measurements of the first init_s seconds do not fix a start "
                             "position (give -o init_s=SECONDS longer)")
@@ -422,6 +444,7 @@ def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias
                                 layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
                                                    clock=2 if clock else 0,
                                                    n_bias=len(anchors) if anchor_bias else 0),
+                                clock_drift_prior_std_m_per_s=CLOCK_DRIFT_PRIOR_STD,
                                 clock_offset_std_m_per_sqrt_s=s.get("clock_offset_q", 1.0),
                                 clock_drift_std_m_per_s_per_sqrt_s=s.get("clock_drift_q", 1.0))
 
@@ -582,8 +605,11 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
                 slots.setdefault(key, len(slots))
         z = np.full((B, T, len(slots)), np.nan)
         std = np.full_like(z, np.nan) if any(o.std is not None for _, o in members) else None
-        points = np.empty((len(slots),) + members[0][1].context.points.shape[-1:])
-        reference = None if members[0][1].context.reference is None else np.empty_like(points)
+        moving = any(o.moving for _, o in members)   # points (B, T, S, P): per track and step
+        points = np.zeros(((B, T) if moving else ()) + (len(slots),)
+                          + members[0][1].context.points.shape[-1:])
+        reference = None if members[0][1].context.reference is None else np.zeros_like(points)
+        group = None if members[0][1].context.group is None else np.zeros(len(slots), dtype=int)
         columns = {c: np.full(len(slots), np.nan) for c in members[0][1].context.columns or {}}
         for b, o in members:
             ctx = o.context
@@ -593,9 +619,17 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
             z[b, :o.steps, cols] = o.z.T
             if o.std is not None:
                 std[b, :o.steps, cols] = o.std.T
-            points[cols] = ctx.points
-            if reference is not None:
-                reference[cols] = ctx.reference
+            for whole, part in ((points, ctx.points), (reference, ctx.reference)):
+                if whole is None:
+                    continue
+                if not moving:
+                    whole[cols] = part
+                    continue
+                track = np.broadcast_to(part, (o.steps,) + part.shape[-2:])
+                whole[b, :o.steps, cols] = np.swapaxes(track, 0, 1)
+                whole[b, o.steps:] = whole[b, o.steps - 1]      # padded steps: the last
+            if group is not None:
+                group[cols] = ctx.group
             for c, v in columns.items():
                 v[cols] = ctx.columns[c]
         first = members[0][1].context
@@ -603,7 +637,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         ctx = Context(points=points, index=keys[:, 0],
                       reference=reference,
                       reference_index=None if first.reference_index is None else keys[:, 1],
-                      height_m=first.height_m, columns=columns or None)
+                      height_m=first.height_m, columns=columns or None, group=group)
         out.append(Observation(members[0][1].model, z, ctx, std,
                                no_check=members[0][1].no_check))
     return t, out
@@ -754,7 +788,7 @@ def track_summary(tables: list[pd.DataFrame], per_node: list, **extra) -> dict:
                             "path-loss model per anchor in the anchors file), ranges between "
                             "nodes with -o cooperative=1 (constant velocity or random walk, "
                             "or driven by odometry rows; RTS smoother with -o smooth=1)",
-               options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",))
+               options=OPTIONS, kinds=TRACKER_KINDS, inputs=("anchors",), moving_anchors=True)
 def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     """Track every node with the generic :class:`ExtendedKalmanFilter` over its rows.
 
@@ -850,7 +884,8 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     log = Measurements(meas)
     opts = {k: request.option(k) for k in sigma_options() if request.option(k) is not None}
     opts.setdefault("range_std_m", RANGE_STD_M)
-    models = default_models(log.kinds, opts, anchor_bias=anchor_bias)
+    models = default_models(log.kinds, opts, anchor_bias=anchor_bias,
+                            settings=frame_settings(request))
     motion = tracker_motion(s)
     for model in models.values():
         check_motion(model, motion)

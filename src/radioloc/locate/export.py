@@ -12,11 +12,11 @@ The format is ``--format`` when given, otherwise the suffix of ``--out``: ``.par
   ``track.a_b.tum``), so that the id is read back from the name with
   ``urllib.parse.unquote``. Two ids that differ only in case (one file on a
   case-insensitive file system) are refused, as is a name too long for a file system.
-- **GeoJSON**: a FeatureCollection with one ``LineString`` per node (properties ``node``,
-  ``rows``) and one ``Point`` per estimate (properties ``time``, ``node`` and the other
-  columns). Coordinates are written as they are, in the anchors' frame (metres), not
-  converted to longitude and latitude: give anchors in a projected frame and declare it in
-  your GIS, or convert before mapping.
+- **GeoJSON** (RFC 7946): a FeatureCollection with one ``LineString`` per node (properties
+  ``node``, ``rows``) and one ``Point`` per estimate (properties ``time``, ``node`` and the
+  other columns). Coordinates are WGS84 longitude, latitude and height (metres), converted
+  from the working frame (:mod:`radioloc.locate.frames`); a run whose frame has no place on
+  the Earth (local anchors without ``--origin``) is refused, saying so.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import pandas as pd
 from radioloc.core.atomic import atomic_write_with
 from radioloc.core.errors import ConfigError, OutputError
 from radioloc.io.logs import write_estimates
+from radioloc.locate.frames import Frame
 
 FORMATS = ("csv", "parquet", "tum", "geojson")
 
@@ -88,7 +89,37 @@ def _json_value(v):
     return v
 
 
-def geojson(frame: pd.DataFrame, anchors: pd.DataFrame | None = None) -> dict:
+def with_geodetic(frame: pd.DataFrame, where: Frame | None) -> pd.DataFrame:
+    """``frame`` with columns ``lat, lon, height`` (WGS84 degrees, metres) of its positions
+    when the working frame ``where`` has a place on the Earth; unchanged otherwise.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        A ``locate`` output table (``x, y[, z]`` in the working frame).
+    where : Frame or None
+
+    Returns
+    -------
+    DataFrame
+    """
+    if where is None or not where.georeferenced or frame.empty:
+        return frame
+    dims = ["x", "y"] + (["z"] if "z" in frame else [])
+    llh = where.geodetic(frame[dims].to_numpy(float))
+    out = frame.assign(lat=llh[:, 0], lon=llh[:, 1], height=llh[:, 2])
+    out.attrs = dict(frame.attrs)
+    return out
+
+
+def _lon_lat_h(table: pd.DataFrame, where: Frame) -> list:
+    dims = ["x", "y"] + (["z"] if "z" in table else [])
+    llh = where.geodetic(table[dims].to_numpy(float))
+    return np.column_stack([llh[:, 1], llh[:, 0], llh[:, 2]]).tolist()
+
+
+def geojson(frame: pd.DataFrame, anchors: pd.DataFrame | None = None,
+            where: Frame | None = None) -> dict:
     """The estimates as a GeoJSON FeatureCollection (see the module docstring).
 
     Parameters
@@ -96,26 +127,35 @@ def geojson(frame: pd.DataFrame, anchors: pd.DataFrame | None = None) -> dict:
     frame : DataFrame
         A ``locate`` output table.
     anchors : DataFrame, optional
-        Anchors, added as ``Point`` features with ``"anchor": id``.
+        Anchors, added as ``Point`` features with ``"anchor": id`` (fixed anchors only:
+        a moving anchor, such as a satellite, is left out).
+    where : Frame
+        The working frame of the positions (it must have a place on the Earth).
 
     Returns
     -------
     dict
+
+    Raises
+    ------
+    ConfigError
+        ``where`` is None or local (no place on the Earth), saying so.
     """
-    dims = ["x", "y"] + (["z"] if "z" in frame else [])
+    if where is None or not where.georeferenced:
+        raise ConfigError("GeoJSON is longitude and latitude (RFC 7946), and "
+                          + (where or Frame()).why_not_georeferenced())
     features = []
     for node, g in frame.groupby("node", sort=False):
         features.append({"type": "Feature", "properties": {"node": str(node), "rows": len(g)},
-                         "geometry": {"type": "LineString",
-                                      "coordinates": g[dims].to_numpy(float).tolist()}})
+                         "geometry": {"type": "LineString", "coordinates": _lon_lat_h(g, where)}})
+    dims = {"x", "y", "z", "lat", "lon", "height"}
     other = [c for c in frame.columns if c not in dims]
-    for rec, xyz in zip(frame[other].to_dict("records"), frame[dims].to_numpy(float).tolist()):
+    for rec, xyz in zip(frame[other].to_dict("records"), _lon_lat_h(frame, where)):
         features.append({"type": "Feature",
                          "properties": {k: _json_value(v) for k, v in rec.items()},
                          "geometry": {"type": "Point", "coordinates": xyz}})
-    if anchors is not None:
-        a_dims = [c for c in dims if c in anchors]
-        for aid, xyz in zip(anchors["id"], anchors[a_dims].to_numpy(float).tolist()):
+    if anchors is not None and not ("time" in anchors and anchors["time"].notna().any()):
+        for aid, xyz in zip(anchors["id"], _lon_lat_h(anchors, where)):
             features.append({"type": "Feature", "properties": {"anchor": str(aid)},
                              "geometry": {"type": "Point", "coordinates": xyz}})
     return {"type": "FeatureCollection", "features": features}
@@ -172,7 +212,7 @@ def output_files(nodes: list, path: Path | None, fmt: str) -> dict[Path, object]
 
 
 def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
-                 anchors: pd.DataFrame | None = None) -> list[Path]:
+                 anchors: pd.DataFrame | None = None, where: Frame | None = None) -> list[Path]:
     """Write ``frame`` to ``path`` (None: standard output) in format ``fmt``.
 
     Parameters
@@ -184,6 +224,8 @@ def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
         From :func:`output_format`.
     anchors : DataFrame, optional
         For GeoJSON.
+    where : Frame, optional
+        The working frame (GeoJSON needs one with a place on the Earth).
 
     Returns
     -------
@@ -197,7 +239,7 @@ def write_output(frame: pd.DataFrame, path: Path | None, fmt: str,
 
     def render(part: pd.DataFrame) -> str:
         if fmt == "geojson":
-            return json.dumps(geojson(part, anchors), indent=1) + "\n"
+            return json.dumps(geojson(part, anchors, where), indent=1) + "\n"
         return _tum_text(part)
 
     if not files:

@@ -28,7 +28,8 @@ from radioloc.estimators.robust_loss import LOSSES
 from radioloc.estimators.snapshot_baselines import LocalML, Ransac
 from radioloc.io.measurements import Measurements
 from radioloc.core.kinds import model_kinds
-from radioloc.locate.adapter import anchor_positions, default_models, node_observations, sigma_options
+from radioloc.locate.adapter import (anchor_positions, default_models, frame_settings,
+                                     node_observations, sigma_options)
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.epochs import (ON_DEGENERATE, Epochs, epoch_error, epoch_table,
@@ -154,6 +155,7 @@ _LSQ_OPTIONS.update({
     "exclude_faults": Option("1 (default): a fix whose residuals fail their chi-square test "
                              "(99.9 %) is fitted again without its worst row, while a row "
                              "to spare is left; 0: every row kept", bool),
+    "earth_rotation": EKF_OPTIONS["earth_rotation"],
     "on_degenerate": ON_DEGENERATE})
 
 
@@ -197,7 +199,7 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
     log = Measurements(request.measurements)
     opts = {k: request.option(k) for k in _LSQ_OPTIONS if request.option(k) is not None}
     opts.setdefault("range_std_m", 0.15)
-    models = default_models(log.kinds, opts)
+    models = default_models(log.kinds, opts, settings=frame_settings(request))
     height = request.option("tag_height_m")
     solver = LeastSquares(loss=request.option("loss", "linear", str),
                           loss_scale=request.option("loss_scale", 1.5))

@@ -27,6 +27,10 @@ _WHERE = {
     "RandomWalk": "motion",
     "UniformDisk": "motion",
     "WhiteAccelerationCV": "motion",
+    "WhiteJerkCA": "motion",
+    "SpeedModel": "body_rates",
+    "VerticalSpeedModel": "body_rates",
+    "YawRateModel": "body_rates",
     "Context": "measurement",
     "MeasurementModel": "measurement",
     "Observation": "measurement",
@@ -56,7 +60,7 @@ _WHERE = {
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE)
 
 __all__ = [
-    "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "InputDriven", "UniformDisk",
+    "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV", "ConstantAcceleration", "WhiteJerkCA", "InputDriven", "UniformDisk", "SpeedModel", "VerticalSpeedModel", "YawRateModel",
     "GaussianRange", "RangeModel", "range_geometry", "MeasurementModel", "StateLayout", "Context", "Observation", "LosNlosRange", "StickyLinkChain",
     "LogDistanceGaussian", "TrapezoidModel", "fit_trapezoid_model", "dbm_to_rssi100",
     "DiagMixture", "em_calibration", "progressive_calibration", "SquaredRangeModel",

@@ -16,11 +16,14 @@ over one second.
 How an estimator uses it
 ------------------------
 The state of :class:`~radioloc.models.measurement.StateLayout` is ``[motion, clock,
-anchor_bias]``. A filter whose layout holds a clock (``layout.clock`` 1 or 2, grown by
-``with_model`` for a :class:`~radioloc.models.pseudorange.PseudorangeModel` or a
+clock_bias, anchor_bias]``. A filter whose layout holds a clock (``layout.clock`` 1 or 2,
+grown by ``with_model`` for a :class:`~radioloc.models.pseudorange.PseudorangeModel` or a
 :class:`~radioloc.models.tdoa.TdoaModel` with slot times) transitions the full state with the
-block-diagonal ``diag(motion.F(dt), clock.F(dt), I)`` and ``diag(motion.Q(dt), clock.Q(dt),
-0)``: :func:`transition` assembles both. With ``terms=1`` (offset only) the blocks are
+block-diagonal ``diag(motion.F(dt), clock.F(dt), I, I)`` and ``diag(motion.Q(dt),
+clock.Q(dt), 0, q_b dt I)``: :func:`transition` assembles both. The inter-system biases
+``clock_bias`` of a receiver with a clock per constellation (``layout.n_clock_bias``) are
+constants (the receivers' hardware delays between the constellations' signals); the anchor
+biases take a random walk of intensity ``q_b``. With ``terms=1`` (offset only) the blocks are
 ``[[1]]`` and ``[[q_o dt]]``. The extended Kalman filter and the batch smoother transition
 their states with :func:`transition` too, and hold the drift by default when a model reads
 the offset (:func:`drifting`): a clock held still would take a drift of 1 m/s on
@@ -183,8 +186,9 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
                clock: ClockModel | None = None, bias_std_m_per_sqrt_s: float = 0.0
                ) -> tuple[np.ndarray, np.ndarray]:
     """``F`` and ``Q`` ``(..., n, n)`` of a whole :class:`StateLayout` state over ``dt``:
-    block-diagonal motion, clock and random-walk anchor biases; the one transition of the
-    extended Kalman filter, the batch smoother and the simulator.
+    block-diagonal motion, clock, constant inter-system clock biases and random-walk anchor
+    biases; the one transition of the extended Kalman filter, the batch smoother and the
+    simulator.
 
     Parameters
     ----------
@@ -227,6 +231,7 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
         sl = slice(k, k + layout.clock)
         F[..., sl, sl] = clock.F(d)
         Q[..., sl, sl] = clock.Q(d)
+    # clock_bias (layout.n_clock_bias): constants, F = I and Q = 0 as initialised
     if layout.n_bias:
         b = np.arange(layout.slices["anchor_bias"].start, layout.slices["anchor_bias"].stop)
         Q[..., b, b] = (bias_std_m_per_sqrt_s ** 2 * d)[..., None]

@@ -53,7 +53,7 @@ _LOG_2PI = float(np.log(2.0 * np.pi))
 
 #: State components a model may read, in their order in the state vector.
 COMPONENTS = ("position", "velocity", "acceleration", "clock_offset", "clock_drift",
-              "anchor_bias")
+              "clock_bias", "anchor_bias")
 
 States = Mapping[str, np.ndarray]
 
@@ -95,6 +95,9 @@ class StateLayout:
         Receiver clock terms: 0 none, 1 offset, 2 offset and drift (metres, m/s).
     n_bias : int
         Per-anchor range biases (metres), one per anchor of the anchor table.
+    n_clock_bias : int
+        Inter-system biases (metres): the receiver clocks beyond the first (one per
+        constellation of a GNSS receiver), each ahead of ``clock_offset`` by its bias.
 
     Examples
     --------
@@ -106,6 +109,7 @@ class StateLayout:
     order: int = 0
     clock: int = 0
     n_bias: int = 0
+    n_clock_bias: int = 0
 
     def __post_init__(self) -> None:
         if self.dim not in (2, 3):
@@ -116,6 +120,9 @@ class StateLayout:
             raise InputError(f"clock: clock terms must be 0, 1 or 2, got {self.clock!r}")
         if int(self.n_bias) != self.n_bias or self.n_bias < 0:
             raise InputError(f"n_bias: must be a whole number >= 0, got {self.n_bias!r}")
+        if int(self.n_clock_bias) != self.n_clock_bias or self.n_clock_bias < 0:
+            raise InputError(f"n_clock_bias: must be a whole number >= 0, got "
+                             f"{self.n_clock_bias!r}")
 
     @cached_property
     def sizes(self) -> dict[str, int]:
@@ -130,6 +137,8 @@ class StateLayout:
             out["clock_offset"] = 1
         if self.clock >= 2:
             out["clock_drift"] = 1
+        if self.n_clock_bias:
+            out["clock_bias"] = int(self.n_clock_bias)
         if self.n_bias:
             out["anchor_bias"] = int(self.n_bias)
         return out
@@ -170,7 +179,9 @@ class StateLayout:
         clock = max(self.clock, 2 if "clock_drift" in reads else 1 if "clock_offset" in reads else 0)
         order = max(self.order, 2 if "acceleration" in reads else 1 if "velocity" in reads else 0)
         n_bias = max(self.n_bias, int(n_anchors) if "anchor_bias" in reads else 0)
-        return replace(self, clock=clock, order=order, n_bias=n_bias)
+        n_clock_bias = max(self.n_clock_bias, getattr(model, "clock_groups", 1) - 1
+                           if "clock_bias" in reads else 0)
+        return replace(self, clock=clock, order=order, n_bias=n_bias, n_clock_bias=n_clock_bias)
 
     def kinematic(self, matrix: np.ndarray) -> np.ndarray:
         """A motion model's transition or noise matrix over one node's kinematic state, as
@@ -325,9 +336,11 @@ def check_motion(model: "MeasurementModel", motion) -> None:
         kind = f" (kind {model.kind})" if model.kind else ""
         raise ConfigError(f"{type(model).__name__}{kind} reads {', '.join(missing)}, which the motion "
                           f"model {type(motion).__name__} does not hold (its state: "
-                          f"{', '.join(held)}): give a motion model with {missing[-1]} (a "
-                          "constant velocity, WhiteAccelerationCV; locate: -o motion=cv, no "
-                          "odometry rows)")
+                          f"{', '.join(held)}): give a motion model with {missing[-1]} ("
+                          + ("a constant acceleration, WhiteJerkCA; locate: -o motion=ca"
+                             if missing[-1] == "acceleration" else "a constant velocity, "
+                             "WhiteAccelerationCV; locate: -o motion=cv")
+                          + ", no odometry rows)")
 
 
 @dataclass(frozen=True)
@@ -359,6 +372,9 @@ class Context:
         Per-row values of the anchor-file columns a model reads
         (:attr:`radioloc.core.kinds.Kind.anchor_columns`: an anchor's velocity), each of
         shape ``(m,)``.
+    group : ndarray of int, shape (m,), optional
+        The receiver clock of each row (a constellation: 0, 1, ...; a pseudorange reads
+        ``clock_bias[group - 1]`` for ``group > 0``).
     """
 
     points: np.ndarray
@@ -368,6 +384,7 @@ class Context:
     std: np.ndarray | None = None
     height_m: float | None = None
     columns: Mapping[str, np.ndarray] | None = None
+    group: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         pts = as_float_array(self.points, "points")
@@ -375,7 +392,7 @@ class Context:
             raise InputError(f"points: expected shape (..., m, P), got {pts.shape}")
         object.__setattr__(self, "points", pts)
         m = pts.shape[-2]
-        for name in ("index", "reference_index"):
+        for name in ("index", "reference_index", "group"):
             v = getattr(self, name)
             if v is not None:
                 v = np.asarray(v)
@@ -438,7 +455,7 @@ class Context:
         return Context(points=sub(self.points, -2), index=sub(self.index, 0),
                        reference=sub(self.reference, -2),
                        reference_index=sub(self.reference_index, 0), std=sub(self.std, -1),
-                       height_m=self.height_m,
+                       height_m=self.height_m, group=sub(self.group, 0),
                        columns=None if self.columns is None else
                        {k: sub(v, 0) for k, v in self.columns.items()})
 

@@ -26,7 +26,7 @@ from radioloc.core.validation import as_float_array, check_positive
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 __all__ = ["MotionModel", "RandomWalk", "ConstantVelocity", "WhiteAccelerationCV",
-           "ConstantAcceleration",
+           "ConstantAcceleration", "WhiteJerkCA",
            "InputDriven", "UniformDisk", "BoundedSpeedCV", "gaussian_logpdf_mv"]
 
 
@@ -335,6 +335,38 @@ class ConstantAcceleration(MotionModel):
 
     def __repr__(self) -> str:
         return f"ConstantAcceleration(jerk_var={self.jerk_var}, dim={self.dim})"
+
+
+class WhiteJerkCA(WhiteAccelerationCV):
+    """Constant acceleration driven by continuous white jerk (for uneven intervals).
+
+    Per axis ``F = [[1, dt, dt^2/2], [0, 1, dt], [0, 0, 1]]`` and ``Q(dt) = q [[dt^5/20,
+    dt^4/8, dt^3/6], [dt^4/8, dt^3/3, dt^2/2], [dt^3/6, dt^2/2, dt]]`` (Bar-Shalom, Li,
+    Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001,
+    Sect. 6.2.3): full rank, and the same over an interval however it is split into steps
+    (:class:`ConstantAcceleration` holds one jerk over each interval: rank one).
+
+    Parameters
+    ----------
+    q : float
+        Spectral density of the jerk, m^2/s^5 per axis (>= 0).
+    dim : int
+        Position coordinates D.
+    """
+
+    def __init__(self, q: float, dim: int = 2) -> None:
+        super().__init__(q, dim)
+        self.state_dim = 3 * self.dim
+
+    _axis_F = ConstantAcceleration._axis_F
+
+    def _axis_Q(self, dt):
+        rows = [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2],
+                [dt**3 / 6, dt**2 / 2, dt]]
+        return self.q * np.stack([np.stack(r, -1) for r in rows], -2)
+
+    def __repr__(self) -> str:
+        return f"WhiteJerkCA(q={self.q}, dim={self.dim})"
 
 
 class InputDriven(MotionModel):
