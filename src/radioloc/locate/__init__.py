@@ -12,3 +12,8 @@ def __getattr__(name: str):
 
         return Tracker
     raise AttributeError(f"module 'radioloc.locate' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    """The module's names and the ones :func:`__getattr__` imports on first use."""
+    return sorted(set(globals()) | set(__all__))
