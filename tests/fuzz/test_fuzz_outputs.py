@@ -69,6 +69,8 @@ def _expected_files(folder: Path, out: str, fmt: str, plot: str | None,
     """The files a run must write, or why it must refuse (independent of the CLI). The
     ``--out`` path itself must not name an input or a write-protected file even when TUM
     writes one file per node beside it instead."""
+    if fmt == "geojson":
+        return [], "GeoJSON is WGS84 and the anchors' local frame has no place on the Earth"
     if out == "-":
         if fmt == "tum" and len(nodes) > 1:
             return [], "tum to standard output with several nodes"

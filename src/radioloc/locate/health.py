@@ -49,6 +49,7 @@ import pandas as pd
 
 from radioloc.core.errors import RadiolocError
 from radioloc.core.kinds import model_kinds
+from radioloc.estimators.fault_exclusion import chi2_quantile
 from radioloc.locate.adapter import default_models, moving_anchors, node_observations
 from radioloc.locate.slips import slip_scale, slips
 from radioloc.locate.table import add_covariance, covariance_of
@@ -119,13 +120,6 @@ class HealthReport:
 
 
 
-def chi2_ppf(prob: float, dof):
-    """The chi-square quantile ``prob`` for ``dof`` degrees of freedom (scipy imported here:
-    it costs start-up time, and the check runs after every method)."""
-    from scipy.special import gammaincinv
-
-    return 2.0 * gammaincinv(np.asarray(dof, dtype=float) / 2.0, prob)
-
 def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     """Signs that a tracker's track has diverged, from its innovations.
 
@@ -163,7 +157,7 @@ def divergence(track, anchors: np.ndarray, gate: float | None) -> dict | None:
     n = np.convolve(used + refused, w, "valid")
     ok = n > 0
     counts, where = np.unique(np.maximum(n, 1), return_inverse=True)   # few distinct counts
-    band = NIS_FACTOR * chi2_ppf(0.999, counts)[where]      # chi-square 99.9 % point
+    band = NIS_FACTOR * chi2_quantile(0.999, counts)[where]      # chi-square 99.9 % point
     windows_out = float(np.mean(total[ok] > band[ok])) if ok.any() else 0.0
     xy, box = np.asarray(track.position)[:, :2], np.asarray(anchors)[:, :2]
     lo, hi = box.min(axis=0), box.max(axis=0)
@@ -490,7 +484,7 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
         with np.errstate(all="ignore"):
             m2 = np.einsum("wi,wij,wj->w", d, np.linalg.pinv(total), d)
             far = np.linalg.norm(d, axis=1) > OFF_SIGMAS * np.sqrt(np.trace(P, axis1=1, axis2=2))
-        off = (m2 > chi2_ppf(CHI2_PROB, dim)) & far & np.all(np.isfinite(cov_d), (1, 2))
+        off = (m2 > chi2_quantile(CHI2_PROB, dim)) & far & np.all(np.isfinite(cov_d), (1, 2))
         coverage = _coverage_factor(d, P, cov_d)
     else:
         coverage = 1.0
@@ -551,7 +545,7 @@ def _coverage_factor(d: np.ndarray, P: np.ndarray, cov_d: np.ndarray) -> float:
     if ok.sum() < 5:
         return 1.0
     d, P, C = d[ok], P[ok], cov_d[ok]
-    target = chi2_ppf(0.5, d.shape[1])
+    target = chi2_quantile(0.5, d.shape[1])
 
     def median_m2(k):
         with np.errstate(all="ignore"):

@@ -257,7 +257,7 @@ def locate_lsq(request: LocateRequest) -> pd.DataFrame:
                       what="measurements to anchors", measurements=d["measurements_used"][keep],
                       inliers=d["inliers"][keep],
                       misfit=misfit, excluded=ep.epochs["excluded"].to_numpy()[keep])
-    out.attrs["summary"].update(loss=solver.loss, loss_scale=solver.loss_scale, **opts,
+    out.attrs["summary"].update({**opts, "loss": solver.loss, "loss_scale": solver.loss_scale},
                                 rows_excluded=int(sum(excluded.values())),
                                 excluded_by_row=dict(sorted(excluded.items())),
                                 measurements={k: int(np.isfinite(
