@@ -18,6 +18,7 @@ import re
 import sys
 import tomllib
 from dataclasses import dataclass
+from functools import cache
 from importlib import metadata
 from pathlib import Path
 
@@ -132,9 +133,16 @@ def imports(src: Path, own: str, siblings: tuple[Path, ...] = ()) -> list[Import
     return found
 
 
+@cache
+def _installed() -> dict[str, list[str]]:
+    """Top-level module -> distributions, of what is installed (read once: it scans every
+    distribution's files)."""
+    return metadata.packages_distributions()
+
+
 def distributions_of(module: str) -> set[str]:
     """Distributions that provide the top-level ``module``."""
-    installed = metadata.packages_distributions().get(module)
+    installed = _installed().get(module)
     if installed:
         return {normalise(d) for d in installed}
     return {normalise(IMPORT_NAMES.get(module, module))}
