@@ -53,6 +53,12 @@ def _rows(value: np.ndarray, context: Context) -> np.ndarray:
     return np.broadcast_to(value[..., None], value.shape + (context.rows,))
 
 
+def _row_jacobian(d: np.ndarray, context: Context) -> np.ndarray:
+    """The Jacobian ``d`` ``(..., n)`` of a value every row shares, one per row
+    ``(..., m, n)``."""
+    return np.broadcast_to(d[..., None, :], d.shape[:-1] + (context.rows, d.shape[-1]))
+
+
 class _OwnMotion(MeasurementModel):
     """What the three models share: ``h`` and its Jacobian computed together, a constant
     standard deviation (the field ``std_mps`` or ``std_rps``)."""
@@ -108,8 +114,7 @@ class SpeedModel(_OwnMotion):
         d_v = vh / np.maximum(speed, self.min_speed_mps)[..., None]
         d_p = np.zeros(np.shape(state["position"]))     # "up" turns slowly: neglected
         return _rows(speed, context), {
-            "velocity": np.broadcast_to(d_v[..., None, :], d_v.shape[:-1] + (context.rows, d_v.shape[-1])),
-            "position": np.broadcast_to(d_p[..., None, :], d_p.shape[:-1] + (context.rows, d_p.shape[-1]))}
+            "velocity": _row_jacobian(d_v, context), "position": _row_jacobian(d_p, context)}
 
 
 @dataclass(frozen=True)
@@ -148,10 +153,8 @@ class VerticalSpeedModel(_OwnMotion):
             raise InputError("vertical_speed: needs a 3-D state (a 2-D state is horizontal)")
         v = np.asarray(state["velocity"], dtype=float)
         zero = np.zeros(np.broadcast_shapes(up.shape, v.shape))
-        rows = context.rows
         return _rows(np.sum(up * v, -1), context), {
-            "velocity": np.broadcast_to(up[..., None, :], up.shape[:-1] + (rows, 3)),
-            "position": np.broadcast_to(zero[..., None, :], zero.shape[:-1] + (rows, 3))}
+            "velocity": _row_jacobian(up, context), "position": _row_jacobian(zero, context)}
 
 
 @dataclass(frozen=True)
@@ -212,8 +215,7 @@ class YawRateModel(_OwnMotion):
         zero = np.zeros_like(p)
 
         def rows(d):
-            d = np.where(moving[..., None], d, 0.0)
-            return np.broadcast_to(d[..., None, :], d.shape[:-1] + (context.rows, d.shape[-1]))
+            return _row_jacobian(np.where(moving[..., None], d, 0.0), context)
 
         return _rows(rate, context), {"velocity": rows(d_v), "acceleration": rows(d_a),
                                       "position": rows(zero)}
