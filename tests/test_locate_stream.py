@@ -18,7 +18,7 @@ from radioloc.locate import LocateRequest, Tracker, run_method
 
 ANCHORS = pd.DataFrame({"id": ["A", "B", "C", "D", "E"], "x": [0.0, 20.0, 20.0, 0.0, 10.0],
                         "y": [0.0, 0.0, 15.0, 15.0, 16.0]})
-OPTIONS = {"q": "0.5", "init_s": "1.5"}
+OPTIONS = {"q": "0.5", "init_s": "1.5", "tune": "0"}  # live tracking does not learn
 
 
 def simulated_log(seed: int = 3) -> pd.DataFrame:
@@ -163,7 +163,7 @@ def files(tmp_path_factory, log):
     ANCHORS.to_csv(folder / "anchors.csv", index=False)
     subprocess.run(radioloc("locate", str(folder / "log.csv"), "--anchors",
                             str(folder / "anchors.csv"), "--method", "ekf-track", "-o", "q=0.5",
-                            "-o", "init_s=1.5", "--out", str(folder / "batch.csv")),
+                            "-o", "init_s=1.5", "-o", "tune=0", "--out", str(folder / "batch.csv")),
                    check=True, timeout=120, capture_output=True)
     return folder
 

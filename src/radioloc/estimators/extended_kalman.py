@@ -19,7 +19,9 @@ metres per second) and one bias per anchor (metres), each present when a model r
   ``clock_offset_std_m_per_sqrt_s^2`` and a drift random walk of density
   ``clock_drift_std_m_per_s_per_sqrt_s^2`` (the two-state clock model of GNSS receivers:
   ``Q = [[q_o dt + q_d dt^3/3, q_d dt^2/2], [q_d dt^2/2, q_d dt]]``);
-- anchor biases: constant, plus a random walk of variance ``bias_std_m_per_sqrt_s^2 dt``.
+- anchor biases: constant, plus a random walk of variance ``bias_std_m_per_sqrt_s^2 dt``, or
+  with ``bias_time_constant_s`` a first-order Gauss-Markov process (errors that stay
+  correlated for seconds, as multipath on a walk; :func:`radioloc.models.clock.transition`).
 
 The update
 ----------
@@ -55,6 +57,7 @@ from radioloc.core.validation import (
     check_finite_output,
     check_int,
     check_positive,
+    check_positive_values,
     refuse_infinite,
 )
 from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
@@ -90,10 +93,6 @@ class FilterState(GaussianState):
     layout: StateLayout | None = None
 
 
-def _setting(value: float, name: str) -> float:
-    return check_positive(value, name, allow_zero=True)
-
-
 class ExtendedKalmanFilter(RecursiveEstimator):
     """Extended (optionally iterated) Kalman filter over any measurement model, batched
     over leading axes.
@@ -119,8 +118,12 @@ class ExtendedKalmanFilter(RecursiveEstimator):
     bias_prior_std_m : float
         Prior standard deviation of each anchor bias (prior mean 0), metres; used when the
         prior given to :meth:`init` covers the kinematic part only.
-    bias_std_m_per_sqrt_s : float
-        Random-walk intensity of the anchor biases, m/sqrt(s) (0: constant biases).
+    bias_std_m_per_sqrt_s : float or ndarray, shape (..., A)
+        Driving-noise intensity of the anchor biases, m/sqrt(s) (0: constant biases); one
+        value or one per anchor (per member of the batch).
+    bias_time_constant_s : float or ndarray, shape (..., A), optional
+        Time constants of the anchor biases, s: each a Gauss-Markov process reverting to 0
+        (None: a random walk).
     clock_offset_prior_std_m : float
         Prior standard deviation of the receiver clock offset (times c), metres.
     clock_drift_prior_std_m_per_s : float
@@ -150,7 +153,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
 
     def __init__(self, motion, *, gate: float | None = 16.0, gate_patience: int = 10,
                  iterations: int = 1, layout: StateLayout | None = None,
-                 bias_prior_std_m: float = 5.0, bias_std_m_per_sqrt_s: float = 0.0,
+                 bias_prior_std_m: float = 5.0,
+                 bias_std_m_per_sqrt_s: float | np.ndarray = 0.0,
+                 bias_time_constant_s: float | np.ndarray | None = None,
                  clock_offset_prior_std_m: float = 1e3,
                  clock_drift_prior_std_m_per_s: float = 10.0,
                  clock_offset_std_m_per_sqrt_s: float = 0.0,
@@ -177,14 +182,19 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                                   f"the motion model's dim={base.dim}, order={base.order}")
         self.layout = base if layout is None else layout
         self.bias_prior_std_m = check_positive(bias_prior_std_m, "bias_prior_std_m")
-        self.bias_std_m_per_sqrt_s = _setting(bias_std_m_per_sqrt_s, "bias_std_m_per_sqrt_s")
+        self.bias_std_m_per_sqrt_s = check_positive_values(bias_std_m_per_sqrt_s,
+                                                           "bias_std_m_per_sqrt_s")
+        self.bias_time_constant_s = (None if bias_time_constant_s is None else
+                                     check_positive_values(bias_time_constant_s,
+                                                           "bias_time_constant_s",
+                                                           allow_zero=False, allow_inf=True))
         self.clock_offset_prior_std_m = check_positive(clock_offset_prior_std_m,
                                                        "clock_offset_prior_std_m")
         self.clock_drift_prior_std_m_per_s = check_positive(clock_drift_prior_std_m_per_s,
                                                             "clock_drift_prior_std_m_per_s")
-        self.clock_offset_std_m_per_sqrt_s = _setting(clock_offset_std_m_per_sqrt_s,
+        self.clock_offset_std_m_per_sqrt_s = check_positive_values(clock_offset_std_m_per_sqrt_s,
                                                       "clock_offset_std_m_per_sqrt_s")
-        self.clock_drift_std_m_per_s_per_sqrt_s = _setting(
+        self.clock_drift_std_m_per_s_per_sqrt_s = check_positive_values(
             clock_drift_std_m_per_s_per_sqrt_s, "clock_drift_std_m_per_s_per_sqrt_s")
 
     # ---- the state ------------------------------------------------------------------
@@ -232,7 +242,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         clock = None if not layout.clock else ClockModel(
             self.clock_offset_std_m_per_sqrt_s, self.clock_drift_std_m_per_s_per_sqrt_s,
             terms=layout.clock)
-        return transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s)
+        return transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s,
+                          self.bias_time_constant_s)
 
     # ---- contract -------------------------------------------------------------------
     def init(self, prior_mean, prior_cov, time: float | np.ndarray = 0.0, *,

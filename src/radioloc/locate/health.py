@@ -51,6 +51,7 @@ from radioloc.core.errors import RadiolocError
 from radioloc.core.kinds import model_kinds
 from radioloc.estimators.fault_exclusion import chi2_quantile
 from radioloc.locate.adapter import default_models, moving_anchors, node_observations
+from radioloc.locate.self_tuning import learned_noise
 from radioloc.locate.slips import slip_scale, slips
 from radioloc.locate.table import add_covariance, covariance_of
 
@@ -275,8 +276,12 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     return d, cov, es, scale
 
 
-def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Rows | None:
-    """The node's checked observations and its track at their steps (None: nothing to check)."""
+def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict,
+               learned: dict | None = None) -> _Rows | None:
+    """The node's checked observations and its track at their steps (None: nothing to check).
+    With what the method learned of the node's noise (``learned``, its ``summary.json``
+    entry: :mod:`radioloc.locate.self_tuning`), each anchor's ranges less its learned offset,
+    against their learned spread, and the other kinds against their learned sigma."""
     from radioloc.io.measurements import Measurements
 
     meas = request.measurements
@@ -284,6 +289,8 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     if not kinds or request.anchors is None:
         return None
     options = {name: value for value, name, _ in sigmas.values()}
+    if learned:
+        options.update({name: learned[name] for _, name, _ in sigmas.values() if name in learned})
     models = default_models(kinds, options)
     own = meas[(meas["node"] == node) & meas["kind"].isin(kinds)]
     height = request.option("tag_height_m")
@@ -301,7 +308,8 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     t_out = out_node["time"].to_numpy(dtype=float)
     xyz = out_node[cols].to_numpy(dtype=float)
     pos = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
-    obs = _unbiased(request, obs, pos)
+    ids = list(dict.fromkeys(request.anchors["id"]))
+    obs = _unbiased(request, obs, pos) if not learned else learned_noise(obs, learned, ids)
     sigma = []
     for o in obs:
         base = np.broadcast_to(o.model.std(o.context), o.z.shape)
@@ -317,7 +325,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
         count += n
     if count < WINDOW_ROWS // 2 and w > 0 and not window_alone:   # a short last window
         window[window == w] = w - 1
-    return _Rows(obs, times, pos, window, sigma, list(dict.fromkeys(request.anchors["id"])))
+    return _Rows(obs, times, pos, window, sigma, ids)
 
 
 def _unbiased(request, obs: list, pos: np.ndarray) -> list:
@@ -385,7 +393,8 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
         parts = []
         for node, idx in out.groupby("node", sort=False).indices.items():
             own = out.iloc[idx].sort_values("time", kind="stable")
-            rows = _node_rows(request, own, node, sigmas)
+            rows = _node_rows(request, own, node, sigmas,
+                              summary.get("learned", {}).get(str(node)))
             if rows is None:
                 parts.append(own)
                 continue

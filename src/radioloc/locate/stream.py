@@ -43,8 +43,10 @@ from radioloc.locate.ekf_track import (log_models, observation_window, reads_clo
 STREAM_METHODS = ("ekf-track",)
 #: Default reorder window, seconds.
 REORDER_S = 0.5
-#: Options of the method that need the whole log, refused by the stream.
-OFFLINE_OPTIONS = ("smooth", "cooperative")
+#: Options of the method that need the whole log, refused by the stream (live tracking
+#: runs the fixed defaults and what -o gives: learn the settings on a recorded log first,
+#: `radioloc.locate.self_tuning`).
+OFFLINE_OPTIONS = ("smooth", "cooperative", "tune")
 
 
 @dataclass
