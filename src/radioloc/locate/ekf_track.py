@@ -82,7 +82,7 @@ from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
 from radioloc.locate.progress import progress
 from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
-from radioloc.locate.table import add_covariance
+from radioloc.locate.table import covariance_columns
 from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
                                          wrap_angle)
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV, WhiteJerkCA
@@ -742,10 +742,15 @@ def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
     DataFrame
         Flags: ``gated`` (int), ``restart`` (0/1), ``p_nlos`` where known.
     """
-    out = pd.DataFrame({"time": times, "node": node})
+    return pd.DataFrame(track_columns(node, times, track, restart))
+
+
+def track_columns(node, times, track, restart: bool = False) -> dict[str, np.ndarray]:
+    """The columns of :func:`track_table`, in order (without building the table)."""
+    out = {"time": times, "node": node}
     for k, c in enumerate("xyz"[: track.position.shape[-1]]):
         out[c] = track.position[:, k]
-    out = add_covariance(out, track.covariance)
+    out.update(covariance_columns(track.covariance))
     if "gated" in track.diagnostics:
         out["gated"] = np.asarray(track.diagnostics["gated"], dtype=np.int64)
     flag = np.zeros(len(times), dtype=np.int64)

@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 from typing import Iterator, TextIO
 
-import pandas as pd
+import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.io.logs import csv_chunks, read_anchors
+from radioloc.io.logs import read_anchors
 from radioloc.locate.stream import REORDER_S, Tracker
 
 #: Bytes asked for per read.
@@ -72,9 +72,10 @@ class RowParser:
         self.json = False
         self.line = 0
 
-    def rows(self, lines: list[bytes]) -> pd.DataFrame:
-        """The rows of ``lines`` (blank lines skipped), with their ``line`` numbers."""
-        records, numbers = [], []
+    def rows(self, lines: list[bytes]) -> dict[str, list]:
+        """The cells of ``lines`` by column (blank lines skipped), with their ``line``
+        numbers (a mapping of columns for :meth:`radioloc.locate.Tracker.update`)."""
+        texts, numbers = [], []
         for raw in lines:
             self.line += 1
             text = raw.decode("utf-8", errors="replace").strip()
@@ -86,48 +87,54 @@ class RowParser:
                 else:
                     self.header = [c.strip().lower() for c in next(csv.reader([text]))]
                     continue
-            records.append(self._record(text))
+            texts.append(text)
             numbers.append(self.line)
-        frame = pd.DataFrame.from_records(records) if records else pd.DataFrame()
-        if records:
-            frame["line"] = numbers
-        return frame
-
-    def _record(self, text: str) -> dict:
         if self.json:
-            try:
-                record = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise InputError(f"measurements: line {self.line}: not JSON ({exc.msg})") from None
-            if not isinstance(record, dict):
-                raise InputError(f"measurements: line {self.line}: expected a JSON object")
-            return record
-        cells = next(csv.reader([text], skipinitialspace=True))
-        if len(cells) != len(self.header):
-            raise InputError(f"measurements: line {self.line}: {len(cells)} cells, the header "
-                             f"has {len(self.header)}")
-        return dict(zip(self.header, cells))
+            records = [self._record(text, line) for text, line in zip(texts, numbers)]
+            keys = dict.fromkeys(k for r in records for k in r)
+            columns = {k: [r.get(k) for r in records] for k in keys}
+        else:
+            cells = list(csv.reader(texts, skipinitialspace=True))
+            for row, line in zip(cells, numbers):
+                if len(row) != len(self.header):
+                    raise InputError(f"measurements: line {line}: {len(row)} cells, the header "
+                                     f"has {len(self.header)}")
+            columns = {h: list(c) for h, c in zip(self.header, zip(*cells))} if cells else {}
+        columns["line"] = numbers
+        return columns
+
+    @staticmethod
+    def _record(text: str, line: int) -> dict:
+        try:
+            record = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputError(f"measurements: line {line}: not JSON ({exc.msg})") from None
+        if not isinstance(record, dict):
+            raise InputError(f"measurements: line {line}: expected a JSON object")
+        return record
 
 
 class CsvOut:
-    """Estimates as CSV rows on a text stream, the header once, flushed after each write."""
+    """Estimates as CSV rows on a text stream (the text of the batch run's CSV: floats in
+    their shortest exact form), the header once, flushed after each write."""
 
     def __init__(self, stream: TextIO) -> None:
         self.stream = stream
+        self.writer = csv.writer(stream, lineterminator=os.linesep)
         self.header = False
         self.rows = 0
 
-    def write(self, table: pd.DataFrame) -> None:
-        if table.empty:
+    def write(self, columns: dict[str, np.ndarray]) -> None:
+        """Write estimates given as columns (:meth:`Tracker.update` with ``as_frame=False``)."""
+        if not columns:
             return
-        chunks = csv_chunks(table)
-        text = "".join(chunks) if chunks is not None else table.to_csv(index=False)
-        if self.header:
-            text = text.split("\n", 1)[1]
-        self.header = True
-        self.stream.write(text)
+        if not self.header:
+            self.writer.writerow(columns)
+            self.header = True
+        rows = list(zip(*(c.tolist() for c in columns.values())))
+        self.writer.writerows(rows)
         self.stream.flush()
-        self.rows += len(table)
+        self.rows += len(rows)
 
 
 def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
@@ -158,10 +165,10 @@ def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
             waiting["now"] = False
             if batch is None:
                 break
-            out.write(tracker.update(parser.rows(batch)))
+            out.write(tracker.update(parser.rows(batch), as_frame=False))
         if waiting.get("stopped"):
             end = "interrupted"
-        out.write(tracker.close())
+        out.write(tracker.close(as_frame=False))
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
