@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from radioloc.core.errors import ConfigError, InputError
+from radioloc.io.logs import subtract_anchor_bias
 from radioloc.locate import LocateRequest, Tracker, run_method
 
 ANCHORS = pd.DataFrame({"id": ["A", "B", "C", "D", "E"], "x": [0.0, 20.0, 20.0, 0.0, 10.0],
@@ -152,6 +153,77 @@ def test_tracker_refuses_what_it_cannot_stream():
         tracker.update([{"time": 0, "node": "t", "kind": "range", "value": 1}])
 
 
+def mixed_log(seed: int = 5) -> pd.DataFrame:
+    """``t1``: ranges to A-D with a per-row std, a fifth of them sent twice (another
+    draw), and time differences of E against A; ``t2``: ranges without std."""
+    rng = np.random.default_rng(seed)
+    xy_of = ANCHORS.set_index("id")[["x", "y"]]
+    frames = []
+    for node, n in (("t1", 300), ("t2", 150)):
+        t = np.round(np.cumsum(rng.uniform(0.05, 0.15, n)), 4)
+        xy = np.stack([10 + 5 * np.cos(t / 4), 7.5 + 3 * np.sin(t / 4)], -1)
+        d = {a: np.linalg.norm(xy - xy_of.loc[a].to_numpy(), axis=1) for a in xy_of.index}
+        for a in "ABCD":
+            frames.append(pd.DataFrame({"time": t, "node": node, "peer": a, "kind": "range",
+                                        "value": d[a] + 0.25 + 0.1 * rng.standard_normal(n),
+                                        "std": 0.1 if node == "t1" else np.nan}))
+        if node == "t1":
+            frames.append(pd.DataFrame({"time": t, "node": node, "peer": "E", "kind": "tdoa",
+                                        "reference": "A", "std": 0.2,
+                                        "value": d["E"] - d["A"] + 0.2 * rng.standard_normal(n)}))
+    log = pd.concat(frames, ignore_index=True)
+    log["reference"] = log["reference"].fillna("")
+    again = log[(log["node"] == "t1") & (rng.random(len(log)) < 0.2)]
+    again = again.assign(value=again["value"] + 0.1 * rng.standard_normal(len(again)))
+    log = pd.concat([log, again], ignore_index=True)
+    return log.sort_values(["time", "node"], kind="stable").reset_index(drop=True)
+
+
+def test_kinds_std_duplicates_and_calibrated_anchors_give_the_batch_run():
+    """Rows resolved to slots as arrays: duplicates averaged, per-row std, a second kind with
+    a reference anchor, the anchors' bias_m and option range_bias_m, as the batch run."""
+    log = mixed_log()
+    anchors = ANCHORS.assign(bias_m=[0.05, 0.1, 0.0, 0.15, 0.0], bias_std_m=0.01)
+    options = {"init_s": "1.5", "range_bias_m": "0.2", "tdoa_std_m": "0.2"}
+    corrected = subtract_anchor_bias(log, anchors)           # as `locate` reads the log
+    expected = run_method("ekf-track", LocateRequest(corrected, anchors, options=dict(options)))
+    tracker = Tracker("ekf-track", anchors, options)
+    parts = [tracker.update({c: log[c].to_numpy()[i:i + 37] for c in log.columns},
+                            as_frame=False) for i in range(0, len(log), 37)]
+    parts.append(tracker.close(as_frame=False))
+    got = pd.concat([pd.DataFrame(p) for p in parts if p], ignore_index=True)
+    assert_same(got.sort_values(["time", "node"], kind="stable").reset_index(drop=True),
+                expected)
+    with pytest.raises(InputError, match="row 0, column 'value': range 0.01 m to anchor 'D'"):
+        tracker.update([{"time": 99.0, "node": "t2", "peer": "D", "kind": "range",
+                         "value": 0.01}])
+
+
+def test_flush_estimates_the_latest_step_at_once(log, expected):
+    """With the reorder window 0, each time stamp given whole then flushed is estimated by
+    that flush (once its track has started), and the numbers are the batch run's; a row of
+    a flushed time that comes after is late."""
+    tracker = Tracker("ekf-track", ANCHORS, OPTIONS, reorder_s=0.0)
+    parts, waited = [], 0
+    for t, rows in log.groupby("time", sort=True):
+        parts.append(tracker.update(rows))
+        flushed = tracker.flush()
+        parts.append(flushed)
+        started = expected[expected["time"] == t]
+        if len(flushed) == 0:
+            waited += 1                       # held for a start window
+        else:
+            assert flushed["time"].max() == t and set(started["node"]) <= set(flushed["node"])
+    parts.append(tracker.close())
+    assert waited < 0.1 * log["time"].nunique()
+    got = pd.concat([p for p in parts if len(p)], ignore_index=True)
+    assert_same(got.sort_values(["time", "node"], kind="stable").reset_index(drop=True),
+                expected)
+    before = tracker.summary()["rows_late"]
+    tracker.update(log.iloc[-1:])
+    assert tracker.summary()["rows_late"] == before + 1
+
+
 def radioloc(*args: str) -> list[str]:
     return [sys.executable, "-m", "radioloc.cli", *args]
 
@@ -171,6 +243,21 @@ def files(tmp_path_factory, log):
 def follow_args(folder, source: str, *more: str) -> list[str]:
     return radioloc("locate", source, "--anchors", str(folder / "anchors.csv"), "--method",
                     "ekf-track", "--follow", "-o", "q=0.5", "-o", "init_s=1.5", *more)
+
+
+def interrupted_after(proc, out, lines: int) -> None:
+    """Wait (60 s at most) for ``lines`` lines in ``out``, then Ctrl-C ``proc``, which ends
+    cleanly."""
+    deadline = time.monotonic() + 60
+    while not out.exists() or len(out.read_text().splitlines()) < lines:
+        assert time.monotonic() < deadline and proc.poll() is None
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=60) == 0, proc.stderr.read()
+
+
+def read_sorted(out) -> pd.DataFrame:
+    return pd.read_csv(out).sort_values(["time", "node"], kind="stable").reset_index(drop=True)
 
 
 @pytest.mark.slow   # a subprocess (and a signal)
@@ -215,15 +302,10 @@ def test_follow_a_growing_json_lines_file_until_interrupted(files, log, tmp_path
             time.sleep(0.1)
         with open(source, "a") as f:
             f.write("".join(lines[half:]))
-        while (len(out.read_text().splitlines()) < len(pd.read_csv(files / "batch.csv")) - 40):
-            assert time.monotonic() < deadline and proc.poll() is None
-            time.sleep(0.1)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+        interrupted_after(proc, out, len(pd.read_csv(files / "batch.csv")) - 40)
     finally:
         proc.kill()
-    got = pd.read_csv(out).sort_values(["time", "node"], kind="stable").reset_index(drop=True)
-    assert_same(got, pd.read_csv(files / "batch.csv"))
+    assert_same(read_sorted(out), pd.read_csv(files / "batch.csv"))
     summary = json.loads((tmp_path / "est.summary.json").read_text())
     assert summary["end"] == "interrupted" and summary["rows_late"] == 0
 
@@ -234,3 +316,48 @@ def test_follow_names_the_line_of_a_bad_row(files):
     run = subprocess.run(follow_args(files, "-"), input=text, capture_output=True, text=True,
                          timeout=60)
     assert run.returncode != 0 and "line 3" in run.stderr and "Traceback" not in run.stderr
+
+
+@pytest.mark.slow   # a subprocess (and a signal)
+def test_follow_udp_datagrams_flushed_when_idle(files, log, tmp_path):
+    """Rows sent as UDP datagrams (whole time stamps, the header on top of each) to
+    ``udp://127.0.0.1:0``: with ``--idle-s`` every estimate is written before the run is
+    interrupted, and they are the batch run's."""
+    import socket
+
+    out = tmp_path / "est.csv"
+    proc = subprocess.Popen(follow_args(files, "udp://127.0.0.1:0", "--out", str(out),
+                                        "--reorder-s", "0", "--idle-s", "0.002"),
+                            stderr=subprocess.PIPE, text=True)
+    expected = pd.read_csv(files / "batch.csv")
+    try:
+        listening = proc.stderr.readline()
+        assert listening.startswith("listening on udp://127.0.0.1:"), listening
+        port = int(listening.strip().rsplit(":", 1)[1])
+        header = "time,node,peer,kind,value\n"
+        sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        stamps = [rows for _, rows in log.groupby("time", sort=True)]
+        for i in range(0, len(stamps), 5):
+            text = pd.concat(stamps[i:i + 5]).to_csv(index=False, header=False)
+            sender.sendto((header + text).encode(), ("127.0.0.1", port))
+        sender.close()
+        interrupted_after(proc, out, len(expected) + 1)       # every row before Ctrl-C
+    finally:
+        proc.kill()
+    assert_same(read_sorted(out), expected)
+    summary = json.loads((tmp_path / "est.summary.json").read_text())
+    assert summary["end"] == "interrupted" and summary["rows_in"] == len(log)
+    assert summary["rows_late"] == 0 and summary["measurements"].startswith("udp://")
+
+
+def test_udp_source_is_an_address_to_listen_on():
+    from radioloc.locate.follow import udp_socket
+
+    assert udp_socket("-") is None and udp_socket("udp.csv") is None
+    sock = udp_socket("udp:/127.0.0.1:0")          # a path argument folds udp:// so
+    try:
+        assert sock.getsockname()[0] == "127.0.0.1" and sock.getsockname()[1] > 0
+    finally:
+        sock.close()
+    with pytest.raises(InputError, match="udp://127.0.0.1:99999: cannot listen"):
+        udp_socket("udp://127.0.0.1:99999")

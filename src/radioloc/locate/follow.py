@@ -1,12 +1,18 @@
 """``radioloc locate --follow``: estimates written as the rows arrive.
 
-Rows come from standard input (``-``) or a file that grows (followed like ``tail -f``), as
-CSV with a header line or as JSON lines (one object per line; the first line tells which).
-They are read as they become available and given to a :class:`radioloc.locate.stream.Tracker`;
-every estimate it makes is written at once as a CSV row and the output flushed. End of
-input (a pipe closed), Ctrl-C or SIGTERM ends the run cleanly: the rows held are processed,
-their estimates written and the summary (the tracker's counts) written to
-``OUT-stem.summary.json`` beside ``--out``, or as one JSON line on standard error.
+Rows come from standard input (``-``), a file that grows (followed like ``tail -f``) or
+UDP datagrams (``udp://HOST:PORT``, each datagram whole lines), as CSV with a header line
+or as JSON lines (one object per line; the first line tells which; a CSV header line that
+comes again, e.g. at the top of every datagram, is skipped). They are read as they become
+available and given to a :class:`radioloc.locate.stream.Tracker`; every estimate it makes
+is written at once as a CSV row and the output flushed. End of input (a pipe closed),
+Ctrl-C or SIGTERM ends the run cleanly: the rows held are processed, their estimates
+written and the summary (the tracker's counts) written to ``OUT-stem.summary.json`` beside
+``--out``, or as one JSON line on standard error.
+
+A time is processed once a later one has come (rows of one time stamp may arrive apart);
+with ``--idle-s`` also once the input has been idle that long (:meth:`Tracker.flush`), so
+the latest step's estimate need not wait for the next step.
 
 Memory stays bounded on endless input: only the reorder window, the rows of tracks waiting
 for their start and the state of each node are kept.
@@ -16,8 +22,12 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
+import re
+import select
 import signal
+import socket
 import stat
 import sys
 import time
@@ -34,29 +44,49 @@ from radioloc.locate.stream import REORDER_S, Tracker
 READ_BYTES = 1 << 16
 #: Seconds between looks at a followed file that has no new line.
 POLL_S = 0.05
+#: Receive buffer asked for a UDP socket, bytes (datagrams beyond it are lost by the system).
+RECEIVE_BYTES = 1 << 22
 
 
 class _Stop(Exception):
     """Ctrl-C or SIGTERM while waiting for input."""
 
 
-def input_lines(fd: int, poll_s: float = POLL_S) -> Iterator[list[bytes]]:
+def input_lines(fd: int, poll_s: float = POLL_S, idle_s: float | None = None,
+                datagrams: bool = False) -> Iterator[list[bytes]]:
     """Complete lines of ``fd`` as they become available (a list per read).
 
     A pipe or terminal ends at end-of-input; a regular file is followed: at its end it is
-    looked at again every ``poll_s`` seconds (the run ends with Ctrl-C).
+    looked at again every ``poll_s`` seconds; a datagram socket (``datagrams``: each
+    datagram holds whole lines) never ends (the run ends with Ctrl-C).
+
+    With ``idle_s``, an empty list is yielded once the input has had nothing new for
+    ``idle_s`` seconds (once per quiet spell).
     """
     follow = stat.S_ISREG(os.fstat(fd).st_mode)
-    rest = b""
+    rest, quiet = b"", False
     while True:
+        if idle_s is not None and not quiet and not follow:
+            if not select.select([fd], [], [], idle_s)[0]:
+                quiet = True
+                yield []
+                continue
         data = os.read(fd, READ_BYTES)
+        if datagrams:
+            quiet = False
+            yield data.splitlines()
+            continue
         if not data:
             if follow:
+                if idle_s is not None and not quiet:
+                    quiet = True
+                    yield []
                 time.sleep(poll_s)
                 continue
             if rest.strip():
                 yield [rest]
             return
+        quiet = False
         data = rest + data
         cut = data.rfind(b"\n") + 1
         rest = data[cut:]
@@ -64,11 +94,37 @@ def input_lines(fd: int, poll_s: float = POLL_S) -> Iterator[list[bytes]]:
             yield data[:cut].splitlines()
 
 
+def udp_socket(source: str) -> socket.socket | None:
+    """A datagram socket bound to the address of ``source`` ``udp://HOST:PORT`` (``HOST``
+    empty: every interface; ``PORT`` 0: any free port), or None for another source.
+
+    Raises
+    ------
+    InputError
+        The address cannot be listened on (naming it and why).
+    """
+    # a path argument folds the two slashes of udp:// into one
+    match = re.fullmatch(r"udp:/{1,2}(\[[^\]]*\]|[^:/\[\]]*):(\d+)/?", source)
+    if match is None:
+        return None
+    host = match[1].strip("[]") or "0.0.0.0"
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BYTES)
+        sock.bind((host, int(match[2])))
+    except (OSError, OverflowError) as exc:
+        sock.close()
+        raise InputError(f"measurements {source}: cannot listen there "
+                         f"({getattr(exc, 'strerror', None) or exc})") from None
+    return sock
+
+
 class RowParser:
     """Measurement rows from lines of CSV (a header line first) or JSON lines."""
 
     def __init__(self) -> None:
         self.header: list[str] | None = None
+        self.header_line = ""
         self.json = False
         self.line = 0
 
@@ -79,13 +135,14 @@ class RowParser:
         for raw in lines:
             self.line += 1
             text = raw.decode("utf-8", errors="replace").strip()
-            if not text:
+            if not text or text == self.header_line:
                 continue
             if self.header is None and not self.json:
                 if text.startswith("{"):
                     self.json = True
                 else:
                     self.header = [c.strip().lower() for c in next(csv.reader([text]))]
+                    self.header_line = text
                     continue
             texts.append(text)
             numbers.append(self.line)
@@ -137,8 +194,13 @@ class CsvOut:
         self.rows += len(rows)
 
 
-def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
+def follow(fd: int, tracker: Tracker, out: CsvOut, idle_s: float | None = None,
+           datagrams: bool = False) -> str:
     """Feed the rows of ``fd`` to ``tracker`` as they arrive, writing its estimates.
+
+    With ``idle_s``, the rows held are processed (:meth:`Tracker.flush`) once the input has
+    had nothing new for ``idle_s`` seconds; ``datagrams``: ``fd`` is a datagram socket (see
+    :func:`input_lines`).
 
     Returns
     -------
@@ -155,7 +217,7 @@ def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     parser, end = RowParser(), "end of input"
     try:
-        lines = input_lines(fd)
+        lines = input_lines(fd, idle_s=idle_s, datagrams=datagrams)
         while not waiting.get("stopped"):
             waiting["now"] = True
             try:
@@ -165,7 +227,8 @@ def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
             waiting["now"] = False
             if batch is None:
                 break
-            out.write(tracker.update(parser.rows(batch), as_frame=False))
+            out.write(tracker.update(parser.rows(batch), as_frame=False) if batch
+                      else tracker.flush(as_frame=False))
         if waiting.get("stopped"):
             end = "interrupted"
         out.write(tracker.close(as_frame=False))
@@ -177,13 +240,15 @@ def follow(fd: int, tracker: Tracker, out: CsvOut) -> str:
 
 def follow_locate(measurements: Path, anchors: Path | None, method: str, options: dict,
                   out: Path | None, fmt: str, reorder_s: float | None,
-                  unused: dict[str, object]) -> list[Path]:
+                  unused: dict[str, object], *, idle_s: float | None = None) -> list[Path]:
     """The body of ``radioloc locate --follow``.
 
     Parameters
     ----------
     measurements : Path
-        ``-`` (standard input) or a file, followed as it grows.
+        ``-`` (standard input), a file, followed as it grows, or ``udp://HOST:PORT``:
+        datagrams of whole lines received there (port 0: any free port; the address is
+        written on standard error).
     anchors : Path or None
     method : str
     options : dict of str
@@ -196,6 +261,9 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
         Reorder window, seconds (None: :data:`REORDER_S`).
     unused : dict
         Other ``locate`` flags by name; any given is refused.
+    idle_s : float or None
+        Process the rows held once the input has been idle this long (None: only once a
+        later time has come).
 
     Returns
     -------
@@ -208,20 +276,33 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
                           "arrive)")
     if fmt != "csv":
         raise ConfigError(f"--follow writes CSV rows; not --format {fmt}")
+    if idle_s is not None and not (math.isfinite(idle_s) and idle_s >= 0):
+        raise ConfigError(f"--idle-s: expected a finite number >= 0 of seconds, got {idle_s!r}")
     tracker = Tracker(method, None if anchors is None else read_anchors(anchors), options,
                       REORDER_S if reorder_s is None else reorder_s)
     to_stdout = out is None or str(out) == "-"
     source = str(measurements)
-    if source != "-" and not Path(source).is_file():
+    sock = udp_socket(source)
+    if sock is not None:
+        host, port = sock.getsockname()[:2]
+        source = f"udp://{f'[{host}]' if ':' in host else host}:{port}"
+        sys.stderr.write(f"listening on {source}\n")
+        sys.stderr.flush()
+    elif source != "-" and not Path(source).is_file():
         raise InputError(f"measurements file {source}: not found")
-    fd = sys.stdin.fileno() if source == "-" else os.open(source, os.O_RDONLY)
-    stream = sys.stdout if to_stdout else open(out, "w", encoding="utf-8", newline="")
+    fd = (sock.fileno() if sock is not None else sys.stdin.fileno() if source == "-"
+          else os.open(source, os.O_RDONLY))
     try:
-        end = follow(fd, tracker, CsvOut(stream))
+        stream = sys.stdout if to_stdout else open(out, "w", encoding="utf-8", newline="")
+        try:
+            end = follow(fd, tracker, CsvOut(stream), idle_s, datagrams=sock is not None)
+        finally:
+            if not to_stdout:
+                stream.close()
     finally:
-        if not to_stdout:
-            stream.close()
-        if source != "-":
+        if sock is not None:
+            sock.close()
+        elif source != "-":
             os.close(fd)
     summary = {"method": method, "options": dict(sorted(options.items())),
                "measurements": source, "end": end, **tracker.summary()}

@@ -284,6 +284,14 @@ class Tracker:
         :meth:`update` returns them)."""
         return self._table_of(self._release(math.inf), as_frame)
 
+    def flush(self, as_frame: bool = True) -> pd.DataFrame | dict[str, np.ndarray]:
+        """Process the rows held up to the reorder window behind the latest time seen, that
+        time included, without waiting for a later one: for a caller that knows no more rows
+        of those times will come (the input has been idle); a row of them that comes after
+        is late. Returns the estimates (as :meth:`update` returns them)."""
+        until = np.nextafter(self._latest - self.reorder_s, math.inf)
+        return self._table_of(self._release(until) if self._pending else [], as_frame)
+
     def summary(self) -> dict:
         """Counts so far: ``rows_in``, ``rows_late`` (older than the reorder window, left
         out), ``rows_out`` (estimates), ``nodes``, ``restarts``, ``reorder_s``."""
