@@ -571,7 +571,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
     leave its state unchanged. The rows of each kind are the union of the tracks' slots
     (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
     the update skips. A slot keeps its anchor-file columns (``Context.columns``). Rows of a
-    step are independent, so each track's result equals its own run.
+    step are independent and the kinds come in the order of their names (as each track's
+    own observations come), so each track's result equals its own run.
 
     Parameters
     ----------
@@ -595,7 +596,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         for o in obs:
             kinds.setdefault(o.model.kind, []).append((b, o))
     out = []
-    for members in kinds.values():
+    for _, members in sorted(kinds.items()):
         slots: dict[tuple[int, int], int] = {}
         for _, o in members:
             ctx = o.context

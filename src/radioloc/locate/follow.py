@@ -131,31 +131,30 @@ class RowParser:
     def rows(self, lines: list[bytes]) -> dict[str, list]:
         """The cells of ``lines`` by column (blank lines skipped), with their ``line``
         numbers (a mapping of columns for :meth:`radioloc.locate.Tracker.update`)."""
-        texts, numbers = [], []
-        for raw in lines:
-            self.line += 1
-            text = raw.decode("utf-8", errors="replace").strip()
-            if not text or text == self.header_line:
-                continue
-            if self.header is None and not self.json:
-                if text.startswith("{"):
-                    self.json = True
-                else:
-                    self.header = [c.strip().lower() for c in next(csv.reader([text]))]
-                    self.header_line = text
-                    continue
-            texts.append(text)
-            numbers.append(self.line)
+        first = self.line + 1
+        self.line += len(lines)
+        texts = b"\n".join(lines).decode("utf-8", errors="replace").split("\n")
+        kept = [(n, t) for n, t in enumerate(map(str.strip, texts), first)
+                if t and t != self.header_line]
+        if kept and self.header is None and not self.json:
+            if kept[0][1].startswith("{"):
+                self.json = True
+            else:
+                self.header_line = kept[0][1]
+                self.header = [c.strip().lower() for c in next(csv.reader([self.header_line]))]
+                kept = [(n, t) for n, t in kept[1:] if t != self.header_line]
+        numbers = [n for n, _ in kept]
+        texts = [t for _, t in kept]
         if self.json:
             records = [self._record(text, line) for text, line in zip(texts, numbers)]
             keys = dict.fromkeys(k for r in records for k in r)
             columns = {k: [r.get(k) for r in records] for k in keys}
         else:
             cells = list(csv.reader(texts, skipinitialspace=True))
-            for row, line in zip(cells, numbers):
-                if len(row) != len(self.header):
-                    raise InputError(f"measurements: line {line}: {len(row)} cells, the header "
-                                     f"has {len(self.header)}")
+            bad = [i for i, row in enumerate(cells) if len(row) != len(self.header)]
+            if bad:
+                raise InputError(f"measurements: line {numbers[bad[0]]}: {len(cells[bad[0]])} "
+                                 f"cells, the header has {len(self.header)}")
             columns = {h: list(c) for h, c in zip(self.header, zip(*cells))} if cells else {}
         columns["line"] = numbers
         return columns

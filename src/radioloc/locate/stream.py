@@ -153,7 +153,7 @@ def number_column(cells: list, column: str, row_name, missing: bool = False) -> 
     if missing:
         cells = [math.nan if _blank(c) else c for c in cells]
     try:
-        out = np.array(cells, dtype=float)
+        out = np.fromiter(map(float, cells), dtype=float, count=len(cells))
     except (TypeError, ValueError):
         out = np.array([_number(c) for c in cells])
     bad = np.isinf(out) if missing else ~np.isfinite(out)
@@ -164,8 +164,13 @@ def number_column(cells: list, column: str, row_name, missing: bool = False) -> 
     return out
 
 
-def _text(cell) -> str:
-    return "" if cell is None or (isinstance(cell, float) and math.isnan(cell)) else str(cell).strip()
+def text_column(cells: list) -> list[str]:
+    """One column's cells as stripped text (a missing cell: empty)."""
+    try:
+        return [c.strip() for c in cells]
+    except AttributeError:                # not all text
+        return ["" if c is None or (isinstance(c, float) and math.isnan(c)) else str(c).strip()
+                for c in cells]
 
 
 class Tracker:
@@ -316,17 +321,17 @@ class Tracker:
         value = number_column(columns["value"], "value", row_name)
         std = (number_column(columns["std"], "std", row_name, missing=True)
                if "std" in columns else np.full(n, np.nan))
-        nodes = [_text(c) for c in columns["node"]]
-        node = np.array([self._nodes.setdefault(v, len(self._nodes)) for v in nodes],
-                        dtype=np.int64)
-        keys = zip([_text(c).lower() for c in columns["kind"]],
-                   [_text(c) for c in columns["peer"]],
-                   [_text(c) for c in columns["reference"]] if "reference" in columns
-                   else [""] * n)
-        slot = np.empty(n, dtype=np.int64)
-        for i, key in enumerate(keys):
-            code = self._slots.get(key)
-            slot[i] = code if code is not None else self._new_slot(key, row_name(i))
+        node = np.array([self._nodes.setdefault(v, len(self._nodes))
+                         for v in text_column(columns["node"])], dtype=np.int64)
+        keys = list(zip([k.lower() for k in text_column(columns["kind"])],
+                        text_column(columns["peer"]),
+                        text_column(columns["reference"]) if "reference" in columns
+                        else [""] * n))
+        codes = [self._slots.get(key) for key in keys]
+        if None in codes:                         # slots first seen
+            codes = [self._slot(key, row_name(i)) if code is None else code
+                     for i, (key, code) in enumerate(zip(keys, codes))]
+        slot = np.array(codes, dtype=np.int64)
         mine = np.maximum(slot, 0)
         if np.isfinite(self._slot_bias).any():
             peers = np.array([k[1] for k in self._slot_keys], dtype=object)
@@ -338,9 +343,11 @@ class Tracker:
             value = np.where(ranges, value - self._s["bias"], value)
         return Rows(time, node, slot, value, std)
 
-    def _new_slot(self, key: tuple[str, str, str], row: str) -> int:
-        """The index of a slot first seen (-1: a row to another node), its model built
-        and its anchors checked."""
+    def _slot(self, key: tuple[str, str, str], row: str) -> int:
+        """The index of a slot (-1: a row to another node); the first time it is seen, its
+        model is built and its anchors checked."""
+        if key in self._slots:
+            return self._slots[key]
         kind, peer, reference = key
         declared = declared_kinds()
         if kind not in declared:
