@@ -295,7 +295,7 @@ class Tracker:
         of those times will come (the input has been idle); a row of them that comes after
         is late. Returns the estimates (as :meth:`update` returns them)."""
         until = np.nextafter(self._latest - self.reorder_s, math.inf)
-        return self._table_of(self._release(until) if self._pending else [], as_frame)
+        return self._table_of(self._release(until), as_frame)
 
     def summary(self) -> dict:
         """Counts so far: ``rows_in``, ``rows_late`` (older than the reorder window, left
@@ -335,8 +335,8 @@ class Tracker:
         mine = np.maximum(slot, 0)
         if np.isfinite(self._slot_bias).any():
             peers = np.array([k[1] for k in self._slot_keys], dtype=object)
-            value = corrected_ranges(value, std, np.where(slot >= 0, self._slot_bias[mine], np.nan),
-                                     self._slot_bias_std[mine], peers[mine],
+            bias = np.where(slot >= 0, self._slot_bias[mine], np.nan)
+            value = corrected_ranges(value, std, bias, self._slot_bias_std[mine], peers[mine],
                                      lambda i: f"{row_name(i)}, ")
         if self._s["bias"] and self._slot_keys:
             ranges = (slot >= 0) & (self._slot_kind[mine] == KINDS.index("range"))
@@ -375,9 +375,10 @@ class Tracker:
             self._models.setdefault(kind, models[kind])
         bias = bias_std = math.nan
         if kind == "range" and "bias_m" in self._table.columns:
-            row = self._table[self._table["id"].astype(str) == peer].iloc[0]
-            bias = float(row["bias_m"])
-            bias_std = float(row["bias_std_m"]) if "bias_std_m" in self._table.columns else 0.0
+            anchor = self._table[self._table["id"].astype(str) == peer].iloc[0]
+            bias = float(anchor["bias_m"])
+            bias_std = (float(anchor["bias_std_m"]) if "bias_std_m" in self._table.columns
+                        else 0.0)
         self._slots[key] = len(self._slot_keys)
         self._slot_keys.append(key)
         self._slot_kind = np.append(self._slot_kind, KINDS.index(kind))
