@@ -378,6 +378,24 @@ def test_follow_udp_datagrams_flushed_when_idle(files, log, tmp_path):
     assert summary["rows_late"] == 0 and summary["measurements"].startswith("udp://")
 
 
+def test_lines_are_read_as_csv_or_json_lines():
+    from radioloc.locate.follow import RowParser
+
+    parser = RowParser()
+    columns = parser.rows([b"time,node,peer,kind,value", b"", b'0.5,"tag,1",A,range,3.5',
+                           b"0.6,tag2,A,range,4"])
+    assert columns["node"] == ["tag,1", "tag2"] and columns["value"] == ["3.5", "4"]
+    assert columns["line"] == [3, 4]
+    again = parser.rows([b"time,node,peer,kind,value", b"0.7,tag2,B,range,5"])
+    assert again["time"] == ["0.7"] and again["line"] == [6]    # the header again: skipped
+    with pytest.raises(InputError, match="line 7: 4 cells, the header has 5"):
+        parser.rows([b"0.8,tag2,B,range"])
+    lines = RowParser().rows([b'{"time": 1, "node": "t", "peer": "A", "kind": "range", '
+                              b'"value": 2}'])
+    assert lines == {"time": [1], "node": ["t"], "peer": ["A"], "kind": ["range"],
+                     "value": [2], "line": [1]}
+
+
 def test_udp_source_is_an_address_to_listen_on():
     from radioloc.locate.follow import udp_socket
 
