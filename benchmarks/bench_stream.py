@@ -6,7 +6,8 @@ anchor at 10 Hz (8 rows per step; the tags' steps staggered by 10 ms).
 - Throughput (sustained): the command is fed the first :data:`STEADY_S` seconds of the log
   and waited for until it has written their estimates (its start and the tracks' starts
   are behind it); then the rest of the log is written into its standard input as fast as
-  it takes it: rows per second from that write to the command's exit. The peer: the batch
+  it takes it: rows per second from that write to the command's exit (and per CPU-second
+  the command used meanwhile: the machine is shared). The peer: the batch
   run (``locate`` without ``--follow``) of the same log as a file, rows per second of its
   wall time less the command's start (its run on a header alone).
 - Latency: the log written in real time (each step's rows at its time stamp, in one
@@ -24,6 +25,7 @@ SECONDS_LATENCY]``.
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -108,6 +110,12 @@ class Follower:
                 raise RuntimeError("the command wrote no estimate in time")
             time.sleep(0.01)
 
+    def cpu_s(self) -> float:
+        """CPU seconds the command has used so far (user and system)."""
+        with open(f"/proc/{self.proc.pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
     def end(self) -> None:
         self.proc.stdin.close()
         self.thread.join(timeout=300)
@@ -118,13 +126,16 @@ def throughput(anchors: Path, seconds: float) -> dict:
     rows = log(seconds)
     lines = rows.to_csv(index=False).splitlines(keepends=True)
     warm = int(np.searchsorted(rows["time"].to_numpy(), STEADY_S))
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
     run = Follower(command(anchors))
     run.write("".join(lines[:1 + warm]))
     run.wait_for(STEADY_S - 1.0)                     # started, tracks running
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), run.cpu_s()
     run.write("".join(lines[1 + warm:]))
     run.end()
     wall = time.perf_counter() - start
+    done = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (done.ru_utime + done.ru_stime - children.ru_utime - children.ru_stime) - cpu_start
     startup = run_piped(command(anchors), lines[0])
     whole = anchors.with_name("log.csv")
     whole.write_text("".join(lines))
@@ -132,8 +143,8 @@ def throughput(anchors: Path, seconds: float) -> dict:
     batch[batch.index("-")] = str(whole)
     batch.remove("--follow")
     batch_wall = run_piped(batch, "")
-    return {"rows": len(rows) - warm, "wall_s": wall, "startup_s": startup,
-            "rows_per_s": (len(rows) - warm) / wall,
+    return {"rows": len(rows) - warm, "wall_s": wall, "startup_s": startup, "cpu_s": cpu,
+            "rows_per_s": (len(rows) - warm) / wall, "rows_per_cpu_s": (len(rows) - warm) / cpu,
             "batch_rows_per_s": len(rows) / max(batch_wall - startup, 1e-9)}
 
 
@@ -195,7 +206,8 @@ def measure(seconds_throughput: float, seconds_latency: float) -> list[dict]:
         load_end = os.getloadavg()[0]
     print(f"load average {load:.1f} at the start, {load_end:.1f} at the end")
     print(f"--follow on a pipe, sustained: {rate['rows']} rows in {rate['wall_s']:.2f} s: "
-          f"{rate['rows_per_s']:.0f} rows/s; the batch run of the same log: "
+          f"{rate['rows_per_s']:.0f} rows/s ({rate['rows_per_cpu_s']:.0f} rows per CPU-second "
+          f"of the command, {rate['cpu_s']:.2f} s); the batch run of the same log: "
           f"{rate['batch_rows_per_s']:.0f} rows/s (start {rate['startup_s']:.2f} s taken off)")
     feed = (f"real-time feed of {TAGS} tags x 8 anchors at {RATE_HZ:g} Hz, --reorder-s 0, "
             "arrival of a step's last row to its estimate read")
