@@ -74,7 +74,8 @@ def input_lines(fd: int, poll_s: float = POLL_S, idle_s: float | None = None,
         data = os.read(fd, READ_BYTES)
         if datagrams:
             quiet = False
-            yield data.splitlines()
+            if data:                          # an empty datagram says nothing
+                yield data.splitlines()
             continue
         if not data:
             if follow:
