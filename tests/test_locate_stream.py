@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -153,6 +154,20 @@ def test_tracker_refuses_what_it_cannot_stream():
         tracker.update([{"time": 0, "node": "t", "peer": "Z", "kind": "range", "value": 1}])
     with pytest.raises(InputError, match="missing column"):
         tracker.update([{"time": 0, "node": "t", "kind": "range", "value": 1}])
+    with pytest.raises(InputError, match="a sequence of cells per column"):
+        tracker.update({"time": 0, "node": "t", "peer": "A", "kind": "range", "value": 1})
+    with pytest.raises(InputError, match="columns of different lengths"):
+        tracker.update({"time": [0, 1], "node": ["t"], "peer": ["A"], "kind": ["range"],
+                        "value": [1]})
+    with pytest.raises(InputError, match="line 9, column 'std': 'x'"):
+        tracker.update({"time": [0], "node": ["t"], "peer": ["A"], "kind": ["range"],
+                        "value": [1], "std": ["x"], "line": [9]})
+    with pytest.raises(InputError, match="row 0, column 'reference': 'Z' is not an anchor"):
+        tracker.update([{"time": 0, "node": "t", "peer": "A", "reference": "Z",
+                         "kind": "tdoa", "value": 1}])
+    from radioloc.locate.follow import follow_locate
+    with pytest.raises(ConfigError, match="--idle-s"):
+        follow_locate(Path("-"), None, "ekf-track", {}, None, "csv", None, {}, idle_s=-1.0)
 
 
 def mixed_log(seed: int = 5) -> pd.DataFrame:

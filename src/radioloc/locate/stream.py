@@ -107,6 +107,9 @@ def row_columns(rows) -> tuple[dict[str, list], int]:
     if isinstance(rows, pd.DataFrame):
         return {str(c): rows[c].tolist() for c in rows.columns}, len(rows)
     if isinstance(rows, Mapping):
+        if any(isinstance(v, (str, bytes)) or not hasattr(v, "__len__") for v in rows.values()):
+            raise InputError("measurement rows: a mapping of columns needs a sequence of "
+                             "cells per column (a list of mappings for rows)")
         columns = {str(c): list(v) for c, v in rows.items()}
         sizes = {len(v) for v in columns.values()}
         if len(sizes) > 1:
