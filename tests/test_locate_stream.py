@@ -226,6 +226,30 @@ def test_kinds_std_duplicates_and_calibrated_anchors_give_the_batch_run():
                          "value": 0.01}])
 
 
+def test_a_moving_anchor_gives_the_batch_run():
+    """An anchor with a track (rows at several times): its position at each step
+    interpolated, as the batch run does, over chunks of rows."""
+    rng = np.random.default_rng(6)
+    tt = np.arange(0.0, 41.0)
+    anchors = pd.concat([ANCHORS.iloc[:3].assign(time=np.nan),
+                         pd.DataFrame({"id": "M", "x": 0.5 * tt, "y": 15.0 - 0.1 * tt,
+                                       "time": tt})], ignore_index=True)
+    t = np.round(np.cumsum(rng.uniform(0.05, 0.1, 400)), 4)
+    xy = np.stack([10 + 5 * np.cos(t / 4), 7 + 3 * np.sin(t / 4)], -1)
+    where = {a: np.broadcast_to(ANCHORS.set_index("id").loc[a, ["x", "y"]].to_numpy(float),
+                                xy.shape) for a in "ABC"}
+    where["M"] = np.stack([0.5 * t, 15 - 0.1 * t], -1)
+    log = pd.concat([pd.DataFrame({"time": t, "node": "t1", "peer": a, "kind": "range",
+                                   "value": np.linalg.norm(xy - p, axis=-1)
+                                   + 0.1 * rng.standard_normal(t.size)})
+                     for a, p in where.items()])
+    log = log.sort_values(["time", "peer"], kind="stable").reset_index(drop=True)
+    expected = run_method("ekf-track", LocateRequest(log, anchors, options={"init_s": "1.5"}))
+    tracker = Tracker("ekf-track", anchors, {"init_s": "1.5"})
+    assert_same(streamed(tracker, [log.iloc[i:i + 53] for i in range(0, len(log), 53)]),
+                expected)
+
+
 def test_batch_run_gives_a_track_its_own_numbers_whatever_the_other_kinds():
     """The batch run's tracks are one batch of the filter: a track's estimates are those of
     its own run, also when a track before it lacks some of its kinds (its kinds are updated
