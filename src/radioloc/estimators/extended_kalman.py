@@ -459,8 +459,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time,
                         {"state": state.mean, "state_covariance": state.covariance})
 
-    def run(self, observations: Observation | Sequence[Observation], time=None, *, prior_mean,
-            prior_cov, controls=None, smooth: bool = False, coupling=None,
+    def run(self, observations: Observation | Sequence[Observation], time=None, *,
+            prior_mean=None, prior_cov=None, state: FilterState | None = None,
+            streak=None, controls=None, smooth: bool = False, coupling=None,
             on_step: Callable[[int], object] | None = None) -> Track:
         """Filter (or smooth) a series of observations.
 
@@ -473,6 +474,13 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             predicted (except for an input-driven model's control). Default ``0..T-1``.
         prior_mean, prior_cov : array_like
             Prior at ``time[0]`` (see :meth:`init`).
+        state : FilterState, optional
+            Instead of the prior: the state the run goes on from (the last state of an
+            earlier run, at a time not after ``time[0]``); the first step is predicted from
+            its time, and its layout is kept.
+        streak : int or array_like of int, shape (...), optional
+            Steps in a row whose every row was gated before the first step (the
+            ``gate_streak`` diagnostic of the run this one goes on from); default 0.
         controls : array_like, shape (..., T, D), optional
             Displacement per step for an input-driven motion model.
         smooth : bool
@@ -492,7 +500,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         Track
             ``position`` (..., T, D), ``covariance`` (..., T, D, D); diagnostics
             ``state``, ``state_covariance`` (the full state: clock, biases), ``innovation``,
-            ``innovation_covariance``, ``nis``, ``measurements_used``, ``gated`` (per step).
+            ``innovation_covariance``, ``nis``, ``measurements_used``, ``gated`` (per step),
+            ``gate_streak`` (after the last step, per run).
         """
         obs = _as_observations(observations)
         T = common_steps(obs)
@@ -502,11 +511,17 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         dts = np.diff(t, axis=-1)
         if np.any(~np.isfinite(t)) or np.any(dts < 0):
             raise InputError("time: must be finite and non-decreasing")
-        dts = np.concatenate([np.zeros(t.shape[:-1] + (1,)), dts], axis=-1)
+        if state is None:
+            state = self.init(prior_mean, prior_cov, t[..., 0], observations=obs)
+        else:
+            self._layout_of(state)        # refuses what is not a state of this filter
+        first = t[..., :1] - np.asarray(state.time, dtype=float)[..., None]
+        if np.any(~(first >= 0)):
+            raise InputError("state: its time must be finite and not after time[0]")
+        dts = np.concatenate([first, dts], axis=-1)
         u = None if controls is None else as_float_array(controls, "controls", min_ndim=2)
         if u is not None and u.shape[-2] != T:
             raise InputError(f"controls: expected {T} steps on axis -2, got shape {u.shape}")
-        state = self.init(prior_mean, prior_cov, t[..., 0], observations=obs)
         layout = state.layout
         shapes = [o.z.shape[:-2] for o in obs] + [o.at(0)[1].points.shape[:-2] for o in obs]
         try:
@@ -519,7 +534,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                             np.broadcast_to(state.covariance, batch + (layout.size,) * 2),
                             state.time, layout)
         record: dict[str, np.ndarray] = {}    # per step: batch + (T,) + the value's axes
-        streak = np.zeros(batch, dtype=np.int64)     # steps in a row with every row gated
+        # steps in a row with every row gated
+        streak = np.zeros(batch, dtype=np.int64) + np.asarray(0 if streak is None else streak,
+                                                              dtype=np.int64)
         self._check_models(layout, [o.model for o in obs],
                            [f"observations[{i}]" for i in range(len(obs))])
         # the noise of a context that is the same at every step: worked out once
@@ -561,9 +578,10 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             F = np.broadcast_to(self.transition(layout, dts)[0], batch + (T,) + (layout.size,) * 2)
             means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
                                      record.pop("predicted_covariance"), F)
-        diag = {"state": means, "state_covariance": covs, **record}
+        diag = {"state": means, "state_covariance": covs, **record, "gate_streak": streak}
         return layout_track(layout, means, covs, t, diag,
-                            {"state": 1, "state_covariance": 2, **_INFO_AXES})
+                            {"state": 1, "state_covariance": 2, **_INFO_AXES,
+                             "gate_streak": None})
 
     # ---- helpers --------------------------------------------------------------------
     def _layout_of(self, state) -> StateLayout:

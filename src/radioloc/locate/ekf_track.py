@@ -83,7 +83,7 @@ from radioloc.locate.progress import progress
 from radioloc.locate.self_tuning import learn_node, tuned_observations
 from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
-from radioloc.locate.table import add_covariance
+from radioloc.locate.table import covariance_columns
 from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
                                          wrap_angle)
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV, WhiteJerkCA
@@ -585,7 +585,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
     leave its state unchanged. The rows of each kind are the union of the tracks' slots
     (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
     the update skips. A slot keeps its anchor-file columns (``Context.columns``). Rows of a
-    step are independent, so each track's result equals its own run.
+    step are independent and the kinds come in the order of their names (as each track's
+    own observations come), so each track's result equals its own run.
 
     Parameters
     ----------
@@ -609,7 +610,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         for o in obs:
             kinds.setdefault(o.model.kind, []).append((b, o))
     out = []
-    for members in kinds.values():
+    for _, members in sorted(kinds.items()):
         slots: dict[tuple[int, int], int] = {}
         for _, o in members:
             ctx = o.context
@@ -756,10 +757,15 @@ def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
     DataFrame
         Flags: ``gated`` (int), ``restart`` (0/1), ``p_nlos`` where known.
     """
-    out = pd.DataFrame({"time": times, "node": node})
+    return pd.DataFrame(track_columns(node, times, track, restart))
+
+
+def track_columns(node, times, track, restart: bool = False) -> dict[str, np.ndarray]:
+    """The columns of :func:`track_table`, in order (without building the table)."""
+    out = {"time": times, "node": node}
     for k, c in enumerate("xyz"[: track.position.shape[-1]]):
         out[c] = track.position[:, k]
-    out = add_covariance(out, track.covariance)
+    out.update(covariance_columns(track.covariance))
     if "gated" in track.diagnostics:
         out["gated"] = np.asarray(track.diagnostics["gated"], dtype=np.int64)
     flag = np.zeros(len(times), dtype=np.int64)
