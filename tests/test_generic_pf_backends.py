@@ -1,8 +1,8 @@
 """The generic ParticleFilter's backends: ``backend="numba"`` (compiled likelihood of a
 Gaussian range model, moments, systematic resampling; large draws filled in parallel)
-equals ``backend="numpy"`` with the same seed, to 1e-10 relative (``assert_tracks_close``); a model without a
-compiled likelihood is filtered by its NumPy definition on either backend; the choice of
-backend is validated and a missing numba is named."""
+equals ``backend="numpy"`` with the same seed, to 1e-10 relative (``assert_tracks_close``);
+a model without a compiled likelihood is filtered by its NumPy definition on either
+backend; the choice of backend is validated and a missing numba is named."""
 
 import sys
 

@@ -309,7 +309,8 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
     z = normal(mean.shape)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        z *= np.diagonal(factor)
+        d = np.diagonal(factor)
+        z *= d[0] if np.all(d == d[0]) else d       # a scalar: one pass at memory speed
         z += mean
         return z
     if factor.ndim == 2:                                    # one Q for every particle
@@ -372,7 +373,7 @@ def compiled_kernels():
 #: generator (``spawn``), in parallel by the compiled backend; the parts depend on the size
 #: only.
 DRAW_PARALLEL = 1 << 17
-STREAMS = 16
+STREAMS = 8
 
 
 def standard_normal(rng, shape: tuple[int, ...], backend: str = "numpy") -> np.ndarray:
@@ -414,7 +415,7 @@ def standard_normal(rng, shape: tuple[int, ...], backend: str = "numpy") -> np.n
 def compiled_moments(log_w: np.ndarray, particles: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`weighted_moments` by the compiled kernel ``pf_compiled.moment_sums``, with the
-    normalised log weights.
+    log of the weights' sum.
 
     Parameters
     ----------
@@ -425,8 +426,8 @@ def compiled_moments(log_w: np.ndarray, particles: np.ndarray
     -------
     w, mean, covariance, ess : ndarray
         As :func:`weighted_moments`.
-    log_w : ndarray, shape (..., K)
-        ``log_w - logsumexp(log_w)``.
+    log_total : ndarray, shape (..., 1)
+        ``logsumexp(log_w)``.
     """
     batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
     b = int(np.prod(batch, dtype=int))
@@ -443,7 +444,7 @@ def compiled_moments(log_w: np.ndarray, particles: np.ndarray
     cov = s[:, 2 + n:].reshape(b, n, n) / total[:, None, None] - d[:, :, None] * d[:, None, :]
     return (w.reshape(batch + (k,)), (x[:, 0] + d).reshape(batch + (n,)),
             cov.reshape(batch + (n, n)), (total * total / s[:, 1]).reshape(batch),
-            (lw - (top + np.log(total)[:, None])).reshape(batch + (k,)))
+            (top + np.log(total)[:, None]).reshape(batch + (1,)))
 
 
 def compiled_systematic(w: np.ndarray, particles: np.ndarray, q: np.ndarray | None, rng
@@ -479,7 +480,7 @@ def compiled_systematic(w: np.ndarray, particles: np.ndarray, q: np.ndarray | No
     q_in = out_q if q is None else kernel_array(q.reshape(b, k, width))
     compiled_kernels().systematic_gather(kernel_array(w.reshape(b, k)), u.reshape(b),
                                          kernel_array(particles.reshape(b, k, n)), q_in, CHUNK,
-                                         np.empty((b, k)), idx, out_p, out_q, distinct)
+                                         idx, out_p, out_q, distinct)
     return (idx.reshape(batch + (k,)), out_p.reshape(particles.shape),
             None if q is None else out_q.reshape(q.shape), distinct.sum(axis=1).reshape(batch))
 
@@ -869,23 +870,25 @@ class ParticleFilter(RecursiveEstimator):
                 row_ll, post = mode_update(prior, np.broadcast_to(lp, full))
                 modes[i] = post
                 seen[i] = np.broadcast_to(np.isfinite(z), full[:-3] + (z.shape[-1],))
-                ll = np.sum(row_ll, axis=-1)
-            elif numba and has_compiled_likelihood(model):
+            if numba and S == 1 and has_compiled_likelihood(model):
                 model.checked(zz, comps, pctx)
-                ll = _range_loglik(model, z, x, layout, ctx, state.batch_shape)
+                ll = _range_loglik(model, z, x, layout, ctx, state.batch_shape)  # never NaN
             else:
-                ll = np.sum(model.logpdf(zz, comps, pctx), axis=-1)      # (..., K)
-            ll = np.broadcast_to(np.where(np.isnan(ll), -np.inf, ll), state.batch_shape + (K,))
+                ll = np.sum(row_ll if S > 1 else model.logpdf(zz, comps, pctx), axis=-1)
+                ll = np.where(np.isnan(ll), -np.inf, ll)                  # (..., K)
+            ll = np.broadcast_to(ll, state.batch_shape + (K,))
             best = ll.max(axis=-1)
             degenerate |= best < LOG_UNDERFLOW
             # a run no particle explains at all (every likelihood zero) keeps its weights
-            log_w = np.where(np.isfinite(best)[..., None], log_w + ll, log_w)
+            explained = np.isfinite(best)
+            log_w = log_w + ll if explained.all() else \
+                np.where(explained[..., None], log_w + ll, log_w)
         # line 14: the estimate
         if numba:
-            w, mean, cov, ess, log_w = compiled_moments(log_w, x)
+            w, mean, cov, ess, log_total = compiled_moments(log_w, x)
         else:
             w, mean, cov, ess = weighted_moments(log_w, x)
-            log_w = log_w - logsumexp(log_w, axis=-1, keepdims=True)
+            log_total = logsumexp(log_w, axis=-1, keepdims=True)
         # line 12: resample where the effective sample size is low (and on a reset)
         need = (ess < self.ess_threshold * K) | (self.ess_threshold >= 1.0) | degenerate
         if numba and self.resample is systematic:
@@ -900,7 +903,8 @@ class ParticleFilter(RecursiveEstimator):
             x = np.take_along_axis(x, idx[..., None], axis=-2)
         modes = [None if q is None else np.take_along_axis(q, idx[..., None, None], axis=-3)
                  for q in modes]
-        log_w = np.where(need[..., None], -np.log(K), log_w)
+        log_w = np.full(log_w.shape, -np.log(K)) if need.all() else \
+            np.where(need[..., None], -np.log(K), log_w - log_total)
         if self.roughening > 0:
             n = x.shape[-1]
             scale = self.roughening * K ** (-1.0 / n) * np.sqrt(np.maximum(

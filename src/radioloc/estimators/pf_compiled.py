@@ -264,28 +264,26 @@ def moment_sums(w, parts, chunk, sums):
 
 
 @njit(cache=True, parallel=True)
-def systematic_gather(w, u, parts, q, chunk, cdf, idx, out_p, out_q, distinct):
+def systematic_gather(w, u, parts, q, chunk, idx, out_p, out_q, distinct):
     """Systematic resampling (``resampling.systematic``) of the normalised weights ``w (B, K)``
     with offsets ``u (B,)`` and the gather of the particles ``parts`` and link posteriors
     ``q``: particle ``i`` fills the new slots ``[N_{i-1}, N_i)``, ``N_i = ceil(K C_i - u)``
     (clipped to ``[0, K]``; ``N_{K-1} = K``) the number of positions ``(u + j) / K`` below its
-    cumulative weight ``C_i`` (``cdf``, the sequential sum). The ancestor of slot ``j`` is
-    the number of particles ``i`` with ``N_i <= j`` (a prefix sum of the counts of each
-    ``N_i``, without a branch per copy). ``distinct[b, c]``: the particles of chunk ``c``
-    with at least one copy."""
+    cumulative weight ``C_i`` (the sequential sum). The ancestor of slot ``j`` is the number
+    of particles ``i`` with ``N_i <= j`` (a prefix sum of the counts of each ``N_i``, without
+    a branch per copy). ``distinct[b, c]``: the particles of chunk ``c`` with at least one
+    copy."""
     nb, k = w.shape
     nch = distinct.shape[1]
     for b in prange(nb):
-        t = 0.0
-        for i in range(k):
-            t += w[b, i]
-            cdf[b, i] = t
         marks = np.zeros(k + 1, dtype=np.int64)
+        t = 0.0
         before = 0
         for c in range(nch):
             count = 0
             for i in range(c * chunk, min(k, (c + 1) * chunk)):
-                stop = min(k, max(0, math.ceil(k * cdf[b, i] - u[b])))
+                t += w[b, i]
+                stop = min(k, max(0, math.ceil(k * t - u[b])))
                 stop = k if i == k - 1 else stop
                 marks[stop] += 1
                 count += stop > before

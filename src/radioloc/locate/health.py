@@ -280,7 +280,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     from radioloc.io.measurements import Measurements
 
     meas = request.measurements
-    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"])]
+    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"].unique())]
     if not kinds or request.anchors is None:
         return None
     options = {name: value for value, name, _ in sigmas.values()}
@@ -415,7 +415,7 @@ def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -
     if not blamed:
         return
     scale = max(scales[f.node] for f in blamed)
-    kinds = set(request.measurements["kind"])
+    kinds = set(request.measurements["kind"].unique())
     tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
              if kind in kinds and stated and name in options}
     if not tried:
