@@ -98,6 +98,16 @@ def test_large_filters_draw_in_parts_with_the_same_numbers_on_both_backends():
     np.testing.assert_array_equal(one[0], draws[0][1])   # a run's draws are its own
 
 
+@pytest.mark.parametrize("runs", [1, 3, 11])
+def test_small_draws_of_each_run_are_numpys_on_both_backends(runs):
+    seeds = list(range(20, 20 + runs))
+    draws = [standard_normal(RunGenerators(seeds, (runs,)), (runs, 300, 3), b)
+             for b in ("numba", "numpy")]
+    np.testing.assert_array_equal(*draws)
+    one = np.random.default_rng(seeds[-1]).standard_normal((300, 3))
+    np.testing.assert_array_equal(draws[0][-1], one)
+
+
 def test_which_models_have_a_compiled_likelihood():
     assert has_compiled_likelihood(RangeModel(std_m=0.1))
     assert not has_compiled_likelihood(RangeModel(std_m=0.1, anchor_bias=True))

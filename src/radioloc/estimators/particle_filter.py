@@ -380,7 +380,9 @@ def standard_normal(rng, shape: tuple[int, ...], backend: str = "numpy") -> np.n
     """``shape`` standard normal draws from ``rng``; a large draw (``DRAW_PARALLEL``) in
     ``STREAMS`` parts from child generators, the same numbers on either backend
     (``"numba"`` fills the parts in parallel by ``pf_compiled.standard_normal``, numba's
-    form of NumPy's generator; ``"numpy"`` one after the other).
+    form of NumPy's generator; ``"numpy"`` one after the other). ``"numba"`` also fills a
+    smaller draw of a :class:`RunGenerators` by that kernel, each run's part from the
+    run's own generator (``STREAMS`` runs a call, then one by one), as NumPy would.
 
     Parameters
     ----------
@@ -397,10 +399,18 @@ def standard_normal(rng, shape: tuple[int, ...], backend: str = "numpy") -> np.n
     runs = rng.generators if isinstance(rng, RunGenerators) else [rng]
     per_run = shape[len(rng.batch_shape):] if isinstance(rng, RunGenerators) else shape
     size = int(np.prod(per_run, dtype=np.int64))
+    out = np.empty((len(runs), size))
+    if size < DRAW_PARALLEL and backend == "numba" and isinstance(rng, RunGenerators):
+        kernel = compiled_kernels().standard_normal
+        full = len(runs) - len(runs) % STREAMS
+        for first in range(0, full, STREAMS):          # two tuple lengths: two compilations
+            kernel(tuple(runs[first:first + STREAMS]), out[first:first + STREAMS].reshape(-1))
+        for g, part in zip(runs[full:], out[full:]):
+            kernel((g,), part)
+        return out.reshape(shape)
     if size < DRAW_PARALLEL or any(getattr(g.bit_generator, "seed_seq", None) is None
                                    for g in runs):
         return rng.standard_normal(shape)
-    out = np.empty((len(runs), size))
     for g, part in zip(runs, out):
         children = g.spawn(STREAMS)
         if backend == "numba":

@@ -107,7 +107,11 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
     ``sum_i phi_z`` of chunk ``c`` as ``exp(pmax[b, c, l]) psum[b, c, l, z]`` and, when
     ``em``, ``em_pp[b, i] = sum_l (q', q' e^2, (1 - q') e)``. The pooled sums are left
     alone where ``pool[b, l]`` is False (a link whose LOS prior is 1 for every particle);
-    ``uncertain[b, c, l]``: some new posterior of the chunk is not exactly 1.
+    ``uncertain[b, c, l]``: some new posterior of the chunk is not exactly 1. Where both
+    states are possible and ``u = z - lam s > -20``, the NLOS term relative to the LOS one
+    is ``exp(x) Phi(u)`` (``x = l_0 - l_1 - log Phi(u)`` within +-200 and the LOS prior
+    above 1e-50, so that a particle's running product of totals, logged once it leaves
+    ``[1e-200, 1e200]``, stays finite and nonzero), without the logarithm of ``Phi``.
     """
     nb, k = parts.shape[0], parts.shape[1]
     width = th.shape[1]
@@ -143,19 +147,26 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
                 e = th[b, l] - math.sqrt(dx * dx + dy * dy)
                 z = e * inv_s
                 l1 = c1 - 0.5 * z * z
-                l0 = -np.inf
-                if p0 > 0.0:
-                    l0 = c0 - lam * e + _log_ndtr(z - lam * s)
-                # phi_z / exp(m) with m the larger of the two state terms
-                if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
-                    m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
+                u = z - lam * s
+                # l_0 - l_1 - log Phi(u): where it and u are moderate, phi_z / exp(l_1)
+                # takes exp(l_0 - l_1) = exp(x) Phi(u) without the logarithm of Phi
+                x = c0 - c1 - lam * e + 0.5 * z * z
+                if p0 > 0.0 and p1 > 1e-50 and u > -20.0 and x < 200.0 and x > -200.0:
+                    m, f1, f0 = l1, p1, p0 * math.exp(x) * 0.5 * math.erfc(-u * _SQRT1_2)
                 else:
-                    m, f1 = l1, p1
-                    f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
+                    l0 = -np.inf
+                    if p0 > 0.0:
+                        l0 = c0 - lam * e + _log_ndtr(u)
+                    # phi_z / exp(m) with m the larger of the two state terms
+                    if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
+                        m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
+                    else:
+                        m, f1 = l1, p1
+                        f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
                 tot = f0 + f1
                 lw += m
                 prod *= tot
-                if prod < 1e-200:
+                if prod < 1e-200 or prod > 1e200:
                     lw += math.log(prod)
                     prod = 1.0
                 if f0 == 0.0:
