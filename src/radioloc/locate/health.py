@@ -238,22 +238,21 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     for it in range(ITERATIONS + 1):
         info = np.zeros((n_w, dim, dim))
         grad = np.zeros((n_w, dim))
-        es = []
+        es, jacs = [], []
         pos = rows.positions + d[rows.window]
         for o, sig in zip(obs, rows.sigma):
             with np.errstate(all="ignore"):
                 zhat, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
             e = o.model.residual(o.z, zhat) / sig
             es.append(e)
+            jacs.append(jac["position"])
         pooled = np.concatenate([e[np.isfinite(e)] for e in es])
         dof = pooled.size / max(pooled.size - n_w * dim, 1)      # the fit took n_w * dim
         scale = max(_robust_scale(pooled) * math.sqrt(dof), 1e-9) if pooled.size else 1.0
         if it == ITERATIONS:
             break
-        for o, sig, e in zip(obs, rows.sigma, es):
-            with np.errstate(all="ignore"):
-                _, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
-            J = jac["position"] / sig[..., None]                       # (T, S, D)
+        for sig, e, jac in zip(rows.sigma, es, jacs):
+            J = jac / sig[..., None]                                   # (T, S, D)
             ok = np.isfinite(e) & np.all(np.isfinite(J), -1)
             u = np.abs(e) / scale
             if it < ITERATIONS // 2:             # Huber from the track, then Tukey's biweight
