@@ -21,8 +21,8 @@ numbers: made by NumPy before the kernels run, or, for large normal draws, by nu
 * :func:`systematic_gather`: systematic resampling (``resampling.systematic``) and the
   gather of the particles and link posteriors (or, for the generic filter, of nothing
   but the particles);
-* :func:`standard_normal`: large normal draws in parallel, each part from its own child
-  generator (``p2p_particle._standard_normal``);
+* :func:`standard_normal`: normal draws in parallel, each part from its own generator (a
+  child of the filter's, or a run's own: ``particle_filter.standard_normal``);
 * :func:`snapshot_scores`: the candidate scores of the paper's snapshot baselines
   (:class:`~radioloc.estimators.snapshot_baselines.LocalML` and ``Ransac``, Sect. V), with
   :func:`mixture_logpdf_scalar`, the scalar form of
