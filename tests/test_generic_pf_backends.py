@@ -69,6 +69,18 @@ def test_constant_velocity_with_3d_anchors_and_a_known_height_and_the_smoother()
     assert_same(*tracks)
 
 
+def test_three_dimensional_positions_and_per_row_noise_agree():
+    anchors = np.array([[0, 0, 0], [10, 0, 3], [10, 10, 0], [0, 10, 3], [5, 5, 6.0]])
+    g = np.random.default_rng(6)
+    truth = np.array([4.0, 6.0, 1.5]) + np.cumsum(0.1 * g.standard_normal((2, 8, 3)), axis=1)
+    std = np.where(g.random((2, 8, 5)) < 0.5, 0.05, 0.2)          # a noise per row
+    z = np.linalg.norm(truth[..., None, :] - anchors, axis=-1) + std * g.standard_normal(std.shape)
+    obs = Observation(RangeModel(std_m=0.1), z, Context(points=anchors), std=std)
+    tracks = [pf.run(obs, prior_mean=truth[:, 0], prior_cov=0.1 * np.eye(3))
+              for pf in both(RandomWalk(0.01, dim=3), n_particles=600, seed=[2, 3])]
+    assert_same(*tracks)
+
+
 def test_a_model_without_a_compiled_likelihood_runs_its_numpy_definition_on_both():
     truth, z = scene(nlos=True)
     los_nlos = RangeModel(noise=LosNlosRange(0.2, 2.0, 0.7))
