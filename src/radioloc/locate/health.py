@@ -239,22 +239,21 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     for it in range(ITERATIONS + 1):
         info = np.zeros((n_w, dim, dim))
         grad = np.zeros((n_w, dim))
-        es = []
+        es, jacs = [], []
         pos = rows.positions + d[rows.window]
         for o, sig in zip(obs, rows.sigma):
             with np.errstate(all="ignore"):
                 zhat, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
             e = o.model.residual(o.z, zhat) / sig
             es.append(e)
+            jacs.append(jac["position"])
         pooled = np.concatenate([e[np.isfinite(e)] for e in es])
         dof = pooled.size / max(pooled.size - n_w * dim, 1)      # the fit took n_w * dim
         scale = max(_robust_scale(pooled) * math.sqrt(dof), 1e-9) if pooled.size else 1.0
         if it == ITERATIONS:
             break
-        for o, sig, e in zip(obs, rows.sigma, es):
-            with np.errstate(all="ignore"):
-                _, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
-            J = jac["position"] / sig[..., None]                       # (T, S, D)
+        for sig, e, jac in zip(rows.sigma, es, jacs):
+            J = jac / sig[..., None]                                   # (T, S, D)
             ok = np.isfinite(e) & np.all(np.isfinite(J), -1)
             u = np.abs(e) / scale
             if it < ITERATIONS // 2:             # Huber from the track, then Tukey's biweight
@@ -266,7 +265,8 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
             ez = np.where(ok, e, 0.0)
             np.add.at(info, rows.window, np.einsum("tsi,tsj->tij", Jw, np.where(ok[..., None], J, 0.0)))
             np.add.at(grad, rows.window, np.einsum("tsi,ts->ti", Jw, ez))
-        good = np.linalg.cond(info) < 1e10
+        lam = np.linalg.eigvalsh(info)          # symmetric: cond < 1e10, a third of the time
+        good = lam[:, 0] > 1e-10 * lam[:, -1]
         safe = np.where(good[:, None, None], info, np.eye(dim))
         step = np.where(good[:, None], np.linalg.solve(safe, grad[..., None])[..., 0], 0.0)
         norm = np.linalg.norm(step, axis=1, keepdims=True)
@@ -285,7 +285,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict,
     from radioloc.io.measurements import Measurements
 
     meas = request.measurements
-    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"])]
+    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"].unique())]
     if not kinds or request.anchors is None:
         return None
     options = {name: value for value, name, _ in sigmas.values()}
@@ -424,7 +424,7 @@ def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -
     if not blamed:
         return
     scale = max(scales[f.node] for f in blamed)
-    kinds = set(request.measurements["kind"])
+    kinds = set(request.measurements["kind"].unique())
     tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
              if kind in kinds and stated and name in options}
     if not tried:

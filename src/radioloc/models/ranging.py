@@ -269,9 +269,27 @@ class RangeModel(MeasurementModel):
         """
         return float(self.noise.moments()[0])
 
-    def logpdf(self, z, state, context: Context) -> np.ndarray:
+    def checked(self, z, state, context: Context) -> np.ndarray:
+        """``z`` checked as :meth:`logpdf` checks it: real numbers of the rows' shape, no
+        range below its floor (:func:`~radioloc.core.validation.check_ranges`).
+
+        Parameters
+        ----------
+        z : array_like, shape (..., m)
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray
+            ``z`` as float64.
+        """
         z = checked_call(z, state, context, self.reads)
-        check_ranges(z, "z", self.row_std(range_noise_std(self), context))
+        return check_ranges(z, "z", self.row_std(range_noise_std(self), context))
+
+    def logpdf(self, z, state, context: Context) -> np.ndarray:
+        z = self.checked(z, state, context)
         if context.std is not None or isinstance(self.noise, GaussianRange):
             return super().logpdf(z, state, context)
         lp = self.noise.logpdf(z, self.predict(state, context))
