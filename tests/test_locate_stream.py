@@ -211,7 +211,7 @@ def test_kinds_std_duplicates_and_calibrated_anchors_give_the_batch_run():
     anchors = ANCHORS.assign(bias_m=[0.05, 0.1, 0.0, 0.15, 0.0], bias_std_m=0.01,
                              yaw=[0.0, YAW_B, 0.0, 0.0, 0.0])
     options = {"init_s": "1.5", "range_bias_m": "0.2", "tdoa_std_m": "0.2",
-               "aoa_std_rad": "0.05"}
+               "aoa_std_rad": "0.05", "tune": "0"}
     corrected = subtract_anchor_bias(log, anchors)           # as `locate` reads the log
     expected = run_method("ekf-track", LocateRequest(corrected, anchors, options=dict(options)))
     tracker = Tracker("ekf-track", anchors, options)
@@ -244,8 +244,9 @@ def test_a_moving_anchor_gives_the_batch_run():
                                    + 0.1 * rng.standard_normal(t.size)})
                      for a, p in where.items()])
     log = log.sort_values(["time", "peer"], kind="stable").reset_index(drop=True)
-    expected = run_method("ekf-track", LocateRequest(log, anchors, options={"init_s": "1.5"}))
-    tracker = Tracker("ekf-track", anchors, {"init_s": "1.5"})
+    options = {"init_s": "1.5", "tune": "0"}
+    expected = run_method("ekf-track", LocateRequest(log, anchors, options=dict(options)))
+    tracker = Tracker("ekf-track", anchors, options)
     assert_same(streamed(tracker, [log.iloc[i:i + 53] for i in range(0, len(log), 53)]),
                 expected)
 
