@@ -50,7 +50,7 @@ from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (learn_tracks, log_models, motion_model, reads_clock,
                                        segments, track_prior, track_table, track_window,
                                        tracker_filter, tracker_settings, tuned_prior)
-from radioloc.locate.self_tuning import tuned_observations
+from radioloc.locate.self_tuning import not_learnable, tuned_observations
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_residuals, node_residuals
 from radioloc.locate.progress import counted
@@ -123,6 +123,8 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                          "or use ekf-track or pf")
     learn = (request.option("tune", True, bool)
              and bool((request.measurements["kind"] == "range").any()))
+    short = not_learnable(request.measurements) if learn else None
+    learn = learn and short is None
     log, opts, models = log_models(request, request.measurements, table, s,
                                    learn and request.option("range_std_m") is None)
     has_ranges = "range" in models
@@ -185,7 +187,8 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
             tables.append(track_table(node, t, track, restart=seg is not parts[0]))
-    return _finish(tables, counts, {"loss": loss, "range_std_m": opts["range_std_m"], **fitted})
+    return _finish(tables, counts, {"loss": loss, "range_std_m": opts["range_std_m"], **fitted,
+                                    **({"tune": short} if short else {})})
 
 
 def _finish(tables: list, counts: dict, extra: dict) -> pd.DataFrame:

@@ -80,7 +80,7 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
-from radioloc.locate.self_tuning import learn_node, tuned_observations
+from radioloc.locate.self_tuning import learn_node, not_learnable, tuned_observations
 from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import covariance_columns
@@ -848,8 +848,12 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
                              f"of {n_tracks} diverged) but do once {how}: {question}")
         stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
+        cause = ({"cause": "rows the noise learned from the log (summary 'learned') does not "
+                           "describe: NLOS? (a LOS/NLOS model: --method smoother or pf)"}
+                 if "learned" in out.attrs["summary"] else {})
         out.attrs["summary"]["innovations"] = [   # warned by the health check (base.run_method)
-            {"node": node, "start": t0, "noise": stated, **sign} for node, t0, sign in diverged]
+            {"node": node, "start": t0, "noise": stated, **cause, **sign}
+            for node, t0, sign in diverged]
     return out
 
 
@@ -942,11 +946,13 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
     tune = (request.option("tune", True, bool) and s["odometry_std"] is None
             and not request.option("cooperative", False, bool))
+    short = not_learnable(meas) if tune else None
+    tune = tune and short is None
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
-    log, opts, models = log_models(request, meas, table, s,
-                                   anchor_bias or (tune and "range_std_m" not in given))
+    log, opts, models = log_models(request, meas, table, s, anchor_bias or (
+        tune and "range_std_m" not in given and bool((meas["kind"] == "range").any())))
     parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
              in log_observations(log, table, models, "ekf-track", s["height"])]
     tracks = []   # (node, times, observations, restart, controls) of every track
@@ -1030,6 +1036,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
     if learned:
         out.attrs["summary"]["learned"] = {str(n): lr.report for n, lr in learned.items()}
+    if short:
+        out.attrs["summary"]["tune"] = short
     return out, diverged, len(tables), opts
 
 
@@ -1061,9 +1069,10 @@ def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: d
     out = {}
     for node in dict.fromkeys(tr[0] for tr in tracks):
         mine = [(tr[1], tr[2]) for tr in tracks if tr[0] == node]
+        ranging = any(o.model.kind == "range" for _, obs in mine for o in obs)
         out[node] = learn_node(
             node, mine,
-            lambda q, bs, tau, terms: tracker_filter(anchors, dict(s, q=q), gate, True,
+            lambda q, bs, tau, terms, r=ranging: tracker_filter(anchors, dict(s, q=q), gate, r,
                                                      bias_prior, clock, bs, tau, terms),
             lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
             s["q"], ids, s["dim"], q_given=request.option("q") is not None)
@@ -1074,9 +1083,10 @@ def tuned_prior(ekf, times, observations, anchors, s, bias_cov):
     """:func:`track_prior` of a self-tuned track, with its covariance: ``bias_cov`` None, the
     anchor biases about a common offset (the start's fit); else about 0 (the learned offsets
     are in the range model) with covariance ``bias_cov``."""
-    mean, var = track_prior(ekf, times, observations, anchors, dict(s, bias=0.0), True)
-    cov = np.diag(var)
     sl = ekf.state_layout(observations).slices.get("anchor_bias")
+    mean, var = track_prior(ekf, times, observations, anchors, dict(s, bias=0.0),
+                            sl is not None)
+    cov = np.diag(var)
     if bias_cov is not None and sl is not None:
         mean[sl] = 0.0
         cov[sl, sl] = bias_cov

@@ -470,7 +470,8 @@ def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFr
         end = float(out.loc[out["node"] == node, "time"].max())
         f = Finding(node, float(sign["start"]), end, ["innovations"], "noise",
                     f"node {node!r}, time {float(sign['start']):g} to {end:g}: {text}; likely "
-                    f"cause: {sign['noise']} too small for this log?", figures)
+                    f"cause: {sign.get('cause') or sign['noise'] + ' too small for this log?'}",
+                    figures)
         by_node[node] = f
         findings.append(f)
     return findings

@@ -36,8 +36,8 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
 Each learned value is reported in ``summary.json`` (``learned``, by node) with a 95 %
 interval: a standard deviation ``s`` from ``n_eff`` effectively independent rows has
 ``s (1 +- 1.96 / sqrt(2 n_eff))``; an offset ``b +- 1.96 sqrt(sigma_g^2 2 tau / span +
-sigma_w^2 / n)``; ``tau`` and ``sigma_g`` the span of their estimates on the two halves of
-the log; ``q`` the evidence's choice among its factors (the interval: the neighbouring
+sigma_w^2 / n)``; ``tau`` and ``sigma_g`` the span of their estimates on the whole log and on its two
+halves; ``q`` the evidence's choice among its factors (the interval: the neighbouring
 factors whose evidence is within 2 nats).
 """
 
@@ -50,8 +50,8 @@ import numpy as np
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.kinds import model_kinds
 
-__all__ = ["Learned", "learn_node", "tuned_observations", "learned_noise", "SCALES",
-           "Q_FACTORS", "CORRELATION_SCALES"]
+__all__ = ["CORRELATION_SCALES", "Q_FACTORS", "SCALES", "Learned", "learn_node",
+           "learned_noise", "not_learnable", "tuned_observations"]
 
 #: Factors on every kind's default sigma tried in step 1.
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
@@ -144,9 +144,42 @@ def evidence(track, observations: list, gate: float | None) -> np.ndarray:
     return lp.sum(axis=(-2, -1))
 
 
+def not_learnable(meas) -> str | None:
+    """Why the settings are not learned from this log (None: they are).
+
+    Every node needs an anchor it ranges to :data:`MIN_ANCHOR_ROWS` times or more (a node
+    without ranges: that many rows of one kind), and a log whose every row states its
+    ``std`` has its noise already; otherwise the fixed defaults (and the stated stds) run.
+
+    Parameters
+    ----------
+    meas : DataFrame
+        The measurements (``node``, ``peer``, ``kind`` columns, ``std`` optional).
+    """
+    if "std" in meas.columns and bool(np.isfinite(meas["std"].to_numpy(float)).all()):
+        return "every row states its std: they ran as stated, with the fixed defaults (tune=0)"
+    for node, rows in meas.groupby("node", sort=False):
+        ranges = rows[rows["kind"] == "range"]
+        most = int((ranges.groupby("peer").size() if len(ranges)
+                    else rows.groupby("kind").size()).max())
+        if most < MIN_ANCHOR_ROWS:
+            what = "ranges to its best-heard anchor" if len(ranges) else "rows of one kind"
+            return (f"node {node!r} has {most} {what}, fewer than the {MIN_ANCHOR_ROWS} "
+                    "needed to learn its noise: the fixed defaults (tune=0) ran")
+    return None
+
+
+def _with_std(o, std) -> object:
+    """``o`` with ``std`` on its measured rows, a std its log stated kept."""
+    new = np.where(np.isfinite(o.z), std, np.nan)
+    if o.std is not None:
+        new = np.where(np.isfinite(o.std), o.std, new)
+    return replace(o, std=new)
+
+
 def _scaled(observations: list, factor: float | np.ndarray, given: dict) -> list:
     """Observations with each row's std its kind's default times ``factor`` (a kind whose
-    sigma option was given keeps it)."""
+    sigma option was given keeps it, as does a row whose std the log states)."""
     out = []
     for o in observations:
         k = model_kinds().get(o.model.kind)
@@ -154,7 +187,7 @@ def _scaled(observations: list, factor: float | np.ndarray, given: dict) -> list
             out.append(o)
             continue
         f = np.asarray(factor, dtype=float).reshape(np.shape(factor) + (1,) * 2)
-        out.append(replace(o, std=np.where(np.isfinite(o.z), k.sigma_default * f, np.nan)))
+        out.append(_with_std(o, k.sigma_default * f))
     return out
 
 
@@ -187,11 +220,9 @@ def _residuals(layout, track, observations: list, b: int, scale: float
     return out
 
 
-def _halves(values: np.ndarray, fit) -> tuple[float, float]:
-    """The span of ``fit`` over the two halves of ``values``."""
-    h = values.size // 2
-    a, b = fit(values[:h]), fit(values[h:])
-    return float(min(a, b)), float(max(a, b))
+def _halves(halves: list, whole: float) -> list[float]:
+    """The span of an estimate on the two halves of the log and on all of it."""
+    return [float(min(*halves, whole)), float(max(*halves, whole))]
 
 
 def _correlation(x: np.ndarray, dt: float, dof: float) -> tuple[float, float, float]:
@@ -250,14 +281,15 @@ def _range_noise(res: list, times: list, index: np.ndarray, n_anchors: int, dim:
         span = max(float(tt[-1] - tt[0]), dt)
         n_eff = max(span / (2 * tau), 1.0)
         off = float(bias_state[index[j]]) + med
-        half_g = _halves(xc, lambda v: _correlation(v - v.mean(), dt, dof)[1])
-        half_tau = _halves(xc, lambda v: _correlation(v - v.mean(), dt, dof)[2])
+        refit = [_correlation(v - v.mean(), dt, dof) for v in np.array_split(xc, 2)]
+        half_g = _halves([f[1] for f in refit], g)
+        half_tau = _halves([f[2] for f in refit], tau)
         k = (g * g * 2 * tau / span + w * w / ok.sum()) * ok.sum() / row_std ** 2
         rows.append({"anchor": names[index[j]], "rows": int(ok.sum()), "offset_m": off,
                      "inflation": float(np.sqrt(max(k, 1.0))),
                      "white_m": w, "white_m_95": _interval(w, ok.sum()),
-                     "correlated_m": g, "correlated_m_95": list(half_g),
-                     "tau_s": tau, "tau_s_95": list(half_tau), "n_eff": n_eff})
+                     "correlated_m": g, "correlated_m_95": half_g,
+                     "tau_s": tau, "tau_s_95": half_tau, "n_eff": n_eff})
     known = [r for r in rows if r is not None]
     if not known:
         raise GeometryError(f"no anchor has {MIN_ANCHOR_ROWS} ranges to learn its noise from")
@@ -268,6 +300,7 @@ def _range_noise(res: list, times: list, index: np.ndarray, n_anchors: int, dim:
     for r in known:
         r["white_m"], r["correlated_m"] = r["white_m"] * level, r["correlated_m"] * level
         r["white_m_95"] = _interval(r["white_m"], r["rows"])
+        r["correlated_m_95"] = [v * level for v in r["correlated_m_95"]]
     pooled = {k: float(np.median([r[k] for r in known]))
               for k in ("white_m", "correlated_m", "tau_s")}
     offset = np.zeros(n_anchors)
@@ -357,9 +390,9 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
 
     has_ranges = any(o.model.kind == "range" for _, obs in tracks for o in obs)
     # step 1: the scale of every sigma, by evidence
-    track, stacked, ev, layout = run(SCALES, q_default, 0.0, None,
-                                     lambda o, f: _scaled(o, f, given), True,
-                                     steps=LEARN_STEPS)
+    track, _, ev, layout = run(SCALES, q_default, 0.0, None,
+                               lambda o, f: _scaled(o, f, given), True,
+                               steps=LEARN_STEPS)
     best = int(np.argmax(ev))
     learned = Learned(scale=SCALES[best], q=q_default, given=tuple(given))
     report = {"scale": SCALES[best], "evidence_by_scale": dict(zip(map(str, SCALES),
@@ -427,7 +460,8 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
 def tuned_observations(observations: list, learned: Learned) -> list:
     """A node's observations with what :func:`learn_node` found: ranges with each anchor's
     offset in the model and its white noise per row (the Gauss-Markov part is the filter's
-    bias state), the other kinds their learned sigma per row."""
+    bias state), the other kinds their learned sigma per row; a row whose std the log
+    states keeps it."""
     out = []
     for o in observations:
         k = model_kinds().get(o.model.kind)
@@ -435,15 +469,12 @@ def tuned_observations(observations: list, learned: Learned) -> list:
             pass
         elif o.model.kind == "range" and learned.offset_m is not None:
             std = learned.white_m[o.context.index]
-            o = replace(o, model=replace(o.model, offset_m=tuple(learned.offset_m),
-                                         anchor_bias=True, bias_terms=2),
-                        std=np.where(np.isfinite(o.z), std, np.nan))
+            o = _with_std(replace(o, model=replace(o.model, offset_m=tuple(learned.offset_m),
+                                                   anchor_bias=True, bias_terms=2)), std)
         elif k is not None and k.sigma_option in learned.sigma:
-            o = replace(o, std=np.where(np.isfinite(o.z), learned.sigma[k.sigma_option],
-                                        np.nan))
+            o = _with_std(o, learned.sigma[k.sigma_option])
         elif k is not None and o.model.kind != "range":
-            o = replace(o, std=np.where(np.isfinite(o.z), k.sigma_default * learned.scale,
-                                        np.nan))
+            o = _with_std(o, k.sigma_default * learned.scale)
         out.append(o)
     return out
 
