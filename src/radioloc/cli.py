@@ -402,7 +402,6 @@ def locate(
             with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
                 chunked = locate_in_chunks(method, measurements, anchor_table, opts, work, out,
                                            fmt, chunk_rows, nd)
-            warned = list({str(w.message): w for w in warned}.values())   # once each
         if chunked is None:
             meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                           not_detected=nd), anchor_table)

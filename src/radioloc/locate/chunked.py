@@ -25,7 +25,8 @@ which hold the same for a log in one chunk: the health check and the plausibilit
 judge each chunk on its own rows (a covariance inflated for a misfit is inflated by the
 chunk's residuals); ``ekf-track`` starts a track as :class:`~radioloc.locate.stream.Tracker`
 does (see there), and its divergence check (and the unit slips it names) is not made;
-warnings are those of each chunk, each distinct message once; the summary's counts are
+warnings are those of each chunk, each distinct message once (the first
+:data:`MAX_WARNINGS`, the others counted); the summary's counts are
 summed over the chunks and its figures are the largest over them (health findings are
 listed chunk by chunk).
 
@@ -61,6 +62,8 @@ __all__ = ["CHUNK_ROWS", "CHUNKED_METHODS", "locate_in_chunks"]
 CHUNK_ROWS = 200_000
 #: The methods that run in chunks.
 CHUNKED_METHODS = ("ekf-track", "lsq", "gn")
+#: Distinct warnings of the chunks shown (the others are counted in one more).
+MAX_WARNINGS = 10
 #: Options of ``ekf-track`` that need the whole log at once.
 WHOLE_LOG_OPTIONS = ("smooth", "cooperative")
 
@@ -268,13 +271,21 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
         pooled = None
         if method_name == "gn" and not {"std_m", "range_std_m"} & set(opts):
             pooled = _pooled_std(path, rows, anchors, not_detected, opts, frame)
-        with atomic_open(out, "wb" if fmt == "parquet" else "w",
-                         newline=None if fmt == "parquet" else "") as fh:
+        with warnings.catch_warnings(record=True) as seen, \
+                atomic_open(out, "wb" if fmt == "parquet" else "w",
+                            newline=None if fmt == "parquet" else "") as fh:
+            warnings.simplefilter("always")
             summary = _run(method_name, path, rows, anchors, not_detected, opts, frame,
                            pooled, fh, fmt)
-        return summary
     except (GiveWay, RadiolocError):
         return None
+    distinct = list({str(w.message): w for w in seen}.values())
+    for w in distinct[:MAX_WARNINGS]:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if len(distinct) > MAX_WARNINGS:
+        warnings.warn(f"{len(distinct) - MAX_WARNINGS} more warnings of the chunks, of the "
+                      "kinds above", stacklevel=2)
+    return summary
 
 
 def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh, fmt
