@@ -168,3 +168,16 @@ def test_merged_summary_sums_counts_and_keeps_the_largest_figure():
                               "by": {"x": 2, "y": 5}, "findings": [2]})
     assert merged == {"epochs": 7, "std_m": 0.3, "name": "a", "flag": True,
                       "by": {"x": 3, "y": 5}, "findings": [1, 2]}
+
+
+@pytest.mark.parametrize("extra, chunked", [(("-o", "exclude_faults=1"), False),
+                                            (("-o", "exclude_faults=1", "-o", "std_m=0.1"), True)])
+def test_gn_fault_exclusion_runs_in_chunks_only_with_a_stated_noise(files, tmp_path, extra,
+                                                                     chunked):
+    """Without ``std_m`` the exclusion test's sigma comes from every fix of the log: the whole
+    log is run at once."""
+    meas, anchors = files
+    whole, _ = _run(meas, anchors, "gn", tmp_path / "whole.csv", 0, *SKIP, *extra)
+    again, summary = _run(meas, anchors, "gn", tmp_path / "again.csv", 500, *SKIP, *extra)
+    assert ("chunks" in summary) == chunked
+    _assert_same(whole, again, 1e-12)

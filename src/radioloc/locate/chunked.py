@@ -64,8 +64,10 @@ CHUNK_ROWS = 200_000
 CHUNKED_METHODS = ("ekf-track", "lsq", "gn")
 #: Distinct warnings of the chunks shown (the others are counted in one more).
 MAX_WARNINGS = 10
-#: Options of ``ekf-track`` that need the whole log at once.
-WHOLE_LOG_OPTIONS = ("smooth", "cooperative")
+#: Options of each method that need the whole log at once (when on): the smoother and the
+#: cooperative tracks of ``ekf-track``; ``gn``'s fault exclusion without a stated noise,
+#: whose test takes its sigma from the fixes of the whole log.
+WHOLE_LOG_OPTIONS = {"ekf-track": ("smooth", "cooperative"), "gn": ("exclude_faults",)}
 
 
 _END = object()
@@ -263,13 +265,13 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
             or Path(path).suffix.lower() == ".parquet" or rows < 1 or out is None
             or str(out) == "-" or (Path(out).exists() and not Path(out).is_file())):
         return None
-    if method_name == "ekf-track" and any(
-            str(opts.get(k, "0")).strip().lower() not in ("0", "false", "no", "off")
-            for k in WHOLE_LOG_OPTIONS):
+    stated = {"std_m", "range_std_m"} & set(opts)
+    if any(str(opts.get(k, "0")).strip().lower() not in ("0", "false", "no", "off")
+           for k in WHOLE_LOG_OPTIONS.get(method_name, ()) if not (method_name == "gn" and stated)):
         return None
     try:
         pooled = None
-        if method_name == "gn" and not {"std_m", "range_std_m"} & set(opts):
+        if method_name == "gn" and not stated:
             pooled = _pooled_std(path, rows, anchors, not_detected, opts, frame)
         with warnings.catch_warnings(record=True) as seen, \
                 atomic_open(out, "wb" if fmt == "parquet" else "w",
