@@ -103,6 +103,17 @@ def test_chunked_parquet_output_equals_the_whole_run(files, tmp_path):
     _assert_same(whole, chunked, 1e-9)
 
 
+def test_chunked_parquet_input_equals_the_whole_run(files, tmp_path):
+    pytest.importorskip("pyarrow")
+    meas, anchors = files
+    log = tmp_path / "m.parquet"
+    pd.read_csv(meas, dtype={"node": str}).to_parquet(log, index=False)
+    whole, _ = _run(log, anchors, "ekf-track", tmp_path / "whole.csv", 0)
+    chunked, summary = _run(log, anchors, "ekf-track", tmp_path / "chunked.csv", 300)
+    assert summary["chunks"] > 1
+    _assert_same(whole, chunked, 1e-9)
+
+
 def test_rows_out_of_time_order_give_way_to_the_whole_run(files, tmp_path):
     """Rows that go back in time across chunks: the whole run is made (same output)."""
     meas, anchors = files

@@ -168,7 +168,9 @@ def plain_cells(data: bytes, preserve_case: bool = False) -> pd.DataFrame | None
 
 def measurement_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | None]:
     """The text cells of a plain CSV file (:func:`plain_cells`) in blocks of ``rows`` lines,
-    read one block at a time; ``attrs["lines"]`` holds each row's file line.
+    read one block at a time (a Parquet file: a batch of ``rows`` rows at a time, its cells
+    as the whole file's reader writes them as CSV); ``attrs["lines"]`` holds each row's
+    file line.
 
     Parameters
     ----------
@@ -182,6 +184,9 @@ def measurement_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | N
         character, a blank line, a byte-order mark, bytes that are not UTF-8, ...): such a
         file is read whole by :func:`read_measurements`.
     """
+    if Path(path).suffix.lower() == ".parquet":
+        yield from _parquet_blocks(path, rows)
+        return
     with open(path, "rb") as fh:
         header = fh.readline()
         if header.startswith((codecs.BOM_UTF8, codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
@@ -202,6 +207,25 @@ def measurement_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | N
             frame.attrs["lines"] = frame.attrs["lines"] + done
             done += len(lines)
             yield frame
+
+
+def _parquet_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | None]:
+    """:func:`measurement_blocks` of a Parquet file: each batch's cells written as CSV text
+    (as :func:`_table_text` writes the whole table) and read back."""
+    from radioloc.io.datasets import parquet_text_blocks
+
+    done = 0
+    try:
+        for cells in parquet_text_blocks(path, rows):
+            frame = plain_cells(cells.to_csv(index=False).encode("utf-8"))
+            if frame is None or len(frame) != len(cells):
+                yield None
+                return
+            frame.attrs["lines"] = frame.attrs["lines"] + done
+            done += len(cells)
+            yield frame
+    except Exception:        # noqa: BLE001 - the whole file's reader words the error
+        yield None
 
 
 def _table_bytes(path: Path) -> bytes:

@@ -31,8 +31,8 @@ summed over the chunks and its figures are the largest over them (health finding
 listed chunk by chunk).
 
 The whole run takes over, from the start and with nothing written, where a chunked run could
-not give its result: a file that is not plain CSV (quotes, blank lines, a byte-order mark,
-Parquet), rows out of time order across chunks, odometry rows (``ekf-track``), estimates of
+not give its result: a file that is not plain CSV (quotes, blank lines, a byte-order mark;
+a Parquet file is read a batch at a time, its cells as CSV text), rows out of time order across chunks, odometry rows (``ekf-track``), estimates of
 another set of columns in a later chunk, a log that fits one chunk; and on any error
 (:class:`~radioloc.core.errors.RadiolocError`): a log the whole run refuses is refused by
 it, with its message, and a chunk whose rows alone would be refused (an all-degenerate
@@ -262,7 +262,7 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
     from radioloc.core.atomic import atomic_open
 
     if (method_name not in CHUNKED_METHODS or fmt not in ("csv", "parquet")
-            or Path(path).suffix.lower() == ".parquet" or rows < 1 or out is None
+            or rows < 1 or out is None
             or str(out) == "-" or (Path(out).exists() and not Path(out).is_file())):
         return None
     stated = {"std_m", "range_std_m"} & set(opts)
