@@ -556,18 +556,8 @@ def _text_cells(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 def parquet_text_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame]:
-    """The rows of a Parquet file as :func:`read_table_text` gives them, ``rows`` at a time
-    (read one batch at a time).
-
-    Parameters
-    ----------
-    path : path
-    rows : int
-
-    Yields
-    ------
-    DataFrame
-    """
+    """The rows of the Parquet file ``path`` as :func:`read_table_text` gives them, read
+    ``rows`` at a time (one batch at a time): a DataFrame of text cells each."""
     _need_pyarrow()
     import pyarrow as pa
     import pyarrow.parquet as pq

@@ -184,48 +184,43 @@ def measurement_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | N
         character, a blank line, a byte-order mark, bytes that are not UTF-8, ...): such a
         file is read whole by :func:`read_measurements`.
     """
-    if Path(path).suffix.lower() == ".parquet":
-        yield from _parquet_blocks(path, rows)
-        return
+    parquet = Path(path).suffix.lower() == ".parquet"
+    done = 0
+    for data, count in (_parquet_data if parquet else _csv_data)(path, rows):
+        try:
+            frame = None if data is None else plain_cells(data)
+        except UnicodeDecodeError:
+            frame = None
+        if frame is None or len(frame) != count:
+            yield None
+            return
+        frame.attrs["lines"] = frame.attrs["lines"] + done
+        done += count
+        yield frame
+
+
+def _csv_data(path: Path | str, rows: int) -> Iterator[tuple[bytes | None, int]]:
+    """The header and the next ``rows`` lines of a CSV file, as bytes, and their count
+    (None: a byte-order mark)."""
     with open(path, "rb") as fh:
         header = fh.readline()
         if header.startswith((codecs.BOM_UTF8, codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
-            yield None
+            yield None, 0
             return
-        done = 0
-        while True:
-            lines = list(itertools.islice(fh, rows))
-            if not lines:
-                return
-            try:
-                frame = plain_cells(header + b"".join(lines))
-            except UnicodeDecodeError:
-                frame = None
-            if frame is None or len(frame) != len(lines):
-                yield None
-                return
-            frame.attrs["lines"] = frame.attrs["lines"] + done
-            done += len(lines)
-            yield frame
+        while lines := list(itertools.islice(fh, rows)):
+            yield header + b"".join(lines), len(lines)
 
 
-def _parquet_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | None]:
-    """:func:`measurement_blocks` of a Parquet file: each batch's cells written as CSV text
-    (as :func:`_table_text` writes the whole table) and read back."""
+def _parquet_data(path: Path | str, rows: int) -> Iterator[tuple[bytes | None, int]]:
+    """The next ``rows`` rows of a Parquet file as the CSV text :func:`_table_text` writes of
+    the whole table, and their count (None: a file pyarrow cannot read)."""
     from radioloc.io.datasets import parquet_text_blocks
 
-    done = 0
     try:
         for cells in parquet_text_blocks(path, rows):
-            frame = plain_cells(cells.to_csv(index=False).encode("utf-8"))
-            if frame is None or len(frame) != len(cells):
-                yield None
-                return
-            frame.attrs["lines"] = frame.attrs["lines"] + done
-            done += len(cells)
-            yield frame
+            yield cells.to_csv(index=False).encode("utf-8"), len(cells)
     except Exception:        # noqa: BLE001 - the whole file's reader words the error
-        yield None
+        yield None, 0
 
 
 def _table_bytes(path: Path) -> bytes:
