@@ -15,7 +15,9 @@ Rows (returned by :func:`main`):
   ``ESSrmin=1`` (resampling at every step), same model and N. Ours is timed through
   ``run``, including the prior's draws; the generic ``ParticleFilter(RandomWalk(q))``
   with a Gaussian ``RangeModel`` (``ess_threshold=1``) on the same data, against the same
-  peer runs.
+  peer runs; the generic filter with its default ``backend="numba"`` (the compiled Gaussian
+  range likelihood, moments and systematic resampling of ``pf_compiled.py``, the draws in
+  parts) and, for reference, with ``backend="numpy"``.
 
 Ours: best of 3 (wall clock; the CPU-second rate is printed too); peers: one run.
 
@@ -255,10 +257,11 @@ def ours_bootstrap(n, steps, q, sigma, x, y, rng):
             n * steps / cpu)
 
 
-def generic_bootstrap(n, steps, q, sigma, x, y):
+def generic_bootstrap(n, steps, q, sigma, x, y, backend="numba"):
     """Particle-steps/s of the generic :class:`ParticleFilter` on the same model: a
     Gaussian :class:`RangeModel` to the 4 anchors, resampling at every step
-    (``ess_threshold=1``), timed through ``run`` (the prior's draws included).
+    (``ess_threshold=1``), timed through ``run`` (the prior's draws included), by
+    ``backend``.
 
     Returns
     -------
@@ -269,7 +272,8 @@ def generic_bootstrap(n, steps, q, sigma, x, y):
     from radioloc.models.measurement import Context, Observation
     from radioloc.models.ranging import RangeModel
 
-    pf = ParticleFilter(RandomWalk(q), n_particles=n, ess_threshold=1.0, seed=1)
+    pf = ParticleFilter(RandomWalk(q), n_particles=n, ess_threshold=1.0, seed=1,
+                        backend=backend)
     obs = Observation(RangeModel(std_m=sigma), y[:steps], Context(points=ANCHORS))
     kw = dict(time=np.arange(1.0, steps + 1.0), prior_mean=x[0], prior_cov=np.eye(2))
     pf.run(obs, **kw)
@@ -279,8 +283,9 @@ def generic_bootstrap(n, steps, q, sigma, x, y):
         tr = pf.run(obs, **kw)
         dt = min(dt, time.perf_counter() - t0)
         cpu = min(cpu, time.process_time() - c0)
-    print(f"generic ParticleFilter, N={n}: {n * steps / cpu / 1e6:.2f} M particle-steps per CPU "
-          f"second ({cpu / steps * 1e3:.2f} ms CPU, {dt / steps * 1e3:.2f} ms wall per step)")
+    print(f"generic ParticleFilter ({backend}), N={n}: {n * steps / cpu / 1e6:.2f} M "
+          f"particle-steps per CPU second ({cpu / steps * 1e3:.2f} ms CPU, "
+          f"{dt / steps * 1e3:.2f} ms wall per step)")
     return (n * steps / dt, float(np.linalg.norm(tr.position - x[1:steps + 1], axis=-1).mean()),
             n * steps / cpu)
 
@@ -438,6 +443,9 @@ def bootstrap_rows(n: int = 100_000, steps: int = 30, peer_steps: int | None = N
     generic, g_err, generic_cpu = generic_bootstrap(n, steps, q, sigma, x, y)
     print(f"  generic ParticleFilter: {generic / 1e6:.2f} M particle-steps/s (mean error "
           f"{g_err:.2f} m)")
+    slow, _, slow_cpu = generic_bootstrap(n, steps, q, sigma, x, y, backend="numpy")
+    print(f"  generic ParticleFilter, backend='numpy': {slow / 1e6:.2f} M particle-steps/s; "
+          f"numba/numpy {generic / slow:.1f}x, per CPU second {generic_cpu / slow_cpu:.1f}x")
     rows = []
     for name, fn in (("Stone Soup", stonesoup_bootstrap), ("particles (Chopin)", particles_bootstrap)):
         try:

@@ -59,18 +59,23 @@ STARTUP_PREFIX = "radioloc locate start-up, --method "
 BOUNDS: dict[str, str] = {
     "range-only bootstrap PF, generic ParticleFilter (Gaussian RangeModel), 4 anchors, 2-D "
     "random walk, N=1e5":
-        "the generic filter is NumPy only (no backend=): per step of 1e5 particles about 33 ms "
-        "of CPU on the loaded machine, of which the model's logpdf (offsets to 4 anchors, "
-        "their norms, the Gaussian terms) about 40 %, the normal draws 8 %, the weighted "
-        "moments, logsumexp and the gather of the resampled particles the rest. 10x the peers "
-        "needs about 7 ms: the compiled kernels of pf_compiled.py (draws, moments, "
-        "systematic resampling and gather) behind a backend= and a compiled likelihood.",
+        "the generic filter with backend='numba' (default): per step of 1e5 particles about "
+        "4.3-5.5 ms of CPU on the loaded machine (one thread; the NumPy backend 25-36 ms), of "
+        "which the 2e5 normal draws 0.85 ms (numba's Generator, 8 child streams), the "
+        "compiled range likelihood 0.55, systematic resampling with the gather 0.55, the "
+        "moment sums 0.42, and NumPy passes over the weights and the motion noise (exponential, "
+        "maximum, normalisation) with Python about 1.5. `particles` takes 23-30 ms of CPU per "
+        "step, so 10x per CPU second needs about 2.5 ms: beyond the draws and four passes "
+        "over the particles on one core. On a loaded machine the two kernels' threads also "
+        "wait for each other: wall time is about twice the CPU time, against 1.5 for the peer.",
     "radioloc --help": "imports typer, click and rich; typer 0.29 also imports pydantic.",
     "radioloc locate pf, 1e+05-row log (10 tags, 6 anchors)":
-        "every segment of every tag in one P2PParticleFilter batch: the filter loop is about "
-        "two thirds of the CPU, most of it the compiled link update (the erfc and log of the "
-        "NLOS term); the rest is start-up and CSV (about 3 s), the LOS/NLOS EM fit (1.5 s, "
-        "one BLAS thread) and the batched EKF passes for the residuals and start states.",
+        "every segment of every tag in one P2PParticleFilter batch (1753 steps): measured in "
+        "process at load 5 (12.0 s in all), the filter loop 7.2 s, of which the compiled link "
+        "update 3.8 s (sqrt, erfc, two exp per particle-link, 9e7 of them) and about 3 s of "
+        "NumPy and Python per step (the gate, the misfit, the motion's F and Q per segment); "
+        "the LOS/NLOS EM fits 1.6 s, the health check 1.3 s, imports, CSV and the EKF passes "
+        "for the residuals and start states the rest.",
     "radioloc locate ekf-track, 1e+06-row log (10 tags, 6 anchors)":
         "the generic EKF's Python loop over 17.5k steps (every track in one batch): about "
         "0.15 ms of CPU per step, 2.7 s in all, half of it the Joseph-form update and a "
@@ -84,7 +89,7 @@ BOUNDS: dict[str, str] = {
         "links, a scalar sqrt per particle-link, a log per particle), the systematic "
         "resampling with the gather of particles and link posteriors 17 %, the 2e5 normal "
         "draws 14 % (numba's Generator, about 8 ns per number per thread) and 3 % to spawn "
-        "their 16 child generators, the motion prediction in NumPy 8 %, the weights' "
+        "their 8 child generators, the motion prediction in NumPy 8 %, the weights' "
         "exponential and moments 8 %, the rest Python and fresh arrays. The fused kernel "
         "that met the ratios (a private random generator and vector math) was removed for "
         "one NumPy definition per part.",

@@ -9,13 +9,14 @@ only ``predict`` and ``std`` (numerical Jacobian, wrapped residuals), several ki
 step, and bad input naming the argument.
 """
 
+from dataclasses import replace
 from typing import ClassVar
 
 import numpy as np
 import pytest
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
+from radioloc.estimators.extended_kalman import ExtendedKalmanFilter, FilterState
 from radioloc.models.los_nlos import LosNlosRange
 from radioloc.models.measurement import Context, MeasurementModel, Observation, StateLayout
 from radioloc.models.motion import ConstantVelocity, RandomWalk
@@ -101,6 +102,37 @@ def test_batch_equals_one_by_one_and_step_equals_run():
         state = ekf.step(state, Observation(obs.model, obs.z[:, k], obs.context),
                          dt=t[k] - t[k - 1] if k else 0.0)
         np.testing.assert_allclose(ekf.estimate(state).position, batch.position[:, k], atol=1e-10)
+
+
+def test_a_run_goes_on_from_the_last_state_and_gate_streak_of_another():
+    """Split in two, the second part going on from the first's last state and its gate
+    streak (``state=``, ``streak=``), a run gives the whole run's numbers, also where a
+    long spell of outliers spans the split and the gate's patience lets rows through."""
+    rng = np.random.default_rng(2)
+    truth = cv_track(2, 40, rng)
+    obs = ranges(truth, RangeModel(std_m=0.2), rng)
+    obs.z[1, 8:20] += 15.0                                 # 12 steps of outliers
+    mean, cov = prior(truth, rng)
+    ekf = ExtendedKalmanFilter(ConstantVelocity(0.05))
+    t = np.arange(40) * DT
+    whole = ekf.run(obs, t, prior_mean=mean, prior_cov=cov)
+    assert list(whole.diagnostics["gated"][1, 8:19]) == [4] * 10 + [0]      # patience 10
+
+    def part(steps):
+        return Observation(obs.model, obs.z[:, steps], obs.context)
+    first = ekf.run(part(slice(0, 11)), t[:11], prior_mean=mean, prior_cov=cov)
+    d = first.diagnostics
+    assert list(d["gate_streak"]) == [0, 3]
+    state = FilterState(d["state"][:, -1], d["state_covariance"][:, -1], t[10],
+                        ekf.state_layout(obs))
+    rest = ekf.run(part(slice(11, None)), t[11:], state=state, streak=d["gate_streak"])
+    np.testing.assert_allclose(rest.position, whole.position[:, 11:], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(rest.covariance, whole.covariance[:, 11:], rtol=0, atol=1e-12)
+    assert (rest.diagnostics["gated"] == whole.diagnostics["gated"][:, 11:]).all()
+    forgetful = ekf.run(part(slice(11, None)), t[11:], state=state)          # streak 0
+    assert (forgetful.diagnostics["gated"][1] != rest.diagnostics["gated"][1]).any()
+    with pytest.raises(InputError, match="state: its time"):
+        ekf.run(part(slice(11, None)), t[11:], state=replace(state, time=t[12]))
 
 
 def test_moving_the_scene_moves_the_estimate():

@@ -322,8 +322,9 @@ def locate(
     reference: Annotated[Optional[Path], typer.Option("--reference", help="Reference trajectory CSV: time[, node], x, y[, z][, frame] (e.g. reference.csv of `radioloc datasets export`): prints RMSE, median, p90 and the fraction of errors inside the 95 % ellipse, and adds them to the summary. An ECEF run is scored horizontally in the east-north-up frame at the reference's first point.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress (on standard error: a bar when a run lasts more than 2 s, or, when standard error is not a terminal, a line per 10 s of work).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Exit non-zero (1) when the run warns: a finding of the health check (summary.json, health) or any other warning; the outputs are written first.")] = False,
-    follow: Annotated[bool, typer.Option("--follow", help="Live: read rows as they arrive (MEASUREMENTS '-' for standard input, or a file that grows; CSV or JSON lines) and write each estimate at once (ekf-track); ends at end of input or Ctrl-C.")] = False,
+    follow: Annotated[bool, typer.Option("--follow", help="Live: read rows as they arrive (MEASUREMENTS '-' for standard input, a file that grows, or udp://HOST:PORT; CSV or JSON lines) and write each estimate at once (ekf-track); ends at end of input or Ctrl-C.")] = False,
     reorder_s: Annotated[Optional[float], typer.Option("--reorder-s", help="With --follow: rows up to this many seconds out of order are placed (default 0.5); older ones are counted and left out.")] = None,
+    idle_s: Annotated[Optional[float], typer.Option("--idle-s", help="With --follow: also process the rows held once the input has been idle this many seconds (default: only once a later time has come); a row of a time processed so that comes after is late.")] = None,
     frame: Annotated[Optional[str], typer.Option("--frame", help="Frame of the anchors (and reference) coordinates when their file has no 'frame' column: local (default), ecef, or wgs84 (x longitude, y latitude in degrees, z height in m).")] = None,
     origin: Annotated[Optional[str], typer.Option("--origin", help="lat,lon[,h]: work and write in the east-north-up frame at this point (a local frame is then taken as that ENU frame; ecef or wgs84 anchors are converted to it).")] = None,
     chunk_rows: Annotated[int, typer.Option("--chunk-rows", min=0, help="ekf-track, lsq and gn on a long log (a CSV file sorted by time) written to --out (CSV or Parquet): read, estimate and write this many rows at a time, so that memory does not grow with the log (0: the whole log at once). The health and plausibility checks then judge each chunk on its own rows.")] = 200_000,
@@ -369,7 +370,7 @@ def locate(
             written = follow_locate(measurements, anchors, method, opts, out, fmt, reorder_s, {
                 "--plot": plot, "--reference": reference, "--priors": priors,
                 "--calibration": calibration, "--strict": strict, "--frame": frame,
-                "--origin": origin})
+                "--origin": origin}, idle_s=idle_s)
         for path in written:
             _echo_err(f"wrote {path}")
         return

@@ -36,6 +36,7 @@ DIAGNOSTICS: dict[str, str] = {
     "innovation_covariance": "covariance of the innovation (for NIS)",
     "nis": "normalised innovation squared of the measurements used at each step",
     "measurements_used": "int: measurements that entered the update at each step",
+    "gate_streak": "int: steps in a row, up to the last, whose every row the gate refused",
     "ess": "effective sample size of the particle weights",
     "resets": "int: particle-filter resets (degeneracy recoveries)",
     "los_detected": "bool per link: the filter's line-of-sight decision",
@@ -268,7 +269,7 @@ class Track:
         for k, v in self.diagnostics.items():
             v = np.asarray(v)
             if v.shape[:nb] == self.batch_shape:
-                diag[k] = v[idx]
+                diag[k] = v[idx[:nb]] if v.ndim == nb else v[idx]   # per run: no time axis
         return Track(self.position[idx], cov, time, diag)
 
     def to_frame(self, names: Any = None):

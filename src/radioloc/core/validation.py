@@ -7,6 +7,7 @@ instead of letting a NaN or a shape mismatch travel into the numerics.
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Callable, Sequence
 
@@ -266,6 +267,31 @@ def check_positive(value: float, name: str, *, allow_zero: bool = False,
         raise ConfigError(f"{name}: {v:g} is outside the supported range "
                           f"[{POSITIVE_FLOOR:g}, {maximum:g}]")
     return v
+
+
+def check_positive_values(value, name: str, *, allow_zero: bool = True,
+                          allow_inf: bool = False):
+    """A non-negative setting (positive without ``allow_zero``), as :func:`check_positive`:
+    a scalar, or an array of them (one per anchor, say); ``allow_inf``: ``inf`` too (a time
+    constant of a process that never reverts).
+
+    Returns
+    -------
+    float or ndarray
+    """
+    arr = np.asarray(value, dtype=float) if allow_inf else value
+    if allow_inf and np.ndim(arr) and np.isposinf(arr).any():
+        check_positive_values(np.where(np.isposinf(arr), 1.0, arr), name,
+                              allow_zero=allow_zero)
+        return arr
+    if np.ndim(value) == 0:
+        if allow_inf and np.isposinf(arr):
+            return math.inf
+        return check_positive(value, name, allow_zero=allow_zero)
+    arr = as_float_array(value, name)
+    for v in arr.ravel():
+        check_positive(float(v), name, allow_zero=allow_zero)
+    return arr
 
 
 def check_real(value: float, name: str) -> float:

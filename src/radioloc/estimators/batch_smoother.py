@@ -38,6 +38,7 @@ from scipy.linalg import LinAlgError, solveh_banded
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Track
 from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_array,
+                                      check_positive_values,
                                       check_covariance, check_int, check_positive,
                                       check_shapes, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
@@ -138,6 +139,12 @@ class BatchSmoother(RecursiveEstimator):
     extra_prior_std : float
         Prior standard deviation of those components when ``prior_mean`` gives the
         motion state only.
+    bias_std_m_per_sqrt_s : float or ndarray, shape (..., A), optional
+        Driving-noise intensity of the per-anchor biases, m/sqrt(s) (default
+        ``sqrt(extra_q)``); one per anchor allowed.
+    bias_time_constant_s : float or ndarray, shape (..., A), optional
+        Their time constants, s: Gauss-Markov biases reverting to 0 (default: random walks;
+        :func:`radioloc.models.clock.transition`).
     layout : StateLayout, optional
         The state to use (grown by what the models read); a
         :class:`~radioloc.models.pair_range.NetworkLayout` smooths every node of a network
@@ -159,6 +166,8 @@ class BatchSmoother(RecursiveEstimator):
                  max_iterations: int = 30, tol: float = 1e-6,
                  extra_q: float = 1e-6, drift_q: float | None = None,
                  extra_prior_std: float = 100.0,
+                 bias_std_m_per_sqrt_s: float | np.ndarray | None = None,
+                 bias_time_constant_s: float | np.ndarray | None = None,
                  layout: StateLayout | None = None) -> None:
         if not (hasattr(motion, "F") and hasattr(motion, "Q") and hasattr(motion, "dim")):
             raise ConfigError(f"motion: expected a motion model with F(dt), Q(dt) and dim, got "
@@ -200,6 +209,13 @@ class BatchSmoother(RecursiveEstimator):
             self.drift_q = self.extra_q if drift_q is None else check_positive(drift_q,
                                                                                "drift_q")
             self.extra_prior_std = check_positive(extra_prior_std, "extra_prior_std")
+            self.bias_std_m_per_sqrt_s = (np.sqrt(self.extra_q) if bias_std_m_per_sqrt_s is None
+                                          else check_positive_values(bias_std_m_per_sqrt_s,
+                                                        "bias_std_m_per_sqrt_s"))
+            self.bias_time_constant_s = (None if bias_time_constant_s is None else
+                                         check_positive_values(bias_time_constant_s,
+                                                               "bias_time_constant_s",
+                                                               allow_zero=False, allow_inf=True))
         except InputError as exc:
             raise ConfigError(str(exc)) from None
 
@@ -230,7 +246,8 @@ class BatchSmoother(RecursiveEstimator):
             return np.zeros(dt.shape + (n, n)), np.zeros(dt.shape + (n, n))
         q = np.sqrt(self.extra_q)
         clock = ClockModel(q, np.sqrt(self.drift_q), terms=layout.clock) if layout.clock else None
-        F, Q = transition(layout, self.motion, dt, clock, q)
+        F, Q = transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s,
+                          self.bias_time_constant_s)
         # dt = 0 (two steps at one time): tie the states through a tiny, not a zero, Q
         Q = Q + 1e-9 * np.eye(n)
         return F, np.linalg.inv(symmetrise(Q))

@@ -19,7 +19,9 @@ metres per second) and one bias per anchor (metres), each present when a model r
   ``clock_offset_std_m_per_sqrt_s^2`` and a drift random walk of density
   ``clock_drift_std_m_per_s_per_sqrt_s^2`` (the two-state clock model of GNSS receivers:
   ``Q = [[q_o dt + q_d dt^3/3, q_d dt^2/2], [q_d dt^2/2, q_d dt]]``);
-- anchor biases: constant, plus a random walk of variance ``bias_std_m_per_sqrt_s^2 dt``.
+- anchor biases: constant, plus a random walk of variance ``bias_std_m_per_sqrt_s^2 dt``, or
+  with ``bias_time_constant_s`` a first-order Gauss-Markov process (errors that stay
+  correlated for seconds, as multipath on a walk; :func:`radioloc.models.clock.transition`).
 
 The update
 ----------
@@ -55,6 +57,7 @@ from radioloc.core.validation import (
     check_finite_output,
     check_int,
     check_positive,
+    check_positive_values,
     refuse_infinite,
 )
 from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
@@ -90,10 +93,6 @@ class FilterState(GaussianState):
     layout: StateLayout | None = None
 
 
-def _setting(value: float, name: str) -> float:
-    return check_positive(value, name, allow_zero=True)
-
-
 class ExtendedKalmanFilter(RecursiveEstimator):
     """Extended (optionally iterated) Kalman filter over any measurement model, batched
     over leading axes.
@@ -119,8 +118,12 @@ class ExtendedKalmanFilter(RecursiveEstimator):
     bias_prior_std_m : float
         Prior standard deviation of each anchor bias (prior mean 0), metres; used when the
         prior given to :meth:`init` covers the kinematic part only.
-    bias_std_m_per_sqrt_s : float
-        Random-walk intensity of the anchor biases, m/sqrt(s) (0: constant biases).
+    bias_std_m_per_sqrt_s : float or ndarray, shape (..., A)
+        Driving-noise intensity of the anchor biases, m/sqrt(s) (0: constant biases); one
+        value or one per anchor (per member of the batch).
+    bias_time_constant_s : float or ndarray, shape (..., A), optional
+        Time constants of the anchor biases, s: each a Gauss-Markov process reverting to 0
+        (None: a random walk).
     clock_offset_prior_std_m : float
         Prior standard deviation of the receiver clock offset (times c), metres.
     clock_drift_prior_std_m_per_s : float
@@ -150,7 +153,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
 
     def __init__(self, motion, *, gate: float | None = 16.0, gate_patience: int = 10,
                  iterations: int = 1, layout: StateLayout | None = None,
-                 bias_prior_std_m: float = 5.0, bias_std_m_per_sqrt_s: float = 0.0,
+                 bias_prior_std_m: float = 5.0,
+                 bias_std_m_per_sqrt_s: float | np.ndarray = 0.0,
+                 bias_time_constant_s: float | np.ndarray | None = None,
                  clock_offset_prior_std_m: float = 1e3,
                  clock_drift_prior_std_m_per_s: float = 10.0,
                  clock_offset_std_m_per_sqrt_s: float = 0.0,
@@ -177,14 +182,19 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                                   f"the motion model's dim={base.dim}, order={base.order}")
         self.layout = base if layout is None else layout
         self.bias_prior_std_m = check_positive(bias_prior_std_m, "bias_prior_std_m")
-        self.bias_std_m_per_sqrt_s = _setting(bias_std_m_per_sqrt_s, "bias_std_m_per_sqrt_s")
+        self.bias_std_m_per_sqrt_s = check_positive_values(bias_std_m_per_sqrt_s,
+                                                           "bias_std_m_per_sqrt_s")
+        self.bias_time_constant_s = (None if bias_time_constant_s is None else
+                                     check_positive_values(bias_time_constant_s,
+                                                           "bias_time_constant_s",
+                                                           allow_zero=False, allow_inf=True))
         self.clock_offset_prior_std_m = check_positive(clock_offset_prior_std_m,
                                                        "clock_offset_prior_std_m")
         self.clock_drift_prior_std_m_per_s = check_positive(clock_drift_prior_std_m_per_s,
                                                             "clock_drift_prior_std_m_per_s")
-        self.clock_offset_std_m_per_sqrt_s = _setting(clock_offset_std_m_per_sqrt_s,
+        self.clock_offset_std_m_per_sqrt_s = check_positive_values(clock_offset_std_m_per_sqrt_s,
                                                       "clock_offset_std_m_per_sqrt_s")
-        self.clock_drift_std_m_per_s_per_sqrt_s = _setting(
+        self.clock_drift_std_m_per_s_per_sqrt_s = check_positive_values(
             clock_drift_std_m_per_s_per_sqrt_s, "clock_drift_std_m_per_s_per_sqrt_s")
 
     # ---- the state ------------------------------------------------------------------
@@ -232,7 +242,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         clock = None if not layout.clock else ClockModel(
             self.clock_offset_std_m_per_sqrt_s, self.clock_drift_std_m_per_s_per_sqrt_s,
             terms=layout.clock)
-        return transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s)
+        return transition(layout, self.motion, dt, clock, self.bias_std_m_per_sqrt_s,
+                          self.bias_time_constant_s)
 
     # ---- contract -------------------------------------------------------------------
     def init(self, prior_mean, prior_cov, time: float | np.ndarray = 0.0, *,
@@ -448,8 +459,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         return Estimate(state.mean[..., :D], state.covariance[..., :D, :D], state.time,
                         {"state": state.mean, "state_covariance": state.covariance})
 
-    def run(self, observations: Observation | Sequence[Observation], time=None, *, prior_mean,
-            prior_cov, controls=None, smooth: bool = False, coupling=None,
+    def run(self, observations: Observation | Sequence[Observation], time=None, *,
+            prior_mean=None, prior_cov=None, state: FilterState | None = None,
+            streak=None, controls=None, smooth: bool = False, coupling=None,
             on_step: Callable[[int], object] | None = None) -> Track:
         """Filter (or smooth) a series of observations.
 
@@ -462,6 +474,13 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             predicted (except for an input-driven model's control). Default ``0..T-1``.
         prior_mean, prior_cov : array_like
             Prior at ``time[0]`` (see :meth:`init`).
+        state : FilterState, optional
+            Instead of the prior: the state the run goes on from (the last state of an
+            earlier run, at a time not after ``time[0]``); the first step is predicted from
+            its time, and its layout is kept.
+        streak : int or array_like of int, shape (...), optional
+            Steps in a row whose every row was gated before the first step (the
+            ``gate_streak`` diagnostic of the run this one goes on from); default 0.
         controls : array_like, shape (..., T, D), optional
             Displacement per step for an input-driven motion model.
         smooth : bool
@@ -481,7 +500,8 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         Track
             ``position`` (..., T, D), ``covariance`` (..., T, D, D); diagnostics
             ``state``, ``state_covariance`` (the full state: clock, biases), ``innovation``,
-            ``innovation_covariance``, ``nis``, ``measurements_used``, ``gated`` (per step).
+            ``innovation_covariance``, ``nis``, ``measurements_used``, ``gated`` (per step),
+            ``gate_streak`` (after the last step, per run).
         """
         obs = _as_observations(observations)
         T = common_steps(obs)
@@ -491,11 +511,17 @@ class ExtendedKalmanFilter(RecursiveEstimator):
         dts = np.diff(t, axis=-1)
         if np.any(~np.isfinite(t)) or np.any(dts < 0):
             raise InputError("time: must be finite and non-decreasing")
-        dts = np.concatenate([np.zeros(t.shape[:-1] + (1,)), dts], axis=-1)
+        if state is None:
+            state = self.init(prior_mean, prior_cov, t[..., 0], observations=obs)
+        else:
+            self._layout_of(state)        # refuses what is not a state of this filter
+        first = t[..., :1] - np.asarray(state.time, dtype=float)[..., None]
+        if np.any(~(first >= 0)):
+            raise InputError("state: its time must be finite and not after time[0]")
+        dts = np.concatenate([first, dts], axis=-1)
         u = None if controls is None else as_float_array(controls, "controls", min_ndim=2)
         if u is not None and u.shape[-2] != T:
             raise InputError(f"controls: expected {T} steps on axis -2, got shape {u.shape}")
-        state = self.init(prior_mean, prior_cov, t[..., 0], observations=obs)
         layout = state.layout
         shapes = [o.z.shape[:-2] for o in obs] + [o.at(0)[1].points.shape[:-2] for o in obs]
         try:
@@ -508,7 +534,9 @@ class ExtendedKalmanFilter(RecursiveEstimator):
                             np.broadcast_to(state.covariance, batch + (layout.size,) * 2),
                             state.time, layout)
         record: dict[str, np.ndarray] = {}    # per step: batch + (T,) + the value's axes
-        streak = np.zeros(batch, dtype=np.int64)     # steps in a row with every row gated
+        # steps in a row with every row gated
+        streak = np.zeros(batch, dtype=np.int64) + np.asarray(0 if streak is None else streak,
+                                                              dtype=np.int64)
         self._check_models(layout, [o.model for o in obs],
                            [f"observations[{i}]" for i in range(len(obs))])
         # the noise of a context that is the same at every step: worked out once
@@ -550,9 +578,10 @@ class ExtendedKalmanFilter(RecursiveEstimator):
             F = np.broadcast_to(self.transition(layout, dts)[0], batch + (T,) + (layout.size,) * 2)
             means, covs = rts_smooth(means, covs, record.pop("predicted_mean"),
                                      record.pop("predicted_covariance"), F)
-        diag = {"state": means, "state_covariance": covs, **record}
+        diag = {"state": means, "state_covariance": covs, **record, "gate_streak": streak}
         return layout_track(layout, means, covs, t, diag,
-                            {"state": 1, "state_covariance": 2, **_INFO_AXES})
+                            {"state": 1, "state_covariance": 2, **_INFO_AXES,
+                             "gate_streak": None})
 
     # ---- helpers --------------------------------------------------------------------
     def _layout_of(self, state) -> StateLayout:

@@ -54,6 +54,30 @@ def _split_logs(e, b, s, mu, alpha):
     return l0, l1
 
 
+def _m_step_objective(p: np.ndarray, e: np.ndarray, r: np.ndarray, fit_bias: bool
+                      ) -> tuple[float, np.ndarray]:
+    """The M-step's objective and its gradient in ``p = (b, log s_LOS, log s_NLOS)``: minus
+    the responsibility-weighted mean log-density ``r log N(x; s) + (1 - r) log EMG(x; s,
+    mu)`` of ``x = e - b`` (:func:`gaussian_logpdf`, :func:`emg_logpdf`). With ``lam =
+    1 / mu``, ``z = x / s``, ``w = z - lam s`` and the Mills ratio ``R = phi(w) / Phi(w)``:
+    ``d log N / (db, d log s) = (z / s, z^2 - 1)``; ``d log EMG / (db, d log s, d log mu) =
+    (lam - R / s, (lam s)^2 - R (z + lam s), lam x + lam s R - 1 - (lam s)^2)``."""
+    from scipy.special import log_ndtr               # here: scipy costs start-up time
+
+    x = e - (p[0] if fit_bias else 0.0)
+    s, lam = np.exp(p[1]), np.exp(-p[2])
+    z = x / s
+    w = z - lam * s
+    g = gaussian_logpdf(x, s)
+    h = emg_logpdf(x, s, 1.0 / lam)
+    mills = np.exp(-0.5 * w * w - 0.5 * np.log(2.0 * np.pi) - log_ndtr(w))
+    q = 1.0 - r
+    grad = np.array([np.mean(r * z / s + q * (lam - mills / s)) if fit_bias else 0.0,
+                     np.mean(r * (z * z - 1.0) + q * ((lam * s) ** 2 - mills * (z + lam * s))),
+                     np.mean(q * (lam * x + lam * s * mills - 1.0 - (lam * s) ** 2))])
+    return -float(np.mean(r * g + q * h)), -grad
+
+
 def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | None = None,
                  nlos_mean0: float | None = None, fit_bias: bool = True, iterations: int = 50,
                  tol: float = 1e-7) -> EmFit:
@@ -106,14 +130,9 @@ def fit_los_nlos(errors: np.ndarray, *, alpha0: float = 0.5, los_std0: float | N
         r = np.exp(l1 - tot)
         alpha = float(np.clip(r.mean(), 1e-6, 1 - 1e-6))
 
-        def neg(p):
-            bb = p[0] if fit_bias else 0.0
-            ss, mm = np.exp(p[1]), np.exp(p[2])
-            x = e - bb
-            return -np.mean(r * gaussian_logpdf(x, ss) + (1 - r) * emg_logpdf(x, ss, mm))
-        res = minimize(neg, np.clip([b, np.log(s), np.log(mu)], lower, upper),
-                       method="L-BFGS-B", bounds=list(zip(lower, upper)),
-                       options={"maxiter": 20})
+        res = minimize(_m_step_objective, np.clip([b, np.log(s), np.log(mu)], lower, upper),
+                       args=(e, r, fit_bias), jac=True, method="L-BFGS-B",
+                       bounds=list(zip(lower, upper)), options={"maxiter": 20})
         b = float(res.x[0]) if fit_bias else 0.0
         s, mu = float(np.exp(res.x[1])), float(np.exp(res.x[2]))
     return EmFit(LosNlosRange(s, mu, alpha), b, np.array(hist), r)

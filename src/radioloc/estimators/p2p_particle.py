@@ -67,8 +67,9 @@ from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, 
                                       check_probability, check_ranges, range_noise_std)
 from radioloc.estimators import pf_compiled as _c
 from radioloc.estimators.base import RecursiveEstimator
-from radioloc.estimators.particle_filter import (RunGenerators, mode_update, sample_motion,
-                                                 weighted_moments)
+from radioloc.estimators.particle_filter import (CHUNK, RunGenerators, compiled_moments,
+                                                 compiled_systematic, mode_update, sample_motion,
+                                                 standard_normal, weighted_moments)
 from radioloc.estimators.resampling import get_scheme
 from radioloc.models.los_nlos import (LosNlosRange, StickyLinkChain, emg_logpdf, gaussian_logpdf,
                                       sticky_transition)
@@ -79,8 +80,6 @@ __all__ = ["P2PParticleFilter", "ParticleState", "OnlineEM", "MESSAGES", "link_l
 
 #: How vehicle ``k`` places neighbour ``m`` at step ``t`` (see :class:`P2PParticleFilter`).
 MESSAGES = ("previous", "extrapolated", "given")
-#: Particles per parallel task of the compiled kernels.
-CHUNK = 2048
 
 
 @dataclass(frozen=True)
@@ -370,65 +369,19 @@ def _weighted_moments(log_w, particles, backend):
     """:func:`radioloc.estimators.particle_filter.weighted_moments` by ``backend``."""
     if backend == "numpy":
         return weighted_moments(log_w, particles)
-    batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
-    b = int(np.prod(batch, dtype=int))
-    x = kernel_array(particles.reshape(b, k, n))
-    lw = log_w.reshape(b, k)
-    w = np.exp(lw - lw.max(axis=-1, keepdims=True))
-    sums = np.empty((b, -(-k // CHUNK), 2 + n + n * n))
-    _c.moment_sums(w, x, CHUNK, sums)
-    s = sums.sum(axis=1)
-    total = s[:, 0]
-    w /= total[:, None]
-    d = s[:, 2:2 + n] / total[:, None]                     # mean - x_0
-    cov = s[:, 2 + n:].reshape(b, n, n) / total[:, None, None] - d[:, :, None] * d[:, None, :]
-    return (w.reshape(batch + (k,)), (x[:, 0] + d).reshape(batch + (n,)),
-            cov.reshape(batch + (n, n)), (total * total / s[:, 1]).reshape(batch))
+    return compiled_moments(log_w, particles)[:4]
 
 
 def _resample(w, particles, q, scheme, backend, rng):
     """Line 12: ancestors (..., K) of the normalised weights ``w`` by ``scheme`` of
     :mod:`radioloc.estimators.resampling`, the particles and link posteriors ``q`` (..., K, L)
     taken at them, and the number of distinct ancestors (...)."""
-    batch, (k, n), width = particles.shape[:-2], particles.shape[-2:], q.shape[-1]
     if backend == "numba" and scheme == "systematic":
-        b = int(np.prod(batch, dtype=int))
-        u = rng.random(batch + (1,))                    # the draw of resampling.systematic
-        idx, distinct = np.empty((b, k), dtype=np.int64), np.empty((b, -(-k // CHUNK)), np.int64)
-        out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
-        _c.systematic_gather(kernel_array(w.reshape(b, k)), u.reshape(b),
-                             kernel_array(particles.reshape(b, k, n)),
-                             kernel_array(q.reshape(b, k, width)), CHUNK, np.empty((b, k)), idx,
-                             out_p, out_q, distinct)
-        return (idx.reshape(batch + (k,)), out_p.reshape(particles.shape),
-                out_q.reshape(q.shape), distinct.sum(axis=1).reshape(batch))
+        return compiled_systematic(w, particles, q, rng)
     idx = get_scheme(scheme)(w, rng)
     distinct = 1 + np.count_nonzero(np.diff(np.sort(idx, axis=-1), axis=-1), axis=-1)
     return (idx, np.take_along_axis(particles, idx[..., None], axis=-2),
             np.take_along_axis(q, idx[..., None], axis=-2), distinct)
-
-
-#: Normal draws of at least this many numbers are made in ``STREAMS`` contiguous parts, each
-#: from its own child generator of ``rng`` (``rng.spawn``), in parallel by the compiled
-#: backend; the parts depend on the size only.
-DRAW_PARALLEL = 1 << 17
-STREAMS = 16
-
-
-def _standard_normal(rng, shape, backend):
-    """``shape`` standard normal draws from ``rng`` (large draws: see ``DRAW_PARALLEL``)."""
-    size = int(np.prod(shape, dtype=np.int64))
-    if size < DRAW_PARALLEL or isinstance(rng, RunGenerators) or \
-            getattr(rng.bit_generator, "seed_seq", None) is None:
-        return rng.standard_normal(shape)
-    children, out = rng.spawn(STREAMS), np.empty(size)
-    if backend == "numba":
-        _c.standard_normal(tuple(children), out)
-    else:
-        per = -(-size // STREAMS)
-        for s, child in enumerate(children):
-            child.standard_normal(out=out[s * per:(s + 1) * per])
-    return out.reshape(shape)
 
 
 def _previous_slots(links_prev: np.ndarray, links: np.ndarray, size: int) -> np.ndarray:
@@ -730,7 +683,7 @@ class P2PParticleFilter(RecursiveEstimator):
         em = self.online_em is not None
         # line 3: propagate every particle through the motion model
         particles = sample_motion(self.motion, state.particles, dt, rng, u,
-                                  normal=lambda shape: _standard_normal(rng, shape, self.backend))
+                                  normal=lambda shape: standard_normal(rng, shape, self.backend))
         # lines 6, 8, 11: link posteriors and weights
         log_w, q, post, em_pp, certain = _link_update(
             particles, node_xy, th, valid, where_prev, state.link_los, params, state.los_certain,

@@ -42,12 +42,15 @@ sets and weights (:func:`radioloc.estimators.pf_smoother.backward_simulation`).
 from __future__ import annotations
 
 import copy
+import importlib
 from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 from scipy.special import logsumexp
 
+from radioloc.core.arrays import kernel_array
+from radioloc.core.backend import DEFAULT_BACKEND, check_backend
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.results import Estimate, Track, track_from_steps
 from radioloc.core.validation import (MAX_PARTICLES, as_float_array, check_int, check_positive,
@@ -59,9 +62,14 @@ from radioloc.estimators.resampling import get_scheme, systematic
 from radioloc.models.clock import ClockModel, transition
 from radioloc.models.measurement import Context, Observation, StateLayout, check_motion
 from radioloc.models.motion import InputDriven, MotionModel
+from radioloc.models.ranging import GaussianRange, RangeModel
 
 __all__ = ["ParticleFilter", "ParticleFilterState", "RunGenerators", "weighted_moments",
-           "sample_motion", "mode_update"]
+           "sample_motion", "mode_update", "standard_normal", "compiled_kernels",
+           "compiled_moments", "compiled_systematic", "has_compiled_likelihood"]
+
+#: Particles per parallel task of the compiled kernels.
+CHUNK = 2048
 
 #: ``log`` of the smallest normal double: a likelihood below ``exp(LOG_UNDERFLOW)`` for
 #: every particle is a degenerate update (see the module docstring).
@@ -301,7 +309,8 @@ def sample_motion(motion, particles: np.ndarray, dt, rng, control=None,
     factor = vecs * np.sqrt(np.maximum(vals, 0.0))[..., None, :]
     z = normal(mean.shape)
     if factor.ndim == 2 and np.array_equal(factor, np.diag(np.diagonal(factor))):
-        z *= np.diagonal(factor)
+        d = np.diagonal(factor)
+        z *= d[0] if np.all(d == d[0]) else d       # a scalar: one pass at memory speed
         z += mean
         return z
     if factor.ndim == 2:                                    # one Q for every particle
@@ -337,6 +346,195 @@ def mode_update(prior: np.ndarray, mode_loglik: np.ndarray) -> tuple[np.ndarray,
     row = np.where(ok, top + np.log(s), -np.inf)[..., 0]
     post = np.where(ok, e / s, prior)
     return row, post
+
+
+def compiled_kernels():
+    """The module of compiled kernels, :mod:`radioloc.estimators.pf_compiled` (imported on
+    first use: numba is loaded only by a filter that runs ``backend="numba"``).
+
+    Returns
+    -------
+    module
+
+    Raises
+    ------
+    ConfigError
+        numba cannot be imported; the message says to use ``backend="numpy"``.
+    """
+    try:
+        return importlib.import_module("radioloc.estimators.pf_compiled")
+    except ImportError as exc:
+        raise ConfigError(f"backend: 'numba' needs numba, which cannot be imported ({exc}); "
+                          "install numba or use backend='numpy'") from None
+
+
+#: Normal draws of at least this many numbers per generator (per run of a
+#: :class:`RunGenerators`) are made in ``STREAMS`` contiguous parts, each from its own child
+#: generator (``spawn``), in parallel by the compiled backend; the parts depend on the size
+#: only.
+DRAW_PARALLEL = 1 << 17
+STREAMS = 8
+
+
+def standard_normal(rng, shape: tuple[int, ...], backend: str = "numpy") -> np.ndarray:
+    """``shape`` standard normal draws from ``rng``; a large draw (``DRAW_PARALLEL``) in
+    ``STREAMS`` parts from child generators, the same numbers on either backend
+    (``"numba"`` fills the parts in parallel by ``pf_compiled.standard_normal``, numba's
+    form of NumPy's generator; ``"numpy"`` one after the other). ``"numba"`` also fills a
+    smaller draw of a :class:`RunGenerators` by that kernel, each run's part from the
+    run's own generator (``STREAMS`` runs a call, then one by one), as NumPy would.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator or RunGenerators
+    shape : tuple of int
+        For a :class:`RunGenerators`, leading with its batch shape.
+    backend : {"numba", "numpy"}
+
+    Returns
+    -------
+    ndarray
+    """
+    shape = tuple(shape)
+    runs = rng.generators if isinstance(rng, RunGenerators) else [rng]
+    per_run = shape[len(rng.batch_shape):] if isinstance(rng, RunGenerators) else shape
+    size = int(np.prod(per_run, dtype=np.int64))
+    out = np.empty((len(runs), size))
+    if size < DRAW_PARALLEL and backend == "numba" and isinstance(rng, RunGenerators):
+        kernel = compiled_kernels().standard_normal
+        full = len(runs) - len(runs) % STREAMS
+        for first in range(0, full, STREAMS):          # two tuple lengths: two compilations
+            kernel(tuple(runs[first:first + STREAMS]), out[first:first + STREAMS].reshape(-1))
+        for g, part in zip(runs[full:], out[full:]):
+            kernel((g,), part)
+        return out.reshape(shape)
+    if size < DRAW_PARALLEL or any(getattr(g.bit_generator, "seed_seq", None) is None
+                                   for g in runs):
+        return rng.standard_normal(shape)
+    for g, part in zip(runs, out):
+        children = g.spawn(STREAMS)
+        if backend == "numba":
+            compiled_kernels().standard_normal(tuple(children), part)
+        else:
+            per = -(-size // STREAMS)
+            for s, child in enumerate(children):
+                child.standard_normal(out=part[s * per:(s + 1) * per])
+    return out.reshape(shape)
+
+
+def compiled_moments(log_w: np.ndarray, particles: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`weighted_moments` by the compiled kernel ``pf_compiled.moment_sums``, with the
+    log of the weights' sum.
+
+    Parameters
+    ----------
+    log_w : ndarray, shape (..., K)
+    particles : ndarray, shape (..., K, n)
+
+    Returns
+    -------
+    w, mean, covariance, ess : ndarray
+        As :func:`weighted_moments`.
+    log_total : ndarray, shape (..., 1)
+        ``logsumexp(log_w)``.
+    """
+    batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
+    b = int(np.prod(batch, dtype=int))
+    x = kernel_array(particles.reshape(b, k, n))
+    lw = log_w.reshape(b, k)
+    top = lw.max(axis=-1, keepdims=True)
+    w = np.exp(lw - top)
+    sums = np.empty((b, -(-k // CHUNK), 2 + n + n * n))
+    compiled_kernels().moment_sums(w, x, CHUNK, sums)
+    s = sums.sum(axis=1)
+    total = s[:, 0]
+    w /= total[:, None]
+    d = s[:, 2:2 + n] / total[:, None]                     # mean - x_0
+    cov = s[:, 2 + n:].reshape(b, n, n) / total[:, None, None] - d[:, :, None] * d[:, None, :]
+    return (w.reshape(batch + (k,)), (x[:, 0] + d).reshape(batch + (n,)),
+            cov.reshape(batch + (n, n)), (total * total / s[:, 1]).reshape(batch),
+            (top + np.log(total)[:, None]).reshape(batch + (1,)))
+
+
+def compiled_systematic(w: np.ndarray, particles: np.ndarray, q: np.ndarray | None, rng
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """:func:`radioloc.estimators.resampling.systematic` (the same draw) by the compiled
+    kernel ``pf_compiled.systematic_gather``, with the gather of the particles and of
+    per-particle rows ``q``.
+
+    Parameters
+    ----------
+    w : ndarray, shape (..., K)
+        Normalised weights.
+    particles : ndarray, shape (..., K, n)
+    q : ndarray, shape (..., K, L), optional
+        Rows that follow their particle (the link posteriors of paper 001's filter).
+    rng : numpy.random.Generator or RunGenerators
+
+    Returns
+    -------
+    idx : ndarray of int64, shape (..., K)
+        Ancestors.
+    particles : ndarray, shape (..., K, n)
+    q : ndarray, shape (..., K, L), or None
+    distinct : ndarray of int64, shape (...)
+        Distinct ancestors.
+    """
+    batch, (k, n) = particles.shape[:-2], particles.shape[-2:]
+    width = 0 if q is None else q.shape[-1]
+    b = int(np.prod(batch, dtype=int))
+    u = rng.random(batch + (1,))                    # the draw of resampling.systematic
+    idx, distinct = np.empty((b, k), dtype=np.int64), np.empty((b, -(-k // CHUNK)), np.int64)
+    out_p, out_q = np.empty((b, k, n)), np.empty((b, k, width))
+    q_in = out_q if q is None else kernel_array(q.reshape(b, k, width))
+    compiled_kernels().systematic_gather(kernel_array(w.reshape(b, k)), u.reshape(b),
+                                         kernel_array(particles.reshape(b, k, n)), q_in, CHUNK,
+                                         idx, out_p, out_q, distinct)
+    return (idx.reshape(batch + (k,)), out_p.reshape(particles.shape),
+            None if q is None else out_q.reshape(q.shape), distinct.sum(axis=1).reshape(batch))
+
+
+def has_compiled_likelihood(model) -> bool:
+    """Whether ``ParticleFilter(backend="numba")`` computes ``model``'s likelihood by a
+    compiled kernel: a :class:`~radioloc.models.ranging.RangeModel` with
+    :class:`~radioloc.models.ranging.GaussianRange` noise and no anchor bias
+    (``pf_compiled.range_loglik``).
+    Any other model's likelihood is its NumPy ``logpdf`` (or ``mode_logpdf``) on either
+    backend.
+
+    Parameters
+    ----------
+    model : MeasurementModel
+
+    Returns
+    -------
+    bool
+    """
+    return (type(model) is RangeModel and isinstance(model.noise, GaussianRange)
+            and not model.anchor_bias)
+
+
+def _range_loglik(model: RangeModel, z: np.ndarray, x: np.ndarray, layout: StateLayout,
+                  ctx: Context, batch: tuple[int, ...]) -> np.ndarray:
+    """``sum_rows model.logpdf(z, x, ctx)`` of every particle ``x`` (..., K, n) by the
+    compiled kernel (a model of :func:`has_compiled_likelihood`; ``z`` (..., m) checked by
+    the caller, ``ctx`` without the particle axis)."""
+    k, n = x.shape[-2:]
+    m, D = ctx.rows, layout.dim
+    b = int(np.prod(batch, dtype=int))
+    pts = np.broadcast_to(ctx.points, batch + ctx.points.shape[-2:]).reshape(b, m, -1)
+    dz2 = np.zeros((b, m))
+    if ctx.height_m is not None:
+        dz2 = (float(ctx.height_m) - pts[..., D]) ** 2
+    std = np.broadcast_to(model.std(ctx), batch + (m,)).reshape(b, m)
+    out = np.empty((b, k))
+    compiled_kernels().range_loglik(
+        kernel_array(np.broadcast_to(x, batch + (k, n)).reshape(b, k, n)),
+        layout.slices["position"].start, D, kernel_array(pts), kernel_array(dz2),
+        kernel_array(np.broadcast_to(z, batch + (m,)).reshape(b, m)), 1.0 / std, np.log(std),
+        CHUNK, out)
+    return out.reshape(batch + (k,))
 
 
 def _particle_context(ctx: Context) -> Context:
@@ -443,6 +641,19 @@ class ParticleFilter(RecursiveEstimator):
         ``N(estimate, reset_inflation^2 * predicted covariance)``.
     trajectories : int
         Backward trajectories of the smoother (``run(..., smooth=True)``).
+    backend : {"numba", "numpy"}
+        ``"numba"`` (default) runs three parts of each step by the compiled kernels of
+        :mod:`radioloc.estimators.pf_compiled`: the likelihood of an observation whose
+        model has a kernel (:func:`has_compiled_likelihood`: a Gaussian
+        :class:`~radioloc.models.ranging.RangeModel`), the weighted moments, and the
+        systematic resampling with the gather of the particles. The rest runs as
+        ``"numpy"`` runs it: the draws (NumPy's generators, the same numbers on both
+        backends), the prediction, another model's ``logpdf`` (the fallback: a model
+        without a kernel is filtered by its NumPy definition, never refused), another
+        resampling scheme, the discrete row states, roughening and resets. The two
+        backends agree to about 1e-10 relative with the same seed
+        (``tests/test_generic_pf_backends.py``). ``"numpy"``: every part by its NumPy
+        definition in this module.
 
     Examples
     --------
@@ -457,7 +668,8 @@ class ParticleFilter(RecursiveEstimator):
     def __init__(self, motion, *, n_particles: int = 1000,
                  resample: Callable | str = systematic, ess_threshold: float = 0.5,
                  seed=0, layout: StateLayout | None = None, roughening: float = 0.0,
-                 reset_inflation: float = 2.0, trajectories: int = 100) -> None:
+                 reset_inflation: float = 2.0, trajectories: int = 100,
+                 backend: str = DEFAULT_BACKEND) -> None:
         for attr in ("predict", "dim", "state_dim"):
             if not hasattr(motion, attr):
                 raise ConfigError(f"motion: {type(motion).__name__} has no {attr!r}")
@@ -492,6 +704,9 @@ class ParticleFilter(RecursiveEstimator):
         self.reset_inflation = float(reset_inflation)
         self.trajectories = check_int(trajectories, "trajectories", minimum=1,
                                       maximum=10**6)
+        self.backend = check_backend(backend)
+        if backend == "numba":
+            compiled_kernels()
 
     # ---- the state ------------------------------------------------------------------
     def _check_layout(self, layout: StateLayout) -> None:
@@ -611,13 +826,28 @@ class ParticleFilter(RecursiveEstimator):
 
     def _step(self, state: ParticleFilterState, rows, dt: float, control) -> ParticleFilterState:
         """:meth:`step` on ``rows`` = [(model, z (..., m), context)] of one step."""
+        if self.backend == "numpy":
+            return self._update(state, rows, dt, control)
+        m = sum(ctx.rows for _, _, ctx in rows)
+        work = int(np.prod(state.batch_shape, dtype=int)) * self.n_particles * max(m, 1)
+        with compiled_kernels().threads_for(work):
+            return self._update(state, rows, dt, control)
+
+    def _update(self, state: ParticleFilterState, rows, dt: float, control
+                ) -> ParticleFilterState:
+        """The parts of :meth:`_step` (the compiled ones on one thread for a small step)."""
         layout, K = state.layout, self.n_particles
+        numba = self.backend == "numba"
         rng = state.rng.copy()
         ns = self.motion.state_dim
-        x = state.particles.copy()
         # predict (Algorithm 2, line 3): the kinematic part moves; the rest follows the
         # state's transition without noise (a clock offset integrates its drift)
-        x[..., :ns] = sample_motion(self.motion, x[..., :ns], dt, rng, control)
+        normal = lambda shape: standard_normal(rng, shape, self.backend)  # noqa: E731
+        if layout.size == ns:
+            x = sample_motion(self.motion, state.particles, dt, rng, control, normal)
+        else:
+            x = state.particles.copy()
+            x[..., :ns] = sample_motion(self.motion, x[..., :ns], dt, rng, control, normal)
         if layout.clock == 2:
             F, _ = transition(layout, None, dt, ClockModel(0.0, 0.0, terms=2))
             x[..., ns:] = x[..., ns:] @ F[ns:, ns:].T
@@ -650,24 +880,41 @@ class ParticleFilter(RecursiveEstimator):
                 row_ll, post = mode_update(prior, np.broadcast_to(lp, full))
                 modes[i] = post
                 seen[i] = np.broadcast_to(np.isfinite(z), full[:-3] + (z.shape[-1],))
+            if numba and S == 1 and has_compiled_likelihood(model):
+                model.checked(zz, comps, pctx)
+                ll = _range_loglik(model, z, x, layout, ctx, state.batch_shape)  # never NaN
             else:
-                row_ll = model.logpdf(zz, comps, pctx)                    # (..., K, m)
-            ll = np.sum(row_ll, axis=-1)
-            ll = np.broadcast_to(np.where(np.isnan(ll), -np.inf, ll), state.batch_shape + (K,))
+                ll = np.sum(row_ll if S > 1 else model.logpdf(zz, comps, pctx), axis=-1)
+                ll = np.where(np.isnan(ll), -np.inf, ll)                  # (..., K)
+            ll = np.broadcast_to(ll, state.batch_shape + (K,))
             best = ll.max(axis=-1)
             degenerate |= best < LOG_UNDERFLOW
             # a run no particle explains at all (every likelihood zero) keeps its weights
-            log_w = np.where(np.isfinite(best)[..., None], log_w + ll, log_w)
+            explained = np.isfinite(best)
+            log_w = log_w + ll if explained.all() else \
+                np.where(explained[..., None], log_w + ll, log_w)
         # line 14: the estimate
-        w, mean, cov, ess = weighted_moments(log_w, x)
-        log_w = log_w - logsumexp(log_w, axis=-1, keepdims=True)
+        if numba:
+            w, mean, cov, ess, log_total = compiled_moments(log_w, x)
+        else:
+            w, mean, cov, ess = weighted_moments(log_w, x)
+            log_total = logsumexp(log_w, axis=-1, keepdims=True)
         # line 12: resample where the effective sample size is low (and on a reset)
         need = (ess < self.ess_threshold * K) | (self.ess_threshold >= 1.0) | degenerate
-        idx = np.where(need[..., None], self.resample(w, rng), np.arange(K))
-        x = np.take_along_axis(x, idx[..., None], axis=-2)
+        if numba and self.resample is systematic:
+            idx, drawn, _, _ = compiled_systematic(w, x, None, rng)
+            keep = ~need[..., None]
+            if keep.any():
+                x, idx = np.where(keep[..., None], x, drawn), np.where(keep, np.arange(K), idx)
+            else:
+                x = drawn
+        else:
+            idx = np.where(need[..., None], self.resample(w, rng), np.arange(K))
+            x = np.take_along_axis(x, idx[..., None], axis=-2)
         modes = [None if q is None else np.take_along_axis(q, idx[..., None, None], axis=-3)
                  for q in modes]
-        log_w = np.where(need[..., None], -np.log(K), log_w)
+        log_w = np.full(log_w.shape, -np.log(K)) if need.all() else \
+            np.where(need[..., None], -np.log(K), log_w - log_total)
         if self.roughening > 0:
             n = x.shape[-1]
             scale = self.roughening * K ** (-1.0 / n) * np.sqrt(np.maximum(

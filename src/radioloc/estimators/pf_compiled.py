@@ -1,9 +1,12 @@
-"""Compiled kernels of paper 001's LOS/NLOS estimators: the peer-to-peer particle filter
-(``P2PParticleFilter(backend="numba")``) and the snapshot baselines.
+"""Compiled kernels of the particle filters: paper 001's peer-to-peer filter
+(``P2PParticleFilter(backend="numba")``), the generic filter
+(``ParticleFilter(backend="numba")``) and paper 001's snapshot baselines.
 
 Each kernel computes what a NumPy function of :mod:`radioloc.estimators.p2p_particle`,
-:mod:`radioloc.estimators.resampling` or :mod:`radioloc.estimators.snapshot_baselines` defines; the backend-equivalence tests hold the two
-together (about 1e-10 relative on the same particles and draws). The draws are NumPy's
+:mod:`radioloc.estimators.particle_filter`, :mod:`radioloc.models.ranging`,
+:mod:`radioloc.estimators.resampling` or :mod:`radioloc.estimators.snapshot_baselines`
+defines; the backend-equivalence tests hold the two together (about 1e-10 relative on the
+same particles and draws). The draws are NumPy's
 numbers: made by NumPy before the kernels run, or, for large normal draws, by numba's
 ``Generator`` from child generators that the NumPy definition draws from in the same way.
 
@@ -11,12 +14,15 @@ numbers: made by NumPy before the kernels run, or, for large normal draws, by nu
   (``p2p_particle._link_update_numpy``), in the linear domain relative to
   the larger of the two state terms, with the particle-pooled link posterior accumulated per
   chunk of particles;
+* :func:`range_loglik`: the Gaussian range likelihood of every particle, summed over the
+  rows (``RangeModel.logpdf`` with ``GaussianRange`` noise), for the generic filter;
 * :func:`moment_sums`: the weighted sums of the particles around one of them
   (``particle_filter.weighted_moments``);
 * :func:`systematic_gather`: systematic resampling (``resampling.systematic``) and the
-  gather of the particles and link posteriors;
-* :func:`standard_normal`: large normal draws in parallel, each part from its own child
-  generator (``p2p_particle._standard_normal``);
+  gather of the particles and link posteriors (or, for the generic filter, of nothing
+  but the particles);
+* :func:`standard_normal`: normal draws in parallel, each part from its own generator (a
+  child of the filter's, or a run's own: ``particle_filter.standard_normal``);
 * :func:`snapshot_scores`: the candidate scores of the paper's snapshot baselines
   (:class:`~radioloc.estimators.snapshot_baselines.LocalML` and ``Ransac``, Sect. V), with
   :func:`mixture_logpdf_scalar`, the scalar form of
@@ -101,7 +107,11 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
     ``sum_i phi_z`` of chunk ``c`` as ``exp(pmax[b, c, l]) psum[b, c, l, z]`` and, when
     ``em``, ``em_pp[b, i] = sum_l (q', q' e^2, (1 - q') e)``. The pooled sums are left
     alone where ``pool[b, l]`` is False (a link whose LOS prior is 1 for every particle);
-    ``uncertain[b, c, l]``: some new posterior of the chunk is not exactly 1.
+    ``uncertain[b, c, l]``: some new posterior of the chunk is not exactly 1. Where both
+    states are possible and ``u = z - lam s > -20``, the NLOS term relative to the LOS one
+    is ``exp(x) Phi(u)`` (``x = l_0 - l_1 - log Phi(u)`` within +-200 and the LOS prior
+    above 1e-50, so that a particle's running product of totals, logged once it leaves
+    ``[1e-200, 1e200]``, stays finite and nonzero), without the logarithm of ``Phi``.
     """
     nb, k = parts.shape[0], parts.shape[1]
     width = th.shape[1]
@@ -137,19 +147,26 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
                 e = th[b, l] - math.sqrt(dx * dx + dy * dy)
                 z = e * inv_s
                 l1 = c1 - 0.5 * z * z
-                l0 = -np.inf
-                if p0 > 0.0:
-                    l0 = c0 - lam * e + _log_ndtr(z - lam * s)
-                # phi_z / exp(m) with m the larger of the two state terms
-                if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
-                    m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
+                u = z - lam * s
+                # l_0 - l_1 - log Phi(u): where it and u are moderate, phi_z / exp(l_1)
+                # takes exp(l_0 - l_1) = exp(x) Phi(u) without the logarithm of Phi
+                x = c0 - c1 - lam * e + 0.5 * z * z
+                if p0 > 0.0 and p1 > 1e-50 and u > -20.0 and x < 200.0 and x > -200.0:
+                    m, f1, f0 = l1, p1, p0 * math.exp(x) * 0.5 * math.erfc(-u * _SQRT1_2)
                 else:
-                    m, f1 = l1, p1
-                    f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
+                    l0 = -np.inf
+                    if p0 > 0.0:
+                        l0 = c0 - lam * e + _log_ndtr(u)
+                    # phi_z / exp(m) with m the larger of the two state terms
+                    if p0 > 0.0 and (p1 == 0.0 or l0 > l1):
+                        m, f0, f1 = l0, p0, p1 * _exp(l1 - l0)
+                    else:
+                        m, f1 = l1, p1
+                        f0 = p0 * _exp(l0 - l1) if p0 > 0.0 else 0.0
                 tot = f0 + f1
                 lw += m
                 prod *= tot
-                if prod < 1e-200:
+                if prod < 1e-200 or prod > 1e200:
                     lw += math.log(prod)
                     prod = 1.0
                 if f0 == 0.0:
@@ -189,6 +206,51 @@ def link_update(parts, node_xy, th, valid, where_prev, prev_q, params, pool, chu
 
 
 @njit(cache=True, parallel=True)
+def range_loglik(x, pos, dim, points, dz2, z, inv_std, log_std, chunk, out):
+    """The Gaussian range likelihood of every particle (``ParticleFilter(backend="numba")``;
+    the NumPy definition is :meth:`RangeModel.logpdf <radioloc.models.ranging.RangeModel.logpdf>`
+    with :class:`~radioloc.models.ranging.GaussianRange` noise and no anchor bias, summed
+    over the rows).
+
+    ``out[b, i] = sum_j -r^2 / 2 - log_std[b, j] - log(2 pi) / 2`` with ``r = (z[b, j] - d)
+    inv_std[b, j]`` and ``d`` the distance from the position ``x[b, i, pos:pos + dim]``
+    (``dim`` 2 or 3) to ``points[b, j, :dim]`` (plus ``dz2[b, j]``, the squared height
+    difference, under the root); a row whose residual is NaN (no measurement) adds nothing.
+    Each task takes ``chunk`` particles row by row, so that the loop over the particles
+    vectorises.
+    """
+    nb, k = out.shape
+    m = z.shape[1]
+    nch = (k + chunk - 1) // chunk
+    for task in prange(nb * nch):
+        b = task // nch
+        c = task - b * nch
+        lo, hi = c * chunk, min(k, (c + 1) * chunk)
+        acc = np.zeros(hi - lo)
+        h = np.empty(hi - lo)
+        for j in range(m):
+            p0, p1, hj = points[b, j, 0], points[b, j, 1], dz2[b, j]
+            if dim == 2:
+                for i in range(lo, hi):
+                    d0 = x[b, i, pos] - p0
+                    d1 = x[b, i, pos + 1] - p1
+                    h[i - lo] = math.sqrt(d0 * d0 + d1 * d1 + hj)
+            else:
+                p2 = points[b, j, 2]
+                for i in range(lo, hi):
+                    d0 = x[b, i, pos] - p0
+                    d1 = x[b, i, pos + 1] - p1
+                    d2 = x[b, i, pos + 2] - p2
+                    h[i - lo] = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + hj)
+            zj, sj, cj = z[b, j], inv_std[b, j], log_std[b, j] + _HALF_LOG_2PI
+            for i in range(lo, hi):
+                r = (zj - h[i - lo]) * sj
+                acc[i - lo] += -0.5 * r * r - cj if r == r else 0.0
+        for i in range(lo, hi):
+            out[b, i] = acc[i - lo]
+
+
+@njit(cache=True, parallel=True)
 def moment_sums(w, parts, chunk, sums):
     """Per chunk ``c`` of the particles ``parts (B, K, n)`` with weights ``w (B, K)``, the sums
     ``sums[b, c] = (sum w, sum w^2, sum w d, sum w d d^T)`` with ``d = x_i - x_0`` (the
@@ -213,39 +275,44 @@ def moment_sums(w, parts, chunk, sums):
 
 
 @njit(cache=True, parallel=True)
-def systematic_gather(w, u, parts, q, chunk, cdf, idx, out_p, out_q, distinct):
+def systematic_gather(w, u, parts, q, chunk, idx, out_p, out_q, distinct):
     """Systematic resampling (``resampling.systematic``) of the normalised weights ``w (B, K)``
     with offsets ``u (B,)`` and the gather of the particles ``parts`` and link posteriors
     ``q``: particle ``i`` fills the new slots ``[N_{i-1}, N_i)``, ``N_i = ceil(K C_i - u)``
     (clipped to ``[0, K]``; ``N_{K-1} = K``) the number of positions ``(u + j) / K`` below its
-    cumulative weight ``C_i`` (``cdf``, the sequential sum). ``distinct[b, c]``: the
-    particles of chunk ``c`` with at least one copy."""
+    cumulative weight ``C_i`` (the sequential sum). The ancestor of slot ``j`` is the number
+    of particles ``i`` with ``N_i <= j`` (a prefix sum of the counts of each ``N_i``, without
+    a branch per copy). ``distinct[b, c]``: the particles of chunk ``c`` with at least one
+    copy."""
     nb, k = w.shape
     nch = distinct.shape[1]
     for b in prange(nb):
+        marks = np.zeros(k + 1, dtype=np.int64)
         t = 0.0
-        for i in range(k):
-            t += w[b, i]
-            cdf[b, i] = t
+        before = 0
+        for c in range(nch):
+            count = 0
+            for i in range(c * chunk, min(k, (c + 1) * chunk)):
+                t += w[b, i]
+                stop = min(k, max(0, math.ceil(k * t - u[b])))
+                stop = k if i == k - 1 else stop
+                marks[stop] += 1
+                count += stop > before
+                before = stop
+            distinct[b, c] = count
+        acc = 0
+        for j in range(k):
+            acc += marks[j]
+            idx[b, j] = acc
     for task in prange(nb * nch):
         b = task // nch
         c = task - b * nch
-        count = 0
-        start = 0
-        if c > 0:
-            start = min(k, max(0, math.ceil(k * cdf[b, c * chunk - 1] - u[b])))
-        for i in range(c * chunk, min(k, (c + 1) * chunk)):
-            stop = k if i == k - 1 else min(k, max(0, math.ceil(k * cdf[b, i] - u[b])))
-            if stop > start:
-                count += 1
-            for j in range(start, stop):
-                idx[b, j] = i
-                for p in range(parts.shape[2]):
-                    out_p[b, j, p] = parts[b, i, p]
-                for p in range(q.shape[2]):
-                    out_q[b, j, p] = q[b, i, p]
-            start = max(start, stop)
-        distinct[b, c] = count
+        for j in range(c * chunk, min(k, (c + 1) * chunk)):
+            i = idx[b, j]
+            for p in range(parts.shape[2]):
+                out_p[b, j, p] = parts[b, i, p]
+            for p in range(q.shape[2]):
+                out_q[b, j, p] = q[b, i, p]
 
 
 @njit(cache=True, parallel=True)

@@ -843,31 +843,58 @@ def subtract_anchor_bias(measurements: pd.DataFrame, anchors: pd.DataFrame | Non
     """
     if anchors is None or "bias_m" not in anchors.columns:
         return measurements
-    bias = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_m"])))
-    is_range = (measurements["kind"] == "range") & bias.notna()
-    value = measurements["value"].to_numpy(float)
+    peer = measurements["peer"]
+    ranges = (measurements["kind"] == "range").to_numpy()
+    bias = np.where(ranges, peer.map(dict(zip(anchors["id"], anchors["bias_m"]))).to_numpy(float),
+                    np.nan)
+    bias_sd = (peer.map(dict(zip(anchors["id"], anchors["bias_std_m"]))).to_numpy(float)
+               if "bias_std_m" in anchors.columns else np.zeros(len(peer)))
+    std = (measurements["std"].to_numpy(float) if "std" in measurements.columns
+           else np.zeros(len(peer)))
+    lines = measurements["line"].to_numpy() if "line" in measurements else None
+    out = measurements.copy()
+    out["value"] = corrected_ranges(measurements["value"].to_numpy(float), std, bias, bias_sd,
+                                    peer.to_numpy(),
+                                    lambda i: "" if lines is None else f"line {int(lines[i])}, ")
+    return out
+
+
+def corrected_ranges(value: np.ndarray, std: np.ndarray, bias: np.ndarray, bias_std: np.ndarray,
+                     peer: np.ndarray, where) -> np.ndarray:
+    """Values minus their anchor's ``bias_m`` (NaN: a row without one, kept), floored at 0
+    (the rule of :func:`subtract_anchor_bias`, on arrays).
+
+    Parameters
+    ----------
+    value, std, bias, bias_std : ndarray, shape (N,)
+        The rows' values and stds, their anchors' ``bias_m`` and ``bias_std_m`` (NaN: none).
+    peer : ndarray, shape (N,)
+        The rows' anchors, for the message.
+    where : callable
+        Row index to the row's name in the message (``"line 7, "``, or ``""``).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+
+    Raises
+    ------
+    InputError
+        A corrected range below 0 beyond the negative-range rule, naming the row.
+    """
     # the negative-range rule on the corrected range: the row's std and the bias's own
     # standard deviation (bias_std_m of a calibrated file) set how far below 0 it may go
-    var = np.zeros(len(value))
-    if "std" in measurements.columns:
-        var += np.nan_to_num(measurements["std"].to_numpy(float)) ** 2
-    if "bias_std_m" in anchors.columns:
-        bias_sd = measurements["peer"].map(dict(zip(anchors["id"], anchors["bias_std_m"])))
-        var += np.nan_to_num(bias_sd.to_numpy(float)) ** 2
-    b = bias.to_numpy(float)
-    floor = range_floor_m(np.sqrt(var), np.nan_to_num(b))
-    if (i := _first(is_range.to_numpy() & (value < floor))) is not None:
-        where = f"line {int(measurements['line'].iloc[i])}, " if "line" in measurements else ""
+    var = np.nan_to_num(std) ** 2 + np.nan_to_num(bias_std) ** 2
+    floor = range_floor_m(np.sqrt(var), np.nan_to_num(bias))
+    has = np.isfinite(bias)
+    if (i := _first(has & (value < floor))) is not None:
         raise InputError(
-            f"measurements: {where}column 'value': range {value[i]:g} m to anchor "
-            f"{measurements['peer'].iloc[i]!r} is below that anchor's bias_m {b[i]:g} m "
+            f"measurements: {where(i)}column 'value': range {value[i]:g} m to anchor "
+            f"{peer[i]!r} is below that anchor's bias_m {bias[i]:g} m "
             f"(corrected, a negative range beyond {NEGATIVE_RANGE_SIGMAS:g} standard "
             "deviations of the row's std and the anchor's bias_std_m): bias_m in another "
             "unit, or the wrong anchors file?")
-    out = measurements.copy()
-    out.loc[is_range, "value"] = np.maximum(value[is_range.to_numpy()] - b[is_range.to_numpy()],
-                                            0.0)
-    return out
+    return np.where(has, np.maximum(value - np.nan_to_num(bias), 0.0), value)
 
 
 def check_kinds(measurements: pd.DataFrame, used: Iterable[str], method: str) -> None:

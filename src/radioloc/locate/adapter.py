@@ -25,8 +25,8 @@ from radioloc.locate.base import Option
 from radioloc.models.measurement import Context, MeasurementModel, Observation
 
 __all__ = ["anchor_positions", "anchor_points", "moving_anchors", "clock_groups",
-           "node_observations", "log_observations", "anchor_ranges", "default_models",
-           "frame_settings", "sigma_options"]
+           "node_observations", "slot_context", "log_observations", "anchor_ranges",
+           "default_models", "frame_settings", "sigma_options"]
 
 
 def sigma_options() -> dict[str, Option]:
@@ -256,13 +256,10 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
     InputError
         A reference that is not an anchor (naming it, the node and the kind).
     """
-    moving = moving_anchors(anchors)
     no_check = frozenset(value_checks().values()) if checked else frozenset()
     declared = declared_kinds()
     own = [n for n, k in declared.items() if k.self_measured]
-    ids = list(dict.fromkeys(anchors["id"]))
-    points = None if moving else anchor_positions(anchors)
-    index = {a: i for i, a in enumerate(ids)}
+    index = set(anchors["id"])
     sel = measurements.select(kind=list(models), node=node)
     sel = Measurements(sel.frame[sel.frame["peer"].isin(index)
                                  | sel.frame["kind"].isin(own)])
@@ -270,39 +267,65 @@ def node_observations(measurements: Measurements, anchors: pd.DataFrame, node: s
     out = []
     for kind in sel.kinds:
         grid = sel.grid(kind, node, times=time)
-        if kind in own:
-            ctx = Context(points=np.zeros((len(grid.peers), 2 + ("z" in anchors.columns))),
-                          index=np.full(len(grid.peers), -1))
-            out.append(Observation(models[kind], grid.value, ctx,
-                                   std=grid.std if np.isfinite(grid.std).any() else None,
-                                   no_check=no_check))
-            continue
         for what, ids in (("peer", grid.peers), ("reference", grid.references)):
             bad = [p for p in ids if p not in index and not (what == "reference" and p == "")]
-            if bad:
+            if bad and kind not in own:
                 raise InputError(f"node {node!r}, kind {kind!r}: {what} {bad[0]!r} is not an "
                                  "anchor (this method locates from anchors only)")
-        peer_idx = np.array([index[p] for p in grid.peers], dtype=int)
-        ref_idx = (np.array([index[p] for p in grid.references], dtype=int)
-                   if declared[kind].reference else None)
-        if moving:
-            seen = np.isfinite(grid.value)
-            pts = anchor_points(anchors, grid.peers, time, seen)
-            ref = None if ref_idx is None else anchor_points(anchors, grid.references, time,
-                                                             seen)
-        else:
-            pts = points[peer_idx]
-            ref = None if ref_idx is None else points[ref_idx]
-        first = anchors.drop_duplicates("id")
-        columns = {c: first[c].to_numpy(dtype=float)[peer_idx]
-                   for c in declared[kind].anchor_columns if c in first.columns}
-        groups = getattr(models[kind], "clock_groups", 1) > 1
-        ctx = Context(points=pts, index=peer_idx, reference=ref, reference_index=ref_idx,
-                      height_m=height_m, columns=columns or None,
-                      group=clock_groups(anchors, grid.peers) if groups else None)
+        ctx = slot_context(anchors, kind, models[kind], grid.peers, grid.references, time,
+                           np.isfinite(grid.value), height_m=height_m)
         std = grid.std if np.isfinite(grid.std).any() else None
         out.append(Observation(models[kind], grid.value, ctx, std=std, no_check=no_check))
     return time, out
+
+
+def slot_context(anchors: pd.DataFrame, kind: str, model: MeasurementModel, peers, references,
+                 times: np.ndarray, seen: np.ndarray, *, height_m: float | None = None) -> Context:
+    """The context of one kind's slots (see :func:`node_observations`).
+
+    Parameters
+    ----------
+    anchors : DataFrame
+        ``id, x, y[, z]`` and the anchor-file columns ``kind`` reads.
+    kind : str
+    model : MeasurementModel
+        The kind's model (a receiver clock per anchor group when it has several).
+    peers, references : sequence of str
+        Each slot's anchor and reference anchor (``""``: none); a sensor name for a kind a
+        node measures of itself.
+    times : ndarray, shape (T,)
+        The steps (for moving anchors).
+    seen : ndarray of bool, shape (T, S)
+        Where a slot has a measurement (moving anchors need a position there only).
+    height_m : float, optional
+
+    Returns
+    -------
+    Context
+        Points ``(S, D)``, or ``(T, S, D)`` with moving anchors.
+    """
+    declared = declared_kinds()
+    if declared[kind].self_measured:
+        return Context(points=np.zeros((len(peers), 2 + ("z" in anchors.columns))),
+                       index=np.full(len(peers), -1))
+    first = anchors.drop_duplicates("id")
+    index = {a: i for i, a in enumerate(first["id"])}
+    peer_idx = np.array([index[p] for p in peers], dtype=int)
+    ref_idx = (np.array([index[p] for p in references], dtype=int)
+               if declared[kind].reference else None)
+    if moving_anchors(anchors):
+        pts = anchor_points(anchors, peers, times, seen)
+        ref = None if ref_idx is None else anchor_points(anchors, references, times, seen)
+    else:
+        points = anchor_positions(anchors)
+        pts = points[peer_idx]
+        ref = None if ref_idx is None else points[ref_idx]
+    columns = {c: first[c].to_numpy(dtype=float)[peer_idx]
+               for c in declared[kind].anchor_columns if c in first.columns}
+    groups = getattr(model, "clock_groups", 1) > 1
+    return Context(points=pts, index=peer_idx, reference=ref, reference_index=ref_idx,
+                   height_m=height_m, columns=columns or None,
+                   group=clock_groups(anchors, peers) if groups else None)
 
 
 def log_observations(log: Measurements, anchors: pd.DataFrame,

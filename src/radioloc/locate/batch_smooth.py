@@ -47,9 +47,10 @@ from radioloc.core.kinds import model_kinds
 from radioloc.locate.adapter import anchor_positions, log_observations, sigma_options
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
-from radioloc.locate.ekf_track import (log_models, motion_model, track_window,
-                                       reads_clock, segments, track_prior, track_table,
-                                       tracker_filter, tracker_settings)
+from radioloc.locate.ekf_track import (learn_tracks, log_models, motion_model, reads_clock,
+                                       segments, track_prior, track_table, track_window,
+                                       tracker_filter, tracker_settings, tuned_prior)
+from radioloc.locate.self_tuning import tuned_observations
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
 from radioloc.locate.pf import fit_residuals, node_residuals
 from radioloc.locate.progress import counted
@@ -64,8 +65,13 @@ __all__ = ["smooth_log", "OPTIONS"]
 PSEUDORANGE_LOS_FRACTION = 0.5
 PSEUDORANGE_NLOS_MEAN_M = 20.0
 
+#: The robust loss and its scale (standard deviations of each row's learned white noise) of
+#: the rows when the settings are learned (``tune=1``, the default).
+TUNED_LOSS = "huber"
+TUNED_LOSS_SCALE = 2.0
+
 #: The ``-o`` options of ``locate --method smoother``.
-OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m",
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tune",
                                        "clock_offset_std_m_per_sqrt_s", "earth_rotation",
                                        "tag_height_m", "prior_std_m",
                                        "init_s", "max_gap_s")}
@@ -115,7 +121,10 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     if s["odometry_std"] is not None:
         raise InputError("smoother: the batch smoother does not use odometry rows; remove them "
                          "or use ekf-track or pf")
-    log, opts, models = log_models(request, request.measurements, table, s)
+    learn = (request.option("tune", True, bool)
+             and bool((request.measurements["kind"] == "range").any()))
+    log, opts, models = log_models(request, request.measurements, table, s,
+                                   learn and request.option("range_std_m") is None)
     has_ranges = "range" in models
     loss = request.option("loss", "max-mixture" if has_ranges else "linear", str)
     if loss not in ("max-mixture",) + LOSSES:
@@ -138,6 +147,10 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
     nodes = [(node, sum(int(np.isfinite(o.z).sum()) for o in obs), times, obs)
              for node, times, obs in log_observations(log, table, models, "smoother",
                                                       s["height"])]
+    if learn:
+        tables, learned = _tuned(request, nodes, table, s)
+        return _finish(tables, counts_of(nodes), {"loss": request.option("loss", TUNED_LOSS, str),
+                                                  "learned": learned})
     noise = _range_noise(request, nodes, anchors, s, given) if loss == "max-mixture" else {}
     for node, _, times, obs in counted(nodes, sum(n[1] for n in nodes), lambda n: n[1],
                                        "smoother"):
@@ -172,13 +185,72 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                 raise GeometryError(f"smoother: node {node!r} from time {float(t[0])!r}: "
                                     f"{exc}") from None
             tables.append(track_table(node, t, track, restart=seg is not parts[0]))
+    return _finish(tables, counts, {"loss": loss, "range_std_m": opts["range_std_m"], **fitted})
+
+
+def _finish(tables: list, counts: dict, extra: dict) -> pd.DataFrame:
+    """The smoothed tracks of every node in one table, with the summary."""
     out = pd.concat(tables, ignore_index=True).sort_values(["time", "node"], kind="stable")
     out = out.reset_index(drop=True)
     out.attrs["summary"] = {"nodes": int(out["node"].nunique()), "steps": len(out),
                             "ranges": counts.get("range", 0), "measurements": counts,
-                            "restarts": int(out["restart"].sum()), "loss": loss,
-                            "range_std_m": opts["range_std_m"], **fitted}
+                            "restarts": int(out["restart"].sum()), **extra}
     return out
+
+
+def counts_of(nodes: list) -> dict[str, int]:
+    """Rows of each kind over the nodes' observations."""
+    counts: dict[str, int] = {}
+    for _, _, _, obs in nodes:
+        for o in obs:
+            counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
+    return counts
+
+
+def _tuned(request: LocateRequest, nodes: list, table: pd.DataFrame, s: dict
+           ) -> tuple[list, dict]:
+    """Every node's tracks smoothed with the settings learned from its rows
+    (:mod:`radioloc.locate.self_tuning`): each anchor's range offset in the model, its white
+    noise per row, its bias a constant (the offset's covariance) plus a Gauss-Markov part
+    in the state, the process noise chosen by the evidence; the rows under the robust loss
+    ``loss`` (default :data:`TUNED_LOSS`, scale ``loss_scale``, default
+    :data:`TUNED_LOSS_SCALE` standard deviations) against the outliers (NLOS) the learned
+    white noise does not cover. Returns the track tables and, by node, what was learned."""
+    anchors = anchor_positions(table)
+    given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
+    tracks = [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
+              for node, _, times, obs in nodes for seg in segments(times, s["max_gap_s"])]
+    learned = learn_tracks(request, tracks, table, s, 16.0, given)
+    loss = request.option("loss", TUNED_LOSS, str)
+    if loss not in LOSSES:
+        raise ConfigError(f"option loss: with the learned settings (tune=1) a robust loss, one "
+                          f"of {', '.join(LOSSES)}; got {loss!r}")
+    tables, previous = [], None
+    for node, times, obs in tracks:
+        lr = learned[node]
+        obs = tuned_observations(obs, lr)
+        clock = reads_clock(obs)
+        if lr.offset_m is not None:
+            bq, btau, bcov = lr.bias_settings()
+            ekf = tracker_filter(anchors, dict(s, q=lr.q), None, True, 3.0, clock, bq, btau, 2)
+        else:
+            bq, btau, bcov = 0.0, None, None
+            ekf = tracker_filter(anchors, dict(s, q=lr.q), None, False, 3.0, clock)
+        mean, cov = tuned_prior(ekf, times, obs, anchors, s, bcov)
+        layout = ekf.state_layout(obs)
+        smoother = BatchSmoother(motion_model(s["motion"], lr.q, s["dim"]), loss=loss,
+                                 loss_scale=request.option("loss_scale", TUNED_LOSS_SCALE),
+                                 bias_std_m_per_sqrt_s=bq, bias_time_constant_s=btau,
+                                 layout=layout,
+                                 **({"extra_q": s["clock_offset_q"] ** 2} if clock else {}))
+        try:
+            track = smoother.run(obs, times, prior_mean=mean, prior_cov=cov)
+        except GeometryError as exc:
+            raise GeometryError(f"smoother: node {node!r} from time {float(times[0])!r}: "
+                                f"{exc}") from None
+        tables.append(track_table(node, times, track, restart=node == previous))
+        previous = node
+    return tables, {str(n): lr.report for n, lr in learned.items()}
 
 
 def _range_noise(request: LocateRequest, nodes: list, anchors: np.ndarray, s: dict,

@@ -80,9 +80,10 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
+from radioloc.locate.self_tuning import learn_node, tuned_observations
 from radioloc.locate.health import divergence
 from radioloc.locate.slips import likely_slip
-from radioloc.locate.table import add_covariance
+from radioloc.locate.table import covariance_columns
 from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
                                          wrap_angle)
 from radioloc.models.motion import RandomWalk, WhiteAccelerationCV, WhiteJerkCA
@@ -263,6 +264,10 @@ OPTIONS = {
     "max_gap_s": Option("a gap longer than this between a node's ranges restarts its track "
                         "from a new start fix (default 5 s)", float, min=0, min_exclusive=True,
                         max=1e9),
+    "tune": Option("1 (default): learn the noise of each kind, each anchor's range offset and "
+                   "how its error wanders, and the process noise from the log, per node "
+                   "(radioloc.locate.self_tuning; an option given is used as given); 0: the "
+                   "fixed defaults", bool),
     "cooperative": Option("1: use ranges between nodes, each peer's latest estimate as a "
                           "moving anchor, its uncertainty along the line of sight added to the "
                           "range variance (default 0: such rows are left out)", bool),
@@ -419,7 +424,9 @@ def tracker_motion(s: dict):
 
 
 def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias: bool = False,
-                   bias_prior_std_m: float = 3.0, clock: bool = False) -> ExtendedKalmanFilter:
+                   bias_prior_std_m: float = 3.0, clock: bool = False,
+                   bias_std_m_per_sqrt_s=0.0, bias_time_constant_s=None,
+                   bias_terms: int = 1) -> ExtendedKalmanFilter:
     """The generic :class:`ExtendedKalmanFilter` the trackers run (motion model of ``s``).
 
     Parameters
@@ -433,6 +440,10 @@ def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias
     bias_prior_std_m : float
     clock : bool
         The receiver's clock offset and drift in the state (pseudoranges).
+    bias_std_m_per_sqrt_s, bias_time_constant_s : float or ndarray, optional
+        How the anchor biases wander (:class:`ExtendedKalmanFilter`; default constant).
+    bias_terms : {1, 2}
+        Bias states per anchor (:class:`~radioloc.models.ranging.RangeModel`).
 
     Returns
     -------
@@ -441,9 +452,12 @@ def tracker_filter(anchors: np.ndarray, s: dict, gate: float | None, anchor_bias
     dim = s["dim"]
     motion = tracker_motion(s)
     return ExtendedKalmanFilter(motion, gate=gate, bias_prior_std_m=bias_prior_std_m,
+                                bias_std_m_per_sqrt_s=bias_std_m_per_sqrt_s,
+                                bias_time_constant_s=bias_time_constant_s,
                                 layout=StateLayout(dim=dim, order=motion.state_dim // dim - 1,
                                                    clock=2 if clock else 0,
-                                                   n_bias=len(anchors) if anchor_bias else 0),
+                                                   n_bias=len(anchors) * bias_terms
+                                                   if anchor_bias else 0),
                                 clock_drift_prior_std_m_per_s=CLOCK_DRIFT_PRIOR_STD,
                                 clock_offset_std_m_per_sqrt_s=s.get("clock_offset_q", 1.0),
                                 clock_drift_std_m_per_s_per_sqrt_s=s.get("clock_drift_q", 1.0))
@@ -571,7 +585,8 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
     leave its state unchanged. The rows of each kind are the union of the tracks' slots
     (anchor, reference anchor); a slot a track does not have is absent (NaN) in it, which
     the update skips. A slot keeps its anchor-file columns (``Context.columns``). Rows of a
-    step are independent, so each track's result equals its own run.
+    step are independent and the kinds come in the order of their names (as each track's
+    own observations come), so each track's result equals its own run.
 
     Parameters
     ----------
@@ -595,7 +610,7 @@ def stack_tracks(times: list[np.ndarray], observations: list[list[Observation]]
         for o in obs:
             kinds.setdefault(o.model.kind, []).append((b, o))
     out = []
-    for members in kinds.values():
+    for _, members in sorted(kinds.items()):
         slots: dict[tuple[int, int], int] = {}
         for _, o in members:
             ctx = o.context
@@ -742,10 +757,15 @@ def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
     DataFrame
         Flags: ``gated`` (int), ``restart`` (0/1), ``p_nlos`` where known.
     """
-    out = pd.DataFrame({"time": times, "node": node})
+    return pd.DataFrame(track_columns(node, times, track, restart))
+
+
+def track_columns(node, times, track, restart: bool = False) -> dict[str, np.ndarray]:
+    """The columns of :func:`track_table`, in order (without building the table)."""
+    out = {"time": times, "node": node}
     for k, c in enumerate("xyz"[: track.position.shape[-1]]):
         out[c] = track.position[:, k]
-    out = add_covariance(out, track.covariance)
+    out.update(covariance_columns(track.covariance))
     if "gated" in track.diagnostics:
         out["gated"] = np.asarray(track.diagnostics["gated"], dtype=np.int64)
     flag = np.zeros(len(times), dtype=np.int64)
@@ -919,10 +939,14 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
     anchor_bias = bool(request.option("anchor_bias", False, bool))
+    given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
+    tune = (request.option("tune", True, bool) and s["odometry_std"] is None
+            and not request.option("cooperative", False, bool))
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
                                           meas["value"]))
-    log, opts, models = log_models(request, meas, table, s, anchor_bias)
+    log, opts, models = log_models(request, meas, table, s,
+                                   anchor_bias or (tune and "range_std_m" not in given))
     parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
              in log_observations(log, table, models, "ekf-track", s["height"])]
     tracks = []   # (node, times, observations, restart, controls) of every track
@@ -932,37 +956,62 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
                         odometry_controls(meas, node, times[seg], s["dim"]))
             tracks.append((node, times[seg], track_window(times, obs, seg, s["init_s"]), n > 0,
                            controls))
-    ekf = tracker_filter(anchors, s, gate, anchor_bias, request.option("bias_prior_std_m", 3.0),
-                         any(reads_clock(tr[2]) for tr in tracks))
-    prior_mean, prior_cov = track_priors(   # the ranges are already without range_bias_m
-        ekf, [(f"method ekf-track: node {node!r} from time {float(times[0])!r}", times, obs)
-              for node, times, obs, _, _ in tracks], anchors, dict(s, bias=0.0), anchor_bias)
+    clock = any(reads_clock(tr[2]) for tr in tracks)
+    bias_prior = request.option("bias_prior_std_m", 3.0)
     peers = (peer_ranges(meas, table["id"]) if request.option("cooperative", False, bool)
              else None)
-    coop = None
-    if peers is not None and len(peers):
-        if s["odometry_std"] is not None:
-            raise ConfigError("option cooperative: not with odometry rows")
-        coop = cooperative_batch([tr[:3] for tr in tracks], peers,
-                                 RangeModel(std_m=opts["range_std_m"]), s["dim"])
-        t, batch = coop.time, coop.observations
-    else:
-        t, batch = stack_tracks([tr[1] for tr in tracks], [tr[2] for tr in tracks])
-    controls = None
-    if s["odometry_std"] is not None:   # padded steps have zero length and no displacement
-        controls = np.zeros(t.shape + (s["dim"],))
-        for b, tr in enumerate(tracks):
-            controls[b, : tr[1].size] = tr[4]
-    rows = sum(int(np.isfinite(o.z).sum()) for o in batch)
-    if coop is not None:
-        rows += len(peers)
-    with progress(rows, "ekf-track") as bar:
-        track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov, controls=controls,
-                        smooth=s["smooth"], coupling=None if coop is None else coop.coupling,
-                        on_step=bar.advance)
+    learned = {}
+    if tune:                 # each node's settings from its own rows (locate.self_tuning)
+        learned = learn_tracks(request, [tr[:3] for tr in tracks], table, s, gate, given)
+        tracks = [(node, t, tuned_observations(o, learned[node]), r, c)
+                  for node, t, o, r, c in tracks]
+    # one filter per group of tracks that share settings: every track, or each node's
+    groups = ([[b for b, tr in enumerate(tracks) if tr[0] == node] for node in learned]
+              if learned else [list(range(len(tracks)))])
+    rows = sum(int(np.isfinite(o.z).sum()) for tr in tracks for o in tr[2])
+    results: dict[int, object] = {}
+    with progress(rows + (len(peers) if peers is not None else 0), "ekf-track") as bar:
+        for group in groups:
+            mine = [tracks[b] for b in group]
+            lr = learned.get(mine[0][0])
+            if lr is not None and lr.offset_m is not None:
+                bq, btau, bcov = lr.bias_settings()
+                ekf = tracker_filter(anchors, dict(s, q=lr.q), gate, True, bias_prior, clock,
+                                     bq, btau, bias_terms=2)
+                priors = [tuned_prior(ekf, tr[1], tr[2], anchors, s, bcov) for tr in mine]
+                prior_mean = np.stack([p[0] for p in priors])
+                prior_cov = np.stack([p[1] for p in priors])
+            else:
+                ekf = tracker_filter(anchors, dict(s, q=lr.q) if lr else s, gate, anchor_bias,
+                                     bias_prior, clock)
+                prior_mean, prior_cov = track_priors(   # ranges already without range_bias_m
+                    ekf, [(f"method ekf-track: node {node!r} from time {float(times[0])!r}",
+                           times, obs) for node, times, obs, _, _ in mine], anchors,
+                    dict(s, bias=0.0), anchor_bias)
+            coop = None
+            if peers is not None and len(peers):
+                if s["odometry_std"] is not None:
+                    raise ConfigError("option cooperative: not with odometry rows")
+                coop = cooperative_batch([tr[:3] for tr in mine], peers,
+                                         RangeModel(std_m=opts["range_std_m"]), s["dim"])
+                t, batch = coop.time, coop.observations
+            else:
+                t, batch = stack_tracks([tr[1] for tr in mine], [tr[2] for tr in mine])
+            controls = None
+            if s["odometry_std"] is not None:   # padded steps: zero length, no displacement
+                controls = np.zeros(t.shape + (s["dim"],))
+                for b, tr in enumerate(mine):
+                    controls[b, : tr[1].size] = tr[4]
+            track = ekf.run(batch, t, prior_mean=prior_mean, prior_cov=prior_cov,
+                            controls=controls, smooth=s["smooth"],
+                            coupling=None if coop is None else coop.coupling,
+                            on_step=bar.advance)
+            for k, b in enumerate(group):
+                results[b] = (track[k, :tracks[b][1].size] if coop is None
+                              else coop.track_of(track, k))
     tables, diverged = [], []
     for b, (node, times, _, restart, _) in enumerate(tracks):
-        one = track[b, :times.size] if coop is None else coop.track_of(track, b)
+        one = results[b]
         tables.append(track_table(node, times, one, restart=restart))
         sign = divergence(one, anchors, gate)
         if sign is not None:
@@ -979,4 +1028,56 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         "steps": len(out), "restarts": int(out["restart"].sum()),
         "range_std_m": opts["range_std_m"], "gate": gate or 0.0, "anchor_bias": anchor_bias,
         "odometry_std_m": s["odometry_std"], "tracks_diverged": len(diverged)}
+    if learned:
+        out.attrs["summary"]["learned"] = {str(n): lr.report for n, lr in learned.items()}
     return out, diverged, len(tables), opts
+
+
+def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: dict,
+                 gate: float | None, given: dict) -> dict:
+    """Each node's settings learned from its own tracks (:func:`learn_node`, with the
+    trackers' filter and start).
+
+    Parameters
+    ----------
+    request : LocateRequest
+    tracks : list of (node, times (T,), observations)
+    table : DataFrame
+        The anchors table.
+    s : dict
+        From :func:`tracker_settings`.
+    gate : float or None
+    given : dict
+        The sigma options given.
+
+    Returns
+    -------
+    dict of node to Learned
+    """
+    anchors = anchor_positions(table)
+    ids = [str(a) for a in table["id"]]
+    clock = any(reads_clock(tr[2]) for tr in tracks)
+    bias_prior = request.option("bias_prior_std_m", 3.0)
+    out = {}
+    for node in dict.fromkeys(tr[0] for tr in tracks):
+        mine = [(tr[1], tr[2]) for tr in tracks if tr[0] == node]
+        out[node] = learn_node(
+            node, mine,
+            lambda q, bs, tau, terms: tracker_filter(anchors, dict(s, q=q), gate, True,
+                                                     bias_prior, clock, bs, tau, terms),
+            lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
+            s["q"], ids, s["dim"], q_given=request.option("q") is not None)
+    return out
+
+
+def tuned_prior(ekf, times, observations, anchors, s, bias_cov):
+    """:func:`track_prior` of a self-tuned track, with its covariance: ``bias_cov`` None, the
+    anchor biases about a common offset (the start's fit); else about 0 (the learned offsets
+    are in the range model) with covariance ``bias_cov``."""
+    mean, var = track_prior(ekf, times, observations, anchors, dict(s, bias=0.0), True)
+    cov = np.diag(var)
+    sl = ekf.state_layout(observations).slices.get("anchor_bias")
+    if bias_cov is not None and sl is not None:
+        mean[sl] = 0.0
+        cov[sl, sl] = bias_cov
+    return mean, cov

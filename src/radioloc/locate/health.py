@@ -51,6 +51,7 @@ from radioloc.core.errors import RadiolocError
 from radioloc.core.kinds import model_kinds
 from radioloc.estimators.fault_exclusion import chi2_quantile
 from radioloc.locate.adapter import default_models, moving_anchors, node_observations
+from radioloc.locate.self_tuning import learned_noise
 from radioloc.locate.slips import slip_scale, slips
 from radioloc.locate.table import add_covariance, covariance_of
 
@@ -238,22 +239,21 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     for it in range(ITERATIONS + 1):
         info = np.zeros((n_w, dim, dim))
         grad = np.zeros((n_w, dim))
-        es = []
+        es, jacs = [], []
         pos = rows.positions + d[rows.window]
         for o, sig in zip(obs, rows.sigma):
             with np.errstate(all="ignore"):
                 zhat, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
             e = o.model.residual(o.z, zhat) / sig
             es.append(e)
+            jacs.append(jac["position"])
         pooled = np.concatenate([e[np.isfinite(e)] for e in es])
         dof = pooled.size / max(pooled.size - n_w * dim, 1)      # the fit took n_w * dim
         scale = max(_robust_scale(pooled) * math.sqrt(dof), 1e-9) if pooled.size else 1.0
         if it == ITERATIONS:
             break
-        for o, sig, e in zip(obs, rows.sigma, es):
-            with np.errstate(all="ignore"):
-                _, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
-            J = jac["position"] / sig[..., None]                       # (T, S, D)
+        for sig, e, jac in zip(rows.sigma, es, jacs):
+            J = jac / sig[..., None]                                   # (T, S, D)
             ok = np.isfinite(e) & np.all(np.isfinite(J), -1)
             u = np.abs(e) / scale
             if it < ITERATIONS // 2:             # Huber from the track, then Tukey's biweight
@@ -265,7 +265,8 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
             ez = np.where(ok, e, 0.0)
             np.add.at(info, rows.window, np.einsum("tsi,tsj->tij", Jw, np.where(ok[..., None], J, 0.0)))
             np.add.at(grad, rows.window, np.einsum("tsi,ts->ti", Jw, ez))
-        good = np.linalg.cond(info) < 1e10
+        lam = np.linalg.eigvalsh(info)          # symmetric: cond < 1e10, a third of the time
+        good = lam[:, 0] > 1e-10 * lam[:, -1]
         safe = np.where(good[:, None, None], info, np.eye(dim))
         step = np.where(good[:, None], np.linalg.solve(safe, grad[..., None])[..., 0], 0.0)
         norm = np.linalg.norm(step, axis=1, keepdims=True)
@@ -275,15 +276,21 @@ def window_fit(rows: _Rows, observations=None, start: np.ndarray | None = None):
     return d, cov, es, scale
 
 
-def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Rows | None:
-    """The node's checked observations and its track at their steps (None: nothing to check)."""
+def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict,
+               learned: dict | None = None) -> _Rows | None:
+    """The node's checked observations and its track at their steps (None: nothing to check).
+    With what the method learned of the node's noise (``learned``, its ``summary.json``
+    entry: :mod:`radioloc.locate.self_tuning`), each anchor's ranges less its learned offset,
+    against their learned spread, and the other kinds against their learned sigma."""
     from radioloc.io.measurements import Measurements
 
     meas = request.measurements
-    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"])]
+    kinds = [k for k in CHECKED_KINDS if k in set(meas["kind"].unique())]
     if not kinds or request.anchors is None:
         return None
     options = {name: value for value, name, _ in sigmas.values()}
+    if learned:
+        options.update({name: learned[name] for _, name, _ in sigmas.values() if name in learned})
     models = default_models(kinds, options)
     own = meas[(meas["node"] == node) & meas["kind"].isin(kinds)]
     height = request.option("tag_height_m")
@@ -301,7 +308,8 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
     t_out = out_node["time"].to_numpy(dtype=float)
     xyz = out_node[cols].to_numpy(dtype=float)
     pos = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
-    obs = _unbiased(request, obs, pos)
+    ids = list(dict.fromkeys(request.anchors["id"]))
+    obs = _unbiased(request, obs, pos) if not learned else learned_noise(obs, learned, ids)
     sigma = []
     for o in obs:
         base = np.broadcast_to(o.model.std(o.context), o.z.shape)
@@ -317,7 +325,7 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict) -> _Row
         count += n
     if count < WINDOW_ROWS // 2 and w > 0 and not window_alone:   # a short last window
         window[window == w] = w - 1
-    return _Rows(obs, times, pos, window, sigma, list(dict.fromkeys(request.anchors["id"])))
+    return _Rows(obs, times, pos, window, sigma, ids)
 
 
 def _unbiased(request, obs: list, pos: np.ndarray) -> list:
@@ -385,7 +393,8 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
         parts = []
         for node, idx in out.groupby("node", sort=False).indices.items():
             own = out.iloc[idx].sort_values("time", kind="stable")
-            rows = _node_rows(request, own, node, sigmas)
+            rows = _node_rows(request, own, node, sigmas,
+                              summary.get("learned", {}).get(str(node)))
             if rows is None:
                 parts.append(own)
                 continue
@@ -415,7 +424,7 @@ def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -
     if not blamed:
         return
     scale = max(scales[f.node] for f in blamed)
-    kinds = set(request.measurements["kind"])
+    kinds = set(request.measurements["kind"].unique())
     tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
              if kind in kinds and stated and name in options}
     if not tried:

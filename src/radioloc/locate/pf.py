@@ -880,8 +880,8 @@ def _filter(group: list[Segment], anchors, s, outputs, opts, bar) -> tuple[list[
             np.trace(state.covariance[:, :2, :2], axis1=-2, axis2=-1)
         used = state.links >= 0
         if used.any():   # the largest NLOS probability among the ranges used
-            p_nlos[:, k] = np.max(np.where(used, 1.0 - state.link_los.mean(axis=-2), 0.0),
-                                  axis=-1)
+            los = np.einsum("bkl->bl", state.link_los) / K   # the mean over the particles
+            p_nlos[:, k] = np.max(np.where(used, 1.0 - los, 0.0), axis=-1)
         if keep:
             history.append(state.particles)
             ancestors.append(state.ancestors)

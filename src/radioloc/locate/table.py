@@ -30,9 +30,14 @@ def add_covariance(frame: pd.DataFrame, covariance: np.ndarray) -> pd.DataFrame:
     DataFrame
         A copy with the new columns.
     """
+    return frame.assign(**covariance_columns(covariance))
+
+
+def covariance_columns(covariance: np.ndarray) -> dict[str, np.ndarray]:
+    """``uncertainty_m`` and the covariance columns of ``covariance`` ``(N, D, D)`` (m^2),
+    in the table's order."""
     cov = np.asarray(covariance, dtype=float)
-    out = frame.copy()
-    out["uncertainty_m"] = np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    out = {"uncertainty_m": np.sqrt(np.trace(cov, axis1=-2, axis2=-1))}
     for name in COVARIANCE_COLUMNS[cov.shape[-1]]:
         i, j = _INDEX[name]
         out[name] = cov[:, i, j]

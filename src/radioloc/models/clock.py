@@ -183,12 +183,20 @@ def drifting(layout: StateLayout, given: StateLayout) -> StateLayout:
 
 
 def transition(layout: StateLayout, motion, dt: float | np.ndarray,
-               clock: ClockModel | None = None, bias_std_m_per_sqrt_s: float = 0.0
+               clock: ClockModel | None = None,
+               bias_std_m_per_sqrt_s: float | np.ndarray = 0.0,
+               bias_time_constant_s: float | np.ndarray | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
     """``F`` and ``Q`` ``(..., n, n)`` of a whole :class:`StateLayout` state over ``dt``:
-    block-diagonal motion, clock, constant inter-system clock biases and random-walk anchor
-    biases; the one transition of the extended Kalman filter, the batch smoother and the
-    simulator.
+    block-diagonal motion, clock, constant inter-system clock biases and anchor biases that
+    wander (a random walk, or a first-order Gauss-Markov process with a time constant); the
+    one transition of the extended Kalman filter, the batch smoother and the simulator.
+
+    An anchor bias driven by white noise of intensity ``q^2`` (``q`` =
+    ``bias_std_m_per_sqrt_s``) with time constant ``tau`` decays by ``a = exp(-dt / tau)``
+    and gains variance ``q^2 tau / 2 (1 - a^2)`` over ``dt`` (its stationary standard
+    deviation is ``q sqrt(tau / 2)``); as ``tau`` grows this tends to the random walk,
+    ``F = 1`` and ``Q = q^2 dt``.
 
     Parameters
     ----------
@@ -202,9 +210,13 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
         Seconds.
     clock : ClockModel, optional
         Needed when the layout holds a clock; its ``terms`` must equal ``layout.clock``.
-    bias_std_m_per_sqrt_s : float
-        Random walk of each anchor bias: its standard deviation grows by this over one
-        second (0: constant biases).
+    bias_std_m_per_sqrt_s : float or ndarray, shape (..., A)
+        Intensity of the white noise driving each anchor bias: a random walk's standard
+        deviation grows by this over one second (0: constant biases). One value, or one per
+        anchor (and per member of the batch).
+    bias_time_constant_s : float or ndarray, shape (..., A), optional
+        Time constant of each anchor bias (a Gauss-Markov process reverting to 0); None or
+        ``inf``: a random walk.
 
     Returns
     -------
@@ -234,5 +246,35 @@ def transition(layout: StateLayout, motion, dt: float | np.ndarray,
     # clock_bias (layout.n_clock_bias): constants, F = I and Q = 0 as initialised
     if layout.n_bias:
         b = np.arange(layout.slices["anchor_bias"].start, layout.slices["anchor_bias"].stop)
-        Q[..., b, b] = (bias_std_m_per_sqrt_s ** 2 * d)[..., None]
+        F[..., b, b], Q[..., b, b] = bias_transition(d, bias_std_m_per_sqrt_s,
+                                                     bias_time_constant_s)
     return F, Q
+
+
+def bias_transition(dt: np.ndarray, q: float | np.ndarray,
+                    tau: float | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Decay ``a`` and added variance of each anchor bias over ``dt`` (see
+    :func:`transition`), shape ``dt.shape + (A,)`` (``(..., 1)`` for scalar settings).
+
+    Parameters
+    ----------
+    dt : ndarray, shape (...)
+        Seconds.
+    q : float or ndarray, shape (..., A)
+        Driving-noise intensity, m/sqrt(s).
+    tau : float or ndarray, shape (..., A), optional
+        Time constants, s (None or inf: random walk).
+
+    Returns
+    -------
+    a, var : ndarray
+    """
+    d = np.asarray(dt, dtype=float)[..., None]
+    q2 = np.asarray(q, dtype=float) ** 2
+    if tau is None:
+        return np.ones_like(d), q2 * d
+    tau = np.asarray(tau, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        a = np.exp(-d / tau)
+        var = np.where(np.isfinite(tau), q2 * tau / 2 * -np.expm1(-2 * d / tau), q2 * d)
+    return np.where(np.isfinite(tau), a, 1.0), var

@@ -94,7 +94,8 @@ class StateLayout:
     clock : int
         Receiver clock terms: 0 none, 1 offset, 2 offset and drift (metres, m/s).
     n_bias : int
-        Per-anchor range biases (metres), one per anchor of the anchor table.
+        Per-anchor range biases (metres), one per anchor of the anchor table (two with
+        :class:`~radioloc.models.ranging.RangeModel`'s ``bias_terms=2``).
     n_clock_bias : int
         Inter-system biases (metres): the receiver clocks beyond the first (one per
         constellation of a GNSS receiver), each ahead of ``clock_offset`` by its bias.
@@ -178,7 +179,8 @@ class StateLayout:
         reads = set(model.reads)
         clock = max(self.clock, 2 if "clock_drift" in reads else 1 if "clock_offset" in reads else 0)
         order = max(self.order, 2 if "acceleration" in reads else 1 if "velocity" in reads else 0)
-        n_bias = max(self.n_bias, int(n_anchors) if "anchor_bias" in reads else 0)
+        n_bias = max(self.n_bias, int(n_anchors) * getattr(model, "bias_terms", 1)
+                     if "anchor_bias" in reads else 0)
         n_clock_bias = max(self.n_clock_bias, getattr(model, "clock_groups", 1) - 1
                            if "clock_bias" in reads else 0)
         return replace(self, clock=clock, order=order, n_bias=n_bias, n_clock_bias=n_clock_bias)

@@ -138,7 +138,8 @@ class GaussianRange:
 
 @dataclass(frozen=True)
 class RangeModel(MeasurementModel):
-    """Range (time of arrival, two-way ranging, RTT) to a known point: ``h(x) = |x - a| (+ b_a)``.
+    """Range (time of arrival, two-way ranging, RTT) to a known point:
+    ``h(x) = |x - a| (+ o_a) (+ b_a)``.
 
     The measurement function of every range estimator; the error distribution is a noise
     model (:class:`GaussianRange`, or the LOS/NLOS mixture
@@ -155,6 +156,13 @@ class RangeModel(MeasurementModel):
     anchor_bias : bool
         Whether each anchor adds an unknown constant ``b_a`` (antenna delay, RTT offset):
         the model then reads the ``anchor_bias`` state component.
+    offset_m : tuple of float, optional
+        A known offset ``o_a`` of each anchor's ranges (by row of the anchor table), metres:
+        e.g. the biases learned from a log (:mod:`radioloc.locate.self_tuning`).
+    bias_terms : {1, 2}
+        With ``anchor_bias``: one bias state per anchor, or two (``b_a = c_a + w_a``: a
+        constant and a part that wanders, e.g. a Gauss-Markov process; the state's
+        ``anchor_bias`` holds the ``A`` constants, then the ``A`` wandering parts).
 
     Examples
     --------
@@ -170,17 +178,28 @@ class RangeModel(MeasurementModel):
     std_m: float | None = None
     noise: object | None = None
     anchor_bias: bool = False
+    offset_m: tuple[float, ...] | None = None
+    bias_terms: int = 1
 
     kind: ClassVar[str] = "range"
 
     def __post_init__(self) -> None:
-        if (self.std_m is None) == (self.noise is None):
+        copied = (self.std_m is not None and isinstance(self.noise, GaussianRange)
+                  and self.noise.std_m == self.std_m)       # dataclasses.replace of a model
+        if (self.std_m is None) == (self.noise is None) and not copied:
             raise InputError("RangeModel: give exactly one of std_m and noise")
         if self.noise is None:
             object.__setattr__(self, "noise", GaussianRange(self.std_m))
         if not hasattr(self.noise, "moments") or not hasattr(self.noise, "logpdf"):
             raise InputError(f"noise: expected a range-error model with moments() and logpdf(), "
                              f"got {type(self.noise).__name__}")
+        if self.offset_m is not None:
+            off = np.asarray(self.offset_m, dtype=float)
+            if off.ndim != 1 or not np.all(np.isfinite(off)):
+                raise InputError("offset_m: expected one finite offset (m) per anchor")
+            object.__setattr__(self, "offset_m", tuple(float(v) for v in off))
+        if self.bias_terms not in (1, 2):
+            raise InputError(f"bias_terms: must be 1 or 2, got {self.bias_terms!r}")
 
     @property
     def reads(self) -> tuple[str, ...]:  # type: ignore[override]
@@ -202,12 +221,18 @@ class RangeModel(MeasurementModel):
         return self.noise.chain.stationary if self.modes > 1 else np.ones(1)
 
     def _bias_of(self, state, context: Context) -> np.ndarray | float:
-        if not self.anchor_bias:
+        if not self.anchor_bias and self.offset_m is None:
             return 0.0
         if context.index is None or np.any(context.index < 0):
-            raise InputError("context.index: a range model with anchor bias needs the anchor "
-                             "table row of every measurement")
-        return np.take(state["anchor_bias"], context.index, axis=-1)
+            raise InputError("context.index: a range model with anchor bias or offsets needs "
+                             "the anchor table row of every measurement")
+        out = 0.0 if self.offset_m is None else np.asarray(self.offset_m)[context.index]
+        if self.anchor_bias:
+            b = state["anchor_bias"]
+            n = np.shape(b)[-1] // self.bias_terms
+            for k in range(self.bias_terms):
+                out = out + np.take(b, context.index + k * n, axis=-1)
+        return out
 
     def predict(self, state, context: Context) -> np.ndarray:
         # without the Jacobian: a particle filter predicts for every particle
@@ -223,7 +248,8 @@ class RangeModel(MeasurementModel):
         out = {"position": u}
         if self.anchor_bias:
             n_bias = np.shape(state["anchor_bias"])[-1]
-            onehot = (context.index[:, None] == np.arange(n_bias)).astype(float)
+            onehot = (context.index[:, None] % (n_bias // self.bias_terms)
+                      == np.arange(n_bias) % (n_bias // self.bias_terms)).astype(float)
             out["anchor_bias"] = np.broadcast_to(onehot, u.shape[:-1] + (n_bias,))
         return d + self._bias_of(state, context), out
 
@@ -243,9 +269,27 @@ class RangeModel(MeasurementModel):
         """
         return float(self.noise.moments()[0])
 
-    def logpdf(self, z, state, context: Context) -> np.ndarray:
+    def checked(self, z, state, context: Context) -> np.ndarray:
+        """``z`` checked as :meth:`logpdf` checks it: real numbers of the rows' shape, no
+        range below its floor (:func:`~radioloc.core.validation.check_ranges`).
+
+        Parameters
+        ----------
+        z : array_like, shape (..., m)
+        state : dict
+            Named components of a batch of states.
+        context : Context
+
+        Returns
+        -------
+        ndarray
+            ``z`` as float64.
+        """
         z = checked_call(z, state, context, self.reads)
-        check_ranges(z, "z", self.row_std(range_noise_std(self), context))
+        return check_ranges(z, "z", self.row_std(range_noise_std(self), context))
+
+    def logpdf(self, z, state, context: Context) -> np.ndarray:
+        z = self.checked(z, state, context)
         if context.std is not None or isinstance(self.noise, GaussianRange):
             return super().logpdf(z, state, context)
         lp = self.noise.logpdf(z, self.predict(state, context))
