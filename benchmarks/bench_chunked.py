@@ -1,7 +1,8 @@
 """Peak memory and throughput of ``radioloc locate`` on long logs read in chunks.
 
-Rows, for ``ekf-track``, ``lsq`` and ``gn`` (``lsq`` and ``gn`` with ``-o on_degenerate=skip``:
-the log has a few epochs that do not fix a position) on a log of :mod:`long_log` (10 tags,
+Rows, for ``ekf-track`` (``-o tune=0``: its default learns from the whole log), ``lsq`` and
+``gn`` (``lsq`` and ``gn`` with ``-o on_degenerate=skip``: the log has a few epochs that do not
+fix a position) on a log of :mod:`long_log` (10 tags,
 6 anchors) written to a CSV file, each command in a process of its own:
 
 - peak resident memory (MB, the process's ``ru_maxrss``) of the chunked run (the default
@@ -76,7 +77,8 @@ def main(sizes: tuple[int, ...] = (1_000_000,)) -> list[dict]:
             folder = tmp / f"log{n}"
             write_long_log(n, folder)
             for method in METHODS:
-                extra = ["-q"] + ([] if method == "ekf-track" else ["-o", "on_degenerate=skip"])
+                extra = ["-q", "-o"] + (["tune=0"] if method == "ekf-track"   # the chunked path
+                                        else ["on_degenerate=skip"])
                 peak_of_command(_locate(small, method, tmp / "warm.csv", extra), env)
                 chunked = peak_of_command(_locate(folder, method, tmp / "c.csv", extra), env)
                 whole = (peak_of_command(_locate(folder, method, tmp / "w.csv",

@@ -18,6 +18,8 @@ from radioloc.locate.chunked import merge_summaries
 runner = CliRunner()
 #: The log has a few epochs that hear three anchors on one line.
 SKIP = ("-o", "on_degenerate=skip")
+#: ekf-track at its fixed defaults: the settings learned from the log (tune=1) need all of it
+FIXED = ("-o", "tune=0")
 
 ANCHORS = np.array([[0.0, 0.0], [30.0, 0.0], [30.0, 20.0], [0.0, 20.0], [15.0, 10.0]])
 
@@ -74,7 +76,7 @@ def _assert_same(whole: pd.DataFrame, chunked: pd.DataFrame, rtol: float) -> Non
 
 
 @pytest.mark.parametrize("method, chunk_rows, extra, rtol", [
-    ("ekf-track", 97, (), 1e-9), ("ekf-track", 7, ("-o", "range_std_m=0.3"), 1e-9),
+    ("ekf-track", 97, FIXED, 1e-9), ("ekf-track", 7, FIXED + ("-o", "range_std_m=0.3"), 1e-9),
     ("lsq", 97, SKIP, 1e-9), ("gn", 500, SKIP, 1e-12)])
 def test_chunked_run_equals_the_whole_run(files, tmp_path, method, chunk_rows, extra, rtol):
     """Chunks of 7 rows split the tracks' start windows and every epoch; their noise is
@@ -108,10 +110,19 @@ def test_chunked_parquet_input_equals_the_whole_run(files, tmp_path):
     meas, anchors = files
     log = tmp_path / "m.parquet"
     pd.read_csv(meas, dtype={"node": str}).to_parquet(log, index=False)
-    whole, _ = _run(log, anchors, "ekf-track", tmp_path / "whole.csv", 0)
-    chunked, summary = _run(log, anchors, "ekf-track", tmp_path / "chunked.csv", 300)
+    whole, _ = _run(log, anchors, "ekf-track", tmp_path / "whole.csv", 0, *FIXED)
+    chunked, summary = _run(log, anchors, "ekf-track", tmp_path / "chunked.csv", 300, *FIXED)
     assert summary["chunks"] > 1
     _assert_same(whole, chunked, 1e-9)
+
+
+def test_ekf_track_learning_from_the_log_runs_the_whole_log(files, tmp_path):
+    """The default ``tune=1`` learns its settings from the whole log: no chunks."""
+    meas, anchors = files
+    whole, _ = _run(meas, anchors, "ekf-track", tmp_path / "whole.csv", 0)
+    again, summary = _run(meas, anchors, "ekf-track", tmp_path / "again.csv", 97)
+    assert "chunks" not in summary
+    _assert_same(whole, again, 1e-9)
 
 
 def test_rows_out_of_time_order_give_way_to_the_whole_run(files, tmp_path):
@@ -120,8 +131,8 @@ def test_rows_out_of_time_order_give_way_to_the_whole_run(files, tmp_path):
     log = pd.read_csv(meas, dtype={"node": str})
     shuffled = tmp_path / "shuffled.csv"
     log.sample(frac=1.0, random_state=1).to_csv(shuffled, index=False)
-    whole, _ = _run(meas, anchors, "ekf-track", tmp_path / "whole.csv", 0)
-    again, summary = _run(shuffled, anchors, "ekf-track", tmp_path / "again.csv", 97)
+    whole, _ = _run(meas, anchors, "ekf-track", tmp_path / "whole.csv", 0, *FIXED)
+    again, summary = _run(shuffled, anchors, "ekf-track", tmp_path / "again.csv", 97, *FIXED)
     assert "chunks" not in summary
     _assert_same(whole, again, 1e-9)
 

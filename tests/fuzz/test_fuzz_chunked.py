@@ -17,7 +17,7 @@ from fuzz_harness import FUZZ, TALLY, mutated_rows, read_output, render, run
 
 #: (scenario, method, options)
 CASES = [("gn", "gn", {}), ("gn3", "gn", {"on_degenerate": "skip"}), ("gn", "lsq", {}),
-         ("ekf-track", "ekf-track", {})]
+         ("ekf-track", "ekf-track", {"tune": "0"})]
 
 
 def _outcome(args: list[str], out):

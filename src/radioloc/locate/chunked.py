@@ -64,10 +64,13 @@ CHUNK_ROWS = 200_000
 CHUNKED_METHODS = ("ekf-track", "lsq", "gn")
 #: Distinct warnings of the chunks shown (the others are counted in one more).
 MAX_WARNINGS = 10
-#: Options of each method that need the whole log at once (when on): the smoother and the
-#: cooperative tracks of ``ekf-track``; ``gn``'s fault exclusion without a stated noise,
-#: whose test takes its sigma from the fixes of the whole log.
-WHOLE_LOG_OPTIONS = {"ekf-track": ("smooth", "cooperative"), "gn": ("exclude_faults",)}
+#: Options of each method that need the whole log at once when on (with their defaults):
+#: the smoother, the cooperative tracks and the settings learned from the log (``tune``, on
+#: by default: ``-o tune=0`` runs ``ekf-track`` in chunks) of ``ekf-track``; ``gn``'s fault
+#: exclusion without a stated noise, whose test takes its sigma from the fixes of the whole
+#: log.
+WHOLE_LOG_OPTIONS = {"ekf-track": {"smooth": "0", "cooperative": "0", "tune": "1"},
+                     "gn": {"exclude_faults": "0"}}
 
 
 _END = object()
@@ -266,8 +269,9 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
             or str(out) == "-" or (Path(out).exists() and not Path(out).is_file())):
         return None
     stated = {"std_m", "range_std_m"} & set(opts)
-    if any(str(opts.get(k, "0")).strip().lower() not in ("0", "false", "no", "off")
-           for k in WHOLE_LOG_OPTIONS.get(method_name, ()) if not (method_name == "gn" and stated)):
+    if any(str(opts.get(k, default)).strip().lower() not in ("0", "false", "no", "off")
+           for k, default in WHOLE_LOG_OPTIONS.get(method_name, {}).items()
+           if not (method_name == "gn" and stated)):
         return None
     try:
         pooled = None
