@@ -170,3 +170,9 @@ def describe(target: dict) -> str:
     if "ratio" in target:
         parts.append(f">= {target['ratio']:g}x")
     return ", ".join(parts)
+
+# radioloc locate on a 1e7-row log read in chunks: peak memory of the command, MB
+# (bench_chunked.py)
+for _method in ("ekf-track", "lsq", "gn"):
+    TARGETS[(f"radioloc locate {_method} --chunk-rows 200000, 1e+07-row log (10 tags, 6 "
+             "anchors): peak memory", None)] = {"at_most": 1024.0}

@@ -327,6 +327,7 @@ def locate(
     idle_s: Annotated[Optional[float], typer.Option("--idle-s", help="With --follow: also process the rows held once the input has been idle this many seconds (default: only once a later time has come); a row of a time processed so that comes after is late.")] = None,
     frame: Annotated[Optional[str], typer.Option("--frame", help="Frame of the anchors (and reference) coordinates when their file has no 'frame' column: local (default), ecef, or wgs84 (x longitude, y latitude in degrees, z height in m).")] = None,
     origin: Annotated[Optional[str], typer.Option("--origin", help="lat,lon[,h]: work and write in the east-north-up frame at this point (a local frame is then taken as that ENU frame; ecef or wgs84 anchors are converted to it).")] = None,
+    chunk_rows: Annotated[int, typer.Option("--chunk-rows", min=0, help="ekf-track, lsq and gn on a long log (a CSV file sorted by time) written to --out (CSV or Parquet): read, estimate and write this many rows at a time, so that memory does not grow with the log (0: the whole log at once). The health and plausibility checks then judge each chunk on its own rows.")] = 200_000,
 ) -> None:
     """Apply an estimator to your own measurement log.
 
@@ -340,8 +341,6 @@ def locate(
     has a place on the Earth, the columns lat, lon, height (WGS84) follow, and GeoJSON is
     written in longitude, latitude (RFC 7946).
     """
-    import json
-
     from radioloc.core.atomic import check_outputs
     from radioloc.io.logs import (read_anchors, read_measurements, read_reference,
                                   subtract_anchor_bias)
@@ -396,13 +395,27 @@ def locate(
             nd = None if nd is None else float(nd)
         except ValueError:
             raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
-        meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
-                                                      not_detected=nd), anchor_table)
-        request = LocateRequest(meas, anchor_table, priors, calibration, opts, frame=work)
-        with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
-            estimates = run_method(method, request)
+        chunked = None
+        if chunk_rows and plot is None and reference is None and priors is None \
+                and calibration is None:
+            from radioloc.locate.chunked import locate_in_chunks
+
+            with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
+                chunked = locate_in_chunks(method, measurements, anchor_table, opts, work, out,
+                                           fmt, chunk_rows, nd)
+        if chunked is None:
+            meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
+                                                          not_detected=nd), anchor_table)
+            request = LocateRequest(meas, anchor_table, priors, calibration, opts, frame=work)
+            with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
+                estimates = run_method(method, request)
         for w in warned:                    # shown as usual, counted for --strict
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        if chunked is not None:
+            _finish_locate({"method": method, "options": dict(sorted(opts.items())),
+                            "measurements": str(measurements), **chunked}, summary_file,
+                           [out], warned, strict)
+            return
         estimates = with_geodetic(estimates, work)
         errors = None if ref_table is None else reference_errors(
             *horizontal_at_start(estimates, ref_table, work))
@@ -424,12 +437,21 @@ def locate(
                     title=f"radioloc locate --method {method}: {Path(measurements).name}",
                     summary=summary)
         written.append(plot)
+    _finish_locate(summary, summary_file, written, warned, strict, plot is not None)
+
+
+def _finish_locate(summary: dict, summary_file: Path | None, written: list, warned: list,
+                   strict: bool, plotted: bool = False) -> None:
+    """The end of ``locate``: the summary file written (before the figure in ``written``,
+    the files written, listed), and ``--strict`` applied to the warnings."""
+    import json
+
     if summary_file is not None:
         text = json.dumps(summary, indent=1, default=_json_default) + "\n"
         from radioloc.core.atomic import atomic_write_with
 
         atomic_write_with(summary_file, lambda f: f.write(text))
-        written.insert(len(written) - (plot is not None), summary_file)
+        written.insert(len(written) - plotted, summary_file)
     for path in written:
         _echo_err(f"wrote {path}")
     if strict and warned:

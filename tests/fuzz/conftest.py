@@ -3,6 +3,7 @@
 Profiles (environment variable ``RADIOLOC_FUZZ_PROFILE``): ``fast`` (default, part of
 ``make test``: a few seconds, derandomized so that it is reproducible) and ``long``
 (``make fuzz``: >= 10,000 generated cases over the tests of this folder).
+``RADIOLOC_FUZZ_EXAMPLES=N`` sets the cases per test in place of the profile's.
 """
 
 from __future__ import annotations

@@ -51,6 +51,8 @@ settings.register_profile(
                            HealthCheck.data_too_large, HealthCheck.function_scoped_fixture])
 PROFILE = os.environ.get("RADIOLOC_FUZZ_PROFILE", "fast")
 FUZZ = settings.get_profile(f"radioloc-fuzz-{PROFILE}")
+if os.environ.get("RADIOLOC_FUZZ_EXAMPLES"):   # cases per test, in place of the profile's
+    FUZZ = settings(FUZZ, max_examples=int(os.environ["RADIOLOC_FUZZ_EXAMPLES"]))
 
 runner = CliRunner()
 TALLY: Counter = Counter()

@@ -31,7 +31,7 @@ import urllib.request
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import pandas as pd
@@ -546,8 +546,24 @@ def read_table_text(path: Path | str) -> pd.DataFrame:
         frame = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises its own error types
         raise InputError(f"{path}: not a readable Parquet file ({str(exc).strip()})") from None
+    return _text_cells(frame)
+
+
+def _text_cells(frame: pd.DataFrame) -> pd.DataFrame:
+    """Every cell of ``frame`` as ``str`` (missing cells as ``""``)."""
     return frame.apply(lambda c: c.map(lambda v: "" if v is None or (isinstance(v, float)
                                                                      and np.isnan(v)) else str(v)))
+
+
+def parquet_text_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame]:
+    """The rows of the Parquet file ``path`` as :func:`read_table_text` gives them, read
+    ``rows`` at a time (one batch at a time): a DataFrame of text cells each."""
+    _need_pyarrow()
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    for batch in pq.ParquetFile(path).iter_batches(batch_size=rows):
+        yield _text_cells(pa.Table.from_batches([batch]).to_pandas())
 
 
 def write_table(frame: pd.DataFrame, path: Path | str) -> Path:

@@ -55,6 +55,7 @@ from __future__ import annotations
 import codecs
 import csv
 import io
+import itertools
 import os
 import re
 import sys
@@ -131,6 +132,12 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
         data = _table_bytes(path)
     except (OSError, InputError):
         return None
+    return plain_cells(data, preserve_case)
+
+
+def plain_cells(data: bytes, preserve_case: bool = False) -> pd.DataFrame | None:
+    """The text cells of a plain CSV (see :func:`_read_plain_csv`) in UTF-8 ``data``, with
+    ``attrs["lines"]`` counted from line 2; None when ``data`` is not plain."""
     if b'"' in data or not data or data[:1] in (b"\r", b"\n"):
         return None
     if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
@@ -157,6 +164,63 @@ def _read_plain_csv(path: Path, preserve_case: bool) -> pd.DataFrame | None:
     frame = frame.astype(str)
     frame.attrs["lines"] = np.arange(2, len(frame) + 2)
     return frame
+
+
+def measurement_blocks(path: Path | str, rows: int) -> Iterator[pd.DataFrame | None]:
+    """The text cells of a plain CSV file (:func:`plain_cells`) in blocks of ``rows`` lines,
+    read one block at a time (a Parquet file: a batch of ``rows`` rows at a time, its cells
+    as the whole file's reader writes them as CSV); ``attrs["lines"]`` holds each row's
+    file line.
+
+    Parameters
+    ----------
+    path : path
+    rows : int
+
+    Yields
+    ------
+    DataFrame or None
+        None (and nothing more) where the file, or a block of it, is not plain (a quote
+        character, a blank line, a byte-order mark, bytes that are not UTF-8, ...): such a
+        file is read whole by :func:`read_measurements`.
+    """
+    parquet = Path(path).suffix.lower() == ".parquet"
+    done = 0
+    for data, count in (_parquet_data if parquet else _csv_data)(path, rows):
+        try:
+            frame = None if data is None else plain_cells(data)
+        except UnicodeDecodeError:
+            frame = None
+        if frame is None or len(frame) != count:
+            yield None
+            return
+        frame.attrs["lines"] = frame.attrs["lines"] + done
+        done += count
+        yield frame
+
+
+def _csv_data(path: Path | str, rows: int) -> Iterator[tuple[bytes | None, int]]:
+    """The header and the next ``rows`` lines of a CSV file, as bytes, and their count
+    (None: a byte-order mark)."""
+    with open(path, "rb") as fh:
+        header = fh.readline()
+        if header.startswith((codecs.BOM_UTF8, codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+            yield None, 0
+            return
+        while lines := list(itertools.islice(fh, rows)):
+            yield header + b"".join(lines), len(lines)
+
+
+def _parquet_data(path: Path | str, rows: int) -> Iterator[tuple[bytes | None, int]]:
+    """The next ``rows`` rows of a Parquet file as the CSV text :func:`_table_text` writes of
+    the whole table, and their count (None: a file pyarrow cannot read)."""
+    from radioloc.io.datasets import parquet_text_blocks
+
+    try:
+        for cells in parquet_text_blocks(path, rows):
+            yield cells.to_csv(index=False).encode("utf-8"), len(cells)
+    except Exception:        # noqa: BLE001 - the whole file's reader words the error
+        yield None, 0
 
 
 def _table_bytes(path: Path) -> bytes:
@@ -614,7 +678,36 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         unknown kind, a negative range, a value beyond :data:`LIMITS` (an RSS of +100 dBm
         is named as the "not detected" sentinel), a node measuring itself, an unknown peer.
     """
-    frame = _read_csv(path, "measurements")
+    return measurements_of_cells(_read_csv(path, "measurements"), path, anchors=anchors,
+                                 not_detected=not_detected)
+
+
+def measurements_of_cells(frame: pd.DataFrame, path: Path | str, *,
+                          anchors: pd.DataFrame | None = None,
+                          not_detected: float | None = None,
+                          unknown_peers: dict | None = None) -> pd.DataFrame:
+    """:func:`read_measurements` of text cells already read (``attrs["lines"]``: their
+    file lines), e.g. one block of a long file (:func:`measurement_blocks`).
+
+    Parameters
+    ----------
+    frame : DataFrame
+        Text cells, lower-case column names.
+    path : path
+        The file, for messages.
+    anchors : DataFrame, optional
+    not_detected : float, optional
+        As for :func:`read_measurements`.
+    unknown_peers : dict, optional
+        Given, a row whose peer is neither an anchor nor a node of ``frame`` is not refused
+        here: its peer is added with the row's line (the first one), for the caller to
+        refuse once the whole file is read (a node of a later block is a known peer).
+
+    Returns
+    -------
+    DataFrame
+        As :func:`read_measurements`.
+    """
     _require_columns(frame, MEASUREMENT_COLUMNS, path)
     out = pd.DataFrame({
         "time": _numeric(frame, "time", path),
@@ -687,13 +780,23 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
                          " measured itself")
     if anchors is not None:
         known = set(anchors["id"]) | set(out["node"].unique())
-        if (i := _first(~out["peer"].isin(known).to_numpy() & ~is_motion)) is not None:
-            fail(i, f"column 'peer': unknown anchor or node {out['peer'].iloc[i]!r} (not in the "
-                    "anchors file nor a node)")
+        unknown = ~out["peer"].isin(known).to_numpy() & ~is_motion
+        if unknown_peers is not None:
+            for i in np.flatnonzero(unknown):
+                unknown_peers.setdefault(out["peer"].iloc[i], int(out["line"].iloc[i]))
+            unknown[:] = False
+        if (i := _first(unknown)) is not None:
+            refuse_unknown_peer(path, int(out["line"].iloc[i]), out["peer"].iloc[i])
         if (i := _first(out["node"].isin(set(anchors["id"])))) is not None:
             fail(i, f"column 'node': {out['node'].iloc[i]!r} is an anchor id; anchors do not "
                     "need locating")
     return out
+
+
+def refuse_unknown_peer(path: Path | str, line: int, peer: str) -> None:
+    """Raise the :class:`InputError` of a row whose peer is neither an anchor nor a node."""
+    raise InputError(f"{path}: line {line}, column 'peer': unknown anchor or node {peer!r} "
+                     "(not in the anchors file nor a node)")
 
 
 def _beyond(kind, value: float) -> str:
@@ -855,13 +958,7 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
     cell that a spreadsheet would run as a formula is escaped (:func:`spreadsheet_cell`).
     """
     def write_csv(f) -> None:
-        safe = _spreadsheet_safe(frame)
-        chunks = csv_chunks(safe)
-        if chunks is None:
-            safe.to_csv(f, index=False)
-        else:
-            for text in chunks:
-                f.write(text)
+        write_csv_rows(frame, f)
 
     if path is None or str(path) == "-":
         write_csv(sys.stdout)
@@ -872,6 +969,31 @@ def write_estimates(frame: pd.DataFrame, path: Path | str | None) -> None:
         atomic_write_with(path, lambda f: frame.to_parquet(f, index=False), binary=True)
     else:
         atomic_write_with(path, write_csv)
+
+
+def write_csv_rows(frame: pd.DataFrame, f, header: bool = True) -> None:
+    """Write ``frame`` as CSV rows to the open text file ``f`` as :func:`write_estimates`
+    writes them (with the header line, or without it: the rows that follow earlier ones).
+
+    Parameters
+    ----------
+    frame : DataFrame
+    f : text file
+    header : bool
+
+    Returns
+    -------
+    None
+    """
+    safe = _spreadsheet_safe(frame)
+    chunks = csv_chunks(safe)
+    if chunks is None:
+        safe.to_csv(f, index=False, header=header)
+        return
+    if not header:
+        next(chunks)
+    for text in chunks:
+        f.write(text)
 
 
 #: Characters that make the CSV writer quote a cell.

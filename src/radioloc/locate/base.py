@@ -486,6 +486,25 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     RuntimeError
         The method returned no position columns or a non-finite value (a method bug).
     """
+    chosen = prepare_method(name, request)
+    return checked_output(chosen, request, chosen.fn(request), rerun=chosen.fn)
+
+
+def prepare_method(name: str, request: LocateRequest) -> LocateMethod:
+    """The method ``name``, with ``request`` checked against its declarations
+    (:func:`check_request`) and for plausibility (:func:`check_plausible`): the part of
+    :func:`run_method` before the method runs.
+
+    Parameters
+    ----------
+    name : str
+    request : LocateRequest
+        Its ``parsed`` options are filled.
+
+    Returns
+    -------
+    LocateMethod
+    """
     chosen = method(name)
     if chosen is None:
         raise ConfigError(f"unknown method {name!r}; known: {', '.join(methods())}")
@@ -493,12 +512,39 @@ def run_method(name: str, request: LocateRequest) -> pd.DataFrame:
     check_request(chosen, request)
     request.parsed["no_check"] = skip
     check_plausible(chosen, request, skip)
-    out = chosen.fn(request)
-    _check_output(name, out)
+    return chosen
+
+
+def checked_output(chosen: LocateMethod, request: LocateRequest, out: pd.DataFrame,
+                   rerun=None, node_order: list[str] | None = None) -> pd.DataFrame:
+    """The part of :func:`run_method` after the method ran: its output checked, the health
+    check (:func:`radioloc.locate.health.check_run`) on the log of ``request``, the rows
+    ordered.
+
+    Parameters
+    ----------
+    chosen : LocateMethod
+    request : LocateRequest
+    out : DataFrame
+        The method's output for the rows of ``request``.
+    rerun : callable, optional
+        The method, for the health check's retry with the noise the residuals say.
+    node_order : list of str, optional
+        Nodes in the order of the rows within one time (default: as they first appear in
+        the log of ``request``).
+
+    Returns
+    -------
+    DataFrame
+        As :func:`run_method`.
+    """
+    _check_output(chosen.name, out)
     from radioloc.locate.health import check_run
 
-    out, health = check_run(name, request, out, rerun=chosen.fn, options=chosen.options or ())
+    out, health = check_run(chosen.name, request, out, rerun=rerun,
+                            options=chosen.options or ())
     summary = {**out.attrs.get("summary", {}), "health": health.summary()}
-    out = order_rows(out, list(request.measurements["node"].unique()))
+    out = order_rows(out, list(request.measurements["node"].unique()) if node_order is None
+                     else node_order)
     out.attrs["summary"] = summary
     return out

@@ -23,6 +23,27 @@ from radioloc.locate.epochs import (ON_DEGENERATE, epoch_error, epoch_table, ran
 STD_FLOOR_M = 1e-6
 
 
+def pooled_std(pooled: dict) -> tuple[float, str]:
+    """The range error standard deviation pooled over epochs, and where it came from.
+
+    Parameters
+    ----------
+    pooled : dict
+        ``sum_sq_m2`` (squared residuals summed over the epochs, m^2), ``dof`` (their
+        ranges less the unknowns, summed) and ``epochs``: sums, so that the epochs of
+        several parts of a log pool as one.
+
+    Returns
+    -------
+    std_m : float
+        ``sqrt(sum_sq_m2 / dof)``, at least :data:`STD_FLOOR_M`.
+    source : str
+    """
+    std = max(float(np.sqrt(pooled["sum_sq_m2"] / pooled["dof"])), STD_FLOOR_M)
+    return std, (f"pooled residuals of {pooled['epochs']} epochs ({pooled['dof']:g} degrees "
+                 "of freedom)")
+
+
 def _inverse_information(position: np.ndarray, anchors: np.ndarray, heard: np.ndarray,
                          skip: np.ndarray) -> np.ndarray:
     """``(J' J)^-1`` of each fix ``(E, D)`` from the unit vectors to the anchors it heard
@@ -120,19 +141,21 @@ def locate_gn(request: LocateRequest) -> pd.DataFrame:
     except GeometryError as exc:
         raise epoch_error(ep, exc) from None
     bad = np.asarray(fit.diagnostics["degenerate"])
-    source = "option std_m"
+    source, pooled = "option std_m", None
     if std is None and not bad.all():
         used = np.isfinite(R_ok).sum(axis=1)
         rms = np.asarray(fit.diagnostics["residual_rms_m"])
-        dof = float(np.sum((used - a_xyz.shape[1])[~bad]))
-        std = max(float(np.sqrt(np.sum((rms ** 2 * used)[~bad]) / dof)), STD_FLOOR_M)
-        source = f"pooled residuals of {int((~bad).sum())} epochs ({dof:g} degrees of freedom)"
+        pooled = {"sum_sq_m2": float(np.sum((rms ** 2 * used)[~bad])),
+                  "dof": float(np.sum((used - a_xyz.shape[1])[~bad])), "epochs": int((~bad).sum())}
+        std, source = pooled_std(pooled)
     cov = None if std is None else std ** 2 * _inverse_information(
         fit.position, a_xyz, np.isfinite(R_ok), bad)
     out = epoch_table(ep, fit.position, cov, bad, fit.diagnostics["ambiguous"],
                       ranges=np.isfinite(R_ok).sum(axis=1),
                       **({"excluded": excluded.sum(axis=1)} if fde else {}))
     out.attrs["summary"].update(std_m=std, std_m_from=source)
+    if pooled is not None:
+        out.attrs["summary"]["pooled"] = pooled
     if fde:
         out.attrs["summary"].update(rows_excluded=int(excluded.sum()), excluded_by_row={
             f"range {ep.ids[a]}": int(n) for a, n in enumerate(excluded.sum(axis=0)) if n})
