@@ -848,9 +848,10 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
                              f"of {n_tracks} diverged) but do once {how}: {question}")
         stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
+        given = [k for k in noise if request.option(k) is not None]
         cause = ({"cause": "rows the noise learned from the log (summary 'learned') does not "
                            "describe: NLOS? (a LOS/NLOS model: --method smoother or pf)"}
-                 if "learned" in out.attrs["summary"] else {})
+                 if "learned" in out.attrs["summary"] and not given else {})
         out.attrs["summary"]["innovations"] = [   # warned by the health check (base.run_method)
             {"node": node, "start": t0, "noise": stated, **cause, **sign}
             for node, t0, sign in diverged]
