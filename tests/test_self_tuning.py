@@ -97,10 +97,6 @@ def test_learning_beats_the_fixed_defaults_on_biased_ranges():
 
 def test_a_given_option_is_kept_not_learned():
     log, _, _ = walk(4, 0.3, 0.2, 5.0, duration_s=120.0)
-    out = run_method("ekf-track", LocateRequest(log, ANCHORS, options={"range_std_m": "0.7",
-                                                                        "q": "0.5"}))
-    report = out.attrs["summary"]["learned"]["tag"]
-    assert "range_anchors" not in report and report.get("q", 0.5) == 0.5
     tuned = run_method("ekf-track", LocateRequest(log, ANCHORS, options={"q": "0.5"}))
     assert tuned.attrs["summary"]["learned"]["tag"]["q"] == 0.5
 
@@ -163,3 +159,12 @@ def test_stated_stds_are_kept():
                                        some["value"]))
     far = run_method("ekf-track", LocateRequest(moved, ANCHORS))
     assert np.max(np.abs(far[["x", "y"]].to_numpy() - without[["x", "y"]].to_numpy())) < 0.5
+
+
+def test_every_sigma_given_runs_the_fixed_defaults():
+    log, _, _ = walk(8, 0.3, 0.2, 5.0, duration_s=60.0)
+    opts = {"range_std_m": "0.4"}
+    out = run_method("ekf-track", LocateRequest(log, ANCHORS, options=opts))
+    _same_track(out, run_method("ekf-track", LocateRequest(log, ANCHORS,
+                                                          options={**opts, "tune": "0"})))
+    assert "range_std_m" in out.attrs["summary"]["tune"]

@@ -123,7 +123,9 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                          "or use ekf-track or pf")
     learn = (request.option("tune", True, bool)
              and bool((request.measurements["kind"] == "range").any()))
-    short = not_learnable(request.measurements) if learn else None
+    short = (not_learnable(request.measurements,
+                           [k for k in sigma_options() if request.option(k) is not None])
+             if learn else None)
     learn = learn and short is None
     log, opts, models = log_models(request, request.measurements, table, s,
                                    learn and request.option("range_std_m") is None)

@@ -947,7 +947,7 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
     tune = (request.option("tune", True, bool) and s["odometry_std"] is None
             and not request.option("cooperative", False, bool))
-    short = not_learnable(meas) if tune else None
+    short = not_learnable(meas, given) if tune else None
     tune = tune and short is None
     if s["bias"]:
         meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],

@@ -36,9 +36,13 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
 Each learned value is reported in ``summary.json`` (``learned``, by node) with a 95 %
 interval: a standard deviation ``s`` from ``n_eff`` effectively independent rows has
 ``s (1 +- 1.96 / sqrt(2 n_eff))``; an offset ``b +- 1.96 sqrt(sigma_g^2 2 tau / span +
-sigma_w^2 / n)``; ``tau`` and ``sigma_g`` the span of their estimates on the whole log and on its two
-halves; ``q`` the evidence's choice among its factors (the interval: the neighbouring
-factors whose evidence is within 2 nats).
+sigma_w^2 / n)``; ``tau`` and ``sigma_g`` the span of their estimates on the whole log and
+on its two halves; ``q`` the evidence's choice among its factors (the interval: the
+neighbouring factors whose evidence is within 2 nats).
+
+Nothing is learned from a log too short for it or whose every row states its ``std``
+(:func:`not_learnable`): the fixed defaults run, and ``summary.json``'s ``tune`` says why. A
+row's stated ``std`` is always kept.
 """
 
 from __future__ import annotations
@@ -144,20 +148,28 @@ def evidence(track, observations: list, gate: float | None) -> np.ndarray:
     return lp.sum(axis=(-2, -1))
 
 
-def not_learnable(meas) -> str | None:
+def not_learnable(meas, given=()) -> str | None:
     """Why the settings are not learned from this log (None: they are).
 
     Every node needs an anchor it ranges to :data:`MIN_ANCHOR_ROWS` times or more (a node
-    without ranges: that many rows of one kind), and a log whose every row states its
-    ``std`` has its noise already; otherwise the fixed defaults (and the stated stds) run.
+    without ranges: that many rows of one kind); a log whose every row states its ``std``,
+    or whose every kind has its sigma option given, has its noise already. Otherwise the
+    fixed defaults (and the stated stds) run.
 
     Parameters
     ----------
     meas : DataFrame
         The measurements (``node``, ``peer``, ``kind`` columns, ``std`` optional).
+    given : collection of str
+        The sigma options given.
     """
     if "std" in meas.columns and bool(np.isfinite(meas["std"].to_numpy(float)).all()):
         return "every row states its std: they ran as stated, with the fixed defaults (tune=0)"
+    options = {model_kinds()[k].sigma_option for k in meas["kind"].unique()
+               if k in model_kinds() and model_kinds()[k].sigma_option}
+    if options and options <= set(given):
+        return (f"every kind's sigma is given ({', '.join(sorted(options))}): the fixed "
+                "defaults (tune=0) ran")
     for node, rows in meas.groupby("node", sort=False):
         ranges = rows[rows["kind"] == "range"]
         most = int((ranges.groupby("peer").size() if len(ranges)
