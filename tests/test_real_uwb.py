@@ -192,16 +192,26 @@ def test_real_uwb_hanyang_reduced_reproduction(tmp_path, monkeypatch):
         est = run.estimates[key]
         direct = authors_rmse(run.reference, est[est.time_s <= 62.0], "A")["rmse_2d"]
         assert m[f"{key}_rmse2d_LOS_A_Case_1"] == pytest.approx(direct, rel=1e-9)
-    # ekf-track is deterministic: measured 1.538 m causal, 1.411 m RTS on this window (the
-    # far end of the track, x = 46-50 m, where every method is worst)
-    assert m["ekf-track_rmse2d_mean"] == pytest.approx(1.538, abs=0.02)
+    # ekf-track is deterministic: the experiment's figure is that of `locate --method
+    # ekf-track` at its defaults on the same rows (measured 1.40 m with the settings learned
+    # from the log, 1.54 m at the fixed defaults: the far end of the track, x = 46-50 m, where
+    # every method is worst)
+    from radioloc.locate import LocateRequest, run_method
+
+    meas, anchors = measurement_rows(run)
+    with pytest.warns(UserWarning):
+        out = run_method("ekf-track", LocateRequest(
+            meas[meas.time <= 62.0], anchors, options={"tag_height_m": str(cfg.tag_height_m)}))
+    direct = authors_rmse(run.reference, out.rename(columns={"time": "time_s"}), "A")["rmse_2d"]
+    assert m["ekf-track_rmse2d_mean"] == pytest.approx(direct, rel=1e-9)
+    assert m["ekf-track_rmse2d_mean"] < 1.553                   # below the authors' ESKF
     assert m["ekf-track-rts_rmse2d_mean"] < m["ekf-track_rmse2d_mean"]
     # pf: two seeds; band = 4 standard errors of their mean (at least 0.1 m)
     band = max(4 * m["pf_rmse2d_mean_seed_std"] / np.sqrt(2), 0.1)
     assert m["pf_rmse2d_mean"] == pytest.approx(PF_REDUCED, abs=band)
     assert "pf-ins_rmse2d_mean" in m and "gn_epochs_ambiguous" in m
     # verdicts on this window (ESKF 1.553 m, bar 1.242 m): neither tracker meets the bar here;
-    # ekf-track is below the ESKF (1.538 < 1.553), pf (1.65 m over two seeds) is not
+    # ekf-track is below the ESKF (1.553 m), pf (1.65 m over two seeds) is not
     verdicts = [c.holds for c in summary.claims]
     texts = [c.claim for c in summary.claims]
     assert not any("reproduces RMSD_results" in t for t in texts)    # cropped: not judged

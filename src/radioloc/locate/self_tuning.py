@@ -7,10 +7,13 @@ per node, from that node's rows only, in three steps:
 
 Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_STEPS`).
 
-1. **Scale by evidence.** The node's tracks are filtered (extended Kalman filter, with a
-   constant range bias per anchor in the state when the log has ranges) with every sigma
-   at its kind's default times each factor of :data:`SCALES`, all factors in one batch; the
-   factor with the largest evidence wins. The evidence is the log predictive density of
+1. **Scale and process noise by evidence.** The node's tracks are filtered (extended Kalman
+   filter, with a constant range bias per anchor in the state when the log has ranges) with
+   every sigma at its kind's default times each factor of :data:`SCALES` (all factors in one
+   batch), for each process noise ``q`` of :data:`Q_FACTORS` times the default; the pair
+   with the largest evidence wins. (``q`` is not chosen in step 3: there the Gauss-Markov
+   wander and the motion explain the same residuals, and the evidence chose stiff tracks
+   that follow a turning walker late, e.g. on the Hanyang UWB runs.) The evidence is the log predictive density of
    every row, ``sum -1/2 (log 2 pi S + min(nu^2 / S, gate))``: a row the gate refuses
    counts at the gate, so a filter that loses the track and refuses its rows scores low.
 2. **Noise from residuals (one EM step).** At the Rauch-Tung-Striebel smoothed states of
@@ -27,10 +30,9 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
    mean of ``1 - h`` over the anchor's rows. The LOS/NLOS mixture (LOS spread, NLOS mean excess, LOS fraction) is fitted
    by EM to the bias-free range residuals (:func:`radioloc.locate.pf.fit_residuals`); the
    other kinds get a robust standard deviation (1.4826 MAD) of their residuals.
-3. **Process noise and correlation by evidence.** The filter runs again with what step 2
-   found (each anchor's bias a constant about its learned offset, with the offsets'
-   covariance, plus a Gauss-Markov part), for each process noise ``q`` of :data:`Q_FACTORS`
-   (times the default) and each factor of :data:`CORRELATION_SCALES` on ``sigma_g``, over
+3. **Correlation by evidence.** The filter runs again with what step 2 found (each
+   anchor's bias a constant about its learned offset, with the offsets' covariance, plus a
+   Gauss-Markov part), for each factor of :data:`CORRELATION_SCALES` on ``sigma_g``, over
    the first :data:`EVIDENCE_STEPS` steps of each track; the largest evidence wins.
 
 Each learned value is reported in ``summary.json`` (``learned``, by node) with a 95 %
@@ -59,7 +61,7 @@ __all__ = ["CORRELATION_SCALES", "Q_FACTORS", "SCALES", "Learned", "learn_node",
 
 #: Factors on every kind's default sigma tried in step 1.
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
-#: Factors on the default process noise ``q`` tried in step 3.
+#: Factors on the default process noise ``q`` tried in step 1.
 Q_FACTORS = (0.1, 1.0, 10.0)
 #: Factors on each anchor's learned Gauss-Markov deviation tried in step 3.
 CORRELATION_SCALES = (1.0, 1.5, 2.0)
@@ -73,7 +75,7 @@ MAX_TAU_S = 60.0
 #: smoothed run keeps every step's covariance for each of :data:`SCALES`, so its memory
 #: grows with them).
 LEARN_STEPS = 5000
-#: Steps of each track whose evidence chooses ``q`` and the correlation scale (step 3).
+#: Steps of each track whose evidence chooses the correlation scale (step 3).
 EVIDENCE_STEPS = 2000
 
 
@@ -401,14 +403,22 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         return track, stacked, ev, ekf.state_layout(stacked)
 
     has_ranges = any(o.model.kind == "range" for _, obs in tracks for o in obs)
-    # step 1: the scale of every sigma, by evidence
-    track, _, ev, layout = run(SCALES, q_default, 0.0, None,
-                               lambda o, f: _scaled(o, f, given), True,
-                               steps=LEARN_STEPS)
+    # step 1: the scale of every sigma and the process noise, by evidence
+    top, by_q = None, {}
+    for qf in (1.0,) if q_given else Q_FACTORS:
+        tr, _, e, lay = run(SCALES, q_default * qf, 0.0, None,
+                            lambda o, f: _scaled(o, f, given), True, steps=LEARN_STEPS)
+        by_q[q_default * qf] = float(e.max())
+        if top is None or e.max() > top[2].max():
+            top = (qf, tr, e, lay)
+    q_factor, track, ev, layout = top
     best = int(np.argmax(ev))
-    learned = Learned(scale=SCALES[best], q=q_default, given=tuple(given))
+    learned = Learned(scale=SCALES[best], q=q_default * q_factor, given=tuple(given))
+    near = sorted(q for q, e in by_q.items() if e >= max(by_q.values()) - 2.0)
     report = {"scale": SCALES[best], "evidence_by_scale": dict(zip(map(str, SCALES),
-                                                                   map(float, ev)))}
+                                                                   map(float, ev))),
+              "q": learned.q, "q_95": [near[0], near[-1]],
+              "evidence_by_q": {f"{q:g}": e for q, e in by_q.items()}}
     # step 2: residuals at the smoothed states of the best scale
     members = [best * len(tracks) + i for i in range(len(tracks))]
     per_kind: dict[str, list] = {}
@@ -445,26 +455,16 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         learned.correlated_m, learned.tau_s = rn["correlated"], rn["tau"]
         report.update({"range_anchors": rn["anchors"], "range_pooled": rn["pooled"],
                        "range_mixture": rn["mixture"]})
-        # step 3: process noise and the correlation's scale, by evidence
-        scores = {}
+        # step 3: the correlation's scale, by evidence
         q, tau, var = learned.bias_settings(np.asarray(CORRELATION_SCALES)[:, None])
         q, tau, var = (np.repeat(v, len(tracks), axis=0) for v in (q, tau, var))
-        for qf in (1.0,) if q_given else Q_FACTORS:
-            _, _, ev3, _ = run(CORRELATION_SCALES, q_default * qf, q[:, None, :],
-                               tau[:, None, :], lambda o, f: tuned_observations(o, learned),
-                               False, prior_bias_cov=var, steps=EVIDENCE_STEPS)
-            for cs, e in zip(CORRELATION_SCALES, ev3):
-                scores[(qf, cs)] = float(e)
-        (qf, cs), top = max(scores.items(), key=lambda kv: kv[1])
-        learned.q, learned.correlation_scale = q_default * qf, cs
-        near = sorted(q_default * f for (f, c), e in scores.items()
-                      if c == cs and e >= top - 2.0)
-        report.update({"q": learned.q, "q_95": [near[0], near[-1]],
-                       "correlation_scale": cs,
-                       "evidence_by_q_and_scale": {f"q={q_default * f:g},scale={c:g}": e
-                                                   for (f, c), e in scores.items()}})
-    elif "range_std_m" not in given:
-        learned.q = q_default
+        _, _, ev3, _ = run(CORRELATION_SCALES, learned.q, q[:, None, :], tau[:, None, :],
+                           lambda o, f: tuned_observations(o, learned), False,
+                           prior_bias_cov=var, steps=EVIDENCE_STEPS)
+        learned.correlation_scale = CORRELATION_SCALES[int(np.argmax(ev3))]
+        report.update({"correlation_scale": learned.correlation_scale,
+                       "evidence_by_correlation_scale": dict(zip(
+                           map(str, CORRELATION_SCALES), map(float, ev3)))})
     learned.report = report
     return learned
 
