@@ -10,8 +10,9 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
 1. **Scale and process noise by evidence.** The node's tracks are filtered (extended Kalman
    filter, with a constant range bias per anchor in the state when the log has ranges) with
    every sigma at its kind's default times each factor of :data:`SCALES` (all factors in one
-   batch), for each process noise ``q`` of :data:`Q_FACTORS` times the default; the pair
-   with the largest evidence wins. (``q`` is not chosen in step 3: there the Gauss-Markov
+   batch) at the default process noise ``q``; the factor with the largest evidence wins, and
+   then, at that factor, the ``q`` of :data:`Q_FACTORS` times the default with the largest
+   evidence. (``q`` is not chosen in step 3: there the Gauss-Markov
    wander and the motion explain the same residuals, and the evidence chose stiff tracks
    that follow a turning walker late, e.g. on the Hanyang UWB runs.) The evidence is the log predictive density of
    every row, ``sum -1/2 (log 2 pi S + min(nu^2 / S, gate))``: a row the gate refuses
@@ -403,24 +404,27 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         return track, stacked, ev, ekf.state_layout(stacked)
 
     has_ranges = any(o.model.kind == "range" for _, obs in tracks for o in obs)
-    # step 1: the scale of every sigma and the process noise, by evidence
-    top, by_q = None, {}
-    for qf in (1.0,) if q_given else Q_FACTORS:
-        tr, _, e, lay = run(SCALES, q_default * qf, 0.0, None,
-                            lambda o, f: _scaled(o, f, given), True, steps=LEARN_STEPS)
-        by_q[q_default * qf] = float(e.max())
-        if top is None or e.max() > top[2].max():
-            top = (qf, tr, e, lay)
-    q_factor, track, ev, layout = top
+    # step 1: the scale of every sigma (at the default q), then q at that scale, by evidence
+    def step_one(factors, q, smooth=False):
+        return run(factors, q, 0.0, None, lambda o, f: _scaled(o, f, given), smooth,
+                   steps=LEARN_STEPS)
+
+    _, _, ev, _ = step_one(SCALES, q_default)
     best = int(np.argmax(ev))
+    by_q, q_factor = {q_default: float(ev[best])}, 1.0
+    for qf in () if q_given else [f for f in Q_FACTORS if f != 1.0]:
+        by_q[q_default * qf] = float(step_one((SCALES[best],), q_default * qf)[2][0])
+        if by_q[q_default * qf] > by_q[q_default * q_factor]:
+            q_factor = qf
+    track, _, _, layout = step_one((SCALES[best],), q_default * q_factor, smooth=True)
+    members = list(range(len(tracks)))
     learned = Learned(scale=SCALES[best], q=q_default * q_factor, given=tuple(given))
     near = sorted(q for q, e in by_q.items() if e >= max(by_q.values()) - 2.0)
     report = {"scale": SCALES[best], "evidence_by_scale": dict(zip(map(str, SCALES),
                                                                    map(float, ev))),
               "q": learned.q, "q_95": [near[0], near[-1]],
-              "evidence_by_q": {f"{q:g}": e for q, e in by_q.items()}}
-    # step 2: residuals at the smoothed states of the best scale
-    members = [best * len(tracks) + i for i in range(len(tracks))]
+              "evidence_by_q": {f"{q:g}": e for q, e in sorted(by_q.items())}}
+    # step 2: residuals at the smoothed states of the best scale and q
     per_kind: dict[str, list] = {}
     for b, (times, obs) in zip(members, tracks):
         times = times[:LEARN_STEPS]

@@ -33,6 +33,7 @@ measurement that every estimator skips.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, replace
 from functools import cached_property
 from collections.abc import Collection
@@ -880,8 +881,18 @@ class Observation:
         """
         ctx = self.context
         if self.moving:
-            ctx = replace(ctx, points=ctx.points[..., step, :, :],
+            ctx = _sliced(ctx, points=ctx.points[..., step, :, :],
                           reference=None if ctx.reference is None else ctx.reference[..., step, :, :])
         if self.std is not None:
-            ctx = replace(ctx, std=self.std[..., step, :])
+            ctx = _sliced(ctx, std=self.std[..., step, :])
         return self.z[..., step, :], ctx
+
+
+def _sliced(ctx: Context, **fields) -> Context:
+    """``ctx`` with ``fields`` set to one step's slices of arrays already checked (by the
+    :class:`Observation`): :meth:`Observation.at` runs once per step, and checking the
+    context again cost as much as the filter's update."""
+    new = copy.copy(ctx)
+    for name, value in fields.items():
+        object.__setattr__(new, name, value)
+    return new
