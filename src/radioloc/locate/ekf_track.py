@@ -1073,8 +1073,8 @@ def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: d
         ranging = any(o.model.kind == "range" for _, obs in mine for o in obs)
         out[node] = learn_node(
             node, mine,
-            lambda q, bs, tau, terms, r=ranging: tracker_filter(anchors, dict(s, q=q), gate, r,
-                                                     bias_prior, clock, bs, tau, terms),
+            lambda q, bs, tau, terms, r=ranging: tracker_filter(
+                anchors, dict(s, q=q), gate, r, bias_prior, clock, bs, tau, terms),
             lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
             s["q"], ids, s["dim"], q_given=request.option("q") is not None)
     return out
