@@ -26,7 +26,7 @@ from radioloc.models.measurement import Context, MeasurementModel, Observation
 
 __all__ = ["anchor_positions", "anchor_points", "moving_anchors", "clock_groups",
            "node_observations", "slot_context", "log_observations", "anchor_ranges",
-           "default_models", "frame_settings", "sigma_options"]
+           "default_models", "frame_settings", "given_sigmas", "sigma_options"]
 
 
 def sigma_options() -> dict[str, Option]:
@@ -38,6 +38,11 @@ def sigma_options() -> dict[str, Option]:
             f"{k.sigma_help or k.name + ' error standard deviation, ' + k.unit} (default "
             f"{k.sigma_default:g})", float, min=0, min_exclusive=True, max=k.sigma_max))
     return out
+
+
+def given_sigmas(request) -> dict[str, float]:
+    """The sigma options (:func:`sigma_options`) the request gives, by name."""
+    return {k: v for k in sigma_options() if (v := request.option(k)) is not None}
 
 
 def anchor_positions(anchors: pd.DataFrame) -> np.ndarray:

@@ -44,7 +44,8 @@ from radioloc.core.errors import ConfigError, GeometryError, InputError
 from radioloc.estimators.batch_smoother import BatchSmoother
 from radioloc.estimators.robust_loss import LOSSES
 from radioloc.core.kinds import model_kinds
-from radioloc.locate.adapter import anchor_positions, log_observations, sigma_options
+from radioloc.locate.adapter import (anchor_positions, given_sigmas, log_observations,
+                                     sigma_options)
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (learn_tracks, log_models, motion_model, reads_clock,
@@ -123,9 +124,7 @@ def smooth_log(request: LocateRequest) -> pd.DataFrame:
                          "or use ekf-track or pf")
     learn = (request.option("tune", True, bool)
              and bool((request.measurements["kind"] == "range").any()))
-    short = (not_learnable(request.measurements,
-                           [k for k in sigma_options() if request.option(k) is not None])
-             if learn else None)
+    short = not_learnable(request.measurements, given_sigmas(request)) if learn else None
     learn = learn and short is None
     log, opts, models = log_models(request, request.measurements, table, s,
                                    learn and request.option("range_std_m") is None)
@@ -222,7 +221,7 @@ def _tuned(request: LocateRequest, nodes: list, table: pd.DataFrame, s: dict
     :data:`TUNED_LOSS_SCALE` standard deviations) against the outliers (NLOS) the learned
     white noise does not cover. Returns the track tables and, by node, what was learned."""
     anchors = anchor_positions(table)
-    given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
+    given = given_sigmas(request)
     tracks = [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
               for node, _, times, obs in nodes for seg in segments(times, s["max_gap_s"])]
     learned = learn_tracks(request, tracks, table, s, 16.0, given)

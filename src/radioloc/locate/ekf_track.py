@@ -73,7 +73,7 @@ from radioloc.estimators.extended_kalman import ExtendedKalmanFilter
 from radioloc.estimators.least_squares import LeastSquares
 from radioloc.io.measurements import Measurements
 from radioloc.locate.adapter import (anchor_positions, default_models, frame_settings,
-                                     log_observations, sigma_options)
+                                     given_sigmas, log_observations, sigma_options)
 from radioloc.locate.cooperative import cooperative_batch, peer_ranges
 from radioloc.locate.base import MAX_GAP_S, LocateRequest, Option, locate_method
 from radioloc.locate.path_loss import anchor_rss_model
@@ -907,7 +907,7 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
         (``motion=rw``, odometry), naming both.
     """
     log = Measurements(meas)
-    opts = {k: request.option(k) for k in sigma_options() if request.option(k) is not None}
+    opts = given_sigmas(request)
     opts.setdefault("range_std_m", RANGE_STD_M)
     models = default_models(log.kinds, opts, anchor_bias=anchor_bias,
                             settings=frame_settings(request))
@@ -944,7 +944,7 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     s = tracker_settings(request, anchors)
     gate = request.option("gate", 16.0) or None
     anchor_bias = bool(request.option("anchor_bias", False, bool))
-    given = {k: v for k in sigma_options() if (v := request.option(k)) is not None}
+    given = given_sigmas(request)
     tune = (request.option("tune", True, bool) and s["odometry_std"] is None
             and not request.option("cooperative", False, bool))
     short = not_learnable(meas, given) if tune else None
@@ -1070,11 +1070,10 @@ def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: d
     out = {}
     for node in dict.fromkeys(tr[0] for tr in tracks):
         mine = [(tr[1], tr[2]) for tr in tracks if tr[0] == node]
-        ranging = any(o.model.kind == "range" for _, obs in mine for o in obs)
         out[node] = learn_node(
             node, mine,
-            lambda q, bs, tau, terms, r=ranging: tracker_filter(
-                anchors, dict(s, q=q), gate, r, bias_prior, clock, bs, tau, terms),
+            lambda q, bs, tau, terms: tracker_filter(anchors, dict(s, q=q), gate, terms > 0,
+                                                     bias_prior, clock, bs, tau, terms),
             lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
             s["q"], ids, s["dim"], q_given=request.option("q") is not None)
     return out

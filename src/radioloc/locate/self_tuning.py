@@ -12,11 +12,11 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
    every sigma at its kind's default times each factor of :data:`SCALES` (all factors in one
    batch) at the default process noise ``q``; the factor with the largest evidence wins, and
    then, at that factor, the ``q`` of :data:`Q_FACTORS` times the default with the largest
-   evidence. (``q`` is not chosen in step 3: there the Gauss-Markov
-   wander and the motion explain the same residuals, and the evidence chose stiff tracks
-   that follow a turning walker late, e.g. on the Hanyang UWB runs.) The evidence is the log predictive density of
-   every row, ``sum -1/2 (log 2 pi S + min(nu^2 / S, gate))``: a row the gate refuses
-   counts at the gate, so a filter that loses the track and refuses its rows scores low.
+   evidence (not in step 3: there the Gauss-Markov wander and the motion explain the same
+   residuals, and the evidence chose stiff tracks that follow a turning walker late, e.g. on
+   the Hanyang UWB runs). The evidence is the log predictive density of every row,
+   ``sum -1/2 (log 2 pi S + min(nu^2 / S, gate))``: a row the gate refuses counts at the
+   gate, so a filter that loses the track and refuses its rows scores low.
 2. **Noise from residuals (one EM step).** At the Rauch-Tung-Striebel smoothed states of
    that run, the residual of every row. Ranges, per anchor: the static bias (the smoothed
    bias state plus the residuals' median), and the error about it split, from the
@@ -168,8 +168,9 @@ def not_learnable(meas, given=()) -> str | None:
     """
     if "std" in meas.columns and bool(np.isfinite(meas["std"].to_numpy(float)).all()):
         return "every row states its std: they ran as stated, with the fixed defaults (tune=0)"
-    options = {model_kinds()[k].sigma_option for k in meas["kind"].unique()
-               if k in model_kinds() and model_kinds()[k].sigma_option}
+    kinds = model_kinds()
+    options = {kinds[k].sigma_option for k in meas["kind"].unique()
+               if k in kinds and kinds[k].sigma_option}
     if options and options <= set(given):
         return (f"every kind's sigma is given ({', '.join(sorted(options))}): the fixed "
                 "defaults (tune=0) ran")
@@ -364,7 +365,8 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
     tracks : list of (times (T,), observations)
         The node's segments.
     make_filter : callable
-        ``make_filter(q, bias_std, tau, bias_terms)`` -> ExtendedKalmanFilter (its anchor
+        ``make_filter(q, bias_std, tau, bias_terms)`` -> ExtendedKalmanFilter (``bias_terms``
+        0: no anchor bias, the node has no ranges; else its anchor
         biases as :func:`radioloc.locate.ekf_track.tracker_filter` takes them).
     prior : callable
         ``prior(ekf, times, observations, bias_cov)`` -> (mean (n,), cov (n, n)); with
@@ -390,7 +392,7 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         batch, f = _batch(tracks if steps is None else
                           [(t[:steps], [observation_window(o, slice(0, steps)) for o in obs])
                            for t, obs in tracks], factors)
-        ekf = make_filter(q, bias_std, tau, 1 if tau is None else 2)
+        ekf = make_filter(q, bias_std, tau, 0 if not has_ranges else 1 if tau is None else 2)
         obs_lists = [obs_of(o, ff) for (_, o), ff in zip(batch, f)]
         means, covs = [], []
         for b, ((t, _), o) in enumerate(zip(batch, obs_lists)):
@@ -417,7 +419,6 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         if by_q[q_default * qf] > by_q[q_default * q_factor]:
             q_factor = qf
     track, _, _, layout = step_one((SCALES[best],), q_default * q_factor, smooth=True)
-    members = list(range(len(tracks)))
     learned = Learned(scale=SCALES[best], q=q_default * q_factor, given=tuple(given))
     near = sorted(q for q, e in by_q.items() if e >= max(by_q.values()) - 2.0)
     report = {"scale": SCALES[best], "evidence_by_scale": dict(zip(map(str, SCALES),
@@ -426,7 +427,7 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
               "evidence_by_q": {f"{q:g}": e for q, e in sorted(by_q.items())}}
     # step 2: residuals at the smoothed states of the best scale and q
     per_kind: dict[str, list] = {}
-    for b, (times, obs) in zip(members, tracks):
+    for b, (times, obs) in enumerate(tracks):
         times = times[:LEARN_STEPS]
         obs = [observation_window(o, slice(0, LEARN_STEPS)) for o in obs]
         for o, r in zip(obs, _residuals(layout, track, obs, b, SCALES[best])):
@@ -449,8 +450,8 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         items = per_kind["range"]
         index = items[0][2].context.index
         sl = layout.slices["anchor_bias"]
-        bias = track.diagnostics["state"][members[0], 0, sl]
-        bias_cov = track.diagnostics["state_covariance"][members[0], 0, sl, sl]
+        bias = track.diagnostics["state"][0, 0, sl]
+        bias_cov = track.diagnostics["state_covariance"][0, 0, sl, sl]
         rn = _range_noise([x[1] for x in items], [x[0] for x in items], index,
                           len(anchor_names), dim, bias, bias_cov,
                           model_kinds()["range"].sigma_default * SCALES[best], anchor_names)
