@@ -225,3 +225,26 @@ def test_benchmark_scores_every_method_on_the_simulated_scenes(tmp_path):
     page = (tmp_path / "benchmark.html").read_text()
     scored = table.loc[table["rmse_m"].notna(), "log"].nunique()     # a refusal has no CDF
     assert page.count("data:image/png;base64,") == scored and "<table" in page
+
+
+def test_a_track_far_outside_clustered_anchors_is_weak_geometry_not_diverged():
+    """Anchors in a 2 m box, a tag walking 40 m away with clean ranges: the track is
+    outside the anchors' region but its rows fit it, so the finding names weak geometry
+    (its uncertainty is not checked there), not a lost track."""
+    rng = np.random.default_rng(3)
+    anchors = pd.DataFrame({"id": ["A1", "A2", "A3", "A4"], "x": [0.0, 2.0, 2.0, 0.0],
+                            "y": [0.0, 0.0, 2.0, 2.0], "z": [0.5, 2.0, 0.5, 2.0]})
+    t = np.arange(0.0, 40.0, 0.1)
+    path = np.c_[3.0 + t, 1.0 + 0.05 * t, np.ones_like(t)]
+    true = np.linalg.norm(path[:, None, :] - anchors[["x", "y", "z"]].to_numpy()[None], axis=2)
+    log = pd.DataFrame({"time": np.repeat(t, 4), "node": "tag",
+                        "peer": np.tile(anchors["id"], t.size), "kind": "range",
+                        "value": (true + 0.05 * rng.standard_normal(true.shape)).ravel()})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = run_method("ekf-track", LocateRequest(log, anchors, options={
+            "tune": "0", "range_std_m": "0.05"}))
+    (finding,) = _health(out)["findings"]
+    assert finding["checks"] == ["outside_anchors"]
+    assert finding["cause"] == "geometry" and "not a lost track" in finding["message"]
+    assert any("weak geometry" in str(w.message) for w in caught)

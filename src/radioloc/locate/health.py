@@ -26,8 +26,10 @@ Network methods (priors) and moving anchors are not judged. A failing node gets 
 data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
 mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y swapped or a
 wrong anchor (its rows alone misfit), NLOS (ranges longer than the fit, not shorter), a
-stated noise too small (residuals symmetric, every anchor alike), or a diverged track (the
-rows fit well a position away from the track). Findings are warned and recorded in the
+stated noise too small (residuals symmetric, every anchor alike), weak geometry (a track
+far outside the anchors whose rows fit it: its errors there are not seen in the residuals),
+or a diverged track (the rows fit well a position away from the track, or it left the
+anchors' region and its rows misfit). Findings are warned and recorded in the
 summary (``health``).
 
 The claimed covariance is inflated by the fitted residual scale where it exceeds
@@ -529,7 +531,8 @@ def _check_node(method_name, request, own, node, rows: _Rows, sigmas):
     if bad_t.size == 0 or "misfit" in checks or "anchor_misfit" in checks:
         bad_t = np.concatenate([bad_t, times])     # a misfit is judged over the whole track
     start, end = float(bad_t.min()), float(bad_t.max())
-    cause = likely_cause(request, rows, d, es, scale, sigmas, node, bool(away.any()))
+    cause = likely_cause(request, rows, d, es, scale, sigmas, node, bool(away.any()),
+                         fits=checks == ["outside_anchors"])
     figures["inflation"] = round(factor, 3)
     what = []
     if "off_its_data" in checks:
@@ -607,10 +610,11 @@ def _refit_scale(rows: _Rows, observations, start=None) -> float:
     return window_fit(rows, observations, start)[3]
 
 
-def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: bool = False
-                 ) -> tuple[str, str]:
+def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: bool = False,
+                 fits: bool = False) -> tuple[str, str]:
     """``(code, text)`` of the likeliest cause of a node's failure (module docstring);
-    ``diverged``: the track left the anchors' region (then not blamed on the noise)."""
+    ``diverged``: the track left the anchors' region (then not blamed on the noise);
+    ``fits``: its rows fit it there (then weak geometry, not a lost track)."""
     from dataclasses import replace
 
     obs = rows.observations
@@ -637,6 +641,11 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: boo
                               f"{swapped})")
         return "anchor", (f"anchor {worst!r} is wrong (its rows misfit {per[worst]:.3g} times "
                           f"the noise, the others {others:.3g} times)")
+    if diverged and fits:
+        return "geometry", (f"weak geometry, not a lost track (its rows fit it: residuals "
+                            f"{scale:.2g} times the stated noise): far outside the anchors, "
+                            "slowly changing range errors pass into the track unseen, and its "
+                            "claimed uncertainty there is not checked by the rows")
     if diverged:
         return "diverged", "a diverged track (it left the region the anchors fix)"
     # NLOS: ranges longer than the fit, rarely shorter
