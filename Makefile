@@ -100,13 +100,16 @@ demo: $(STAMP)
 test:
 	@$(MAKE) --no-print-directory -j2 system rt
 	$(BIN)/python tests/precompile.py
-	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=20
+	$(BIN)/python -m pytest -n 2 --dist worksteal --durations=20 -m "not docs_current"
 
 # The fast tier for the development loop: everything but the `slow` modules (tests/conftest.py).
 test-fast: $(STAMP_DEV)
 	$(BIN)/python -m pytest -n 2 --dist worksteal -m "not slow"
 
-docs: $(STAMP_DOCS)
+# The generated pages are checked against their scripts at full size first (skipped
+# without RADIOLOC_DATA), then the site is built.
+docs: $(STAMP_DEV) $(STAMP_DOCS)
+	$(BIN)/python -m pytest -n 2 -m docs_current tests/test_datasets_tutorials.py
 	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict
 
 full: $(STAMP)
