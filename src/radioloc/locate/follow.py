@@ -2,7 +2,8 @@
 
 Rows come from standard input (``-``), a file that grows (followed like ``tail -f``) or
 UDP datagrams (``udp://HOST:PORT``, each datagram whole lines), as CSV with a header line
-or as JSON lines (one object per line; the first line tells which; a CSV header line that
+or as JSON lines, or from a device (``serial://DEVICE``: a DWM1001 module's ranging output,
+:mod:`radioloc.locate.devices`) (one object per line; the first line tells which; a CSV header line that
 comes again, e.g. at the top of every datagram, is skipped). They are read as they become
 available and given to a :class:`radioloc.locate.stream.Tracker`; every estimate it makes
 is written at once as a CSV row and the output flushed. End of input (a pipe closed),
@@ -21,6 +22,7 @@ for their start and the state of each node are kept.
 from __future__ import annotations
 
 import csv
+import errno
 import json
 import math
 import os
@@ -38,6 +40,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.io.logs import read_anchors
+from radioloc.locate.devices import open_serial
 from radioloc.locate.stream import REORDER_S, Tracker
 
 #: Bytes asked for per read.
@@ -71,7 +74,12 @@ def input_lines(fd: int, poll_s: float = POLL_S, idle_s: float | None = None,
                 quiet = True
                 yield []
                 continue
-        data = os.read(fd, READ_BYTES)
+        try:
+            data = os.read(fd, READ_BYTES)
+        except OSError as exc:          # a terminal whose other end went away (a device
+            if exc.errno != errno.EIO:  # unplugged, a pseudo-terminal's master closed)
+                raise
+            data = b""
         if datagrams:
             quiet = False
             if data:                          # an empty datagram says nothing
@@ -197,12 +205,13 @@ class CsvOut:
 
 
 def follow(fd: int, tracker: Tracker, out: CsvOut, idle_s: float | None = None,
-           datagrams: bool = False) -> str:
+           datagrams: bool = False, parser=None) -> str:
     """Feed the rows of ``fd`` to ``tracker`` as they arrive, writing its estimates.
 
     With ``idle_s``, the rows held are processed (:meth:`Tracker.flush`) once the input has
     had nothing new for ``idle_s`` seconds; ``datagrams``: ``fd`` is a datagram socket (see
-    :func:`input_lines`).
+    :func:`input_lines`); ``parser``: what turns lines into rows (default
+    :class:`RowParser`; a device's, :mod:`radioloc.locate.devices`).
 
     Returns
     -------
@@ -217,7 +226,7 @@ def follow(fd: int, tracker: Tracker, out: CsvOut, idle_s: float | None = None,
             raise _Stop
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
-    parser, end = RowParser(), "end of input"
+    parser, end = parser or RowParser(), "end of input"
     try:
         lines = input_lines(fd, idle_s=idle_s, datagrams=datagrams)
         while not waiting.get("stopped"):
@@ -248,9 +257,10 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
     Parameters
     ----------
     measurements : Path
-        ``-`` (standard input), a file, followed as it grows, or ``udp://HOST:PORT``:
+        ``-`` (standard input), a file, followed as it grows, ``udp://HOST:PORT``:
         datagrams of whole lines received there (port 0: any free port; the address is
-        written on standard error).
+        written on standard error), or ``serial://DEVICE[?...]``: a DWM1001 module's
+        ranging lines (:func:`radioloc.locate.devices.open_serial`).
     anchors : Path or None
     method : str
     options : dict of str
@@ -284,30 +294,41 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
                       REORDER_S if reorder_s is None else reorder_s)
     to_stdout = out is None or str(out) == "-"
     source = str(measurements)
-    sock = udp_socket(source)
-    if sock is not None:
+    device = open_serial(source)
+    sock = None if device is not None else udp_socket(source)
+    if device is not None:
+        tty, parser, source = device
+        sys.stderr.write(f"reading {source}\n")
+        sys.stderr.flush()
+    elif sock is not None:
         host, port = sock.getsockname()[:2]
         source = f"udp://{f'[{host}]' if ':' in host else host}:{port}"
         sys.stderr.write(f"listening on {source}\n")
         sys.stderr.flush()
     elif source != "-" and not Path(source).is_file():
         raise InputError(f"measurements file {source}: not found")
-    fd = (sock.fileno() if sock is not None else sys.stdin.fileno() if source == "-"
-          else os.open(source, os.O_RDONLY))
+    if device is None:
+        parser = RowParser()
+    fd = (tty.fileno() if device is not None else sock.fileno() if sock is not None
+          else sys.stdin.fileno() if source == "-" else os.open(source, os.O_RDONLY))
     try:
         stream = sys.stdout if to_stdout else open(out, "w", encoding="utf-8", newline="")
         try:
-            end = follow(fd, tracker, CsvOut(stream), idle_s, datagrams=sock is not None)
+            end = follow(fd, tracker, CsvOut(stream), idle_s, datagrams=sock is not None,
+                         parser=parser)
         finally:
             if not to_stdout:
                 stream.close()
     finally:
-        if sock is not None:
+        if device is not None:
+            tty.close()
+        elif sock is not None:
             sock.close()
         elif source != "-":
             os.close(fd)
     summary = {"method": method, "options": dict(sorted(options.items())),
-               "measurements": source, "end": end, **tracker.summary()}
+               "measurements": source, "end": end, **tracker.summary(),
+               **({"device": parser.summary()} if device is not None else {})}
     if to_stdout:
         sys.stderr.write(json.dumps(summary) + "\n")
         return []
