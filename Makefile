@@ -66,14 +66,15 @@ LLVM_MIN := 19
 LLVM_NEWEST := $(shell ls /usr/lib/*/libLLVM* /usr/lib/llvm-*/lib/libLLVM*.so* 2>/dev/null \
                  | grep -oE 'libLLVM[-.](so[.])?[0-9]+' | grep -oE '[0-9]+$$' | sort -n | tail -1)
 SYSTEM_PKGS = $(shell command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || echo chromium fonts-dejavu-core) \
-              $(shell [ "$(or $(LLVM_NEWEST),0)" -ge $(LLVM_MIN) ] || echo libllvm$(LLVM_MIN))
+              $(shell [ "$(or $(LLVM_NEWEST),0)" -ge $(LLVM_MIN) ] || echo libllvm$(LLVM_MIN)) \
+              $(shell command -v mosquitto >/dev/null 2>&1 || [ -x /usr/sbin/mosquitto ] || echo mosquitto)
 system:
 	@if [ -z "$(strip $(SYSTEM_PKGS))" ]; then :; \
-	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install $(strip $(SYSTEM_PKGS)) to run the browser / Sionna RT tests"; \
+	elif ! command -v apt-get >/dev/null 2>&1; then echo "no apt-get: install $(strip $(SYSTEM_PKGS)) to run the browser / Sionna RT / MQTT tests"; \
 	else SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
 	  $$SUDO apt-get update -q && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -q \
 	    --no-install-recommends $(SYSTEM_PKGS) \
-	  || echo "$(strip $(SYSTEM_PKGS)) could not be installed: the browser / Sionna RT tests will be skipped"; fi
+	  || echo "$(strip $(SYSTEM_PKGS)) could not be installed: the browser / Sionna RT / MQTT tests will be skipped"; fi
 
 browser: system
 

@@ -1,10 +1,14 @@
 """Device readers of `radioloc locate --follow` (radioloc.locate.devices): a DWM1001 module's
-`lec` lines become range rows; a simulated module on a pseudo-terminal gives the batch run."""
+`lec` lines become range rows, and a simulated module on a pseudo-terminal gives the batch
+run; rows published to an MQTT broker (mosquitto, started by the test) give the batch run."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
+import signal
+import socket
 import subprocess
 import sys
 import time
@@ -15,7 +19,7 @@ import pandas as pd
 import pytest
 
 from radioloc.core.errors import ConfigError, InputError
-from radioloc.locate.devices import Dwm1001Lines, open_serial
+from radioloc.locate.devices import Dwm1001Lines, open_device
 
 ANCHORS = pd.DataFrame({"id": ["1151", "0CA8", "22F3", "9A0B"], "x": [0.0, 6.0, 6.0, 0.0],
                         "y": [0.0, 0.0, 5.0, 5.0], "z": [2.4, 0.4, 2.4, 0.6]})
@@ -52,15 +56,33 @@ def test_lec_lines_become_range_rows_and_other_lines_are_counted():
     assert summary["lines_skipped"] == 5 and summary["first_skipped"] == "line 1: dwm> lec"
 
 
-def test_serial_sources_are_named_in_their_errors():
-    assert open_serial("udp://127.0.0.1:0") is None and open_serial("log.csv") is None
-    pytest.importorskip("serial")
-    with pytest.raises(ConfigError, match="unknown parameter 'speed'"):
-        open_serial("serial:///dev/ttyACM0?speed=9600")
-    with pytest.raises(ConfigError, match="baud: expected a whole number"):
-        open_serial("serial:///dev/ttyACM0?baud=fast")
-    with pytest.raises(InputError, match="cannot open /dev/no-such-tty"):
-        open_serial("serial:///dev/no-such-tty")
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_other_sources_are_not_devices():
+    for source in ("udp://127.0.0.1:0", "log.csv", "-"):
+        assert open_device(source) is None
+
+
+@pytest.mark.parametrize("module, source, error, match", [
+    ("serial", "serial:///dev/ttyACM0?speed=9600", ConfigError, "unknown parameter 'speed'"),
+    ("serial", "serial:///dev/ttyACM0?baud=fast", ConfigError, "baud: expected a whole number"),
+    ("serial", "serial:///dev/no-such-tty", InputError, "cannot open /dev/no-such-tty"),
+    ("paho.mqtt", "mqtt://127.0.0.1/radioloc/tag1?qos=3", ConfigError,
+     r"qos: expected a whole number in \[0, 1, 2\]"),
+    ("paho.mqtt", "mqtt://127.0.0.1/radioloc/tag1?retain=1", ConfigError,
+     "unknown parameter 'retain'"),
+    ("paho.mqtt", "mqtt://127.0.0.1:{port}/t", InputError,      # nothing listens there
+     "mqtt://127.0.0.1:{port}/t: cannot connect to the broker"),
+])
+def test_device_sources_are_named_in_their_errors(module, source, error, match):
+    pytest.importorskip(module)
+    port = free_port()
+    with pytest.raises(error, match=match.format(port=port)):
+        open_device(source.format(port=port))
 
 
 @pytest.mark.slow   # a subprocess on a pseudo-terminal
@@ -115,3 +137,86 @@ def test_a_simulated_dwm1001_on_a_pseudo_terminal_gives_the_batch_run(tmp_path):
     batch = pd.read_csv(tmp_path / "batch.csv")
     pd.testing.assert_frame_equal(got, batch, check_exact=False, rtol=0, atol=1e-9)
     assert np.linalg.norm(got[["x", "y"]].to_numpy()[-1] - TAG[:2]) < 0.2
+
+
+@pytest.fixture
+def broker(tmp_path):
+    """A mosquitto broker on a free port of 127.0.0.1 (the test is skipped without it)."""
+    exe = shutil.which("mosquitto") or shutil.which("mosquitto", path="/usr/sbin:/sbin")
+    if exe is None:
+        pytest.skip("mosquitto (Debian's package) is not installed; `make test` installs it")
+    port = free_port()
+    conf = tmp_path / "mosquitto.conf"
+    conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\n")
+    proc = subprocess.Popen([exe, "-c", str(conf)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.5).close()
+                break
+            except OSError:
+                assert proc.poll() is None and time.monotonic() < deadline, "mosquitto failed"
+                time.sleep(0.05)
+        yield port
+    finally:
+        proc.kill()
+        proc.wait(timeout=20)
+
+
+@pytest.mark.slow   # a broker and a subprocess
+def test_rows_published_to_an_mqtt_topic_give_the_batch_run(tmp_path, broker):
+    """CSV rows published to a topic (a few time stamps per message, the header on top of
+    each): `--follow mqtt://...` writes the batch causal run's estimates."""
+    paho = pytest.importorskip("paho.mqtt.client")
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 20.0, 0.1)
+    path = np.c_[1.0 + 0.15 * t, 1.0 + 0.1 * t, np.ones_like(t)]
+    anchors = ANCHORS[["x", "y", "z"]].to_numpy()
+    true = np.linalg.norm(path[:, None, :] - anchors[None], axis=2)
+    log = pd.DataFrame({"time": np.repeat(np.round(t, 3), 4), "node": "tag1",
+                        "peer": np.tile(ANCHORS["id"], t.size), "kind": "range",
+                        "value": np.round((true + 0.05 * rng.standard_normal(true.shape)).ravel(),
+                                          4)})
+    log.to_csv(tmp_path / "log.csv", index=False)
+    ANCHORS.to_csv(tmp_path / "anchors.csv", index=False)
+    options = ["-o", "tune=0", "-o", "init_s=1"]
+    subprocess.run([sys.executable, "-m", "radioloc.cli", "locate", str(tmp_path / "log.csv"),
+                    "--anchors", str(tmp_path / "anchors.csv"), "--method", "ekf-track",
+                    *options, "--out", str(tmp_path / "batch.csv"), "-q"],
+                   check=True, timeout=120, capture_output=True)
+    expected = pd.read_csv(tmp_path / "batch.csv")
+    out = tmp_path / "est.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "radioloc.cli", "locate",
+                             f"mqtt://127.0.0.1:{broker}/radioloc/+", "--anchors",
+                             str(tmp_path / "anchors.csv"), "--method", "ekf-track", "--follow",
+                             *options, "--reorder-s", "0", "--idle-s", "0.01", "--out", str(out)],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        reading = proc.stderr.readline()
+        assert reading.startswith(f"reading mqtt://127.0.0.1:{broker}/radioloc/+"), (
+            reading + proc.stderr.read())
+        sender = paho.Client(paho.CallbackAPIVersion.VERSION2)
+        sender.connect("127.0.0.1", broker)
+        sender.loop_start()
+        header = "time,node,peer,kind,value\n"
+        stamps = [rows for _, rows in log.groupby("time", sort=True)]
+        for i in range(0, len(stamps), 5):
+            text = pd.concat(stamps[i:i + 5]).to_csv(index=False, header=False)
+            sender.publish("radioloc/tag1", header + text, qos=1).wait_for_publish(10)
+        sender.disconnect()
+        sender.loop_stop()
+        deadline = time.monotonic() + 60
+        while not out.exists() or len(out.read_text().splitlines()) < len(expected) + 1:
+            assert time.monotonic() < deadline and proc.poll() is None
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0, proc.stderr.read()
+    finally:
+        proc.kill()
+    got = pd.read_csv(out).sort_values(["time", "node"], kind="stable").reset_index(drop=True)
+    pd.testing.assert_frame_equal(got, expected, check_exact=False, rtol=0, atol=1e-9)
+    summary = json.loads((tmp_path / "est.summary.json").read_text())
+    assert summary["end"] == "interrupted" and summary["rows_in"] == len(log)
+    assert summary["measurements"] == f"mqtt://127.0.0.1:{broker}/radioloc/+"

@@ -2,8 +2,8 @@
 
 Rows come from standard input (``-``), a file that grows (followed like ``tail -f``) or
 UDP datagrams (``udp://HOST:PORT``, each datagram whole lines), as CSV with a header line
-or as JSON lines, or from a device (``serial://DEVICE``: a DWM1001 module's ranging output,
-:mod:`radioloc.locate.devices`) (one object per line; the first line tells which; a CSV header line that
+or as JSON lines, or from a device (``serial://DEVICE``: a DWM1001 module's ranging output; ``mqtt://HOST/TOPIC``:
+a broker's messages; :mod:`radioloc.locate.devices`) (one object per line; the first line tells which; a CSV header line that
 comes again, e.g. at the top of every datagram, is skipped). They are read as they become
 available and given to a :class:`radioloc.locate.stream.Tracker`; every estimate it makes
 is written at once as a CSV row and the output flushed. End of input (a pipe closed),
@@ -40,7 +40,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.io.logs import read_anchors
-from radioloc.locate.devices import open_serial
+from radioloc.locate.devices import open_device
 from radioloc.locate.stream import REORDER_S, Tracker
 
 #: Bytes asked for per read.
@@ -259,8 +259,9 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
     measurements : Path
         ``-`` (standard input), a file, followed as it grows, ``udp://HOST:PORT``:
         datagrams of whole lines received there (port 0: any free port; the address is
-        written on standard error), or ``serial://DEVICE[?...]``: a DWM1001 module's
-        ranging lines (:func:`radioloc.locate.devices.open_serial`).
+        written on standard error), ``serial://DEVICE[?...]``: a DWM1001 module's
+        ranging lines, or ``mqtt://HOST[:PORT]/TOPIC``: a broker's messages
+        (:mod:`radioloc.locate.devices`).
     anchors : Path or None
     method : str
     options : dict of str
@@ -294,10 +295,10 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
                       REORDER_S if reorder_s is None else reorder_s)
     to_stdout = out is None or str(out) == "-"
     source = str(measurements)
-    device = open_serial(source)
+    device = open_device(source)
     sock = None if device is not None else udp_socket(source)
     if device is not None:
-        tty, parser, source = device
+        source = device.name
         sys.stderr.write(f"reading {source}\n")
         sys.stderr.flush()
     elif sock is not None:
@@ -307,9 +308,8 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
         sys.stderr.flush()
     elif source != "-" and not Path(source).is_file():
         raise InputError(f"measurements file {source}: not found")
-    if device is None:
-        parser = RowParser()
-    fd = (tty.fileno() if device is not None else sock.fileno() if sock is not None
+    parser = device.parser if device is not None and device.parser else RowParser()
+    fd = (device.fd if device is not None else sock.fileno() if sock is not None
           else sys.stdin.fileno() if source == "-" else os.open(source, os.O_RDONLY))
     try:
         stream = sys.stdout if to_stdout else open(out, "w", encoding="utf-8", newline="")
@@ -321,14 +321,14 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
                 stream.close()
     finally:
         if device is not None:
-            tty.close()
+            device.close()
         elif sock is not None:
             sock.close()
         elif source != "-":
             os.close(fd)
     summary = {"method": method, "options": dict(sorted(options.items())),
                "measurements": source, "end": end, **tracker.summary(),
-               **({"device": parser.summary()} if device is not None else {})}
+               **({"device": parser.summary()} if hasattr(parser, "summary") else {})}
     if to_stdout:
         sys.stderr.write(json.dumps(summary) + "\n")
         return []
