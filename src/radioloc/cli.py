@@ -537,6 +537,22 @@ def benchmark(
     _echo_err(f"wrote {out / 'benchmark.html'}")
 
 
+@app.command()
+def view(
+    estimates: Annotated[Path, typer.Argument(help="Estimates CSV (time, node, x, y[, cov_xx, cov_xy, cov_yy]), e.g. the --out of `radioloc locate --follow`, read as it grows.")],
+    anchors: Annotated[Optional[Path], typer.Option(help="Anchors CSV to draw.")] = None,
+    host: Annotated[str, typer.Option(help="Address to serve on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="Port (0: any free port; the address is printed).")] = 8765,
+    poll_s: Annotated[float, typer.Option(help="Seconds between the page's requests for new rows.")] = 0.5,
+) -> None:
+    """A live view: a local web page drawing each node's track and the 95 % ellipse of its
+    latest estimate as rows are appended to ESTIMATES; runs until Ctrl-C."""
+    from radioloc.locate.live_view import serve
+
+    with _sigterm_as_interrupt():
+        serve(estimates, anchors, host, port, poll_s, announce=_echo_err)
+
+
 @app.command("methods")
 def list_methods() -> None:
     """List the estimators available to `radioloc locate`."""
