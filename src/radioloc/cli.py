@@ -327,6 +327,8 @@ def locate(
     idle_s: Annotated[Optional[float], typer.Option("--idle-s", help="With --follow: also process the rows held once the input has been idle this many seconds (default: only once a later time has come); a row of a time processed so that comes after is late.")] = None,
     frame: Annotated[Optional[str], typer.Option("--frame", help="Frame of the anchors (and reference) coordinates when their file has no 'frame' column: local (default), ecef, or wgs84 (x longitude, y latitude in degrees, z height in m).")] = None,
     origin: Annotated[Optional[str], typer.Option("--origin", help="lat,lon[,h]: work and write in the east-north-up frame at this point (a local frame is then taken as that ENU frame; ecef or wgs84 anchors are converted to it).")] = None,
+    workers: Annotated[int, typer.Option("--workers", min=1, help="ekf-track, smoother and lsq: estimate the nodes in this many local processes (the estimates are those of one process).")] = 1,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="ekf-track, smoother and lsq: estimate the nodes on the Dask cluster at this address (tcp://HOST:PORT; needs radioloc[cluster]).")] = None,
     chunk_rows: Annotated[int, typer.Option("--chunk-rows", min=0, help="ekf-track, lsq and gn on a long log (a CSV file sorted by time) written to --out (CSV or Parquet): read, estimate and write this many rows at a time, so that memory does not grow with the log (0: the whole log at once). The health and plausibility checks then judge each chunk on its own rows.")] = 200_000,
 ) -> None:
     """Apply an estimator to your own measurement log.
@@ -370,7 +372,8 @@ def locate(
             written = follow_locate(measurements, anchors, method, opts, out, fmt, reorder_s, {
                 "--plot": plot, "--reference": reference, "--priors": priors,
                 "--calibration": calibration, "--strict": strict, "--frame": frame,
-                "--origin": origin}, idle_s=idle_s)
+                "--origin": origin, "--workers": workers if workers > 1 else None,
+                "--scheduler": scheduler}, idle_s=idle_s)
         for path in written:
             _echo_err(f"wrote {path}")
         return
@@ -396,8 +399,9 @@ def locate(
         except ValueError:
             raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
         chunked = None
+        fleet = workers > 1 or scheduler is not None
         if chunk_rows and plot is None and reference is None and priors is None \
-                and calibration is None:
+                and calibration is None and not fleet:
             from radioloc.locate.chunked import locate_in_chunks
 
             with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
@@ -408,7 +412,12 @@ def locate(
                                                           not_detected=nd), anchor_table)
             request = LocateRequest(meas, anchor_table, priors, calibration, opts, frame=work)
             with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
-                estimates = run_method(method, request)
+                if fleet:
+                    from radioloc.locate.fleet import locate_fleet
+
+                    estimates = locate_fleet(method, request, workers, scheduler)
+                else:
+                    estimates = run_method(method, request)
         for w in warned:                    # shown as usual, counted for --strict
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         if chunked is not None:
