@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from radioloc.core.atomic import atomic_write_text, atomic_write_with, staged_folder
+from radioloc.core.backend import share_cores
 from radioloc.core.errors import ConfigError
 from radioloc.core.rng import block_generator
 from radioloc.experiments.base import Experiment, Summary, get_experiment
@@ -53,19 +53,6 @@ def block_ranges(n_runs: int, block_size: int) -> list[np.ndarray]:
         raise ConfigError(f"block_size: must be >= 1, got {block_size}")
     n_blocks = math.ceil(n_runs / block_size)
     return [np.arange(b * block_size, min((b + 1) * block_size, n_runs)) for b in range(n_blocks)]
-
-
-def share_cores(workers: int) -> None:
-    """In a worker process: give numba's parallel kernels this process's share of the cores.
-
-    ``workers`` processes each running numba's default of one thread per core would put
-    ``workers`` threads on every core, where OpenMP threads spin while they wait for each
-    other; each worker gets ``max(1, cores // workers)`` threads instead.
-    """
-    import numba
-
-    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS,
-                                     (os.cpu_count() or 1) // workers)))
 
 
 def run_block(exp_id: str, config: Any, seed: int, block: int, runs: np.ndarray) -> pd.DataFrame:

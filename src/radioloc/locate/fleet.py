@@ -17,7 +17,7 @@ each distinct warning is shown once.
 Refused, with the reason: a method not in :data:`FLEET_METHODS`, a log where a node ranges
 to another node (their estimates depend on each other), ``-o cooperative=1``. Local workers
 are processes (``spawn``), each with its share of the cores for numba
-(:func:`radioloc.experiments.runner.share_cores`); ``--scheduler`` needs dask.distributed
+(:func:`radioloc.core.backend.share_cores`); ``--scheduler`` needs dask.distributed
 (``pip install 'radioloc[cluster]'``), and the cluster's workers need radioloc installed.
 """
 
@@ -30,6 +30,7 @@ from multiprocessing import get_context
 import numpy as np
 import pandas as pd
 
+from radioloc.core.backend import share_cores
 from radioloc.core.errors import ConfigError
 from radioloc.locate.base import LocateRequest, run_method
 from radioloc.locate.progress import progress
@@ -100,8 +101,6 @@ def _results(method_name: str, requests: list[LocateRequest], workers: int,
             for fut in dask_as_completed(futures):
                 yield futures[fut], fut.result()
         return
-    from radioloc.experiments.runner import share_cores
-
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
                              initializer=share_cores, initargs=(workers,)) as pool:
         futures = {pool.submit(run_group, method_name, r): i for i, r in enumerate(requests)}
