@@ -209,6 +209,25 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
     r = med[heard] - bias
     a = anchors[heard]
     h = None if a.shape[1] == 2 else (float(np.mean(anchors[:, 2])) if height is None else height)
+    # the same window is started again and again when the settings are learned: one
+    # search per window (a pure function of these inputs)
+    key = (r.tobytes(), a.tobytes(), anchors.tobytes(), h, common_offset)
+    found = _STARTS.get(key)
+    if found is None:
+        found = _grid_start(r, a, anchors, h, common_offset)
+        if len(_STARTS) >= 256:
+            _STARTS.clear()
+        _STARTS[key] = found
+    best, offset = found
+    return (best.copy(), offset) if common_offset else best.copy()
+
+
+#: Start positions found, by their search's inputs (:func:`start_position`).
+_STARTS: dict = {}
+
+
+def _grid_start(r, a, anchors, h, common_offset):
+    """:func:`start_position`'s two grid searches: ``(position (2,), offset_m)``."""
     lo, hi = anchors[:, :2].min(axis=0), anchors[:, :2].max(axis=0)
     centre = (lo + hi) / 2 if common_offset else anchors[:, :2].mean(axis=0)
     half = (float(np.max((hi - lo) * 0.75 + 2.0)) if common_offset else
@@ -223,7 +242,7 @@ def start_position(times: np.ndarray, R: np.ndarray, anchors: np.ndarray, height
         k = int(np.argmin(np.sum((res - b[:, None]) ** 2, axis=-1)))
         best, offset = xy[k], float(b[k])
         half = half / 20
-    return (best, offset) if common_offset else best
+    return best, offset
 
 
 OPTIONS = {

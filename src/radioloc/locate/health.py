@@ -386,7 +386,9 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
         written from the window fits where the method gives none).
     report : HealthReport
     """
-    summary = out.attrs.get("summary", {})
+    attrs, summary = out.attrs, out.attrs.get("summary", {})
+    out = out.copy(deep=False)
+    out.attrs = {}          # not deep-copied by pandas into every frame made from it below
     findings, inflation, scales = [], {}, {}
     if request.priors is None and not moving_anchors(request.anchors):
         # network methods (nodes fixed by priors and each other) and moving anchors are
@@ -406,14 +408,13 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
             inflation[node], scales[node] = factor, scale
             parts.append(filled)
         if parts:
-            attrs = out.attrs
             out = pd.concat(parts).loc[out.index]
-            out.attrs = attrs
         if rerun is not None:
             _try_noise(method_name, request, findings, sigmas, scales, rerun, options)
     findings = _with_innovations(findings, summary.get("innovations", []), out)
     for f in findings:
         warnings.warn(f"method {method_name}: {f.message}", stacklevel=3)
+    out.attrs = attrs
     return out, HealthReport(findings, inflation, scales)
 
 

@@ -371,7 +371,9 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
     prior : callable
         ``prior(ekf, times, observations, bias_cov)`` -> (mean (n,), cov (n, n)); with
         ``bias_cov`` (2A, 2A) the anchor biases start at 0 with this covariance (the learned
-        offsets are then in the range model), else about a common offset.
+        offsets are then in the range model), else about a common offset. It may not depend
+        on the rows' ``std`` (the factors tried): it is asked once per track and
+        ``bias_cov``.
     gate : float or None
     given : dict
         The sigma options the user gave (kept, not learned).
@@ -394,11 +396,14 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
                            for t, obs in tracks], factors)
         ekf = make_filter(q, bias_std, tau, 0 if not has_ranges else 1 if tau is None else 2)
         obs_lists = [obs_of(o, ff) for (_, o), ff in zip(batch, f)]
-        means, covs = [], []
+        means, covs, asked = [], [], {}
         for b, ((t, _), o) in enumerate(zip(batch, obs_lists)):
-            mean, cov = prior(ekf, t, o, None if prior_bias_cov is None else prior_bias_cov[b])
-            means.append(mean)
-            covs.append(cov)
+            bias_cov = None if prior_bias_cov is None else prior_bias_cov[b]
+            key = (b % len(tracks), None if bias_cov is None else bias_cov.tobytes())
+            if key not in asked:                 # the same for every factor tried
+                asked[key] = prior(ekf, t, o, bias_cov)
+            means.append(asked[key][0])
+            covs.append(asked[key][1])
         t, stacked = stack_tracks([tr[0] for tr in batch], obs_lists)
         track = ekf.run(stacked, t, prior_mean=np.stack(means), prior_cov=np.stack(covs),
                         smooth=smooth)
