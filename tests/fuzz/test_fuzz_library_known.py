@@ -224,6 +224,17 @@ def test_range_ekf_huge_prior_variance():
     _clean(_mutated("RangeEKF", prior_cov=cov), ("prior_cov",))
 
 
+def test_batch_smoother_flat_prior_gives_the_track_of_a_proper_one():
+    """A prior variance of 1e20 (no prior) once made the smoother's starting pass solve a
+    singular system; the data fix the track, so it equals the track under a unit prior."""
+    case = CASES["BatchSmoother"]()
+    flat = np.eye(4)
+    flat[0, 0] = 1e20
+    proper = case.solve(case.settings, case.args).position
+    loose = case.solve(case.settings, {**case.args, "prior_cov": flat}).position
+    np.testing.assert_allclose(loose, proper, atol=1e-6)
+
+
 def test_particle_filter_controls_batch_mismatch():
     c = CASES["P2PParticleFilter"]().args["controls"]
     _clean(_mutated("P2PParticleFilter", controls=np.broadcast_to(c, (3,) + c.shape).copy()),

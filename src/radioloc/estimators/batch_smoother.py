@@ -42,6 +42,7 @@ from radioloc.core.validation import (MAX_ITERATIONS, POSITIVE_FLOOR, as_float_a
                                       check_covariance, check_int, check_positive,
                                       check_shapes, refuse_infinite)
 from radioloc.estimators.base import RecursiveEstimator, Tags, layout_track
+from radioloc.estimators.extended_kalman import PRIOR_VARIANCE_LIMIT
 from radioloc.estimators.kalman import symmetrise
 from radioloc.estimators.observation_rows import RowStack, layout_for, observation_list
 from radioloc.estimators.robust_loss import check_loss
@@ -286,6 +287,10 @@ class BatchSmoother(RecursiveEstimator):
         """
         T = obs[0].steps
         mean, cov = m0.copy(), np.linalg.inv(P0inv)
+        if not np.all(np.diagonal(cov, axis1=-2, axis2=-1) <= PRIOR_VARIANCE_LIMIT):
+            # a flat prior (a variance of 1e20 says "none"): the covariance form loses every
+            # digit of the first update, so the pass starts at the filter's largest variance
+            cov = np.linalg.inv(P0inv + np.eye(layout.size) / PRIOR_VARIANCE_LIMIT)
         out = np.empty(m0.shape[:-1] + (T, layout.size))
         Q = np.linalg.inv(Qinv)
         Ft = np.swapaxes(F, -1, -2)
