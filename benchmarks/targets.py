@@ -176,3 +176,8 @@ def describe(target: dict) -> str:
 for _method in ("ekf-track", "lsq", "gn"):
     TARGETS[(f"radioloc locate {_method} --chunk-rows 200000, 1e+07-row log (10 tags, 6 "
              "anchors): peak memory", None)] = {"at_most": 1024.0}
+
+# radioloc locate --follow over an endless stream: memory flat within 10 % over 1e7 rows
+# (bench_stream_memory.py)
+TARGETS[("radioloc locate --follow ekf-track, 1e+07 streamed rows: memory growth after the "
+         "first 1e6 rows", None)] = {"at_most": 10.0}
