@@ -10,8 +10,6 @@ which the backend-equivalence tests hold.
 
 from __future__ import annotations
 
-import os
-
 from radioloc.core.errors import ConfigError
 
 #: The accepted values of every ``backend=`` setting.
@@ -45,16 +43,3 @@ def check_backend(backend, name: str = "backend") -> str:
         raise ConfigError(f"{name}: expected one of {', '.join(map(repr, BACKENDS))}, "
                           f"got {backend!r}")
     return backend
-
-
-def share_cores(workers: int) -> None:
-    """In a worker process: give numba's parallel kernels this process's share of the cores.
-
-    ``workers`` processes each running numba's default of one thread per core would put
-    ``workers`` threads on every core, where OpenMP threads spin while they wait for each
-    other; each worker gets ``max(1, cores // workers)`` threads instead.
-    """
-    import numba
-
-    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS,
-                                     (os.cpu_count() or 1) // workers)))

@@ -19,18 +19,16 @@ import dataclasses
 import json
 import math
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from radioloc.core.atomic import atomic_write_text, atomic_write_with, staged_folder
-from radioloc.core.backend import share_cores
 from radioloc.core.errors import ConfigError
+from radioloc.core.parallel import completed
 from radioloc.core.rng import block_generator
 from radioloc.experiments.base import Experiment, Summary, get_experiment
 
@@ -64,36 +62,6 @@ def run_block(exp_id: str, config: Any, seed: int, block: int, runs: np.ndarray)
     return frame
 
 
-def _iter_blocks(exp: Experiment, config: Any, seed: int, blocks: list[np.ndarray],
-                 workers: int, scheduler: str | None) -> Iterator[tuple[int, pd.DataFrame]]:
-    """Yield ``(block index, frame)`` as blocks finish, on the chosen engine."""
-    if scheduler:
-        try:
-            from dask.distributed import Client
-            from dask.distributed import as_completed as dask_as_completed
-        except ImportError as exc:  # pragma: no cover - depends on the install
-            raise ConfigError(
-                "--scheduler needs dask.distributed: pip install 'radioloc[cluster]'"
-            ) from exc
-        with Client(scheduler) as client:
-            futures = {
-                client.submit(run_block, exp.id, config, seed, b, r, pure=False): b
-                for b, r in enumerate(blocks)
-            }
-            for fut in dask_as_completed(futures):
-                yield futures[fut], fut.result()
-    elif workers > 1 and len(blocks) > 1:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                                 initializer=share_cores, initargs=(workers,)) as pool:
-            futures = {pool.submit(run_block, exp.id, config, seed, b, r): b
-                       for b, r in enumerate(blocks)}
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
-    else:
-        for b, r in enumerate(blocks):
-            yield b, run_block(exp.id, config, seed, b, r)
-
-
 def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
                scheduler: str | None = None, progress: bool = True,
                label: str | None = None) -> pd.DataFrame:
@@ -106,7 +74,8 @@ def run_blocks(exp: Experiment, config: Any, *, seed: int = 0, workers: int = 1,
         raise ConfigError(f"--workers: must be >= 1, got {workers}")
     blocks = block_ranges(int(config.runs), int(config.block_size))
     frames: dict[int, pd.DataFrame] = {}
-    stream = _iter_blocks(exp, config, seed, blocks, workers, scheduler)
+    stream = completed(run_block, [(exp.id, config, seed, b, r) for b, r in enumerate(blocks)],
+                       workers, scheduler)
     if progress:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 

@@ -15,23 +15,19 @@ the groups and its figures are the largest (:func:`radioloc.locate.chunked.merge
 each distinct warning is shown once.
 
 Refused, with the reason: a method not in :data:`FLEET_METHODS`, a log where a node ranges
-to another node (their estimates depend on each other), ``-o cooperative=1``. Local workers
-are processes (``spawn``), each with its share of the cores for numba
-(:func:`radioloc.core.backend.share_cores`); ``--scheduler`` needs dask.distributed
-(``pip install 'radioloc[cluster]'``), and the cluster's workers need radioloc installed.
+to another node (their estimates depend on each other), ``-o cooperative=1``. The groups
+run as :func:`radioloc.core.parallel.completed` runs calls.
 """
 
 from __future__ import annotations
 
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 
 import numpy as np
 import pandas as pd
 
-from radioloc.core.backend import share_cores
 from radioloc.core.errors import ConfigError
+from radioloc.core.parallel import completed
 from radioloc.locate.base import LocateRequest, run_method
 from radioloc.locate.progress import progress
 from radioloc.locate.table import order_rows
@@ -85,29 +81,6 @@ def _refuse(method_name: str, request: LocateRequest) -> None:
                           "run in one process")
 
 
-def _results(method_name: str, requests: list[LocateRequest], workers: int,
-             scheduler: str | None):
-    """``(index, (estimates, warnings))`` of each group as it finishes."""
-    if scheduler:
-        try:
-            from dask.distributed import Client
-            from dask.distributed import as_completed as dask_as_completed
-        except ImportError:
-            raise ConfigError("--scheduler needs dask.distributed: pip install "
-                              "'radioloc[cluster]'") from None
-        with Client(scheduler) as client:
-            futures = {client.submit(run_group, method_name, r, pure=False): i
-                       for i, r in enumerate(requests)}
-            for fut in dask_as_completed(futures):
-                yield futures[fut], fut.result()
-        return
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                             initializer=share_cores, initargs=(workers,)) as pool:
-        futures = {pool.submit(run_group, method_name, r): i for i, r in enumerate(requests)}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
-
-
 def locate_fleet(method_name: str, request: LocateRequest, workers: int = 2,
                  scheduler: str | None = None) -> pd.DataFrame:
     """``run_method(method_name, request)`` with the nodes spread over ``workers`` local
@@ -148,7 +121,8 @@ def locate_fleet(method_name: str, request: LocateRequest, workers: int = 2,
     outs: list = [None] * len(groups)
     seen: set = set()
     with progress(len(meas), f"{method_name} on {workers} worker(s)") as bar:
-        for i, (out, caught) in _results(method_name, requests, workers, scheduler):
+        for i, (out, caught) in completed(run_group, [(method_name, r) for r in requests],
+                                          workers, scheduler):
             outs[i] = out
             bar.advance(len(requests[i].measurements))
             for message, category in caught:
