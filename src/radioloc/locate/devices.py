@@ -41,6 +41,7 @@ Both need the optional extra ``devices`` (pyserial, paho-mqtt: ``pip install
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import re
@@ -110,7 +111,7 @@ def _whole(source: str, key: str, text: str, allowed=None) -> int:
 
 def _module(name: str, what: str):
     try:
-        return __import__(name, fromlist=["_"])
+        return importlib.import_module(name)
     except ImportError:
         raise ConfigError(f"{what} sources need the optional extra devices: pip install "
                           "'radioloc[devices]'") from None

@@ -2,9 +2,10 @@
 
 Rows come from standard input (``-``), a file that grows (followed like ``tail -f``) or
 UDP datagrams (``udp://HOST:PORT``, each datagram whole lines), as CSV with a header line
-or as JSON lines, or from a device (``serial://DEVICE``: a DWM1001 module's ranging output; ``mqtt://HOST/TOPIC``:
-a broker's messages; :mod:`radioloc.locate.devices`) (one object per line; the first line tells which; a CSV header line that
-comes again, e.g. at the top of every datagram, is skipped). They are read as they become
+or as JSON lines (one object per line; the first line tells which; a CSV header line that
+comes again, e.g. at the top of every datagram, is skipped); or from a device
+(:mod:`radioloc.locate.devices`: ``serial://DEVICE``, a DWM1001 module's ranging lines;
+``mqtt://HOST/TOPIC``, a broker's messages, read as datagrams are). They are read as they become
 available and given to a :class:`radioloc.locate.stream.Tracker`; every estimate it makes
 is written at once as a CSV row and the output flushed. End of input (a pipe closed),
 Ctrl-C or SIGTERM ends the run cleanly: the rows held are processed, their estimates
@@ -328,7 +329,8 @@ def follow_locate(measurements: Path, anchors: Path | None, method: str, options
             os.close(fd)
     summary = {"method": method, "options": dict(sorted(options.items())),
                "measurements": source, "end": end, **tracker.summary(),
-               **({"device": parser.summary()} if hasattr(parser, "summary") else {})}
+               **({"device": parser.summary()} if device is not None and device.parser
+                  else {})}
     if to_stdout:
         sys.stderr.write(json.dumps(summary) + "\n")
         return []
