@@ -248,3 +248,56 @@ def test_a_track_far_outside_clustered_anchors_is_weak_geometry_not_diverged():
     assert finding["checks"] == ["outside_anchors"]
     assert finding["cause"] == "geometry" and "not a lost track" in finding["message"]
     assert any("weak geometry" in str(w.message) for w in caught)
+
+
+#: A 50 x 30 m rectangle of anchors.
+RECTANGLE = pd.DataFrame({"id": ["A1", "A2", "A3", "A4"], "x": [0.0, 50.0, 50.0, 0.0],
+                          "y": [0.0, 0.0, 30.0, 30.0]})
+
+
+def _rectangle_log(noise: dict[str, float], steps: int = 8, seed: int = 0) -> pd.DataFrame:
+    """Ranges from tags walking near A1 (``noise``: each tag's range noise, m)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, float(steps))
+    xy = RECTANGLE[["x", "y"]].to_numpy()
+    parts = []
+    for k, (node, std) in enumerate(noise.items()):
+        path = np.c_[10.0 + 0.3 * t + 5 * k, 8.0 + 0.2 * t]
+        true = np.linalg.norm(path[:, None, :] - xy[None], axis=2)
+        parts.append(pd.DataFrame({
+            "time": np.repeat(t, 4), "node": node, "peer": np.tile(RECTANGLE["id"], t.size),
+            "kind": "range", "value": (true + std * rng.standard_normal(true.shape)).ravel()}))
+    return pd.concat(parts, ignore_index=True)
+
+
+def _findings(method: str, log: pd.DataFrame, anchors: pd.DataFrame, **options) -> dict:
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        out = run_method(method, LocateRequest(log, anchors, options=options))
+    return {f["node"]: f for f in _health(out)["findings"]}
+
+
+@pytest.mark.parametrize("method", ("ekf-track", "smoother", "pf", "lsq"))
+@pytest.mark.parametrize("fault, words", [("swapped", "anchor 'A2' has x and y swapped"),
+                                          ("moved", "anchor 'A2' is wrong")])
+def test_a_wrong_anchor_the_track_follows_is_still_named(method, fault, words):
+    """A2's x and y swapped in the file (or put 10 m off), a tag walking near A1: the
+    trackers bend toward the wrong anchor, so every anchor's residuals at the track misfit
+    alike. Fixes step by step without A2 fit, and A2 is named, not the noise."""
+    anchors = RECTANGLE.copy()
+    anchors.loc[1, ["x", "y"]] = [0.0, 50.0] if fault == "swapped" else [40.0, 0.0]
+    finding = _findings(method, _rectangle_log({"tag": 0.15}), anchors)["tag"]
+    assert finding["cause"] == "anchor", finding["message"]
+    assert words in finding["message"]
+    assert "tried" not in finding["figures"]
+
+
+def test_a_noise_too_small_is_not_blamed_on_an_anchor():
+    """Range noise 5 and 25 times the stated 0.1 m on two tags: with one row to spare per
+    fix, leaving an anchor out leaves small residuals by geometry; studentised, they do not
+    name an anchor. The value tried is the larger tag's, and the smaller tag is told so."""
+    found = _findings("smoother", _rectangle_log({"t1": 0.5, "t2": 2.5}, steps=30),
+                      RECTANGLE, range_std_m="0.1", tune="0")
+    assert {f["cause"] for f in found.values()} == {"noise"}
+    assert "node 't2' asks it, the most" in found["t1"]["message"]
+    assert "asks it" not in found["t2"]["message"]

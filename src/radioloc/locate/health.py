@@ -25,7 +25,8 @@ is tells the track:
 Network methods (priors) and moving anchors are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
 data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
 mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y swapped or a
-wrong anchor (its rows alone misfit), NLOS (ranges longer than the fit, not shorter), a
+wrong anchor (its rows alone misfit at the track, or, where the track followed it, fixes from
+the others fit step by step while its rows misfit them: :func:`_held_out_anchor`), NLOS (ranges longer than the fit, not shorter), a
 stated noise too small (residuals symmetric, every anchor alike), weak geometry (a track
 far outside the anchors whose rows fit it: its errors there are not seen in the residuals),
 or a diverged track (the rows fit well a position away from the track, or it left the
@@ -426,7 +427,8 @@ def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -
     blamed = [f for f in findings if f.cause == "noise" and f.node in scales]
     if not blamed:
         return
-    scale = max(scales[f.node] for f in blamed)
+    largest = max(blamed, key=lambda f: scales[f.node])
+    scale = scales[largest.node]
     kinds = set(request.measurements["kind"].unique())
     tried = {name: float(f"{value * scale:.2g}") for kind, (value, name, stated) in sigmas.items()
              if kind in kinds and stated and name in options}
@@ -441,12 +443,13 @@ def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -
             out = rerun(again)
             left = check_run(method_name, again, out)[1].findings
     except (RadiolocError, ArithmeticError) as exc:
-        verdict = f"tried {text}: it fails ({exc})"
+        verdict = f"it fails ({exc})"
     else:
-        verdict = (f"tried {text}: the log then passes" if not left else
-                   f"tried {text}: still failing ({left[0].cause})")
+        verdict = "the log then passes" if not left else f"still failing ({left[0].cause})"
     for f in blamed:
-        f.message += f"; {verdict}"
+        whose = (f" (node {largest.node!r} asks it, the most; one run takes one value)"
+                 if scales[f.node] < scale / 1.5 else "")
+        f.message += f"; tried {text}{whose}: {verdict}"
         f.figures["tried"] = {"options": tried, "passes": verdict.endswith("passes")}
 
 
@@ -631,17 +634,23 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: boo
                 s = min(_refit_scale(rows, mapped), _refit_scale(rows, mapped, _centre(rows)))
             if s < FITS_BELOW:
                 return "slip", f"{question} (the rows fit once {how})"
-    # one anchor's rows misfit
+    # one anchor's rows misfit: alone at the track, or once fixes from the others fit
     per = _per_anchor_scale(rows, es)
     worst = _wrong_anchor(per)
     if worst is not None:
         others = np.median([v for k, v in per.items() if k != worst])
+        held = (f"its rows misfit {per[worst]:.3g} times the noise, the others "
+                f"{others:.3g} times")
+    elif scale > SCALE_LIMIT and (found := _held_out_anchor(rows)) is not None:
+        worst, fit, misfit = found
+        held = (f"without it the others fit fixes step by step ({fit:.2g} times the noise), "
+                f"where its rows misfit {misfit:.3g} times")
+    if worst is not None:
         swapped = _swapped_fits(request, rows, worst)
         if swapped:
             return "anchor", (f"anchor {worst!r} has x and y swapped (its rows fit it at "
                               f"{swapped})")
-        return "anchor", (f"anchor {worst!r} is wrong (its rows misfit {per[worst]:.3g} times "
-                          f"the noise, the others {others:.3g} times)")
+        return "anchor", f"anchor {worst!r} is wrong ({held})"
     if diverged and fits:
         return "geometry", (f"weak geometry, not a lost track (its rows fit it: residuals "
                             f"{scale:.2g} times the stated noise): far outside the anchors, "
@@ -695,6 +704,82 @@ def _per_anchor_scale(rows: _Rows, es) -> dict[str, float]:
     return {rows.anchor_ids[a]: _robust_scale(np.concatenate(v)) for a, v in out.items()}
 
 
+def _step_by_step(rows: _Rows, observations) -> tuple[_Rows, list] | None:
+    """``rows`` with a window for each step where ``observations`` give it more rows than
+    unknowns (so each fix is tested), the other steps' rows left out (one empty window);
+    with those observations. None when fewer than :data:`WINDOW_ROWS` rows are left."""
+    from dataclasses import replace
+
+    dim = rows.positions.shape[1]
+    n = np.sum([np.isfinite(o.z).sum(axis=1) for o in observations], axis=0)
+    keep = n > dim
+    if n[keep].sum() < WINDOW_ROWS // 2:
+        return None
+    window = np.where(keep, np.cumsum(keep) - 1, int(keep.sum()))
+    kept = [replace(o, z=np.where(keep.reshape((-1,) + (1,) * (o.z.ndim - 1)), o.z, np.nan))
+            for o in observations]
+    return replace(rows, window=window), kept
+
+
+def _held_out_anchor(rows: _Rows) -> tuple[str, float, float] | None:
+    """The one anchor without whose rows the others fit fixes made step by step, while its
+    own rows misfit those fixes: ``(id, fit, misfit)``.
+
+    Each anchor is left out in turn. The others' rows fix each step (:func:`window_fit`, a
+    window per step); their residuals are studentised by ``sqrt(1 - h)`` and the left-out
+    anchor's by ``sqrt(1 + h)`` (``h`` the row's leverage at the fix: a fix with one row to
+    spare leaves small residuals where the geometry gives them little room), so both robust
+    scales estimate the same noise when the anchor is right. Named when only that anchor's
+    leaving out gives a fit below :data:`FITS_BELOW`, and its rows misfit above
+    :data:`SCALE_LIMIT` and four times the fit."""
+    from dataclasses import replace
+
+    anchors = sorted({int(a) for o in rows.observations if o.context.index is not None
+                      for a in np.ravel(o.context.index) if a >= 0})
+    if len(anchors) < 3:
+        return None
+    fits = {}
+    for a in anchors:
+        without = [o if o.context.index is None else
+                   replace(o, z=np.where(o.context.index == a, np.nan, o.z))
+                   for o in rows.observations]
+        steps = _step_by_step(rows, without)
+        if steps is None:
+            continue
+        step_rows, kept = steps
+        n_w, dim = int(step_rows.window.max()) + 1, step_rows.positions.shape[1]
+        with np.errstate(all="ignore"):
+            d = window_fit(step_rows, kept)[0]
+            pos = step_rows.positions + d[step_rows.window]
+            parts = []
+            info = np.zeros((n_w, dim, dim))
+            for o, k, sig in zip(step_rows.observations, kept, step_rows.sigma):
+                zhat, jac = o.model.predict_with_jacobian({"position": pos}, o.context)
+                J = np.nan_to_num(jac["position"] / sig[..., None])
+                e = o.model.residual(o.z, zhat) / sig
+                used = np.isfinite(k.z)
+                np.add.at(info, step_rows.window,
+                          np.einsum("tsi,tsj->tij", J * used[..., None], J))
+                parts.append((o, J, e, used))
+            cov = np.linalg.pinv(info)[step_rows.window]
+            fit, held = [], []
+            for o, J, e, used in parts:
+                h = np.einsum("tsi,tij,tsj->ts", J, cov, J)
+                fit.append(np.where(used, e / np.sqrt(np.maximum(1 - h, 1e-3)), np.nan).ravel())
+                if o.context.index is not None:
+                    out = (np.ravel(o.context.index) == a)[None, :] & np.isfinite(o.z)
+                    held.append(np.where(out, e / np.sqrt(1 + h), np.nan).ravel())
+        fits[a] = (_robust_scale(np.concatenate(fit)),
+                   _robust_scale(np.concatenate(held)) if held else math.nan)
+    good = [a for a, (fit, misfit) in fits.items() if fit < FITS_BELOW]
+    if len(good) != 1:
+        return None
+    fit, misfit = fits[good[0]]
+    if not (misfit > SCALE_LIMIT and misfit > 4 * fit):
+        return None
+    return rows.anchor_ids[good[0]], fit, misfit
+
+
 def _swapped_fits(request, rows: _Rows, anchor: str) -> str | None:
     """Where the anchor's rows fit it with x and y swapped (text), or None."""
     from dataclasses import replace
@@ -714,7 +799,11 @@ def _swapped_fits(request, rows: _Rows, anchor: str) -> str | None:
     x, y = table.loc[table["id"] == anchor, ["x", "y"]].to_numpy(float)[0]
     if x == y:
         return None
-    _, _, es, _ = window_fit(rows, mapped)
-    if _per_anchor_scale(rows, es).get(anchor, math.inf) < FITS_BELOW:
+    steps = _step_by_step(rows, mapped)
+    if steps is None:
+        return None
+    with np.errstate(all="ignore"):
+        _, _, es, _ = window_fit(*steps)
+    if _per_anchor_scale(steps[0], es).get(anchor, math.inf) < FITS_BELOW:
         return f"x={y:g}, y={x:g}"
     return None
