@@ -301,3 +301,26 @@ def test_a_noise_too_small_is_not_blamed_on_an_anchor():
     assert {f["cause"] for f in found.values()} == {"noise"}
     assert "node 't2' asks it, the most" in found["t1"]["message"]
     assert "asks it" not in found["t2"]["message"]
+
+
+def test_a_pseudorange_log_with_too_small_stated_stds_names_them_not_a_range_option():
+    """Every pseudorange row states a std of 0.05 m where the noise is 3 m: the tracker's
+    innovations diverge, and the warning names the rows' own std (no range option is in
+    force on a log without ranges)."""
+    rng = np.random.default_rng(5)
+    ids = [f"A{k}" for k in range(6)]
+    xy = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0], [10.0, -3.0],
+                   [23.0, 7.0]])
+    anchors = pd.DataFrame({"id": ids, "x": xy[:, 0], "y": xy[:, 1]})
+    t = 0.2 * np.arange(200)
+    path = np.c_[10 + 6 * np.cos(t / 6), 7 + 4 * np.sin(t / 6)]
+    pr = (np.linalg.norm(path[:, None, :] - xy, axis=-1) + 150.0
+          + 3.0 * rng.standard_normal((t.size, 6)))
+    log = pd.DataFrame({"time": np.repeat(t, 6), "node": "tag", "peer": np.tile(ids, t.size),
+                        "kind": "pseudorange", "value": pr.ravel(), "std": 0.05})
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        out = run_method("ekf-track", LocateRequest(log, anchors))
+    (finding,) = _health(out)["findings"]
+    assert "the pseudorange rows' own std (median 0.05) too small" in finding["message"]
+    assert "range_std_m" not in finding["message"]

@@ -866,7 +866,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
                              f"of {n_tracks} diverged) but do once {how}: {question}")
-        stated = ", ".join(f"{k}={v:g}" for k, v in sorted(noise.items()))
+        stated = noise_in_force(request.measurements, noise)
         given = [k for k in noise if request.option(k) is not None]
         cause = ({"cause": "rows the noise learned from the log (summary 'learned') does not "
                            "describe: NLOS? (a LOS/NLOS model: --method smoother or pf)"}
@@ -875,6 +875,25 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
             {"node": node, "start": t0, "noise": stated, **cause, **sign}
             for node, t0, sign in diverged]
     return out
+
+
+def noise_in_force(meas: pd.DataFrame, noise: dict) -> str:
+    """The noise each kind of the log ran with, as text: its sigma option's value (``noise``,
+    else the kind's default), or the rows' own ``std`` where every row of the kind states one
+    (its median)."""
+    parts = []
+    for kind in sorted(meas["kind"].unique()):
+        declared = model_kinds().get(kind)
+        if declared is None or not declared.sigma_option:
+            continue
+        std = (meas.loc[meas["kind"] == kind, "std"].to_numpy(dtype=float)
+               if "std" in meas else np.array([np.nan]))
+        if np.isfinite(std).all():
+            parts.append(f"the {kind} rows' own std (median {np.median(std):.3g})")
+        else:
+            name = declared.sigma_option
+            parts.append(f"{name}={noise.get(name, declared.sigma_default):g}")
+    return ", ".join(parts)
 
 
 def looser_noise(request: LocateRequest) -> LocateRequest:

@@ -460,10 +460,11 @@ def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFr
     by_node = {f.node: f for f in findings}
     for sign in sorted(signs, key=lambda d: (-d["windows_out"], -d["outside_m"])):
         node = sign["node"]
+        outside = (f", up to {sign['outside_m']:.3g} m outside the anchors' box"
+                   if sign["outside_m"] > 0 else "")
         text = (f"its innovations look diverged (above {NIS_FACTOR:g} times their 99.9 % band "
                 f"in {100 * sign['windows_out']:.0f} % of {NIS_WINDOW}-step windows, "
-                f"{100 * sign['gated']:.0f} % of the measurements gated, up to "
-                f"{sign['outside_m']:.3g} m outside the anchors' box)")
+                f"{100 * sign['gated']:.0f} % of the measurements gated{outside})")
         figures = {k: round(float(sign[k]), 3) for k in ("windows_out", "gated", "outside_m")}
         if node in by_node:
             f = by_node[node]
