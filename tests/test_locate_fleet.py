@@ -88,3 +88,57 @@ def test_a_dask_cluster_gives_the_estimates_of_one_process():
     summary = spread.attrs["summary"]
     assert summary["fleet"]["groups"] == 7
     assert set(summary["learned"]) == set(one.attrs["summary"]["learned"])
+
+
+def _parts(tmp_path, log: pd.DataFrame):
+    """The log written in parts, partitioned by node (``node=ID/...parquet``)."""
+    folder = tmp_path / "parts"
+    log.to_parquet(folder, partition_cols=["node"], index=False)
+    return folder
+
+
+def test_a_log_in_parts_reads_as_its_rows_and_names_a_bad_part(tmp_path):
+    from radioloc.core.errors import InputError
+    from radioloc.io.logs import measurement_parts, read_measurements
+
+    log = fleet_log(nodes=3, seconds=8.0)
+    folder = _parts(tmp_path, log)
+    parts = measurement_parts(folder)
+    assert [node for _, node in parts] == ["tag0", "tag1", "tag2"]
+    read = read_measurements(folder, anchors=ANCHORS)
+    want = log.sort_values("node", kind="stable").reset_index(drop=True)
+    pd.testing.assert_frame_equal(read[["time", "node", "peer", "kind", "value"]],
+                                  want, check_dtype=False)
+    bad = log[log["node"] == "tag1"].drop(columns="node").reset_index(drop=True)
+    bad.loc[3, "peer"] = "Z"
+    path = parts[1][0]
+    bad.to_parquet(path, index=False)
+    with pytest.raises(InputError, match=rf"{path.name}: line 5, column 'peer': unknown "
+                                         r"anchor or node 'Z'"):
+        read_measurements(folder, anchors=ANCHORS)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match=r"holds no \*\.parquet file"):
+        measurement_parts(tmp_path / "empty")
+
+
+@pytest.mark.slow   # subprocesses
+def test_workers_read_a_log_in_parts_and_write_the_bytes_of_one_process(tmp_path):
+    """Partitioned by node: each worker reads its nodes' parts; the output equals one
+    process reading the whole folder, and the estimates of the log as one CSV file."""
+    log = fleet_log()
+    folder = _parts(tmp_path, log)
+    log.sort_values("node", kind="stable").to_csv(tmp_path / "log.csv", index=False)
+    ANCHORS.to_csv(tmp_path / "anchors.csv", index=False)
+    outs = []
+    for source, extra in ((folder, []), (folder, ["--workers", "2"]),
+                          (tmp_path / "log.csv", [])):
+        out = tmp_path / f"est{len(outs)}.csv"
+        subprocess.run([sys.executable, "-m", "radioloc.cli", "locate", str(source),
+                        "--anchors", str(tmp_path / "anchors.csv"), "--method", "lsq",
+                        "--out", str(out), "-q", *extra],
+                       check=True, timeout=300, capture_output=True)
+        outs.append(out.read_bytes())
+    assert outs[0] == outs[1] == outs[2] and len(outs[0]) > 1000
+    import json
+    summary = json.loads((tmp_path / "est1.summary.json").read_text())
+    assert summary["rows_read"] == len(log) and summary["fleet"]["workers"] == 2

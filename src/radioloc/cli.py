@@ -309,7 +309,7 @@ def show_config(
 
 @app.command()
 def locate(
-    measurements: Annotated[Path, typer.Argument(help="Measurements CSV: time, node, peer, kind, value.")],
+    measurements: Annotated[Path, typer.Argument(help="Measurements CSV or Parquet (time, node, peer, kind, value), or a folder of Parquet files (a log in parts, e.g. node=ID/*.parquet).")],
     anchors: Annotated[Optional[Path], typer.Option(help="Anchors CSV: id, x, y[, z].")] = None,
     method: Annotated[str, typer.Option(help="Estimator; see `radioloc methods`.")] = "gn",
     out: Annotated[Optional[Path], typer.Option(help="Output file (default: CSV on standard output); its format by --format or the suffix (.csv, .parquet, .tum, .geojson). A summary OUT-stem.summary.json is written beside it.")] = None,
@@ -400,14 +400,24 @@ def locate(
             raise RadiolocError(f"-o not_detected={nd!r}: expected a number") from None
         chunked = None
         fleet = workers > 1 or scheduler is not None
+        parts = measurements.is_dir()           # a log in parts: a folder of Parquet files
         if chunk_rows and plot is None and reference is None and priors is None \
-                and calibration is None and not fleet:
+                and calibration is None and not fleet and not parts:
             from radioloc.locate.chunked import locate_in_chunks
 
             with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
                 chunked = locate_in_chunks(method, measurements, anchor_table, opts, work, out,
                                            fmt, chunk_rows, nd)
-        if chunked is None:
+        if chunked is None and fleet and parts:     # each worker reads its nodes' parts
+            from radioloc.io.logs import measurement_parts
+            from radioloc.locate.fleet import locate_fleet_parts
+
+            request = LocateRequest(None, anchor_table, priors, calibration, opts, frame=work)
+            with show_progress(not quiet), warnings.catch_warnings(record=True) as warned:
+                estimates = locate_fleet_parts(method, measurement_parts(measurements),
+                                               request, workers, scheduler, nd)
+            rows_read = estimates.attrs["summary"].pop("rows_read")
+        elif chunked is None:
             meas = subtract_anchor_bias(read_measurements(measurements, anchors=anchor_table,
                                                           not_detected=nd), anchor_table)
             request = LocateRequest(meas, anchor_table, priors, calibration, opts, frame=work)
@@ -418,6 +428,7 @@ def locate(
                     estimates = locate_fleet(method, request, workers, scheduler)
                 else:
                     estimates = run_method(method, request)
+            rows_read = len(meas)
         for w in warned:                    # shown as usual, counted for --strict
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         if chunked is not None:
@@ -433,7 +444,7 @@ def locate(
     check_outputs([*(("--out", f) for f in files), *others], inputs)
     written = write_output(estimates, out, fmt, anchor_table, work)
     summary = {"method": method, "options": dict(sorted(opts.items())),
-               "measurements": str(measurements), "rows_read": int(len(meas)),
+               "measurements": str(measurements), "rows_read": int(rows_read),
                "rows_out": int(len(estimates)), **estimates.attrs.get("summary", {})}
     if errors is not None:
         summary["reference"] = error_summary(errors, len(estimates))

@@ -655,7 +655,7 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
     Parameters
     ----------
     path : path
-        The file.
+        The file, or a folder of Parquet files (a log in parts: :func:`measurement_parts`).
     anchors : DataFrame, optional
         The anchors table. If given, every ``peer`` must be an anchor id or an id that
         appears in the ``node`` column, otherwise :class:`InputError` names the row.
@@ -678,8 +678,92 @@ def read_measurements(path: Path | str, *, anchors: pd.DataFrame | None = None,
         unknown kind, a negative range, a value beyond :data:`LIMITS` (an RSS of +100 dBm
         is named as the "not detected" sentinel), a node measuring itself, an unknown peer.
     """
+    if Path(path).is_dir():
+        return read_measurement_parts(measurement_parts(path), anchors=anchors,
+                                      not_detected=not_detected)
     return measurements_of_cells(_read_csv(path, "measurements"), path, anchors=anchors,
                                  not_detected=not_detected)
+
+
+def measurement_parts(path: Path | str) -> list[tuple[Path, str | None]]:
+    """The Parquet files of a log written in parts to a folder (for example by pandas'
+    ``to_parquet(folder, partition_cols=["node"])``), in sorted path order, each with the
+    node its Hive partition names (a ``node=ID`` folder on its path, URL-quoted as pyarrow
+    writes it) or None.
+
+    Raises
+    ------
+    InputError
+        The folder holds no ``*.parquet`` file.
+    """
+    from urllib.parse import unquote
+
+    root = Path(path)
+    files = sorted(p for p in root.rglob("*.parquet") if p.is_file())
+    if not files:
+        raise InputError(f"measurements file {root}: is a folder, not a file, and holds no "
+                         "*.parquet file (a log in parts is a folder of Parquet files, e.g. "
+                         "node=ID/part.parquet)")
+    parts = []
+    for f in files:
+        node = None
+        for folder in f.relative_to(root).parts[:-1]:
+            key, sep, value = folder.partition("=")
+            if sep and key.strip().lower() == "node":
+                node = unquote(value)
+        parts.append((f, node))
+    return parts
+
+
+def read_measurement_parts(parts: list[tuple[Path, str | None]], *,
+                           nodes: set | None = None, anchors: pd.DataFrame | None = None,
+                           not_detected: float | None = None) -> pd.DataFrame:
+    """:func:`read_measurements` of a log in parts (:func:`measurement_parts`), their rows
+    in the parts' order: each file is checked as a file of its own (a message names the
+    file and the row's line as in its CSV text), with its partition's node as its ``node``
+    column; with ``nodes``, only those nodes' rows (a part whose partition names another
+    node is not read). A peer is known when it is an anchor or a node of any part read.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_measurements`; a part whose ``node`` column disagrees with its
+        partition.
+    """
+    from radioloc.io.datasets import read_table_text
+
+    frames, unknown = [], {}
+    for path, node in parts:
+        if nodes is not None and node is not None and node not in nodes:
+            continue
+        cells = read_table_text(path)
+        cells.columns = [str(c).strip().lower() for c in cells.columns]
+        lines = np.arange(2, len(cells) + 2)
+        if node is not None:
+            if "node" in cells and not (cells["node"].str.strip() == node).all():
+                row = int(np.flatnonzero((cells["node"].str.strip() != node).to_numpy())[0])
+                raise InputError(f"{path}: line {row + 2}, column 'node': "
+                                 f"{cells['node'].iloc[row]!r} in the partition of node "
+                                 f"{node!r}")
+            cells["node"] = node
+        if nodes is not None and "node" in cells:
+            keep = cells["node"].str.strip().isin(nodes).to_numpy()
+            cells, lines = cells[keep].reset_index(drop=True), lines[keep]
+        cells.attrs["lines"] = lines
+        found: dict = {}
+        frames.append(measurements_of_cells(cells, path, anchors=anchors,
+                                            not_detected=not_detected, unknown_peers=found))
+        for peer, line in found.items():
+            unknown.setdefault(peer, (path, line))
+    if not frames:
+        raise InputError(f"measurements folder {parts[0][0].parent}: no part holds the "
+                         f"nodes {sorted(nodes or ())}")
+    out = pd.concat(frames, ignore_index=True)
+    known = set(out["node"])
+    for peer, (path, line) in unknown.items():
+        if peer not in known:
+            refuse_unknown_peer(path, line, peer)
+    return out
 
 
 def measurements_of_cells(frame: pd.DataFrame, path: Path | str, *,
