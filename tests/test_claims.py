@@ -85,6 +85,10 @@ def test_bounds_within_and_all_of():
     assert Claim.all_of("chain", [h, u]).verdict == UNDECIDED
     assert Claim.all_of("chain", [u, f, h]).verdict == FAILS
     assert Claim.all_of("chain", [u, f]).ci == f.ci
+    record = Claim.all_of("chain", [u, f, h]).as_dict()       # every step, for repetitions
+    assert [p["ci_low"] for p in record["parts"]] == [c.ci[0] for c in (u, f, h)]
+    assert [p["verdict"] for p in record["parts"]] == [UNDECIDED, FAILS, HOLDS]
+    assert "parts" not in h.as_dict()
     with pytest.raises(ConfigError, match="no parts"):
         Claim.all_of("chain", [])
     with pytest.raises(ConfigError, match="stat"):

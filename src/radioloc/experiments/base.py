@@ -264,6 +264,7 @@ class Claim:
     unit: str = ""
     level: float = LEVEL
     what: str = ""
+    parts: tuple["Claim", ...] = ()
 
     @property
     def verdict(self) -> str:
@@ -371,7 +372,9 @@ class Claim:
 
         Does not hold when some part does not hold, else is undecided. The interval shown
         is that of the deciding part: the first that does not hold, else the first
-        undecided one, else the one with the widest interval below its mean.
+        undecided one, else the one with the widest interval below its mean. Which part
+        decides can differ between repetitions, so each part's own estimate and interval
+        are kept (``parts``, in ``summary.json``): those are what repetitions compare.
         """
         if not parts:
             raise ConfigError(f"Claim.all_of: {claim!r} has no parts")
@@ -384,7 +387,7 @@ class Claim:
         else:
             key, holds = min(parts, key=lambda p: p.ci[0] - p.estimate), True
         return cls(claim, holds, key.estimate, key.ci, key.n, key.unit, key.level,
-                   f"{key.what} of the deciding step ({len(parts)} steps)")
+                   f"{key.what} of the deciding step ({len(parts)} steps)", tuple(parts))
 
     def as_dict(self) -> dict[str, Any]:
         lo, hi = (np.nan, np.nan) if self.ci is None else map(float, self.ci)
@@ -395,7 +398,8 @@ class Claim:
                 "ci_low": lo if np.isfinite(lo) else None,
                 "ci_high": hi if np.isfinite(hi) else None,
                 "level": float(self.level), "n": int(self.n), "unit": self.unit,
-                "what": self.what}
+                "what": self.what,
+                **({"parts": [p.as_dict() for p in self.parts]} if self.parts else {})}
 
 
 @dataclass
