@@ -324,3 +324,68 @@ def test_a_pseudorange_log_with_too_small_stated_stds_names_them_not_a_range_opt
     (finding,) = _health(out)["findings"]
     assert "the pseudorange rows' own std (median 0.05) too small" in finding["message"]
     assert "range_std_m" not in finding["message"]
+
+
+def _pseudorange_log(persistent_m: float, seed: int = 3):
+    """Pseudoranges to six anchors (clock offset 150 m drifting 2 m/s) from a tag on an
+    ellipse; each anchor's error a first-order Gauss-Markov wander of deviation
+    ``persistent_m`` (time constant 20 s) plus 0.3 m white noise; every row states 0.3 m."""
+    rng = np.random.default_rng(seed)
+    ids = [f"A{k}" for k in range(6)]
+    xy = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0], [10.0, -3.0],
+                   [23.0, 7.0]])
+    t = 0.2 * np.arange(300)
+    path = np.c_[10 + 6 * np.cos(t / 6), 7 + 4 * np.sin(t / 6)]
+    a = np.exp(-0.2 / 20.0)
+    wander = np.zeros((t.size, 6))
+    wander[0] = persistent_m * rng.standard_normal(6)
+    for k in range(1, t.size):
+        wander[k] = a * wander[k - 1] + persistent_m * np.sqrt(1 - a * a) * rng.standard_normal(6)
+    pr = (np.linalg.norm(path[:, None, :] - xy, axis=-1) + (150.0 + 2.0 * t)[:, None] + wander
+          + 0.3 * rng.standard_normal((t.size, 6)))
+    log = pd.DataFrame({"time": np.repeat(t, 6), "node": "tag", "peer": np.tile(ids, t.size),
+                        "kind": "pseudorange", "value": pr.ravel(), "std": 0.3})
+    reference = pd.DataFrame({"time": t, "node": "tag", "x": path[:, 0], "y": path[:, 1]})
+    return log, pd.DataFrame({"id": ids, "x": xy[:, 0], "y": xy[:, 1]}), reference
+
+
+def test_pseudorange_errors_that_persist_are_found_and_the_covariance_covers_them():
+    """Each anchor's pseudorange error wanders by 2 m over tens of seconds while every row
+    states 0.3 m: each epoch's rows fit, but the tracker averages the wander and claims
+    decimetres. The residuals' lag-one products show the wander; the covariance gains the
+    fixes' covariance under it, and the errors then lie inside the 95 % ellipse about as
+    often as claimed. The tracker's slip search had called this log 'pseudoranges in ns'
+    (the values times 0.3 shrink the wander too); the fixes' residual scale falls by 0.3
+    alone, so no unit is named. Without the wander: no finding and no inflation."""
+    log, anchors, reference = _pseudorange_log(2.0, seed=4)
+    for method in ("ekf-track", "smoother", "lsq"):
+        with warnings.catch_warnings(record=True):
+            warnings.simplefilter("always")
+            out = run_method(method, LocateRequest(log, anchors))
+        (finding,) = _health(out)["findings"]
+        assert finding["cause"] == "persistent", finding["message"]
+        assert "errors that persist" in finding["message"]
+        assert 4.0 < finding["figures"]["persistent_sigmas"] < 9.0      # 2 m / 0.3 m = 6.7
+        inside = reference_errors(out, reference)["inside_95"].mean()
+        assert 0.8 < inside <= 1.0, (method, inside)
+    clean, _, _ = _pseudorange_log(0.0, seed=4)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = run_method("ekf-track", LocateRequest(clean, anchors))
+    assert _health(out)["findings"] == [] and not caught
+    assert _health(out)["covariance_inflation"]["tag"] == 1.0
+    assert reference_errors(out, reference)["inside_95"].mean() > 0.9
+
+
+def test_a_unit_slip_is_named_only_when_it_restores_the_geometry():
+    """The slip search's guard: a map that scales the values by s must bring the fixes'
+    residual scale below half of s times the log's own."""
+    from radioloc.locate.slips import likely_slip
+
+    log = pd.DataFrame({"kind": ["pseudorange"] * 3, "value": [10.0, 20.0, 30.0]})
+    shrunk = lambda m: bool(m["value"].iloc[0] < 5)                  # noqa: E731
+    assert likely_slip(log, shrunk)[2] == "pseudoranges in ns?"
+    by_scale_alone = lambda m: 2.0 * m["value"].iloc[0] / 10.0         # noqa: E731
+    assert likely_slip(log, shrunk, fit_scale=by_scale_alone) is None
+    restored = lambda m: 2.0 if m["value"].iloc[0] == 10.0 else 0.1    # noqa: E731
+    assert likely_slip(log, shrunk, fit_scale=restored)[2] == "pseudoranges in ns?"

@@ -81,7 +81,7 @@ from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
 from radioloc.locate.self_tuning import learn_node, not_learnable, tuned_observations
-from radioloc.locate.health import divergence
+from radioloc.locate.health import divergence, noise_in_force, snapshot_scale
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import covariance_columns
 from radioloc.models.measurement import (Context, Observation, StateLayout, check_motion,
@@ -856,12 +856,14 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                noisy = not track_log(looser_noise(request), request.measurements)[1]
+                loose = looser_noise(request)
+                noisy = not track_log(loose, loose.measurements)[1]
         except RadiolocError:
             noisy = False
         slip = likely_slip(request.measurements,
                            lambda log: not track_log(request, log)[1], bounded=bounded,
-                           scales=not noisy)
+                           scales=not noisy,
+                           fit_scale=lambda log: snapshot_scale(request, log))
         if slip is not None:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "
@@ -877,30 +879,11 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
     return out
 
 
-def noise_in_force(meas: pd.DataFrame, noise: dict) -> str:
-    """The noise each kind of the log ran with, as text: its sigma option's value (``noise``,
-    else the kind's default), or the rows' own ``std`` where every row of the kind states one
-    (its median)."""
-    parts = []
-    for kind in sorted(meas["kind"].unique()):
-        declared = model_kinds().get(kind)
-        if declared is None or not declared.sigma_option:
-            continue
-        std = (meas.loc[meas["kind"] == kind, "std"].to_numpy(dtype=float)
-               if "std" in meas else np.array([np.nan]))
-        if np.isfinite(std).all():
-            parts.append(f"the {kind} rows' own std (median {np.median(std):.3g})")
-        else:
-            name = declared.sigma_option
-            parts.append(f"{name}={noise.get(name, declared.sigma_default):g}")
-    return ", ".join(parts)
-
-
 def looser_noise(request: LocateRequest) -> LocateRequest:
     """The request with every sigma in force (given or default, of each kind the log holds,
-    and the odometry's) times :data:`NOISE_SLACK`: a log that fits no track with the stated
-    noise but does with this one may have diverged by its noise, and no unit slip is
-    named (a sign or a convention still is)."""
+    and the odometry's, and each row's own ``std``) times :data:`NOISE_SLACK`: a log that
+    fits no track with the stated noise but does with this one may have diverged by its
+    noise, and no unit slip is named (a sign or a convention still is)."""
     kinds = set(request.measurements["kind"].unique())
     looser = {}
     for kind in kinds & set(model_kinds()):
@@ -909,7 +892,10 @@ def looser_noise(request: LocateRequest) -> LocateRequest:
                                                                     k.sigma_default))
     if has_odometry(request.measurements):
         looser["odometry_std_m"] = NOISE_SLACK * request.option("odometry_std_m", ODOMETRY_STD_M)
-    return replace(request, parsed={**request.parsed, **looser})
+    meas = request.measurements
+    if "std" in meas.columns:
+        meas = meas.assign(std=NOISE_SLACK * meas["std"])
+    return replace(request, measurements=meas, parsed={**request.parsed, **looser})
 
 
 def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, s: dict,

@@ -22,12 +22,17 @@ is tells the track:
 - **outside the anchors' region**: positions farther outside the anchors' box than its
   diagonal and :data:`OFF_SIGMAS` claimed standard deviations.
 
-Network methods (priors) and moving anchors are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
+A log with pseudoranges (a receiver clock at each epoch) or moving anchors is checked
+against fixes of each epoch on its own instead (:func:`_snapshot_node`): off its data and
+misfit as above, and **errors that persist** from epoch to epoch (the residuals' lag-one
+products), which a track cannot average away: its covariance gains the fixes' covariance
+under them. Network methods (priors) are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
 data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
 mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y swapped or a
 wrong anchor (its rows alone misfit at the track, or, where the track followed it, fixes from
 the others fit step by step while its rows misfit them: :func:`_held_out_anchor`), NLOS (ranges longer than the fit, not shorter), a
-stated noise too small (residuals symmetric, every anchor alike), weak geometry (a track
+stated noise too small (residuals symmetric, every anchor alike), errors that persist
+(pseudoranges or moving anchors: each epoch fits, the errors wander slowly), weak geometry (a track
 far outside the anchors whose rows fit it: its errors there are not seen in the residuals),
 or a diverged track (the rows fit well a position away from the track, or it left the
 anchors' region and its rows misfit). Findings are warned and recorded in the
@@ -53,15 +58,26 @@ import pandas as pd
 from radioloc.core.errors import RadiolocError
 from radioloc.core.kinds import model_kinds
 from radioloc.estimators.fault_exclusion import chi2_quantile
-from radioloc.locate.adapter import default_models, moving_anchors, node_observations
+from radioloc.locate.adapter import (
+    default_models,
+    frame_settings,
+    moving_anchors,
+    node_observations,
+)
 from radioloc.locate.self_tuning import learned_noise
 from radioloc.locate.slips import slip_scale, slips
 from radioloc.locate.table import add_covariance, covariance_of
 
 __all__ = ["Finding", "HealthReport", "check_run", "divergence", "window_fit", "CHECKED_KINDS"]
 
-#: The kinds the check reads (a pseudorange needs the receiver clock; RSS a path-loss model).
+#: The kinds the window check reads (RSS would need a path-loss model).
 CHECKED_KINDS = ("range", "tdoa", "aoa", "aoa_elevation")
+#: Kinds whose fix needs more than the position (a receiver clock at each epoch): a log
+#: with them, or with moving anchors, is checked against fixes of each epoch on its own.
+SNAPSHOT_KINDS = ("pseudorange",)
+#: Errors that persist put the fixes this many times the claimed standard deviation off
+#: (median over rows) before the snapshot check reports them.
+PERSISTENT_RATIO = 2.0
 #: Fewest rows in a window of the refit.
 WINDOW_ROWS = 24
 #: Huber threshold of the refit, in robust standard deviations.
@@ -391,20 +407,25 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
     out = out.copy(deep=False)
     out.attrs = {}          # not deep-copied by pandas into every frame made from it below
     findings, inflation, scales = [], {}, {}
-    if request.priors is None and not moving_anchors(request.anchors):
-        # network methods (nodes fixed by priors and each other) and moving anchors are
-        # not judged here
+    if request.priors is None:
+        # network methods (nodes fixed by priors and each other) are not judged here
         sigmas = stated_sigmas(request, summary)
+        snapshot = moving_anchors(request.anchors) or bool(
+            request.measurements["kind"].isin(SNAPSHOT_KINDS).any())
         parts = []
         for node, idx in out.groupby("node", sort=False).indices.items():
             own = out.iloc[idx].sort_values("time", kind="stable")
-            rows = _node_rows(request, own, node, sigmas,
-                              summary.get("learned", {}).get(str(node)))
-            if rows is None:
+            if snapshot:
+                checked = _snapshot_node(method_name, request, own, node, sigmas)
+            else:
+                rows = _node_rows(request, own, node, sigmas,
+                                  summary.get("learned", {}).get(str(node)))
+                checked = None if rows is None else _check_node(method_name, request, own,
+                                                                node, rows, sigmas)
+            if checked is None:
                 parts.append(own)
                 continue
-            found, factor, scale, filled = _check_node(method_name, request, own, node, rows,
-                                                       sigmas)
+            found, factor, scale, filled = checked
             findings += found
             inflation[node], scales[node] = factor, scale
             parts.append(filled)
@@ -482,6 +503,190 @@ def _with_innovations(findings: list[Finding], signs: list[dict], out: pd.DataFr
         by_node[node] = f
         findings.append(f)
     return findings
+
+
+def _snapshot_node(method_name, request, own, node, sigmas):
+    """The check of a node whose fixes need more than its position (a receiver clock with
+    pseudoranges) or whose anchors move (module docstring), against fixes of each epoch on
+    its own (:class:`~radioloc.estimators.least_squares.LeastSquares`, Huber loss).
+
+    - **Off its data / misfit**, as the window check: the fixes ``d`` from the track beyond
+      the claimed covariance plus the fixes' own (at their robust residual scale).
+    - **Errors that persist over epochs.** Each row's standardised residual at its plain
+      least-squares fix, times the same row's at the next epoch, averaged over rows (clipped at :data:`HUBER`
+      robust standard deviations): white errors give zero, errors that wander slowly (multipath, NLOS)
+      give their variance ``g^2`` (in stated-noise units; divided by the share of a fix's
+      rows left to its residuals, ``1 - unknowns / rows``), counted when 3 standard errors
+      above zero. A track can average white errors, not these: each epoch's covariance is
+      at least the fix's under them, ``g^2 (J' W J)^-1``, added to the claimed one; a
+      finding when that is more than :data:`PERSISTENT_RATIO` times the claimed (standard
+      deviations).
+
+    Returns ``(findings, factor, scale, filled)`` as :func:`_check_node`, or None (nothing to
+    fix)."""
+    from radioloc.estimators.fault_exclusion import standardised_residuals
+    from radioloc.estimators.least_squares import LeastSquares
+
+    claimed_out = covariance_of(own)
+    options = {name: value for value, name, _ in sigmas.values()}
+    fixed = _epoch_fits(request, request.measurements, node, options, "huber")
+    if fixed is None or claimed_out is None:
+        return None
+    times, obs, fit, u, own_rows = fixed
+    # residuals of plain least squares for the persistence: a Huber fit of few rows to
+    # spare passes through some of them and leaves the rest large
+    with np.errstate(all="ignore"):
+        plain = standardised_residuals(obs, LeastSquares().locate(obs))
+    dim = min(fit.position.shape[-1], claimed_out.shape[-1])
+    cols = ["x", "y", "z"][:dim]
+    unknowns = fit.diagnostics["state"].shape[-1]
+    ok = ~np.asarray(fit.diagnostics["degenerate"]) & np.all(np.isfinite(fit.position), -1)
+    used = np.isfinite(u) & ok[:, None]
+    rows_per = used.sum(-1)
+    n = int(used.sum())
+    if ok.sum() < 5 or n <= ok.sum() * unknowns:
+        return None
+    scale = _robust_scale(u[used]) * math.sqrt(n / (n - ok.sum() * unknowns))
+    # errors that persist: lag-one products of each row's standardised residuals
+    kept = np.isfinite(plain) & ok[:, None]
+    bound = HUBER * max(_robust_scale(plain[kept]), 1.0)
+    clipped = np.clip(plain, -bound, bound)
+    prod = (clipped[:-1] * clipped[1:])[kept[:-1] & kept[1:]]
+    spare = float(np.mean(1.0 - unknowns / rows_per[ok]))
+    g2 = 0.0
+    if prod.size > 10 and spare > 0:
+        mean, err = float(prod.mean()), float(prod.std()) * math.sqrt(2.0 / prod.size)
+        if mean > 3 * err:
+            g2 = mean / spare
+    t_out = own["time"].to_numpy(dtype=float)
+    xyz = own[cols].to_numpy(dtype=float)
+    track = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
+    fix_cov = fit.covariance[..., :dim, :dim]
+    P_fix = _claimed(own, times, dim)
+    # the persistent part at each output row: the nearest ok fix's
+    ok_t = times[ok]
+    near = np.flatnonzero(ok)[np.clip(np.searchsorted(ok_t, t_out), 0, ok_t.size - 1)]
+    persistent = g2 * fix_cov[near]
+    d = (fit.position[..., :dim] - track)[ok]
+    C = fix_cov[ok] * max(scale, 1.0) ** 2 + g2 * fix_cov[ok]
+    P = P_fix[ok]
+    with np.errstate(all="ignore"):
+        m2 = np.einsum("ti,tij,tj->t", d, np.linalg.pinv(P + C), d)
+        far = np.linalg.norm(d, axis=1) > OFF_SIGMAS * np.sqrt(np.trace(P, axis1=1, axis2=2))
+        ratio = float(np.median(np.sqrt(np.trace(persistent, axis1=1, axis2=2)
+                                        / np.trace(claimed_out[:, :dim, :dim], axis1=1,
+                                                   axis2=2))))
+    off = (m2 > chi2_quantile(CHI2_PROB, dim)) & far
+    coverage = _coverage_factor(d, P, C)
+    # a residual scale from errors that persist is not white noise the track mis-weighs
+    factor = max(max(1.0, scale) if scale > INFLATE_ABOVE and g2 == 0.0 else 1.0, coverage)
+    total = claimed_out * factor ** 2
+    total[:, :dim, :dim] += persistent
+    filled = own if factor == 1.0 and g2 == 0.0 else add_covariance(own, total)
+    checks = []
+    figures = {"residual_scale": round(scale, 3), "coverage_factor": round(coverage, 3),
+               "persistent_sigmas": round(math.sqrt(g2), 3),
+               "persistent_to_claimed": round(ratio, 3)}
+    what = []
+    if off.mean() > OFF_FRACTION:
+        checks.append("off_its_data")
+        figures["windows_off"] = round(float(off.mean()), 3)
+        figures["correction_m"] = round(float(np.median(np.linalg.norm(d[off], axis=1))), 3)
+        what.append(f"fixes of each epoch on its own lie {figures['correction_m']:.3g} m from "
+                    f"the track, beyond its claimed uncertainty, at {100 * off.mean():.0f} % of "
+                    "its epochs")
+    if scale > SCALE_LIMIT:
+        checks.append("misfit")
+        what.append(f"their residuals {scale:.3g} times the stated noise")
+    if ratio > PERSISTENT_RATIO:
+        checks.append("persistent")
+        what.append(f"errors that persist from epoch to epoch ({math.sqrt(g2):.2g} times the "
+                    f"stated noise) put the fixes {ratio:.3g} times the track's claimed "
+                    "uncertainty off, which a track cannot average away")
+    if not checks:
+        return [], factor, scale, filled
+    v = u[used] / (scale if scale < SCALE_LIMIT else 1.0)
+    longer, shorter = float(np.mean(v > 3)), float(np.mean(v < -3))
+    if longer > NLOS_SHARE and longer > NLOS_RATIO * shorter:
+        cause = ("nlos", (f"NLOS: {100 * longer:.0f} % of the rows lie 3 sigma or more "
+                          f"longer than the fixes and {100 * shorter:.0f} % shorter (a LOS/NLOS "
+                          "model: --method smoother -o loss=max-mixture)"))
+    elif scale > SCALE_LIMIT:
+        cause = ("noise", f"{noise_in_force(own_rows, options)} too small for this log?")
+    else:
+        cause = ("persistent", (f"errors that persist over epochs (multipath, NLOS): each "
+                                f"epoch's rows fit (residuals {scale:.2g} times the stated "
+                                "noise), but the track averages their errors as if "
+                                "independent and claims too little"))
+    figures["inflation"] = round(factor, 3)
+    start, end = float(times[ok].min()), float(times[ok].max())
+    grown = ("covariance inflated" + (f" x{factor:.3g}" if factor > 1 else "")
+             + (" plus the persistent part" if g2 > 0 else ""))
+    message = (f"node {node!r}, time {start:g} to {end:g}: {'; '.join(what)}; likely cause: "
+               f"{cause[1]} ({grown})")
+    return [Finding(node, start, end, checks, cause[0], message, figures)], factor, scale, filled
+
+
+def _epoch_fits(request, meas: pd.DataFrame, node, options: dict, loss: str = "linear"):
+    """``(times, observations, fit, standardised residuals, rows)`` of a node's epochs each
+    fixed on its own (:class:`~radioloc.estimators.least_squares.LeastSquares` with
+    ``loss``, the sigmas of ``options``), or None (nothing to fix, or a log that fails)."""
+    from radioloc.estimators.fault_exclusion import standardised_residuals
+    from radioloc.estimators.least_squares import LeastSquares
+    from radioloc.io.measurements import Measurements
+
+    kinds = [k for k in (*CHECKED_KINDS, *SNAPSHOT_KINDS) if k in set(meas["kind"].unique())]
+    rows = meas[(meas["node"] == node) & meas["kind"].isin(kinds)]
+    if rows.empty or request.anchors is None:
+        return None
+    models = default_models(kinds, options, settings=frame_settings(request))
+    try:
+        times, obs = node_observations(Measurements(rows), request.anchors, node, models,
+                                       height_m=request.option("tag_height_m"), checked=True)
+        if not obs or times.size == 0:
+            return None
+        with np.errstate(all="ignore"):
+            fit = LeastSquares(loss=loss).locate(obs)
+            u = standardised_residuals(obs, fit)
+    except RadiolocError:
+        return None
+    return times, obs, fit, u, rows
+
+
+def snapshot_scale(request, meas: pd.DataFrame) -> float:
+    """The robust scale of a log's standardised residuals at fixes of each epoch on its own
+    (every node, the sigmas in force; NaN when no epoch is fixed): for the slip search, a
+    map of the values whose scale falls by no more than the map's own factor has not
+    restored the geometry (:func:`radioloc.locate.slips.likely_slip`)."""
+    options = {name: value for value, name, _ in stated_sigmas(request, {}).values()}
+    pooled = []
+    for node in meas["node"].unique():
+        fixed = _epoch_fits(request, meas, node, options)
+        if fixed is None:
+            continue
+        fit, u = fixed[2], fixed[3]
+        ok = ~np.asarray(fit.diagnostics["degenerate"])
+        pooled.append(u[np.isfinite(u) & ok[:, None]])
+    return _robust_scale(np.concatenate(pooled)) if pooled else math.nan
+
+
+def noise_in_force(meas: pd.DataFrame, noise: dict) -> str:
+    """The noise each kind of the log ran with, as text: its sigma option's value (``noise``,
+    else the kind's default), or the rows' own ``std`` where every row of the kind states one
+    (its median)."""
+    parts = []
+    for kind in sorted(meas["kind"].unique()):
+        declared = model_kinds().get(kind)
+        if declared is None or not declared.sigma_option:
+            continue
+        std = (meas.loc[meas["kind"] == kind, "std"].to_numpy(dtype=float)
+               if "std" in meas else np.array([np.nan]))
+        if np.isfinite(std).all():
+            parts.append(f"the {kind} rows' own std (median {np.median(std):.3g})")
+        else:
+            name = declared.sigma_option
+            parts.append(f"{name}={noise.get(name, declared.sigma_default):g}")
+    return ", ".join(parts)
 
 
 def _check_node(method_name, request, own, node, rows: _Rows, sigmas):

@@ -33,6 +33,9 @@ def slips() -> list[tuple[tuple[str, ...], Callable[[np.ndarray], np.ndarray], s
 #: Shrink factor of a slip's map (mm: 1000) beyond which a kind whose values passed their
 #: input bound is not blamed (1000 times too large, they break it for any position).
 BOUND_FACTOR = 1e3
+#: A unit slip's map must bring the fixes' residual scale below this share of what
+#: scaling the errors alone would (:func:`likely_slip`).
+UNIT_GAIN = 0.5
 
 
 def undo_slip(measurements: pd.DataFrame, kinds: tuple[str, ...],
@@ -65,7 +68,8 @@ def slip_scale(undo: Callable[[np.ndarray], np.ndarray]) -> float:
 
 
 def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame], bool], *,
-                bounded: Collection[str] = (), scales: bool = True
+                bounded: Collection[str] = (), scales: bool = True,
+                fit_scale: Callable[[pd.DataFrame], float] | None = None
                 ) -> tuple[str, str, str] | None:
     """The slip of :func:`slips` whose undoing makes a diverged log consistent.
 
@@ -87,6 +91,11 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         (:func:`radioloc.core.plausibility.check_values`).
     scales : bool
         Try the unit slips (maps that scale the values, :func:`slip_scale`).
+    fit_scale : callable, optional
+        ``fit_scale(log) -> float``: the residual scale of a log at fixes of each epoch on
+        its own. Given, a unit slip that scales the values by ``s`` is named only when its
+        map brings that scale below ``UNIT_GAIN * s`` times the log's own: shrinking
+        values shrinks their errors by ``s`` alone; a unit put right restores the geometry.
 
     Returns
     -------
@@ -105,6 +114,12 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         if not scales and not np.isclose(scale, 1.0):
             continue
         mapped = undo_slip(measurements, kinds, undo)
+        if fit_scale is not None and not np.isclose(scale, 1.0):
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                before, after = fit_scale(measurements), fit_scale(mapped)
+            if not after < UNIT_GAIN * scale * before:
+                continue
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):
                 warnings.simplefilter("ignore")
