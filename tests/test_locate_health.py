@@ -326,6 +326,17 @@ def test_a_pseudorange_log_with_too_small_stated_stds_names_them_not_a_range_opt
     assert "range_std_m" not in finding["message"]
 
 
+def _gauss_markov(rng, steps: int, anchors: int, deviation: float) -> np.ndarray:
+    """Each anchor's first-order Gauss-Markov error ``(steps, anchors)``: stationary
+    ``deviation``, time constant 20 s, steps of 0.2 s."""
+    a = np.exp(-0.2 / 20.0)
+    out = np.zeros((steps, anchors))
+    out[0] = deviation * rng.standard_normal(anchors)
+    for k in range(1, steps):
+        out[k] = a * out[k - 1] + deviation * np.sqrt(1 - a * a) * rng.standard_normal(anchors)
+    return out
+
+
 def _pseudorange_log(persistent_m: float, seed: int = 3):
     """Pseudoranges to six anchors (clock offset 150 m drifting 2 m/s) from a tag on an
     ellipse; each anchor's error a first-order Gauss-Markov wander of deviation
@@ -334,13 +345,9 @@ def _pseudorange_log(persistent_m: float, seed: int = 3):
     ids = [f"A{k}" for k in range(6)]
     xy = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0], [10.0, -3.0],
                    [23.0, 7.0]])
-    t = 0.2 * np.arange(300)
+    t = 0.2 * np.arange(1000)
     path = np.c_[10 + 6 * np.cos(t / 6), 7 + 4 * np.sin(t / 6)]
-    a = np.exp(-0.2 / 20.0)
-    wander = np.zeros((t.size, 6))
-    wander[0] = persistent_m * rng.standard_normal(6)
-    for k in range(1, t.size):
-        wander[k] = a * wander[k - 1] + persistent_m * np.sqrt(1 - a * a) * rng.standard_normal(6)
+    wander = _gauss_markov(rng, t.size, 6, persistent_m)
     pr = (np.linalg.norm(path[:, None, :] - xy, axis=-1) + (150.0 + 2.0 * t)[:, None] + wander
           + 0.3 * rng.standard_normal((t.size, 6)))
     log = pd.DataFrame({"time": np.repeat(t, 6), "node": "tag", "peer": np.tile(ids, t.size),
@@ -352,23 +359,27 @@ def _pseudorange_log(persistent_m: float, seed: int = 3):
 def test_pseudorange_errors_that_persist_are_found_and_the_covariance_covers_them():
     """Each anchor's pseudorange error wanders by 2 m over tens of seconds while every row
     states 0.3 m: each epoch's rows fit, but the tracker averages the wander and claims
-    decimetres. The residuals' lag-one products show the wander; the covariance gains the
-    fixes' covariance under it, and the errors then lie inside the 95 % ellipse about as
-    often as claimed. The tracker's slip search had called this log 'pseudoranges in ns'
-    (the values times 0.3 shrink the wander too); the fixes' residual scale falls by 0.3
-    alone, so no unit is named. Without the wander: no finding and no inflation."""
-    log, anchors, reference = _pseudorange_log(2.0, seed=4)
-    for method in ("ekf-track", "smoother", "lsq"):
-        with warnings.catch_warnings(record=True):
-            warnings.simplefilter("always")
-            out = run_method(method, LocateRequest(log, anchors))
-        (finding,) = _health(out)["findings"]
-        assert finding["cause"] == "persistent", finding["message"]
-        assert "errors that persist" in finding["message"]
-        assert 4.0 < finding["figures"]["persistent_sigmas"] < 9.0      # 2 m / 0.3 m = 6.7
-        inside = reference_errors(out, reference)["inside_95"].mean()
-        assert 0.8 < inside <= 1.0, (method, inside)
-    clean, _, _ = _pseudorange_log(0.0, seed=4)
+    decimetres (about 20 % of the errors inside the 95 % ellipse without this check). The
+    residuals' lag-one products show the wander; the covariance gains the fixes'
+    covariance under it. Over three logs, 72-97 % inside per log and method were measured;
+    the band asks at least 70 % on average for each method. The tracker's slip search had
+    called seed 4's log 'pseudoranges in ns' (the values times 0.3 shrink the wander too);
+    the fixes' residual scale falls by 0.3 alone, so no unit is named. Without the wander:
+    no finding and no inflation."""
+    inside = {"ekf-track": [], "smoother": [], "lsq": []}
+    for seed in (3, 4, 5):
+        log, anchors, reference = _pseudorange_log(2.0, seed=seed)
+        for method in inside:
+            with warnings.catch_warnings(record=True):
+                warnings.simplefilter("always")
+                out = run_method(method, LocateRequest(log, anchors))
+            (finding,) = _health(out)["findings"]
+            assert finding["cause"] == "persistent", finding["message"]
+            assert "errors that persist" in finding["message"]
+            assert 3.5 < finding["figures"]["persistent_sigmas"] < 10.0    # 2 m / 0.3 m = 6.7
+            inside[method].append(reference_errors(out, reference)["inside_95"].mean())
+    assert all(np.mean(v) >= 0.7 for v in inside.values()), inside
+    clean, anchors, reference = _pseudorange_log(0.0, seed=4)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         out = run_method("ekf-track", LocateRequest(clean, anchors))
@@ -383,9 +394,51 @@ def test_a_unit_slip_is_named_only_when_it_restores_the_geometry():
     from radioloc.locate.slips import likely_slip
 
     log = pd.DataFrame({"kind": ["pseudorange"] * 3, "value": [10.0, 20.0, 30.0]})
-    shrunk = lambda m: bool(m["value"].iloc[0] < 5)                  # noqa: E731
+    shrunk = lambda m: bool(m["value"].iloc[0] < 5)
     assert likely_slip(log, shrunk)[2] == "pseudoranges in ns?"
-    by_scale_alone = lambda m: 2.0 * m["value"].iloc[0] / 10.0         # noqa: E731
+    by_scale_alone = lambda m: 2.0 * m["value"].iloc[0] / 10.0
     assert likely_slip(log, shrunk, fit_scale=by_scale_alone) is None
-    restored = lambda m: 2.0 if m["value"].iloc[0] == 10.0 else 0.1    # noqa: E731
+    restored = lambda m: 2.0 if m["value"].iloc[0] == 10.0 else 0.1
     assert likely_slip(log, shrunk, fit_scale=restored)[2] == "pseudoranges in ns?"
+
+
+def _wandering_ranges(wander_m: float, seed: int):
+    """Ranges to five anchors from a tag on an ellipse, each anchor's error a Gauss-Markov
+    wander of deviation ``wander_m`` (time constant 20 s) plus 0.15 m white noise."""
+    rng = np.random.default_rng(seed)
+    ids = [f"A{k}" for k in range(5)]
+    xy = np.array([[0.0, 0.0], [20.0, 0.0], [20.0, 15.0], [0.0, 15.0], [10.0, -3.0]])
+    t = 0.2 * np.arange(1000)
+    path = np.c_[10 + 6 * np.cos(t / 6), 7 + 4 * np.sin(t / 6)]
+    wander = _gauss_markov(rng, t.size, 5, wander_m)
+    r = (np.linalg.norm(path[:, None, :] - xy, axis=-1) + wander
+         + 0.15 * rng.standard_normal((t.size, 5)))
+    log = pd.DataFrame({"time": np.repeat(t, 5), "node": "tag", "peer": np.tile(ids, t.size),
+                        "kind": "range", "value": r.ravel()})
+    return (log, pd.DataFrame({"id": ids, "x": xy[:, 0], "y": xy[:, 1]}),
+            pd.DataFrame({"time": t, "node": "tag", "x": path[:, 0], "y": path[:, 1]}))
+
+
+@pytest.mark.parametrize("options", [{"tune": "0"}, {"tune": "0", "range_std_m": "1.0"}])
+def test_range_errors_that_persist_widen_a_tracks_covariance(options):
+    """Ranges whose errors wander by 1 m per anchor (time constant 20 s), tracked with
+    fixed settings: at 0.15 m the residuals misfit (a finding); at 1 m they fit, no finding,
+    and only the lag-one products see the wander (88 % inside without its part). Either
+    way over 90 % of the errors end inside the written 95 % ellipse. Clean ranges: the
+    written covariance is the method's own."""
+    from radioloc.locate.base import prepare_method
+
+    log, anchors, reference = _wandering_ranges(1.0, seed=1)
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        out = run_method("ekf-track", LocateRequest(log, anchors, options=options))
+    assert bool(_health(out)["findings"]) == ("range_std_m" not in options)
+    assert reference_errors(out, reference)["inside_95"].mean() > 0.9
+    clean, anchors, reference = _wandering_ranges(0.0, seed=1)
+    request = LocateRequest(clean, anchors, options={"tune": "0"})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        checked = run_method("ekf-track", request)
+    assert not caught and _health(checked)["findings"] == []
+    raw = prepare_method("ekf-track", request).fn(request)
+    np.testing.assert_array_equal(checked["cov_xx"].to_numpy(), raw["cov_xx"].to_numpy())

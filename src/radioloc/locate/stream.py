@@ -21,8 +21,9 @@ Where the batch run looks beyond the window, the stream cannot: a start window t
 ranges to fewer than three anchors (the batch run widens it to the whole track; the stream
 to the rows held when the window closes), and a kind that first appears in a track after
 its start window (the batch run sizes the state for every kind of the log). The batch
-run's checks of the whole log (plausibility, divergence, unit slips) do not apply to rows
-that arrive one by one.
+run's checks of the whole log (plausibility, divergence, unit slips, and the health check
+that widens a covariance the whole log shows too small) do not apply to rows that arrive
+one by one: the stream's numbers are the method's own.
 """
 
 from __future__ import annotations
