@@ -321,9 +321,14 @@ def input_table(meas: Path) -> pd.DataFrame | None:
         return None
 
 
+#: A progress line, written to standard error once per 10 s of work when it is not a
+#: terminal (``radioloc.locate.progress``): part of any outcome, error or success.
+PROGRESS_LINE = re.compile(r"^[^\n]+: [\d,]+ of [\d,]+ [^\n]+ \(\d+ %\) after \d+ s$")
+
+
 def classify(res, scenario: Scenario, meas: Path) -> tuple[str, str]:
     """``(outcome, detail)``: outcome is ``error``, ``success`` or a failure class."""
-    text = res.output
+    text = "\n".join(ln for ln in res.output.splitlines() if not PROGRESS_LINE.match(ln))
     lines = [ln for ln in text.splitlines() if ln.strip()]
     if res.exception is not None and not isinstance(res.exception, SystemExit):
         tb = "".join(__import__("traceback").format_exception(res.exception)[-3:])

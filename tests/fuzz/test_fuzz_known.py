@@ -249,3 +249,17 @@ def test_calibrate_misfit_is_refused(workdir, mistake):
     res = run(args + ([] if mistake == "no_bias_flag" else ["--bias"]))
     lines = [ln for ln in res.output.splitlines() if ln.strip()]
     assert res.exit_code == 2 and len(lines) == 1 and "times --std-m" in lines[0], res.output
+
+
+def test_a_progress_line_of_a_slow_run_is_not_part_of_its_error(workdir, scenarios):
+    """A run slower than 10 s (a loaded machine) writes a progress line to standard error
+    before its one-line refusal; the fuzz had counted that as a multi-line error."""
+    from types import SimpleNamespace
+
+    sc, meas, _ = _case(workdir, scenarios, "gn")
+    refusal = "error: method lsq: node 'tag' at time 0.0: the measurements do not fit one position"
+    res = SimpleNamespace(exception=SystemExit(2), exit_code=2, stdout="",
+                          output=f"lsq: 96 of 96 rows (100 %) after 29 s\n{refusal}\n")
+    assert classify(res, sc, meas) == ("error", refusal)
+    res.output = f"lsq: 96 of 96 rows (100 %) after 29 s\n{refusal}\nmore\n"
+    assert classify(res, sc, meas)[0] == "multi-line error"
