@@ -396,10 +396,12 @@ def test_a_unit_slip_is_named_only_when_it_restores_the_geometry():
     log = pd.DataFrame({"kind": ["pseudorange"] * 3, "value": [10.0, 20.0, 30.0]})
     shrunk = lambda m: bool(m["value"].iloc[0] < 5)
     assert likely_slip(log, shrunk)[2] == "pseudoranges in ns?"
-    by_scale_alone = lambda m: 2.0 * m["value"].iloc[0] / 10.0
+    by_scale_alone = lambda m, kinds: 2.0 * m["value"].iloc[0] / 10.0
     assert likely_slip(log, shrunk, fit_scale=by_scale_alone) is None
-    restored = lambda m: 2.0 if m["value"].iloc[0] == 10.0 else 0.1
+    restored = lambda m, kinds: 2.0 if m["value"].iloc[0] == 10.0 else 0.1
     assert likely_slip(log, shrunk, fit_scale=restored)[2] == "pseudoranges in ns?"
+    not_read = lambda m, kinds: float("nan")         # kinds the fixes do not read
+    assert likely_slip(log, shrunk, fit_scale=not_read)[2] == "pseudoranges in ns?"
 
 
 def _wandering_ranges(wander_m: float, seed: int):

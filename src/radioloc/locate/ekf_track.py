@@ -863,7 +863,7 @@ def locate_ekf_track(request: LocateRequest) -> pd.DataFrame:
         slip = likely_slip(request.measurements,
                            lambda log: not track_log(request, log)[1], bounded=bounded,
                            scales=not noisy,
-                           fit_scale=lambda log: snapshot_scale(request, log))
+                           fit_scale=lambda log, kinds: snapshot_scale(request, log, kinds))
         if slip is not None:
             kinds, how, question = slip
             raise InputError(f"method ekf-track: the {kinds} rows fit no track ({len(diverged)} "

@@ -25,19 +25,21 @@ is tells the track:
 A log with pseudoranges (a receiver clock at each epoch) or moving anchors is checked
 against fixes of each epoch on its own instead (:func:`_snapshot_node`): off its data and
 misfit as above. Every node is searched for **errors that persist** from epoch to epoch
-(:func:`_persistence`: the residuals' lag-one products at fixes of each epoch), which a track
-cannot average away: its covariance gains the fixes' covariance under them. Network methods
-(priors) are not judged. A failing node gets one finding: its node, time span, figures and the most likely cause the
-data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind (its values
-mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y swapped or a
-wrong anchor (its rows alone misfit at the track, or, where the track followed it, fixes from
-the others fit step by step while its rows misfit them: :func:`_held_out_anchor`), NLOS (ranges longer than the fit, not shorter), a
-stated noise too small (residuals symmetric, every anchor alike), errors that persist
-(pseudoranges or moving anchors: each epoch fits, the errors wander slowly), weak geometry (a track
-far outside the anchors whose rows fit it: its errors there are not seen in the residuals),
-or a diverged track (the rows fit well a position away from the track, or it left the
-anchors' region and its rows misfit). Findings are warned and recorded in the
-summary (``health``).
+(:func:`_persistence`: the residuals' lag-one products at fixes of each epoch), which a
+track cannot average away: its covariance gains the fixes' covariance under them. Network
+methods (priors) are not judged.
+
+A failing node gets one finding: its node, time span, figures and the most likely cause
+the data tell apart (:func:`likely_cause`): a sign, unit or convention slip of one kind
+(its values mapped back by :func:`radioloc.locate.slips.slips` fit), an anchor with x and y
+swapped or a wrong anchor (its rows alone misfit at the track, or, where the track followed
+it, fixes from the others fit step by step while its rows misfit them:
+:func:`_held_out_anchor`), NLOS (ranges longer than the fit, not shorter), a stated noise
+too small (residuals symmetric, every anchor alike), errors that persist (each epoch fits,
+the errors wander slowly), weak geometry (a track far outside the anchors whose rows fit
+it: its errors there are not seen in the residuals), or a diverged track (the rows fit well
+a position away from the track, or it left the anchors' region and its rows misfit).
+Findings are warned and recorded in the summary (``health``).
 
 The claimed covariance is inflated by the fitted residual scale where it exceeds
 :data:`INFLATE_ABOVE`, or by the larger factor the corrections ask of it
@@ -77,7 +79,7 @@ CHECKED_KINDS = ("range", "tdoa", "aoa", "aoa_elevation")
 #: with them, or with moving anchors, is checked against fixes of each epoch on its own.
 SNAPSHOT_KINDS = ("pseudorange",)
 #: Errors that persist put the fixes this many times the claimed standard deviation off
-#: (median over rows) before the snapshot check reports them.
+#: (median over rows) before the check reports them (:func:`_persistence`).
 PERSISTENT_RATIO = 2.0
 #: Fewest rows in a window of the refit.
 WINDOW_ROWS = 24
@@ -707,11 +709,14 @@ def _epoch_fits(request, meas: pd.DataFrame, node, options: dict, loss: str = "l
     return times, obs, fit, u, rows
 
 
-def snapshot_scale(request, meas: pd.DataFrame) -> float:
+def snapshot_scale(request, meas: pd.DataFrame, kinds=None) -> float:
     """The robust scale of a log's standardised residuals at fixes of each epoch on its own
-    (every node, the sigmas in force; NaN when no epoch is fixed): for the slip search, a
-    map of the values whose scale falls by no more than the map's own factor has not
-    restored the geometry (:func:`radioloc.locate.slips.likely_slip`)."""
+    (every node, the sigmas in force; NaN when no epoch is fixed, or when none of ``kinds``
+    is a kind the fixes read): for the slip search, a map of the values whose scale falls by
+    no more than the map's own factor has not restored the geometry
+    (:func:`radioloc.locate.slips.likely_slip`)."""
+    if kinds is not None and not set(kinds) & {*CHECKED_KINDS, *SNAPSHOT_KINDS}:
+        return math.nan
     options = {name: value for value, name, _ in stated_sigmas(request, {}).values()}
     pooled = []
     for node in meas["node"].unique():

@@ -92,10 +92,11 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
     scales : bool
         Try the unit slips (maps that scale the values, :func:`slip_scale`).
     fit_scale : callable, optional
-        ``fit_scale(log) -> float``: the residual scale of a log at fixes of each epoch on
-        its own. Given, a unit slip that scales the values by ``s`` is named only when its
-        map brings that scale below ``UNIT_GAIN * s`` times the log's own: shrinking
-        values shrinks their errors by ``s`` alone; a unit put right restores the geometry.
+        ``fit_scale(log, kinds) -> float``: the residual scale of a log at fixes of each
+        epoch on its own (NaN when the fixes do not read ``kinds``). Given, a unit slip of
+        such kinds that scales the values by ``s`` is named only when its map brings that
+        scale below ``UNIT_GAIN * s`` times the log's own: shrinking values shrinks their
+        errors by ``s`` alone; a unit put right restores the geometry.
 
     Returns
     -------
@@ -117,8 +118,9 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         if fit_scale is not None and not np.isclose(scale, 1.0):
             with warnings.catch_warnings(), np.errstate(all="ignore"):
                 warnings.simplefilter("ignore")
-                before, after = fit_scale(measurements), fit_scale(mapped)
-            if not after < UNIT_GAIN * scale * before:
+                before = fit_scale(measurements, kinds)
+                after = fit_scale(mapped, kinds) if np.isfinite(before) else np.nan
+            if np.isfinite(before) and not after < UNIT_GAIN * scale * before:
                 continue
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):
