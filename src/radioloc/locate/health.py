@@ -534,7 +534,7 @@ def _snapshot_node(method_name, request, own, node, sigmas):
     fixed = _epoch_fits(request, request.measurements, node, options, "huber")
     if fixed is None or claimed_out is None:
         return None
-    times, obs, fit, u, own_rows = fixed
+    times, _, fit, u, own_rows = fixed
     dim = min(fit.position.shape[-1], claimed_out.shape[-1])
     cols = ["x", "y", "z"][:dim]
     unknowns = fit.diagnostics["state"].shape[-1]
