@@ -81,6 +81,9 @@ SNAPSHOT_KINDS = ("pseudorange",)
 #: Errors that persist put the fixes this many times the claimed standard deviation off
 #: (median over rows) before the check reports them (:func:`_persistence`).
 PERSISTENT_RATIO = 2.0
+#: Fewest epochs of a node searched for errors that persist (fewer give too few lag-one
+#: products to tell them from white noise; :func:`_persistence`).
+PERSISTENCE_EPOCHS = 50
 #: Gauss-Newton steps of the fixes started at the written track (:func:`_persistence`).
 TRACK_START_STEPS = 8
 #: Fewest rows in a window of the refit.
@@ -651,6 +654,8 @@ def _persistence(request, own: pd.DataFrame, node, options: dict, claimed: np.nd
     so where a method learned them the part added is an upper bound."""
     dim = claimed.shape[-1]
     none = 0.0, np.zeros_like(claimed), 0.0
+    if own["time"].nunique() < PERSISTENCE_EPOCHS:
+        return none
     fixed = _epoch_fits(request, request.measurements, node, options, track=own)
     if fixed is None:
         return none
