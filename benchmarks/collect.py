@@ -41,7 +41,8 @@ import targets  # noqa: E402
 HERE = Path(__file__).resolve().parent
 MODULES = ("bench_grid", "bench_network", "bench_closed_form", "bench_particle", "bench_channel",
            "bench_fingerprint", "bench_mixture", "bench_multilateration", "bench_budgets",
-           "bench_locate", "bench_chunked", "bench_fleet", "bench_stream_memory", "bench_startup",
+           "bench_locate", "bench_chunked", "bench_fleet", "bench_stream", "bench_stream_memory",
+           "bench_startup",
            "bench_corridor")
 FIELDS = ("workload", "throughput", "unit", "peer", "peer_throughput", "ratio", "limit",
           "limit_fraction")

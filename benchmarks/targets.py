@@ -177,6 +177,14 @@ for _method in ("ekf-track", "lsq", "gn"):
     TARGETS[(f"radioloc locate {_method} --chunk-rows 200000, 1e+07-row log (10 tags, 6 "
              "anchors): peak memory", None)] = {"at_most": 1024.0}
 
+# radioloc locate --follow, live: at least 50,000 rows/s sustained through a pipe and a p99
+# of at most 5 ms from a row's arrival to its estimate (bench_stream.py)
+TARGETS[("locate --follow ekf-track, 8 anchors x 10 tags at 10 Hz (pipe)",
+         "locate --method ekf-track (batch, same log)")] = {"throughput": 5e4}
+TARGETS[("locate --follow ekf-track, real-time feed of 10 tags x 8 anchors at 10 Hz, "
+         "--reorder-s 0, arrival of a step's last row to its estimate read, --idle-s 0.001: "
+         "p99 latency", None)] = {"at_most": 5.0}
+
 # radioloc locate --follow over an endless stream: memory flat within 10 % over 1e7 rows
 # (bench_stream_memory.py)
 TARGETS[("radioloc locate --follow ekf-track, 1e+07 streamed rows: memory growth after the "
