@@ -358,22 +358,24 @@ def _node_rows(request, out_node: pd.DataFrame, node: str, sigmas: dict,
 def _unbiased(request, obs: list, pos: np.ndarray) -> list:
     """The range observations less the biases the method was told of: ``range_bias_m``, and
     with ``anchor_bias`` each anchor's median range residual at the written track."""
-
-    bias = request.option("range_bias_m", 0.0) or 0.0
-    per_anchor = bool(request.option("anchor_bias", False, bool))
+    obs = _less_declared_bias(request, obs)
+    if not request.option("anchor_bias", False, bool):
+        return obs
     out = []
     for o in obs:
-        if o.model.kind != "range" or not (bias or per_anchor):
-            out.append(o)
-            continue
-        z = o.z - bias
-        if per_anchor:
+        if o.model.kind == "range":
             with np.errstate(all="ignore"):
                 zhat = o.model.predict({"position": pos}, o.context)
-            offset = np.nanmedian(np.where(np.isfinite(z), z - zhat, np.nan), axis=0)
-            z = z - np.nan_to_num(offset)
-        out.append(replace(o, z=z))
+            offset = np.nanmedian(np.where(np.isfinite(o.z), o.z - zhat, np.nan), axis=0)
+            o = replace(o, z=o.z - np.nan_to_num(offset))
+        out.append(o)
     return out
+
+
+def _less_declared_bias(request, obs: list) -> list:
+    """The range observations less the bias the user declared (``-o range_bias_m``)."""
+    bias = request.option("range_bias_m", 0.0) or 0.0
+    return [replace(o, z=o.z - bias) if o.model.kind == "range" and bias else o for o in obs]
 
 
 def _claimed(out_node: pd.DataFrame, rows_times: np.ndarray, dim: int) -> np.ndarray | None:
@@ -452,7 +454,6 @@ def check_run(method_name: str, request, out: pd.DataFrame, rerun=None,
 def _try_noise(method_name, request, findings, sigmas, scales, rerun, options) -> None:
     """Run the method again with the noise the residuals say (where a finding blames the
     stated noise and the method takes its option), and say in the finding whether it fits."""
-
     blamed = [f for f in findings if f.cause == "noise" and f.node in scales]
     if not blamed:
         return
@@ -567,9 +568,7 @@ def _snapshot_node(method_name, request, own, node, sigmas):
     total[:, :dim, :dim] += persistent
     filled = own if factor == 1.0 and g2 == 0.0 else add_covariance(own, total)
     checks = []
-    figures = {"residual_scale": round(scale, 3), "coverage_factor": round(coverage, 3),
-               "persistent_sigmas": round(math.sqrt(g2), 3),
-               "persistent_to_claimed": round(ratio, 3)}
+    figures = {"residual_scale": round(scale, 3), "coverage_factor": round(coverage, 3)}
     what = []
     if off.mean() > OFF_FRACTION:
         checks.append("off_its_data")
@@ -583,9 +582,9 @@ def _snapshot_node(method_name, request, own, node, sigmas):
         what.append(f"their residuals {scale:.3g} times the stated noise")
     if ratio > PERSISTENT_RATIO:
         checks.append("persistent")
-        what.append(f"errors that persist from epoch to epoch ({math.sqrt(g2):.2g} times the "
-                    f"stated noise) put the fixes {ratio:.3g} times the track's claimed "
-                    "uncertainty off, which a track cannot average away")
+        text, more = _persistent_finding(g2, ratio)
+        what.append(text)
+        figures.update(more)
     if not checks:
         return [], factor, scale, filled
     v = u[used] / (scale if scale < SCALE_LIMIT else 1.0)
@@ -625,12 +624,8 @@ def _with_persistence(request, node, sigmas: dict, checked: tuple) -> tuple:
         return checked
     filled = add_covariance(filled, claimed + persistent)
     if ratio > PERSISTENT_RATIO:
-        text = (f"errors that persist from epoch to epoch ({math.sqrt(g2):.2g} times the "
-                f"stated noise) put fixes of each epoch {ratio:.3g} times the claimed "
-                "uncertainty off, which a track cannot average away (covariance widened "
-                "by their part)")
-        figures = {"persistent_sigmas": round(math.sqrt(g2), 3),
-                   "persistent_to_claimed": round(ratio, 3)}
+        text, figures = _persistent_finding(g2, ratio)
+        text += " (covariance widened by their part)"
         if found:
             found[0].checks.append("persistent")
             found[0].figures.update(figures)
@@ -642,6 +637,15 @@ def _with_persistence(request, node, sigmas: dict, checked: tuple) -> tuple:
                              "cause: errors that persist over epochs (multipath, NLOS)",
                              figures)]
     return found, factor, scale, filled
+
+
+def _persistent_finding(g2: float, ratio: float) -> tuple[str, dict]:
+    """The clause and figures of a finding of errors that persist (:func:`_persistence`)."""
+    text = (f"errors that persist from epoch to epoch ({math.sqrt(g2):.2g} times the stated "
+            f"noise) put fixes of each epoch {ratio:.3g} times the claimed uncertainty off, "
+            "which a track cannot average away")
+    return text, {"persistent_sigmas": round(math.sqrt(g2), 3),
+                  "persistent_to_claimed": round(ratio, 3)}
 
 
 def _persistence(request, own: pd.DataFrame, node, options: dict, claimed: np.ndarray
@@ -707,9 +711,7 @@ def _epoch_fits(request, meas: pd.DataFrame, node, options: dict, loss: str = "l
                                        height_m=request.option("tag_height_m"), checked=True)
         if not obs or times.size == 0:
             return None
-        bias = request.option("range_bias_m", 0.0) or 0.0      # a bias the user declared
-        obs = [replace(o, z=o.z - bias) if o.model.kind == "range" and bias else o
-               for o in obs]
+        obs = _less_declared_bias(request, obs)
         initial, steps = None, 50
         if track is not None:       # each fix started at the written track: a few steps do
             dim = obs[0].context.position_dim
@@ -902,7 +904,6 @@ def likely_cause(request, rows: _Rows, d, es, scale, sigmas, node, diverged: boo
     """``(code, text)`` of the likeliest cause of a node's failure (module docstring);
     ``diverged``: the track left the anchors' region (then not blamed on the noise);
     ``fits``: its rows fit it there (then weak geometry, not a lost track)."""
-
     obs = rows.observations
     # a slip of one kind's values: mapped back, the rows fit
     if scale > SCALE_LIMIT:
@@ -990,7 +991,6 @@ def _step_by_step(rows: _Rows, observations) -> tuple[_Rows, list] | None:
     """``rows`` with a window for each step where ``observations`` give it more rows than
     unknowns (so each fix is tested), the other steps' rows left out (one empty window);
     with those observations. None when fewer than :data:`WINDOW_ROWS` rows are left."""
-
     dim = rows.positions.shape[1]
     n = np.sum([np.isfinite(o.z).sum(axis=1) for o in observations], axis=0)
     keep = n > dim
@@ -1013,7 +1013,6 @@ def _held_out_anchor(rows: _Rows) -> tuple[str, float, float] | None:
     scales estimate the same noise when the anchor is right. Named when only that anchor's
     leaving out gives a fit below :data:`FITS_BELOW`, and its rows misfit above
     :data:`SCALE_LIMIT` and four times the fit."""
-
     anchors = sorted({int(a) for o in rows.observations if o.context.index is not None
                       for a in np.ravel(o.context.index) if a >= 0})
     if len(anchors) < 3:
@@ -1062,7 +1061,6 @@ def _held_out_anchor(rows: _Rows) -> tuple[str, float, float] | None:
 
 def _swapped_fits(request, rows: _Rows, anchor: str) -> str | None:
     """Where the anchor's rows fit it with x and y swapped (text), or None."""
-
     table = request.anchors
     ids = list(dict.fromkeys(table["id"]))
     a = ids.index(anchor)

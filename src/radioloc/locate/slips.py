@@ -106,6 +106,7 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         None when no single slip does.
     """
     present = set(measurements["kind"].unique())
+    before: dict = {}                  # the log's own fit scale, by the kinds mapped
     for kinds, undo, how, question in slips():
         if not present.intersection(kinds):
             continue
@@ -118,9 +119,11 @@ def likely_slip(measurements: pd.DataFrame, consistent: Callable[[pd.DataFrame],
         if fit_scale is not None and not np.isclose(scale, 1.0):
             with warnings.catch_warnings(), np.errstate(all="ignore"):
                 warnings.simplefilter("ignore")
-                before = fit_scale(measurements, kinds)
-                after = fit_scale(mapped, kinds) if np.isfinite(before) else np.nan
-            if np.isfinite(before) and not after < UNIT_GAIN * scale * before:
+                if kinds not in before:
+                    before[kinds] = fit_scale(measurements, kinds)
+                own = before[kinds]
+                after = fit_scale(mapped, kinds) if np.isfinite(own) else np.nan
+            if np.isfinite(own) and not after < UNIT_GAIN * scale * own:
                 continue
         try:
             with warnings.catch_warnings(), np.errstate(all="ignore"):
