@@ -60,6 +60,28 @@ def test_a_fix_with_no_row_to_spare_is_reported_failing_not_changed():
     assert not excluded3[0].any() and failing3.all()  # 3 rows: the last spare one is kept
 
 
+def test_a_batch_excludes_what_each_fix_alone_excludes():
+    """Anchors that move (points per fix) and a noise per row and fix: the batch leaves out
+    the rows, and ends at the positions, that each fix run on its own does."""
+    rng = np.random.default_rng(5)
+    truth, z = _ranges(rng, n=12)
+    points = ANCHORS[None] + rng.uniform(-1, 1, (12, 6, 2))
+    z = np.linalg.norm(truth[:, None] - points, axis=-1) + 0.1 * rng.standard_normal((12, 6))
+    std = rng.uniform(0.08, 0.12, (12, 6))
+    z[::2, 3] += 60.0
+    z[::3, 1] += 45.0
+    est, excluded, failing = exclude_faults(
+        LeastSquares().locate, [Observation(RangeModel(std_m=0.1), z, Context(points=points), std)])
+    for i in range(12):
+        one = Observation(RangeModel(std_m=0.1), z[i:i + 1], Context(points=points[i:i + 1]),
+                          std[i:i + 1])
+        est_i, excluded_i, failing_i = exclude_faults(LeastSquares().locate, [one])
+        assert np.array_equal(excluded_i[0][0], excluded[0][i]), i
+        assert failing_i[0] == failing[i]
+        np.testing.assert_allclose(est_i.position[0], est.position[i], atol=1e-9)
+    assert np.array_equal(excluded[0][:, 3], np.arange(12) % 2 == 0)
+
+
 def test_a_fit_that_fails_whatever_is_left_out_ends_the_search():
     from radioloc.core.results import Estimate
 

@@ -32,6 +32,25 @@ def chi2_quantile(probability: float, dof) -> np.ndarray:
     (``scipy.special``: lighter to import than ``scipy.stats``)."""
     return 2.0 * gammaincinv(np.asarray(dof, dtype=float) / 2.0, probability)
 
+
+def _take_fixes(observations: list[Observation], fixes: np.ndarray) -> list[Observation]:
+    """The observations of the fixes ``fixes`` (a mask over the batch) as one batch axis:
+    each fix is fitted on its own, so a trial exclusion refits only the fixes it changes."""
+    def pick(a, tail):
+        if a is None or np.ndim(a) == tail:
+            return a
+        a = np.asarray(a)
+        return np.broadcast_to(a, fixes.shape + a.shape[a.ndim - tail:])[fixes]
+
+    out = []
+    for o in observations:
+        c = o.context
+        context = replace(c, points=pick(c.points, 2), reference=pick(c.reference, 2),
+                          std=pick(c.std, 1))
+        out.append(replace(o, z=pick(o.z, 1), std=pick(o.std, 1), context=context))
+    return out
+
+
 def standardised_residuals(observations: Sequence[Observation], estimate: Estimate) -> np.ndarray:
     """``(z - h(x) - noise mean) / std`` of every row at each fix, stacked ``(..., M)``.
 
@@ -88,8 +107,10 @@ def exclude_faults(fit: Callable[[list[Observation]], Estimate],
     excluded = [np.zeros(np.shape(o.z), dtype=bool) for o in obs]
     slots = [(i, s) for i, o in enumerate(obs) for s in range(np.shape(o.z)[-1])]
 
-    def attempt(mask):
+    def attempt(mask, fixes=None):
         current = [replace(o, z=np.where(ex, np.nan, o.z)) for o, ex in zip(obs, mask)]
+        if fixes is not None:
+            current = _take_fixes(current, fixes)
         estimate = fit(current)
         u = standardised_residuals(current, estimate)
         used = np.isfinite(u)
@@ -118,7 +139,11 @@ def exclude_faults(fit: Callable[[list[Observation]], Estimate],
                 continue
             mask = [ex.copy() for ex in excluded]
             mask[i][..., s] |= trial
-            _, _, r, _ = attempt(mask)
+            if trial.ndim:
+                r = np.full(trial.shape, np.inf)
+                r[trial] = attempt(mask, trial)[2]
+            else:
+                r = attempt(mask)[2]
             better = trial & (r < best_ratio)
             best, best_ratio = np.where(better, k, best), np.where(better, r, best_ratio)
         # no subset fits (the fit fails with two faults in): the largest residual goes

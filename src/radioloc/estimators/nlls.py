@@ -24,7 +24,10 @@ weights of the current iterate (iteratively reweighted least squares; the robust
 and the max-mixture loss of :mod:`radioloc.estimators.robust_loss`). Without it
 ``W = w`` and ``work = r``.
 
-A problem *converges* when an accepted step is no longer than ``tol``; it *stalls* when no
+A problem *converges* when an accepted step is no longer than ``tol`` plus ``RELATIVE_TOL``
+times the iterate's norm (the second term is rounding level: far from the origin, as in
+Earth-centred coordinates, a step of ``tol`` alone is below the spacing of the numbers
+and the cost cannot judge it); it *stalls* when no
 step decreases the cost, its system is singular or its iterate stops being finite (it then
 keeps its last finite iterate). Problems neither converged nor stalled after ``max_iter``
 iterations have both flags False.
@@ -79,6 +82,9 @@ class NLLSResult:
     iterations: np.ndarray
     converged: np.ndarray
     stalled: np.ndarray
+
+
+RELATIVE_TOL = 1e-12
 
 
 def _normal(J: np.ndarray, w: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,7 +168,8 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
     max_iter : int
         Maximum iterations.
     tol : float
-        Convergence when the accepted step's Euclidean norm is ``<= tol``.
+        Convergence when the accepted step's Euclidean norm is ``<= tol`` (plus
+        ``RELATIVE_TOL`` times the iterate's norm).
     ridge : float
         Relative ridge ``ridge * trace(A) I`` added to the Gauss-Newton system (keeps
         exactly determined problems solvable; 0 disables it).
@@ -233,7 +240,8 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         # (its cost change is at rounding level, so the line search could not judge it);
         # without one the step is taken and converges below
         searched = method == "levenberg-marquardt" or step_control == "halving"
-        tiny = active & (np.sqrt(np.sum(step**2, axis=-1)) <= tol) & searched
+        limit = tol + RELATIVE_TOL * np.sqrt(np.sum(x**2, axis=-1))
+        tiny = active & (np.sqrt(np.sum(step**2, axis=-1)) <= limit) & searched
         converged |= tiny
         active &= ~tiny
         step = np.where(active[..., None], step, 0.0)
@@ -267,7 +275,7 @@ def solve_nlls(residuals: Residuals, x0: np.ndarray, *, weights: np.ndarray | No
         r, J = residuals(x)
         c_rows, W, work = terms(x, r)
         cost = np.sum(c_rows, axis=-1)
-        converged |= accepted & (moved <= tol)
+        converged |= accepted & (moved <= limit)
     A, _ = _normal(J, W, work)
     return NLLSResult(x=x, cost=cost, residuals=r, jacobian=J, normal_matrix=A,
                       iterations=iterations, converged=converged, stalled=stalled)

@@ -137,8 +137,9 @@ class BearingModel(MeasurementModel):
             R[:, 3 - i - j, 3 - i - j] = one
             return R
 
-        R = turn(yaw, 0, 1) @ turn(pitch, 2, 0) @ turn(roll, 1, 2)
-        return R, bool(np.any(pitch != zero) or np.any(roll != zero))
+        tilted = bool(np.any(pitch != zero) or np.any(roll != zero))
+        R = turn(yaw, 0, 1)
+        return (R @ turn(pitch, 2, 0) @ turn(roll, 1, 2) if tilted else R), tilted
 
     def _local(self, state, context: Context):
         """Vectors from the anchors to the tag in each array's frame: horizontal
