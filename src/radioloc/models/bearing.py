@@ -127,8 +127,9 @@ class BearingModel(MeasurementModel):
         m = context.rows
         cols = context.columns or {}
         yaw = np.broadcast_to(self._yaw(context), (m,))
-        pitch, roll = (np.nan_to_num(cols.get(c, np.zeros(m))) for c in ORIENTATION_COLUMNS[1:])
         one, zero = np.ones(m), np.zeros(m)
+        pitch, roll = (zero if cols.get(c) is None else np.nan_to_num(cols[c])
+                       for c in ORIENTATION_COLUMNS[1:])
 
         def turn(angle, i, j):       # rotation by ``angle`` in the plane of axes i -> j
             R = np.zeros((m, 3, 3))
