@@ -25,9 +25,15 @@ log of that node alone). The inputs are checked once for the log, not at every s
 (``-o tag_height_m=H``); each range is then projected to the horizontal plane,
 ``sqrt(max(r^2 - (H - z_a)^2, 0))``, after removing the range bias.
 
-LOS/NLOS parameters: those given as options are used; when any of ``los_std_m``,
-``nlos_mean_m``, ``alpha`` is missing, the missing ones and the range bias (unless
-``range_bias_m`` is given) are fitted by EM
+LOS/NLOS parameters: those given as options are used. When any of ``los_std_m``,
+``nlos_mean_m``, ``alpha`` is missing, by default (``-o tune=1``) each node's settings are
+learned from its own ranges as ``ekf-track`` learns them (:mod:`radioloc.locate.self_tuning`,
+:func:`learned_ranges`): each anchor's range offset is taken off its ranges, the missing
+parameters are the mixture fitted to the ranges' residuals at the learned track, and the
+process noise ``q`` (unless given) is the one learned; ``summary.json`` reports them
+(``learned``), and the health check judges the track against them. Not learned (``-o
+tune=0``, ``range_bias_m`` given, odometry rows, a log too short to learn from): the missing
+parameters and one range bias per node (unless ``range_bias_m`` is given) are fitted by EM
 (:func:`radioloc.estimators.los_nlos_em.fit_los_nlos`, :func:`node_models`) on the user's
 own log. EM needs range
 errors, and a user has no true distances: the errors are the residuals of the ranges
@@ -115,12 +121,15 @@ from radioloc.estimators.los_nlos_em import MIN_SAMPLES, fit_los_nlos
 from radioloc.estimators.particle_filter import ParticleFilter, RunGenerators
 from radioloc.estimators.pf_smoother import backward_simulation
 from radioloc.io.measurements import Measurements
-from radioloc.locate.adapter import anchor_positions, anchor_ranges, log_observations, sigma_options
+from radioloc.locate.adapter import (anchor_positions, anchor_ranges, given_sigmas,
+                                    log_observations, sigma_options)
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.progress import progress
+from radioloc.locate.self_tuning import not_learnable
 from radioloc.locate.ekf_track import (
     OPTIONS as EKF_OPTIONS,
     _predicted,
+    learn_tracks,
     log_models,
     track_window,
     reads_clock,
@@ -157,14 +166,15 @@ MIN_ANCESTORS = 20
 #: Steps whose every range was gated after which the next step is taken ungated.
 GATE_PATIENCE = 10
 
-OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tag_height_m",
+OPTIONS = {k: EKF_OPTIONS[k] for k in ("motion", "q", "range_bias_m", "tune", "tag_height_m",
                                        "prior_std_m", "init_s", "gate", "max_gap_s")}
 OPTIONS.update({
     "los_std_m": Option("s_LOS, standard deviation of every range's Gaussian error, m "
-                        "(default: EM on the log)", float, min=0, min_exclusive=True, max=1e6),
-    "nlos_mean_m": Option("s_NLOS, mean NLOS excess range, m (default: EM on the log)", float,
+                        "(default: learned from the log; see tune)", float, min=0, min_exclusive=True,
+                        max=1e6),
+    "nlos_mean_m": Option("s_NLOS, mean NLOS excess range, m (default: learned from the log)", float,
                           min=0, min_exclusive=True, max=1e6),
-    "alpha": Option("LOS fraction (default: EM on the log)", float, min=0, max=1),
+    "alpha": Option("LOS fraction (default: learned from the log)", float, min=0, max=1),
     "particles": Option("particles per node (default 900)", int, min=1, max=10**6),
     "smooth": Option("1: smoothed track (offline; see `smoother`)", bool),
     "smoother": Option("with smooth=1: 'backward' (default; backward simulation over the "
@@ -410,7 +420,8 @@ def fixed_lag(history: list[np.ndarray], ancestors: list[np.ndarray], lag: int
 
 @locate_method("pf", "LOS/NLOS particle filter (paper 001) tracking each node from its ranges "
                      "to anchors as they arrive, driven by odometry rows when the log has "
-                     "them (parameters fitted by EM on the log unless given; fixed-lag or "
+                     "them (each anchor's range offset, the LOS/NLOS parameters and the "
+                     "process noise learned from the log unless given; fixed-lag or "
                      "backward-simulation smoother with -o smooth=1); with other kinds, the "
                      "generic particle filter over every kind's model, the ranges' noise "
                      "LOS/NLOS",
@@ -481,24 +492,27 @@ def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFra
         raise ConfigError("method pf: range_bias_m with kinds besides ranges: the bias is fitted "
                           "with the LOS/NLOS model (give los_std_m, nlos_mean_m, alpha to fix it)")
     log, _, models = log_models(request, request.measurements, table, s)
-    noise, fitted = {}, []
+    noise, fitted, learned = {}, [], {}
     if "range" in models:
         ranges = Measurements(request.measurements[request.measurements["kind"] == "range"])
-        noise, fitted = node_models(request, anchors, anchor_ranges(ranges, table, "pf"), s)
+        noise, fitted, learned = node_models(request, anchors,
+                                             anchor_ranges(ranges, table, "pf"), s)
     seed, particles = request.option("seed", 0, int), request.option("particles", 900, int)
     tables, counts = [], {}
     for node, times, obs in log_observations(log, table, models, "pf", s["height"]):
+        q = s["q"]
         if node in noise:
-            los_nlos, bias = noise[node]
-            obs = [dataclasses.replace(o, model=RangeModel(noise=los_nlos), z=o.z - bias)
+            los_nlos, bias, q = noise[node]
+            obs = [dataclasses.replace(o, model=RangeModel(noise=los_nlos),
+                                       z=o.z - bias[o.context.index])
                    if o.model.kind == "range" else o for o in obs]
         for o in obs:
             counts[o.model.kind] = counts.get(o.model.kind, 0) + int(np.isfinite(o.z).sum())
-        ekf = tracker_filter(anchors, dict(s, bias=0.0), None, clock=reads_clock(obs))
+        ekf = tracker_filter(anchors, dict(s, bias=0.0, q=q), None, clock=reads_clock(obs))
         for n, seg in enumerate(segments(times, s["max_gap_s"])):
             t, ob = times[seg], track_window(times, obs, seg, s["init_s"])
-            mean, var = track_prior(ekf, t, ob, anchors, dict(s, bias=0.0))
-            pf = ParticleFilter(tracker_motion(s), n_particles=particles,
+            mean, var = track_prior(ekf, t, ob, anchors, dict(s, bias=0.0, q=q))
+            pf = ParticleFilter(tracker_motion(dict(s, q=q)), n_particles=particles,
                                 seed=[segment_seed(seed, node, n)],
                                 layout=ekf.state_layout(ob))
             track = pf.run(ob, t, prior_mean=mean[None], prior_cov=np.diag(var)[None],
@@ -509,7 +523,8 @@ def generic_tracks(request: LocateRequest, want: str = "filtered") -> pd.DataFra
                             "ranges": counts.get("range", 0), "measurements": counts,
                             "restarts": int(out["restart"].sum()), "seed": seed,
                             "particles": particles, "filter": "generic",
-                            "smoother": None if want == "filtered" else want, "model": fitted}
+                            "smoother": None if want == "filtered" else want, "model": fitted,
+                            **({"learned": learned} if learned else {})}
     return out
 
 
@@ -551,22 +566,28 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
     opts = {"particles": particles, "lag": request.option("lag", 20, int),
             "trajectories": request.option("trajectories", 100, int),
             "gate": request.option("gate", 16.0) or None}
-    models, fitted = node_models(request, anchors, per_node, s)
+    models, fitted, learned = node_models(request, anchors, per_node, s)
     segs = []
     for node, times, R in per_node:
         for n, seg in enumerate(segments(times, s["max_gap_s"])):
             controls = (None if s["odometry_std"] is None else
                         odometry_controls(request.measurements, node, times[seg], 2))
-            model, bias = models[node]
-            segs.append(Segment(node, times[seg], R[seg], n > 0, model, bias, controls,
+            model, bias, q = models[node]
+            segs.append(Segment(node, times[seg], R[seg], n > 0, model, bias, q, controls,
                                 segment_seed(seed, node, n)))
-    groups = batches(segs, particles, tracker_motion(dict(s, dim=2)).state_dim,
-                     keep="fixed-lag" in outputs or "backward" in outputs)
+    keep = "fixed-lag" in outputs or "backward" in outputs
+    state_dim = tracker_motion(dict(s, dim=2)).state_dim
+    groups = []
+    for q in dict.fromkeys(sg.q for sg in segs):           # a batch shares its motion model
+        mine = [i for i, sg in enumerate(segs) if sg.q == q]
+        groups += [[mine[j] for j in g]
+                   for g in batches([segs[i] for i in mine], particles, state_dim, keep)]
     tracks: dict[int, dict[str, Track]] = {}
     resets = 0
     with progress(sum(int(np.isfinite(sg.ranges).sum()) for sg in segs), "pf") as bar:
         for g in groups:
-            out, r = _filter([segs[i] for i in g], anchors, s, outputs, opts, bar)
+            out, r = _filter([segs[i] for i in g], anchors, dict(s, q=segs[g[0]].q), outputs,
+                             opts, bar)
             tracks.update(zip(g, out))
             resets += r
     warn_misfit([(sg.node, float(sg.times[0]), tracks[i]["misfit"]) for i, sg in enumerate(segs)],
@@ -578,7 +599,8 @@ def pf_tracks(request: LocateRequest, outputs=("filtered",)) -> dict[str, pd.Dat
         result[k] = pd.concat(tables, ignore_index=True)
         result[k].attrs["summary"] = track_summary(
             tables, per_node, seed=seed, particles=particles, filter_resets=resets,
-            smoother=None if k == "filtered" else k, model=fitted)
+            smoother=None if k == "filtered" else k, model=fitted,
+            **({"learned": learned} if learned else {}))
     return result
 
 
@@ -624,8 +646,10 @@ class Segment:
         Not the node's first segment.
     model : LosNlosRange
         The node's LOS/NLOS model.
-    bias : float
-        The node's range bias, m.
+    bias : ndarray, shape (M,)
+        The range bias of each anchor's ranges, m.
+    q : float
+        Process noise of the node's motion.
     controls : ndarray, shape (T, 2) or None
         Odometry displacement over each step.
     seed : numpy.random.SeedSequence
@@ -637,7 +661,8 @@ class Segment:
     ranges: np.ndarray
     restart: bool
     model: LosNlosRange
-    bias: float
+    bias: np.ndarray
+    q: float
     controls: np.ndarray | None
     seed: np.random.SeedSequence
 
@@ -660,15 +685,50 @@ def segment_seed(seed: int, node: str, index: int) -> np.random.SeedSequence:
     return np.random.SeedSequence([int(seed), zlib.crc32(str(node).encode("utf-8")), int(index)])
 
 
+def learned_ranges(request: LocateRequest, s: dict) -> dict:
+    """Each node's settings learned from its range rows as ``ekf-track`` learns them
+    (:func:`radioloc.locate.ekf_track.learn_tracks`): by node, the
+    :class:`~radioloc.locate.self_tuning.Learned` of the nodes whose anchor offsets and
+    LOS/NLOS mixture were learned; empty with ``-o tune=0``, a given ``range_bias_m``,
+    odometry rows, or a log too short to learn from.
+
+    Parameters
+    ----------
+    request : LocateRequest
+    s : dict
+        From :func:`radioloc.locate.ekf_track.tracker_settings`.
+
+    Returns
+    -------
+    dict of node to Learned
+    """
+    if not request.option("tune", True, bool) or s["odometry_std"] is not None or s["bias"]:
+        return {}
+    given = given_sigmas(request)
+    meas = request.measurements[request.measurements["kind"] == "range"]
+    if not_learnable(meas, given) is not None:
+        return {}
+    table = request.require_anchors("pf")
+    log, _, models = log_models(request, meas, table, s, anchor_bias=True)
+    tracks = [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
+              for node, times, obs in log_observations(log, table, models, "pf", s["height"])
+              for seg in segments(times, s["max_gap_s"])]
+    learned = learn_tracks(request, tracks, table, s, 16.0, given)
+    return {node: lr for node, lr in learned.items()
+            if lr.offset_m is not None and lr.report.get("range_mixture")}
+
+
 def node_models(request: LocateRequest, anchors, per_node: list, s: dict
-                ) -> tuple[dict, list[dict]]:
-    """Each node's LOS/NLOS model and range bias (see the module docstring).
+                ) -> tuple[dict, list[dict], dict]:
+    """Each node's LOS/NLOS model, range bias by anchor and process noise (see the module
+    docstring).
 
     The given ``los_std_m``, ``nlos_mean_m``, ``alpha`` are used; when any is missing, the
-    missing ones and the range bias (unless ``range_bias_m`` is given) are fitted by EM on
-    the node's residuals (:func:`fit_residuals`) to its smoothed EKF track, the tracks of
-    every node in one batch (:func:`range_residuals`); ``min_los_std_m`` floors a fitted
-    ``s_LOS``.
+    missing ones come from what was learned of the node (:func:`learned_ranges`: its
+    anchors' offsets as the bias, the learned ``q``) or, where nothing was learned, they
+    and one range bias (unless ``range_bias_m`` is given) are fitted by EM on the node's
+    residuals (:func:`fit_residuals`) to its smoothed EKF track, the tracks of every node
+    in one batch (:func:`range_residuals`); ``min_los_std_m`` floors a fitted ``s_LOS``.
 
     Parameters
     ----------
@@ -681,29 +741,42 @@ def node_models(request: LocateRequest, anchors, per_node: list, s: dict
 
     Returns
     -------
-    models : dict of node to (LosNlosRange, bias_m)
+    models : dict of node to (LosNlosRange, bias (M,), q)
+        The bias of each anchor's ranges, m (one value for all but where learned).
     fitted : list of dict
-        Per node: ``node``, the three parameters, ``range_bias_m``, ``fitted``.
+        Per node: ``node``, the three parameters, ``range_bias_m`` (by anchor id where
+        learned), ``q``, ``fitted`` (``"learned"``, ``"em"`` or ``"given"``).
+    learned : dict of node to dict
+        What was learned of each node (its ``summary.json`` entry).
     """
     names = ("los_std_m", "nlos_mean_m", "alpha")
     given = [request.option(k) for k in names]
     fit = any(g is None for g in given)
-    residuals = node_residuals(per_node, anchors, s, "pf") if fit else {}
+    learned = learned_ranges(request, s) if fit else {}
+    rest = [p for p in per_node if p[0] not in learned]
+    residuals = node_residuals(rest, anchors, s, "pf") if fit and rest else {}
+    floor = request.option("min_los_std_m", 0.15)
+    ids = [str(a) for a in request.anchors["id"]] if learned else []
     models, fitted = {}, []
     for node, _, _ in per_node:
-        bias = s["bias"]
-        values = list(given)
-        if fit:
+        bias, q, values = np.full(len(anchors), float(s["bias"])), s["q"], list(given)
+        if node in learned:
+            lr = learned[node]
+            mix = lr.report["range_mixture"]
+            auto = [max(mix["los_std_m"], floor), mix["nlos_mean_m"], mix["los_fraction"]]
+            bias, q = np.asarray(lr.offset_m, dtype=float), lr.q
+        elif fit:
             model, fit_bias, _ = fit_residuals(residuals[node])
-            floor = request.option("min_los_std_m", 0.15)
             auto = [max(model.los_std_m, floor), model.nlos_mean_m, model.alpha]
-            values = [a if g is None else g for g, a in zip(given, auto)]
             if "range_bias_m" not in request.parsed:
-                bias = fit_bias
-        models[node] = (LosNlosRange(*values), float(bias))
+                bias = np.full(len(anchors), float(fit_bias))
+        values = [a if g is None else g for g, a in zip(given, auto)] if fit else values
+        models[node] = (LosNlosRange(*values), bias, float(q))
         fitted.append({"node": node, **dict(zip(names, map(float, values))),
-                       "range_bias_m": float(bias), "fitted": fit})
-    return models, fitted
+                       "range_bias_m": (dict(zip(ids, map(float, bias))) if node in learned
+                                        else float(bias[0])), "q": float(q),
+                       "fitted": "learned" if node in learned else "em" if fit else "given"})
+    return models, fitted, {str(n): lr.report for n, lr in learned.items()}
 
 
 #: Bytes of stored particle sets (for a smoother) per batch of segments.
