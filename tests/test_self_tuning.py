@@ -184,3 +184,26 @@ def test_pf_takes_each_anchors_learned_offset_off_its_ranges(seed):
     assert np.all(np.abs(bias - offset) < 0.35), bias - offset
     assert runs["0"].attrs["summary"]["model"][0]["fitted"] == "em"
     assert rmse(runs["1"], truth) < 0.25 * rmse(runs["0"], truth)
+
+
+def test_a_nodes_learned_settings_do_not_depend_on_the_other_nodes():
+    """Two walkers of different lengths and offsets learned in one batch: each node's
+    learned values and track equal those of a log of that node alone (to 1e-9)."""
+    one, _, _ = walk(5, 0.3, 0.3, 4.0, nlos=0.05, duration_s=120.0)
+    two, _, _ = walk(6, 0.6, 0.2, 8.0, duration_s=80.0)
+    two = two.assign(node="tag2")
+    both = run_method("ekf-track", LocateRequest(pd.concat([one, two], ignore_index=True),
+                                                 ANCHORS))
+    for node, log in (("tag", one), ("tag2", two)):
+        alone = run_method("ekf-track", LocateRequest(log, ANCHORS))
+        mine = both[both.node == node].reset_index(drop=True)
+        np.testing.assert_allclose(mine[["x", "y"]], alone[["x", "y"]], atol=1e-9)
+        a = alone.attrs["summary"]["learned"][node]
+        b = both.attrs["summary"]["learned"][node]
+        assert a["scale"] == b["scale"] and a["q"] == b["q"]
+        assert a["correlation_scale"] == b["correlation_scale"]
+        for key in ("evidence_by_scale", "evidence_by_correlation_scale"):
+            np.testing.assert_allclose(list(a[key].values()), list(b[key].values()), rtol=1e-9)
+        for x, y in zip(a["range_anchors"], b["range_anchors"]):
+            for k in ("offset_m", "white_m", "correlated_m", "tau_s"):
+                assert x[k] == pytest.approx(y[k], rel=1e-9, abs=1e-12), (node, k)

@@ -80,7 +80,7 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
-from radioloc.locate.self_tuning import learn_node, not_learnable, tuned_observations
+from radioloc.locate.self_tuning import learn_nodes, not_learnable, tuned_observations
 from radioloc.locate.health import divergence, noise_in_force, snapshot_scale
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import covariance_columns
@@ -1068,8 +1068,8 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
 
 def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: dict,
                  gate: float | None, given: dict) -> dict:
-    """Each node's settings learned from its own tracks (:func:`learn_node`, with the
-    trackers' filter and start).
+    """Each node's settings learned from its own tracks (:func:`learn_nodes`, with the
+    trackers' filter and start; every node's runs in one batch).
 
     Parameters
     ----------
@@ -1091,16 +1091,15 @@ def learn_tracks(request: LocateRequest, tracks: list, table: pd.DataFrame, s: d
     ids = [str(a) for a in table["id"]]
     clock = any(reads_clock(tr[2]) for tr in tracks)
     bias_prior = request.option("bias_prior_std_m", 3.0)
-    out = {}
-    for node in dict.fromkeys(tr[0] for tr in tracks):
-        mine = [(tr[1], tr[2]) for tr in tracks if tr[0] == node]
-        out[node] = learn_node(
-            node, mine,
-            lambda q, bs, tau, terms: tracker_filter(anchors, dict(s, q=q), gate, terms > 0,
-                                                     bias_prior, clock, bs, tau, terms),
-            lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
-            s["q"], ids, s["dim"], q_given=request.option("q") is not None)
-    return out
+    nodes: dict = {}
+    for node, times, obs in tracks:
+        nodes.setdefault(node, []).append((times, obs))
+    return learn_nodes(
+        nodes,
+        lambda q, bs, tau, terms: tracker_filter(anchors, dict(s, q=q), gate, terms > 0,
+                                                 bias_prior, clock, bs, tau, terms),
+        lambda ekf, t, o, bv: tuned_prior(ekf, t, o, anchors, s, bv), gate, given,
+        s["q"], ids, s["dim"], q_given=request.option("q") is not None)
 
 
 def tuned_prior(ekf, times, observations, anchors, s, bias_cov):

@@ -3,7 +3,8 @@ and how its error wanders, the outlier (NLOS) mixture, and the process noise.
 
 ``ekf-track`` and ``smoother`` learn them by default (``-o tune=0``: the fixed defaults of
 before); an option given with ``-o`` is used as given and not learned. Everything is learned
-per node, from that node's rows only, in three steps:
+per node, from that node's rows only (the nodes' filter runs share one batch,
+:func:`learn_nodes`, and do not interact), in three steps:
 
 Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_STEPS`).
 
@@ -57,7 +58,7 @@ import numpy as np
 from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.kinds import model_kinds
 
-__all__ = ["CORRELATION_SCALES", "Q_FACTORS", "SCALES", "Learned", "learn_node",
+__all__ = ["CORRELATION_SCALES", "Q_FACTORS", "SCALES", "Learned", "learn_nodes",
            "learned_noise", "not_learnable", "tuned_observations"]
 
 #: Factors on every kind's default sigma tried in step 1.
@@ -82,7 +83,7 @@ EVIDENCE_STEPS = 2000
 
 @dataclass
 class Learned:
-    """What :func:`learn_node` found for one node (arrays by row of the anchor table).
+    """What :func:`learn_nodes` found for one node (arrays by row of the anchor table).
 
     Attributes
     ----------
@@ -205,12 +206,6 @@ def _scaled(observations: list, factor: float | np.ndarray, given: dict) -> list
         f = np.asarray(factor, dtype=float).reshape(np.shape(factor) + (1,) * 2)
         out.append(_with_std(o, k.sigma_default * f))
     return out
-
-
-def _batch(tracks: list, factors) -> tuple[list, np.ndarray]:
-    """The node's tracks repeated once per factor (one batch)."""
-    return [tr for _ in factors for tr in tracks], np.repeat(np.asarray(factors, float),
-                                                             len(tracks))
 
 
 def _residuals(layout, track, observations: list, b: int, scale: float
@@ -353,17 +348,19 @@ def _range_noise(res: list, times: list, index: np.ndarray, n_anchors: int, dim:
             "tau": tau, "anchors": known, "pooled": pooled, "mixture": mixture}
 
 
-def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given: dict,
-               q_default: float, anchor_names: list, dim: int, q_given: bool = False
-               ) -> Learned:
-    """Learn one node's settings from its tracks (module docstring).
+def learn_nodes(nodes: dict, make_filter, prior, gate: float | None, given: dict,
+                q_default: float, anchor_names: list, dim: int, q_given: bool = False
+                ) -> dict:
+    """Learn each node's settings from its tracks (module docstring), the nodes' runs in one
+    batch: each filter run holds every track of every node (nodes whose settings differ
+    where the filter shares them, the process noise, run in as many batches), so a log of
+    many nodes costs about as many time steps as its longest node. A node's result is
+    that of its run alone: the batch members do not interact.
 
     Parameters
     ----------
-    node : str
-        For the messages.
-    tracks : list of (times (T,), observations)
-        The node's segments.
+    nodes : dict of str to list of (times (T,), observations)
+        Each node's segments.
     make_filter : callable
         ``make_filter(q, bias_std, tau, bias_terms)`` -> ExtendedKalmanFilter (``bias_terms``
         0: no anchor bias, the node has no ranges; else its anchor
@@ -376,7 +373,7 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
         ``bias_cov``.
     gate : float or None
     given : dict
-        The sigma options the user gave (kept, not learned).
+        The sigma options given (kept, not learned).
     q_default : float
         The process noise's default (or the value given, with ``q_given``: then kept).
     anchor_names : list of str
@@ -386,56 +383,148 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
 
     Returns
     -------
-    Learned
+    dict of str to Learned
     """
-    from radioloc.locate.ekf_track import observation_window, stack_tracks
+    ranged = {n: any(o.model.kind == "range" for _, obs in tracks for o in obs)
+              for n, tracks in nodes.items()}
+    out = {}
+    for has_ranges in (False, True):         # the filter holds anchor biases or not
+        group = {n: tracks for n, tracks in nodes.items() if ranged[n] == has_ranges}
+        if group:
+            out.update(_learn_group(group, has_ranges, make_filter, prior, gate, given,
+                                    q_default, anchor_names, dim, q_given))
+    return {n: out[n] for n in nodes}
 
-    def run(factors, q, bias_std, tau, obs_of, smooth, prior_bias_cov=None, steps=None):
-        batch, f = _batch(tracks if steps is None else
-                          [(t[:steps], [observation_window(o, slice(0, steps)) for o in obs])
-                           for t, obs in tracks], factors)
-        ekf = make_filter(q, bias_std, tau, 0 if not has_ranges else 1 if tau is None else 2)
-        obs_lists = [obs_of(o, ff) for (_, o), ff in zip(batch, f)]
+
+def _window(tracks: list, steps: int) -> list:
+    """Each track's first ``steps`` steps."""
+    from radioloc.locate.ekf_track import observation_window
+
+    return [(t[:steps], [observation_window(o, slice(0, steps)) for o in obs])
+            for t, obs in tracks]
+
+
+def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given, q_default,
+                 anchor_names, dim, q_given) -> dict:
+    """:func:`learn_nodes` for nodes that all have ranges, or none."""
+    from radioloc.locate.ekf_track import stack_tracks
+
+    def run(items, q, smooth, bias=None):
+        """One filter over ``items`` (node, times, observations); ``bias``: per item the
+        bias states' driving noise, time constants and prior covariance (step 3). Returns
+        the track, each item's evidence and the state layout."""
+        ekf = make_filter(q, 0.0 if bias is None else bias[0][:, None, :],
+                          None if bias is None else bias[1][:, None, :],
+                          0 if not has_ranges else 1 if bias is None else 2)
         means, covs, asked = [], [], {}
-        for b, ((t, _), o) in enumerate(zip(batch, obs_lists)):
-            bias_cov = None if prior_bias_cov is None else prior_bias_cov[b]
-            key = (b % len(tracks), None if bias_cov is None else bias_cov.tobytes())
-            if key not in asked:                 # the same for every factor tried
-                asked[key] = prior(ekf, t, o, bias_cov)
-            means.append(asked[key][0])
-            covs.append(asked[key][1])
-        t, stacked = stack_tracks([tr[0] for tr in batch], obs_lists)
+        for b, (key, t, o) in enumerate(items):
+            bias_cov = None if bias is None else bias[2][b]
+            k = (key, None if bias_cov is None else bias_cov.tobytes())
+            if k not in asked:                 # the same for every factor tried
+                asked[k] = prior(ekf, t, o, bias_cov)
+            means.append(asked[k][0])
+            covs.append(asked[k][1])
+        t, stacked = stack_tracks([it[1] for it in items], [it[2] for it in items])
         track = ekf.run(stacked, t, prior_mean=np.stack(means), prior_cov=np.stack(covs),
                         smooth=smooth)
-        ev = evidence(track, stacked, gate).reshape(len(factors), len(tracks)).sum(axis=1)
-        return track, stacked, ev, ekf.state_layout(stacked)
+        return track, evidence(track, stacked, gate), ekf.state_layout(stacked)
 
-    has_ranges = any(o.model.kind == "range" for _, obs in tracks for o in obs)
+    def per_node(ev, items):
+        """Each node's evidence summed over its tracks, by node."""
+        total: dict = {}
+        for (key, _, _), e in zip(items, ev):
+            total[key[0]] = total.get(key[0], 0.0) + float(e)
+        return total
+
+    win = {n: _window(tracks, LEARN_STEPS) for n, tracks in nodes.items()}
+
+    def at_scale(scale_of):
+        return [((n, i), t, _scaled(o, scale_of(n), given))
+                for n in nodes for i, (t, o) in enumerate(win[n])]
+
     # step 1: the scale of every sigma (at the default q), then q at that scale, by evidence
-    def step_one(factors, q, smooth=False):
-        return run(factors, q, 0.0, None, lambda o, f: _scaled(o, f, given), smooth,
-                   steps=LEARN_STEPS)
-
-    _, _, ev, _ = step_one(SCALES, q_default)
-    best = int(np.argmax(ev))
-    by_q, q_factor = {q_default: float(ev[best])}, 1.0
+    items = [((n, i), t, _scaled(o, f, given)) for f in SCALES
+             for n in nodes for i, (t, o) in enumerate(win[n])]
+    _, ev, _ = run(items, q_default, False)
+    by_scale = {n: np.zeros(len(SCALES)) for n in nodes}
+    for ((n, _), _, _), e, k in zip(items, ev, np.repeat(np.arange(len(SCALES)),
+                                                        len(items) // len(SCALES))):
+        by_scale[n][k] += e
+    best = {n: int(np.argmax(by_scale[n])) for n in nodes}
+    by_q = {n: {q_default: float(by_scale[n][best[n]])} for n in nodes}
+    q_factor = dict.fromkeys(nodes, 1.0)
     for qf in () if q_given else [f for f in Q_FACTORS if f != 1.0]:
-        by_q[q_default * qf] = float(step_one((SCALES[best],), q_default * qf)[2][0])
-        if by_q[q_default * qf] > by_q[q_default * q_factor]:
-            q_factor = qf
-    track, _, _, layout = step_one((SCALES[best],), q_default * q_factor, smooth=True)
-    learned = Learned(scale=SCALES[best], q=q_default * q_factor, given=tuple(given))
-    near = sorted(q for q, e in by_q.items() if e >= max(by_q.values()) - 2.0)
-    report = {"scale": SCALES[best], "evidence_by_scale": dict(zip(map(str, SCALES),
-                                                                   map(float, ev))),
-              "q": learned.q, "q_95": [near[0], near[-1]],
-              "evidence_by_q": {f"{q:g}": e for q, e in sorted(by_q.items())}}
-    # step 2: residuals at the smoothed states of the best scale and q
+        items = at_scale(lambda n: SCALES[best[n]])
+        for n, e in per_node(run(items, q_default * qf, False)[1], items).items():
+            by_q[n][q_default * qf] = e
+            if e > by_q[n][q_default * q_factor[n]]:
+                q_factor[n] = qf
+    learned, smoothed = {}, {}
+    for qf in dict.fromkeys(q_factor.values()):     # the smoothed run, by the q chosen
+        mine = [n for n in nodes if q_factor[n] == qf]
+        items = [it for it in at_scale(lambda n: SCALES[best[n]]) if it[0][0] in mine]
+        track, _, layout = run(items, q_default * qf, True)
+        for b, ((n, i), _, _) in enumerate(items):
+            smoothed.setdefault(n, []).append((track, layout, b))
+    for n in nodes:
+        learned[n] = _step_two(n, win[n], smoothed[n], SCALES[best[n]], q_default * q_factor[n],
+                               by_scale[n], by_q[n], given, has_ranges, anchor_names, dim)
+    # step 3: the correlation's scale, by evidence (nodes whose range offsets were learned;
+    # their offsets taken off the ranges, so that one model serves the batch)
+    wander = [n for n in nodes if learned[n].offset_m is not None]
+    for q in dict.fromkeys(learned[n].q for n in wander):
+        mine = [n for n in wander if learned[n].q == q]
+        settings = {n: learned[n].bias_settings(np.asarray(CORRELATION_SCALES)[:, None])
+                    for n in mine}
+        items, bias = [], []
+        for c in range(len(CORRELATION_SCALES)):
+            for n in mine:
+                for i, (t, o) in enumerate(_window(nodes[n], EVIDENCE_STEPS)):
+                    items.append(((n, i), t, _offsets_taken_off(
+                        tuned_observations(o, learned[n]))))
+                    bias.append([v[c] for v in settings[n]])
+        bias = tuple(np.stack([b[j] for b in bias]) for j in range(3))
+        _, ev, _ = run(items, q, False, bias)
+        ev3 = {n: np.zeros(len(CORRELATION_SCALES)) for n in mine}
+        for ((n, _), _, _), e, k in zip(items, ev, np.repeat(
+                np.arange(len(CORRELATION_SCALES)), len(items) // len(CORRELATION_SCALES))):
+            ev3[n][k] += e
+        for n in mine:
+            learned[n].correlation_scale = CORRELATION_SCALES[int(np.argmax(ev3[n]))]
+            learned[n].report.update({
+                "correlation_scale": learned[n].correlation_scale,
+                "evidence_by_correlation_scale": dict(zip(map(str, CORRELATION_SCALES),
+                                                          map(float, ev3[n])))})
+    return learned
+
+
+def _offsets_taken_off(observations: list) -> list:
+    """Ranges less each anchor's learned offset, with a model without offsets: the nodes of
+    one batch share a model per kind (their offsets differ), and the innovations are the
+    same."""
+    out = []
+    for o in observations:
+        if o.model.kind == "range" and o.model.offset_m is not None:
+            offset = np.asarray(o.model.offset_m)[o.context.index]
+            o = replace(o, model=replace(o.model, offset_m=None), z=o.z - offset)
+        out.append(o)
+    return out
+
+
+def _step_two(node, tracks: list, smoothed: list, scale: float, q: float, ev_scale,
+              by_q: dict, given: dict, has_ranges: bool, anchor_names: list, dim: int
+              ) -> Learned:
+    """Step 2 for one node: its noise from the residuals at its smoothed tracks
+    (``smoothed``: per track the run, its state layout and the track's batch member)."""
+    learned = Learned(scale=scale, q=q, given=tuple(given))
+    near = sorted(v for v, e in by_q.items() if e >= max(by_q.values()) - 2.0)
+    report = {"scale": scale, "evidence_by_scale": dict(zip(map(str, SCALES),
+                                                            map(float, ev_scale))),
+              "q": q, "q_95": [near[0], near[-1]],
+              "evidence_by_q": {f"{v:g}": e for v, e in sorted(by_q.items())}}
     per_kind: dict[str, list] = {}
-    for b, (times, obs) in enumerate(tracks):
-        times = times[:LEARN_STEPS]
-        obs = [observation_window(o, slice(0, LEARN_STEPS)) for o in obs]
-        for o, r in zip(obs, _residuals(layout, track, obs, b, SCALES[best])):
+    for (times, obs), (track, layout, b) in zip(tracks, smoothed):
+        for o, r in zip(obs, _residuals(layout, track, obs, b, scale)):
             per_kind.setdefault(o.model.kind, []).append((times, r, o))
     for kind, items in per_kind.items():
         k = model_kinds().get(kind)
@@ -454,33 +543,24 @@ def learn_node(node, tracks: list, make_filter, prior, gate: float | None, given
     if has_ranges and "range_std_m" not in given:
         items = per_kind["range"]
         index = items[0][2].context.index
+        track, layout, b = smoothed[0]
         sl = layout.slices["anchor_bias"]
-        bias = track.diagnostics["state"][0, 0, sl]
-        bias_cov = track.diagnostics["state_covariance"][0, 0, sl, sl]
+        bias = track.diagnostics["state"][b, 0, sl]
+        bias_cov = track.diagnostics["state_covariance"][b, 0, sl, sl]
         rn = _range_noise([x[1] for x in items], [x[0] for x in items], index,
                           len(anchor_names), dim, bias, bias_cov,
-                          model_kinds()["range"].sigma_default * SCALES[best], anchor_names)
+                          model_kinds()["range"].sigma_default * scale, anchor_names)
         learned.offset_m, learned.white_m = rn["offset"], rn["white"]
         learned.offset_cov = rn["offset_cov"]
         learned.correlated_m, learned.tau_s = rn["correlated"], rn["tau"]
         report.update({"range_anchors": rn["anchors"], "range_pooled": rn["pooled"],
                        "range_mixture": rn["mixture"]})
-        # step 3: the correlation's scale, by evidence
-        q, tau, var = learned.bias_settings(np.asarray(CORRELATION_SCALES)[:, None])
-        q, tau, var = (np.repeat(v, len(tracks), axis=0) for v in (q, tau, var))
-        _, _, ev3, _ = run(CORRELATION_SCALES, learned.q, q[:, None, :], tau[:, None, :],
-                           lambda o, f: tuned_observations(o, learned), False,
-                           prior_bias_cov=var, steps=EVIDENCE_STEPS)
-        learned.correlation_scale = CORRELATION_SCALES[int(np.argmax(ev3))]
-        report.update({"correlation_scale": learned.correlation_scale,
-                       "evidence_by_correlation_scale": dict(zip(
-                           map(str, CORRELATION_SCALES), map(float, ev3)))})
     learned.report = report
     return learned
 
 
 def tuned_observations(observations: list, learned: Learned) -> list:
-    """A node's observations with what :func:`learn_node` found: ranges with each anchor's
+    """A node's observations with what :func:`learn_nodes` found: ranges with each anchor's
     offset in the model and its white noise per row (the Gauss-Markov part is the filter's
     bias state), the other kinds their learned sigma per row; a row whose std the log
     states keeps it."""
