@@ -694,11 +694,8 @@ def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np
     unit = np.where(np.isfinite(o.z), 1.0, np.nan)          # residuals in metres
     with np.errstate(all="ignore"):
         for k in range(OFFSET_ROUNDS):
-            current = replace(o, z=o.z - offset[index])
-            fit = LeastSquares(max_iterations=TRACK_START_STEPS).locate([current], initial=x)
-            ok &= ~np.asarray(fit.diagnostics["degenerate"])
-            x = np.where(ok[:, None], fit.position, x)
-            r = standardised_residuals([replace(current, std=unit)], fit)[ok]
+            current = replace(o, z=o.z - offset[index], std=unit)
+            r = standardised_residuals([current], fit)[ok]
             heard = np.isfinite(r).sum(0) >= PERSISTENCE_EPOCHS
             step = np.nanmedian(r[:, heard], axis=0)
             if k == 0:    # no anchor's median residual beyond OFFSET_SIGMAS standard errors
@@ -707,6 +704,10 @@ def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np
                 if not np.any(np.abs(step) > OFFSET_SIGMAS * se):
                     return None
             offset[index[heard]] += step
+            fit = LeastSquares(max_iterations=TRACK_START_STEPS).locate(
+                [replace(o, z=o.z - offset[index])], initial=x)
+            ok &= ~np.asarray(fit.diagnostics["degenerate"])
+            x = np.where(ok[:, None], fit.position, x)
     d = (x - x0)[ok][:, :dim]
     if not d.size:
         return None
