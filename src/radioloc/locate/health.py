@@ -666,13 +666,13 @@ def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np
     size do to a method that leaves them in (offsets of 1-4 m per access point in WiFi
     RTT, antenna delays in UWB): its mean square ``(D, D)`` is added to the covariance, a
     systematic error no averaging removes (where an anchor's median residual at the fixes
-    is beyond :data:`OFFSET_SIGMAS` standard errors of 0: on clean ranges nothing is added). Offsets and positions trade off along weakly determined directions, where
-    more rounds drift rather than converge (WiFi RTT Canteen 1, M2: shift 1.7, 2.8, 5.5,
-    10.6 m after 5, 10, 20, 40 rounds): the few rounds give the well-determined part, a
-    lower bound. Returns ``(offsets by anchor-table row (A,),
-    the shift's mean square at each output row (N, D, D), its RMS over the claimed
-    standard deviation)``, or None (fewer than :data:`PERSISTENCE_EPOCHS` epochs, no ranges
-    to three anchors)."""
+    is beyond :data:`OFFSET_SIGMAS` standard errors of 0: on clean ranges nothing is
+    added). Offsets and positions trade off along weakly determined directions, where more
+    rounds drift rather than converge (WiFi RTT Canteen 1, M2: shift 1.7, 2.8, 5.5, 10.6 m
+    after 5, 10, 20, 40 rounds): the few rounds give the well-determined part, a lower
+    bound. Returns ``(offsets by anchor-table row (A,), the shift's mean square at each
+    output row (N, D, D), its RMS over the claimed standard deviation)``, or None (fewer
+    than :data:`PERSISTENCE_EPOCHS` epochs, no ranges to three anchors, no offset)."""
     from radioloc.estimators.fault_exclusion import standardised_residuals
     from radioloc.estimators.least_squares import LeastSquares
 
