@@ -558,7 +558,8 @@ def _snapshot_node(method_name, request, own, node, sigmas):
     if ok.sum() < 5 or n <= ok.sum() * unknowns:
         return None
     scale = _robust_scale(u[used]) * math.sqrt(n / (n - ok.sum() * unknowns))
-    g2, persistent, ratio = _persistence(request, own, node, options, claimed_out[:, :dim, :dim])
+    g2, persistent, ratio = _persistence(own, _track_fits(request, own, node, options),
+                                         claimed_out[:, :dim, :dim])
     t_out = own["time"].to_numpy(dtype=float)
     xyz = own[cols].to_numpy(dtype=float)
     track = np.column_stack([np.interp(times, t_out, xyz[:, k]) for k in range(dim)])
@@ -631,8 +632,10 @@ def _with_persistence(request, node, sigmas: dict, checked: tuple, offsets: bool
     if claimed is None:
         return checked
     options = {name: value for value, name, _ in sigmas.values()}
-    g2, persistent, ratio = _persistence(request, filled, node, options, claimed)
-    shifted = _anchor_offsets(request, filled, node, options, claimed) if offsets else None
+    fixed = _track_fits(request, filled, node, options)       # made once for both searches
+    g2, persistent, ratio = _persistence(filled, fixed, claimed)
+    shifted = (_anchor_offsets(request, filled, node, options, claimed, fixed) if offsets
+               else None)
     if g2 == 0.0 and shifted is None:
         return checked
     added = persistent + (0.0 if shifted is None else shifted[1])
@@ -657,8 +660,8 @@ def _with_persistence(request, node, sigmas: dict, checked: tuple, offsets: bool
     return found, factor, scale, filled
 
 
-def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, float] | None:
+def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np.ndarray,
+                    fixed: tuple | None) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Each anchor's range offset left in the ranges, and how far it moves the fixes: from
     the fixes of each epoch on its own (started at the written track), each anchor's
     offset is the median of its residuals, taken off its ranges and the epochs fixed
@@ -672,17 +675,18 @@ def _anchor_offsets(request, own: pd.DataFrame, node, options: dict, claimed: np
     after 5, 10, 20, 40 rounds): the few rounds give the well-determined part, a lower
     bound. Returns ``(offsets by anchor-table row (A,), the shift's mean square at each
     output row (N, D, D), its RMS over the claimed standard deviation)``, or None (fewer
-    than :data:`PERSISTENCE_EPOCHS` epochs, no ranges to three anchors, no offset)."""
+    than :data:`PERSISTENCE_EPOCHS` epochs, no ranges to three anchors, no offset).
+    ``fixed``: the fixes of :func:`_track_fits` from the whole log, used where ranges are
+    the only kind they read (else the ranges are fixed on their own)."""
     from radioloc.estimators.fault_exclusion import standardised_residuals
     from radioloc.estimators.least_squares import LeastSquares
 
-    meas = request.measurements
-    ranges = meas[meas["kind"] == "range"]
-    if own["time"].nunique() < PERSISTENCE_EPOCHS or ranges.empty:
-        return None
-    fixed = _epoch_fits(request, ranges, node, options, track=own)
-    if fixed is None:
-        return None
+    if fixed is None or [o.model.kind for o in fixed[1]] != ["range"]:
+        meas = request.measurements
+        ranges = meas[meas["kind"] == "range"]
+        fixed = None if ranges.empty else _track_fits(request, own, node, options, ranges)
+        if fixed is None:
+            return None
     _, (o,), fit, _, _ = fixed
     dim = claimed.shape[-1]
     ok = ~np.asarray(fit.diagnostics["degenerate"]) & np.all(np.isfinite(fit.position), -1)
@@ -743,19 +747,28 @@ def _persistent_finding(g2: float, ratio: float) -> tuple[str, dict]:
                   "persistent_to_claimed": round(ratio, 3)}
 
 
-def _persistence(request, own: pd.DataFrame, node, options: dict, claimed: np.ndarray
+def _track_fits(request, own: pd.DataFrame, node, options: dict,
+                meas: pd.DataFrame | None = None):
+    """:func:`_epoch_fits` of the node's epochs (of ``meas``, default the whole log)
+    started at its written track ``own``; None with fewer than :data:`PERSISTENCE_EPOCHS`
+    epochs (too few for the searches that read them) or nothing to fix."""
+    if own["time"].nunique() < PERSISTENCE_EPOCHS:
+        return None
+    return _epoch_fits(request, request.measurements if meas is None else meas, node,
+                       options, track=own)
+
+
+def _persistence(own: pd.DataFrame, fixed: tuple | None, claimed: np.ndarray
                  ) -> tuple[float, np.ndarray, float]:
-    """Errors that persist from epoch to epoch (:func:`_snapshot_node`): ``(g^2, the fixes'
-    covariance under them at each output row (N, D, D), its median standard deviation over
-    the claimed one)``; ``g^2`` 0 when the log shows none. The fixes are made from the rows
-    as logged, at the noise in force: offsets a method learned count as persistent errors
-    here (tried: less the learned offsets, WiFi RTT Conference Room 3 covered 76 %, not 94 %),
-    so where a method learned them the part added is an upper bound."""
+    """Errors that persist from epoch to epoch (:func:`_snapshot_node`), from the fixes of
+    each epoch ``fixed`` (:func:`_track_fits`): ``(g^2, the fixes' covariance under them at
+    each output row (N, D, D), its median standard deviation over the claimed one)``;
+    ``g^2`` 0 when the log shows none. The fixes are made from the rows as logged, at the
+    noise in force: offsets a method learned count as persistent errors here (tried: less
+    the learned offsets, WiFi RTT Conference Room 3 covered 76 %, not 94 %), so where a
+    method learned them the part added is an upper bound."""
     dim = claimed.shape[-1]
     none = 0.0, np.zeros_like(claimed), 0.0
-    if own["time"].nunique() < PERSISTENCE_EPOCHS:
-        return none
-    fixed = _epoch_fits(request, request.measurements, node, options, track=own)
     if fixed is None:
         return none
     times, _, fit, u, _ = fixed
