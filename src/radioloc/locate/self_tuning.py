@@ -429,11 +429,13 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
                         smooth=smooth)
         return track, evidence(track, stacked, gate), ekf.state_layout(stacked)
 
-    def per_node(ev, items):
-        """Each node's evidence summed over its tracks, by node."""
-        total: dict = {}
-        for (key, _, _), e in zip(items, ev):
-            total[key[0]] = total.get(key[0], 0.0) + float(e)
+    def by_node(ev, items, factors: int = 1) -> dict:
+        """Each node's evidence summed over its tracks, per factor tried (``items`` come
+        factor by factor, each factor's the same tracks)."""
+        total = {key[0]: np.zeros(factors) for key, _, _ in items}
+        per = len(items) // factors
+        for j, ((key, _, _), e) in enumerate(zip(items, ev)):
+            total[key[0]][j // per] += e
         return total
 
     win = {n: _window(tracks, LEARN_STEPS) for n, tracks in nodes.items()}
@@ -443,21 +445,16 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
                 for n in nodes for i, (t, o) in enumerate(win[n])]
 
     # step 1: the scale of every sigma (at the default q), then q at that scale, by evidence
-    items = [((n, i), t, _scaled(o, f, given)) for f in SCALES
-             for n in nodes for i, (t, o) in enumerate(win[n])]
-    _, ev, _ = run(items, q_default, False)
-    by_scale = {n: np.zeros(len(SCALES)) for n in nodes}
-    for ((n, _), _, _), e, k in zip(items, ev, np.repeat(np.arange(len(SCALES)),
-                                                        len(items) // len(SCALES))):
-        by_scale[n][k] += e
+    items = [it for f in SCALES for it in at_scale(lambda n, f=f: f)]
+    by_scale = by_node(run(items, q_default, False)[1], items, len(SCALES))
     best = {n: int(np.argmax(by_scale[n])) for n in nodes}
     by_q = {n: {q_default: float(by_scale[n][best[n]])} for n in nodes}
     q_factor = dict.fromkeys(nodes, 1.0)
     for qf in () if q_given else [f for f in Q_FACTORS if f != 1.0]:
         items = at_scale(lambda n: SCALES[best[n]])
-        for n, e in per_node(run(items, q_default * qf, False)[1], items).items():
-            by_q[n][q_default * qf] = e
-            if e > by_q[n][q_default * q_factor[n]]:
+        for n, e in by_node(run(items, q_default * qf, False)[1], items).items():
+            by_q[n][q_default * qf] = float(e[0])
+            if float(e[0]) > by_q[n][q_default * q_factor[n]]:
                 q_factor[n] = qf
     learned, smoothed = {}, {}
     for qf in dict.fromkeys(q_factor.values()):     # the smoothed run, by the q chosen
@@ -484,11 +481,7 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
                         tuned_observations(o, learned[n]))))
                     bias.append([v[c] for v in settings[n]])
         bias = tuple(np.stack([b[j] for b in bias]) for j in range(3))
-        _, ev, _ = run(items, q, False, bias)
-        ev3 = {n: np.zeros(len(CORRELATION_SCALES)) for n in mine}
-        for ((n, _), _, _), e, k in zip(items, ev, np.repeat(
-                np.arange(len(CORRELATION_SCALES)), len(items) // len(CORRELATION_SCALES))):
-            ev3[n][k] += e
+        ev3 = by_node(run(items, q, False, bias)[1], items, len(CORRELATION_SCALES))
         for n in mine:
             learned[n].correlation_scale = CORRELATION_SCALES[int(np.argmax(ev3[n]))]
             learned[n].report.update({
