@@ -49,7 +49,7 @@ from radioloc.locate.adapter import (anchor_positions, given_sigmas, log_observa
 from radioloc.locate.base import LocateRequest, Option, locate_method
 from radioloc.locate.ekf_track import OPTIONS as EKF_OPTIONS
 from radioloc.locate.ekf_track import (learn_tracks, log_models, motion_model, reads_clock,
-                                       segments, track_prior, track_table, track_window,
+                                       segment_tracks, segments, track_prior, track_table, track_window,
                                        tracker_filter, tracker_settings, tuned_prior)
 from radioloc.locate.self_tuning import not_learnable, tuned_observations
 from radioloc.locate.pf import OPTIONS as PF_OPTIONS
@@ -222,8 +222,7 @@ def _tuned(request: LocateRequest, nodes: list, table: pd.DataFrame, s: dict
     white noise does not cover. Returns the track tables and, by node, what was learned."""
     anchors = anchor_positions(table)
     given = given_sigmas(request)
-    tracks = [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
-              for node, _, times, obs in nodes for seg in segments(times, s["max_gap_s"])]
+    tracks = segment_tracks([(node, times, obs) for node, _, times, obs in nodes], s)
     learned = learn_tracks(request, tracks, table, s, 16.0, given)
     loss = request.option("loss", TUNED_LOSS, str)
     if loss not in LOSSES:

@@ -758,6 +758,25 @@ def track_window(times: np.ndarray, observations: list, seg: slice, init_s: floa
             for o in observations]
 
 
+def segment_tracks(parts, s: dict) -> list[tuple[str, np.ndarray, list]]:
+    """``(node, times, observations)`` of every segment (:func:`segments`) of every node of
+    ``parts`` (``(node, times, observations)`` each), each as :func:`track_window` gives it:
+    the tracks the settings are learned from.
+
+    Parameters
+    ----------
+    parts : iterable of (node, times (T,), observations)
+    s : dict
+        From :func:`tracker_settings`.
+
+    Returns
+    -------
+    list of (node, times, observations)
+    """
+    return [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
+            for node, times, obs in parts for seg in segments(times, s["max_gap_s"])]
+
+
 def track_table(node, times, track, restart: bool = False) -> pd.DataFrame:
     """Rows ``time, node, x, y[, z], uncertainty_m, cov_*`` and flags of one node's track.
 

@@ -133,6 +133,7 @@ from radioloc.locate.ekf_track import (
     log_models,
     track_window,
     reads_clock,
+    segment_tracks,
     segments,
     stack_tracks,
     track_prior,
@@ -710,9 +711,7 @@ def learned_ranges(request: LocateRequest, s: dict) -> dict:
         return {}
     table = request.require_anchors("pf")
     log, _, models = log_models(request, meas, table, s, anchor_bias=True)
-    tracks = [(node, times[seg], track_window(times, obs, seg, s["init_s"]))
-              for node, times, obs in log_observations(log, table, models, "pf", s["height"])
-              for seg in segments(times, s["max_gap_s"])]
+    tracks = segment_tracks(log_observations(log, table, models, "pf", s["height"]), s)
     learned = learn_tracks(request, tracks, table, s, 16.0, given)
     return {node: lr for node, lr in learned.items()
             if lr.offset_m is not None and lr.report.get("range_mixture")}
