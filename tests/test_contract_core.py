@@ -21,6 +21,7 @@ from radioloc.models.motion import (
     RandomWalk,
     UniformDisk,
     WhiteAccelerationCV,
+    WhiteJerkCA,
 )
 from radioloc.models.ranging import GaussianRange, range_geometry
 
@@ -144,6 +145,20 @@ def test_uniform_disk_stays_inside_and_logpdf():
     lp = ud.logpdf(np.array([[0.5, 0.0], [1.5, 0.0]]), np.zeros((2, 2)), 0.5)
     np.testing.assert_allclose(lp[0], -np.log(np.pi))
     assert lp[1] == -np.inf
+
+
+@pytest.mark.parametrize("make", [RandomWalk, WhiteAccelerationCV, WhiteJerkCA])
+def test_a_process_noise_per_batch_member_equals_each_members_own_model(make):
+    """``q`` with one value per batch member (a run's steps along the last axis of ``dt``):
+    each member's ``Q`` is that of a model with its own scalar ``q``; batch equals one by
+    one."""
+    q = np.array([0.0, 0.3, 2.0])
+    dt = np.array([[0.1, 1.0], [0.5, 0.0], [2.5, 0.2]])
+    Q = make(q[:, None]).Q(dt)
+    for b in range(3):
+        np.testing.assert_allclose(Q[b], make(float(q[b])).Q(dt[b]), rtol=1e-15)
+    with pytest.raises(ConfigError, match="q"):
+        make(np.array([0.1, -1.0]))
 
 
 def test_motion_models_reject_bad_settings():

@@ -187,13 +187,16 @@ def test_pf_takes_each_anchors_learned_offset_off_its_ranges(seed):
 
 
 def test_a_nodes_learned_settings_do_not_depend_on_the_other_nodes():
-    """Two walkers of different lengths and offsets learned in one batch: each node's
-    learned values and track equal those of a log of that node alone (to 1e-9)."""
+    """Two walkers of different lengths, offsets and speeds learned and tracked in one
+    batch, each with its own process noise: each node's learned values and track equal
+    those of a log of that node alone (to 1e-9)."""
     one, _, _ = walk(5, 0.3, 0.3, 4.0, nlos=0.05, duration_s=120.0)
     two, _, _ = walk(6, 0.6, 0.2, 8.0, duration_s=80.0)
-    two = two.assign(node="tag2")
+    two = two.assign(node="tag2", time=two["time"] * 0.25)     # 4 m/s, 20 Hz
     both = run_method("ekf-track", LocateRequest(pd.concat([one, two], ignore_index=True),
                                                  ANCHORS))
+    learned = both.attrs["summary"]["learned"]
+    assert learned["tag"]["q"] != learned["tag2"]["q"]
     for node, log in (("tag", one), ("tag2", two)):
         alone = run_method("ekf-track", LocateRequest(log, ANCHORS))
         mine = both[both.node == node].reset_index(drop=True)

@@ -80,7 +80,8 @@ from radioloc.locate.path_loss import anchor_rss_model
 from radioloc.locate.odometry import (ODOMETRY_OPTIONS, ODOMETRY_STD_M,
                                       has_odometry, odometry_controls, odometry_motion)
 from radioloc.locate.progress import progress
-from radioloc.locate.self_tuning import learn_nodes, not_learnable, tuned_observations
+from radioloc.locate.self_tuning import (learn_nodes, not_learnable, offsets_taken_off,
+                                         tuned_observations)
 from radioloc.locate.health import divergence, noise_in_force, snapshot_scale
 from radioloc.locate.slips import likely_slip
 from radioloc.locate.table import covariance_columns
@@ -1015,25 +1016,31 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
         learned = learn_tracks(request, [tr[:3] for tr in tracks], table, s, gate, given)
         tracks = [(node, t, tuned_observations(o, learned[node]), r, c)
                   for node, t, o, r, c in tracks]
-    # one filter per group of tracks that share settings: every track, or each node's
-    groups = ([[b for b, tr in enumerate(tracks) if tr[0] == node] for node in learned]
-              if learned else [list(range(len(tracks)))])
+    # one filter per form of state: the learned settings differ per node, each batch member
+    # (a track) takes its node's (process noise, anchor-bias wander and start; the learned
+    # range offsets come off its ranges, so that one range model serves the batch)
+    wander = [b for b, tr in enumerate(tracks)
+              if tr[0] in learned and learned[tr[0]].offset_m is not None]
+    groups = [g for g in (wander, [b for b in range(len(tracks)) if b not in set(wander)]) if g]
     rows = sum(int(np.isfinite(o.z).sum()) for tr in tracks for o in tr[2])
     results: dict[int, object] = {}
     with progress(rows + (len(peers) if peers is not None else 0), "ekf-track") as bar:
         for group in groups:
             mine = [tracks[b] for b in group]
-            lr = learned.get(mine[0][0])
-            if lr is not None and lr.offset_m is not None:
-                bq, btau, bcov = lr.bias_settings()
-                ekf = tracker_filter(anchors, dict(s, q=lr.q), gate, True, bias_prior, clock,
-                                     bq, btau, bias_terms=2)
-                priors = [tuned_prior(ekf, tr[1], tr[2], anchors, s, bcov) for tr in mine]
+            lrs = [learned.get(tr[0]) for tr in mine]
+            q = np.array([s["q"] if lr is None else lr.q for lr in lrs])[:, None]   # (B, steps)
+            if group is wander:
+                bias = [lr.bias_settings() for lr in lrs]
+                ekf = tracker_filter(anchors, dict(s, q=q), gate, True, bias_prior, clock,
+                                     np.stack([b[0] for b in bias])[:, None, :],
+                                     np.stack([b[1] for b in bias])[:, None, :], bias_terms=2)
+                priors = [tuned_prior(ekf, tr[1], tr[2], anchors, s, b[2])
+                          for tr, b in zip(mine, bias)]
                 prior_mean = np.stack([p[0] for p in priors])
                 prior_cov = np.stack([p[1] for p in priors])
+                mine = [(node, t, offsets_taken_off(o), r, c) for node, t, o, r, c in mine]
             else:
-                ekf = tracker_filter(anchors, dict(s, q=lr.q) if lr else s, gate, anchor_bias,
-                                     bias_prior, clock)
+                ekf = tracker_filter(anchors, dict(s, q=q), gate, anchor_bias, bias_prior, clock)
                 prior_mean, prior_cov = track_priors(   # ranges already without range_bias_m
                     ekf, [(f"method ekf-track: node {node!r} from time {float(times[0])!r}",
                            times, obs) for node, times, obs, _, _ in mine], anchors,

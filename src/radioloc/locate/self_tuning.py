@@ -59,7 +59,7 @@ from radioloc.core.errors import GeometryError, InputError
 from radioloc.core.kinds import model_kinds
 
 __all__ = ["CORRELATION_SCALES", "Q_FACTORS", "SCALES", "Learned", "learn_nodes",
-           "learned_noise", "not_learnable", "tuned_observations"]
+           "learned_noise", "not_learnable", "offsets_taken_off", "tuned_observations"]
 
 #: Factors on every kind's default sigma tried in step 1.
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
@@ -352,17 +352,18 @@ def learn_nodes(nodes: dict, make_filter, prior, gate: float | None, given: dict
                 q_default: float, anchor_names: list, dim: int, q_given: bool = False
                 ) -> dict:
     """Learn each node's settings from its tracks (module docstring), the nodes' runs in one
-    batch: each filter run holds every track of every node (nodes whose settings differ
-    where the filter shares them, the process noise, run in as many batches), so a log of
-    many nodes costs about as many time steps as its longest node. A node's result is
-    that of its run alone: the batch members do not interact.
+    batch: each filter run holds every track of every node (each with its own process noise
+    and anchor-bias settings), so a log of many nodes costs about as many time steps as its
+    longest node. A node's result is that of its run alone: the batch members do not
+    interact.
 
     Parameters
     ----------
     nodes : dict of str to list of (times (T,), observations)
         Each node's segments.
     make_filter : callable
-        ``make_filter(q, bias_std, tau, bias_terms)`` -> ExtendedKalmanFilter (``bias_terms``
+        ``make_filter(q, bias_std, tau, bias_terms)`` -> ExtendedKalmanFilter (``q`` of shape
+        ``(B, 1)``, one per batch member, broadcast over the time steps; ``bias_terms``
         0: no anchor bias, the node has no ranges; else its anchor
         biases as :func:`radioloc.locate.ekf_track.tracker_filter` takes them).
     prior : callable
@@ -410,9 +411,11 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
     from radioloc.locate.ekf_track import stack_tracks
 
     def run(items, q, smooth, bias=None):
-        """One filter over ``items`` (node, times, observations); ``bias``: per item the
-        bias states' driving noise, time constants and prior covariance (step 3). Returns
-        the track, each item's evidence and the state layout."""
+        """One filter over ``items`` (node, times, observations); ``q``: the process noise,
+        one or per item; ``bias``: per item the bias states' driving noise, time constants
+        and prior covariance (step 3). Returns the track, each item's evidence and the state
+        layout."""
+        q = np.broadcast_to(np.asarray(q, dtype=float), (len(items),))[:, None]  # (B, steps)
         ekf = make_filter(q, 0.0 if bias is None else bias[0][:, None, :],
                           None if bias is None else bias[1][:, None, :],
                           0 if not has_ranges else 1 if bias is None else 2)
@@ -450,39 +453,41 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
     best = {n: int(np.argmax(by_scale[n])) for n in nodes}
     by_q = {n: {q_default: float(by_scale[n][best[n]])} for n in nodes}
     q_factor = dict.fromkeys(nodes, 1.0)
-    for qf in () if q_given else [f for f in Q_FACTORS if f != 1.0]:
-        items = at_scale(lambda n: SCALES[best[n]])
-        for n, e in by_node(run(items, q_default * qf, False)[1], items).items():
-            by_q[n][q_default * qf] = float(e[0])
-            if float(e[0]) > by_q[n][q_default * q_factor[n]]:
-                q_factor[n] = qf
+    tried = () if q_given else [f for f in Q_FACTORS if f != 1.0]
+    if tried:                                 # every other factor in one run
+        items = [it for _ in tried for it in at_scale(lambda n: SCALES[best[n]])]
+        ev = by_node(run(items, q_default * np.repeat(tried, len(items) // len(tried)),
+                         False)[1], items, len(tried))
+        for n, e in ev.items():
+            for qf, v in zip(tried, e):
+                by_q[n][q_default * qf] = float(v)
+                if float(v) > by_q[n][q_default * q_factor[n]]:
+                    q_factor[n] = qf
     learned, smoothed = {}, {}
-    for qf in dict.fromkeys(q_factor.values()):     # the smoothed run, by the q chosen
-        mine = [n for n in nodes if q_factor[n] == qf]
-        items = [it for it in at_scale(lambda n: SCALES[best[n]]) if it[0][0] in mine]
-        track, _, layout = run(items, q_default * qf, True)
-        for b, ((n, i), _, _) in enumerate(items):
-            smoothed.setdefault(n, []).append((track, layout, b))
+    items = at_scale(lambda n: SCALES[best[n]])   # the smoothed run, at the q chosen
+    track, _, layout = run(items, [q_default * q_factor[key[0]] for key, _, _ in items], True)
+    for b, ((n, i), _, _) in enumerate(items):
+        smoothed.setdefault(n, []).append((track, layout, b))
     for n in nodes:
         learned[n] = _step_two(n, win[n], smoothed[n], SCALES[best[n]], q_default * q_factor[n],
                                by_scale[n], by_q[n], given, has_ranges, anchor_names, dim)
     # step 3: the correlation's scale, by evidence (nodes whose range offsets were learned;
     # their offsets taken off the ranges, so that one model serves the batch)
     wander = [n for n in nodes if learned[n].offset_m is not None]
-    for q in dict.fromkeys(learned[n].q for n in wander):
-        mine = [n for n in wander if learned[n].q == q]
+    if wander:
         settings = {n: learned[n].bias_settings(np.asarray(CORRELATION_SCALES)[:, None])
-                    for n in mine}
+                    for n in wander}
         items, bias = [], []
         for c in range(len(CORRELATION_SCALES)):
-            for n in mine:
+            for n in wander:
                 for i, (t, o) in enumerate(_window(nodes[n], EVIDENCE_STEPS)):
-                    items.append(((n, i), t, _offsets_taken_off(
+                    items.append(((n, i), t, offsets_taken_off(
                         tuned_observations(o, learned[n]))))
                     bias.append([v[c] for v in settings[n]])
         bias = tuple(np.stack([b[j] for b in bias]) for j in range(3))
-        ev3 = by_node(run(items, q, False, bias)[1], items, len(CORRELATION_SCALES))
-        for n in mine:
+        ev3 = by_node(run(items, [learned[key[0]].q for key, _, _ in items], False, bias)[1],
+                      items, len(CORRELATION_SCALES))
+        for n in wander:
             learned[n].correlation_scale = CORRELATION_SCALES[int(np.argmax(ev3[n]))]
             learned[n].report.update({
                 "correlation_scale": learned[n].correlation_scale,
@@ -491,7 +496,7 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
     return learned
 
 
-def _offsets_taken_off(observations: list) -> list:
+def offsets_taken_off(observations: list) -> list:
     """Ranges less each anchor's learned offset, with a model without offsets: the nodes of
     one batch share a model per kind (their offsets differ), and the innovations are the
     same."""

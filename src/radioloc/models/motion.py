@@ -21,7 +21,7 @@ import numpy as np
 
 from radioloc.core.errors import ConfigError, InputError
 from radioloc.core.kinds import Kind, Slip
-from radioloc.core.validation import as_float_array, check_positive
+from radioloc.core.validation import as_float_array, check_positive, check_positive_values
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -42,6 +42,12 @@ def _as_dt(dt: object) -> np.ndarray:
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(d) | (d < 0))[0]) if d.ndim else ()
         raise InputError(f"dt: time steps must be finite and >= 0 s, bad value at index {bad}")
     return d
+
+
+def _per_member(q, blocks: np.ndarray) -> np.ndarray:
+    """``blocks`` ``(..., b, b)`` scaled by ``q``: a scalar, or an array with one value per
+    batch member (broadcast against the leading axes of ``dt``)."""
+    return np.asarray(q)[..., None, None] * blocks
 
 
 def _kron_blocks(blocks: np.ndarray, dim: int) -> np.ndarray:
@@ -125,14 +131,15 @@ class RandomWalk(MotionModel):
 
     Parameters
     ----------
-    q_m2_per_s : float
-        Diffusion rate ``q`` in m^2/s (the position variance grows by ``q dt`` per axis).
+    q_m2_per_s : float or ndarray
+        Diffusion rate ``q`` in m^2/s (the position variance grows by ``q dt`` per axis); an
+        array gives each member of a batch its own (its shape broadcasts against ``dt``'s).
     dim : int
         Position coordinates D (2 or 3; 1 for a line).
     """
 
     def __init__(self, q_m2_per_s: float, dim: int = 2) -> None:
-        self.q_m2_per_s = check_positive(q_m2_per_s, "q_m2_per_s", allow_zero=True)
+        self.q_m2_per_s = check_positive_values(q_m2_per_s, "q_m2_per_s")
         self.dim = _check_dim(dim)
         self.state_dim = self.dim
 
@@ -140,7 +147,7 @@ class RandomWalk(MotionModel):
         return np.ones(dt.shape + (1, 1))
 
     def _axis_Q(self, dt):
-        return (self.q_m2_per_s * dt)[..., None, None]
+        return _per_member(self.q_m2_per_s, dt[..., None, None])
 
     def __repr__(self) -> str:
         return f"RandomWalk(q_m2_per_s={self.q_m2_per_s}, dim={self.dim})"
@@ -281,14 +288,15 @@ class WhiteAccelerationCV(MotionModel):
 
     Parameters
     ----------
-    q : float
-        Spectral density of the acceleration, m^2/s^3 per axis (>= 0).
+    q : float or ndarray
+        Spectral density of the acceleration, m^2/s^3 per axis (>= 0); an array gives each
+        member of a batch its own (its shape broadcasts against ``dt``'s).
     dim : int
         Position coordinates D.
     """
 
     def __init__(self, q: float, dim: int = 2) -> None:
-        self.q = check_positive(q, "q", allow_zero=True)
+        self.q = check_positive_values(q, "q")
         self.dim = _check_dim(dim)
         self.state_dim = 2 * self.dim
 
@@ -297,8 +305,8 @@ class WhiteAccelerationCV(MotionModel):
         return np.stack([np.stack([one, dt], -1), np.stack([zero, one], -1)], -2)
 
     def _axis_Q(self, dt):
-        return self.q * np.stack([np.stack([dt**3 / 3, dt**2 / 2], -1),
-                                  np.stack([dt**2 / 2, dt], -1)], -2)
+        return _per_member(self.q, np.stack([np.stack([dt**3 / 3, dt**2 / 2], -1),
+                                             np.stack([dt**2 / 2, dt], -1)], -2))
 
     def __repr__(self) -> str:
         return f"WhiteAccelerationCV(q={self.q}, dim={self.dim})"
@@ -348,8 +356,9 @@ class WhiteJerkCA(WhiteAccelerationCV):
 
     Parameters
     ----------
-    q : float
-        Spectral density of the jerk, m^2/s^5 per axis (>= 0).
+    q : float or ndarray
+        Spectral density of the jerk, m^2/s^5 per axis (>= 0); an array gives each member of
+        a batch its own (its shape broadcasts against ``dt``'s).
     dim : int
         Position coordinates D.
     """
@@ -363,7 +372,7 @@ class WhiteJerkCA(WhiteAccelerationCV):
     def _axis_Q(self, dt):
         rows = [[dt**5 / 20, dt**4 / 8, dt**3 / 6], [dt**4 / 8, dt**3 / 3, dt**2 / 2],
                 [dt**3 / 6, dt**2 / 2, dt]]
-        return self.q * np.stack([np.stack(r, -1) for r in rows], -2)
+        return _per_member(self.q, np.stack([np.stack(r, -1) for r in rows], -2))
 
     def __repr__(self) -> str:
         return f"WhiteJerkCA(q={self.q}, dim={self.dim})"
