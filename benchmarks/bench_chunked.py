@@ -1,6 +1,6 @@
 """Peak memory and throughput of ``radioloc locate`` on long logs read in chunks.
 
-Rows, for ``ekf-track`` (``-o tune=0``: its default learns from the whole log), ``lsq`` and
+Rows, for ``ekf-track`` (its defaults: the settings learned in a first pass), ``lsq`` and
 ``gn`` (``lsq`` and ``gn`` with ``-o on_degenerate=skip``: the log has a few epochs that do not
 fix a position) on a log of :mod:`long_log` (10 tags,
 6 anchors) written to a CSV file, each command in a process of its own:
@@ -87,8 +87,7 @@ def main(sizes: tuple[int, ...] = (1_000_000, 10_000_000)) -> list[dict]:
             folder = tmp / f"log{n}"
             write_long_log(n, folder)
             for method in METHODS:
-                extra = ["-q", "-o"] + (["tune=0"] if method == "ekf-track"   # the chunked path
-                                        else ["on_degenerate=skip"])
+                extra = ["-q"] + ([] if method == "ekf-track" else ["-o", "on_degenerate=skip"])
                 peak_of_command(_locate(small, method, tmp / "warm.csv", extra), env)
                 chunked = peak_of_command(_locate(folder, method, tmp / "c.csv", extra), env)
                 whole = (peak_of_command(_locate(folder, method, tmp / "w.csv",

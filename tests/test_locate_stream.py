@@ -94,6 +94,30 @@ def test_chunks_of_any_size_give_the_batch_causal_run(log, expected):
     assert summary["rows_out"] == len(expected) and summary["restarts"] == 1
 
 
+def test_settings_learned_on_a_recorded_log_give_the_batch_run_that_learned_them(log):
+    """``Tracker(learned=...)`` with what ``ekf-track`` learns from a recorded log (each
+    node its own noise, process noise and anchor offsets): the batch run's tracks, whose
+    filter learned them (its covariances may be widened by the health check, which a stream
+    does not run)."""
+    from radioloc.locate.ekf_track import learn_log
+
+    options = {k: v for k, v in OPTIONS.items() if k not in ("q", "tune")}
+    request = LocateRequest(log.reset_index(drop=True), ANCHORS, options=dict(options))
+    run_method("ekf-track", request)               # parses the options, as a run does
+    learned, short = learn_log(request)
+    assert short is None and set(learned) == {"t1", "t2"}
+    assert learned["t1"].offset_m is not None
+    expected = run_method("ekf-track", LocateRequest(log.reset_index(drop=True), ANCHORS,
+                                                     options=dict(options)))
+    tracker = Tracker("ekf-track", ANCHORS, options, learned=learned)
+    out = streamed(tracker, random_chunks(log, np.random.default_rng(4)))
+    assert len(out) == len(expected)
+    assert (out["node"].to_numpy() == expected["node"].to_numpy()).all()
+    for c in ("time", "x", "y", "gated", "restart"):
+        np.testing.assert_allclose(out[c].to_numpy(float), expected[c].to_numpy(float),
+                                   rtol=0, atol=1e-9, err_msg=c)
+
+
 def test_rows_shuffled_within_the_window_are_placed(log, expected):
     rng = np.random.default_rng(1)
     arrival = log["time"].to_numpy() + rng.uniform(0, 0.45, len(log))   # window 0.5 s

@@ -18,7 +18,11 @@ file, written under a temporary name and renamed at the end
   first pass (:func:`radioloc.locate.gauss_newton.pooled_std`);
 - ``ekf-track`` runs the streaming :class:`~radioloc.locate.stream.Tracker` (the batch
   causal run's filter step, its state carried from chunk to chunk), without reorder
-  window: the chunks come in time order.
+  window: the chunks come in time order. The settings it learns from the log (``tune=1``,
+  the default; :mod:`radioloc.locate.self_tuning`) are learned in a first pass, from the
+  rows of each node's first :data:`~radioloc.locate.self_tuning.LEARN_STEPS` steps, the
+  rows the whole run learns from (:func:`_learned`), and the Tracker runs each node with
+  its own.
 
 A chunked run gives the whole run's estimates (to rounding, 1e-9) with these differences,
 which hold the same for a log in one chunk: the health check and the plausibility checks
@@ -32,8 +36,10 @@ listed chunk by chunk).
 
 The whole run takes over, from the start and with nothing written, where a chunked run could
 not give its result: a file that is not plain CSV (quotes, blank lines, a byte-order mark;
-a Parquet file is read a batch at a time, its cells as CSV text), rows out of time order across chunks, odometry rows (``ekf-track``), estimates of
-another set of columns in a later chunk, a log that fits one chunk; and on any error
+a Parquet file is read a batch at a time, its cells as CSV text), rows out of time order
+across chunks, odometry rows (``ekf-track``), a log whose first steps are too few to learn
+from while later rows of the node might not be, estimates of another set of columns in a
+later chunk, a log that fits one chunk; and on any error
 (:class:`~radioloc.core.errors.RadiolocError`): a log the whole run refuses is refused by
 it, with its message, and a chunk whose rows alone would be refused (an all-degenerate
 stretch, a check that a few rows fail) does not refuse a log the whole run takes.
@@ -65,11 +71,9 @@ CHUNKED_METHODS = ("ekf-track", "lsq", "gn")
 #: Distinct warnings of the chunks shown (the others are counted in one more).
 MAX_WARNINGS = 10
 #: Options of each method that need the whole log at once when on (with their defaults):
-#: the smoother, the cooperative tracks and the settings learned from the log (``tune``, on
-#: by default: ``-o tune=0`` runs ``ekf-track`` in chunks) of ``ekf-track``; ``gn``'s fault
-#: exclusion without a stated noise, whose test takes its sigma from the fixes of the whole
-#: log.
-WHOLE_LOG_OPTIONS = {"ekf-track": {"smooth": "0", "cooperative": "0", "tune": "1"},
+#: the smoother and the cooperative tracks of ``ekf-track``; ``gn``'s fault exclusion without
+#: a stated noise, whose test takes its sigma from the fixes of the whole log.
+WHOLE_LOG_OPTIONS = {"ekf-track": {"smooth": "0", "cooperative": "0"},
                      "gn": {"exclude_faults": "0"}}
 
 
@@ -216,6 +220,43 @@ def _pooled_std(path, rows, anchors, not_detected, opts, frame) -> tuple[float, 
     return pooled_std(total) if total["epochs"] else None
 
 
+def _learned(path, rows, anchors, not_detected, opts, frame) -> tuple[dict, str | None]:
+    """``ekf-track``'s settings learned from the log
+    (:func:`radioloc.locate.ekf_track.learn_log`), by a first pass that keeps each node's
+    rows up to its :data:`~radioloc.locate.self_tuning.LEARN_STEPS`-th time with a row to an
+    anchor (or of a kind it measures itself): the steps the whole run learns from."""
+    from radioloc.core.kinds import kinds as declared_kinds
+    from radioloc.locate.ekf_track import learn_log
+    from radioloc.locate.self_tuning import LEARN_STEPS
+
+    ids = set(anchors["id"].astype(str)) if anchors is not None else set()
+    own = {k for k, declared in declared_kinds().items() if declared.self_measured}
+    kept, steps, beyond = [], {}, set()
+    for _, chunk in _chunks(path, rows, anchors, not_detected, {}):
+        step = chunk["peer"].isin(ids) | chunk["kind"].isin(own)
+        keep = np.zeros(len(chunk), dtype=bool)
+        for node, where in chunk.groupby("node", sort=False).indices.items():
+            times = np.unique(chunk["time"].to_numpy()[where[step.to_numpy()[where]]])
+            room = LEARN_STEPS - steps.get(node, 0)
+            if room <= 0:
+                beyond.add(node)
+                continue
+            last = times[room - 1] if times.size > room else np.inf
+            keep[where] = chunk["time"].to_numpy()[where] <= last
+            beyond.update([node] if times.size > room else [])
+            steps[node] = steps.get(node, 0) + min(times.size, room)
+        kept.append(chunk[keep])
+    log = pd.concat(kept, ignore_index=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        request = LocateRequest(log, anchors, options=chunk_options(opts), frame=frame)
+        prepare_method("ekf-track", request)
+        learned, short = learn_log(request)
+    if beyond and short is not None:   # a node's later rows could teach what these do not
+        raise GiveWay("whether the settings can be learned needs the whole log")
+    return learned, short
+
+
 def _rescaled(out: pd.DataFrame, pooled: tuple[float, str]) -> pd.DataFrame:
     """A ``gn`` chunk's estimates with the covariance of the log's pooled standard deviation
     in place of the chunk's own."""
@@ -274,15 +315,18 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
            if not (method_name == "gn" and stated)):
         return None
     try:
-        pooled = None
+        pooled = learned = None
         if method_name == "gn" and not stated:
             pooled = _pooled_std(path, rows, anchors, not_detected, opts, frame)
+        if method_name == "ekf-track" and str(opts.get("tune", "1")).strip().lower() not in (
+                "0", "false", "no", "off"):
+            learned = _learned(path, rows, anchors, not_detected, opts, frame)
         with warnings.catch_warnings(record=True) as seen, \
                 atomic_open(out, "wb" if fmt == "parquet" else "w",
                             newline=None if fmt == "parquet" else "") as fh:
             warnings.simplefilter("always")
             summary = _run(method_name, path, rows, anchors, not_detected, opts, frame,
-                           pooled, fh, fmt)
+                           pooled, fh, fmt, learned)
     except (GiveWay, RadiolocError):
         return None
     distinct = list({str(w.message): w for w in seen}.values())
@@ -294,21 +338,26 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
     return summary
 
 
-def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh, fmt
-         ) -> dict:
-    """The chunks of :func:`locate_in_chunks` through the method, written to ``fh``."""
+def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh, fmt,
+         learned=None) -> dict:
+    """The chunks of :func:`locate_in_chunks` through the method, written to ``fh``
+    (``learned``: ``ekf-track``'s settings and why not, :func:`_learned`)."""
     unknown: dict = {}
     nodes: dict = {}
     summary = {"rows_read": 0, "rows_out": 0, "chunks": 0}
     writer = _Writer(fh, fmt, nodes, frame)
     heard: dict[str, set] = {"range": set(), "rss": set()}
     tracker, pending = None, None
+    settings, short = learned if learned is not None else ({}, None)
+    reports = {"learned": {str(n): lr.report for n, lr in settings.items()}} if settings else {}
 
     def add(request, estimates, rerun):
         estimates = checked_output(chosen, request, estimates, rerun=rerun,
                                    node_order=list(nodes))
-        merge_summaries(summary, estimates.attrs["summary"])
+        merge_summaries(summary, {k: v for k, v in estimates.attrs["summary"].items()
+                                  if k != "learned"})           # the run's, added once
         summary["rows_out"] += len(estimates)
+        estimates.attrs = {}          # pandas copies them with every slice the writer takes
         writer.add(estimates)
 
     for raw, chunk in _chunks(path, rows, anchors, not_detected, unknown):
@@ -334,15 +383,17 @@ def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh
             from radioloc.locate.stream import Tracker
 
             tracker = Tracker(method_name, anchors, {k: v for k, v in opts.items()
-                                                     if k != "no_check"}, reorder_s=0.0)
+                                                     if k not in ("no_check", "tune")},
+                              reorder_s=0.0, learned=settings)
         pending = chunk if pending is None else pd.concat([pending, chunk], ignore_index=True)
-        pending = _add_tracked(tracker.update(raw), pending, request, add)
+        pending = _add_tracked(tracker.update(raw), pending, request, add, reports)
         # a later estimate is at the time of a row not yet estimated, or of a later chunk
         writer.flush(float(pending["time"].min()) if len(pending) else math.inf)
     if tracker is not None:
-        _add_tracked(tracker.close(), pending, request, add)
+        _add_tracked(tracker.close(), pending, request, add, reports)
         counts = tracker.summary()
-        summary.update(nodes=counts["nodes"], restarts=counts["restarts"])
+        summary.update(nodes=counts["nodes"], restarts=counts["restarts"], **reports,
+                       **({"tune": short} if short else {}))
     _check_peers(unknown, nodes, path)
     check_geometry(heard, request, opts.get("no_check"))
     writer.close()
@@ -350,15 +401,16 @@ def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh
 
 
 def _add_tracked(estimates: pd.DataFrame, pending: pd.DataFrame, request: LocateRequest,
-                 add) -> pd.DataFrame:
+                 add, reports: dict) -> pd.DataFrame:
     """Check a tracker's estimates with the rows they are made of (each node's pending rows
-    up to its latest estimate; ``request``: the latest chunk's) and hold them for writing;
-    the rows not yet estimated are returned."""
+    up to its latest estimate; ``request``: the latest chunk's; ``reports``: what was
+    learned, which the health check judges them against) and hold them for writing; the
+    rows not yet estimated are returned."""
     if estimates.empty:
         return pending
     latest = estimates.groupby("node")["time"].max()
     done = pending["time"].to_numpy() <= pending["node"].map(latest).to_numpy(dtype=float)
-    estimates.attrs["summary"] = {}
+    estimates.attrs["summary"] = dict(reports)
     add(replace(request, measurements=pending[done].reset_index(drop=True)), estimates, None)
     return pending[~done].reset_index(drop=True)
 

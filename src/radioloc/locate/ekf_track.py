@@ -60,6 +60,7 @@ start).
 from __future__ import annotations
 
 import warnings
+from types import SimpleNamespace
 from dataclasses import replace
 
 import numpy as np
@@ -963,6 +964,59 @@ def log_models(request: LocateRequest, meas: pd.DataFrame, table: pd.DataFrame, 
     return log, opts, models
 
 
+def _log_tracks(request: LocateRequest, meas: pd.DataFrame) -> SimpleNamespace:
+    """The tracks of the log ``meas`` and the settings they run with (the first part of
+    :func:`track_log`): ``table``, ``anchors``, ``s`` (:func:`tracker_settings`), ``gate``,
+    ``anchor_bias``, ``given``, ``tune`` (the settings are learned), ``short`` (why not,
+    where the log cannot teach them), ``meas`` (less ``range_bias_m``), ``opts`` (the noise
+    in force), ``parts`` (per node) and ``tracks`` ``(node, times, observations, restart,
+    controls)``."""
+    table = request.require_anchors("ekf-track")
+    anchors = anchor_positions(table)
+    s = tracker_settings(request, anchors)
+    given = given_sigmas(request)
+    tune = (request.option("tune", True, bool) and s["odometry_std"] is None
+            and not request.option("cooperative", False, bool))
+    short = not_learnable(meas, given) if tune else None
+    tune = tune and short is None
+    if s["bias"]:
+        meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
+                                          meas["value"]))
+    anchor_bias = bool(request.option("anchor_bias", False, bool))
+    log, opts, models = log_models(request, meas, table, s, anchor_bias or (
+        tune and "range_std_m" not in given and bool((meas["kind"] == "range").any())))
+    parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
+             in log_observations(log, table, models, "ekf-track", s["height"])]
+    tracks = []
+    for node, times, obs, segs in parts:
+        for n, seg in enumerate(segs):
+            controls = (None if s["odometry_std"] is None else
+                        odometry_controls(meas, node, times[seg], s["dim"]))
+            tracks.append((node, times[seg], track_window(times, obs, seg, s["init_s"]), n > 0,
+                           controls))
+    return SimpleNamespace(table=table, anchors=anchors, s=s, gate=request.option("gate", 16.0)
+                           or None, anchor_bias=anchor_bias, given=given, tune=tune,
+                           short=short, meas=meas, opts=opts, parts=parts, tracks=tracks)
+
+
+def learn_log(request: LocateRequest) -> tuple[dict, str | None]:
+    """The settings ``ekf-track`` learns from the log of ``request`` (as :func:`track_log`
+    learns them; for a run that tracks in chunks, :mod:`radioloc.locate.chunked`).
+
+    Returns
+    -------
+    learned : dict of node to Learned
+        Empty where nothing is learned.
+    short : str or None
+        Why the log cannot teach them (None: it can, or ``tune=0``).
+    """
+    k = _log_tracks(request, request.measurements)
+    if not k.tune:
+        return {}, k.short
+    return learn_tracks(request, [tr[:3] for tr in k.tracks], k.table, k.s, k.gate,
+                        k.given), None
+
+
 def track_log(request: LocateRequest, meas: pd.DataFrame):
     """Every node's track from the log ``meas`` (the body of ``locate --method ekf-track``).
 
@@ -983,37 +1037,16 @@ def track_log(request: LocateRequest, meas: pd.DataFrame):
     noise : dict
         The noise options in force.
     """
-    table = request.require_anchors("ekf-track")
-    anchors = anchor_positions(table)
-    s = tracker_settings(request, anchors)
-    gate = request.option("gate", 16.0) or None
-    anchor_bias = bool(request.option("anchor_bias", False, bool))
-    given = given_sigmas(request)
-    tune = (request.option("tune", True, bool) and s["odometry_std"] is None
-            and not request.option("cooperative", False, bool))
-    short = not_learnable(meas, given) if tune else None
-    tune = tune and short is None
-    if s["bias"]:
-        meas = meas.assign(value=np.where(meas["kind"] == "range", meas["value"] - s["bias"],
-                                          meas["value"]))
-    log, opts, models = log_models(request, meas, table, s, anchor_bias or (
-        tune and "range_std_m" not in given and bool((meas["kind"] == "range").any())))
-    parts = [(node, times, obs, segments(times, s["max_gap_s"])) for node, times, obs
-             in log_observations(log, table, models, "ekf-track", s["height"])]
-    tracks = []   # (node, times, observations, restart, controls) of every track
-    for node, times, obs, segs in parts:
-        for n, seg in enumerate(segs):
-            controls = (None if s["odometry_std"] is None else
-                        odometry_controls(meas, node, times[seg], s["dim"]))
-            tracks.append((node, times[seg], track_window(times, obs, seg, s["init_s"]), n > 0,
-                           controls))
+    k = _log_tracks(request, meas)
+    table, anchors, s, gate, anchor_bias = k.table, k.anchors, k.s, k.gate, k.anchor_bias
+    meas, opts, parts, tracks, short = k.meas, k.opts, k.parts, k.tracks, k.short
     clock = any(reads_clock(tr[2]) for tr in tracks)
     bias_prior = request.option("bias_prior_std_m", 3.0)
     peers = (peer_ranges(meas, table["id"]) if request.option("cooperative", False, bool)
              else None)
     learned = {}
-    if tune:                 # each node's settings from its own rows (locate.self_tuning)
-        learned = learn_tracks(request, [tr[:3] for tr in tracks], table, s, gate, given)
+    if k.tune:               # each node's settings from its own rows (locate.self_tuning)
+        learned = learn_tracks(request, [tr[:3] for tr in tracks], table, s, gate, k.given)
         tracks = [(node, t, tuned_observations(o, learned[node]), r, c)
                   for node, t, o, r, c in tracks]
     # one filter per form of state: the learned settings differ per node, each batch member

@@ -6,7 +6,8 @@ before); an option given with ``-o`` is used as given and not learned. Everythin
 per node, from that node's rows only (the nodes' filter runs share one batch,
 :func:`learn_nodes`, and do not interact), in three steps:
 
-Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_STEPS`).
+Each node's first :data:`LEARN_STEPS` steps are read, over its tracks in time order (step 3:
+:data:`EVIDENCE_STEPS`).
 
 1. **Scale and process noise by evidence.** The node's tracks are filtered (extended Kalman
    filter, with a constant range bias per anchor in the state when the log has ranges) with
@@ -35,7 +36,7 @@ Each track's first :data:`LEARN_STEPS` steps are read (step 3: :data:`EVIDENCE_S
 3. **Correlation by evidence.** The filter runs again with what step 2 found (each
    anchor's bias a constant about its learned offset, with the offsets' covariance, plus a
    Gauss-Markov part), for each factor of :data:`CORRELATION_SCALES` on ``sigma_g``, over
-   the first :data:`EVIDENCE_STEPS` steps of each track; the largest evidence wins.
+   the node's first :data:`EVIDENCE_STEPS` steps; the largest evidence wins.
 
 Each learned value is reported in ``summary.json`` (``learned``, by node) with a 95 %
 interval: a standard deviation ``s`` from ``n_eff`` effectively independent rows has
@@ -73,12 +74,16 @@ MIN_ANCHOR_ROWS = 30
 LAGS = 10
 #: Longest time constant learned, s (longer: a random walk would do as well).
 MAX_TAU_S = 60.0
-#: Steps of each track (its first) from which the noise is learned (steps 1 and 2: the
-#: smoothed run keeps every step's covariance for each of :data:`SCALES`, so its memory
-#: grows with them).
+#: Steps of each node (its first, over its tracks) from which the noise is learned (steps 1
+#: and 2: the smoothed run keeps every step's covariance for each of :data:`SCALES`, so its
+#: memory grows with them).
 LEARN_STEPS = 5000
-#: Steps of each track whose evidence chooses the correlation scale (step 3).
+#: Steps of each node (its first) whose evidence chooses the correlation scale (step 3).
 EVIDENCE_STEPS = 2000
+#: Tracks times steps of one filter run that only weighs evidence (steps 1 and 3; more run
+#: in parts): every step keeps its state covariance, so this bounds the memory of learning
+#: (about 0.2-0.5 GB) however many nodes the log holds.
+MAX_ITEM_STEPS = 200_000
 
 
 @dataclass
@@ -398,11 +403,17 @@ def learn_nodes(nodes: dict, make_filter, prior, gate: float | None, given: dict
 
 
 def _window(tracks: list, steps: int) -> list:
-    """Each track's first ``steps`` steps."""
+    """A node's first ``steps`` steps, over its tracks in time order: a run that reads the
+    log in chunks learns from the same rows (:mod:`radioloc.locate.chunked`)."""
     from radioloc.locate.ekf_track import observation_window
 
-    return [(t[:steps], [observation_window(o, slice(0, steps)) for o in obs])
-            for t, obs in tracks]
+    out = []
+    for t, obs in tracks:
+        if steps <= 0:
+            break
+        out.append((t[:steps], [observation_window(o, slice(0, steps)) for o in obs]))
+        steps -= t.size
+    return out
 
 
 def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given, q_default,
@@ -410,20 +421,17 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
     """:func:`learn_nodes` for nodes that all have ranges, or none."""
     from radioloc.locate.ekf_track import stack_tracks
 
-    def run(items, q, smooth, bias=None):
-        """One filter over ``items`` (node, times, observations); ``q``: the process noise,
-        one or per item; ``bias``: per item the bias states' driving noise, time constants
-        and prior covariance (step 3). Returns the track, each item's evidence and the state
-        layout."""
-        q = np.broadcast_to(np.asarray(q, dtype=float), (len(items),))[:, None]  # (B, steps)
-        ekf = make_filter(q, 0.0 if bias is None else bias[0][:, None, :],
+    asked = {}       # each track's start, the same for every factor tried
+
+    def filtered(items, q, smooth, bias):
+        ekf = make_filter(q[:, None], 0.0 if bias is None else bias[0][:, None, :],
                           None if bias is None else bias[1][:, None, :],
                           0 if not has_ranges else 1 if bias is None else 2)
-        means, covs, asked = [], [], {}
+        means, covs = [], []
         for b, (key, t, o) in enumerate(items):
             bias_cov = None if bias is None else bias[2][b]
             k = (key, None if bias_cov is None else bias_cov.tobytes())
-            if k not in asked:                 # the same for every factor tried
+            if k not in asked:
                 asked[k] = prior(ekf, t, o, bias_cov)
             means.append(asked[k][0])
             covs.append(asked[k][1])
@@ -431,6 +439,21 @@ def _learn_group(nodes: dict, has_ranges: bool, make_filter, prior, gate, given,
         track = ekf.run(stacked, t, prior_mean=np.stack(means), prior_cov=np.stack(covs),
                         smooth=smooth)
         return track, evidence(track, stacked, gate), ekf.state_layout(stacked)
+
+    def run(items, q, smooth, bias=None):
+        """The filter over ``items`` (node, times, observations); ``q``: the process noise,
+        one or per item; ``bias``: per item the bias states' driving noise, time constants
+        and prior covariance (step 3). Returns the track (None where the items ran in
+        parts: :data:`MAX_ITEM_STEPS`), each item's evidence and the state layout."""
+        q = np.broadcast_to(np.asarray(q, dtype=float), (len(items),))
+        steps = max(t.size for _, t, _ in items)
+        size = len(items) if smooth else max(1, MAX_ITEM_STEPS // steps)
+        if size >= len(items):
+            return filtered(items, q, smooth, bias)
+        parts = [filtered(items[a:a + size], q[a:a + size], smooth,
+                          None if bias is None else tuple(v[a:a + size] for v in bias))[1:]
+                 for a in range(0, len(items), size)]          # each part's track let go
+        return None, np.concatenate([p[0] for p in parts]), parts[0][1]
 
     def by_node(ev, items, factors: int = 1) -> dict:
         """Each node's evidence summed over its tracks, per factor tried (``items`` come

@@ -44,9 +44,10 @@ from radioloc.estimators.extended_kalman import FilterState
 from radioloc.io.logs import MEASUREMENT_COLUMNS, MOTION_KINDS, corrected_ranges
 from radioloc.locate.adapter import anchor_positions, moving_anchors, slot_context
 from radioloc.locate.base import LocateRequest, check_request, method
-from radioloc.locate.ekf_track import (log_models, reads_clock, stack_tracks, start_screened,
-                                       track_columns, track_priors, tracker_filter,
-                                       tracker_settings)
+from radioloc.locate.ekf_track import (given_sigmas, log_models, reads_clock, stack_tracks,
+                                       start_screened, track_columns, track_priors,
+                                       tracker_filter, tracker_settings, tuned_prior)
+from radioloc.locate.self_tuning import offsets_taken_off, tuned_observations
 from radioloc.models.measurement import Observation
 
 #: Methods a :class:`Tracker` runs (causal trackers).
@@ -54,8 +55,8 @@ STREAM_METHODS = ("ekf-track",)
 #: Default reorder window, seconds.
 REORDER_S = 0.5
 #: Options of the method that need the whole log, refused by the stream (live tracking
-#: runs the fixed defaults and what -o gives: learn the settings on a recorded log first,
-#: `radioloc.locate.self_tuning`).
+#: runs the fixed defaults and what -o gives, or the settings learned on a recorded log:
+#: ``Tracker(learned=...)``, :func:`radioloc.locate.ekf_track.learn_log`).
 OFFLINE_OPTIONS = ("smooth", "cooperative", "tune")
 #: The kinds in the order a step's observations are updated (the batch run's: by name).
 KINDS = tuple(sorted(declared_kinds()))
@@ -90,9 +91,10 @@ class _Track:
     held: list = field(default_factory=list)     # Rows before the start
     t0: float = math.nan                         # time of its first step
     last: float = math.nan                       # time of its latest step
-    ekf: object = None
+    ekf: object = None                           # the filter, or the form of a learned one
     state: FilterState | None = None             # after its latest step
     streak: int = 0                              # the gate's (ExtendedKalmanFilter.run)
+    settings: tuple | None = None                # learned: q, bias noise, bias time constants
 
 
 def row_columns(rows) -> tuple[dict[str, list], int]:
@@ -194,6 +196,10 @@ class Tracker:
     reorder_s : float
         Reorder window, seconds: rows up to this much older than the latest time seen are
         placed; older ones are late (left out, counted).
+    learned : dict of node to Learned, optional
+        Settings learned from a recorded log of these nodes
+        (:func:`radioloc.locate.ekf_track.learn_log`): each node named runs with its own, as
+        the batch run that learned them (a node not named: the fixed defaults and ``-o``).
 
     Examples
     --------
@@ -210,7 +216,8 @@ class Tracker:
     """
 
     def __init__(self, method_name: str = "ekf-track", anchors: pd.DataFrame | None = None,
-                 options: dict | None = None, reorder_s: float = REORDER_S):
+                 options: dict | None = None, reorder_s: float = REORDER_S,
+                 learned: Mapping | None = None):
         if method_name not in STREAM_METHODS:
             raise ConfigError(f"method {method_name!r}: not a streaming method; the Tracker "
                               f"takes {', '.join(STREAM_METHODS)}")
@@ -234,6 +241,10 @@ class Tracker:
         self._s = tracker_settings(request, self._anchors)
         self._gate = request.option("gate", 16.0) or None
         self._anchor_bias = bool(request.option("anchor_bias", False, bool))
+        self._learned = dict(learned or {})
+        # the range models of a learning run read the anchor biases (ekf_track.track_log)
+        self._model_bias = self._anchor_bias or (bool(self._learned)
+                                                 and "range_std_m" not in given_sigmas(request))
         self._anchor_ids = set(self._table["id"].astype(str))
         self._moving = moving_anchors(self._table)
         self._no_check = frozenset(value_checks().values())
@@ -377,7 +388,7 @@ class Tracker:
             one = pd.DataFrame({"time": [0.0], "node": [""], "peer": [peer], "kind": [kind],
                                 "value": [0.0]})
             _, _, models = log_models(self._request, one, self._table, self._s,
-                                      self._anchor_bias)
+                                      self._model_bias)
             self._models.setdefault(kind, models[kind])
         bias = bias_std = math.nan
         if kind == "range" and "bias_m" in self._table.columns:
@@ -443,7 +454,8 @@ class Tracker:
                     track.held.append(window)
                     track.last = float(t[-1])
                 else:
-                    items.append((node, track, *self._observations(window)))
+                    times_, obs = self._observations(window)
+                    items.append((node, track, times_, self._learned_rows(node, obs)[1]))
         return items
 
     def _observations(self, rows: Rows) -> tuple[np.ndarray, list[Observation]]:
@@ -486,18 +498,56 @@ class Tracker:
         times, obs = self._observations(rows)
         obs = [start_screened(times, o, self._s["init_s"]) for o in obs]
         clock = reads_clock(obs)
-        if clock not in self._filters:
-            self._filters[clock] = tracker_filter(
-                self._anchors, self._s, self._gate, self._anchor_bias,
-                self._request.option("bias_prior_std_m", 3.0), clock)
-        track.ekf = self._filters[clock]
+        obs, run_obs = self._learned_rows(node, obs)
+        lr = self._learned.get(node)
+        form = "fixed" if lr is None else "learned" if lr.offset_m is None else "wander"
+        if (clock, form) not in self._filters:     # the shared filter, or a learned one's form
+            self._filters[clock, form] = tracker_filter(
+                self._anchors, self._s, self._gate, form == "wander" or self._anchor_bias,
+                self._request.option("bias_prior_std_m", 3.0), clock,
+                bias_terms=2 if form == "wander" else 1)
+        track.ekf = self._filters[clock, form]
         s = dict(self._s, bias=0.0)      # the values are already without range_bias_m
-        mean, cov = track_priors(track.ekf, [(f"node {node!r} from time {float(times[0])!r}",
-                                              times, obs)],
-                                 self._anchors, s, self._anchor_bias)
-        track.state = track.ekf.init(mean[0], cov[0], float(times[0]), observations=obs)
+        if form == "wander":
+            bias_q, bias_tau, bias_cov = lr.bias_settings()
+            mean, cov = tuned_prior(track.ekf, times, obs, self._anchors, s, bias_cov)
+            mean, cov = mean[None], cov[None]
+            track.settings = (lr.q, bias_q, bias_tau)
+        else:
+            mean, cov = track_priors(track.ekf, [(f"node {node!r} from time "
+                                                  f"{float(times[0])!r}", times, obs)],
+                                     self._anchors, s, self._anchor_bias)
+            track.settings = None if lr is None else (lr.q, 0.0, None)
+        track.state = track.ekf.init(mean[0], cov[0], float(times[0]), observations=run_obs)
         track.last = float(times[0])
-        return node, track, times, obs
+        return node, track, times, run_obs
+
+    def _learned_rows(self, node: str, obs: list) -> tuple[list, list]:
+        """A node's observations with its learned noise and range offsets
+        (:func:`radioloc.locate.self_tuning.tuned_observations`), and as its filter reads
+        them (the offsets off the ranges, so that one range model serves a batch of
+        nodes)."""
+        lr = self._learned.get(node)
+        if lr is None:
+            return obs, obs
+        obs = tuned_observations(obs, lr)
+        return obs, offsets_taken_off(obs)
+
+    def _batch_filter(self, tracks: list):
+        """The filter of a batch of tracks: the shared one, or one with each track's learned
+        process noise and anchor-bias settings (as the batch run makes it)."""
+        if tracks[0].settings is None:
+            return tracks[0].ekf
+        wander = tracks[0].ekf.layout.n_bias > 0 and tracks[0].settings[2] is not None
+        q = np.array([tr.settings[0] for tr in tracks])[:, None]            # (B, steps)
+        bias = ((np.stack([tr.settings[1] for tr in tracks])[:, None, :],
+                 np.stack([tr.settings[2] for tr in tracks])[:, None, :]) if wander
+                else (0.0, None))
+        return tracker_filter(self._anchors, dict(self._s, q=q), self._gate,
+                              wander or self._anchor_bias,
+                              self._request.option("bias_prior_std_m", 3.0),
+                              tracks[0].state.layout.clock > 0, *bias,
+                              bias_terms=2 if wander else 1)
 
     def _filter(self, items: list) -> list[tuple]:
         """Filter tracks through their new steps: ``items`` of ``(node, track, times,
@@ -516,8 +566,8 @@ class Tracker:
         state = FilterState(np.stack([tr.state.mean for tr in tracks]),
                             np.stack([tr.state.covariance for tr in tracks]),
                             np.array([tr.last for tr in tracks]), tracks[0].state.layout)
-        run = tracks[0].ekf.run(obs, t, state=state,
-                                streak=np.array([tr.streak for tr in tracks]))
+        run = self._batch_filter(tracks).run(obs, t, state=state,
+                                             streak=np.array([tr.streak for tr in tracks]))
         d = run.diagnostics
         out = []
         for b, (node, track, times, _) in enumerate(items):
