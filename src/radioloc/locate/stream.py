@@ -454,8 +454,8 @@ class Tracker:
                     track.held.append(window)
                     track.last = float(t[-1])
                 else:
-                    times_, obs = self._observations(window)
-                    items.append((node, track, times_, self._learned_rows(node, obs)[1]))
+                    steps, obs = self._observations(window)
+                    items.append((node, track, steps, self._learned_rows(node, obs)[1]))
         return items
 
     def _observations(self, rows: Rows) -> tuple[np.ndarray, list[Observation]]:
@@ -538,7 +538,7 @@ class Tracker:
         process noise and anchor-bias settings (as the batch run makes it)."""
         if tracks[0].settings is None:
             return tracks[0].ekf
-        wander = tracks[0].ekf.layout.n_bias > 0 and tracks[0].settings[2] is not None
+        wander = tracks[0].settings[2] is not None        # the anchor biases wander
         q = np.array([tr.settings[0] for tr in tracks])[:, None]            # (B, steps)
         bias = ((np.stack([tr.settings[1] for tr in tracks])[:, None, :],
                  np.stack([tr.settings[2] for tr in tracks])[:, None, :]) if wander
