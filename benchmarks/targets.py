@@ -70,17 +70,28 @@ BOUNDS: dict[str, str] = {
         "wait for each other: wall time is about twice the CPU time, against 1.5 for the peer.",
     "radioloc --help": "imports typer, click and rich; typer 0.29 also imports pydantic.",
     "radioloc locate pf, 1e+05-row log (10 tags, 6 anchors)":
-        "every segment of every tag in one P2PParticleFilter batch (1753 steps): measured in "
-        "process at load 5 (12.0 s in all), the filter loop 7.2 s, of which the compiled link "
-        "update 3.8 s (sqrt, erfc, two exp per particle-link, 9e7 of them) and about 3 s of "
-        "NumPy and Python per step (the gate, the misfit, the motion's F and Q per segment); "
-        "the LOS/NLOS EM fits 1.6 s, the health check 1.3 s, imports, CSV and the EKF passes "
-        "for the residuals and start states the rest.",
+        "a profile (pyinstrument, quiet machine, 15.8 s in all): learning the settings 7.4 s "
+        "(the trackers' EKF over every node's steps, 4.4 s, the start fits 0.8 s, the "
+        "LOS/NLOS EM fits 1.5 s), the particle filter 4.0 s (its segments in one batch per "
+        "learned q; drawing the motion noise 2.2 s of it), the health check, imports and the "
+        "CSV the rest.",
     "radioloc locate ekf-track, 1e+06-row log (10 tags, 6 anchors)":
-        "the generic EKF's Python loop over 17.5k steps (every track in one batch): about "
-        "0.15 ms of CPU per step, 2.7 s in all, half of it the Joseph-form update and a "
-        "sixth the NIS; then the CSV read (pyarrow, 0.7 s), writing 1.2M floats (0.7 s), "
-        "imports (0.5 s) and the plausibility checks (0.2 s).",
+        "a profile (pyinstrument, quiet machine, 42 s with the profiler): learning the "
+        "settings 14 s (13 filter runs over each node's first 5,000 steps), the tracks 10 s "
+        "(every tag in one batch with its learned settings, 16 states: one sequential EKF "
+        "update per row in NumPy, some 40 calls on the batch), the health check 13 s (the "
+        "windows' robust fits 7 s: 31 IRLS passes over every row; the epoch fixes of the "
+        "persistence test 4 s), reading, writing and imports 4 s.",
+    "radioloc locate gn, 1e+06-row log (10 tags, 6 anchors)":
+        "a profile (pyinstrument, 20 s of CPU with the profiler): the health check 15 s (the "
+        "windows' robust fits 8.6 s, 31 IRLS passes over every row, which do not converge "
+        "early on real logs; the epoch fixes of the persistence test 3.7 s); the method "
+        "itself (the epochs table and the Gauss-Newton solve of 175k epochs) about 1 s, "
+        "reading the CSV 1.5 s, imports 1.3 s.",
+    "radioloc locate smoother, 1e+05-row log (10 tags, 6 anchors)":
+        "a profile (pyinstrument, loaded machine, 31 s of CPU with the profiler): each "
+        "node's batch smoother 21 s (its banded Gauss-Newton solves, scipy's solveh_banded, "
+        "13 s; its own start filter 4 s), learning the settings 9 s.",
     "range-only bootstrap PF, 4 anchors, 2-D random walk, N=1e5":
         "the general particle filter's step, one kernel per part of Algorithm 2 (no fused "
         "step): 4.3 ms of wall per step of 1e5 particles on 2 cores in make bench, where 10x "
