@@ -90,3 +90,33 @@ def test_network_and_single_sensor_methods_count_their_rows(monkeypatch, tmp_pat
         lines = _lines(runner.invoke(app, ["locate", str(tmp_path / "walk.csv"), "--anchors",
                                            str(tmp_path / "sensor.csv"), "--method", method]))
         assert lines and lines[-1]["done"] == lines[-1]["total"] == str(len(rows))
+
+
+@pytest.mark.parametrize("method, options", [("ekf-track", []), ("lsq", []), ("gn", [])])
+def test_a_run_in_chunks_counts_the_rows_of_the_log(monkeypatch, log, tmp_path, method,
+                                                    options):
+    """``--chunk-rows``: the rows of every chunk once estimated, of the whole file's rows
+    (and the first pass, as rows read: ekf-track's, which learns its settings, and gn's,
+    which pools its noise)."""
+    folder, n_rows = log
+    monkeypatch.setattr(progress_module, "LINE_EVERY_S", 0.0)
+    res = runner.invoke(app, ["locate", str(folder / "m.csv"), "--anchors",
+                              str(folder / "anchors.csv"), "--method", method, "--out",
+                              str(tmp_path / "o.csv"), "--chunk-rows", "20", *options])
+    assert res.exit_code == 0, res.output
+    passes: dict = {}
+    for line in res.stderr.splitlines():
+        m = re.match(r"^(?P<what>[a-z-]+(?: \((?:learning|noise) pass\))?): "
+                     r"(?P<done>[\d,]+) of (?P<total>[\d,]+) rows \(\d+ %\) after \d+ s$", line)
+        if m:
+            passes.setdefault(m["what"], []).append(
+                (int(m["done"].replace(",", "")), int(m["total"].replace(",", ""))))
+    first = {"ekf-track": {"ekf-track (learning pass)"}, "gn": {"gn (noise pass)"}}
+    expected = {method} | first.get(method, set())
+    assert set(passes) == expected, res.stderr
+    for counts in passes.values():
+        done = [d for d, _ in counts]
+        assert {t for _, t in counts} == {n_rows}
+        assert done == sorted(done) and done[-1] == n_rows
+    summary = (tmp_path / "o.summary.json").read_text()
+    assert '"chunks"' in summary                       # the chunked path ran

@@ -61,6 +61,7 @@ from radioloc.core.errors import RadiolocError
 from radioloc.io.logs import (MOTION_KINDS, measurement_blocks, measurements_of_cells,
                               refuse_unknown_peer, subtract_anchor_bias, write_csv_rows)
 from radioloc.locate.base import LocateRequest, checked_output, prepare_method
+from radioloc.locate.progress import progress, show_progress
 
 __all__ = ["CHUNK_ROWS", "CHUNKED_METHODS", "locate_in_chunks"]
 
@@ -116,6 +117,21 @@ def _chunks(path: Path, rows: int, anchors: pd.DataFrame | None, not_detected: f
         if not held.all():
             chunk = block[~held].reset_index(drop=True)
             yield chunk, subtract_anchor_bias(chunk, anchors)
+
+
+def rows_in(path: Path) -> int:
+    """The rows of a measurements file, for the progress of a run in chunks: a CSV file's
+    lines less its header (counted at disk speed), a Parquet file's rows (its metadata)."""
+    if Path(path).suffix.lower() == ".parquet":
+        import pyarrow.parquet as pq
+
+        return int(pq.ParquetFile(path).metadata.num_rows)
+    lines, last = 0, b"\n"
+    with open(path, "rb") as fh:
+        while block := fh.read(1 << 24):
+            lines += block.count(b"\n")
+            last = block[-1:]
+    return max(lines + (last != b"\n") - 1, 0)
 
 
 def merge_summaries(into: dict, more: dict) -> dict:
@@ -203,28 +219,33 @@ class _Writer:
             self.parquet.close()
 
 
-def _pooled_std(path, rows, anchors, not_detected, opts, frame) -> tuple[float, str] | None:
+def _pooled_std(path, rows, anchors, not_detected, opts, frame, n_rows: int
+                ) -> tuple[float, str] | None:
     """``gn``'s range error standard deviation pooled over every chunk and where it came
     from (:func:`radioloc.locate.gauss_newton.pooled_std`; None: no epoch fixed), by a first
-    pass of the method over the log."""
+    pass of the method over the log (``n_rows``: the log's rows, for the progress)."""
     from radioloc.locate.gauss_newton import pooled_std
 
     total = {"sum_sq_m2": 0.0, "dof": 0.0, "epochs": 0}
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), progress(n_rows, "gn (noise pass)") as bar:
         warnings.simplefilter("ignore")
         for _, chunk in _chunks(path, rows, anchors, not_detected, {}):
             request = LocateRequest(chunk, anchors, options=chunk_options(opts), frame=frame)
-            part = prepare_method("gn", request).fn(request).attrs["summary"].get("pooled")
+            with show_progress(False):
+                part = prepare_method("gn", request).fn(request).attrs["summary"].get("pooled")
             for key in total if part is not None else ():
                 total[key] += part[key]
+            bar.advance(len(chunk))
     return pooled_std(total) if total["epochs"] else None
 
 
-def _learned(path, rows, anchors, not_detected, opts, frame) -> tuple[dict, str | None]:
+def _learned(path, rows, anchors, not_detected, opts, frame, total: int
+             ) -> tuple[dict, str | None]:
     """``ekf-track``'s settings learned from the log
     (:func:`radioloc.locate.ekf_track.learn_log`), by a first pass that keeps each node's
     rows up to its :data:`~radioloc.locate.self_tuning.LEARN_STEPS`-th time with a row to an
-    anchor (or of a kind it measures itself): the steps the whole run learns from."""
+    anchor (or of a kind it measures itself): the steps the whole run learns from
+    (``total``: the log's rows, for the progress)."""
     from radioloc.core.kinds import kinds as declared_kinds
     from radioloc.locate.ekf_track import learn_log
     from radioloc.locate.self_tuning import LEARN_STEPS
@@ -232,20 +253,10 @@ def _learned(path, rows, anchors, not_detected, opts, frame) -> tuple[dict, str 
     ids = set(anchors["id"].astype(str)) if anchors is not None else set()
     own = {k for k, declared in declared_kinds().items() if declared.self_measured}
     kept, steps, beyond = [], {}, set()
-    for _, chunk in _chunks(path, rows, anchors, not_detected, {}):
-        step = chunk["peer"].isin(ids) | chunk["kind"].isin(own)
-        keep = np.zeros(len(chunk), dtype=bool)
-        for node, where in chunk.groupby("node", sort=False).indices.items():
-            times = np.unique(chunk["time"].to_numpy()[where[step.to_numpy()[where]]])
-            room = LEARN_STEPS - steps.get(node, 0)
-            if room <= 0:
-                beyond.add(node)
-                continue
-            last = times[room - 1] if times.size > room else np.inf
-            keep[where] = chunk["time"].to_numpy()[where] <= last
-            beyond.update([node] if times.size > room else [])
-            steps[node] = steps.get(node, 0) + min(times.size, room)
-        kept.append(chunk[keep])
+    with progress(total, "ekf-track (learning pass)") as bar:
+        for _, chunk in _chunks(path, rows, anchors, not_detected, {}):
+            bar.advance(len(chunk))
+            kept.append(_first_steps(chunk, ids, own, steps, beyond, LEARN_STEPS))
     log = pd.concat(kept, ignore_index=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -255,6 +266,26 @@ def _learned(path, rows, anchors, not_detected, opts, frame) -> tuple[dict, str 
     if beyond and short is not None:   # a node's later rows could teach what these do not
         raise GiveWay("whether the settings can be learned needs the whole log")
     return learned, short
+
+
+def _first_steps(chunk: pd.DataFrame, ids: set, own: set, steps: dict, beyond: set,
+                 limit: int) -> pd.DataFrame:
+    """The rows of ``chunk`` within each node's first ``limit`` times with a row to an
+    anchor (``ids``) or of a kind it measures itself (``own``); ``steps`` counts each node's
+    times so far and ``beyond`` gathers the nodes with later rows (both updated)."""
+    step = chunk["peer"].isin(ids) | chunk["kind"].isin(own)
+    keep = np.zeros(len(chunk), dtype=bool)
+    for node, where in chunk.groupby("node", sort=False).indices.items():
+        times = np.unique(chunk["time"].to_numpy()[where[step.to_numpy()[where]]])
+        room = limit - steps.get(node, 0)
+        if room <= 0:
+            beyond.add(node)
+            continue
+        last = times[room - 1] if times.size > room else np.inf
+        keep[where] = chunk["time"].to_numpy()[where] <= last
+        beyond.update([node] if times.size > room else [])
+        steps[node] = steps.get(node, 0) + min(times.size, room)
+    return chunk[keep]
 
 
 def _rescaled(out: pd.DataFrame, pooled: tuple[float, str]) -> pd.DataFrame:
@@ -316,17 +347,19 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
         return None
     try:
         pooled = learned = None
+        total = rows_in(path)
         if method_name == "gn" and not stated:
-            pooled = _pooled_std(path, rows, anchors, not_detected, opts, frame)
+            pooled = _pooled_std(path, rows, anchors, not_detected, opts, frame, total)
         if method_name == "ekf-track" and str(opts.get("tune", "1")).strip().lower() not in (
                 "0", "false", "no", "off"):
-            learned = _learned(path, rows, anchors, not_detected, opts, frame)
+            learned = _learned(path, rows, anchors, not_detected, opts, frame, total)
         with warnings.catch_warnings(record=True) as seen, \
                 atomic_open(out, "wb" if fmt == "parquet" else "w",
                             newline=None if fmt == "parquet" else "") as fh:
             warnings.simplefilter("always")
-            summary = _run(method_name, path, rows, anchors, not_detected, opts, frame,
-                           pooled, fh, fmt, learned)
+            with progress(total, method_name) as bar:
+                summary = _run(method_name, path, rows, anchors, not_detected, opts, frame,
+                               pooled, fh, fmt, learned, bar)
     except (GiveWay, RadiolocError):
         return None
     distinct = list({str(w.message): w for w in seen}.values())
@@ -339,21 +372,23 @@ def locate_in_chunks(method_name: str, path: Path, anchors: pd.DataFrame | None,
 
 
 def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh, fmt,
-         learned=None) -> dict:
+         learned=None, bar=None) -> dict:
     """The chunks of :func:`locate_in_chunks` through the method, written to ``fh``
-    (``learned``: ``ekf-track``'s settings and why not, :func:`_learned`)."""
+    (``learned``: ``ekf-track``'s settings and why not, :func:`_learned`; ``bar``: the
+    progress, advanced by each chunk's rows once they are estimated)."""
     unknown: dict = {}
     nodes: dict = {}
     summary = {"rows_read": 0, "rows_out": 0, "chunks": 0}
     writer = _Writer(fh, fmt, nodes, frame)
     heard: dict[str, set] = {"range": set(), "rss": set()}
-    tracker, pending = None, None
+    tracker, pending, previous = None, None, None
     settings, short = learned if learned is not None else ({}, None)
     reports = {"learned": {str(n): lr.report for n, lr in settings.items()}} if settings else {}
 
     def add(request, estimates, rerun):
-        estimates = checked_output(chosen, request, estimates, rerun=rerun,
-                                   node_order=list(nodes))
+        with show_progress(False):               # the run's progress counts the chunks
+            estimates = checked_output(chosen, request, estimates, rerun=rerun,
+                                       node_order=list(nodes))
         merge_summaries(summary, {k: v for k, v in estimates.attrs["summary"].items()
                                   if k != "learned"})           # the run's, added once
         summary["rows_out"] += len(estimates)
@@ -361,6 +396,9 @@ def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh
         writer.add(estimates)
 
     for raw, chunk in _chunks(path, rows, anchors, not_detected, unknown):
+        if bar is not None and previous is not None:
+            bar.advance(len(previous))             # the chunk before is estimated
+        previous = chunk
         summary["rows_read"] += len(chunk)
         summary["chunks"] += 1
         nodes.update(dict.fromkeys(chunk["node"].unique()))
@@ -369,7 +407,8 @@ def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh
         request = LocateRequest(chunk, anchors, options=chunk_options(opts), frame=frame)
         chosen = prepare_method(method_name, request)
         if method_name != "ekf-track":
-            estimates = chosen.fn(request)
+            with show_progress(False):
+                estimates = chosen.fn(request)
             if pooled is not None and "pooled" in estimates.attrs["summary"]:
                 estimates = _rescaled(estimates, pooled)
             add(request, estimates, chosen.fn)
@@ -394,6 +433,8 @@ def _run(method_name, path, rows, anchors, not_detected, opts, frame, pooled, fh
         counts = tracker.summary()
         summary.update(nodes=counts["nodes"], restarts=counts["restarts"], **reports,
                        **({"tune": short} if short else {}))
+    if bar is not None and previous is not None:
+        bar.advance(len(previous))
     _check_peers(unknown, nodes, path)
     check_geometry(heard, request, opts.get("no_check"))
     writer.close()

@@ -514,9 +514,9 @@ class Tracker:
             mean, cov = mean[None], cov[None]
             track.settings = (lr.q, bias_q, bias_tau)
         else:
-            mean, cov = track_priors(track.ekf, [(f"node {node!r} from time "
-                                                  f"{float(times[0])!r}", times, obs)],
-                                     self._anchors, s, self._anchor_bias)
+            label = f"node {node!r} from time {float(times[0])!r}"
+            mean, cov = track_priors(track.ekf, [(label, times, obs)], self._anchors, s,
+                                     self._anchor_bias)
             track.settings = None if lr is None else (lr.q, 0.0, None)
         track.state = track.ekf.init(mean[0], cov[0], float(times[0]), observations=run_obs)
         track.last = float(times[0])
