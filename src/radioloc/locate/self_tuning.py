@@ -80,9 +80,9 @@ MAX_TAU_S = 60.0
 LEARN_STEPS = 5000
 #: Steps of each node (its first) whose evidence chooses the correlation scale (step 3).
 EVIDENCE_STEPS = 2000
-#: Tracks times steps of one filter run that only weighs evidence (steps 1 and 3; more run
-#: in parts): every step keeps its state covariance, so this bounds the memory of learning
-#: (about 0.2-0.5 GB) however many nodes the log holds.
+#: Most track-steps (tracks times their steps) in one filter run that only weighs evidence
+#: (steps 1 and 3; more run in parts): every step keeps its state covariance, so this bounds
+#: the memory of learning (about 0.2-0.5 GB) however many nodes the log holds.
 MAX_ITEM_STEPS = 200_000
 
 
