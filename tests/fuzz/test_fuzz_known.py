@@ -222,6 +222,15 @@ def test_ekf_track_noise_beyond_the_stated_std_is_not_called_a_slip(scenarios, w
     assert "look diverged" in res.stderr and "too small for this log?" in res.stderr, res.stderr
 
 
+@pytest.mark.parametrize("q", ["0.0", "1e-9"])
+def test_pseudoranges_fitted_exactly_by_a_motionless_track(scenarios, workdir, q):
+    """Noise-free pseudoranges and no process noise (``-o q=0``): the fixes of each epoch
+    fit their rows exactly (residual scale 0), which the health check divided by."""
+    sc, meas, args = _case(workdir, scenarios, "pseudorange", options={"q": q},
+                           name=f"pseudorange-q{q}")
+    _assert_clean(run(args), sc, meas)
+
+
 @pytest.mark.parametrize("mistake", ["ranges_mm", "ranges_km", "anchors_km", "no_bias_flag"])
 def test_calibrate_misfit_is_refused(workdir, mistake):
     """calibrate put a rough anchor 19.6 m to 11 km off claiming 5 cm to 2 m (ranges in mm or

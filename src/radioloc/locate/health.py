@@ -598,7 +598,7 @@ def _snapshot_node(method_name, request, own, node, sigmas):
         figures.update(more)
     if not checks:
         return [], factor, scale, filled
-    v = u[used] / (scale if scale < SCALE_LIMIT else 1.0)
+    v = u[used] / (scale if 0 < scale < SCALE_LIMIT else 1.0)     # 0: rows fitted exactly
     longer, shorter = float(np.mean(v > 3)), float(np.mean(v < -3))
     if longer > NLOS_SHARE and longer > NLOS_RATIO * shorter:
         cause = ("nlos", (f"NLOS: {100 * longer:.0f} % of the rows lie 3 sigma or more "
